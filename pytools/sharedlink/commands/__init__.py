@@ -1,0 +1,1 @@
+"""Sub-commands of the ``sharedlink`` CLI, one module each."""
