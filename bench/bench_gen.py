@@ -6,7 +6,6 @@ import time
 from pathlib import Path
 
 from bench import Result
-
 from sharedlink.gen import GenOptions, beacon_payloads, generate_file
 
 GEN_FRAMES = 200_000

@@ -16,15 +16,14 @@ import sys
 from collections.abc import Sequence
 
 from . import __version__
+from .errors import UsageError
 
 #: sub-command modules, in the order ``--help`` lists them
 COMMANDS = ["gen"]
 
+__all__ = ["UsageError", "main", "build_parser"]
+
 EXIT_OK, EXIT_FAIL, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
-
-
-class UsageError(Exception):
-    """Bad input: printed as ``sharedlink: error: ...``, exit code 2."""
 
 
 def build_parser() -> argparse.ArgumentParser:
