@@ -95,7 +95,7 @@ def decode_packet(linktype: int, data: bytes) -> Datagram | None:
     too short. Never raises."""
     try:
         return _decode(linktype, data)
-    except (struct.error, IndexError, ValueError):
+    except (struct.error, IndexError, ValueError, OSError):
         return None
 
 
