@@ -143,10 +143,14 @@ def _decode(linktype: int, data: bytes) -> Datagram | None:
     else:
         return None
     if proto == 17:
+        if len(data) < off + 8:
+            return None
         sport, dport, ulen = struct.unpack_from("!HHH", data, off)
         stop = min(off + ulen, end, len(data)) if ulen >= 8 else min(end, len(data))
         return Datagram("udp", src, dst, sport, dport, data[off + 8 : stop])
     if proto == 6:
+        if len(data) < off + 20:
+            return None
         sport, dport, seq = struct.unpack_from("!HHI", data, off)
         doff = (data[off + 12] >> 4) * 4
         flags = data[off + 13]
