@@ -12,7 +12,7 @@ DISSECTORS := $(wildcard dissector/*.lua)
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: all demo test lint bench captures install uninstall deps tshark venv clean help
+.PHONY: all demo test lint bench captures install uninstall deps tshark venv clean help rootfs test-matrix fuzz
 
 all: help
 
@@ -81,6 +81,43 @@ install: tshark
 	[ -n "$$dir" ] || dir=$$(tshark -G folders 2>/dev/null | sed -n 's/^Personal Plugins:[[:space:]]*//p' | head -1); \
 	[ -n "$$dir" ] || { echo "tshark -G folders names no personal plugin folder" >&2; exit 2; }; \
 	mkdir -p "$$dir" && cp $(DISSECTORS) "$$dir"/ && echo "installed $(notdir $(DISSECTORS)) into $$dir"
+	@# the serial extcap: "Personal Extcap path" (Wireshark 4.2+), else <Personal configuration>/extcap
+	@# (where Wireshark 3.x/4.0 look for personal extcaps); its first line is pointed at the venv's Python
+	@dir=$$(tshark -G folders 2>/dev/null | sed -n 's/^Personal Extcap path:[[:space:]]*//p' | head -1); \
+	[ -n "$$dir" ] || { conf=$$(tshark -G folders 2>/dev/null | sed -n 's/^Personal configuration:[[:space:]]*//p' | head -1); \
+	  [ -n "$$conf" ] && dir="$$conf/extcap"; }; \
+	[ -n "$$dir" ] || { echo "tshark -G folders names no personal extcap folder" >&2; exit 2; }; \
+	mkdir -p "$$dir" && sed '1s|.*|#!$(abspath $(PY))|' extcap/sharedlink-serial > "$$dir/sharedlink-serial" && \
+	chmod 755 "$$dir/sharedlink-serial" && echo "installed the sharedlink-serial extcap into $$dir"
+	@# the coloring rules, once, at the top of the personal colorfilters (theirs kept below; with no
+	@# personal file, the global default's rules are kept below ours)
+	@conf=$$(tshark -G folders 2>/dev/null | sed -n 's/^Personal configuration:[[:space:]]*//p' | head -1); \
+	glob=$$(tshark -G folders 2>/dev/null | sed -n 's/^Global configuration:[[:space:]]*//p' | head -1); \
+	[ -n "$$conf" ] || { echo "tshark -G folders names no personal configuration folder" >&2; exit 2; }; \
+	cf="$$conf/colorfilters"; \
+	if [ -f "$$cf" ] && grep -q '^@SharedLink ' "$$cf"; then echo "SharedLink coloring rules already in $$cf"; \
+	else mkdir -p "$$conf" && { [ -f "$$cf" ] && base="$$cf" || base="$$glob/colorfilters"; \
+	  { cat dissector/sharedlink.colorfilters; [ -f "$$base" ] && cat "$$base"; true; } > "$$cf.new" && \
+	  cat "$$cf.new" > "$$cf" && rm -f "$$cf.new" && echo "added the SharedLink coloring rules to $$cf"; }; fi
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache
+
+# --- Wireshark version matrix and fuzzing (docs/testing.md) ------------------------------------
+# Debian 13 (Wireshark 4.4) and Debian unstable (4.6) root filesystems, made once with debootstrap
+# into $(SHAREDLINK_ROOTFS_CACHE) (default /var/cache/sharedlink-rootfs) and reused
+ROOTFS_SUITES := trixie sid
+
+rootfs:
+	scripts/rootfs.sh build $(ROOTFS_SUITES) >/dev/null
+
+# every test that runs tshark, against 4.0 (this machine), 4.4 and 4.6 (the root filesystems)
+test-matrix: deps rootfs
+	scripts/test-matrix.sh
+
+# the long fuzz run (tshark: editcap mutations, truncations, random and 64 KB payloads; the Python
+# parsers: atheris). FUZZ_ARGS, e.g. "--seeds 500"; SHAREDLINK_TSHARK picks the release.
+fuzz: deps
+	@$(PY) -c 'import atheris' 2>/dev/null || $(BIN)/pip install -q -e '.[fuzz]' \
+	  || echo "atheris could not be installed: the Python parsers are fuzzed with hypothesis"
+	$(PY) scripts/fuzz.py $(FUZZ_ARGS)

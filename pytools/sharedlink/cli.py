@@ -19,7 +19,7 @@ from . import __version__
 from .errors import UsageError
 
 #: sub-command modules, in the order ``--help`` lists them
-COMMANDS = ["gen"]
+COMMANDS = ["gen", "replay", "serial", "compress", "expand", "diff", "stats", "export", "plot"]
 
 __all__ = ["UsageError", "main", "build_parser"]
 

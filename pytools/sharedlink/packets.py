@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import socket
 import struct
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
 from .pcapio import LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL, LINKTYPE_NULL, LINKTYPE_RAW
@@ -156,3 +157,140 @@ def _decode(linktype: int, data: bytes) -> Datagram | None:
         flags = data[off + 13]
         return Datagram("tcp", src, dst, sport, dport, data[off + doff : min(end, len(data))], seq, flags)
     return None
+
+
+# --- TCP (generated sessions) -----------------------------------------------------------------
+
+TCP_FIN, TCP_SYN, TCP_RST, TCP_PSH, TCP_ACK = 0x01, 0x02, 0x04, 0x08, 0x10
+
+
+class TcpBuilder:
+    """Builds Ethernet/IPv4/TCP segments from one endpoint to another with correct IP and TCP
+    checksums (20-byte TCP header, a fixed window)."""
+
+    def __init__(
+        self,
+        src_ip: str,
+        dst_ip: str,
+        sport: int,
+        dport: int,
+        src_mac: str = "02:00:00:00:00:01",
+        dst_mac: str = "02:00:00:00:00:02",
+        ttl: int = 64,
+        window: int = 65535,
+    ) -> None:
+        self.src = socket.inet_aton(src_ip)
+        self.dst = socket.inet_aton(dst_ip)
+        self.sport, self.dport, self.ttl, self.window = sport, dport, ttl, window
+        self.eth = mac_bytes(dst_mac) + mac_bytes(src_mac) + b"\x08\x00"
+
+    def segment(self, seq: int, ack: int, flags: int, payload: bytes, ip_id: int) -> bytes:
+        tcp_len = 20 + len(payload)
+        tlen = 20 + tcp_len
+        ip = _IP_HDR.pack(0x45, 0, tlen, ip_id & 0xFFFF, 0x4000, self.ttl, 6, 0, self.src, self.dst)
+        ip = ip[:10] + struct.pack("!H", ones_complement_checksum(ip)) + ip[12:]
+        hdr = struct.pack(
+            "!HHIIBBHHH", self.sport, self.dport, seq & 0xFFFFFFFF, ack & 0xFFFFFFFF, 5 << 4, flags, self.window, 0, 0
+        )
+        pseudo = self.src + self.dst + struct.pack("!BBH", 0, 6, tcp_len)
+        ck = ones_complement_checksum(pseudo + hdr + payload)
+        return self.eth + ip + hdr[:16] + struct.pack("!H", ck) + hdr[18:] + payload
+
+
+class TcpConversation:
+    """One TCP connection between a client and a server with consistent sequence and
+    acknowledgement numbers: :meth:`open` (three-way handshake), :meth:`send` (data from
+    either side, acknowledging everything received so far), :meth:`ack`, :meth:`close`.
+    Each returns the link-layer frames to write."""
+
+    def __init__(
+        self, client_ip: str, client_port: int, server_ip: str, server_port: int, client_isn: int = 1000, server_isn: int = 5000
+    ) -> None:
+        self.c2s = TcpBuilder(client_ip, server_ip, client_port, server_port, "02:00:00:00:00:01", "02:00:00:00:00:02")
+        self.s2c = TcpBuilder(server_ip, client_ip, server_port, client_port, "02:00:00:00:00:02", "02:00:00:00:00:01")
+        self.seq = {True: client_isn, False: server_isn}  # next sequence number, by from_client
+        self.ip_id = {True: 0, False: 0}
+
+    def _seg(self, from_client: bool, flags: int, payload: bytes = b"") -> bytes:
+        b = self.c2s if from_client else self.s2c
+        self.ip_id[from_client] += 1
+        ack = self.seq[not from_client] if flags & TCP_ACK else 0
+        frame = b.segment(self.seq[from_client], ack, flags, payload, self.ip_id[from_client])
+        self.seq[from_client] += len(payload) + (1 if flags & (TCP_SYN | TCP_FIN) else 0)
+        return frame
+
+    def open(self) -> list[bytes]:
+        return [self._seg(True, TCP_SYN), self._seg(False, TCP_SYN | TCP_ACK), self._seg(True, TCP_ACK)]
+
+    def send(self, from_client: bool, payload: bytes) -> bytes:
+        return self._seg(from_client, TCP_PSH | TCP_ACK, payload)
+
+    def ack(self, from_client: bool) -> bytes:
+        return self._seg(from_client, TCP_ACK)
+
+    def close(self, from_client: bool = True) -> list[bytes]:
+        """FIN from one side, FIN+ACK back, final ACK."""
+        return [self._seg(from_client, TCP_FIN | TCP_ACK), self._seg(not from_client, TCP_FIN | TCP_ACK), self._seg(from_client, TCP_ACK)]
+
+
+#: a receiver acknowledges data it has no reply for after this long (Linux's delayed ACK)
+DELAYED_ACK_NS = 40_000_000
+
+
+def session_frames(
+    events: Iterable[tuple[int, bool, bytes]],
+    transport: str,
+    client: tuple[str, int],
+    server: tuple[str, int],
+    start_ns: int | None = None,
+    close: bool = True,
+) -> Iterator[tuple[int, bool, bytes]]:
+    """Link-layer frames ``(ts_ns, from_client, frame)`` for a client/server exchange given
+    as time-ordered ``(ts_ns, from_client, payload)`` events.
+
+    ``udp``: one datagram per event. ``tcp``: a real conversation: the three-way handshake
+    just before the first event (or at ``start_ns``), one segment per event acknowledging all
+    received data, a pure ACK from a receiver that has nothing to send within
+    :data:`DELAYED_ACK_NS`, and (``close``) a FIN exchange after the last event.
+    """
+    if transport == "udp":
+        c2s = UdpBuilder(client[0], server[0], client[1], server[1], "02:00:00:00:00:01", "02:00:00:00:00:02")
+        s2c = UdpBuilder(server[0], client[0], server[1], client[1], "02:00:00:00:00:02", "02:00:00:00:00:01")
+        ip_id = 0
+        for ts, from_client, payload in events:
+            ip_id = (ip_id + 1) & 0xFFFF
+            yield ts, from_client, (c2s if from_client else s2c).frame(payload, ip_id)
+        return
+    if transport != "tcp":
+        raise ValueError(f"unknown transport {transport!r} (udp or tcp)")
+    conv = TcpConversation(client[0], client[1], server[0], server[1])
+    pending_ack: dict[bool, int | None] = {True: None, False: None}  # side -> ACK due time
+    opened = False
+    last_ts = start_ns or 0
+
+    def flush(until: int) -> Iterator[tuple[int, bool, bytes]]:
+        for side in sorted((s for s in (True, False) if pending_ack[s] is not None), key=lambda s: pending_ack[s] or 0):
+            due = pending_ack[side]
+            if due is not None and due <= until:
+                pending_ack[side] = None
+                yield due, side, conv.ack(side)
+
+    for ts, from_client, payload in events:
+        if not opened:
+            t0 = start_ns if start_ns is not None else ts - 300_000
+            t0 = min(t0, ts - 300_000)
+            for i, frame in enumerate(conv.open()):
+                yield t0 + i * 50_000, i != 1, frame
+            opened = True
+        yield from flush(ts)
+        pending_ack[from_client] = None  # this segment carries the ACK
+        yield ts, from_client, conv.send(from_client, payload)
+        if pending_ack[not from_client] is None:
+            pending_ack[not from_client] = ts + DELAYED_ACK_NS
+        last_ts = ts
+    if opened:
+        yield from flush(last_ts + DELAYED_ACK_NS)
+        if close:
+            t = last_ts + DELAYED_ACK_NS + 1_000_000
+            for i, frame in enumerate(conv.close(True)):
+                yield t + i * 50_000, i != 1, frame

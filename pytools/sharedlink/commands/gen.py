@@ -26,7 +26,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sync-interval", type=float, default=1.0, help="with --compress: full set at least every S seconds (default 1)")
     p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same bytes (default 1)")
     p.add_argument("--format", dest="fmt", choices=("pcap", "pcapng"), default=None, help="file format (default: from the file name, else pcap)")
-    p.add_argument("--port", type=int, default=7013, help="UDP port (default 7013)")
+    p.add_argument("--port", type=int, default=None, help="port (default: sharedlink 7013, p2os 8101, blackboard 7100)")
+    p.add_argument("--protocol", choices=("sharedlink", "p2os", "blackboard"), default="sharedlink",
+                   help="what to generate: SharedLink beacons (default), a P2OS robot session, or a blackboard master/slave session")
+    p.add_argument("--transport", choices=("udp", "tcp", "serial"), default=None,
+                   help="p2os and blackboard sessions: transport (p2os: tcp; blackboard: udp (default) or tcp); "
+                   "serial: a BUL-049 point-to-point SharedLink session on a serial line (pcapng, USER link type)")
+    p.add_argument("--baud", type=int, default=9600, help="--transport serial: line speed (default 9600)")
+    p.add_argument("--noise", type=float, default=0.0, metavar="RATE", help="--transport serial: chance of a burst of line noise before a frame")
     p.add_argument("--src", default="B", help="source node letter A-P (default B)")
     p.add_argument("--dst", default="A", help="destination node letter A-P (default A)")
     p.add_argument("--form", choices=("named", "positional"), default="named", help="value form: named T/Q/D triplets (beacon, default) or positional D fields")
@@ -38,7 +45,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.transport == "serial":
+        from .serial import run_gen_serial
+
+        return run_gen_serial(args)
     fmt = args.fmt or ("pcapng" if str(args.out).endswith(".pcapng") else "pcap")
+    if args.protocol != "sharedlink":
+        return run_session(args, fmt)
+    if args.transport not in (None, "udp"):
+        raise UsageError("SharedLink beacons are generated over udp")
+    if args.port is None:
+        args.port = 7013
     opts = GenOptions(
         duration=args.duration,
         frames=args.frames,
@@ -85,4 +102,47 @@ def run(args: argparse.Namespace) -> int:
             + (f", {stats.bad_checksums} bad checksums" if stats.bad_checksums else ""),
             file=sys.stderr,
         )
+    return 0
+
+
+def run_session(args: argparse.Namespace, fmt: str) -> int:
+    """``--protocol p2os`` / ``blackboard``: a generated client/server session."""
+    from ..gen_blackboard import BlackboardGenOptions, generate_blackboard_file
+    from ..gen_p2os import P2osGenOptions, generate_p2os_file
+
+    opts: P2osGenOptions | BlackboardGenOptions
+    if args.protocol == "p2os":
+        opts = P2osGenOptions(duration=args.duration, seed=args.seed, fmt=fmt, transport=args.transport or "tcp")
+        if args.port is not None:
+            opts.port = args.port
+        generate = generate_p2os_file
+    else:
+        opts = BlackboardGenOptions(duration=args.duration, seed=args.seed, fmt=fmt, transport=args.transport or "udp")
+        if args.port is not None:
+            opts.port = args.port
+        generate = generate_blackboard_file  # type: ignore[assignment]
+    try:
+        opts.validate()
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    try:
+        stats = generate(opts, args.out)  # type: ignore[arg-type]
+    except OSError as exc:
+        raise UsageError(f"{args.out}: {exc.strerror or exc}") from None
+    summary = {
+        "file": str(args.out),
+        "format": fmt,
+        "protocol": args.protocol,
+        "transport": opts.transport,
+        "port": opts.port,
+        "frames": stats.frames,
+        "payload_bytes": stats.bytes,
+        "kinds": stats.kinds,
+    }
+    if args.json:
+        json.dump(summary, sys.stdout)
+        print()
+    else:
+        kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
+        print(f"wrote {args.out}: {stats.frames} frames over {opts.transport} port {opts.port} ({kinds})", file=sys.stderr)
     return 0

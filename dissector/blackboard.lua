@@ -1,0 +1,577 @@
+-- Blackboard message dissector (Holland, Designing Autonomous Mobile Robots, figures 6.3 and
+-- 6.4) for Wireshark 4.0+ (Lua 5.2 .. 5.4).
+--
+-- Messages are ASCII hex, two characters per byte, ended by CR:
+--   :031F0001010203D7<CR>   set data: count, base address (2, big-endian), node, data, checksum
+--   ;05E000011A<CR>         request data: count requested, base address, node, checksum
+-- Checksum: zero minus the 8-bit sum of the decoded bytes. The slave answers a set message with
+-- its checksum as one binary byte, and a request with the data block plus one checksum byte
+-- over the data and the request's count, address and node bytes. Binary answers have no
+-- framing of their own: they are recognised from the request they answer (the last one sent
+-- the other way in the same conversation).
+--
+-- Transports: any bare byte buffer through Dissector.get("blackboard") (serial captures); UDP
+-- and TCP port preferences (off by default: 0); heuristics on UDP and TCP (a well-formed
+-- message with a good checksum, or the answer a pending request expects).
+--
+-- Field reference: docs/fields-p2os-blackboard.md. Self-contained: no other file needed.
+
+-- luacheck: read globals Proto ProtoField ProtoExpert Pref DissectorTable ByteArray base expert frametype
+-- luacheck: read globals DESEGMENT_ONE_MORE_SEGMENT
+
+local bb = Proto("blackboard", "Blackboard message (Holland)")
+
+local SET, REQUEST, CR, LF = 0x3A, 0x3B, 0x0D, 0x0A
+
+local pf = {
+    type = ProtoField.string("blackboard.type", "Message type"),
+    type_char = ProtoField.uint8("blackboard.type_char", "Type character", base.HEX,
+        { [SET] = "':' set data", [REQUEST] = "';' request data" }),
+    hex = ProtoField.string("blackboard.hex", "Hex text"),
+    count = ProtoField.uint8("blackboard.count", "Count", base.DEC),
+    address = ProtoField.uint16("blackboard.address", "Base address", base.HEX),
+    node = ProtoField.uint8("blackboard.node", "Node", base.DEC),
+    data = ProtoField.bytes("blackboard.data", "Data"),
+    checksum = ProtoField.uint8("blackboard.checksum", "Checksum", base.HEX),
+    checksum_calc = ProtoField.uint8("blackboard.checksum.calculated", "Calculated checksum", base.HEX),
+    checksum_status = ProtoField.uint8("blackboard.checksum.status", "Checksum status", base.DEC,
+        { [0] = "Bad", [1] = "Good", [2] = "Unverified" }),
+    terminator = ProtoField.bytes("blackboard.terminator", "Terminator"),
+    ack = ProtoField.uint8("blackboard.ack", "Acknowledgement", base.HEX),
+    request_in = ProtoField.framenum("blackboard.request_in", "Request in frame", base.NONE, frametype.REQUEST),
+    response_in = ProtoField.framenum("blackboard.response_in", "Answered in frame", base.NONE, frametype.RESPONSE),
+    repeat_of = ProtoField.framenum("blackboard.repeat_of", "Repeat of frame", base.NONE, frametype.DUP_ACK),
+    junk = ProtoField.bytes("blackboard.junk", "Bytes outside any message"),
+}
+local field_list = {}
+for _, f in pairs(pf) do
+    field_list[#field_list + 1] = f
+end
+bb.fields = field_list
+
+local ex = {
+    checksum_bad = ProtoExpert.new("blackboard.checksum.bad", "Bad checksum", expert.group.CHECKSUM,
+        expert.severity.ERROR),
+    non_hex = ProtoExpert.new("blackboard.non_hex", "Non-hex character", expert.group.MALFORMED,
+        expert.severity.ERROR),
+    odd = ProtoExpert.new("blackboard.odd_digits", "Odd number of hex digits", expert.group.MALFORMED,
+        expert.severity.ERROR),
+    short = ProtoExpert.new("blackboard.too_short", "Message too short", expert.group.MALFORMED,
+        expert.severity.ERROR),
+    count_bad = ProtoExpert.new("blackboard.count.wrong", "Count does not match the message length",
+        expert.group.MALFORMED, expert.severity.ERROR),
+    no_cr = ProtoExpert.new("blackboard.no_cr", "Message not ended by CR", expert.group.MALFORMED,
+        expert.severity.ERROR),
+    ack_bad = ProtoExpert.new("blackboard.ack.wrong", "Acknowledgement does not match the set message's checksum",
+        expert.group.SEQUENCE, expert.severity.ERROR),
+    response_bad = ProtoExpert.new("blackboard.response.checksum.bad", "Bad read response checksum",
+        expert.group.CHECKSUM, expert.severity.ERROR),
+    response_short = ProtoExpert.new("blackboard.response.truncated", "Read response truncated",
+        expert.group.MALFORMED, expert.severity.ERROR),
+    unexpected = ProtoExpert.new("blackboard.unexpected",
+        "Bytes outside any message (and no request waiting for an answer)",
+        expert.group.SEQUENCE, expert.severity.WARN),
+    repeat_msg = ProtoExpert.new("blackboard.repeat", "Repeated message: no acknowledgement seen",
+        expert.group.SEQUENCE, expert.severity.NOTE),
+    unanswered = ProtoExpert.new("blackboard.unanswered", "Request superseded before an answer",
+        expert.group.SEQUENCE, expert.severity.NOTE),
+}
+bb.experts = { ex.checksum_bad, ex.non_hex, ex.odd, ex.short, ex.count_bad, ex.no_cr, ex.ack_bad,
+    ex.response_bad, ex.response_short, ex.unexpected, ex.repeat_msg, ex.unanswered }
+
+bb.prefs.udp_port = Pref.uint("UDP port", 0, "UDP port carrying blackboard messages (0: none, heuristic only)")
+bb.prefs.tcp_port = Pref.uint("TCP port", 0, "TCP port carrying blackboard messages (0: none, heuristic only)")
+
+-- ---------------------------------------------------------------------------------------------
+-- helpers (every tvb access checked against the length first)
+
+local function istr(n)
+    return tostring(math.floor(n))
+end
+
+local function u8(tvb, off)
+    return tvb:range(off, 1):uint()
+end
+
+local function hexval(c)
+    if c >= 0x30 and c <= 0x39 then
+        return c - 0x30
+    elseif c >= 0x41 and c <= 0x46 then
+        return c - 0x37
+    elseif c >= 0x61 and c <= 0x66 then
+        return c - 0x57
+    end
+    return nil
+end
+
+local function hex2(n)
+    return string.format("%02X", n)
+end
+
+-- ---------------------------------------------------------------------------------------------
+-- conversation state: the request each side waits an answer to
+--
+-- pending[key] = { kind = "set" | "request", frame = n, checksum = c, count = n, sum = s,
+--                  text = "..." } where key names the direction the answer travels. On the
+-- first pass the live table is used and a copy is kept per frame, so later passes (and the
+-- GUI re-dissecting one frame) see the same state.
+
+local pending = {}
+local frame_state = {}
+local messages = {} -- "frame:offset" -> the record of a message, to show where it was answered
+
+function bb.init()
+    pending = {}
+    frame_state = {}
+    messages = {}
+end
+
+local function copy(t)
+    local c = {}
+    for k, v in pairs(t) do
+        c[k] = v
+    end
+    return c
+end
+
+local function state_for(pinfo)
+    if not pinfo.visited then
+        if frame_state[pinfo.number] == nil then
+            frame_state[pinfo.number] = copy(pending)
+        end
+        return pending
+    end
+    return copy(frame_state[pinfo.number] or {})
+end
+
+local function endpoint(addr, port)
+    return tostring(addr) .. ":" .. istr(port)
+end
+
+-- key of the direction this frame travels in; and of the opposite one (where answers go)
+local function keys(pinfo)
+    local src = endpoint(pinfo.src, pinfo.src_port)
+    local dst = endpoint(pinfo.dst, pinfo.dst_port)
+    local d = pinfo.p2p_dir
+    local here, back = "?", "?"
+    if d == 0 then
+        here, back = "sent", "received"
+    elseif d == 1 then
+        here, back = "received", "sent"
+    end
+    return src .. ">" .. dst .. "/" .. here, dst .. ">" .. src .. "/" .. back
+end
+
+-- ---------------------------------------------------------------------------------------------
+-- a text message at off (type character there); stop is the end of the buffer.
+-- Returns: bytes used, or nil and the bytes needed when the CR is not there yet
+
+local function find_cr(tvb, off, stop)
+    local i = off
+    while i < stop do
+        if u8(tvb, i) == CR then
+            return i
+        end
+        i = i + 1
+    end
+    return nil
+end
+
+local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more)
+    local cr = find_cr(tvb, off + 1, stop)
+    if cr == nil and can_more then
+        return nil
+    end
+    local kind = u8(tvb, off)
+    local text_end = cr or stop
+    local used = text_end - off
+    if cr then
+        used = used + 1
+        if cr + 1 < stop and u8(tvb, cr + 1) == LF then
+            used = used + 1
+        end
+    end
+    local t = tree:add(bb, tvb:range(off, used))
+    local name = (kind == SET) and "set" or "request"
+    t:add(pf.type, tvb:range(off, 1), name)
+    t:add(pf.type_char, tvb:range(off, 1))
+    local ndig = text_end - off - 1
+    if ndig > 0 then
+        t:add(pf.hex, tvb:range(off + 1, ndig))
+    end
+    -- decode the hex digits; every bad character flagged
+    local bytes = {}
+    local bad = 0
+    local function flag(pos)
+        bad = bad + 1
+        if bad <= 8 then -- the first few; the count after
+            t:add_proto_expert_info(ex.non_hex, "Non-hex character 0x" .. hex2(u8(tvb, pos)) .. " at offset "
+                .. istr(pos - off))
+        end
+    end
+    local i = off + 1
+    while i + 1 < text_end do
+        local a, b = hexval(u8(tvb, i)), hexval(u8(tvb, i + 1))
+        if a == nil then
+            flag(i)
+        end
+        if b == nil then
+            flag(i + 1)
+        end
+        bytes[#bytes + 1] = (a or 0) * 16 + (b or 0)
+        i = i + 2
+    end
+    if ndig > 0 and ndig % 2 == 1 then
+        if hexval(u8(tvb, text_end - 1)) == nil then
+            flag(text_end - 1)
+        end
+        t:add_proto_expert_info(ex.odd)
+    end
+    if bad > 8 then
+        t:add_proto_expert_info(ex.non_hex, istr(bad) .. " non-hex characters in all")
+    end
+    if cr == nil then
+        t:add_proto_expert_info(ex.no_cr)
+    else
+        t:add(pf.terminator, tvb:range(cr, used - (cr - off)))
+    end
+    local summary
+    if bad > 0 or ndig % 2 == 1 or #bytes < 5 then
+        if #bytes < 5 and bad == 0 and ndig % 2 == 0 then
+            t:add_proto_expert_info(ex.short, "Message too short: " .. istr(#bytes) .. " bytes, at least 5")
+        end
+        t:append_text(", " .. name .. " (malformed)")
+        return used, name .. " (malformed)"
+    end
+    -- byte k of the message is at hex offset off + 1 + 2 (k - 1)
+    local function brange(k, n)
+        return tvb:range(off + 1 + 2 * (k - 1), 2 * n)
+    end
+    local count = bytes[1]
+    local address = bytes[2] * 256 + bytes[3]
+    local node = bytes[4]
+    local ci = t:add(pf.count, brange(1, 1), count)
+    t:add(pf.address, brange(2, 2), address)
+    t:add(pf.node, brange(4, 1), node)
+    local need = 5
+    if kind == SET then
+        need = 5 + count
+    end
+    if #bytes ~= need then
+        ci:add_proto_expert_info(ex.count_bad, "Count " .. istr(count) .. " means " .. istr(need)
+            .. " bytes, " .. istr(#bytes) .. " present")
+    end
+    local ndata = #bytes - 5
+    local sum = 0
+    for k = 1, #bytes - 1 do
+        sum = sum + bytes[k]
+    end
+    if kind == SET and ndata > 0 then
+        -- the decoded data as a tvb of its own (a "Decoded data" tab), so the field holds bytes
+        local parts = {}
+        for k = 5, 4 + ndata do
+            parts[#parts + 1] = hex2(bytes[k])
+        end
+        local dtvb = ByteArray.new(table.concat(parts, "")):tvb("Decoded data")
+        t:add(pf.data, dtvb:range(0, ndata))
+    end
+    local calc = (256 - sum % 256) % 256
+    local written = bytes[#bytes]
+    local cki = t:add(pf.checksum, brange(#bytes, 1), written)
+    t:add(pf.checksum_calc, brange(#bytes, 1), calc):set_generated()
+    local status = 1
+    if written ~= calc then
+        status = 0
+        cki:append_text(" [incorrect, should be 0x" .. hex2(calc) .. "]")
+        cki:add_proto_expert_info(ex.checksum_bad, "Bad checksum: 0x" .. hex2(written) .. ", should be 0x"
+            .. hex2(calc))
+    else
+        cki:append_text(" [correct]")
+    end
+    t:add(pf.checksum_status, brange(#bytes, 1), status):set_generated()
+    if kind == SET then
+        summary = "set " .. istr(ndata) .. " bytes at 0x" .. string.format("%04X", address) .. " node " .. istr(node)
+    else
+        summary = "request " .. istr(count) .. " bytes at 0x" .. string.format("%04X", address) .. " node "
+            .. istr(node)
+    end
+    if status == 0 then
+        summary = summary .. " [bad checksum]"
+    end
+    -- conversation: a good message waits for its answer from the other side
+    local _, back = keys(pinfo)
+    local prev = state[back]
+    local hextext = ""
+    if ndig > 0 then
+        hextext = tvb:range(off, 1 + ndig):string()
+    end
+    if prev ~= nil then
+        if prev.text == hextext then
+            t:add(pf.repeat_of, tvb:range(off, 1), prev.frame):set_generated()
+            t:add_proto_expert_info(ex.repeat_msg, "Repeat of frame " .. istr(prev.frame)
+                .. ": no acknowledgement seen")
+            summary = summary .. " [repeat]"
+        else
+            t:add_proto_expert_info(ex.unanswered, "Frame " .. istr(prev.frame) .. " got no answer before this message")
+        end
+    end
+    if status == 1 and #bytes == need then
+        -- a read response's checksum covers the request's count, address and node bytes
+        local mkey = istr(pinfo.number) .. ":" .. istr(off)
+        if not pinfo.visited then
+            local rec = { kind = name, frame = pinfo.number, checksum = written, count = count,
+                sum = (bytes[1] + bytes[2] + bytes[3] + bytes[4]) % 256, text = hextext }
+            pending[back] = rec
+            messages[mkey] = rec
+        else
+            local rec = messages[mkey]
+            if rec ~= nil and rec.answered then
+                t:add(pf.response_in, tvb:range(off, 1), rec.answered):set_generated()
+            end
+        end
+    end
+    t:append_text(", " .. summary)
+    return used, summary
+end
+
+-- a binary answer to rec at off; returns bytes used, summary (nil, need when more is needed)
+local function dissect_binary(tvb, pinfo, tree, off, stop, rec, can_more)
+    local want = 1
+    if rec.kind == "request" then
+        want = rec.count + 1
+    end
+    local have = stop - off
+    if have < want and can_more then
+        return nil, want - have
+    end
+    local n = want
+    if have < n then
+        n = have
+    end
+    local t = tree:add(bb, tvb:range(off, n))
+    t:add(pf.request_in, tvb:range(off, n), rec.frame):set_generated()
+    if not pinfo.visited then
+        rec.answered = pinfo.number
+    end
+    local summary
+    if rec.kind == "set" then
+        t:add(pf.type, tvb:range(off, 1), "ack")
+        local a = u8(tvb, off)
+        local ai = t:add(pf.ack, tvb:range(off, 1))
+        local status = 1
+        if a ~= rec.checksum then
+            status = 0
+            ai:add_proto_expert_info(ex.ack_bad, "Acknowledgement 0x" .. hex2(a) .. " does not match checksum 0x"
+                .. hex2(rec.checksum) .. " of frame " .. istr(rec.frame))
+        end
+        t:add(pf.checksum_status, tvb:range(off, 1), status):set_generated()
+        summary = "ack 0x" .. hex2(a) .. ((status == 1) and "" or " [wrong]")
+    else
+        t:add(pf.type, tvb:range(off, n), "response")
+        if have < want then
+            t:add_proto_expert_info(ex.response_short, "Read response truncated: " .. istr(want)
+                .. " bytes expected, " .. istr(have) .. " present")
+            if n > 0 then
+                t:add(pf.data, tvb:range(off, n))
+            end
+            return n, "response (truncated)"
+        end
+        local sum = rec.sum
+        for k = 0, rec.count - 1 do
+            sum = sum + u8(tvb, off + k)
+        end
+        local calc = (256 - sum % 256) % 256
+        if rec.count > 0 then
+            t:add(pf.data, tvb:range(off, rec.count))
+        end
+        local cr = tvb:range(off + rec.count, 1)
+        local written = cr:uint()
+        local ci = t:add(pf.checksum, cr)
+        t:add(pf.checksum_calc, cr, calc):set_generated()
+        local status = 1
+        if written ~= calc then
+            status = 0
+            ci:add_proto_expert_info(ex.response_bad, "Bad read response checksum: 0x" .. hex2(written)
+                .. ", should be 0x" .. hex2(calc))
+        end
+        t:add(pf.checksum_status, cr, status):set_generated()
+        summary = "response " .. istr(rec.count) .. " bytes" .. ((status == 1) and "" or " [bad checksum]")
+    end
+    t:append_text(", " .. summary)
+    return n, summary
+end
+
+-- whether a complete, valid text message starts at off (used to tell a master's repeat from a
+-- binary answer when the direction is unknown)
+local MAX_TEXT = 1 + 2 * (5 + 255) + 1 -- the longest message: 255 data bytes
+
+local function valid_text_at(tvb, off, stop)
+    local kind = u8(tvb, off)
+    if kind ~= SET and kind ~= REQUEST then
+        return false
+    end
+    local limit = stop
+    if limit > off + MAX_TEXT then
+        limit = off + MAX_TEXT -- bounded: callers may ask at every byte
+    end
+    local cr = find_cr(tvb, off + 1, limit)
+    if cr == nil then
+        return false
+    end
+    local ndig = cr - off - 1
+    if ndig < 10 or ndig % 2 == 1 then
+        return false
+    end
+    local sum = 0
+    local i = off + 1
+    while i < cr do
+        local a, b = hexval(u8(tvb, i)), hexval(u8(tvb, i + 1))
+        if a == nil or b == nil then
+            return false
+        end
+        sum = sum + a * 16 + b
+        i = i + 2
+    end
+    local count = hexval(u8(tvb, off + 1)) * 16 + hexval(u8(tvb, off + 2))
+    local nbytes = ndig / 2
+    if kind == SET and nbytes ~= 5 + count then
+        return false
+    end
+    if kind == REQUEST and nbytes ~= 5 then
+        return false
+    end
+    return sum % 256 == 0
+end
+
+local function dissect_buffer(tvb, pinfo, tree)
+    local n = tvb:len()
+    if n == 0 then
+        return 0
+    end
+    pinfo.cols.protocol = "Blackboard"
+    local can_more = pinfo.can_desegment > 0
+    local state = state_for(pinfo)
+    local here = keys(pinfo)
+    local direction_known = pinfo.p2p_dir == 0 or pinfo.p2p_dir == 1 or pinfo.src_port ~= 0
+    local infos = {}
+    local off = 0
+    while off < n do
+        local c = u8(tvb, off)
+        local rec = state[here]
+        local binary = rec ~= nil and (direction_known or not valid_text_at(tvb, off, n))
+        if binary then
+            local used, summary = dissect_binary(tvb, pinfo, tree, off, n, rec, can_more)
+            if used == nil then
+                pinfo.desegment_offset = off
+                pinfo.desegment_len = summary
+                break
+            end
+            state[here] = nil
+            infos[#infos + 1] = summary
+            off = off + used
+        elseif c == SET or c == REQUEST then
+            local used, summary = dissect_text(tvb, pinfo, tree, off, n, state, can_more)
+            if used == nil then
+                pinfo.desegment_offset = off
+                pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
+                break
+            end
+            infos[#infos + 1] = summary
+            off = off + used
+        else
+            -- bytes up to the next type character
+            local j = off + 1
+            while j < n do
+                local d = u8(tvb, j)
+                if d == SET or d == REQUEST then
+                    break
+                end
+                j = j + 1
+            end
+            local item = tree:add(pf.junk, tvb:range(off, j - off))
+            local line_ends = true
+            for k = off, j - 1 do
+                local d = u8(tvb, k)
+                if d ~= CR and d ~= LF then
+                    line_ends = false
+                    break
+                end
+            end
+            if line_ends then
+                item:append_text(" (line ends)")
+            else
+                item:add_proto_expert_info(ex.unexpected)
+                infos[#infos + 1] = "bytes outside any message"
+            end
+            off = j
+        end
+    end
+    if #infos > 0 then
+        pinfo.cols.info = table.concat(infos, "; ")
+    end
+    return n
+end
+
+function bb.dissector(tvb, pinfo, tree)
+    return dissect_buffer(tvb, pinfo, tree)
+end
+
+-- heuristic: a valid message with a good checksum, or the answer a pending request expects
+local function heuristic(tvb, pinfo, tree)
+    local n = tvb:len()
+    if n < 1 then
+        return false
+    end
+    local ok = valid_text_at(tvb, 0, n)
+    if not ok then
+        local here = keys(pinfo)
+        local rec
+        if pinfo.visited then
+            rec = (frame_state[pinfo.number] or {})[here]
+        else
+            rec = pending[here]
+        end
+        if rec == nil then
+            return false
+        end
+        local want = 1
+        if rec.kind == "request" then
+            want = rec.count + 1
+        end
+        if n ~= want and pinfo.can_desegment == 0 then
+            return false
+        end
+    end
+    dissect_buffer(tvb, pinfo, tree)
+    -- the rest of this conversation comes straight here (where the version allows)
+    pcall(function()
+        pinfo.conversation = bb
+    end)
+    return true
+end
+
+bb:register_heuristic("udp", heuristic)
+bb:register_heuristic("tcp", heuristic)
+
+local registered = { udp = 0, tcp = 0 }
+local function register_ports()
+    for _, proto in ipairs({ "udp", "tcp" }) do
+        local want = bb.prefs[proto .. "_port"]
+        if registered[proto] ~= want then
+            local t = DissectorTable.get(proto .. ".port")
+            if registered[proto] ~= 0 then
+                t:remove(registered[proto], bb)
+            end
+            if want ~= 0 then
+                t:add(want, bb)
+            end
+            registered[proto] = want
+        end
+    end
+end
+
+function bb.prefs_changed()
+    register_ports()
+end
+
+register_ports()

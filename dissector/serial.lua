@@ -1,0 +1,535 @@
+-- Serial link dispatcher for Wireshark (Lua): SharedLink, P2OS and blackboard traffic captured
+-- from a serial line.
+--
+-- Capture format (docs/serial-capture-format.md): pcapng, a USER link type (default
+-- LINKTYPE_USER0 = 147; preference "USER link type"), one record per chunk of bytes as read
+-- from the line, the direction in the EPB flags (inbound / outbound; Wireshark turns them
+-- into pinfo.p2p_dir).
+--
+-- Each direction is a byte stream. On the first pass the stream is cut into frames (and the
+-- noise between them) by the protocol's framing rules; a frame split across records is held
+-- back until its last byte arrives and shown in that record as a reassembled data source
+-- with links to the records it came from. The bytes completed in a record are handed, in one
+-- call, to the protocol's own dissector by name (Dissector.get("sharedlink" / "p2os" /
+-- "blackboard"), looked up at dissection time); when that dissector is not loaded the bytes
+-- are shown as data.
+--
+-- Protocol per direction: the "Protocol" preference, or "auto": the first protocol with a
+-- frame with a correct checksum in the bytes seen (a direction with none of its own, e.g. a
+-- blackboard slave's binary answers, takes another direction's protocol once it holds 64
+-- bytes). The framing rules are those of the Python reader
+-- (sharedlink.serialcap), so both find the same frames whatever the chunking:
+--  * SharedLink: a frame runs from the last "[" before a "]" to that "]", and takes a CR LF
+--    after it; a "[...]" that is not a frame (no ":DS" header) is noise. A frame whose "]"
+--    is the last byte seen (or "]" CR) waits for the next bytes (its CR LF).
+--  * P2OS: FA FB, count, count bytes; a count below 2 is noise; a truncated packet waits.
+--  * Blackboard: ":" or ";" (the last one before the CR), hex digits, CR, and an LF if it
+--    came with the CR (a message does not wait for one); text that does not parse is noise.
+-- An unfinished frame longer than 65536 bytes is given up as noise.
+--
+-- Self-contained; works with Wireshark 4.0 (Lua 5.2) and later.
+
+local slserial = Proto("slserial", "Serial link")
+
+local s_byte, s_sub, s_find = string.byte, string.sub, string.find
+local tonumber, pcall, ipairs = tonumber, pcall, ipairs
+
+local MAX_PENDING = 65536
+local MAX_UNDETECTED = 4096
+local UNDETECTED_KEEP = 512
+local ADOPT_AFTER = 64
+local USER0 = (wtap_encaps and wtap_encaps.USER0) or 45 -- luacheck: read globals wtap_encaps
+
+local B_RBR, B_PIPE, B_COLON = 93, 124, 58
+local B_CR, B_LF, B_C = 13, 10, 67
+
+local PROTO_NAMES = { "sharedlink", "p2os", "blackboard" }
+local PROTO_LABELS = { sharedlink = "SharedLink", p2os = "P2OS", blackboard = "Blackboard" }
+local DIR_NAMES = { [0] = "outbound", [1] = "inbound" }
+
+------------------------------------------------------------------------------
+-- Fields, expert infos, preferences
+------------------------------------------------------------------------------
+local hf = {
+    direction = ProtoField.int8("slserial.direction", "Direction", base.DEC,
+        { [-1] = "unknown", [0] = "outbound", [1] = "inbound" }),
+    protocol = ProtoField.string("slserial.protocol", "Protocol"),
+    frame = ProtoField.bytes("slserial.frame", "Frame"),
+    noise = ProtoField.bytes("slserial.noise", "Noise"),
+    held = ProtoField.bytes("slserial.held", "Held back (unfinished frame)"),
+    completed_in = ProtoField.framenum("slserial.completed_in", "Completed in record", base.NONE),
+    fragment = ProtoField.framenum("slserial.fragment", "Reassembled from record", base.NONE),
+    reassembled_length = ProtoField.uint32("slserial.reassembled.length", "Reassembled length", base.DEC),
+    frames = ProtoField.uint32("slserial.frames", "Frames completed", base.DEC),
+}
+slserial.fields = {
+    hf.direction, hf.protocol, hf.frame, hf.noise, hf.held, hf.completed_in, hf.fragment,
+    hf.reassembled_length, hf.frames,
+}
+
+local ei = {
+    noise = ProtoExpert.new("slserial.noise.skipped", "Bytes outside any frame",
+        expert.group.PROTOCOL, expert.severity.NOTE),
+    undetected = ProtoExpert.new("slserial.undetected", "Protocol not recognised",
+        expert.group.UNDECODED, expert.severity.NOTE),
+    missing = ProtoExpert.new("slserial.dissector.missing", "Protocol dissector not loaded",
+        expert.group.UNDECODED, expert.severity.WARN),
+}
+slserial.experts = { ei.noise, ei.undetected, ei.missing }
+
+local linktype_enum = {}
+for i = 0, 15 do
+    linktype_enum[#linktype_enum + 1] = { i + 1, "user" .. i, i }
+end
+local protocol_enum = { { 1, "auto", 0 }, { 2, "sharedlink", 1 }, { 3, "p2os", 2 }, { 4, "blackboard", 3 } }
+
+slserial.prefs.user_linktype = Pref.enum("USER link type", 0,
+    "LINKTYPE_USERn of serial captures (user0 = 147 ... user15 = 162)", linktype_enum, false)
+slserial.prefs.protocol = Pref.enum("Protocol", 0,
+    "Protocol on the line; auto: recognised from the first frame with a good checksum", protocol_enum, false)
+
+------------------------------------------------------------------------------
+-- State (first pass): per direction stream buffer; per record the result
+------------------------------------------------------------------------------
+local dirs = {}     -- [p2p_dir] = { buf = string, recs = { {num, s, e}... } (buf coords), proto = name|nil }
+local results = {}  -- [record number] = result table (see first_pass)
+
+function slserial.init()
+    dirs, results = {}, {}
+end
+
+------------------------------------------------------------------------------
+-- Framing (1-based string positions). Each scanner returns pieces
+-- { {start, length, is_frame}, ... } covering s[1 .. hold-1], and hold (#s + 1: none held).
+------------------------------------------------------------------------------
+local function add_piece(pieces, a, len, is_frame)
+    if len > 0 then pieces[#pieces + 1] = { a, len, is_frame } end
+end
+
+-- SharedLink: the structural checks of codec._parse_inner for "[" at a and "]" at c
+local function sl_valid(s, a, c)
+    local len = c - a - 1
+    if len < 3 or s_byte(s, a + 1) ~= B_COLON then return false end
+    local d, r = s_byte(s, a + 2), s_byte(s, a + 3)
+    if d == B_PIPE or d == B_RBR or r == B_PIPE or r == B_RBR then return false end
+    if len > 3 and s_byte(s, a + 4) ~= B_PIPE then return false end
+    return true
+end
+
+-- checksum good: the last field is C<hex>, the byte sum from ':' through that 'C' matches
+local function sl_good(s, a, len)
+    local c = s_find(s, "]", a, true)
+    if not c then return false end
+    local p, k = nil, s_find(s, "|", a, true)
+    while k and k < c do
+        p = k
+        k = s_find(s, "|", k + 1, true)
+    end
+    if not p or s_byte(s, p + 1) ~= B_C then return false end
+    local text = s_sub(s, p + 2, c - 1)
+    if #text == 0 or #text > 2 then return false end
+    local v = tonumber(text, 16)
+    if not v then return false end
+    local sum = 0
+    for i = a + 1, p + 1 do
+        sum = sum + s_byte(s, i)
+    end
+    return v == sum % 256 and len > 0
+end
+
+local function scan_sharedlink(s, final)
+    local n = #s
+    local pieces = {}
+    local pos, noise, hold = 1, 1, n + 1
+    while pos <= n do
+        local o = s_find(s, "[", pos, true)
+        if not o then break end
+        local c = s_find(s, "]", o + 1, true)
+        if not c then break end
+        local o2 = o
+        local k = s_find(s, "[", o + 1, true)
+        while k and k < c do
+            o2 = k
+            k = s_find(s, "[", k + 1, true)
+        end
+        if sl_valid(s, o2, c) then
+            local crlf = s_byte(s, c + 1) == B_CR and s_byte(s, c + 2) == B_LF
+            if not final and not crlf and (c == n or (c + 1 == n and s_byte(s, n) == B_CR)) then
+                hold = o2 -- its CR LF may come with the next bytes
+                break
+            end
+            local e = crlf and c + 2 or c
+            add_piece(pieces, noise, o2 - noise, false)
+            add_piece(pieces, o2, e - o2 + 1, true)
+            noise, pos = e + 1, e + 1
+        else
+            pos = c + 1
+        end
+    end
+    if hold == n + 1 and not final then
+        -- the last '[' with no ']' after it may start a frame
+        local last
+        local k = s_find(s, "[", noise, true)
+        while k do
+            last = k
+            k = s_find(s, "[", k + 1, true)
+        end
+        if last and not s_find(s, "]", last, true) then hold = last end
+    end
+    if n + 1 - hold > MAX_PENDING then hold = n + 1 end
+    add_piece(pieces, noise, hold - noise, false)
+    return pieces, hold
+end
+
+local function xor8(a, b)
+    local r, bit = 0, 1
+    for _ = 1, 8 do
+        local x, y = a % 2, b % 2
+        if x ~= y then r = r + bit end
+        a, b, bit = (a - x) / 2, (b - y) / 2, bit * 2
+    end
+    return r
+end
+
+-- add the payload as big-endian 16-bit pairs (16 bits kept); XOR an odd last byte into the low byte
+local function p2os_checksum(s, a, len)
+    local c, i, stop = 0, a, a + len - 1
+    while i < stop do
+        c = (c + s_byte(s, i) * 256 + s_byte(s, i + 1)) % 65536
+        i = i + 2
+    end
+    if i == stop then
+        local low = c % 256
+        c = c - low + xor8(low, s_byte(s, i))
+    end
+    return c
+end
+
+local function scan_p2os(s, final)
+    local n = #s
+    local pieces = {}
+    local pos, noise, hold = 1, 1, n + 1
+    while pos <= n do
+        local h = s_find(s, "\250\251", pos, true)
+        if not h then break end
+        if h + 2 > n then
+            if not final then hold = h end
+            break
+        end
+        local count = s_byte(s, h + 2)
+        if count < 2 then
+            pos = h + 3
+        else
+            local e = h + 2 + count
+            if e > n then
+                if not final and n - h + 1 <= MAX_PENDING then hold = h end
+                break
+            end
+            add_piece(pieces, noise, h - noise, false)
+            add_piece(pieces, h, e - h + 1, true)
+            noise, pos = e + 1, e + 1
+        end
+    end
+    if hold == n + 1 and not final and n > 0 and noise <= n and s_byte(s, n) == 0xFA then
+        hold = n -- may start a header
+    end
+    add_piece(pieces, noise, hold - noise, false)
+    return pieces, hold
+end
+
+local function is_hex(b)
+    return (b >= 48 and b <= 57) or (b >= 65 and b <= 70) or (b >= 97 and b <= 102)
+end
+
+-- blackboard: type char at a, CR at cr; returns valid, checksum_good
+local function bb_check(s, a, cr)
+    local digits = cr - a - 1
+    if digits % 2 == 1 then return false, false end
+    for i = a + 1, cr - 1 do
+        if not is_hex(s_byte(s, i)) then return false, false end
+    end
+    local nbytes = digits / 2
+    if nbytes < 5 then return false, false end
+    local sum, first = 0, nil
+    for i = 0, nbytes - 1 do
+        local v = tonumber(s_sub(s, a + 1 + 2 * i, a + 2 + 2 * i), 16)
+        if i == 0 then first = v end
+        sum = sum + v
+    end
+    local need = 5
+    if s_byte(s, a) == B_COLON then need = 5 + first end
+    if nbytes ~= need then return false, false end
+    return true, sum % 256 == 0
+end
+
+local function last_start(s, o, cr)
+    local o2 = o
+    local k = s_find(s, "[:;]", o + 1)
+    while k and k < cr do
+        o2 = k
+        k = s_find(s, "[:;]", k + 1)
+    end
+    return o2
+end
+
+local function scan_blackboard(s, final)
+    local n = #s
+    local pieces = {}
+    local pos, noise, hold = 1, 1, n + 1
+    while pos <= n do
+        local o = s_find(s, "[:;]", pos)
+        if not o then break end
+        local cr = s_find(s, "\r", o + 1, true)
+        if not cr then
+            if not final and n - o + 1 <= MAX_PENDING then hold = o end
+            break
+        end
+        local o2 = last_start(s, o, cr)
+        local e = cr -- ends at its CR; an LF that came with it is taken, a later one is noise
+        if s_byte(s, cr + 1) == B_LF then e = cr + 1 end
+        if bb_check(s, o2, cr) then
+            add_piece(pieces, noise, o2 - noise, false)
+            add_piece(pieces, o2, e - o2 + 1, true)
+            noise, pos = e + 1, e + 1
+        else
+            pos = cr + 1
+        end
+    end
+    add_piece(pieces, noise, hold - noise, false)
+    return pieces, hold
+end
+
+local SCANNERS = { sharedlink = scan_sharedlink, p2os = scan_p2os, blackboard = scan_blackboard }
+
+local function piece_good(name, s, a, len)
+    if name == "sharedlink" then
+        return sl_good(s, a, len)
+    elseif name == "p2os" then
+        local count = s_byte(s, a + 2)
+        if count > 200 then return false end
+        local plen = count - 2
+        local written = s_byte(s, a + 3 + plen) * 256 + s_byte(s, a + 4 + plen)
+        return p2os_checksum(s, a + 3, plen) == written
+    else
+        local cr = s_find(s, "\r", a, true)
+        local _, good = bb_check(s, a, cr)
+        return good
+    end
+end
+
+local function detect(s)
+    local best, best_at
+    for _, name in ipairs(PROTO_NAMES) do
+        local pieces = SCANNERS[name](s, false)
+        for _, p in ipairs(pieces) do
+            if p[3] and piece_good(name, s, p[1], p[2]) then
+                if not best_at or p[1] < best_at then best, best_at = name, p[1] end
+                break
+            end
+        end
+    end
+    return best
+end
+
+------------------------------------------------------------------------------
+-- First pass: feed this record's bytes to its direction's stream
+------------------------------------------------------------------------------
+local function fixed_protocol()
+    local p = slserial.prefs.protocol
+    if p and p > 0 then return PROTO_NAMES[p] end
+    return nil
+end
+
+local function first_pass(raw, dir, num)
+    local st = dirs[dir]
+    if not st then
+        st = { buf = "", recs = {}, proto = fixed_protocol() }
+        dirs[dir] = st
+    end
+    local prefix_len = #st.buf
+    local s = st.buf .. raw
+    local n = #s
+    st.recs[#st.recs + 1] = { num, prefix_len + 1, n }
+    if not st.proto then
+        st.proto = detect(s)
+        if not st.proto and n >= ADOPT_AFTER then
+            -- nothing recognisable of its own (e.g. a blackboard slave's binary answers):
+            -- the protocol of another direction (lowest direction number first)
+            for _, d in ipairs({ -1, 0, 1 }) do
+                if dirs[d] and dirs[d].proto then
+                    st.proto = dirs[d].proto
+                    break
+                end
+            end
+        end
+    end
+    local pieces, hold
+    if st.proto then
+        pieces, hold = SCANNERS[st.proto](s, false)
+    elseif n > MAX_UNDETECTED then
+        hold = n - UNDETECTED_KEEP + 1
+        pieces = { { 1, hold - 1, false } }
+    else
+        pieces, hold = {}, 1
+    end
+    local region_len = hold - 1
+    local res = {
+        dir = dir, proto = st.proto, pieces = pieces, region_len = region_len,
+        prefix_len = prefix_len, held_from = region_len > prefix_len and region_len - prefix_len or 0,
+    }
+    if prefix_len > 0 and region_len > 0 then
+        res.region = s_sub(s, 1, region_len)
+        local frags = {}
+        for _, r in ipairs(st.recs) do
+            if r[2] <= region_len then frags[#frags + 1] = r[1] end
+        end
+        res.frags = frags
+    end
+    -- records whose held bytes complete here learn where
+    if region_len > 0 then
+        for _, r in ipairs(st.recs) do
+            if r[1] ~= num and r[2] <= region_len then
+                local other = results[r[1]]
+                if other and not other.completed_in then other.completed_in = num end
+            end
+        end
+    end
+    -- keep the held tail
+    st.buf = s_sub(s, hold)
+    local recs = {}
+    for _, r in ipairs(st.recs) do
+        if r[3] >= hold then
+            recs[#recs + 1] = { r[1], r[2] - region_len, r[3] - region_len }
+        end
+    end
+    st.recs = recs
+    return res
+end
+
+------------------------------------------------------------------------------
+-- Display
+------------------------------------------------------------------------------
+local function lookup(name)
+    if not name then return nil end
+    local ok, d = pcall(Dissector.get, name)
+    if ok and d then return d end
+    return nil
+end
+
+local function show_as_data(rtvb, pinfo, tree)
+    local d = lookup("data")
+    if d then d:call(rtvb, pinfo, tree) end
+end
+
+local function dissect(tvb, pinfo, tree)
+    local n = tvb:len()
+    if n <= 0 then return 0 end
+    local dir = pinfo.p2p_dir
+    if dir ~= 0 and dir ~= 1 then dir = -1 end
+    local num = pinfo.number
+    local res = results[num]
+    if not res then
+        if pinfo.visited then
+            -- a record the first pass never saw (should not happen): dissect it alone
+            local saved = dirs
+            dirs = {}
+            res = first_pass(tvb:raw(0, n), dir, num)
+            dirs = saved
+        else
+            res = first_pass(tvb:raw(0, n), dir, num)
+            results[num] = res
+        end
+    end
+
+    pinfo.cols.protocol = "Serial"
+    local label = PROTO_LABELS[res.proto or ""] or "not recognised"
+    local t = tree:add(slserial, tvb:range(0, n))
+    t:append_text(", " .. (DIR_NAMES[dir] or "direction unknown") .. ", " .. n .. " bytes, " .. label)
+    t:add(hf.direction, dir):set_generated()
+    local pi = t:add(hf.protocol, res.proto or "")
+    pi:set_generated()
+    if not res.proto then pi:add_proto_expert_info(ei.undetected) end
+
+    local nframes = 0
+    local rtvb
+    local sub = lookup(res.proto)
+    if res.region_len > 0 then
+        if res.region then
+            rtvb = ByteArray.new(res.region, true):tvb("Reassembled " .. label)
+            t:add(hf.reassembled_length, res.region_len):set_generated()
+            for _, f in ipairs(res.frags) do
+                t:add(hf.fragment, f):set_generated()
+            end
+        else
+            rtvb = tvb:range(0, res.region_len):tvb()
+        end
+        for _, p in ipairs(res.pieces) do
+            local r = rtvb:range(p[1] - 1, p[2])
+            if p[3] then
+                nframes = nframes + 1
+                t:add(hf.frame, r)
+            else
+                local ni = t:add(hf.noise, r)
+                -- the protocol dissector reports noise itself; without it, report it here
+                if not sub then ni:add_proto_expert_info(ei.noise, p[2] .. " bytes outside any frame") end
+            end
+        end
+    end
+    t:add(hf.frames, nframes):set_generated()
+    local held = n - res.held_from
+    if held > 0 then
+        local hi = t:add(hf.held, tvb:range(res.held_from, held))
+        if res.completed_in then
+            t:add(hf.completed_in, res.completed_in):set_generated()
+        end
+        hi:append_text(" (" .. held .. " bytes)")
+    end
+    if rtvb then
+        if sub then
+            sub:call(rtvb, pinfo, tree)
+        else
+            if res.proto then
+                t:add_proto_expert_info(ei.missing,
+                    "No dissector named \"" .. res.proto .. "\" is loaded; shown as data")
+            end
+            show_as_data(rtvb, pinfo, tree)
+        end
+    end
+    if not rtvb or nframes == 0 then
+        local what = (DIR_NAMES[dir] or "unknown direction") .. ": "
+        if held > 0 and not rtvb then
+            pinfo.cols.info = what .. n .. " bytes held (unfinished frame" ..
+                (res.completed_in and (", completed in record " .. res.completed_in) or "") .. ")"
+        elseif not rtvb then
+            pinfo.cols.info = what .. n .. " bytes"
+        end
+    end
+    return n
+end
+
+slserial.dissector = dissect
+
+------------------------------------------------------------------------------
+-- Registration: wtap_encap table, USER link type from the preference
+------------------------------------------------------------------------------
+local wtap_table = DissectorTable.get("wtap_encap")
+local current_encap, saved_handle
+
+local function apply_linktype()
+    local enc = USER0 + (tonumber(slserial.prefs.user_linktype) or 0)
+    if enc == current_encap then return end
+    if current_encap then
+        wtap_table:remove(current_encap, slserial)
+        if saved_handle then wtap_table:add(current_encap, saved_handle) end
+    end
+    local ok, old = pcall(wtap_table.get_dissector, wtap_table, enc)
+    saved_handle = ok and old or nil
+    wtap_table:add(enc, slserial)
+    current_encap = enc
+end
+
+function slserial.prefs_changed()
+    apply_linktype()
+end
+
+apply_linktype()

@@ -1,0 +1,1431 @@
+-- SharedLink protocol dissector for Wireshark (Lua).
+--
+-- SharedLink (Kairos Autonomi BUL-009 / BUL-049) is a line protocol:
+--   [:<dst><src>|<field>|<field>|...|C<xx>]<CR><LF>
+-- dst/src are letters A..P (nodes 1..16).  Every field starts with a type letter
+-- (N ordinal, T type, Q name/query, R reply, D data, C checksum, L inbound
+-- declaration, E command, M mode, P ping, G pong).  The checksum is the sum of the
+-- bytes from ':' through the 'C' of the checksum field, modulo 256, in hex.
+--
+-- Install: copy this single file into your personal Lua plugins folder
+-- (Help > About Wireshark > Folders > Personal Lua Plugins), or run
+--   tshark -X lua_script:/path/to/sharedlink.lua ...
+--
+-- Works with Wireshark 4.0 (Lua 5.2) and later (Lua 5.4).
+--
+-- Preferences (tshark -o name:value):
+--   sharedlink.ports              UDP/TCP port range always decoded (default 7013)
+--   sharedlink.heuristic          try the heuristic on other ports (default TRUE)
+--   sharedlink.validate_checksum  compute and check the checksum (default TRUE)
+--   sharedlink.variables          a-priori list naming positional values
+--                                 (default AutoGpsLat,AutoGpsLon,AutoGpsHead,AutoGpsVel)
+--   sharedlink.sync_interval      expected full-frame interval in ms (default 1000)
+-- Heuristic dissectors (Enabled Protocols / --disable-heuristic): sharedlink_udp,
+-- sharedlink_tcp.
+--
+-- Fields beyond the core set: sharedlink.var (one subtree per variable),
+-- sharedlink.inbound_ordinal (L), sharedlink.command / .command.arg (E and its D
+-- arguments), sharedlink.mode (M), sharedlink.ping (P), sharedlink.pong (G),
+-- sharedlink.field.letter / .field.text (unknown fields), sharedlink.noise (bytes
+-- between frames), sharedlink.checksum.text (a checksum that is not a hex byte).
+-- Expert infos beyond the core set: sharedlink.checksum.missing (warning),
+-- sharedlink.var.badvalue (warning: value/type/ordinal not matching its type),
+-- sharedlink.crlf.missing (note), sharedlink.noise.skipped (note),
+-- sharedlink.reply.unmatched (note: a reply with no query seen before it).
+--
+-- Query/reply links: a reply links back to its query in any pass; the query's
+-- "Response in" needs the reply to have been seen, i.e. a second pass (GUI, tshark -2).
+--
+-- Performance: with no tree (tshark summary pass) no tree items are built; a frame
+-- with the same layout as the previous plain named frame of the same node pair is
+-- parsed by one anchored pattern.  Per-frame state is stored only for frames that
+-- need it (carried values, late sync, queries/replies); carried-only records are
+-- packed as text lines, 256 per Lua string, and the list in use is kept as a
+-- per-direction history of changes, so that long compressed captures add few Lua
+-- objects (Wireshark runs full Lua garbage collections during a capture).
+--
+-- Decoding choices (where the bulletins are silent):
+--  * UDP/TCP ports from the "ports" preference (default 7013) are dissected
+--    unconditionally; elsewhere the heuristic dissectors "sharedlink_udp" and
+--    "sharedlink_tcp" claim a payload only if it starts with "[:" + two letters A-P +
+--    "|" or "]", is printable ASCII up to the first "]" and that "]" is followed by
+--    CR LF, LF, "[" or the end of the payload (TCP also accepts a frame that is not
+--    finished yet).  A claimed conversation skips the heuristic afterwards.
+--  * A frame ends at the first "]" after "[:" (BUL-049: a field ends with "|" or "]").
+--    A "[:" before that "]" means the first frame is unterminated (malformed).
+--  * A frame with no checksum field: status Unverified, expert
+--    sharedlink.checksum.missing (warning), not malformed.
+--  * A checksum that is not exactly two upper-case hex digits (lower case, one digit)
+--    but has the right value is Good with a sharedlink.checksum.format note.
+--  * sync.late: for full/delta data frames, a warning when the last full frame in the
+--    same direction (or the first frame seen, at the start of a capture) is older than
+--    the sync interval preference plus a fixed slack of 0.5 s.
+--  * Direction state (carried values, learnt lists, sync) is keyed on the network
+--    addresses + ports + the SharedLink src/dst letters.  A list learnt from a
+--    declaration is also remembered for the letter pair alone, used when the exact
+--    endpoints have none (broadcast replies).  Queries and replies are matched on
+--    the letters, the variable name and the (unordered) port pair.
+--  * A data frame is "full" when N is 0 (or absent), no D is empty, every variable of
+--    the positional list has its D, and every named variable seen before in that
+--    direction is present; otherwise it is a "delta".
+--  * Extra frame kinds beyond full/delta/query/reply/declaration/command/ping/pong:
+--    "malformed" (unterminated or bad header: no state update) and "empty" (no
+--    fields besides the checksum).
+
+local sl = Proto("sharedlink", "SharedLink Protocol")
+
+local s_byte, s_sub, s_find, s_format, s_gsub = string.byte, string.sub, string.find, string.format, string.gsub
+local s_rep = string.rep
+local tonumber, tostring, type = tonumber, tostring, type
+local floor = math.floor
+local t_concat = table.concat
+
+------------------------------------------------------------------------------
+-- Fields
+------------------------------------------------------------------------------
+-- 1 and 3 are not defined by the bulletins: Wireshark shows them as "Unknown (n)"
+local type_names = { [0] = "long", [2] = "double", [4] = "string" }
+local checksum_status_vals = { [0] = "Bad", [1] = "Good", [2] = "Unverified" }
+
+local hf = {
+    dst = ProtoField.string("sharedlink.dst", "Destination"),
+    src = ProtoField.string("sharedlink.src", "Source"),
+    dst_node = ProtoField.uint8("sharedlink.dst.node", "Destination node", base.DEC),
+    src_node = ProtoField.uint8("sharedlink.src.node", "Source node", base.DEC),
+    kind = ProtoField.string("sharedlink.kind", "Frame kind"),
+    ordinal = ProtoField.uint32("sharedlink.ordinal", "Start ordinal (N)", base.DEC),
+    inbound_ordinal = ProtoField.uint32("sharedlink.inbound_ordinal", "Inbound list ordinal (L)", base.DEC),
+    ftype = ProtoField.uint8("sharedlink.type", "Type (T)", base.DEC, type_names),
+    query = ProtoField.string("sharedlink.query", "Query (Q)"),
+    response = ProtoField.string("sharedlink.response", "Reply (R)"),
+    var = ProtoField.none("sharedlink.var", "Variable"),
+    var_name = ProtoField.string("sharedlink.var.name", "Name"),
+    var_index = ProtoField.uint32("sharedlink.var.index", "Index", base.DEC),
+    var_value = ProtoField.string("sharedlink.var.value", "Value"),
+    var_double = ProtoField.double("sharedlink.var.double", "Double value"),
+    var_long = ProtoField.int64("sharedlink.var.long", "Long value", base.DEC),
+    var_string = ProtoField.string("sharedlink.var.string", "String value"),
+    var_carried = ProtoField.bool("sharedlink.var.carried", "Carried forward"),
+    var_carried_from = ProtoField.framenum("sharedlink.var.carried_from", "Value from frame", base.NONE),
+    checksum = ProtoField.uint8("sharedlink.checksum", "Checksum", base.HEX),
+    checksum_text = ProtoField.string("sharedlink.checksum.text", "Checksum text"),
+    checksum_calc = ProtoField.uint8("sharedlink.checksum.calculated", "Calculated checksum", base.HEX),
+    checksum_status = ProtoField.uint8("sharedlink.checksum.status", "Checksum status", base.DEC,
+        checksum_status_vals),
+    response_in = ProtoField.framenum("sharedlink.response_in", "Response in", base.NONE, frametype.RESPONSE),
+    response_to = ProtoField.framenum("sharedlink.response_to", "Response to", base.NONE, frametype.REQUEST),
+    response_time = ProtoField.relative_time("sharedlink.response_time", "Response time"),
+    command = ProtoField.string("sharedlink.command", "Command (E)"),
+    command_arg = ProtoField.string("sharedlink.command.arg", "Command argument"),
+    mode = ProtoField.string("sharedlink.mode", "Mode (M)"),
+    ping = ProtoField.string("sharedlink.ping", "Ping (P)"),
+    pong = ProtoField.string("sharedlink.pong", "Pong (G)"),
+    field_letter = ProtoField.string("sharedlink.field.letter", "Unknown field letter"),
+    field_text = ProtoField.string("sharedlink.field.text", "Unknown field text"),
+    noise = ProtoField.bytes("sharedlink.noise", "Noise"),
+}
+sl.fields = {
+    hf.dst, hf.src, hf.dst_node, hf.src_node, hf.kind, hf.ordinal, hf.inbound_ordinal, hf.ftype,
+    hf.query, hf.response, hf.var, hf.var_name, hf.var_index, hf.var_value, hf.var_double,
+    hf.var_long, hf.var_string, hf.var_carried, hf.var_carried_from, hf.checksum, hf.checksum_text,
+    hf.checksum_calc, hf.checksum_status, hf.response_in, hf.response_to, hf.response_time,
+    hf.command, hf.command_arg, hf.mode, hf.ping, hf.pong, hf.field_letter, hf.field_text, hf.noise,
+}
+
+------------------------------------------------------------------------------
+-- Expert infos
+------------------------------------------------------------------------------
+local ei = {
+    checksum_bad = ProtoExpert.new("sharedlink.checksum.bad", "Bad checksum",
+        expert.group.CHECKSUM, expert.severity.ERROR),
+    checksum_format = ProtoExpert.new("sharedlink.checksum.format",
+        "Checksum is not two upper-case hex digits", expert.group.PROTOCOL, expert.severity.NOTE),
+    checksum_missing = ProtoExpert.new("sharedlink.checksum.missing", "No checksum field",
+        expert.group.PROTOCOL, expert.severity.WARN),
+    address_invalid = ProtoExpert.new("sharedlink.address.invalid", "Address is not a letter A-P",
+        expert.group.PROTOCOL, expert.severity.WARN),
+    field_unknown = ProtoExpert.new("sharedlink.field.unknown", "Unknown field letter",
+        expert.group.UNDECODED, expert.severity.NOTE),
+    field_empty = ProtoExpert.new("sharedlink.field.empty", "Empty field",
+        expert.group.PROTOCOL, expert.severity.NOTE),
+    malformed = ProtoExpert.new("sharedlink.malformed", "Malformed frame",
+        expert.group.MALFORMED, expert.severity.ERROR),
+    sync_late = ProtoExpert.new("sharedlink.sync.late", "No full frame within the sync interval",
+        expert.group.SEQUENCE, expert.severity.WARN),
+    var_unknown = ProtoExpert.new("sharedlink.var.unknown", "Positional value past the known variable list",
+        expert.group.PROTOCOL, expert.severity.WARN),
+    var_badvalue = ProtoExpert.new("sharedlink.var.badvalue", "Value does not match its declared type",
+        expert.group.PROTOCOL, expert.severity.WARN),
+    crlf_missing = ProtoExpert.new("sharedlink.crlf.missing", "Frame not terminated by CR LF",
+        expert.group.PROTOCOL, expert.severity.NOTE),
+    noise = ProtoExpert.new("sharedlink.noise.skipped", "Bytes outside any frame",
+        expert.group.PROTOCOL, expert.severity.NOTE),
+    unanswered = ProtoExpert.new("sharedlink.reply.unmatched", "Reply without a matching query",
+        expert.group.SEQUENCE, expert.severity.NOTE),
+}
+sl.experts = {
+    ei.checksum_bad, ei.checksum_format, ei.checksum_missing, ei.address_invalid, ei.field_unknown,
+    ei.field_empty, ei.malformed, ei.sync_late, ei.var_unknown, ei.var_badvalue, ei.crlf_missing,
+    ei.noise, ei.unanswered,
+}
+
+------------------------------------------------------------------------------
+-- Preferences
+------------------------------------------------------------------------------
+local DEFAULT_PORTS = "7013"
+local DEFAULT_VARS = "AutoGpsLat,AutoGpsLon,AutoGpsHead,AutoGpsVel"
+local SYNC_SLACK = 0.5 -- seconds added to the sync interval before sync.late fires
+
+sl.prefs.ports = Pref.range("UDP/TCP ports", DEFAULT_PORTS,
+    "Ports always decoded as SharedLink (UDP and TCP)", 65535)
+sl.prefs.heuristic = Pref.bool("Try heuristic on other ports", true,
+    "Look for SharedLink frames on any UDP/TCP port")
+sl.prefs.validate_checksum = Pref.bool("Validate the checksum", true,
+    "Compute and compare the frame checksum")
+sl.prefs.variables = Pref.string("Positional variable list", DEFAULT_VARS,
+    "Comma-separated a-priori variable list naming positional D values (index 0 first)")
+sl.prefs.sync_interval = Pref.uint("Sync interval (ms)", 1000,
+    "A full frame is expected at least this often per direction (plus 500 ms slack)")
+
+local pref_list = {}         -- parsed variable list
+local pref_validate = true
+local pref_heuristic = true
+local pref_sync = 1.0 + SYNC_SLACK
+
+local function parse_list(str)
+    local list = {}
+    if type(str) ~= "string" then return list end
+    for item in str:gmatch("[^,]+") do
+        local name = item:match("^%s*(.-)%s*$")
+        if name ~= "" then list[#list + 1] = name end
+    end
+    return list
+end
+
+------------------------------------------------------------------------------
+-- Per-capture state (reset by init)
+------------------------------------------------------------------------------
+local dirs          -- direction key -> direction state
+local pair_lists    -- "SD" letters -> learnt list
+local recs          -- frame number -> { [subkey] = record }
+local pending_q     -- query key -> record of the query frame
+local dir_cache_key, dir_cache_num, dir_cache_ports -- cache for the current packet
+local shapes        -- node pair -> layout of the last plain named frame (fast path)
+local pshapes       -- node pair -> layout of the last plain positional frame (fast path)
+local stamp_ctr = 0
+local cr_pend, cr_npend, cr_pend_first, cr_chunks, cr_first  -- packed carried records
+local last_from, last_from_str, sk_str, sk_str_n             -- number -> text caches for them
+
+local function reset_state()
+    dirs, pair_lists, recs, pending_q, shapes, pshapes = {}, {}, {}, {}, {}, {}
+    cr_pend, cr_npend, cr_pend_first, cr_chunks, cr_first = {}, 0, 0, {}, {}
+    last_from, last_from_str, sk_str, sk_str_n = -1, "", {}, 0
+    dir_cache_key, dir_cache_num, dir_cache_ports = nil, nil, 0
+end
+reset_state()
+
+function sl.init()
+    reset_state()
+    pref_list = parse_list(sl.prefs.variables)
+    pref_validate = sl.prefs.validate_checksum
+    pref_heuristic = sl.prefs.heuristic
+    pref_sync = (tonumber(sl.prefs.sync_interval) or 1000) / 1000 + SYNC_SLACK
+end
+
+------------------------------------------------------------------------------
+-- Helpers
+------------------------------------------------------------------------------
+local ARROW = "\226\134\146"     -- U+2192
+local ELLIPSIS = "\226\128\166"  -- U+2026
+local INFO_MAX = 120
+local CTRL = "[\0-\31\127]"   -- control characters (not to be shown in the Info column)
+local MAX_PENDING = 65536        -- longest unterminated frame worth waiting for (TCP)
+
+local B_LBRACK, B_RBRACK, B_PIPE, B_COLON = 91, 93, 124, 58
+local B_CR, B_LF = 13, 10
+local B_A, B_P = 65, 80
+local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = 78, 84, 81, 82, 68, 67, 76, 69, 77, 80, 71
+
+-- Sum of the bytes s[i..j] (linear, 8 bytes per call).
+local function byte_sum(s, i, j)
+    local sum = 0
+    while i + 7 <= j do
+        local b1, b2, b3, b4, b5, b6, b7, b8 = s_byte(s, i, i + 7)
+        sum = sum + b1 + b2 + b3 + b4 + b5 + b6 + b7 + b8
+        i = i + 8
+    end
+    while i <= j do
+        sum = sum + s_byte(s, i)
+        i = i + 1
+    end
+    return sum % 256
+end
+
+local INT64_MAX = "9223372036854775807"
+
+-- Parse a decimal long; returns an Int64, or nil if not an integer / out of range.
+local function parse_long(text)
+    local sign, digits = text:match("^%s*([+-]?)(%d+)%s*$")
+    if not digits then return nil end
+    digits = digits:match("^0*(%d.-)$") or digits
+    if #digits <= 15 then
+        local v = tonumber(digits)
+        if sign == "-" then v = -v end
+        return Int64.new(v)
+    end
+    if #digits > 19 or (#digits == 19 and digits > INT64_MAX) then return nil end
+    local head, tail = s_sub(digits, 1, #digits - 9), s_sub(digits, #digits - 8)
+    local v = Int64(tonumber(head)) * 1000000000 + tonumber(tail)
+    if sign == "-" then v = -v end
+    return v
+end
+
+-- An ordinal as a non-negative integer (0 when not a number).
+local function to_ordinal(text)
+    local o = tonumber(text)
+    if not o or o ~= o or o < 0 or o >= 2147483647 then return 0 end
+    return floor(o)
+end
+
+local function nstime_of(d)
+    if d < 0 then d = 0 end
+    local secs = floor(d)
+    local ns = floor((d - secs) * 1e9 + 0.5)
+    if ns >= 1000000000 then ns = 999999999 end
+    return NSTime.new(secs, ns)
+end
+
+------------------------------------------------------------------------------
+-- Direction state
+------------------------------------------------------------------------------
+local function new_dir()
+    return { vals = {}, from = {}, names = {}, seen = {}, first = nil, lastfull = nil, list = nil }
+end
+
+-- Direction state for (src address, dst address, src port, dst port, letters).
+-- dirs[addresses][ports and letters as one number]; cheap on the per-frame path.
+local function get_dir(pinfo, num, dstb, srcb)
+    local byaddr
+    if dir_cache_num == num then
+        byaddr = dir_cache_key
+    else
+        local akey = tostring(pinfo.src) .. ">" .. tostring(pinfo.dst)
+        byaddr = dirs[akey]
+        if not byaddr then
+            byaddr = {}
+            dirs[akey] = byaddr
+        end
+        dir_cache_key = byaddr
+        dir_cache_num = num
+        dir_cache_ports = (pinfo.src_port * 65536 + pinfo.dst_port) * 65536
+    end
+    local key = dir_cache_ports + dstb * 256 + srcb
+    local d = byaddr[key]
+    if not d then
+        d = new_dir()
+        byaddr[key] = d
+    end
+    return d
+end
+
+-- The same for the reverse direction (dst -> src) of the current packet.
+local function get_rev_dir(pinfo, dstb, srcb)
+    local akey = tostring(pinfo.dst) .. ">" .. tostring(pinfo.src)
+    local byaddr = dirs[akey]
+    if not byaddr then
+        byaddr = {}
+        dirs[akey] = byaddr
+    end
+    local key = (pinfo.dst_port * 65536 + pinfo.src_port) * 65536 + srcb * 256 + dstb
+    local d = byaddr[key]
+    if not d then
+        d = new_dir()
+        byaddr[key] = d
+    end
+    return d
+end
+
+-- Per-frame record, kept only for frames that need one.  recs[num] is the record
+-- itself (rec.sk identifies the frame within the packet) or, when several frames of
+-- one packet have records, a table sk -> record.  A record's array part holds the
+-- carried values of its empty D fields: value, frame, value, frame, ...
+local CARRY = {}   -- carried values of the current frame: value, frame, value, frame, ...
+local MISS = {}    -- named variables missing from the current frame: name, value, frame, ...
+local CPARTS = {}
+
+-- Carried-only records (the bulk of a compressed stream) are kept as text lines
+-- "num|sk|value|frame|value|frame..." (a D value never holds "|" or a line break;
+-- "" = none), packed 256 to a string: Wireshark runs full Lua garbage collections
+-- during a capture, and their cost grows with the number of live Lua objects.
+local function from_text(fr)
+    if not fr then return "" end
+    if fr ~= last_from then last_from, last_from_str = fr, tostring(fr) end
+    return last_from_str
+end
+
+-- Line: num|sk|ne|value|frame|...(ne/2 pairs)|name|value|frame|...(nm/3 triples)
+local function carried_store(num, sk, ne, nm)
+    local sks = sk_str[sk]
+    if not sks then
+        sks = tostring(sk)
+        if sk_str_n < 4096 then sk_str[sk] = sks; sk_str_n = sk_str_n + 1 end
+    end
+    CPARTS[1], CPARTS[2], CPARTS[3] = num, sks, ne
+    local n = 3
+    for k = 1, ne, 2 do
+        local v = CARRY[k] or ""
+        if s_find(v, "\n", 1, true) then return false end
+        CPARTS[n + 1], CPARTS[n + 2] = v, from_text(CARRY[k + 1])
+        n = n + 2
+    end
+    for k = 1, nm, 3 do
+        local name, v = MISS[k], MISS[k + 1] or ""
+        if s_find(name, "\n", 1, true) or s_find(v, "\n", 1, true) then return false end
+        CPARTS[n + 1], CPARTS[n + 2], CPARTS[n + 3] = name, v, from_text(MISS[k + 2])
+        n = n + 3
+    end
+    if cr_npend == 0 then cr_pend_first = num end
+    cr_npend = cr_npend + 1
+    cr_pend[cr_npend] = t_concat(CPARTS, "|", 1, n)
+    if cr_npend >= 256 then
+        cr_chunks[#cr_chunks + 1] = "\n" .. t_concat(cr_pend, "\n", 1, cr_npend) .. "\n"
+        cr_first[#cr_first + 1] = cr_pend_first
+        cr_npend = 0
+    end
+    return true
+end
+
+local function carried_parse(line)
+    local rec = {}
+    local parts, n = CPARTS, 0
+    local p = 1
+    while true do
+        local q = s_find(line, "|", p, true)
+        n = n + 1
+        parts[n] = s_sub(line, p, (q or 0) - 1)
+        if not q then break end
+        p = q + 1
+    end
+    rec.sk = tonumber(parts[2])
+    local ne = tonumber(parts[3]) or 0
+    for k = 1, ne, 2 do
+        local v = parts[k + 3]
+        rec[k] = v ~= "" and v or false
+        rec[k + 1] = tonumber(parts[k + 4]) or false
+    end
+    local i = ne + 4
+    if i + 2 <= n then
+        local miss = {}
+        while i + 2 <= n do
+            local v = parts[i + 1]
+            miss[#miss + 1] = parts[i]
+            miss[#miss + 1] = v ~= "" and v or false
+            miss[#miss + 1] = tonumber(parts[i + 2]) or false
+            i = i + 3
+        end
+        rec.miss = miss
+    end
+    return rec
+end
+
+local function carried_lookup(num, sk)
+    local key = num .. "|" .. sk .. "|"
+    if cr_npend > 0 and num >= cr_pend_first then
+        for i = 1, cr_npend do
+            local line = cr_pend[i]
+            if s_sub(line, 1, #key) == key then return carried_parse(line) end
+        end
+        return nil
+    end
+    -- last chunk whose first frame is <= num
+    local lo, hi = 1, #cr_first
+    local found = nil
+    while lo <= hi do
+        local mid = floor((lo + hi) / 2)
+        if cr_first[mid] <= num then found = mid; lo = mid + 1 else hi = mid - 1 end
+    end
+    if not found then return nil end
+    local chunk = cr_chunks[found]
+    local a = s_find(chunk, "\n" .. key, 1, true)
+    if not a then return nil end
+    local b = s_find(chunk, "\n", a + 1, true)
+    return carried_parse(s_sub(chunk, a + 1, b - 1))
+end
+
+local function get_rec(num, sk, create)
+    local r = recs[num]
+    if r == nil then
+        if not create then return carried_lookup(num, sk) end
+        r = { sk = sk }
+        recs[num] = r
+        return r
+    end
+    if r.sk == sk then return r end
+    if r.sk ~= nil then
+        if not create then return carried_lookup(num, sk) end
+        r = { [r.sk] = r }
+        recs[num] = r
+    end
+    local rec = r[sk]
+    if not rec then
+        if not create then return carried_lookup(num, sk) end
+        rec = { sk = sk }
+        r[sk] = rec
+    end
+    return rec
+end
+
+------------------------------------------------------------------------------
+-- Info column pieces (reused)
+------------------------------------------------------------------------------
+local INFO = {}
+local ninfo, info_len, info_full = 0, 0, false
+local info_clean = true     -- every piece came from the named fast path
+local frames_in_info, frames_dropped = 0, 0
+
+local function info_add(str)
+    if info_full then return end
+    local l = #str
+    ninfo = ninfo + 1
+    if info_len + l > INFO_MAX then
+        INFO[ninfo] = ELLIPSIS
+        info_full = true
+        return
+    end
+    INFO[ninfo] = str
+    info_len = info_len + l
+end
+
+------------------------------------------------------------------------------
+-- Frame parsing into reusable arrays (no per-frame table churn)
+------------------------------------------------------------------------------
+-- fields (only recorded when a tree is built): letter byte (false = empty), start, end in f
+local FL, FS, FE = {}, {}, {}
+local FV, FC = {}, {}     -- rendering: variable starting at field i / field covered by a variable
+local nf = 0
+-- variables: type text, name, value (false = no D), index, is reply; field numbers of T, Q/R, D
+local VT, VN, VV, VI, VR = {}, {}, {}, {}, {}
+local VTf, VQf, VDf = {}, {}, {}
+local nv = 0
+
+local LETTER = {}
+for b = 0, 255 do
+    if b >= 32 and b <= 126 then LETTER[b] = string.char(b) else LETTER[b] = s_format("\\x%02x", b) end
+end
+
+-- Add a typed value below a variable item.
+local function add_typed_value(vt, range, vtype, text)
+    if vtype == 2 then
+        local v = tonumber(text)
+        if v then vt:add(hf.var_double, range, v)
+        else vt:add_proto_expert_info(ei.var_badvalue, "Not a double: " .. text) end
+    elseif vtype == 0 then
+        local v = parse_long(text)
+        if v then vt:add(hf.var_long, range, v)
+        else vt:add_proto_expert_info(ei.var_badvalue, "Not a long (int64): " .. text) end
+    elseif vtype == 4 then
+        vt:add(hf.var_string, range, text)
+    end
+end
+
+-- A zero-length range at off, kept inside the tvb.
+local function zrange(tvb, off)
+    local n = tvb:len()
+    if off >= n then off = n - 1 end
+    if off < 0 then off = 0 end
+    return tvb(off, 0)
+end
+
+local function pat_escape(text)
+    return (s_gsub(text, "[%^%$%(%)%%%.%[%]%*%+%-%?]", "%%%0"))
+end
+
+local function valid_type(t)
+    local n = tonumber(t)
+    if n and n >= 0 and n <= 255 and n == floor(n) then return floor(n) end
+    return nil
+end
+
+------------------------------------------------------------------------------
+-- One frame
+------------------------------------------------------------------------------
+-- f: a string holding the frame at f[1..fl] ('[' .. ']' when terminated, else up to
+-- where it stops; bytes after fl may follow when terminated); a: index of f[1] in the
+-- payload s; e: index in s of the last byte including the line end.
+local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
+    local o = a - 2            -- tvb offset of f[i] is o + i
+    local visited = pinfo.visited
+    local num = pinfo.number
+
+    -- protocol item first: tells whether there is a real tree
+    local ti = nil
+    if tree then
+        ti = tree:add(sl, tvb(a - 1, e - a + 1))
+        if ti.text == nil then ti = nil end
+    end
+    local rec_fields = ti ~= nil
+
+    local malformed_msg = nil
+    if not terminated then malformed_msg = "Unterminated frame (no closing ])" end
+    local bodyend = terminated and fl - 1 or fl     -- last index of the content
+    local dstb, srcb = s_byte(f, 3), s_byte(f, 4)
+    if bodyend < 3 then dstb = nil end
+    if bodyend < 4 then srcb = nil end
+    local dnode = dstb and dstb >= B_A and dstb <= B_P
+    local snode = srcb and srcb >= B_A and srcb <= B_P
+    local dst, src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
+
+    local p
+    if bodyend < 5 then
+        p = nil
+        if not malformed_msg and not srcb then malformed_msg = "Frame too short for a header" end
+    elseif s_byte(f, 5) == B_PIPE then
+        p = 6
+    else
+        local q = s_find(f, "|", 5, true)
+        p = q and q + 1 or nil
+        if not malformed_msg then malformed_msg = "Expected | after the addresses" end
+    end
+
+    -- Parse + semantic walk in one pass
+    nf, nv = 0, 0
+    local n_ord, l_ord = nil, nil
+    local n_text = nil
+    local has_e, has_m, has_p, has_g, has_r = false, false, false, false, false
+    local nq, nd, n_empty_d, n_pos = 0, 0, 0, 0
+    local pend_t, pend_q, pend_r = false, false, false   -- pending T text, Q/R name
+    local pend_tf, pend_qf = 0, 0
+    local idx = 0
+    local cpos, ctext = nil, nil  -- checksum field start and text
+    local cmd_start = nil         -- first E/M field
+
+    -- Fast path (no tree only): a frame with the same layout as the last plain named
+    -- frame between these two nodes is matched by one anchored pattern.
+    local shape_key = nil
+    local fast_sh = nil
+    if p == 6 and dnode and snode and not malformed_msg then
+        shape_key = dstb * 256 + srcb
+        local sh = (not rec_fields) and shapes[shape_key]
+        if sh then
+            fast_sh = sh
+            local _, _, c1, c2, c3, c4, c5, c6, c7, c8 = s_find(f, sh.pat)
+            if c1 then
+                VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8] = c1, c2, c3, c4, c5, c6, c7, c8
+                local n = sh.n
+                local st, sn = sh.T, sh.N
+                idx = sh.ord
+                n_ord = idx
+                for k = 1, n do
+                    VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], idx, false
+                    idx = idx + 1
+                    if VV[k] == "" then n_empty_d = n_empty_d + 1 end
+                end
+                nv, nq, nd = n, n, n
+                p = nil   -- parsed
+            else
+                fast_sh = nil
+            end
+        end
+        -- the same for a plain positional frame: N, D fields, C
+        local ps = p and (not rec_fields) and pshapes[shape_key]
+        if ps then
+            local _, _, c1, c2, c3, c4, c5, c6, c7, c8 = s_find(f, ps.pat)
+            if c1 then
+                VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8] = c1, c2, c3, c4, c5, c6, c7, c8
+                local n = ps.n
+                idx = ps.ord
+                n_ord = idx
+                for k = 1, n do
+                    VT[k], VN[k], VI[k], VR[k] = false, false, idx, false
+                    idx = idx + 1
+                    if VV[k] == "" then n_empty_d = n_empty_d + 1 end
+                end
+                nv, nd, n_pos = n, n, n
+                p = nil
+            end
+        end
+    end
+
+    while p and p <= bodyend + 1 do
+        local c = s_byte(f, p)
+        local _, fe, t1, t2, t3
+        if c == L_T and not pend_q then
+            _, fe, t1, t2, t3 = s_find(f, "^T([^|%]]*)|Q([^|%]]*)|D([^|%]]*)", p)
+        end
+        if fe and fe <= bodyend then
+            -- fast path: a complete T/Q/D triplet
+            nv = nv + 1
+            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = t1, t2, t3, idx, false
+            idx = idx + 1
+            nq, nd = nq + 1, nd + 1
+            if t3 == "" then n_empty_d = n_empty_d + 1 end
+            if rec_fields then
+                local q1 = p + #t1 + 2
+                local d1 = q1 + #t2 + 2
+                FL[nf + 1], FS[nf + 1], FE[nf + 1] = L_T, p, q1 - 2
+                FL[nf + 2], FS[nf + 2], FE[nf + 2] = L_Q, q1, d1 - 2
+                FL[nf + 3], FS[nf + 3], FE[nf + 3] = L_D, d1, fe
+                VTf[nv], VQf[nv], VDf[nv] = nf + 1, nf + 2, nf + 3
+            end
+            nf = nf + 3
+            pend_t = false
+            p = fe + 2
+        else
+            _, fe, t1 = s_find(f, "^[^|%]]([^|%]]*)", p)
+            if fe and fe > bodyend then fe = nil end
+            if not fe then
+                -- empty field
+                nf = nf + 1
+                if rec_fields then FL[nf], FS[nf], FE[nf] = false, p, p - 1 end
+                p = p + 1
+            else
+                nf = nf + 1
+                if rec_fields then FL[nf], FS[nf], FE[nf] = c, p, fe end
+                if c == L_D then
+                    nd = nd + 1
+                    if not (has_e or has_m) then
+                        nv = nv + 1
+                        VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, t1, idx, pend_r
+                        VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, nf
+                        if not pend_q then n_pos = n_pos + 1 end
+                        if t1 == "" then n_empty_d = n_empty_d + 1 end
+                        idx = idx + 1
+                        pend_t, pend_q, pend_r, pend_tf, pend_qf = false, false, false, 0, 0
+                    end
+                elseif c == L_Q or c == L_R then
+                    if pend_q then
+                        nv = nv + 1
+                        VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
+                        VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
+                        idx = idx + 1
+                        pend_t, pend_tf = false, 0
+                    end
+                    pend_q, pend_qf = t1, nf
+                    pend_r = (c == L_R)
+                    if pend_r then has_r = true else nq = nq + 1 end
+                elseif c == L_T then
+                    if pend_q then
+                        nv = nv + 1
+                        VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
+                        VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
+                        idx = idx + 1
+                        pend_q, pend_r, pend_qf = false, false, 0
+                    end
+                    pend_t, pend_tf = t1, nf
+                elseif c == L_N then
+                    if not n_ord then n_ord = to_ordinal(t1); idx = n_ord; n_text = t1 end
+                elseif c == L_L then
+                    if not l_ord then l_ord = to_ordinal(t1); idx = l_ord end
+                elseif c == L_C and fe == bodyend then
+                    cpos, ctext = p, t1
+                elseif c == L_E or c == L_M then
+                    if c == L_E then has_e = true else has_m = true end
+                    if not cmd_start then cmd_start = p end
+                elseif c == L_P then has_p = true
+                elseif c == L_G then has_g = true
+                end
+                p = fe + 2
+            end
+        end
+    end
+    if pend_q then
+        nv = nv + 1
+        VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
+        VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
+    end
+
+    -- remember the layout of a plain named frame: N, T/Q/D triplets, C
+    if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == 3 * nv + 2 and n_pos == 0
+        and s_byte(f, 6) == L_N then
+        local ok = true
+        for k = 1, nv do
+            if not (VT[k] and VN[k] and VV[k]) or VR[k] then ok = false; break end
+        end
+        if ok then
+            local parts = { "^%[:", pat_escape(LETTER[dstb] .. LETTER[srcb]), "|N", pat_escape(n_text) }
+            local st, sn = {}, {}
+            local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
+            local fmt, ilen = { (s_gsub(head, "%%", "%%%%")) }, #head
+            for k = 1, nv do
+                st[k], sn[k] = VT[k], VN[k]
+                parts[#parts + 1] = "|T" .. pat_escape(VT[k]) .. "|Q" .. pat_escape(VN[k]) .. "|D([^|%]\0-\31\127]*)"
+                fmt[#fmt + 1] = " " .. s_gsub(s_gsub(VN[k], CTRL, "?"), "%%", "%%%%") .. "=%s"
+                ilen = ilen + #VN[k] + 2
+            end
+            parts[#parts + 1] = "|C[^|%]]*%]"
+            shapes[shape_key] = { pat = t_concat(parts), n = nv, T = st, N = sn, ord = n_ord,
+                fmt = t_concat(fmt), info_len = ilen }
+        end
+    end
+
+    -- remember the layout of a plain positional frame: N, D fields, C
+    if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == nv + 2 and n_pos == nv and nq == 0
+        and not has_r and s_byte(f, 6) == L_N then
+        local ok = true
+        for k = 1, nv do
+            if VT[k] or VN[k] or not VV[k] then ok = false; break end
+        end
+        if ok then
+            local pat = "^%[:" .. pat_escape(LETTER[dstb] .. LETTER[srcb]) .. "|N" .. pat_escape(n_text) ..
+                s_rep("|D([^|%]\0-\31\127]*)", nv) .. "|C[^|%]]*%]"
+            local ps = pshapes[shape_key]
+            if not ps or ps.pat ~= pat then pshapes[shape_key] = { pat = pat, n = nv, ord = n_ord } end
+        end
+    end
+
+    local kind
+    local is_data = false
+    if malformed_msg then kind = "malformed"
+    elseif has_e or has_m then kind = "command"
+    elseif has_p then kind = "ping"
+    elseif has_g then kind = "pong"
+    elseif has_r then kind = "reply"
+    elseif nd == 0 and (l_ord or (n_ord and nq > 0)) then kind = "declaration"
+    elseif nd == 0 and nq > 0 then kind = "query"
+    elseif nd > 0 or n_ord then is_data = true
+    else kind = "empty" end
+
+    local letters = src .. dst
+    local rec = nil
+    local list = pref_list
+    local miss_n = 0   -- named variables carried (not in the frame)
+    local ne = 0       -- 2 x number of empty D fields with carried values
+    local nm = 0       -- 3 x number of named variables missing from the frame
+    local addrs_ok = dnode and snode
+
+    -- State: the first pass computes and stores, later passes read the record
+    if not visited then
+        if (is_data or kind == "malformed") and addrs_ok then
+            local d = get_dir(pinfo, num, dstb, srcb)
+            list = d.list or pair_lists[letters] or pref_list
+            -- remember when the list in use changes (read back on later passes)
+            if list ~= (d.used_list or pref_list) then
+                local h = d.uhist
+                if not h then h = {}; d.uhist = h end
+                h[#h + 1] = num
+                h[#h + 1] = sk
+                h[#h + 1] = list
+                d.used_list = list
+            end
+            if is_data and fast_sh and d.names_is == fast_sh.N and n_empty_d == 0 then
+                -- same layout as the known variable set: nothing can be missing
+                local vals, from = d.vals, d.from
+                for v = 1, nv do
+                    local name = VN[v]
+                    vals[name] = VV[v]
+                    from[name] = num
+                end
+            elseif is_data then
+                local vals, from, seen = d.vals, d.from, d.seen
+                stamp_ctr = stamp_ctr + 1
+                local stamp = stamp_ctr
+                ne = 0
+                for v = 1, nv do
+                    local val = VV[v]
+                    if val then
+                        local name = VN[v]
+                        if not name then name = list[VI[v] + 1] or ("#" .. VI[v]) end
+                        if val == "" then
+                            CARRY[ne + 1] = vals[name] or false
+                            CARRY[ne + 2] = from[name] or false
+                            ne = ne + 2
+                        else
+                            vals[name] = val
+                            from[name] = num
+                        end
+                        if VN[v] then
+                            if not seen[name] then
+                                d.names[#d.names + 1] = name
+                                d.names_is = nil
+                            end
+                            seen[name] = stamp
+                        end
+                    end
+                end
+                -- named: known variables missing from this frame
+                if n_pos == 0 and #d.names > 0 then
+                    local names = d.names
+                    for k = 1, #names do
+                        local name = names[k]
+                        if seen[name] ~= stamp then
+                            MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
+                            nm = nm + 3
+                            miss_n = miss_n + 1
+                        end
+                    end
+                end
+                if fast_sh and miss_n == 0 and #d.names == fast_sh.n then d.names_is = fast_sh.N end
+            end
+            if is_data then
+                local full = (n_ord == nil or n_ord == 0) and n_empty_d == 0 and miss_n == 0 and
+                    (n_pos == 0 or n_pos >= #list)
+                local now = pinfo.rel_ts
+                local first = d.first
+                if not first then first = now; d.first = now end
+                if full then
+                    d.lastfull = now
+                else
+                    local age = now - (d.lastfull or first)
+                    if age > pref_sync then
+                        rec = rec or get_rec(num, sk, true)
+                        rec.late = age
+                    end
+                end
+                -- carried values of empty D fields: a packed text record unless the
+                -- frame has a table record anyway
+                if ne > 0 or nm > 0 then
+                    if rec or not carried_store(num, sk, ne, nm) then
+                        rec = rec or get_rec(num, sk, true)
+                        for k = 1, ne do rec[k] = CARRY[k] end
+                        if nm > 0 then
+                            local miss = {}
+                            for k = 1, nm do miss[k] = MISS[k] end
+                            rec.miss = miss
+                        end
+                    end
+                end
+            end
+        elseif kind == "declaration" and addrs_ok then
+            local d, rl
+            if l_ord then
+                -- the sender's inbound list = the list used from dst to src
+                d = get_rev_dir(pinfo, dstb, srcb)
+                rl = dst .. src
+            else
+                d = get_dir(pinfo, num, dstb, srcb)
+                rl = letters
+            end
+            local base_list = d.list or pair_lists[rl] or pref_list
+            local newlist = {}
+            local start = l_ord or n_ord or 0
+            for k = 1, math.min(start, #base_list) do newlist[k] = base_list[k] end
+            local maxi = #newlist
+            for v = 1, nv do
+                if VN[v] then
+                    newlist[VI[v] + 1] = VN[v]
+                    if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
+                end
+            end
+            for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
+            d.list = newlist
+            pair_lists[rl] = newlist
+        elseif (kind == "query" or kind == "reply") and addrs_ok then
+            local pa, pb = pinfo.src_port, pinfo.dst_port
+            if pa > pb then pa, pb = pb, pa end
+            local ports = ":" .. pa .. "-" .. pb
+            rec = get_rec(num, sk, true)
+            for v = 1, nv do
+                local name = VN[v]
+                if name then
+                    if VR[v] then
+                        local qkey = dst .. ">" .. src .. ":" .. name .. ports
+                        local qrec = pending_q[qkey]
+                        if qrec then
+                            pending_q[qkey] = nil
+                            qrec.resp_in = qrec.resp_in or {}
+                            qrec.resp_in[name] = num
+                            rec.resp_to = rec.resp_to or {}
+                            rec.resp_to[name] = qrec.num
+                            rec.rt = rec.rt or {}
+                            rec.rt[name] = pinfo.rel_ts - qrec.t
+                        else
+                            rec.unmatched = rec.unmatched or {}
+                            rec.unmatched[name] = true
+                        end
+                    elseif kind == "query" then
+                        rec.num = num
+                        rec.t = pinfo.rel_ts
+                        pending_q[src .. ">" .. dst .. ":" .. name .. ports] = rec
+                    end
+                end
+            end
+        end
+    else
+        rec = get_rec(num, sk, false)
+        if rec and rec.miss then miss_n = floor(#rec.miss / 3) end
+        if (is_data or kind == "malformed") and addrs_ok then
+            -- the list in use at this frame on the first pass
+            local h = get_dir(pinfo, num, dstb, srcb).uhist
+            if h then
+                for k = #h - 2, 1, -3 do
+                    local hn = h[k]
+                    if hn < num or (hn == num and h[k + 1] <= sk) then
+                        list = h[k + 2]
+                        break
+                    end
+                end
+            end
+        end
+    end
+
+    if is_data then
+        local full = (n_ord == nil or n_ord == 0) and n_empty_d == 0 and miss_n == 0 and
+            (n_pos == 0 or n_pos >= #list)
+        kind = full and "full" or "delta"
+    end
+
+    -- Info column
+    if frames_in_info > 0 then
+        if info_full then frames_dropped = frames_dropped + 1 else info_add(" ; ") end
+    end
+    frames_in_info = frames_in_info + 1
+    local info_done = false
+    if fast_sh and frames_in_info == 1 and kind == "full" and not (rec and rec.late) then
+        -- same text as the pieces below, in one string.format
+        local total = fast_sh.info_len
+        for k = 1, nv do total = total + #VV[k] end
+        if total <= INFO_MAX then
+            ninfo, info_len = 1, total
+            INFO[1] = s_format(fast_sh.fmt, VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8])
+            info_done = true
+        end
+    end
+    if not info_done then info_clean = false end
+    if not info_full and not info_done then
+        info_add(src .. ARROW .. dst .. " " .. kind)
+        if is_data or kind == "reply" or kind == "malformed" then
+            for v = 1, nv do
+                if info_full then break end
+                local val = VV[v]
+                if val and val ~= "" then
+                    local name = VN[v]
+                    if not name then name = list[VI[v] + 1] or ("#" .. VI[v]) end
+                    info_add(" " .. name .. "=" .. val)
+                end
+            end
+            local nc = n_empty_d + miss_n
+            if nc > 0 then info_add(" (+" .. nc .. " carried)") end
+        elseif kind == "query" then
+            for v = 1, nv do
+                if VN[v] then info_add(" " .. VN[v]) end
+            end
+        elseif kind == "declaration" then
+            info_add(l_ord and (" L" .. l_ord) or (" N" .. (n_ord or 0)))
+            for v = 1, nv do
+                if VN[v] then info_add(" " .. VN[v]) end
+            end
+        elseif kind == "command" and cmd_start then
+            local cmd = s_gsub(s_sub(f, cmd_start, cpos and cpos - 2 or bodyend), "|D?", " ")
+            info_add(" " .. cmd)
+        end
+        if rec and rec.late then info_add(" [sync late]") end
+    end
+
+    -- Tree (skipped entirely when there is none, e.g. tshark summary pass)
+    if not ti then return ti ~= nil or tree == nil end
+    ti:append_text(", " .. src .. ARROW .. dst .. " " .. kind)
+
+    local it
+    if dstb then it = ti:add(hf.dst, tvb(o + 3, 1), dst) end
+    if dnode then
+        it:append_text(" (node " .. (dstb - B_A + 1) .. ")")
+        ti:add(hf.dst_node, tvb(o + 3, 1), dstb - B_A + 1):set_generated()
+    elseif dstb then
+        it:add_proto_expert_info(ei.address_invalid, "Destination " .. dst .. " is not a letter A-P")
+    end
+    if srcb then it = ti:add(hf.src, tvb(o + 4, 1), src) end
+    if snode then
+        it:append_text(" (node " .. (srcb - B_A + 1) .. ")")
+        ti:add(hf.src_node, tvb(o + 4, 1), srcb - B_A + 1):set_generated()
+    elseif srcb then
+        it:add_proto_expert_info(ei.address_invalid, "Source " .. src .. " is not a letter A-P")
+    end
+    ti:add(hf.kind, kind):set_generated()
+    if malformed_msg then
+        ti:add_proto_expert_info(ei.malformed, malformed_msg)
+    end
+
+    local ke = 0          -- carried values of empty D fields: rec[ke + 1], rec[ke + 2]
+    local resp_in = rec and rec.resp_in
+    local resp_to = rec and rec.resp_to
+    local rts = rec and rec.rt
+    local unmatched = rec and rec.unmatched
+
+    -- fields in order; a variable is rendered at its first field
+    for i = 1, nf do FV[i] = 0; FC[i] = false end
+    for v = 1, nv do
+        if VV[v] or kind == "declaration" or VR[v] then
+            local first = VTf[v] ~= 0 and VTf[v] or (VQf[v] ~= 0 and VQf[v] or VDf[v])
+            FV[first] = v
+            if VQf[v] ~= 0 and VQf[v] ~= first then FC[VQf[v]] = true end
+            if VDf[v] ~= 0 and VDf[v] ~= first then FC[VDf[v]] = true end
+        end
+    end
+    local cmd_item = nil
+    for i = 1, nf do
+        local l = FL[i]
+        local fs, fe = FS[i], FE[i]
+        local v = FV[i]
+        if v ~= 0 then
+            local tf, qf, df = VTf[v], VQf[v], VDf[v]
+            local vend = df ~= 0 and df or (qf ~= 0 and qf or tf)
+            local name = VN[v]
+            local named = name and true or false
+            if not named then name = list[VI[v] + 1] end
+            local vt = ti:add(hf.var, tvb(o + fs, FE[vend] - fs + 1))
+            local label = name or ("#" .. VI[v])
+            local vtype = nil
+            if tf ~= 0 then
+                vtype = valid_type(VT[v])
+                if vtype then
+                    vt:add(hf.ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
+                else
+                    vt:add(tvb(o + FS[tf], FE[tf] - FS[tf] + 1), "Type (T): " .. VT[v])
+                        :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
+                end
+            end
+            if named then
+                local qr = tvb(o + FS[qf] + 1, FE[qf] - FS[qf])
+                if VR[v] then vt:add(hf.response, qr, name) end
+                vt:add(hf.var_name, qr, name)
+            elseif name then
+                vt:add(hf.var_name, tvb(o + FS[df], 1), name):set_generated()
+            else
+                vt:add_proto_expert_info(ei.var_unknown,
+                    "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
+            end
+            if not VR[v] then vt:add(hf.var_index, VI[v]):set_generated() end
+            local val = VV[v]
+            if val then
+                if val ~= "" then
+                    local vr = tvb(o + FS[df] + 1, FE[df] - FS[df])
+                    vt:add(hf.var_value, vr, val)
+                    if vtype then add_typed_value(vt, vr, vtype, val) end
+                    vt:set_text(label .. " = " .. val)
+                else
+                    local cv, cf = false, false
+                    local csrc = rec or (ne > 0 and CARRY)
+                    if csrc then cv, cf = csrc[ke + 1], csrc[ke + 2] end
+                    ke = ke + 2
+                    local r0 = tvb(o + FS[df], 1)
+                    vt:add(hf.var_value, r0, cv or "?"):set_generated()
+                    vt:add(hf.var_carried, r0, true):set_generated()
+                    if cf then
+                        vt:add(hf.var_carried_from, r0, cf):set_generated()
+                        vt:set_text(label .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
+                    else
+                        vt:set_text(label .. " = ? (carried, no earlier value)")
+                    end
+                end
+                if VR[v] then
+                    if resp_to and resp_to[name] then
+                        vt:add(hf.response_to, resp_to[name]):set_generated()
+                        vt:add(hf.response_time, nstime_of(rts[name])):set_generated()
+                    elseif unmatched and unmatched[name] then
+                        vt:add_proto_expert_info(ei.unanswered)
+                    end
+                end
+            else
+                vt:set_text(label .. (VR[v] and " (reply without value)" or " (declared)"))
+            end
+        elseif not FC[i] and fs ~= cpos then
+            local text = (l ~= false) and s_sub(f, fs + 1, fe) or ""
+            local vr = tvb(o + fs + 1, fe - fs)     -- the text after the letter
+            if l == false then
+                ti:add(zrange(tvb, o + fs), "Empty field"):add_proto_expert_info(ei.field_empty)
+            elseif l == L_N or l == L_L then
+                local n = tonumber(text)
+                if n and n >= 0 and n < 4294967296 and n == floor(n) then
+                    ti:add(l == L_N and hf.ordinal or hf.inbound_ordinal, vr, floor(n))
+                else
+                    ti:add(tvb(o + fs, fe - fs + 1), (l == L_N and "Ordinal (N): " or "Inbound ordinal (L): ") ..
+                        text):add_proto_expert_info(ei.var_badvalue, "Ordinal is not a number")
+                end
+            elseif l == L_Q then
+                local qt = ti:add(hf.query, vr, text)
+                if resp_in and resp_in[text] then
+                    qt:add(hf.response_in, resp_in[text]):set_generated()
+                end
+            elseif l == L_R then
+                ti:add(hf.response, vr, text)
+            elseif l == L_T then
+                local t = valid_type(text)
+                if t then
+                    ti:add(hf.ftype, vr, t)
+                else
+                    ti:add(tvb(o + fs, fe - fs + 1), "Type (T): " .. text)
+                        :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
+                end
+            elseif l == L_E then
+                cmd_item = ti:add(hf.command, vr, text)
+            elseif l == L_M then
+                ti:add(hf.mode, vr, text)
+            elseif l == L_P then
+                ti:add(hf.ping, vr, text)
+            elseif l == L_G then
+                ti:add(hf.pong, vr, text)
+            elseif l == L_D then
+                (cmd_item or ti):add(hf.command_arg, vr, text)
+            else
+                local ft = ti:add(hf.field_letter, tvb(o + fs, 1), LETTER[l])
+                ft:add(hf.field_text, tvb(o + fs, fe - fs + 1), s_sub(f, fs, fe))
+                if l == L_C then
+                    ft:add_proto_expert_info(ei.field_unknown, "Checksum field C that is not the last field")
+                else
+                    ft:add_proto_expert_info(ei.field_unknown, "Unknown field letter " .. LETTER[l])
+                end
+            end
+        end
+    end
+
+    -- carried named variables (left out of this frame)
+    local miss = rec and rec.miss
+    local miss_len = miss and #miss or 0
+    if not miss and nm > 0 then miss, miss_len = MISS, nm end    -- packed on this pass
+    if miss then
+        for k = 1, miss_len, 3 do
+            local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
+            local vt = ti:add(hf.var, zrange(tvb, o + bodyend))
+            vt:add(hf.var_name, name):set_generated()
+            vt:add(hf.var_value, cv or "?"):set_generated()
+            vt:add(hf.var_carried, true):set_generated()
+            if cf then
+                vt:add(hf.var_carried_from, cf):set_generated()
+                vt:set_text(name .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
+            else
+                vt:set_text(name .. " = ? (carried, no earlier value)")
+            end
+            vt:set_generated()
+        end
+    end
+
+    if rec and rec.late then
+        ti:add_proto_expert_info(ei.sync_late,
+            s_format("No full frame for %.3f s (sync interval %.3f s + %.1f s slack)",
+                rec.late, pref_sync - SYNC_SLACK, SYNC_SLACK))
+    end
+
+    -- Checksum
+    if cpos then
+        local cr = tvb(o + cpos, #ctext + 1)
+        local val = nil
+        if #ctext >= 1 and #ctext <= 8 and not s_find(ctext, "[^0-9A-Fa-f]") then val = tonumber(ctext, 16) end
+        local ct
+        if val and val <= 255 then
+            ct = ti:add(hf.checksum, cr, val)
+        else
+            ct = ti:add(hf.checksum_text, cr, ctext)
+        end
+        if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then
+            ct:add_proto_expert_info(ei.checksum_format, "Checksum \"" .. ctext ..
+                "\" is not two upper-case hex digits")
+        end
+        if pref_validate then
+            local calc = byte_sum(f, 2, cpos)
+            ct:add(hf.checksum_calc, cr, calc):set_generated()
+            if val == calc then
+                ct:add(hf.checksum_status, cr, 1):set_generated()
+                ct:append_text(" [correct]")
+            else
+                ct:add(hf.checksum_status, cr, 0):set_generated()
+                ct:append_text(s_format(" [incorrect, should be 0x%02x]", calc))
+                ct:add_proto_expert_info(ei.checksum_bad,
+                    s_format("Bad checksum: %s, calculated %02X", ctext, calc))
+            end
+        else
+            ct:add(hf.checksum_status, cr, 2):set_generated()
+        end
+    else
+        ti:add(hf.checksum_status, 2):set_generated()
+        if terminated and not malformed_msg then
+            ti:add_proto_expert_info(ei.checksum_missing)
+        end
+    end
+
+    -- line terminator
+    if terminated then
+        local b = a + fl - 1
+        if not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
+            ti:add_proto_expert_info(ei.crlf_missing)
+        end
+    end
+    return true
+end
+------------------------------------------------------------------------------
+-- Payload scanning
+------------------------------------------------------------------------------
+-- Noise s[i..j] between frames (CR/LF alone is not noise).  Returns false when
+-- there turned out to be no real tree.
+local function add_noise(s, i, j, tvb, tree)
+    local k = s_find(s, "[^\r\n]", i)
+    if not k or k > j then return nil end
+    if info_full then
+        frames_dropped = frames_dropped + 1
+    else
+        if frames_in_info > 0 then info_add(" ; ") end
+        info_add("noise (" .. (j - i + 1) .. " bytes)")
+        frames_in_info = frames_in_info + 1
+    end
+    if not tree then return nil end
+    local r = tvb(i - 1, j - i + 1)
+    local ti = tree:add(sl, r)
+    if ti.text == nil then return false end
+    ti:append_text(", noise")
+    ti:add(hf.noise, r):add_proto_expert_info(ei.noise, (j - i + 1) .. " bytes outside any frame")
+    return true
+end
+
+local function dissect(tvb, pinfo, tree)
+    local n = tvb:len()
+    if n <= 0 then return 0 end
+    local s = tvb:raw(0, n)
+    local can_deseg = pinfo.can_desegment > 0
+    local sk_base = n * 1048576
+    local cols = pinfo.cols
+
+    cols.protocol = "SharedLink"
+    ninfo, info_len, info_full, frames_in_info, frames_dropped = 0, 0, false, 0, 0
+    info_clean = true
+
+    -- The tree handed to a Lua dissector wraps a hidden "fake" item; with no real
+    -- tree (tshark summary pass) its text is nil.  Skip all tree work then.
+    local t = tree
+    if t ~= nil and t.text == nil then t = nil end
+    local pos = 1
+    local open_at, close_at = 0, 0 -- cached search results (false = none left)
+    local r
+    while pos <= n do
+        if open_at ~= false and open_at < pos then open_at = s_find(s, "[:", pos, true) or false end
+        local a = open_at
+        if not a then
+            if can_deseg and s_byte(s, n) == B_LBRACK then
+                -- a frame may start with this '[' in the next segment
+                if n > pos then add_noise(s, pos, n - 1, tvb, t) end
+                pinfo.desegment_offset = n - 1
+                pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
+            else
+                add_noise(s, pos, n, tvb, t)
+            end
+            break
+        end
+        if a > pos then
+            r = add_noise(s, pos, a - 1, tvb, t)
+            if r == false then t = nil end
+        end
+        if close_at ~= false and close_at < a + 2 then close_at = s_find(s, "]", a + 2, true) or false end
+        local b = close_at
+        open_at = s_find(s, "[:", a + 2, true) or false
+        local na = open_at
+        local sk = sk_base + a
+        if b and (not na or b < na) then
+            local e = b
+            local c1, c2 = s_byte(s, b + 1, b + 2)
+            if c1 == B_CR then
+                if c2 == B_LF then e = b + 2 else e = b + 1 end
+            elseif c1 == B_LF then
+                e = b + 1
+            end
+            if a == 1 then
+                r = dissect_frame(s, b, a, e, true, tvb, pinfo, t, sk, s)
+            else
+                r = dissect_frame(s_sub(s, a, b), b - a + 1, a, e, true, tvb, pinfo, t, sk, s)
+            end
+            pos = e + 1
+        elseif na then
+            r = dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, tvb, pinfo, t, sk, s)
+            pos = na
+        else
+            if can_deseg and (n - a) < MAX_PENDING then
+                pinfo.desegment_offset = a - 1
+                pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
+                break
+            end
+            r = dissect_frame(s_sub(s, a, n), n - a + 1, a, n, false, tvb, pinfo, t, sk, s)
+            pos = n + 1
+        end
+        if r == false then t = nil end
+    end
+
+    if frames_dropped > 0 then
+        ninfo = ninfo + 1
+        INFO[ninfo] = " (+" .. frames_dropped .. " more)"
+    end
+    if ninfo > 0 then
+        local info = (ninfo == 1) and INFO[1] or t_concat(INFO, "", 1, ninfo)
+        -- control characters from a damaged frame must not break the column (the
+        -- fast path's text cannot hold any: its patterns exclude them)
+        if not info_clean and s_find(info, CTRL) then info = s_gsub(info, CTRL, "?") end
+        cols.info = info
+    end
+    return n
+end
+
+sl.dissector = dissect
+
+------------------------------------------------------------------------------
+-- Heuristics
+------------------------------------------------------------------------------
+local function looks_like_sharedlink(tvb, is_tcp)
+    local n = tvb:len()
+    if n < 5 then return false end
+    local head = tvb:raw(0, n < 8 and n or 8)
+    local o = 1
+    -- allow leading CR/LF
+    while o <= #head and (s_byte(head, o) == B_CR or s_byte(head, o) == B_LF) do o = o + 1 end
+    if o > 3 then return false end
+    local b1, b2, b3, b4, b5 = s_byte(head, o, o + 4)
+    if b1 ~= B_LBRACK or b2 ~= B_COLON then return false end
+    if not b3 or b3 < B_A or b3 > B_P or not b4 or b4 < B_A or b4 > B_P then return false end
+    if b5 ~= B_PIPE and b5 ~= B_RBRACK then return false end
+    local s = tvb:raw(0, n)
+    local close = s_find(s, "]", o + 4, true)
+    local bad = s_find(s, "[^\32-\126]", o)
+    if close then
+        if bad and bad < close then return false end
+        local c = s_byte(s, close + 1)
+        if not (c == nil or c == B_LBRACK or c == B_LF or (c == B_CR and
+            (s_byte(s, close + 2) == B_LF or close + 1 == n))) then
+            return false
+        end
+        return true
+    end
+    -- no ']' yet: only TCP may wait for the rest of the frame
+    if is_tcp and not bad and n >= 8 then return true end
+    return false
+end
+
+local function make_heuristic(is_tcp)
+    return function(tvb, pinfo, tree)
+        if not pref_heuristic then return false end
+        if not looks_like_sharedlink(tvb, is_tcp) then return false end
+        pinfo.conversation = sl
+        dissect(tvb, pinfo, tree)
+        return true
+    end
+end
+
+sl:register_heuristic("udp", make_heuristic(false))
+sl:register_heuristic("tcp", make_heuristic(true))
+
+------------------------------------------------------------------------------
+-- Ports
+------------------------------------------------------------------------------
+local udp_table = DissectorTable.get("udp.port")
+local tcp_table = DissectorTable.get("tcp.port")
+local current_ports = ""
+
+local function apply_ports()
+    local ports = sl.prefs.ports
+    if type(ports) ~= "string" then ports = tostring(ports or "") end
+    if ports == current_ports then return end
+    if current_ports ~= "" then
+        udp_table:remove(current_ports, sl)
+        tcp_table:remove(current_ports, sl)
+    end
+    if ports ~= "" then
+        udp_table:add(ports, sl)
+        tcp_table:add(ports, sl)
+    end
+    current_ports = ports
+end
+
+function sl.prefs_changed()
+    apply_ports()
+    pref_list = parse_list(sl.prefs.variables)
+    pref_validate = sl.prefs.validate_checksum
+    pref_heuristic = sl.prefs.heuristic
+    pref_sync = (tonumber(sl.prefs.sync_interval) or 1000) / 1000 + SYNC_SLACK
+end
+
+apply_ports()
+pref_list = parse_list(DEFAULT_VARS)

@@ -1,0 +1,219 @@
+"""``sharedlink diff``: do two captures carry the same data?"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..diff import DiffOptions, DiffReport, Divergence, Staleness, diff_captures
+from ..errors import UsageError
+from ..stream import SideStats
+from ._transform import VARIABLES_HELP, variables_arg
+
+EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+TYPE_NAMES = {0: "long", 2: "double", 4: "string"}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "diff",
+        help="compare the shared-variable data of two captures",
+        description="Rebuild every variable's value over time in two captures (values carried forward, lists "
+        "learnt, positional and named forms alike), align the value frames of each direction (by time within "
+        "a window, or by sequence) and compare. Reports frames and bytes of each capture and the saving of B "
+        "against A, per variable the samples compared, mismatches, first divergence and worst staleness, full "
+        "syncs and missed sync intervals, checksum failures, undecodable data, variables on one side only and "
+        "unmatched frames.",
+        epilog="Exit codes: 0 the data agree, 1 they diverge, 2 bad usage or a missing/damaged capture (what "
+        "comes before the damage is still compared and reported), 130 interrupted.",
+    )
+    p.add_argument("a", type=Path, help="first capture (pcap or pcapng), e.g. the full stream")
+    p.add_argument("b", type=Path, help="second capture, e.g. the compressed stream")
+    p.add_argument("--by", choices=("time", "sequence"), default="time",
+                   help="align frames by time within --window (default) or by their order")
+    p.add_argument("--window", type=float, default=None, metavar="MS",
+                   help="with --by time: frames match when this close, in ms (default half the frame period)")
+    p.add_argument("--tolerance", type=float, default=0.0, metavar="X",
+                   help="doubles within X of each other are equal (default 0: equal as numbers)")
+    p.add_argument("--sync-interval", type=float, default=1.0, metavar="S",
+                   help="a full set is due every S seconds: a gap between full sets that rounds to n >= 2 "
+                   "intervals misses n - 1 (default 1)")
+    p.add_argument("--variables", metavar="LIST", default=None, help=VARIABLES_HELP)
+    p.add_argument("--single-process", action="store_true",
+                   help="read both captures in this process (default: each in its own)")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    opts = DiffOptions(
+        by=args.by,
+        window_ms=args.window,
+        tolerance=args.tolerance,
+        sync_interval=args.sync_interval,
+        variables=variables_arg(args.variables),
+        parallel=not args.single_process,
+    )
+    try:
+        opts.validate()
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    for path in (args.a, args.b):
+        if not path.exists():
+            raise UsageError(f"{path}: no such file")
+        if path.is_dir():
+            raise UsageError(f"{path}: is a directory, not a capture")
+    report = diff_captures(args.a, args.b, opts)
+    unreadable = [s.error for s in (report.a, report.b) if s.error and s.records == 0]
+    if unreadable:  # not a capture at all: nothing to compare
+        raise UsageError("; ".join(unreadable))
+    if args.json:
+        json.dump(report.to_dict(), sys.stdout, indent=1)
+        print()
+    elif sys.stdout.isatty():
+        print_rich(report)
+    else:
+        print_plain(report)
+    for err in report.errors:
+        print(f"sharedlink: error: {err} (the data before it were compared)", file=sys.stderr)
+    if report.errors:
+        return EXIT_USAGE
+    return EXIT_OK if report.agree else EXIT_FAIL
+
+
+# -- formatting ------------------------------------------------------------------------------
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{x:.1%}"
+
+
+def _rel(ns: int | None, side: SideStats) -> str:
+    if ns is None:
+        return "-"
+    return f"{(ns - (side.start_ns or ns)) / 1e9:.3f} s"
+
+
+def _value(v: str | None) -> str:
+    return "(none)" if v is None else repr(v) if (v == "" or v != v.strip()) else v
+
+
+def _divergence(d: Divergence | None, r: DiffReport) -> str:
+    if d is None:
+        return "-"
+    return (f"A #{d.a_frame} @{_rel(d.a_time_ns, r.a)} = {_value(d.a_value)}; "
+            f"B #{d.b_frame} @{_rel(d.b_time_ns, r.b)} = {_value(d.b_value)}")
+
+
+def _staleness(s: Staleness | None) -> str:
+    if s is None:
+        return "-"
+    where = f"A #{s.from_a_frame}/B #{s.from_b_frame}"
+    late = f" ({s.late.upper()} late)" if s.late else ""
+    if s.to_a_frame is None:
+        return f"{s.ms:.0f} ms from {where}, never caught up{late}"
+    return f"{s.ms:.0f} ms from {where} to A #{s.to_a_frame}/B #{s.to_b_frame}{late}"
+
+
+def _capture_rows(r: DiffReport) -> list[tuple[str, str, str]]:
+    a, b = r.a, r.b
+    rows = [
+        ("file", a.path, b.path),
+        ("records", f"{a.records:,}", f"{b.records:,}"),
+        ("SharedLink frames (with values)", f"{a.frames:,} ({a.value_frames:,})", f"{b.frames:,} ({b.value_frames:,})"),
+        ("SharedLink bytes", f"{a.payload_bytes:,}", f"{b.payload_bytes:,}"),
+        ("captured bytes", f"{a.wire_bytes:,}", f"{b.wire_bytes:,}"),
+        ("full-sync frames", f"{a.full:,}", f"{b.full:,}"),
+        ("sync intervals missed", f"{a.sync_missed:,}", f"{b.sync_missed:,}"),
+        ("checksum failures", f"{a.checksum_failures:,}", f"{b.checksum_failures:,}"),
+        ("undecodable (noise)", f"{a.undecodable:,}", f"{b.undecodable:,}"),
+        ("other packets", f"{a.other_packets:,}", f"{b.other_packets:,}"),
+        ("unmatched value frames", f"{r.unmatched_a:,}", f"{r.unmatched_b:,}"),
+    ]
+    return rows
+
+
+def _summary_lines(r: DiffReport) -> list[str]:
+    lines = [
+        f"B saves {_pct(r.saving_payload)} of A's SharedLink bytes ({_pct(r.saving_wire)} of captured bytes)",
+        f"aligned by {r.by}" + (f" within {r.window_ms:g} ms" if r.by == "time" else "")
+        + f": {r.pairs:,} matched value-frame pairs",
+    ]
+    for side, lst in (("A", r.first_unmatched_a), ("B", r.first_unmatched_b)):
+        if lst:
+            stats = r.a if side == "A" else r.b
+            n = r.unmatched_a if side == "A" else r.unmatched_b
+            shown = ", ".join(f"#{u.frame} @{_rel(u.time_ns, stats)} ({u.stream})" for u in lst)
+            lines.append(f"unmatched in {side}: {n:,} frames: {shown}" + (", ..." if n > len(lst) else ""))
+    for side, vs in (("A", r.only_a), ("B", r.only_b)):
+        if vs:
+            lines.append(f"only in {side}: " + ", ".join(f"{v.stream} {v.name}" for v in vs))
+    return lines
+
+
+def _verdict(r: DiffReport) -> str:
+    if r.errors:
+        return "INCOMPLETE: a capture is damaged (see the error below)"
+    if r.agree:
+        return "AGREE: both captures carry the same data"
+    bad = [v for v in r.variables if not v.agree]
+    what = []
+    if bad:
+        what.append(f"{len(bad)} variable(s) differ")
+    if r.unmatched_a or r.unmatched_b:
+        what.append(f"{r.unmatched_a + r.unmatched_b:,} unmatched frame(s)")
+    return "DIVERGE: " + ", ".join(what)
+
+
+def print_plain(r: DiffReport) -> None:
+    rows = _capture_rows(r)
+    w0 = max(len(x[0]) for x in rows)
+    w1 = max(len(x[1]) for x in rows)
+    print(f"{'':<{w0}}  {'A':<{w1}}  B")
+    for label, a, b in rows:
+        print(f"{label:<{w0}}  {a:<{w1}}  {b}")
+    print()
+    for line in _summary_lines(r):
+        print(line)
+    print()
+    print("variables:")
+    for v in r.variables:
+        t = TYPE_NAMES.get(v.type, "?") if v.type is not None else "?"
+        where = "" if v.present == "both" else f" (only in {v.present.upper()})"
+        print(f"  {v.stream} {v.name} [{t}]{where}: {v.samples:,} samples, {v.mismatches:,} mismatches")
+        if v.first_divergence is not None:
+            print(f"    first divergence: {_divergence(v.first_divergence, r)}")
+        if v.worst_staleness is not None:
+            print(f"    worst staleness: {_staleness(v.worst_staleness)}")
+    print()
+    print(_verdict(r))
+
+
+def print_rich(r: DiffReport) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    caps = Table(title="captures", title_justify="left")
+    caps.add_column("")
+    caps.add_column("A")
+    caps.add_column("B")
+    for label, a, b in _capture_rows(r):
+        caps.add_row(label, a, b)
+    con.print(caps)
+    for line in _summary_lines(r):
+        con.print(line, highlight=False)
+    vt = Table(title="variables", title_justify="left")
+    for col in ("stream", "name", "type", "samples", "mismatches", "first divergence", "worst staleness"):
+        vt.add_column(col, justify="right" if col in ("samples", "mismatches") else "left", overflow="fold")
+    for v in r.variables:
+        name = v.name if v.present == "both" else f"{v.name} (only {v.present.upper()})"
+        style = None if v.agree else "red"
+        vt.add_row(
+            v.stream, name, TYPE_NAMES.get(v.type, "?") if v.type is not None else "?", f"{v.samples:,}",
+            f"{v.mismatches:,}", _divergence(v.first_divergence, r), _staleness(v.worst_staleness), style=style,
+        )
+    con.print(vt)
+    con.print(_verdict(r), style="bold green" if r.agree else "bold red", highlight=False)

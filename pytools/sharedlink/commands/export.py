@@ -1,0 +1,76 @@
+"""``sharedlink export``: a capture as CSV, JSON Lines, GeoJSON or KML."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..cli import EXIT_OK, EXIT_USAGE, UsageError
+from ..export import FORMATS, LAT, LON, ExportOptions, export, export_file
+from ..pcapio import CaptureError
+from .stats import add_decode_options, check_capture, decode_options
+
+_SUFFIXES = {".csv": "csv", ".jsonl": "jsonl", ".ndjson": "jsonl", ".geojson": "geojson", ".kml": "kml"}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "export",
+        help="export frames or value changes as csv, jsonl, geojson or kml",
+        description="One row per SharedLink frame (every variable's value after it, timestamps, kind, checksum), "
+        "or one per variable change with --changes. GeoJSON and KML hold the GPS track(s) for map tools. "
+        "Streams: any size of capture.",
+    )
+    p.add_argument("capture", type=Path, help="pcap or pcapng file")
+    p.add_argument("--format", dest="fmt", choices=FORMATS, default=None,
+                   help="output format (default: from the -o file name, else csv)")
+    p.add_argument("-o", "--output", type=Path, default=None, help="file to write (default: standard output)")
+    p.add_argument("--changes", action="store_true", help="one row per variable change instead of one per frame")
+    p.add_argument("--vars", default=None, metavar="NAME,...", help="variables to export (default: all)")
+    p.add_argument("--lat", default=LAT, help=f"latitude variable for geojson/kml (default {LAT})")
+    p.add_argument("--lon", default=LON, help=f"longitude variable for geojson/kml (default {LON})")
+    add_decode_options(p)
+    p.add_argument("--json", action="store_true", help="print a summary as JSON on standard error")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    variables, sync = decode_options(args)
+    check_capture(args.capture)
+    fmt = args.fmt
+    if fmt is None:
+        fmt = _SUFFIXES.get(args.output.suffix.lower(), "csv") if args.output is not None else "csv"
+    columns = None
+    if args.vars is not None:
+        columns = [v.strip() for v in args.vars.split(",") if v.strip()]
+        if not columns:
+            raise UsageError("--vars: no variable named")
+    if args.output is not None and args.output.is_dir():
+        raise UsageError(f"{args.output}: is a directory")
+    opts = ExportOptions(fmt=fmt, changes=args.changes, variables=variables, columns=columns,
+                         sync_interval=sync, lat=args.lat, lon=args.lon)
+    try:
+        if args.output is None:
+            result = export(args.capture, sys.stdout, opts)
+        else:
+            result = export_file(args.capture, args.output, opts)
+    except CaptureError as exc:
+        raise UsageError(str(exc)) from None
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise UsageError(f"{args.output}: {exc.strerror or exc}") from None
+    summary = {"capture": str(args.capture), "output": str(args.output or "-"), "format": fmt,
+               "frames": result.frames, "rows": result.rows, "points": result.points, "error": result.error}
+    if args.json:
+        print(json.dumps(summary), file=sys.stderr)
+    elif args.output is not None:
+        what = "points" if fmt in ("geojson", "kml") else "rows"
+        n = result.points if what == "points" else result.rows
+        print(f"wrote {args.output}: {n} {what} from {result.frames} frames ({fmt})", file=sys.stderr)
+    if result.error:
+        print(f"sharedlink: error: {result.error} (the {result.frames} frames before it were exported)", file=sys.stderr)
+        return EXIT_USAGE
+    return EXIT_OK

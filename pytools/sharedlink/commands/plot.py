@@ -1,0 +1,76 @@
+"""``sharedlink plot``: the GPS track and the variables over time, as an image."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..cli import EXIT_OK, EXIT_USAGE, UsageError
+from ..export import LAT, LON
+from ..pcapio import CaptureError
+from .stats import add_decode_options, check_capture, decode_options
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "plot",
+        help="plot the GPS track and the variables over time",
+        description="Draw the vehicle's track (latitude/longitude coloured by speed, start and end, gaps and "
+        "checksum failures marked) and each variable over time in panels below. Long captures are thinned.",
+    )
+    p.add_argument("capture", type=Path, help="pcap or pcapng file")
+    p.add_argument("-o", "--output", type=Path, required=True, help="image to write (.png, .svg or .pdf)")
+    p.add_argument("--vars", default=None, metavar="NAME,...", help="variables to plot below the track (default: all numeric)")
+    p.add_argument("--lat", default=LAT, help=f"latitude variable (default {LAT})")
+    p.add_argument("--lon", default=LON, help=f"longitude variable (default {LON})")
+    p.add_argument("--speed", default="AutoGpsVel", help="variable the track is coloured by (default AutoGpsVel)")
+    p.add_argument("--max-points", type=int, default=5000, help="points kept per series (default 5000)")
+    add_decode_options(p)
+    p.add_argument("--json", action="store_true", help="print a summary as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    variables, sync = decode_options(args)
+    check_capture(args.capture)
+    if args.output.suffix.lower() not in (".png", ".svg", ".pdf"):
+        raise UsageError(f"{args.output}: give a .png, .svg or .pdf file name")
+    if args.max_points < 10:
+        raise UsageError("--max-points must be at least 10")
+    names = None
+    if args.vars is not None:
+        names = [v.strip() for v in args.vars.split(",") if v.strip()]
+        if not names:
+            raise UsageError("--vars: no variable named")
+    import matplotlib
+
+    matplotlib.use("Agg")  # headless, whatever the environment says
+    from ..plot import build_figure, collect
+
+    try:
+        data = collect(args.capture, variables, sync, max_points=args.max_points,
+                       lat=args.lat, lon=args.lon, speed=args.speed)
+    except CaptureError as exc:
+        raise UsageError(str(exc)) from None
+    try:
+        fig = build_figure(data, names)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    try:
+        fig.savefig(str(args.output))
+    except OSError as exc:
+        raise UsageError(f"{args.output}: {exc.strerror or exc}") from None
+    panels = len(names) if names is not None else len(data.variables)
+    summary = {"capture": str(args.capture), "output": str(args.output), "frames": data.frames,
+               "variables": names if names is not None else data.variables, "panels": 1 + panels,
+               "gaps": data.gaps, "checksum_failures": data.checksum_failures, "error": data.error}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"wrote {args.output}: track and {panels} variable panels from {data.frames} frames", file=sys.stderr)
+    if data.error:
+        print(f"sharedlink: error: {data.error} (the {data.frames} frames before it are plotted)", file=sys.stderr)
+        return EXIT_USAGE
+    return EXIT_OK

@@ -1,0 +1,196 @@
+"""``sharedlink replay``: put a capture's frames back on the network or a serial line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from ..cli import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, UsageError
+from ..pcapio import CaptureError
+from ..replay import (
+    USER_LINKTYPES,
+    CaptureFrames,
+    FrameFilter,
+    Replayer,
+    ReplayError,
+    ReplayOptions,
+    ReplayStats,
+    SerialSink,
+    UdpSink,
+    first_linktype,
+    split_host_port,
+)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "replay",
+        help="send a capture's frames over UDP or a serial line, with the capture's timing",
+        description="Send the SharedLink payloads of a pcap/pcapng capture (its UDP payloads; records on a USER "
+        "link type 147-162 as raw serial bytes) through an ordinary UDP socket, no root needed, or to a serial "
+        "port. Timing follows the capture against absolute deadlines (no drift), or --speed/--pps/--topspeed.",
+        epilog="Exit codes: 0 every frame sent, 1 some frames could not be sent (send errors), 2 bad usage or a "
+        "missing/damaged capture (the frames before the damage are still sent), 130 interrupted (Ctrl-C; the "
+        "summary is still printed).",
+    )
+    p.add_argument("capture", type=Path, help="pcap or pcapng file")
+    dest = p.add_argument_group("destination")
+    dest.add_argument("--to", metavar="HOST[:PORT]", default=None,
+                      help="destination (default 127.0.0.1, on the port each frame had in the capture)")
+    dest.add_argument("--broadcast", action="store_true", help="allow a broadcast destination (sets SO_BROADCAST)")
+    dest.add_argument("--bind", metavar="ADDR", default=None, help="source address (ADDR or ADDR:PORT) or interface name")
+    dest.add_argument("--serial", metavar="DEVICE", default=None, help="write the bytes to this serial port or pty instead")
+    dest.add_argument("--baud", type=int, default=9600, help="with --serial: baud rate (default 9600)")
+    timing = p.add_argument_group("timing")
+    pace = timing.add_mutually_exclusive_group()
+    pace.add_argument("--speed", type=float, default=1.0, metavar="X", help="capture timing times X (2 = twice as fast)")
+    pace.add_argument("--pps", type=float, default=None, metavar="N", help="a steady N frames per second instead")
+    pace.add_argument("--topspeed", action="store_true", help="as fast as possible")
+    timing.add_argument("--loop", type=int, default=1, metavar="N", help="passes over the capture (0 = until stopped; default 1)")
+    timing.add_argument("--loop-delay", type=float, default=0.0, metavar="S",
+                        help="extra pause between passes in seconds (timed passes are also one frame gap apart)")
+    timing.add_argument("--limit", type=int, default=None, metavar="N", help="stop after N frames")
+    timing.add_argument("--realtime", action="store_true",
+                        help="pace at real-time priority (SCHED_FIFO) for steadier timing on a busy machine; needs root, "
+                        "CAP_SYS_NICE or an RLIMIT_RTPRIO, else a warning and ordinary scheduling")
+    sel = p.add_argument_group("selection")
+    sel.add_argument("--filter-port", type=int, action="append", default=[], metavar="PORT",
+                     help="only frames from or to this UDP port (repeatable)")
+    sel.add_argument("--filter-src", action="append", default=[], metavar="ADDR",
+                     help="only frames from this source address or network, e.g. 192.168.1.12 or 10.0.0.0/8 (repeatable)")
+    out = p.add_argument_group("output")
+    out.add_argument("--quiet", "-q", action="store_true", help="no progress, no summary (errors are still printed)")
+    out.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    p.set_defaults(func=run)
+
+
+def _sink(args: argparse.Namespace) -> UdpSink | SerialSink:
+    if args.serial:
+        if args.to or args.bind or args.broadcast:
+            raise UsageError("--serial writes to a serial port: --to, --bind and --broadcast do not apply")
+        if args.baud <= 0:
+            raise UsageError("--baud must be positive")
+        return SerialSink(args.serial, args.baud)
+    host, port = split_host_port(args.to) if args.to else ("127.0.0.1", None)
+    if port is None:
+        try:
+            lt = first_linktype(args.capture)
+        except CaptureError:
+            lt = None  # reported by the replay itself, after the good frames
+        if lt in USER_LINKTYPES:
+            raise UsageError(
+                f"{args.capture} holds serial records (link type {lt}), which have no UDP port: "
+                "give one with --to HOST:PORT, or write them to a serial port with --serial"
+            )
+    return UdpSink(host, port, bind=args.bind, broadcast=args.broadcast)
+
+
+def run(args: argparse.Namespace) -> int:
+    opts = ReplayOptions(
+        speed=args.speed,
+        pps=args.pps,
+        topspeed=args.topspeed,
+        loop=args.loop,
+        loop_delay=args.loop_delay,
+        limit=args.limit,
+        realtime=args.realtime,
+    )
+    try:
+        opts.validate()
+        flt = FrameFilter.build(args.filter_port, args.filter_src)
+        if not args.capture.exists():
+            raise UsageError(f"{args.capture}: no such file")
+        sink = _sink(args)
+    except ReplayError as exc:
+        raise UsageError(str(exc)) from None
+    progress = None if args.quiet else _Progress(args.capture.name, sink.description, opts.mode)
+    try:
+        replayer = Replayer(CaptureFrames(args.capture, flt), sink, opts,
+                            progress=progress, progress_interval=progress.interval if progress else 1.0)
+        stats = replayer.run()
+    finally:
+        if progress is not None:
+            progress.close()
+        sink.close()
+    summary: dict[str, Any] = {"file": str(args.capture), "destination": sink.description, "mode": opts.mode}
+    summary.update(stats.as_dict())
+    if args.json:
+        json.dump(summary, sys.stdout)
+        print()
+    elif not args.quiet:
+        print(_summary_text(stats), file=sys.stderr)
+    if stats.attempted == 0 and not stats.capture_error and not stats.interrupted:
+        c = stats.counts
+        print(f"sharedlink: warning: nothing to replay in {args.capture}: {c.records} records, {c.skipped} without a "
+              f"UDP payload, {c.filtered} left out by the filter", file=sys.stderr)
+    if args.realtime and not stats.realtime and not args.topspeed:
+        print("sharedlink: warning: --realtime: real-time scheduling not permitted (needs root, CAP_SYS_NICE or "
+              "an RLIMIT_RTPRIO); paced with ordinary scheduling", file=sys.stderr)
+    if stats.capture_error:
+        print(f"sharedlink: error: {stats.capture_error}"
+              + (f" (the {stats.frames} frames before it were sent)" if stats.frames else ""), file=sys.stderr)
+    if stats.send_errors and not args.json and args.quiet:
+        print(f"sharedlink: {stats.send_errors} frames could not be sent (first: {stats.first_error})", file=sys.stderr)
+    if stats.interrupted:
+        return EXIT_INTERRUPTED
+    if stats.capture_error:
+        return EXIT_USAGE
+    return EXIT_FAIL if stats.send_errors else EXIT_OK
+
+
+def _ms(ns: int | None) -> str:
+    return "-" if ns is None else f"{ns / 1e6:.3f} ms"
+
+
+def _summary_text(st: ReplayStats) -> str:
+    lines = [
+        f"{'stopped' if st.interrupted else 'sent'}: {st.frames:,} frames, {st.bytes:,} bytes in {st.elapsed_s:.3f} s "
+        f"({st.rate_fps:,.1f} frames/s, {st.rate_bps:,.0f} bytes/s), {st.passes} pass{'es' if st.passes != 1 else ''}",
+    ]
+    if st.lag_median_ns is not None:
+        lines.append(f"lag behind schedule: median {_ms(st.lag_median_ns)}, max {_ms(st.lag_max_ns)}; cpu {st.cpu_s:.3f} s")
+    c = st.counts
+    if c.skipped or c.filtered:
+        lines.append(f"left out: {c.skipped:,} records without a UDP payload, {c.filtered:,} by the filter")
+    if st.send_errors:
+        kinds = ", ".join(f"{n} {k}" for k, n in sorted(st.errors.items()))
+        lines.append(f"send errors: {st.send_errors:,} ({kinds}); first: {st.first_error}")
+    return "\n".join(lines)
+
+
+class _Progress:
+    """Live progress on a terminal (rich), plain lines every few seconds otherwise."""
+
+    def __init__(self, name: str, dest: str, mode: str) -> None:
+        self.name, self.dest, self.mode = name, dest, mode
+        self.live = None
+        self.interval = 5.0
+        if sys.stderr.isatty():
+            from rich.console import Console
+            from rich.live import Live
+            from rich.text import Text
+
+            self._text = Text
+
+            self.live = Live(console=Console(stderr=True), auto_refresh=False, transient=True)
+            self.live.start()
+            self.interval = 0.25
+
+    def _line(self, st: ReplayStats) -> str:
+        lag = f", lag {_ms(st.lag_now_ns)}" if st.lag_now_ns is not None else ""
+        err = f", {st.send_errors:,} send errors" if st.send_errors else ""
+        return (f"replay {self.name} -> {self.dest} ({self.mode}): {st.frames:,} frames, "
+                f"{st.rate_fps:,.1f} frames/s{lag}{err}, pass {st.passes + 1}")
+
+    def __call__(self, st: ReplayStats) -> None:
+        if self.live is not None:
+            self.live.update(self._text(self._line(st)), refresh=True)
+        else:
+            print(self._line(st), file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.live is not None:
+            self.live.stop()

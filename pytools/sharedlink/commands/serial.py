@@ -1,0 +1,237 @@
+"""``sharedlink serial``: capture a serial line into pcapng, import serial logs, list ports.
+
+Also the serial side of ``sharedlink gen --transport serial`` (:func:`run_gen_serial`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import BinaryIO
+
+from ..cli import UsageError
+from ..serial_import import FORMATS, ImportError_, read_log
+from ..serialcap import (
+    DIR_IN,
+    DIR_OUT,
+    DIR_UNKNOWN,
+    PROTOCOLS,
+    SerialCaptureWriter,
+    StreamReader,
+    capture,
+    list_ports,
+    parse_linktype,
+)
+
+_DIRECTIONS = {"in": DIR_IN, "inbound": DIR_IN, "out": DIR_OUT, "outbound": DIR_OUT, "unknown": DIR_UNKNOWN}
+
+
+def _linktype(text: str) -> int:
+    try:
+        return parse_linktype(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "serial",
+        help="capture a serial line, import serial logs",
+        description="Serial links in pcapng (USER link type, one record per chunk, direction in the "
+        "packet flags): see docs/serial-capture-format.md.",
+    )
+    ss = p.add_subparsers(dest="serial_command", metavar="SUBCOMMAND")
+    ss.required = True
+
+    c = ss.add_parser(
+        "capture",
+        help="record a live serial port (or tap between two)",
+        description="Read DEVICE and write each chunk as it arrives (inbound), or with --tap A B relay "
+        "between two ports recording both directions (bytes from A inbound, from B outbound). "
+        "Ctrl-C or SIGTERM ends the capture; every record is flushed as written.",
+    )
+    c.add_argument("device", nargs="?", help="serial port, e.g. /dev/ttyUSB0 (not with --tap)")
+    c.add_argument("--baud", type=int, required=True, help="line speed, bits per second")
+    c.add_argument("--out", default="-", help="capture file (default: standard output)")
+    c.add_argument("--tap", nargs=2, metavar=("DEV_A", "DEV_B"), help="relay between two ports, recording both directions")
+    c.add_argument("--linktype", type=_linktype, default=147, help="USER link type: 147..162 or user0..user15 (default user0)")
+    c.add_argument("--duration", type=float, default=None, help="stop after S seconds")
+    c.add_argument("--count", type=int, default=None, help="stop after N records")
+    c.add_argument("--json", action="store_true", help="print the summary as JSON")
+    c.set_defaults(func=run_capture)
+
+    i = ss.add_parser(
+        "import",
+        help="convert a serial log (raw, hex dump, timestamped text) into a capture",
+        description="Convert a raw binary dump, a hex dump (xxd, hexdump -C, od) or a text log with "
+        "timestamps into a serial capture.",
+    )
+    i.add_argument("log", type=Path, help="the log file")
+    i.add_argument("--out", type=Path, required=True, help="capture file to write (pcapng)")
+    i.add_argument("--format", dest="fmt", choices=FORMATS, default="auto", help="log format (default: detected)")
+    i.add_argument("--frame", action="store_true", help="one record per decoded frame (and per noise run) instead of per chunk")
+    i.add_argument("--protocol", choices=("auto",) + PROTOCOLS, default="auto", help="with --frame: the protocol (default: detected)")
+    i.add_argument("--baud", type=int, default=9600, help="raw and hex dumps: line speed for the timestamps (default 9600)")
+    i.add_argument("--chunk", type=int, default=64, help="raw and hex dumps: bytes per record (default 64)")
+    i.add_argument("--direction", choices=sorted(_DIRECTIONS), default="in", help="raw and hex dumps: direction of the bytes (default in)")
+    i.add_argument("--start", type=float, default=None, help="raw and hex dumps: time of the first byte, seconds since 1970 (default: the file's modification time)")
+    i.add_argument("--linktype", type=_linktype, default=147, help="USER link type (default user0 = 147)")
+    i.add_argument("--json", action="store_true", help="print the summary as JSON")
+    i.set_defaults(func=run_import)
+
+    ls = ss.add_parser("ports", help="list the machine's serial ports")
+    ls.add_argument("--json", action="store_true")
+    ls.set_defaults(func=run_ports)
+
+
+def _report(summary: dict, as_json: bool, line: str) -> None:
+    if as_json:
+        json.dump(summary, sys.stdout)
+        print()
+    else:
+        print(line, file=sys.stderr)
+
+
+def run_capture(args: argparse.Namespace) -> int:
+    if args.tap and args.device:
+        raise UsageError("give either DEVICE or --tap DEV_A DEV_B, not both")
+    if not args.tap and not args.device:
+        raise UsageError("no serial device: give DEVICE or --tap DEV_A DEV_B")
+    if args.baud <= 0:
+        raise UsageError("--baud must be positive")
+    if args.count is not None and args.count <= 0:
+        raise UsageError("--count must be positive")
+    to_stdout = args.out == "-"
+    if to_stdout and args.json:
+        raise UsageError("--json needs --out FILE (the capture goes to standard output)")
+    name = f"{args.tap[0]}<->{args.tap[1]}" if args.tap else args.device
+    try:
+        fh: BinaryIO = sys.stdout.buffer if to_stdout else open(args.out, "wb")
+    except OSError as exc:
+        raise UsageError(f"{args.out}: {exc.strerror or exc}") from None
+    try:
+        w = SerialCaptureWriter(fh, args.linktype, if_name=name, if_description=f"serial {'tap ' if args.tap else ''}at {args.baud} baud")
+        try:
+            stats = capture(
+                w, args.device, args.baud, tuple(args.tap) if args.tap else None, args.duration, args.count,
+                on_ready=lambda: print(f"capturing {name} at {args.baud} baud into {args.out} (Ctrl-C to stop)", file=sys.stderr, flush=True),
+            )
+        except Exception as exc:  # serial.SerialException / OSError opening or configuring a port
+            if isinstance(exc, (KeyboardInterrupt, BrokenPipeError)):
+                raise
+            raise UsageError(f"{name}: {exc}") from None
+    finally:
+        if not to_stdout:
+            fh.close()
+    summary = {
+        "file": args.out,
+        "records": stats.records,
+        "bytes": stats.bytes,
+        "by_direction": stats.by_direction,
+        "stopped_by": stats.stopped_by,
+    }
+    _report(summary, args.json, f"wrote {args.out}: {stats.records} records, {stats.bytes} bytes (stopped: {stats.stopped_by or 'end'})")
+    return 0
+
+
+def run_import(args: argparse.Namespace) -> int:
+    start_ns = None if args.start is None else int(round(args.start * 1e9))
+    if args.baud <= 0:
+        raise UsageError("--baud must be positive")
+    try:
+        fmt, chunks = read_log(args.log, args.fmt, args.baud, args.chunk, _DIRECTIONS[args.direction], start_ns)
+    except ImportError_ as exc:
+        raise UsageError(str(exc)) from None
+    if not chunks:
+        raise UsageError(f"{args.log}: no bytes to import")
+    tmp = args.out.with_name(args.out.name + ".part")
+    records = frames = 0
+    try:
+        with open(tmp, "wb") as fh:
+            w = SerialCaptureWriter(fh, args.linktype, if_name=str(args.log), if_description=f"imported {fmt} log", flush=False)
+            if args.frame:
+                reader = StreamReader(args.protocol)
+                for c in chunks:
+                    for p in reader.feed(c.direction, c.data):
+                        w.write(p.data, c.direction, c.ts_ns)
+                        frames += p.is_frame
+                last = chunks[-1].ts_ns
+                for d, p in reader.flush():
+                    w.write(p.data, d, last)
+                    frames += p.is_frame
+            else:
+                for c in chunks:
+                    w.write(c.data, c.direction, c.ts_ns)
+            records = w.records
+        tmp.replace(args.out)
+    except OSError as exc:
+        raise UsageError(f"{args.out}: {exc.strerror or exc}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    summary = {"file": str(args.out), "format": fmt, "records": records, "bytes": sum(len(c.data) for c in chunks)}
+    if args.frame:
+        summary["frames"] = frames
+    _report(summary, args.json, f"wrote {args.out}: {records} records from a {fmt} log" + (f" ({frames} frames)" if args.frame else ""))
+    return 0
+
+
+def run_ports(args: argparse.Namespace) -> int:
+    ports = list_ports()
+    if args.json:
+        json.dump([{"device": d, "description": desc} for d, desc in ports], sys.stdout)
+        print()
+    else:
+        for d, desc in ports:
+            print(f"{d}\t{desc}")
+    return 0
+
+
+def run_gen_serial(args: argparse.Namespace) -> int:
+    """``sharedlink gen OUT --transport serial``."""
+    from ..gen_serial import SerialGenOptions, generate_serial_file
+
+    if getattr(args, "protocol", "sharedlink") not in (None, "sharedlink"):
+        raise UsageError("--transport serial generates SharedLink (BUL-049) sessions only")
+    if args.fmt == "pcap":
+        raise UsageError("serial captures are pcapng (the direction lives in the packet flags)")
+    duration = args.duration if args.frames is None else args.frames / args.rate
+    opts = SerialGenOptions(
+        duration=duration,
+        rate=args.rate,
+        baud=args.baud,
+        seed=args.seed,
+        compress=True,  # a BUL-049 session elides unchanged values (full set every --sync-interval)
+        sync_interval=args.sync_interval,
+        noise=args.noise,
+        host=args.dst.upper(),
+        vehicle=args.src.upper(),
+    )
+    try:
+        opts.validate()
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    try:
+        stats = generate_serial_file(opts, args.out)
+    except OSError as exc:
+        raise UsageError(f"{args.out}: {exc.strerror or exc}") from None
+    summary = {
+        "file": str(args.out),
+        "format": "pcapng",
+        "transport": "serial",
+        "frames": stats.frames,
+        "records": stats.records,
+        "bytes": stats.bytes,
+        "noise_bytes": stats.noise_bytes,
+        "kinds": stats.kinds,
+        "by_direction": stats.by_direction,
+    }
+    kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
+    _report(
+        summary, args.json,
+        f"wrote {args.out}: {stats.frames} frames ({kinds}) in {stats.records} serial records at {opts.baud} baud"
+        + (f", {stats.noise_bytes} noise bytes" if stats.noise_bytes else ""),
+    )
+    return 0

@@ -1,0 +1,797 @@
+"""Replay a capture's SharedLink payloads through an ordinary UDP socket or a serial port.
+
+The library behind ``sharedlink replay``. No root is needed: the payloads (UDP payloads of the
+capture; records on a USER link type taken as raw serial bytes) are sent with ``sendto`` on a
+plain datagram socket, so local receivers on loopback get them like any other datagram.
+
+Timing follows the capture (optionally sped up or slowed down), a fixed rate, or no pacing at
+all. Every frame has an absolute deadline on the monotonic clock, computed from the first frame,
+so timing errors never add up with the number of frames. :class:`Pacer` sleeps until shortly
+before each deadline (how early follows how late this machine's sleeps end) and spins for the
+rest, a spin bounded to a small share of each gap: a few percent of a core at most instead of a
+whole one. :func:`latency_hints` asks Linux for prompt wake-ups (timer slack, a short scheduler
+slice; optionally real-time priority where permitted).
+
+The timed modes stream the capture (one record at a time); ``topspeed`` pre-reads it in chunks
+and, when looping over a small capture, keeps the payloads for the later passes.
+"""
+
+from __future__ import annotations
+
+import errno
+import ipaddress
+import os
+import platform
+import random
+import socket
+import struct
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from socket import inet_ntoa
+from typing import Any, NamedTuple, Union
+
+from .packets import decode_packet
+from .pcapio import LINKTYPE_ETHERNET, LINKTYPE_USER0, CaptureError, read_records
+
+#: LINKTYPE_USER0 .. LINKTYPE_USER15: records taken as raw serial bytes
+USER_LINKTYPES = range(LINKTYPE_USER0, LINKTYPE_USER0 + 16)
+
+NS = 1_000_000_000
+TOPSPEED_CHUNK = 4096  # payloads pre-read at a time at top speed
+LOOP_CACHE_BYTES = 64 << 20  # at top speed, passes after the first reuse payloads up to this size
+LAG_SAMPLES = 65536  # lags kept for the median (reservoir sample beyond this many frames)
+SPIN_MARGIN_NS = 40_000  # spin this much longer than sleeps are expected to overshoot
+SPIN_MAX_NS = 1_000_000  # never spin longer than this before a deadline
+SPIN_SHARE = 0.02  # ... nor longer than this share of the gap since the previous frame
+
+Target = Any  # what a sink needs to send one payload (an address for UDP); None = cannot send
+
+
+class ReplayError(Exception):
+    """Bad replay setup: an unusable destination, source address or serial port."""
+
+
+class OutFrame(NamedTuple):
+    """One payload to send, with what the capture said about it."""
+
+    number: int  # record number in the capture (1-based)
+    ts_ns: int
+    payload: bytes
+    port: int | None  # the capture's destination UDP port; None for serial records
+    src: str | None  # the capture's source address; None for serial records
+
+
+@dataclass(frozen=True)
+class FrameFilter:
+    """Which frames to take: by UDP port (source or destination) and by source address."""
+
+    ports: tuple[int, ...] = ()
+    src: tuple[ipaddress.IPv4Network | ipaddress.IPv6Network, ...] = ()
+
+    @classmethod
+    def build(cls, ports: Sequence[int] = (), src: Sequence[str] = ()) -> FrameFilter:
+        nets = []
+        for s in src:
+            try:
+                nets.append(ipaddress.ip_network(s, strict=False))
+            except ValueError:
+                raise ReplayError(f"--filter-src {s!r} is not an IP address or network") from None
+        for p in ports:
+            if not 0 < p < 65536:
+                raise ReplayError(f"--filter-port {p} is not a port (1..65535)")
+        return cls(tuple(ports), tuple(nets))
+
+    @property
+    def active(self) -> bool:
+        return bool(self.ports or self.src)
+
+
+@dataclass
+class SourceCounts:
+    records: int = 0  # capture records read (over all passes)
+    skipped: int = 0  # records that carry no UDP payload and are not serial records
+    filtered: int = 0  # frames left out by the filter
+
+
+class CaptureFrames:
+    """The frames of a capture, read as they are needed; iterate again for another pass.
+
+    A damaged capture yields every frame before the damage, then raises
+    :class:`~sharedlink.pcapio.CaptureError`.
+    """
+
+    def __init__(self, path: str | Path, flt: FrameFilter | None = None) -> None:
+        self.path = Path(path)
+        self.filter = flt or FrameFilter()
+        self.counts = SourceCounts()
+
+    def __iter__(self) -> Iterator[OutFrame]:
+        counts = self.counts
+        ports = set(self.filter.ports)
+        nets = self.filter.src
+        active = self.filter.active
+        user = USER_LINKTYPES
+        for rec in read_records(self.path):
+            counts.records += 1
+            linktype, data = rec.linktype, rec.data
+            if linktype in user:
+                if active:
+                    counts.filtered += 1
+                    continue
+                yield OutFrame(rec.number, rec.ts_ns, data, None, None)
+                continue
+            u = udp_fields(linktype, data)
+            if u is None:
+                counts.skipped += 1
+                continue
+            src, sport, dport, payload = u
+            if active:
+                if ports and sport not in ports and dport not in ports:
+                    counts.filtered += 1
+                    continue
+                if nets:
+                    a = ipaddress.ip_address(src)
+                    if not any(a in n for n in nets):
+                        counts.filtered += 1
+                        continue
+            yield OutFrame(rec.number, rec.ts_ns, payload, dport, src)
+
+
+def udp_fields(linktype: int, data: bytes) -> tuple[str, int, int, bytes] | None:
+    """(source address, source port, destination port, payload) of a UDP packet, else None.
+
+    The common case (Ethernet, IPv4 without options or fragments, UDP) is read in place here,
+    as :func:`sharedlink.packets.decode_packet` would; everything else goes to it (a test holds
+    the two to the same answers).
+    """
+    if (
+        linktype == LINKTYPE_ETHERNET
+        and len(data) >= 42
+        and data[12] == 8
+        and data[13] == 0
+        and data[14] == 0x45
+        and data[23] == 17
+        and not (data[20] & 0x3F or data[21])
+    ):
+        n = len(data)
+        end = 14 + ((data[16] << 8) | data[17])
+        if end < 34:  # total length shorter than the header: decode_packet reads to the end
+            end = n
+        ulen = (data[38] << 8) | data[39]
+        stop = 34 + ulen if ulen >= 8 else n
+        stop = min(stop, end, n)
+        return inet_ntoa(data[26:30]), (data[34] << 8) | data[35], (data[36] << 8) | data[37], data[42:stop]
+    d = decode_packet(linktype, data)
+    if d is None or d.proto != "udp":
+        return None
+    return d.src, d.sport, d.dport, d.payload
+
+
+def first_linktype(path: str | Path) -> int | None:
+    """The link type of the capture's first record (None for an empty capture). Raises
+    :class:`CaptureError` for a missing or damaged file."""
+    for rec in read_records(path):
+        return rec.linktype
+    return None
+
+
+# -- destinations ---------------------------------------------------------------------------
+
+
+def split_host_port(text: str, what: str = "--to") -> tuple[str, int | None]:
+    """``HOST``, ``HOST:PORT``, ``[V6]:PORT`` or a bare IPv6 address -> (host, port or None)."""
+    host, port = text, None
+    if text.startswith("["):
+        end = text.find("]")
+        if end < 0:
+            raise ReplayError(f"{what} {text!r}: missing ']'")
+        host, rest = text[1:end], text[end + 1 :]
+        if rest:
+            if not rest.startswith(":"):
+                raise ReplayError(f"{what} {text!r}: expected [ADDRESS]:PORT")
+            port = _port(rest[1:], what, text)
+    elif text.count(":") == 1:
+        host, p = text.split(":")
+        port = _port(p, what, text)
+    if not host:
+        raise ReplayError(f"{what} {text!r}: no host")
+    return host, port
+
+
+def _port(p: str, what: str, text: str) -> int:
+    lowest = 0 if what == "--bind" else 1
+    if not p.isdigit() or not lowest <= int(p) < 65536:
+        raise ReplayError(f"{what} {text!r}: port must be {lowest}..65535")
+    return int(p)
+
+
+def _resolve(host: str, port: int, what: str) -> tuple[int, tuple]:
+    try:
+        infos = socket.getaddrinfo(host, port, 0, socket.SOCK_DGRAM)
+    except (socket.gaierror, UnicodeError) as exc:
+        raise ReplayError(f"{what} {host}: cannot resolve ({exc})") from None
+    infos.sort(key=lambda i: i[0] != socket.AF_INET)  # prefer IPv4 when a name has both
+    fam, _, _, _, addr = infos[0]
+    return fam, addr
+
+
+def is_broadcast(host: str, family: int = socket.AF_INET) -> bool:
+    """Whether the kernel routes ``host`` as a broadcast (limited or directed, on any local
+    network): a UDP socket without SO_BROADCAST may not connect to it."""
+    if family != socket.AF_INET:
+        return False
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.connect((host, 9))
+        except PermissionError:
+            return True
+        except OSError:
+            return host == "255.255.255.255"
+    return False
+
+
+def _interface_ipv4(name: str) -> str | None:
+    """The IPv4 address of a network interface (Linux SIOCGIFADDR), or None."""
+    try:
+        import fcntl
+
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            res = fcntl.ioctl(s.fileno(), 0x8915, struct.pack("256s", name.encode()[:15]))
+        return socket.inet_ntoa(res[20:24])
+    except (OSError, ImportError):
+        return None
+
+
+class UdpSink:
+    """Sends payloads to ``host`` on the given port, or on each frame's captured port.
+
+    ``broadcast`` must be set for a broadcast destination (SO_BROADCAST); without it a
+    :class:`ReplayError` is raised before anything is sent. ``bind`` is a source address,
+    ``ADDR:PORT``, or an interface name.
+    """
+
+    def __init__(self, host: str = "127.0.0.1", port: int | None = None, bind: str | None = None, broadcast: bool = False) -> None:
+        self.host, self.port = host, port
+        fam, addr = _resolve(host, port or 9, "destination")
+        self.family, self.address = fam, addr[0]
+        if not broadcast and is_broadcast(self.address, fam):
+            raise ReplayError(
+                f"{host} is a broadcast address: replaying there reaches every host on that network; "
+                "add --broadcast if that is what you want"
+            )
+        self.sock = socket.socket(fam, socket.SOCK_DGRAM)
+        try:
+            if broadcast:
+                self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+            try:
+                self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
+            except OSError:
+                pass
+            if bind:
+                self._bind(bind)
+        except BaseException:
+            self.sock.close()
+            raise
+        self._targets: dict[int | None, Target] = {}
+        self.send: Callable[[bytes, Target], Any] = self.sock.sendto
+
+    def _bind(self, spec: str) -> None:
+        ifnames = {n for _, n in socket.if_nameindex()} if hasattr(socket, "if_nameindex") else set()
+        if spec in ifnames:
+            try:
+                self.sock.setsockopt(socket.SOL_SOCKET, getattr(socket, "SO_BINDTODEVICE", 25), spec.encode())
+                return
+            except OSError:
+                addr = _interface_ipv4(spec) if self.family == socket.AF_INET else None
+                if addr is None:
+                    raise ReplayError(f"--bind {spec}: cannot bind to that interface without privileges, and it has no IPv4 address") from None
+                host, port = addr, 0
+        else:
+            host, p = split_host_port(spec, "--bind")
+            port = p or 0
+        try:
+            fam, addr = _resolve(host, port, "--bind")
+            if fam != self.family:
+                raise ReplayError(f"--bind {spec}: not the same address family as the destination {self.host}")
+            self.sock.bind(addr)
+        except OSError as exc:
+            raise ReplayError(f"--bind {spec}: {exc.strerror or exc}") from None
+
+    @property
+    def description(self) -> str:
+        host = f"[{self.address}]" if self.family == socket.AF_INET6 else self.address
+        return f"udp {host}:{self.port if self.port else '<captured port>'}"
+
+    def target(self, frame: OutFrame) -> Target:
+        port = self.port or frame.port
+        t = self._targets.get(port)
+        if t is None and port:
+            t = self._targets[port] = (self.address, port) if self.family == socket.AF_INET else (self.address, port, 0, 0)
+        return t
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class SerialSink:
+    """Writes payloads to a serial port or pty (pyserial), raw 8N1 at ``baud``."""
+
+    def __init__(self, device: str, baud: int = 9600, write_timeout: float = 5.0) -> None:
+        import serial  # pyserial
+
+        try:
+            self.port = serial.Serial(device, baudrate=baud, write_timeout=write_timeout)
+        except (serial.SerialException, ValueError, OSError) as exc:
+            raise ReplayError(f"--serial {device}: {exc}") from None
+        self.device, self.baud = device, baud
+        write = self.port.write
+        self.send: Callable[[bytes, Target], Any] = lambda payload, _t: write(payload)
+
+    @property
+    def description(self) -> str:
+        return f"serial {self.device} at {self.baud} baud"
+
+    def target(self, frame: OutFrame) -> Target:
+        return True
+
+    def close(self) -> None:
+        try:
+            self.port.flush()
+        except Exception:  # noqa: BLE001 - the port may be gone; closing must not raise
+            pass
+        self.port.close()
+
+
+Sink = Union[UdpSink, SerialSink]
+
+
+# -- the replay ---------------------------------------------------------------------------
+
+
+@dataclass
+class ReplayOptions:
+    speed: float = 1.0  # capture timing times this multiplier (2 = twice as fast)
+    pps: float | None = None  # a fixed rate instead of the capture's timing (speed is then unused)
+    topspeed: bool = False  # no pacing at all
+    loop: int = 1  # passes over the capture; 0 = until stopped
+    loop_delay: float = 0.0  # extra seconds between passes (timed passes are also one frame gap apart)
+    limit: int | None = None  # stop after this many frames
+    realtime: bool = False  # timed modes: ask for SCHED_FIFO (needs privileges; see latency_hints)
+
+    def validate(self) -> None:
+        if not self.speed > 0:
+            raise ReplayError("--speed must be positive")
+        if self.pps is not None and not self.pps > 0:
+            raise ReplayError("--pps must be positive")
+        if self.loop < 0:
+            raise ReplayError("--loop must be 0 (until stopped) or more")
+        if self.loop_delay < 0:
+            raise ReplayError("--loop-delay must not be negative")
+        if self.limit is not None and self.limit <= 0:
+            raise ReplayError("--limit must be positive")
+
+    @property
+    def mode(self) -> str:
+        if self.topspeed:
+            return "topspeed"
+        if self.pps:
+            return f"{self.pps:g} frames/s"
+        return "capture timing" + (f" x{self.speed:g}" if self.speed != 1 else "")
+
+
+@dataclass
+class ReplayStats:
+    frames: int = 0  # sent
+    bytes: int = 0  # payload bytes sent
+    attempted: int = 0  # frames taken from the capture (sent or failed)
+    send_errors: int = 0
+    errors: dict[str, int] = field(default_factory=dict)  # by kind
+    first_error: str | None = None
+    passes: int = 0  # complete passes over the capture
+    elapsed_s: float = 0.0
+    cpu_s: float = 0.0
+    lag_now_ns: int | None = None  # the latest frame's lag behind its deadline
+    lag_median_ns: int | None = None
+    lag_max_ns: int | None = None
+    interrupted: bool = False
+    realtime: bool = False  # real-time scheduling was asked for and granted
+    capture_error: str | None = None
+    counts: SourceCounts = field(default_factory=SourceCounts)
+    _lags: list[int] = field(default_factory=list, repr=False)
+
+    @property
+    def rate_fps(self) -> float:
+        return self.frames / self.elapsed_s if self.elapsed_s > 0 else 0.0
+
+    @property
+    def rate_bps(self) -> float:
+        return self.bytes / self.elapsed_s if self.elapsed_s > 0 else 0.0
+
+    def error(self, kind: str, message: str) -> None:
+        self.send_errors += 1
+        self.errors[kind] = self.errors.get(kind, 0) + 1
+        if self.first_error is None:
+            self.first_error = message
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "frames": self.frames,
+            "bytes": self.bytes,
+            "send_errors": self.send_errors,
+            "errors": dict(self.errors),
+            "first_error": self.first_error,
+            "records": self.counts.records,
+            "skipped": self.counts.skipped,
+            "filtered": self.counts.filtered,
+            "passes": self.passes,
+            "elapsed_s": round(self.elapsed_s, 6),
+            "rate_fps": round(self.rate_fps, 3),
+            "rate_bytes_per_s": round(self.rate_bps, 3),
+            "lag_median_ms": _ms(self.lag_median_ns),
+            "lag_max_ms": _ms(self.lag_max_ns),
+            "cpu_s": round(self.cpu_s, 6),
+            "interrupted": self.interrupted,
+            "realtime": self.realtime,
+            "capture_error": self.capture_error,
+        }
+
+
+def _ms(ns: int | None) -> float | None:
+    return None if ns is None else round(ns / 1e6, 6)
+
+
+def _error_kind(exc: OSError) -> str:
+    if exc.errno is not None and exc.errno in errno.errorcode:
+        return errno.errorcode[exc.errno]
+    return type(exc).__name__
+
+
+_SCHED_ATTR = struct.Struct("IIQiIQQQII")  # struct sched_attr (version 1, 56 bytes)
+_SCHED_SYSCALLS = {"x86_64": (314, 315), "aarch64": (274, 275)}  # sched_setattr, sched_getattr
+
+
+@contextmanager
+def latency_hints(realtime: bool = False, slice_ns: int = 100_000, slack_ns: int = 1000) -> Iterator[bool]:
+    """Ask Linux to wake this thread promptly, for its lifetime inside the block; a no-op
+    elsewhere, and everything is restored afterwards.
+
+    Without privileges: sleeps end within ``slack_ns`` of the asked time (timer slack, 50 us
+    by default), and the scheduler slice is ``slice_ns`` (EEVDF custom slice, Linux 6.12+), so
+    a task that wakes may preempt others sooner. With ``realtime``, the thread also asks for
+    SCHED_FIFO, which wins against CPU-bound tasks on a busy machine but needs root,
+    CAP_SYS_NICE or an RLIMIT_RTPRIO; the block's value says whether it was granted."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        prctl, syscall = libc.prctl, libc.syscall
+    except (OSError, AttributeError):
+        yield False
+        return
+    old_slack = prctl(30, 0, 0, 0, 0)  # PR_GET_TIMERSLACK
+    if old_slack > 0:
+        prctl(29, slack_ns, 0, 0, 0)  # PR_SET_TIMERSLACK
+    old_attr = None
+    nrs = _SCHED_SYSCALLS.get(platform.machine())
+    if nrs:
+        buf = ctypes.create_string_buffer(_SCHED_ATTR.size)
+        if syscall(nrs[1], 0, buf, _SCHED_ATTR.size, 0) == 0:
+            attr = list(_SCHED_ATTR.unpack(buf.raw))
+            if attr[1] == 0:  # SCHED_OTHER: keep its nice value, set the slice
+                old_attr = buf.raw
+                attr[0], attr[2], attr[5] = _SCHED_ATTR.size, 0, slice_ns
+                if syscall(nrs[0], 0, ctypes.create_string_buffer(_SCHED_ATTR.pack(*attr)), 0) != 0:
+                    old_attr = None
+    granted = False
+    if realtime and hasattr(os, "sched_setscheduler"):
+        try:
+            old_policy, old_param = os.sched_getscheduler(0), os.sched_getparam(0)
+            prio = min(10, os.sched_get_priority_max(os.SCHED_FIFO))
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
+            granted = True
+        except OSError:
+            pass
+    try:
+        yield granted
+    finally:
+        if granted:
+            try:
+                os.sched_setscheduler(0, old_policy, old_param)
+            except OSError:
+                pass
+        if old_slack > 0:
+            prctl(29, old_slack, 0, 0, 0)
+        if old_attr is not None and nrs:
+            syscall(nrs[0], 0, ctypes.create_string_buffer(old_attr), 0)
+
+
+class Pacer:
+    """Waits for absolute deadlines on the monotonic clock without busy-waiting a core: it
+    sleeps until shortly before the deadline, then spins for the rest. How early it wakes
+    follows how late sleeps actually end on this machine (a running estimate), plus a margin,
+    and never more than ``SPIN_SHARE`` of the gap since the previous deadline (bounding CPU
+    use) nor more than ``SPIN_MAX_NS``."""
+
+    def __init__(self) -> None:
+        self.late_ns = 60_000  # estimate of how late a sleep ends
+
+    def wait(self, deadline: int, gap: int) -> None:
+        clock = time.monotonic_ns
+        now = clock()
+        left = deadline - now
+        if left <= 0:
+            return
+        early = min(self.late_ns + SPIN_MARGIN_NS, SPIN_MAX_NS, int(gap * SPIN_SHARE))
+        if left > early:
+            wake = deadline - early
+            time.sleep((wake - now) / NS)
+            late = clock() - wake
+            # a running mean that one preempted sleep cannot blow up
+            late = min(late, 2 * self.late_ns + SPIN_MARGIN_NS)
+            self.late_ns += (late - self.late_ns) >> 3
+        while clock() < deadline:
+            pass
+
+
+Progress = Callable[[ReplayStats], None]
+
+
+class Replayer:
+    """Sends the frames of ``source`` to ``sink`` with the timing of ``opts``.
+
+    ``progress`` is called about every ``progress_interval`` seconds with the running
+    statistics, only when there is time to spare before the next deadline (it never delays a
+    frame). Ctrl-C stops cleanly: :meth:`run` returns the statistics with ``interrupted`` set.
+    """
+
+    def __init__(
+        self,
+        source: CaptureFrames,
+        sink: Sink,
+        opts: ReplayOptions | None = None,
+        progress: Progress | None = None,
+        progress_interval: float = 0.5,
+    ) -> None:
+        self.source, self.sink = source, sink
+        self.opts = opts or ReplayOptions()
+        self.opts.validate()
+        self.progress = progress
+        self.progress_ns = int(progress_interval * NS)
+        self.stats = ReplayStats(counts=source.counts)
+        self._rng = random.Random(0)
+        self._next_progress = 0
+        self._start = 0
+        self._kept_bytes = 0
+
+    # -- bookkeeping
+    def _lag(self, lag: int) -> None:
+        st = self.stats
+        st.lag_now_ns = lag
+        if st.lag_max_ns is None or lag > st.lag_max_ns:
+            st.lag_max_ns = lag
+        lags = st._lags
+        n = st.frames + st.send_errors  # frames timed so far, before this one
+        if len(lags) < LAG_SAMPLES:
+            lags.append(lag)
+        else:
+            j = self._rng.randrange(n + 1)
+            if j < LAG_SAMPLES:
+                lags[j] = lag
+
+    def _report(self, now: int) -> None:
+        if self.progress is not None and now >= self._next_progress:
+            self._next_progress = now + self.progress_ns
+            self.stats.elapsed_s = (now - self._start) / NS
+            self.progress(self.stats)
+
+    def run(self) -> ReplayStats:
+        st = self.stats
+        cpu0 = time.process_time()
+        self._start = time.monotonic_ns()
+        self._next_progress = self._start + self.progress_ns
+        try:
+            if self.opts.topspeed:
+                self._run_topspeed()
+            else:
+                with latency_hints(self.opts.realtime) as granted:
+                    st.realtime = granted
+                    self._run_timed()
+        except KeyboardInterrupt:
+            st.interrupted = True
+        except CaptureError as exc:
+            st.capture_error = str(exc)
+        st.elapsed_s = (time.monotonic_ns() - self._start) / NS
+        st.cpu_s = time.process_time() - cpu0
+        if st._lags:
+            s = sorted(st._lags)
+            n = len(s)
+            st.lag_median_ns = s[n // 2] if n % 2 else (s[n // 2 - 1] + s[n // 2]) // 2
+        return st
+
+    def _passes(self) -> Iterator[int]:
+        n = 0
+        while self.opts.loop == 0 or n < self.opts.loop:
+            yield n
+            n += 1
+
+    # -- timed modes: streaming, absolute deadlines
+    def _run_timed(self) -> None:
+        opts, st, sink = self.opts, self.stats, self.sink
+        send, target_of = sink.send, sink.target
+        clock, pace = time.monotonic_ns, Pacer().wait
+        limit = opts.limit
+        interval = NS / opts.pps if opts.pps else None
+        inv_speed = 1.0 / opts.speed
+        delay = round(opts.loop_delay * NS)
+        base = prev = -1  # the deadlines of the pass's first frame and of the previous frame
+        mean_gap = 0
+        for npass in self._passes():
+            first_ts = None
+            count = 0
+            for fr in self.source:
+                if limit is not None and st.attempted >= limit:
+                    return
+                if first_ts is None:
+                    first_ts = fr.ts_ns
+                    if base < 0:  # the schedule starts when the first frame is ready
+                        base = prev = clock()
+                if interval is not None:
+                    deadline = base + round(count * interval)
+                else:
+                    deadline = base + round((fr.ts_ns - first_ts) * inv_speed)
+                if deadline < prev:  # out-of-order timestamps: keep the schedule monotonic
+                    deadline = prev
+                count += 1
+                now = clock()
+                if now >= self._next_progress and (deadline - now > 2_000_000 or now > self._next_progress + self.progress_ns):
+                    self._report(now)  # when there is time to spare, or it is long overdue
+                pace(deadline, deadline - prev)
+                t = target_of(fr)
+                now = clock()
+                if t is None:
+                    st.attempted += 1
+                    st.error("no-port", _NO_PORT % fr.number)
+                    prev = deadline
+                    continue
+                try:
+                    send(fr.payload, t)
+                except OSError as exc:
+                    self._lag(now - deadline)
+                    st.attempted += 1
+                    st.error(_error_kind(exc), f"record {fr.number}: {exc.strerror or exc}")
+                else:
+                    self._lag(now - deadline)
+                    st.attempted += 1
+                    st.frames += 1
+                    st.bytes += len(fr.payload)
+                prev = deadline
+            if count == 0:
+                return  # nothing to send: looping would spin forever
+            st.passes += 1
+            if npass == 0:
+                mean_gap = round(interval) if interval is not None else (prev - base) // (count - 1) if count > 1 else 0
+            base = prev + mean_gap + delay
+
+    # -- top speed: chunks of pre-read payloads sent in a tight loop
+    def _run_topspeed(self) -> None:
+        opts, st = self.opts, self.stats
+        limit = opts.limit
+        delay = opts.loop_delay
+        cache: list[_Chunk] | None = None
+        for npass in self._passes():
+            if npass and delay:
+                time.sleep(delay)
+            keep: list[_Chunk] | None = [] if cache is None and opts.loop != 1 else None
+            chunks = iter(cache) if cache is not None else self._chunks(keep)
+            taken = st.attempted
+            for numbers, payloads, targets in chunks:
+                if limit is not None:
+                    room = limit - st.attempted
+                    if room <= 0:
+                        return
+                    if room < len(payloads):
+                        self._send_chunk(numbers[:room], payloads[:room], targets[:room])
+                        return
+                self._send_chunk(numbers, payloads, targets)
+                self._report(time.monotonic_ns())
+            if st.attempted == taken:
+                return  # nothing to send: looping would spin forever
+            st.passes += 1
+            if keep is not None and self._kept_bytes <= LOOP_CACHE_BYTES:
+                cache = keep
+
+    def _chunks(self, keep: list[_Chunk] | None) -> Iterator[_Chunk]:
+        """Chunks of (record numbers, payloads, targets); frames without a target are counted
+        as errors here. With ``keep``, chunks are also kept while they fit the cache."""
+        st, target_of = self.stats, self.sink.target
+        self._kept_bytes = 0
+        numbers: list[int] = []
+        payloads: list[bytes] = []
+        targets: list[Target] = []
+        try:
+            for fr in self.source:
+                t = target_of(fr)
+                if t is None:
+                    if self.opts.limit is not None and st.attempted >= self.opts.limit:
+                        break
+                    st.attempted += 1
+                    st.error("no-port", _NO_PORT % fr.number)
+                    continue
+                numbers.append(fr.number)
+                payloads.append(fr.payload)
+                targets.append(t)
+                if len(payloads) >= TOPSPEED_CHUNK:
+                    self._keep(keep, (numbers, payloads, targets))
+                    yield numbers, payloads, targets
+                    numbers, payloads, targets = [], [], []
+        except CaptureError:
+            if payloads:  # the frames before the damage still go out
+                yield numbers, payloads, targets
+            raise
+        if payloads:
+            self._keep(keep, (numbers, payloads, targets))
+            yield numbers, payloads, targets
+
+    def _keep(self, keep: list[_Chunk] | None, chunk: _Chunk) -> None:
+        if keep is not None and self._kept_bytes <= LOOP_CACHE_BYTES:
+            self._kept_bytes += sum(map(len, chunk[1]))
+            keep.append(chunk)
+
+    def _send_chunk(self, numbers: list[int], payloads: list[bytes], targets: list[Target]) -> None:
+        st = self.stats
+        send = self.sink.send
+        n = len(payloads)
+        failed = failed_bytes = 0
+        start = 0
+        while start < n:
+            i = start
+            try:
+                for i in range(start, n):
+                    send(payloads[i], targets[i])
+                start = n
+            except OSError as exc:
+                failed += 1
+                failed_bytes += len(payloads[i])
+                st.error(_error_kind(exc), f"record {numbers[i]}: {exc.strerror or exc}")
+                start = i + 1
+        st.attempted += n
+        st.frames += n - failed
+        st.bytes += sum(map(len, payloads)) - failed_bytes
+
+
+_Chunk = tuple[list[int], list[bytes], list[Target]]
+_NO_PORT = "record %d: a serial record has no destination port (give --to HOST:PORT)"
+
+
+def replay(
+    path: str | Path,
+    sink: Sink,
+    opts: ReplayOptions | None = None,
+    flt: FrameFilter | None = None,
+    progress: Progress | None = None,
+    progress_interval: float = 0.5,
+) -> ReplayStats:
+    """Replay the capture at ``path`` into ``sink``; return what was sent. A damaged capture
+    stops the replay after the frames before the damage (``capture_error`` says where)."""
+    return Replayer(CaptureFrames(path, flt), sink, opts, progress, progress_interval).run()
+
+
+__all__ = [
+    "USER_LINKTYPES",
+    "CaptureFrames",
+    "FrameFilter",
+    "OutFrame",
+    "ReplayError",
+    "ReplayOptions",
+    "ReplayStats",
+    "Replayer",
+    "SerialSink",
+    "UdpSink",
+    "first_linktype",
+    "is_broadcast",
+    "replay",
+    "split_host_port",
+]

@@ -1,0 +1,196 @@
+"""Decode captures with the project's Wireshark Lua dissector, through pyshark.
+
+    from sharedlink.wireshark import decode
+    for f in decode("beacon.pcapng"):
+        print(f.number, f.src, f.dst, f.kind, {v.name: v.value for v in f.variables})
+
+tshark runs with ``-X lua_script:<repo>/dissector/sharedlink.lua`` (or the path given)
+in JSON mode (pyshark's EK mode cannot type Lua fields).  Each SharedLink frame becomes
+one :class:`SharedLinkFrame`; a packet holding several frames yields several, with
+the same ``number``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+DEFAULT_DISSECTOR = Path(__file__).resolve().parents[2] / "dissector" / "sharedlink.lua"
+
+CHECKSUM_STATUS = {"0": "Bad", "1": "Good", "2": "Unverified"}
+
+__all__ = ["DEFAULT_DISSECTOR", "SharedLinkFrame", "Variable", "decode", "frame_from_layer"]
+
+
+@dataclass
+class Variable:
+    """One variable of a frame (present, carried forward, declared or a reply)."""
+
+    name: str | None
+    value: str | None
+    index: int | None = None
+    type: int | None = None
+    double: float | None = None
+    long: int | None = None
+    string: str | None = None
+    carried: bool = False
+    carried_from: int | None = None
+
+
+@dataclass
+class SharedLinkFrame:
+    """One decoded SharedLink frame."""
+
+    number: int
+    time: float
+    src: str | None
+    dst: str | None
+    src_node: int | None
+    dst_node: int | None
+    kind: str | None
+    ordinal: int | None = None
+    variables: list[Variable] = field(default_factory=list)
+    queries: list[str] = field(default_factory=list)
+    checksum: int | None = None
+    checksum_calculated: int | None = None
+    checksum_status: str | None = None       # "Good", "Bad", "Unverified" or None
+    response_in: int | None = None
+    response_to: int | None = None
+    response_time: float | None = None
+    command: str | None = None
+    mode: str | None = None
+    experts: list[str] = field(default_factory=list)
+
+
+def _as_list(v: Any) -> list[Any]:
+    if v is None:
+        return []
+    return v if isinstance(v, list) else [v]
+
+
+def _first(d: Mapping[str, Any], key: str) -> Any:
+    vals = _as_list(d.get(key))
+    return vals[0] if vals else None
+
+
+def _int(v: Any) -> int | None:
+    if v is None:
+        return None
+    try:
+        return int(str(v), 0)
+    except ValueError:
+        return None
+
+
+def _float(v: Any) -> float | None:
+    try:
+        return float(v) if v is not None else None
+    except ValueError:
+        return None
+
+
+def _walk(d: Any, key: str) -> Iterator[Any]:
+    """All values of ``key`` anywhere below ``d`` (JSON subtrees nest under labels)."""
+    if isinstance(d, dict):
+        for k, v in d.items():
+            if k == key:
+                yield from _as_list(v)
+            elif isinstance(v, (dict, list)):
+                yield from _walk(v, key)
+    elif isinstance(d, list):
+        for item in d:
+            yield from _walk(item, key)
+
+
+def _variable(vd: Mapping[str, Any]) -> Variable:
+    return Variable(
+        name=_first(vd, "sharedlink.var.name"),
+        value=_first(vd, "sharedlink.var.value"),
+        index=_int(_first(vd, "sharedlink.var.index")),
+        type=_int(_first(vd, "sharedlink.type")),
+        double=_float(_first(vd, "sharedlink.var.double")),
+        long=_int(_first(vd, "sharedlink.var.long")),
+        string=_first(vd, "sharedlink.var.string"),
+        carried=_first(vd, "sharedlink.var.carried") in ("1", "True", "true"),
+        carried_from=_int(_first(vd, "sharedlink.var.carried_from")),
+    )
+
+
+def frame_from_layer(layer: Mapping[str, Any], number: int = 0, time: float = 0.0) -> SharedLinkFrame:
+    """Build a :class:`SharedLinkFrame` from one ``sharedlink`` layer of tshark's JSON."""
+    variables = [_variable(vd) for vd in _as_list(layer.get("sharedlink.var")) if isinstance(vd, dict)]
+    reply = next((vd for vd in _as_list(layer.get("sharedlink.var")) if isinstance(vd, dict)
+                  and "sharedlink.response_to" in vd), {})
+    status = _first(layer, "sharedlink.checksum.status")
+    if status is None:
+        status = next(_walk(layer.get("sharedlink.checksum_tree"), "sharedlink.checksum.status"), None)
+    calc = next(_walk(layer.get("sharedlink.checksum_tree"), "sharedlink.checksum.calculated"), None)
+    queries = [q for q in _as_list(layer.get("sharedlink.query")) if isinstance(q, str)]
+    resp_in = next(_walk(layer, "sharedlink.response_in"), None)
+    experts = [str(m) for m in _walk(layer, "_ws.expert.message")]
+    return SharedLinkFrame(
+        number=number,
+        time=time,
+        src=_first(layer, "sharedlink.src"),
+        dst=_first(layer, "sharedlink.dst"),
+        src_node=_int(_first(layer, "sharedlink.src.node")),
+        dst_node=_int(_first(layer, "sharedlink.dst.node")),
+        kind=_first(layer, "sharedlink.kind"),
+        ordinal=_int(_first(layer, "sharedlink.ordinal")),
+        variables=variables,
+        queries=queries,
+        checksum=_int(_first(layer, "sharedlink.checksum")),
+        checksum_calculated=_int(calc),
+        checksum_status=CHECKSUM_STATUS.get(str(status)) if status is not None else None,
+        response_in=_int(resp_in),
+        response_to=_int(reply.get("sharedlink.response_to")),
+        response_time=_float(reply.get("sharedlink.response_time")),
+        command=_first(layer, "sharedlink.command"),
+        mode=_first(layer, "sharedlink.mode"),
+        experts=experts,
+    )
+
+
+def decode(
+    capture: str | Path,
+    dissector: str | Path | None = None,
+    prefs: Mapping[str, Any] | None = None,
+    display_filter: str | None = None,
+    tshark_path: str | None = None,
+    extra_args: Sequence[str] = (),
+) -> Iterator[SharedLinkFrame]:
+    """Yield every SharedLink frame of ``capture``, decoded by tshark with the Lua dissector.
+
+    ``prefs`` are SharedLink (or other) preferences, e.g. ``{"sharedlink.variables": "A,B"}``.
+    """
+    import pyshark  # imported here: optional dependency, slow import
+
+    script = Path(dissector) if dissector is not None else DEFAULT_DISSECTOR
+    if not script.is_file():
+        raise FileNotFoundError(f"SharedLink dissector not found: {script}")
+    override = {k: ("TRUE" if v is True else "FALSE" if v is False else str(v)) for k, v in (prefs or {}).items()}
+    cap = pyshark.FileCapture(
+        str(capture),
+        use_json=True,
+        keep_packets=False,
+        display_filter=display_filter,
+        override_prefs=override or None,
+        custom_parameters=["-X", f"lua_script:{script.resolve()}", *extra_args],
+        tshark_path=tshark_path,
+    )
+    try:
+        for pkt in cap:
+            number = int(pkt.number)
+            t = float(pkt.sniff_timestamp)
+            for layer in pkt.layers:
+                if layer.layer_name != "sharedlink":
+                    continue
+                dicts = [layer._all_fields] + [d._all_fields for d in getattr(layer, "duplicate_layers", [])]
+                for d in dicts:
+                    if d.get("sharedlink.noise") is not None and d.get("sharedlink.src") is None:
+                        continue      # a noise item, not a frame
+                    yield frame_from_layer(d, number, t)
+    finally:
+        cap.close()

@@ -1,0 +1,301 @@
+"""Helpers for driving the real tshark with the working tree's SharedLink dissector.
+
+Every run is isolated from personal Wireshark configuration (an empty config dir is
+used for WIRESHARKCONFIGDIR, XDG_CONFIG_HOME and HOME) and checked for Lua trouble:
+tshark's return code must be 0, the output must not contain ``_ws.lua.error`` (or a
+"Lua Error" label), stderr must not carry Lua error text, and the dissector must have
+been loaded (``tshark -G protocols`` with the script lists ``sharedlink``).
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import tempfile
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple, Union
+
+REPO = Path(__file__).resolve().parents[1]
+DISSECTOR = REPO / "dissector" / "sharedlink.lua"
+TSHARK = shutil.which("tshark") or "/usr/bin/tshark"
+TSHARK_CMD: list[str] = [TSHARK]    # command prefix for callers running tshark themselves
+# the tshark command prefix: $SHAREDLINK_TSHARK (shell-split; e.g. "scripts/tshark-in-rootfs sid"
+# for the version matrix), else tshark from PATH
+TSHARK_CMD = shlex.split(os.environ.get("SHAREDLINK_TSHARK", "")) or [TSHARK]
+
+def _tshark_version() -> tuple[int, int]:
+    try:
+        out = subprocess.run([TSHARK, "--version"], capture_output=True, text=True, timeout=30).stdout
+        m = re.search(r"TShark \(Wireshark\) (\d+)\.(\d+)", out)
+        if m:
+            return int(m.group(1)), int(m.group(2))
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return (4, 0)
+
+
+TSHARK_VERSION = _tshark_version()
+# The Info column field was renamed in Wireshark 4.2.
+INFO_FIELD = "_ws.col.info" if TSHARK_VERSION >= (4, 2) else "_ws.col.Info"
+
+# stderr lines that are harmless
+_BENIGN_STDERR = (
+    re.compile(r'^Running as user "root" and group "root"\. This could be dangerous\.$'),
+    re.compile(r"^\s*$"),
+)
+# Lua trouble on stderr
+_LUA_ERROR_RE = re.compile(r"Lua:|lua:|\.lua:|Error|error|attempt to|stack traceback")
+
+_config_dir: Path | None = None
+_loaded_checked: set[tuple[str, float]] = set()
+
+
+def _clean_env() -> dict[str, str]:
+    global _config_dir
+    if _config_dir is None:
+        _config_dir = Path(tempfile.mkdtemp(prefix="sharedlink-wsconf-"))
+        (_config_dir / "wireshark").mkdir()
+        atexit.register(shutil.rmtree, _config_dir, True)
+    env = dict(os.environ)
+    env["WIRESHARKCONFIGDIR"] = str(_config_dir / "wireshark")
+    env["XDG_CONFIG_HOME"] = str(_config_dir)
+    env["HOME"] = str(_config_dir)
+    env.pop("WIRESHARK_RUN_FROM_BUILD_DIRECTORY", None)
+    env["LC_ALL"] = "C.UTF-8"
+    return env
+
+
+class TsharkResult(NamedTuple):
+    args: list[str]
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+class TsharkFailure(AssertionError):
+    pass
+
+
+def check_stderr(stderr: str) -> None:
+    for line in stderr.splitlines():
+        if any(p.match(line) for p in _BENIGN_STDERR):
+            continue
+        if _LUA_ERROR_RE.search(line):
+            raise TsharkFailure(f"Lua/tshark error on stderr: {line!r}\n--- full stderr ---\n{stderr}")
+
+
+def _run(args: Sequence[str], timeout: float) -> TsharkResult:
+    proc = subprocess.run(
+        list(args), capture_output=True, env=_clean_env(), timeout=timeout,
+        encoding="utf-8", errors="replace",
+    )
+    return TsharkResult(list(args), proc.returncode, proc.stdout, proc.stderr)
+
+
+def _assert_ok(res: TsharkResult) -> None:
+    if res.returncode != 0:
+        raise TsharkFailure(f"tshark exited {res.returncode}: {' '.join(res.args)}\n{res.stderr}")
+    if "_ws.lua.error" in res.stdout or "Lua Error" in res.stdout:
+        idx = max(res.stdout.find("_ws.lua.error"), res.stdout.find("Lua Error"))
+        raise TsharkFailure(f"Lua error in output: ...{res.stdout[max(0, idx - 500): idx + 500]}...")
+    check_stderr(res.stderr)
+
+
+def ensure_loaded(script: Path = DISSECTOR) -> None:
+    """Assert (once per script version) that tshark loads the script and knows ``sharedlink``."""
+    script = Path(script).resolve()
+    key = (str(script), script.stat().st_mtime)
+    if key in _loaded_checked:
+        return
+    res = _run([*TSHARK_CMD, "-G", "protocols", "-X", f"lua_script:{script}"], timeout=60)
+    _assert_ok(res)
+    names = {line.split("\t")[2] for line in res.stdout.splitlines() if line.count("\t") >= 2}
+    if "sharedlink" not in names:
+        raise TsharkFailure(f"sharedlink protocol not registered by {script}\n{res.stderr}")
+    _loaded_checked.add(key)
+
+
+def tshark(
+    capture: str | Path | None,
+    args: Sequence[str] = (),
+    prefs: Mapping[str, Any] | None = None,
+    two_pass: bool = False,
+    script: str | Path = DISSECTOR,
+    timeout: float = 120,
+) -> TsharkResult:
+    """Run tshark on ``capture`` with the dissector, ``-o`` prefs and extra args; checked."""
+    script = Path(script).resolve()
+    ensure_loaded(script)
+    cmd = [*TSHARK_CMD, "-n", "-X", f"lua_script:{script}"]
+    if capture is not None:
+        cmd += ["-r", str(capture)]
+    if two_pass:
+        cmd.append("-2")
+    for name, value in (prefs or {}).items():
+        if isinstance(value, bool):
+            value = "TRUE" if value else "FALSE"
+        cmd += ["-o", f"{name}:{value}"]
+    cmd += list(args)
+    res = _run(cmd, timeout)
+    _assert_ok(res)
+    return res
+
+
+def fields(
+    capture: str | Path,
+    names: Sequence[str],
+    prefs: Mapping[str, Any] | None = None,
+    display_filter: str | None = None,
+    two_pass: bool = True,
+    extra: Sequence[str] = (),
+    **kw: Any,
+) -> list[dict[str, list[str]]]:
+    """``-T fields`` output as one dict per packet: field name -> list of occurrences.
+
+    ``_ws.lua.error`` is always requested too and asserted empty.  The occurrence
+    aggregator is the ASCII unit separator, so values containing commas survive.
+    """
+    all_names = list(names) + ["_ws.lua.error", "_ws.expert.message"]
+    args = ["-T", "fields", "-E", "occurrence=a", "-E", "aggregator=\x1f", "-E", "quote=n", "-E", "separator=\t"]
+    for n in all_names:
+        args += ["-e", n]
+    if display_filter:
+        args += ["-Y", display_filter]
+    args += list(extra)
+    res = tshark(capture, args, prefs=prefs, two_pass=two_pass, **kw)
+    rows: list[dict[str, list[str]]] = []
+    for line in res.stdout.splitlines():
+        cols = line.split("\t")
+        cols += [""] * (len(all_names) - len(cols))
+        row = {n: (c.split("\x1f") if c != "" else []) for n, c in zip(all_names, cols)}
+        if row["_ws.lua.error"]:
+            raise TsharkFailure(f"Lua error: {row['_ws.lua.error']}")
+        for msg in row["_ws.expert.message"]:
+            if msg.startswith("Lua Error") or "attempt to" in msg:
+                raise TsharkFailure(f"Lua expert message: {msg}")
+        rows.append(row)
+    return rows
+
+
+def json_packets(
+    capture: str | Path,
+    prefs: Mapping[str, Any] | None = None,
+    display_filter: str | None = None,
+    two_pass: bool = True,
+    **kw: Any,
+) -> list[dict[str, Any]]:
+    """``-T json`` output (duplicate keys merged into lists) as a list of packets."""
+    args = ["-T", "json"]
+    if display_filter:
+        args += ["-Y", display_filter]
+    res = tshark(capture, args, prefs=prefs, two_pass=two_pass, **kw)
+
+    def hook(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for k, v in pairs:
+            if k in out:
+                if not isinstance(out[k], list) or not getattr(out[k], "_dup", False):
+                    lst = _DupList([out[k]])
+                    out[k] = lst
+                out[k].append(v)
+            else:
+                out[k] = v
+        return out
+
+    return json.loads(res.stdout or "[]", object_pairs_hook=hook)
+
+
+class _DupList(list):
+    _dup = True
+
+
+def verbose(capture: str | Path, prefs: Mapping[str, Any] | None = None, two_pass: bool = True,
+            extra: Sequence[str] = (), **kw: Any) -> str:
+    """``-V`` output text."""
+    return tshark(capture, ["-V", *extra], prefs=prefs, two_pass=two_pass, **kw).stdout
+
+
+def summary(capture: str | Path, prefs: Mapping[str, Any] | None = None, two_pass: bool = False,
+            extra: Sequence[str] = (), **kw: Any) -> list[str]:
+    """Summary lines (one per packet)."""
+    return tshark(capture, list(extra), prefs=prefs, two_pass=two_pass, **kw).stdout.splitlines()
+
+
+# ---------------------------------------------------------------------------
+# Capture writing
+# ---------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Pkt:
+    """One packet: payload sent at ``ts`` from (src, sport) to (dst, dport) over udp or tcp."""
+
+    ts: float
+    payload: bytes
+    sport: int = 7013
+    dport: int = 7013
+    proto: str = "udp"
+    src: str = "10.0.0.2"
+    dst: str = "10.0.0.255"
+
+
+PacketSpec = Union[Pkt, tuple]
+
+
+def _mac_for(ip: str) -> str:
+    if ip.endswith(".255"):
+        return "ff:ff:ff:ff:ff:ff"
+    parts = [int(x) for x in ip.split(".")]
+    return "02:00:%02x:%02x:%02x:%02x" % tuple(parts)
+
+
+def write_pcap(path: str | Path, packets: Iterable[PacketSpec]) -> Path:
+    """Write Ethernet/IPv4 packets with scapy.
+
+    Each item is a :class:`Pkt` or a tuple ``(ts, payload, sport, dport, proto, src, dst)``
+    (trailing items optional).  TCP packets of the same 4-tuple get consecutive sequence
+    numbers (PSH/ACK, no handshake), so consecutive TCP items form one stream that
+    Wireshark reassembles.
+    """
+    from scapy.all import IP, TCP, UDP, Ether, wrpcap  # noqa: PLC0415 (slow import)
+
+    seqs: dict[tuple[str, int, str, int], int] = {}
+    out = []
+    for spec in packets:
+        p = spec if isinstance(spec, Pkt) else Pkt(*spec)
+        l2 = Ether(src=_mac_for(p.src), dst=_mac_for(p.dst))
+        l3 = IP(src=p.src, dst=p.dst)
+        if p.proto == "udp":
+            pkt = l2 / l3 / UDP(sport=p.sport, dport=p.dport) / p.payload
+        elif p.proto == "tcp":
+            key = (p.src, p.sport, p.dst, p.dport)
+            rkey = (p.dst, p.dport, p.src, p.sport)
+            seq = seqs.setdefault(key, 1000)
+            ack = seqs.setdefault(rkey, 5000)
+            pkt = l2 / l3 / TCP(sport=p.sport, dport=p.dport, flags="PA", seq=seq, ack=ack, window=65535) / p.payload
+            seqs[key] = seq + len(p.payload)
+        else:
+            raise ValueError(f"unknown proto {p.proto!r}")
+        pkt.time = p.ts
+        out.append(pkt)
+    path = Path(path)
+    wrpcap(str(path), out)
+    return path
+
+
+def checksum(body: str) -> str:
+    """SharedLink checksum (2 upper-case hex digits) of a frame text from ':' through 'C'."""
+    return "%02X" % (sum(body.encode("latin-1")) % 256)
+
+
+def frame(dst: str, src: str, *fields: str, crlf: bool = True, cs: str | None = None) -> bytes:
+    """Build ``[:DS|f1|f2|...|Cxx]`` (+ CR LF) with a correct checksum unless ``cs`` is given."""
+    body = f":{dst}{src}|" + "".join(f + "|" for f in fields) + "C"
+    c = checksum(body) if cs is None else cs
+    return ("[" + body + c + "]" + ("\r\n" if crlf else "")).encode("latin-1")
