@@ -561,7 +561,6 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     local ti = nil
     if tree then
         ti = tree:add(sl, tvb(a - 1, e - a + 1))
-        if ti.text == nil then ti = nil end
     end
     local rec_fields = ti ~= nil
 
@@ -857,7 +856,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                 if fast_sh and miss_n == 0 and #d.names == fast_sh.n then d.names_is = fast_sh.N end
             end
             if is_data then
-                local full = (n_ord == nil or n_ord == 0) and n_empty_d == 0 and miss_n == 0 and
+                local full = nd > 0 and (n_ord == nil or n_ord == 0) and n_empty_d == 0 and miss_n == 0 and
                     (n_pos == 0 or n_pos >= #list)
                 local now = pinfo.rel_ts
                 local first = d.first
@@ -959,7 +958,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     end
 
     if is_data then
-        local full = (n_ord == nil or n_ord == 0) and n_empty_d == 0 and miss_n == 0 and
+        local full = nd > 0 and (n_ord == nil or n_ord == 0) and n_empty_d == 0 and miss_n == 0 and
             (n_pos == 0 or n_pos >= #list)
         kind = full and "full" or "delta"
     end
@@ -1070,7 +1069,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                 if vtype then
                     vt:add(hf.ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
                 else
-                    vt:add(tvb(o + FS[tf], FE[tf] - FS[tf] + 1), "Type (T): " .. VT[v])
+                    vt:add(tvb(o + FS[tf], FE[tf] - FS[tf] + 1), "Type (T): " .. tostring(VT[v] or ""))
                         :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
                 end
             end
@@ -1259,7 +1258,6 @@ local function add_noise(s, i, j, tvb, tree)
     if not tree then return nil end
     local r = tvb(i - 1, j - i + 1)
     local ti = tree:add(sl, r)
-    if ti.text == nil then return false end
     ti:append_text(", noise")
     ti:add(hf.noise, r):add_proto_expert_info(ei.noise, (j - i + 1) .. " bytes outside any frame")
     return true
@@ -1277,10 +1275,13 @@ local function dissect(tvb, pinfo, tree)
     ninfo, info_len, info_full, frames_in_info, frames_dropped = 0, 0, false, 0, 0
     info_clean = true
 
-    -- The tree handed to a Lua dissector wraps a hidden "fake" item; with no real
-    -- tree (tshark summary pass) its text is nil.  Skip all tree work then.
+    -- With no tree at all (tshark's summary pass) skip all tree work.  A TreeItem does
+    -- not say so directly: its text is nil both with no tree and with the sparse tree of
+    -- -T fields / -Y on 4.6, but its tostring() tells "has subtree=false" only when there
+    -- is no tree (4.0 to 4.6).  Should that text ever change, we build the tree: slower,
+    -- never wrong.
     local t = tree
-    if t ~= nil and t.text == nil then t = nil end
+    if t ~= nil and s_find(tostring(t), "has subtree=false", 1, true) then t = nil end
     local pos = 1
     local open_at, close_at = 0, 0 -- cached search results (false = none left)
     local r

@@ -447,3 +447,20 @@ def test_fetched_by_name_on_a_bare_buffer(tmp_path):
                   prefs={"uat:user_dlts": '"User 0 (DLT=147)","dispatchtest","0","","0",""'})
     assert rows[0]["p2os.command.name"] == ["SYNC0", "SYNC1", "ENABLE", "VEL", "SETA"]
     assert rows[0]["p2os.checksum.status"] == ["1"] * 5
+
+
+def test_serial_session_decoded_through_the_dispatcher(tmp_path):
+    """`gen --protocol p2os --transport serial`: the same session on a UART, chunked at random,
+    reassembled by the serial dispatcher and decoded by p2os.lua with good checksums."""
+    path = tmp_path / "p2os-serial.pcapng"
+    stats = generate_p2os_file(P2osGenOptions(duration=6, seed=3, fmt="pcapng", transport="serial"), path)
+    recs = list(read_records(path))
+    assert recs and {r.linktype for r in recs} == {LINKTYPE_USER0} and {r.flags & 3 for r in recs} == {1, 2}
+    extra = EXTRA + ["-X", f"lua_script:{REPO / 'dissector' / 'serial.lua'}"]
+    rows = fields(path, ["frame.protocols", "p2os.checksum.status", "p2os.command.name", "_ws.expert.severity"], extra=extra)
+    assert any("p2os" in ":".join(r["frame.protocols"]).split(":") for r in rows), "no P2OS decoded"
+    statuses = [s for r in rows for s in r["p2os.checksum.status"]]
+    assert len(statuses) == stats.packets and set(statuses) == {"1"}
+    names = [n for r in rows for n in r["p2os.command.name"]]
+    assert names[:3] == ["SYNC0", "SYNC1", "SYNC2"] and names[-1] == "CLOSE"
+    assert not [s for r in rows for s in r["_ws.expert.severity"] if int(s) >= 0x00800000]  # no error

@@ -25,14 +25,13 @@ from typing import Any, NamedTuple, Union
 REPO = Path(__file__).resolve().parents[1]
 DISSECTOR = REPO / "dissector" / "sharedlink.lua"
 TSHARK = shutil.which("tshark") or "/usr/bin/tshark"
-TSHARK_CMD: list[str] = [TSHARK]    # command prefix for callers running tshark themselves
 # the tshark command prefix: $SHAREDLINK_TSHARK (shell-split; e.g. "scripts/tshark-in-rootfs sid"
 # for the version matrix), else tshark from PATH
 TSHARK_CMD = shlex.split(os.environ.get("SHAREDLINK_TSHARK", "")) or [TSHARK]
 
 def _tshark_version() -> tuple[int, int]:
     try:
-        out = subprocess.run([TSHARK, "--version"], capture_output=True, text=True, timeout=30).stdout
+        out = subprocess.run([*TSHARK_CMD, "--version"], capture_output=True, text=True, timeout=60).stdout
         m = re.search(r"TShark \(Wireshark\) (\d+)\.(\d+)", out)
         if m:
             return int(m.group(1)), int(m.group(2))
@@ -148,6 +147,25 @@ def tshark(
     return res
 
 
+_BOOL_TEXT = {"True": "1", "False": "0"}
+_booleans: set[str] | None = None
+
+
+def _boolean_fields() -> set[str]:
+    """Names of the boolean fields of every dissector in dissector/ and of Wireshark."""
+    global _booleans
+    if _booleans is None:
+        cmd = [*TSHARK_CMD, "-G", "fields"]
+        for script in sorted((REPO / "dissector").glob("*.lua")):
+            cmd += ["-X", f"lua_script:{script}"]
+        out = subprocess.run(cmd, capture_output=True, text=True, env=_clean_env(), timeout=120).stdout
+        _booleans = {
+            cols[2] for cols in (line.split("\t") for line in out.splitlines()) if len(cols) > 3 and cols[3] == "FT_BOOLEAN"
+        }
+        assert "sharedlink.var.carried" in _booleans, "tshark -G fields did not list the dissectors' fields"
+    return _booleans
+
+
 def fields(
     capture: str | Path,
     names: Sequence[str],
@@ -170,11 +188,14 @@ def fields(
         args += ["-Y", display_filter]
     args += list(extra)
     res = tshark(capture, args, prefs=prefs, two_pass=two_pass, **kw)
+    booleans = _boolean_fields() & set(names)
     rows: list[dict[str, list[str]]] = []
     for line in res.stdout.splitlines():
         cols = line.split("\t")
         cols += [""] * (len(all_names) - len(cols))
         row = {n: (c.split("\x1f") if c != "" else []) for n, c in zip(all_names, cols)}
+        for n in booleans:  # 4.0 prints booleans as 1/0, 4.2 and later as True/False
+            row[n] = [_BOOL_TEXT.get(v, v) for v in row[n]]
         if row["_ws.lua.error"]:
             raise TsharkFailure(f"Lua error: {row['_ws.lua.error']}")
         for msg in row["_ws.expert.message"]:

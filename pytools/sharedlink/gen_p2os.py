@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
 
+from .gen_serial import LineFrame, write_line_capture
 from .p2os import (
     MOBILESIM_PORT,
     Config,
@@ -32,7 +33,8 @@ from .p2os import (
     command,
 )
 from .packets import session_frames
-from .pcapio import make_writer
+from .pcapio import LINKTYPE_USER0, make_writer
+from .serialcap import DIR_IN, DIR_OUT
 
 DEFAULT_START_NS = 1_767_268_800 * 1_000_000_000
 NS = 1_000_000_000
@@ -55,6 +57,7 @@ class P2osGenOptions:
     seed: int = 1
     fmt: str = "pcap"
     transport: str = "tcp"
+    baud: int = 9600  # serial transport
     port: int = MOBILESIM_PORT
     client_ip: str = "127.0.0.1"
     server_ip: str = "127.0.0.1"
@@ -69,8 +72,10 @@ class P2osGenOptions:
             raise ValueError("--duration must be positive (at most a day)")
         if self.fmt not in ("pcap", "pcapng"):
             raise ValueError("--format must be pcap or pcapng")
-        if self.transport != "tcp":
-            raise ValueError("P2OS sessions are generated over tcp (serial comes with the serial transport)")
+        if self.transport not in ("tcp", "serial"):
+            raise ValueError("P2OS sessions are generated over tcp or serial")
+        if self.transport == "serial" and self.fmt != "pcapng":
+            raise ValueError("serial captures are pcapng (the direction lives in the packet flags)")
         if not 0 < self.port < 65536 or not 0 < self.client_port < 65536:
             raise ValueError("--port must be 1..65535")
 
@@ -319,8 +324,17 @@ def session_packets(opts: P2osGenOptions) -> Iterator[tuple[int, bool, bytes, st
 def generate_p2os(opts: P2osGenOptions, out: BinaryIO) -> P2osStats:
     """Write the session capture to ``out``."""
     opts.validate()
-    writer = make_writer(out, opts.fmt)
     stats = P2osStats()
+    if opts.transport == "serial":  # the capture is taken at the client: its commands are outbound
+        frames = []
+        for ts, from_client, pkt, kind in session_packets(opts):
+            stats.packets += 1
+            stats.bytes += len(pkt)
+            stats.kinds[kind] = stats.kinds.get(kind, 0) + 1
+            frames.append(LineFrame(ts, DIR_OUT if from_client else DIR_IN, pkt, kind))
+        stats.frames, _ = write_line_capture(frames, out, opts.baud, LINKTYPE_USER0, "generated P2OS session", opts.seed)
+        return stats
+    writer = make_writer(out, opts.fmt)
     events: list[tuple[int, bool, bytes]] = []
     for ts, from_client, pkt, kind in session_packets(opts):
         stats.packets += 1

@@ -16,7 +16,7 @@ precedes a frame on the line. The same options give the same bytes.
 from __future__ import annotations
 
 import random
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
@@ -145,14 +145,22 @@ def _positional(
 
 def line_records(opts: SerialGenOptions) -> Iterator[tuple[int, int, bytes]]:
     """(timestamp ns, direction, chunk) as a reader of the line gets them, in time order."""
-    rng = random.Random(opts.seed ^ 0x5E71A1)
-    byte_ns = 10 * NS / opts.baud
+    return uart_records(session_frames(opts), opts.baud, opts.max_chunk, opts.noise, opts.seed)
+
+
+def uart_records(
+    frames: Iterable[LineFrame], baud: int, max_chunk: int = 32, noise: float = 0.0, seed: int = 1
+) -> Iterator[tuple[int, int, bytes]]:
+    """Put frames (of any protocol) on a UART at ``baud`` and read them back in chunks:
+    (timestamp ns, direction, chunk) in time order."""
+    rng = random.Random(seed ^ 0x5E71A1)
+    byte_ns = 10 * NS / baud
     # per direction: the byte stream with arrival times (ns) of each byte
     streams: dict[int, tuple[bytearray, list[int]]] = {DIR_IN: (bytearray(), []), DIR_OUT: (bytearray(), [])}
-    free = {DIR_IN: opts.start_ns, DIR_OUT: opts.start_ns}
-    for lf in session_frames(opts):
+    free: dict[int, int] = {DIR_IN: 0, DIR_OUT: 0}
+    for lf in frames:
         data = lf.data
-        if opts.noise and rng.random() < opts.noise:
+        if noise and rng.random() < noise:
             data = bytes(rng.randrange(256) for _ in range(rng.randint(1, 8))) + data
         buf, times = streams[lf.direction]
         start = max(lf.ts_ns, free[lf.direction])
@@ -166,7 +174,7 @@ def line_records(opts: SerialGenOptions) -> Iterator[tuple[int, int, bytes]]:
     for d, (buf, times) in streams.items():
         i, n = 0, len(buf)
         while i < n:
-            j = min(n, i + rng.randint(1, opts.max_chunk))
+            j = min(n, i + rng.randint(1, max_chunk))
             for k in range(i + 1, j):  # stop at an idle gap
                 if times[k] - times[k - 1] > gap:
                     j = k
@@ -175,6 +183,19 @@ def line_records(opts: SerialGenOptions) -> Iterator[tuple[int, int, bytes]]:
             i = j
     out.sort(key=lambda r: (r[0], r[1]))
     return iter(out)
+
+
+def write_line_capture(
+    frames: Iterable[LineFrame], out: BinaryIO, baud: int, linktype: int, description: str, seed: int = 1
+) -> tuple[int, int]:
+    """Write frames of any protocol as a serial capture; returns (records, bytes)."""
+    w = SerialCaptureWriter(out, linktype, if_name="serial", if_description=f"{description}, {baud} baud", flush=False)
+    records = nbytes = 0
+    for ts, d, chunk in uart_records(frames, baud, seed=seed):
+        w.write(chunk, d, ts)
+        records += 1
+        nbytes += len(chunk)
+    return records, nbytes
 
 
 def generate_serial(opts: SerialGenOptions, out: BinaryIO) -> SerialGenStats:

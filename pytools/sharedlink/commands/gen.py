@@ -30,8 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--protocol", choices=("sharedlink", "p2os", "blackboard"), default="sharedlink",
                    help="what to generate: SharedLink beacons (default), a P2OS robot session, or a blackboard master/slave session")
     p.add_argument("--transport", choices=("udp", "tcp", "serial"), default=None,
-                   help="p2os and blackboard sessions: transport (p2os: tcp; blackboard: udp (default) or tcp); "
-                   "serial: a BUL-049 point-to-point SharedLink session on a serial line (pcapng, USER link type)")
+                   help="sharedlink: udp beacons (default) or serial (a BUL-049 point-to-point session); p2os: tcp (default) or "
+                   "serial; blackboard: udp (default) or tcp. Serial captures are pcapng with a USER link type")
     p.add_argument("--baud", type=int, default=9600, help="--transport serial: line speed (default 9600)")
     p.add_argument("--noise", type=float, default=0.0, metavar="RATE", help="--transport serial: chance of a burst of line noise before a frame")
     p.add_argument("--src", default="B", help="source node letter A-P (default B)")
@@ -45,11 +45,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.transport == "serial":
+    if args.transport == "serial" and args.protocol == "sharedlink":
         from .serial import run_gen_serial
 
         return run_gen_serial(args)
-    fmt = args.fmt or ("pcapng" if str(args.out).endswith(".pcapng") else "pcap")
+    fmt = args.fmt or ("pcapng" if str(args.out).endswith(".pcapng") or args.transport == "serial" else "pcap")
     if args.protocol != "sharedlink":
         return run_session(args, fmt)
     if args.transport not in (None, "udp"):
@@ -112,12 +112,14 @@ def run_session(args: argparse.Namespace, fmt: str) -> int:
 
     opts: P2osGenOptions | BlackboardGenOptions
     if args.protocol == "p2os":
-        opts = P2osGenOptions(duration=args.duration, seed=args.seed, fmt=fmt, transport=args.transport or "tcp")
+        opts = P2osGenOptions(duration=args.duration, seed=args.seed, fmt=fmt, transport=args.transport or "tcp", baud=args.baud)
         if args.port is not None:
             opts.port = args.port
         generate = generate_p2os_file
     else:
-        opts = BlackboardGenOptions(duration=args.duration, seed=args.seed, fmt=fmt, transport=args.transport or "udp")
+        opts = BlackboardGenOptions(
+            duration=args.duration, seed=args.seed, fmt=fmt, transport=args.transport or "udp", baud=args.baud
+        )
         if args.port is not None:
             opts.port = args.port
         generate = generate_blackboard_file  # type: ignore[assignment]
