@@ -1,6 +1,7 @@
 """`make bench`: speed and memory ratios, each measured side by side in one run.
 
-Every ``bench/bench_*.py`` module offers ``run(work: Path) -> list[Result]``; this script runs
+Every ``bench/bench_*.py`` module offers ``run(work: Path) -> list[Result]`` (or ``run_bench``
+when its ``run`` serves its own command line); this script runs
 them all, prints one table and exits 1 if a ratio misses its target (so a regression shows).
 Figures on a shared machine are noisy: read the ratios, not the absolute times.
 """
@@ -47,7 +48,8 @@ def main(argv: list[str]) -> int:
                 continue
             t = time.perf_counter()
             print(f"running {name} ...", file=sys.stderr, flush=True)
-            results += load(path).run(Path(tmp))
+            mod = load(path)
+            results += (mod.run_bench if hasattr(mod, "run_bench") else mod.run)(Path(tmp))
             print(f"  {name} took {time.perf_counter() - t:.1f} s", file=sys.stderr, flush=True)
     w = max((len(r.name) for r in results), default=10)
     print(f"{'benchmark':<{w}}  {'ours':>22}  {'reference':>22}  {'ratio':>8}  {'target':>8}  ok")

@@ -26,7 +26,6 @@ import argparse
 import json
 import os
 import shutil
-import struct
 import subprocess
 import sys
 import tempfile
@@ -116,40 +115,44 @@ def run(capture: Path, repeat: int = 3, dissector: Path | None = None) -> list[t
     return results
 
 
-def make_beacon_capture(path: Path, frames: int = 200_000, seed: int = 1) -> Path:
-    """Write a classic-pcap beacon capture (BUL-009 frames, UDP broadcast to 7013, 5 Hz)."""
-    import random
+def make_beacon_capture(path: Path, frames: int = 200_000, compress: bool = False) -> Path:
+    """A beacon capture made by `sharedlink gen` (the project's one generator)."""
+    from sharedlink.gen import GenOptions, generate_file
 
-    rnd = random.Random(seed)
-
-    def csum16(b: bytes) -> int:
-        if len(b) % 2:
-            b += b"\0"
-        s = sum(struct.unpack("!%dH" % (len(b) // 2), b))
-        while s >> 16:
-            s = (s & 0xFFFF) + (s >> 16)
-        return ~s & 0xFFFF
-
-    src, dst = bytes([10, 0, 0, 2]), bytes([10, 0, 0, 255])
-    lat, lon, head, vel = 38.34698779, -77.05734791, 57.0, 0.0
-    t0 = 1_700_000_000
-    with open(path, "wb") as out:
-        out.write(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, 1))
-        for i in range(frames):
-            lat += rnd.uniform(-1e-5, 1e-5)
-            lon += rnd.uniform(-1e-5, 1e-5)
-            head = (head + rnd.uniform(-1, 1)) % 360
-            vel = max(0.0, vel + rnd.uniform(-0.2, 0.2))
-            body = (f":AB|N0|T2|QAutoGpsLat|D{lat:.8f}|T2|QAutoGpsLon|D{lon:.8f}"
-                    f"|T2|QAutoGpsHead|D{head:.1f}|T2|QAutoGpsVel|D{vel:.1f}|C")
-            payload = f"[{body}{sum(body.encode()) % 256:02X}]\r\n".encode()
-            udp = struct.pack("!HHHH", 7013, 7013, 8 + len(payload), 0) + payload
-            ip = struct.pack("!BBHHHBBH4s4s", 0x45, 0, 20 + len(udp), i & 0xFFFF, 0, 64, 17, 0, src, dst)
-            ip = ip[:10] + struct.pack("!H", csum16(ip)) + ip[12:]
-            pkt = b"\xff" * 6 + b"\x02\x00\x0a\x00\x00\x02\x08\x00" + ip + udp
-            usec = i * 200_000
-            out.write(struct.pack("<IIII", t0 + usec // 1_000_000, usec % 1_000_000, len(pkt), len(pkt)) + pkt)
+    generate_file(GenOptions(frames=frames, compress=compress), path)
     return path
+
+
+def bench_results(results: list[tuple[str, float]], label: str, targets: bool) -> list:
+    """The `make bench` rows for one capture."""
+    from bench import Result
+
+    r = dict(results)
+    rows = []
+    for mode, target in (("summary", TIME_TARGET), ("-V", None)):
+        ratio = r[f"{mode} time ratio"]
+        rows.append(Result(
+            f"dissector {mode} CPU vs syslog ({label})", f"{r[f'lua {mode} cpu s']:.2f} s", f"{r[f'syslog {mode} cpu s']:.2f} s",
+            ratio, f"<= {target:g}x" if target and targets else "(info)", ratio <= target if target and targets else True,
+        ))
+    mem = r["summary memory ratio"]
+    rows.append(Result(
+        f"dissector peak memory vs syslog ({label})", f"{r['lua summary peak KiB'] / 1024:.0f} MiB",
+        f"{r['syslog summary peak KiB'] / 1024:.0f} MiB", mem,
+        f"<= {MEM_TARGET:g}x" if targets else "(info)", mem <= MEM_TARGET if targets else True,
+    ))
+    return rows
+
+
+def run_bench(work: Path) -> list:
+    """`make bench`: the issue's 200,000-frame beacon capture (targets), and its compressed
+    twin (for information)."""
+    rows = []
+    for label, compress in (("200k beacon frames", False), ("200k compressed", True)):
+        cap = make_beacon_capture(work / f"dissector-{compress}.pcap", 200_000, compress)
+        rows += bench_results(run(cap, repeat=2), label, targets=not compress)
+        cap.unlink()
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
