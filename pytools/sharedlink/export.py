@@ -24,7 +24,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import shutil
 import tempfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -33,7 +32,7 @@ from typing import IO, Any
 from xml.sax.saxutils import escape as xml_escape
 
 from .decode import VALUE_KINDS, Decoded, format_time, iter_decoded
-from .pcapio import CaptureError
+from .pcapio import CaptureError, atomic_open
 from .state import BEACON_VARIABLES, Variable
 
 FORMATS = ("csv", "jsonl", "geojson", "kml")
@@ -380,13 +379,5 @@ def export(path: str | Path, out: IO[str], opts: ExportOptions) -> ExportResult:
 
 def export_file(path: str | Path, dest: str | Path, opts: ExportOptions) -> ExportResult:
     """:func:`export` to a file, written beside it and renamed into place when complete."""
-    dest = Path(dest)
-    tmp = dest.with_name(dest.name + ".part")
-    try:
-        with open(tmp, "w", encoding="utf-8", newline="") as fh:
-            result = export(path, fh, opts)
-        shutil.move(str(tmp), str(dest))
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return result
+    with atomic_open(dest, "w", encoding="utf-8", newline="") as fh:
+        return export(path, fh, opts)

@@ -15,7 +15,7 @@ from typing import BinaryIO
 
 from .codec import _HEX2, address_node
 from .packets import UdpBuilder
-from .pcapio import make_writer
+from .pcapio import atomic_open, make_writer
 from .scenario import drive_tuples
 from .state import BEACON_VARIABLES
 
@@ -198,9 +198,5 @@ def generate(opts: GenOptions, out: BinaryIO) -> GenStats:
 
 
 def generate_file(opts: GenOptions, path: str | Path) -> GenStats:
-    p = Path(path)
-    tmp = p.with_name(p.name + ".part")
-    with open(tmp, "wb") as fh:
-        stats = generate(opts, fh)
-    tmp.replace(p)
-    return stats
+    with atomic_open(path) as fh:
+        return generate(opts, fh)

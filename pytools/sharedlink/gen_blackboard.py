@@ -22,7 +22,7 @@ from typing import BinaryIO
 
 from .blackboard import RequestMessage, SetMessage
 from .packets import session_frames
-from .pcapio import make_writer
+from .pcapio import atomic_open, make_writer
 
 DEFAULT_START_NS = 1_767_268_800 * 1_000_000_000
 NS = 1_000_000_000
@@ -152,9 +152,5 @@ def generate_blackboard(opts: BlackboardGenOptions, out: BinaryIO) -> Blackboard
 
 
 def generate_blackboard_file(opts: BlackboardGenOptions, path: str | Path) -> BlackboardStats:
-    p = Path(path)
-    tmp = p.with_name(p.name + ".part")
-    with open(tmp, "wb") as fh:
-        stats = generate_blackboard(opts, fh)
-    tmp.replace(p)
-    return stats
+    with atomic_open(path) as fh:
+        return generate_blackboard(opts, fh)

@@ -33,7 +33,7 @@ from .p2os import (
     command,
 )
 from .packets import session_frames
-from .pcapio import LINKTYPE_USER0, make_writer
+from .pcapio import LINKTYPE_USER0, atomic_open, make_writer
 from .serialcap import DIR_IN, DIR_OUT
 
 DEFAULT_START_NS = 1_767_268_800 * 1_000_000_000
@@ -358,9 +358,5 @@ def generate_p2os(opts: P2osGenOptions, out: BinaryIO) -> P2osStats:
 
 
 def generate_p2os_file(opts: P2osGenOptions, path: str | Path) -> P2osStats:
-    p = Path(path)
-    tmp = p.with_name(p.name + ".part")
-    with open(tmp, "wb") as fh:
-        stats = generate_p2os(opts, fh)
-    tmp.replace(p)
-    return stats
+    with atomic_open(path) as fh:
+        return generate_p2os(opts, fh)

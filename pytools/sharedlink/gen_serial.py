@@ -30,6 +30,7 @@ from .codec import (
     reply_fields,
 )
 from .gen import DEFAULT_START_NS, NS
+from .pcapio import atomic_open
 from .scenario import drive_tuples
 from .serialcap import DIR_IN, DIR_OUT, USER_LINKTYPES, SerialCaptureWriter
 from .state import BEACON_VARIABLES
@@ -220,13 +221,5 @@ def generate_serial(opts: SerialGenOptions, out: BinaryIO) -> SerialGenStats:
 
 
 def generate_serial_file(opts: SerialGenOptions, path: str | Path) -> SerialGenStats:
-    p = Path(path)
-    tmp = p.with_name(p.name + ".part")
-    try:
-        with open(tmp, "wb") as fh:
-            stats = generate_serial(opts, fh)
-        tmp.replace(p)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return stats
+    with atomic_open(path) as fh:
+        return generate_serial(opts, fh)

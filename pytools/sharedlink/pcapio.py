@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import IO, Any, BinaryIO
 
 LINKTYPE_ETHERNET = 1
 LINKTYPE_RAW = 101
@@ -126,6 +127,22 @@ def make_writer(fh: BinaryIO, fmt: str = "pcap", linktype: int = LINKTYPE_ETHERN
     if fmt == "pcapng":
         return PcapngWriter(fh, linktype, **kw)  # type: ignore[arg-type]
     raise ValueError(f"unknown capture format {fmt!r} (pcap or pcapng)")
+
+
+@contextmanager
+def atomic_open(path: str | Path, mode: str = "wb", **kw: Any) -> Iterator[IO[Any]]:
+    """Open ``path``'s sibling ``<name>.part`` for writing and rename it into place when the
+    block ends without an exception; on one, remove it: no half-written file under the
+    real name."""
+    p = Path(path)
+    tmp = p.with_name(p.name + ".part")
+    try:
+        with open(tmp, mode, **kw) as fh:
+            yield fh
+        tmp.replace(p)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
 
 
 # -- reading ------------------------------------------------------------------------------
