@@ -59,6 +59,8 @@ demo: deps
 	@echo; echo "== variables over the drive (display filter sharedlink.kind == \"full\") =="
 	@tshark -n -X lua_script:dissector/sharedlink.lua -r out/demo.pcap -Y 'sharedlink.kind == "full"' \
 	  -T fields -E header=y -e frame.time_relative -e sharedlink.var.name -e sharedlink.var.value -e sharedlink.checksum.status 2>/dev/null | head -8
+	@echo; echo "== sharedlink stats out/demo.pcap =="
+	@$(CLI) stats out/demo.pcap
 
 # --- checks ----------------------------------------------------------------------------------
 lint: deps
