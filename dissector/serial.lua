@@ -25,6 +25,13 @@
 --  * P2OS: FA FB, count, count bytes; a count below 2 is noise; a truncated packet waits.
 --  * Blackboard: ":" or ";" (the last one before the CR), hex digits, CR, and an LF if it
 --    came with the CR (a message does not wait for one); text that does not parse is noise.
+--    A slave's binary answers (not in the Python reader, to which they are noise): a good
+--    message completed in one direction (the master's) makes the other one expect its
+--    answer, 1 byte for a set, count + 1 for a request; those bytes are held until all are in
+--    and handed over as one frame. A direction not yet recognised whose first bytes are a
+--    right answer (ack = the set's checksum; a read response with a good checksum) is
+--    locked to blackboard at once. An answer is matched only when the record ending its
+--    message comes first in the capture.
 -- An unfinished frame longer than 65536 bytes is given up as noise.
 --
 -- Self-contained; works with Wireshark 4.0 (Lua 5.2) and later.
@@ -41,7 +48,7 @@ local ADOPT_AFTER = 64
 local USER0 = (wtap_encaps and wtap_encaps.USER0) or 45 -- luacheck: read globals wtap_encaps
 
 local B_RBR, B_PIPE, B_COLON = 93, 124, 58
-local B_CR, B_LF, B_C = 13, 10, 67
+local B_CR, B_LF, B_C, B_SEMI = 13, 10, 67, 59
 
 local PROTO_NAMES = { "sharedlink", "p2os", "blackboard" }
 local PROTO_LABELS = { sharedlink = "SharedLink", p2os = "P2OS", blackboard = "Blackboard" }
@@ -301,6 +308,69 @@ end
 
 local SCANNERS = { sharedlink = scan_sharedlink, p2os = scan_p2os, blackboard = scan_blackboard }
 
+-- Blackboard binary answers. A good message from the master (a text frame found in one
+-- direction) makes the other direction expect its answer: one byte (the set's checksum) for a
+-- set, count data bytes and a checksum byte for a request. The expectation (st.expect) is
+-- { len, at (position in that direction's buffer where the answer starts), kind, checksum,
+-- sum (count + address + node bytes of a request) }; a later good message replaces it.
+local function bb_expectation(s, a)
+    local cr = s_find(s, "\r", a, true)
+    if not cr then return nil end
+    local valid, good = bb_check(s, a, cr)
+    if not valid or not good then return nil end
+    local function byte_at(k) -- k-th decoded byte (1-based)
+        return tonumber(s_sub(s, a + 1 + 2 * (k - 1), a + 2 * k), 16)
+    end
+    local count = byte_at(1)
+    local nbytes = (cr - a - 1) / 2
+    local e = {
+        kind = "set", len = 1, checksum = byte_at(nbytes),
+        sum = (count + byte_at(2) + byte_at(3) + byte_at(4)) % 256,
+    }
+    if s_byte(s, a) ~= B_COLON then
+        e.kind, e.len = "request", count + 1
+    end
+    return e
+end
+
+-- whether s holds, at position at, the whole answer e expects, right (ack = the set's
+-- checksum; a read response's checksum correct)
+local function bb_answer_good(s, e, at)
+    if #s - at + 1 < e.len then return false end
+    if e.kind == "set" then return s_byte(s, at) == e.checksum end
+    local sum = e.sum
+    for i = at, at + e.len - 1 do
+        sum = sum + s_byte(s, i)
+    end
+    return sum % 256 == 0
+end
+
+-- blackboard direction: the expected answer (held until all its bytes are in) is a frame;
+-- text and noise before and after it as scan_blackboard finds them
+local function scan_bb_stream(st, s)
+    local e = st.expect
+    if not e then return scan_blackboard(s, false) end
+    local n = #s
+    local at = e.at
+    if at > n + 1 then at = n + 1 end
+    local pieces = {}
+    if at > 1 then
+        pieces = scan_blackboard(s_sub(s, 1, at - 1), true)
+    end
+    if n - at + 1 < e.len then
+        return pieces, at
+    end
+    add_piece(pieces, at, e.len, true)
+    pieces[#pieces][4] = true -- an answer, not a message
+    st.expect = nil
+    local base = at + e.len - 1
+    local rest, hold = scan_blackboard(s_sub(s, base + 1), false)
+    for _, p in ipairs(rest) do
+        pieces[#pieces + 1] = { p[1] + base, p[2], p[3] }
+    end
+    return pieces, hold + base
+end
+
 local function piece_good(name, s, a, len)
     if name == "sharedlink" then
         return sl_good(s, a, len)
@@ -340,18 +410,27 @@ local function fixed_protocol()
     return nil
 end
 
-local function first_pass(raw, dir, num)
+local function dir_state(dir)
     local st = dirs[dir]
     if not st then
         st = { buf = "", recs = {}, proto = fixed_protocol() }
         dirs[dir] = st
     end
+    return st
+end
+
+local function first_pass(raw, dir, num)
+    local st = dir_state(dir)
     local prefix_len = #st.buf
     local s = st.buf .. raw
     local n = #s
     st.recs[#st.recs + 1] = { num, prefix_len + 1, n }
     if not st.proto then
         st.proto = detect(s)
+        if not st.proto and st.expect and bb_answer_good(s, st.expect, st.expect.at) then
+            -- a blackboard slave: its first answer is right (the master's direction is blackboard)
+            st.proto = "blackboard"
+        end
         if not st.proto and n >= ADOPT_AFTER then
             -- nothing recognisable of its own (e.g. a blackboard slave's binary answers):
             -- the protocol of another direction (lowest direction number first)
@@ -364,7 +443,25 @@ local function first_pass(raw, dir, num)
         end
     end
     local pieces, hold
-    if st.proto then
+    if st.proto == "blackboard" then
+        pieces, hold = scan_bb_stream(st, s)
+        -- good messages make the other direction expect their answers
+        -- (the master's; a direction that answers never gives the other one answers to expect)
+        local other = (dir == 0 or dir == 1) and not st.slave and dir_state(1 - dir) or nil
+        if other and not other.master and (other.proto == nil or other.proto == "blackboard") then
+            for _, p in ipairs(pieces) do
+                local c = s_byte(s, p[1])
+                if p[3] and not p[4] and (c == B_COLON or c == B_SEMI) then
+                    local e = bb_expectation(s, p[1])
+                    if e then
+                        e.at = #other.buf + 1
+                        other.expect = e
+                        st.master, other.slave = true, true
+                    end
+                end
+            end
+        end
+    elseif st.proto then
         pieces, hold = SCANNERS[st.proto](s, false)
     elseif n > MAX_UNDETECTED then
         hold = n - UNDETECTED_KEEP + 1
@@ -396,6 +493,10 @@ local function first_pass(raw, dir, num)
     end
     -- keep the held tail
     st.buf = s_sub(s, hold)
+    if st.expect then
+        st.expect.at = st.expect.at - (hold - 1)
+        if st.expect.at < 1 then st.expect = nil end
+    end
     local recs = {}
     for _, r in ipairs(st.recs) do
         if r[3] >= hold then
@@ -448,7 +549,8 @@ local function dissect(tvb, pinfo, tree)
     t:add(hf.direction, dir):set_generated()
     local pi = t:add(hf.protocol, res.proto or "")
     pi:set_generated()
-    if not res.proto then pi:add_proto_expert_info(ei.undetected) end
+    -- bytes merely held until the protocol is known are not (yet) a finding
+    if not res.proto and res.region_len > 0 then pi:add_proto_expert_info(ei.undetected) end
 
     local nframes = 0
     local rtvb

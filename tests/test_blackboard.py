@@ -25,7 +25,7 @@ from sharedlink.blackboard import (
 )
 from sharedlink.gen_blackboard import BlackboardGenOptions, generate_blackboard_file, session_messages
 from sharedlink.packets import session_frames
-from sharedlink.pcapio import LINKTYPE_USER0, PcapngWriter, PcapWriter
+from sharedlink.pcapio import LINKTYPE_USER0, PcapngWriter, PcapWriter, read_records
 from tshark_util import fields
 
 REPO = Path(__file__).resolve().parents[1]
@@ -343,3 +343,46 @@ def test_fetched_by_name_on_a_bare_buffer(tmp_path):
     assert rows[0]["blackboard.address"] == ["0x1f00", "0xe000"]
     # the byte answers the request (the last message sent), not the set: it is a truncated response
     assert rows[1]["blackboard.type"] == ["response"] and rows[1]["blackboard.request_in"] == ["1"]
+
+
+@pytest.mark.parametrize("seed,baud", [(1, 9600), (11, 1200)])
+def test_serial_session_decoded_through_the_dispatcher(tmp_path, seed, baud):
+    """`gen --protocol blackboard --transport serial`: the session on a UART, chunked at random
+    (the slave's binary answers split across records too), reassembled by the serial
+    dispatcher and decoded by blackboard.lua: every set, request, ack and read response with a
+    good checksum, and no expert the UDP version of the same session does not show either."""
+    path = tmp_path / "bb-serial.pcapng"
+    opts = BlackboardGenOptions(duration=5, seed=seed, fmt="pcapng", transport="serial", baud=baud)
+    stats = generate_blackboard_file(opts, path)
+    recs = list(read_records(path))
+    assert recs and {r.linktype for r in recs} == {LINKTYPE_USER0} and {r.flags & 3 for r in recs} == {1, 2}
+    extra = EXTRA + ["-X", f"lua_script:{REPO / 'dissector' / 'serial.lua'}"]
+    rows = fields(path, ["blackboard.type", "blackboard.checksum.status", "_ws.expert.message"], extra=extra)
+    types = [t for r in rows for t in r["blackboard.type"]]
+    kinds = stats.kinds
+    assert types.count("set") == kinds.get("set", 0) + kinds.get("set (repeat)", 0)
+    for kind in ("ack", "request", "response"):
+        assert types.count(kind) == kinds[kind], kind
+    assert kinds["ack"] and kinds["response"]
+    statuses = [s for r in rows for s in r["blackboard.checksum.status"]]
+    assert len(statuses) == len(types) and set(statuses) == {"1"}
+    experts = [m for r in rows for m in r["_ws.expert.message"]]
+    assert len(experts) == kinds.get("set (repeat)", 0)
+    assert all(m.startswith("Repeat of frame ") and m.endswith(": no acknowledgement seen") for m in experts), experts
+    # the UDP version shows the same kind of expert, one per repeat (the session differs in
+    # length at a slow line speed: messages take their time on the line)
+    udp = tmp_path / "bb.pcap"
+    udp_stats = generate_blackboard_file(BlackboardGenOptions(duration=5, seed=seed), udp)
+    udp_experts = [m for r in fields(udp, ["_ws.expert.message"], extra=EXTRA) for m in r["_ws.expert.message"]]
+    assert len(udp_experts) == udp_stats.kinds.get("set (repeat)", 0)
+    assert all(m.startswith("Repeat of frame ") for m in udp_experts)
+    if baud == 9600:
+        assert udp_stats.kinds == kinds
+
+
+def test_serial_transport_options():
+    with pytest.raises(ValueError, match="pcapng"):
+        BlackboardGenOptions(transport="serial", fmt="pcap").validate()
+    BlackboardGenOptions(transport="serial", fmt="pcapng").validate()
+    with pytest.raises(ValueError, match="udp, tcp or serial"):
+        BlackboardGenOptions(transport="carrier pigeon").validate()

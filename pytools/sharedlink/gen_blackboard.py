@@ -1,5 +1,5 @@
 """Generate a blackboard session: a master computer writing and reading blocks of a slave's
-blackboard memory, over UDP or TCP (serial comes with the serial transport).
+blackboard memory, over UDP, TCP or a serial line.
 
 Every 100 ms the master writes its drive setpoints (speed and steering, node 1, address
 0x1F00) with a set message; the slave answers with the message's checksum as one byte. Every
@@ -8,6 +8,13 @@ two bumper/sensor bytes, the last speed setpoint it accepted); every 2 s it read
 back. The slave answers with the data and a checksum over data and request. Some
 acknowledgements are lost (the sixth write's always, others at ``lost_ack``): the master
 repeats the message after a 50 ms time-out.
+
+Over a serial line (``transport="serial"``, pcapng with a USER link type, the master's bytes
+outbound) every message takes its time on the line (10 bits a byte at ``baud``): the slave
+answers only once the message's CR is in, the time-out runs from the end of the message, and
+the master waits three character times after an answer before it sends again (the capture's
+reader returns a chunk after three idle characters, so a message's last record always comes
+before its answer's first).
 
 The same options (seed included) give byte-identical files.
 """
@@ -21,8 +28,10 @@ from pathlib import Path
 from typing import BinaryIO
 
 from .blackboard import RequestMessage, SetMessage
+from .gen_serial import LineFrame, write_line_capture
 from .packets import session_frames
-from .pcapio import atomic_open, make_writer
+from .pcapio import LINKTYPE_USER0, atomic_open, make_writer
+from .serialcap import DIR_IN, DIR_OUT
 
 DEFAULT_START_NS = 1_767_268_800 * 1_000_000_000
 NS = 1_000_000_000
@@ -42,7 +51,7 @@ class BlackboardGenOptions:
     seed: int = 1
     fmt: str = "pcap"
     transport: str = "udp"
-    baud: int = 9600  # unused until serial sessions are generated
+    baud: int = 9600  # serial transport
     port: int = 7100  # the slave's port
     master_ip: str = "127.0.0.1"
     slave_ip: str = "127.0.0.1"
@@ -55,10 +64,12 @@ class BlackboardGenOptions:
             raise ValueError("--duration must be positive (at most a day)")
         if self.fmt not in ("pcap", "pcapng"):
             raise ValueError("--format must be pcap or pcapng")
-        if self.transport not in ("udp", "tcp"):
-            # the serial dispatcher does not yet follow a slave's binary answers split across
-            # records, so a generated serial session would not decode cleanly: refuse it
-            raise ValueError("blackboard sessions are generated over udp or tcp (serial: not yet)")
+        if self.transport not in ("udp", "tcp", "serial"):
+            raise ValueError("blackboard sessions are generated over udp, tcp or serial")
+        if self.transport == "serial" and self.fmt != "pcapng":
+            raise ValueError("serial captures are pcapng (the direction lives in the packet flags)")
+        if self.transport == "serial" and not 50 <= self.baud <= 4_000_000:
+            raise ValueError("--baud must be 50..4000000")
         if not 0 < self.port < 65536 or not 0 < self.master_port < 65536:
             raise ValueError("--port must be 1..65535")
         if not 0.0 <= self.lost_ack < 1.0:
@@ -76,6 +87,15 @@ class BlackboardStats:
 def session_messages(opts: BlackboardGenOptions) -> Iterator[tuple[int, bool, bytes, str]]:
     """(timestamp ns, from_master, bytes, kind) in time order."""
     rng = random.Random(opts.seed)
+    # time on the line (serial); packets arrive whole (0)
+    byte_ns = 10 * NS // opts.baud if opts.transport == "serial" else 0
+
+    def on_line(n: int) -> int:
+        return n * byte_ns
+
+    # a serial reader returns when the line has been idle for three characters: the master
+    # waits that long after an answer, so the record ending its message comes before the answer's
+    turnaround = on_line(3)
     memory = bytearray(0x10000)
     t = opts.start_ns + MS
     end = t + int(opts.duration * NS)
@@ -103,11 +123,11 @@ def session_messages(opts: BlackboardGenOptions) -> Iterator[tuple[int, bool, by
             lost = (writes == 6 and tries == 1) or (tries < 3 and rng.random() < opts.lost_ack)
             if not lost:
                 break
-            send_t += RETRY_NS  # no acknowledgement: repeat after the time-out
+            send_t += on_line(len(wire)) + RETRY_NS  # no acknowledgement: repeat after the time-out
         memory[SETPOINT_ADDR : SETPOINT_ADDR + len(data)] = data
-        ack_t = send_t + rng.randint(1 * MS, 3 * MS)
+        ack_t = send_t + on_line(len(wire)) + rng.randint(1 * MS, 3 * MS)
         yield ack_t, False, msg.ack, "ack"
-        t_after = ack_t + MS
+        t_after = ack_t + on_line(len(msg.ack)) + turnaround + MS
         # the slave's status block changes every cycle
         battery -= 1 if rng.random() < 0.01 else 0
         memory[STATUS_ADDR : STATUS_ADDR + STATUS_LEN] = bytes(
@@ -122,11 +142,13 @@ def session_messages(opts: BlackboardGenOptions) -> Iterator[tuple[int, bool, by
             next_readback += 2 * NS
         for req in reads:
             q_t = t_after + rng.randint(2 * MS, 5 * MS)
-            yield q_t, True, req.encode(), "request"
+            qwire = req.encode()
+            yield q_t, True, qwire, "request"
             block = bytes(memory[req.address : req.address + req.count])
-            r_t = q_t + rng.randint(1 * MS, 3 * MS)
-            yield r_t, False, req.response(block), "response"
-            t_after = r_t
+            r_t = q_t + on_line(len(qwire)) + rng.randint(1 * MS, 3 * MS)
+            answer = req.response(block)
+            yield r_t, False, answer, "response"
+            t_after = r_t + on_line(len(answer)) + turnaround
         cycle += 1
         t = max(t + 100 * MS, t_after + MS)
 
@@ -134,6 +156,17 @@ def session_messages(opts: BlackboardGenOptions) -> Iterator[tuple[int, bool, by
 def generate_blackboard(opts: BlackboardGenOptions, out: BinaryIO) -> BlackboardStats:
     opts.validate()
     stats = BlackboardStats()
+    if opts.transport == "serial":  # the capture is taken at the master: its messages are outbound
+        frames = []
+        for ts, from_master, data, kind in session_messages(opts):
+            stats.messages += 1
+            stats.bytes += len(data)
+            stats.kinds[kind] = stats.kinds.get(kind, 0) + 1
+            frames.append(LineFrame(ts, DIR_OUT if from_master else DIR_IN, data, kind))
+        stats.frames, _ = write_line_capture(
+            frames, out, opts.baud, LINKTYPE_USER0, "generated blackboard session", opts.seed
+        )
+        return stats
     writer = make_writer(out, opts.fmt)
     events: list[tuple[int, bool, bytes]] = []
     for ts, from_master, data, kind in session_messages(opts):
