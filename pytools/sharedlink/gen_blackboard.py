@@ -28,10 +28,9 @@ from pathlib import Path
 from typing import BinaryIO
 
 from .blackboard import RequestMessage, SetMessage
-from .gen_serial import LineFrame, write_line_capture
-from .packets import session_frames
-from .pcapio import LINKTYPE_USER0, atomic_open, make_writer
-from .serialcap import DIR_IN, DIR_OUT
+from .gen_serial import write_line_session
+from .packets import write_session
+from .pcapio import atomic_open
 
 DEFAULT_START_NS = 1_767_268_800 * 1_000_000_000
 NS = 1_000_000_000
@@ -156,31 +155,17 @@ def session_messages(opts: BlackboardGenOptions) -> Iterator[tuple[int, bool, by
 def generate_blackboard(opts: BlackboardGenOptions, out: BinaryIO) -> BlackboardStats:
     opts.validate()
     stats = BlackboardStats()
-    if opts.transport == "serial":  # the capture is taken at the master: its messages are outbound
-        frames = []
-        for ts, from_master, data, kind in session_messages(opts):
-            stats.messages += 1
-            stats.bytes += len(data)
-            stats.kinds[kind] = stats.kinds.get(kind, 0) + 1
-            frames.append(LineFrame(ts, DIR_OUT if from_master else DIR_IN, data, kind))
-        stats.frames, _ = write_line_capture(
-            frames, out, opts.baud, LINKTYPE_USER0, "generated blackboard session", opts.seed
-        )
-        return stats
-    writer = make_writer(out, opts.fmt)
-    events: list[tuple[int, bool, bytes]] = []
-    for ts, from_master, data, kind in session_messages(opts):
+    messages = list(session_messages(opts))
+    for _, _, data, kind in messages:
         stats.messages += 1
         stats.bytes += len(data)
         stats.kinds[kind] = stats.kinds.get(kind, 0) + 1
-        events.append((ts, from_master, data))
-    chunk: list[bytes] = []
-    for ts, from_master, frame in session_frames(
-        events, opts.transport, (opts.master_ip, opts.master_port), (opts.slave_ip, opts.port)
-    ):
-        chunk.append(writer.record(ts, frame, 2 if from_master else 1))
-        stats.frames += 1
-    out.write(b"".join(chunk))
+    if opts.transport == "serial":  # the capture is taken at the master: its messages are outbound
+        stats.frames = write_line_session(messages, out, opts.baud, "generated blackboard session", opts.seed)
+        return stats
+    events = [(ts, from_master, data) for ts, from_master, data, _ in messages]
+    master, slave = (opts.master_ip, opts.master_port), (opts.slave_ip, opts.port)
+    stats.frames = write_session(out, opts.fmt, events, opts.transport, master, slave)
     return stats
 
 

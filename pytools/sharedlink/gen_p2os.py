@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
 
-from .gen_serial import LineFrame, write_line_capture
+from .gen_serial import write_line_session
 from .p2os import (
     MOBILESIM_PORT,
     Config,
@@ -32,9 +32,8 @@ from .p2os import (
     build_packet,
     command,
 )
-from .packets import session_frames
-from .pcapio import LINKTYPE_USER0, atomic_open, make_writer
-from .serialcap import DIR_IN, DIR_OUT
+from .packets import write_session
+from .pcapio import atomic_open
 
 DEFAULT_START_NS = 1_767_268_800 * 1_000_000_000
 NS = 1_000_000_000
@@ -325,21 +324,16 @@ def generate_p2os(opts: P2osGenOptions, out: BinaryIO) -> P2osStats:
     """Write the session capture to ``out``."""
     opts.validate()
     stats = P2osStats()
-    if opts.transport == "serial":  # the capture is taken at the client: its commands are outbound
-        frames = []
-        for ts, from_client, pkt, kind in session_packets(opts):
-            stats.packets += 1
-            stats.bytes += len(pkt)
-            stats.kinds[kind] = stats.kinds.get(kind, 0) + 1
-            frames.append(LineFrame(ts, DIR_OUT if from_client else DIR_IN, pkt, kind))
-        stats.frames, _ = write_line_capture(frames, out, opts.baud, LINKTYPE_USER0, "generated P2OS session", opts.seed)
-        return stats
-    writer = make_writer(out, opts.fmt)
-    events: list[tuple[int, bool, bytes]] = []
-    for ts, from_client, pkt, kind in session_packets(opts):
+    packets = list(session_packets(opts))
+    for _, _, pkt, kind in packets:
         stats.packets += 1
         stats.bytes += len(pkt)
         stats.kinds[kind] = stats.kinds.get(kind, 0) + 1
+    if opts.transport == "serial":  # the capture is taken at the client: its commands are outbound
+        stats.frames = write_line_session(packets, out, opts.baud, "generated P2OS session", opts.seed)
+        return stats
+    events: list[tuple[int, bool, bytes]] = []
+    for ts, from_client, pkt, _ in packets:
         # a SIP and the ENCODER packet written right after it travel in one segment
         if events and not from_client and not events[-1][1] and ts - events[-1][0] < MS:
             prev = events.pop()
@@ -347,13 +341,8 @@ def generate_p2os(opts: P2osGenOptions, out: BinaryIO) -> P2osStats:
         else:
             events.append((ts, from_client, pkt))
     events.sort(key=lambda e: e[0])
-    chunk: list[bytes] = []
-    for ts, from_client, frame in session_frames(
-        events, opts.transport, (opts.client_ip, opts.client_port), (opts.server_ip, opts.port)
-    ):
-        chunk.append(writer.record(ts, frame, 2 if from_client else 1))
-        stats.frames += 1
-    out.write(b"".join(chunk))
+    client, server = (opts.client_ip, opts.client_port), (opts.server_ip, opts.port)
+    stats.frames = write_session(out, opts.fmt, events, opts.transport, client, server)
     return stats
 
 

@@ -186,6 +186,15 @@ def uart_records(
     return iter(out)
 
 
+def write_line_session(
+    events: Iterable[tuple[int, bool, bytes, str]], out: BinaryIO, baud: int, description: str, seed: int = 1
+) -> int:
+    """A client/server exchange ``(ts_ns, from_client, data, kind)`` on a serial line, captured
+    at the client (its bytes outbound). Returns the number of records written."""
+    frames = [LineFrame(ts, DIR_OUT if from_client else DIR_IN, data, kind) for ts, from_client, data, kind in events]
+    return write_line_capture(frames, out, baud, USER_LINKTYPES[0], description, seed)[0]
+
+
 def write_line_capture(
     frames: Iterable[LineFrame], out: BinaryIO, baud: int, linktype: int, description: str, seed: int = 1
 ) -> tuple[int, int]:

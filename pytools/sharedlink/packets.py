@@ -7,8 +7,17 @@ import socket
 import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from typing import BinaryIO
 
-from .pcapio import LINKTYPE_ETHERNET, LINKTYPE_LINUX_SLL, LINKTYPE_NULL, LINKTYPE_RAW
+from .pcapio import (
+    DIR_INBOUND,
+    DIR_OUTBOUND,
+    LINKTYPE_ETHERNET,
+    LINKTYPE_LINUX_SLL,
+    LINKTYPE_NULL,
+    LINKTYPE_RAW,
+    make_writer,
+)
 
 _IP_HDR = struct.Struct("!BBHHHBBH4s4s")
 _NET_HDR = struct.Struct("!BBHHHBBH4s4sHHHH")  # IPv4 + UDP
@@ -294,3 +303,23 @@ def session_frames(
             t = last_ts + DELAYED_ACK_NS + 1_000_000
             for i, frame in enumerate(conv.close(True)):
                 yield t + i * 50_000, i != 1, frame
+
+
+def write_session(
+    out: BinaryIO,
+    fmt: str,
+    events: Iterable[tuple[int, bool, bytes]],
+    transport: str,
+    client: tuple[str, int],
+    server: tuple[str, int],
+) -> int:
+    """Write a client/server exchange (time-ordered ``(ts_ns, from_client, payload)``) as a
+    capture over ``transport``; in pcapng the client's packets are outbound. Returns the
+    number of records written."""
+    writer = make_writer(out, fmt)
+    records = [
+        writer.record(ts, frame, DIR_OUTBOUND if from_client else DIR_INBOUND)
+        for ts, from_client, frame in session_frames(events, transport, client, server)
+    ]
+    out.write(b"".join(records))
+    return len(records)
