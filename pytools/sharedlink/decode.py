@@ -1,11 +1,12 @@
 """Decoded frames with the variable table after each: what stats, export and plot read.
 
 :func:`iter_decoded` walks a capture with :func:`sharedlink.stream.iter_frames` (streaming, TCP
-reassembled) and keeps a :class:`~sharedlink.state.LinkState`, so every SharedLink frame comes
-out as a :class:`Decoded`: its kind in stream context, its checksum verdict, the variables it
-set and the direction's whole table as the frame leaves it. Noise and records that are not
-UDP/TCP pass through unchanged (a :class:`~sharedlink.stream.StreamFrame` with ``frame`` None,
-or a ``(number, ts_ns)`` tuple) so callers can count them.
+reassembled, serial captures deframed per direction) and keeps a
+:class:`~sharedlink.state.LinkState`, so every SharedLink frame comes out as a
+:class:`Decoded`: its kind in stream context, its checksum verdict, the variables it set and the
+direction's whole table as the frame leaves it. Noise and records that are neither UDP/TCP nor
+serial SharedLink pass through unchanged (a :class:`~sharedlink.stream.StreamFrame` with
+``frame`` None, or a ``(number, ts_ns)`` tuple) so callers can count them.
 
 Choices (shared with the dissector, see ``docs/protocol.md``):
 

@@ -243,6 +243,11 @@ class Deframer:
     def pending(self) -> bytes:
         return self.buf
 
+    @property
+    def pending_records(self) -> list[int]:
+        """Record numbers of the bytes held back (oldest first)."""
+        return [r for r, _s, _e in self._recs]
+
     def feed(self, chunk: bytes, record: int = 0) -> list[Piece]:
         if chunk:
             end = self.base + len(self.buf) + len(chunk)

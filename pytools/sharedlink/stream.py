@@ -3,8 +3,10 @@
 Two layers, both streaming (memory does not grow with the capture):
 
 * :func:`iter_frames` — the general reader any command can use: every SharedLink frame of a
-  capture with its record number, timestamp and conversation, TCP streams reassembled, noise
-  reported. Built on :mod:`pcapio`, :mod:`packets` and :mod:`codec`.
+  capture with its record number, timestamp and conversation, TCP streams reassembled, serial
+  captures (USER link types) deframed per direction with :mod:`serialcap`'s incremental
+  deframer, noise reported. Built on :mod:`pcapio`, :mod:`packets`, :mod:`serialcap` and
+  :mod:`codec`.
 * :class:`ChangeReader` — the hot path of ``sharedlink diff``: for each frame, the variables
   whose value it changed (the rebuilt value of every variable over time, as a stream of
   changes), in chunks of compact records. It walks classic pcap files in large blocks and
@@ -43,6 +45,7 @@ from .pcapio import (
     CaptureError,
     read_records,
 )
+from .serialcap import DIRECTION_NAMES, USER_LINKTYPES, Piece, StreamReader
 from .state import BEACON_VARIABLES, LinkState, VariableTable
 
 NS = 1_000_000_000
@@ -122,9 +125,11 @@ def key_label(key: bytes) -> str:
 class StreamFrame:
     """One SharedLink frame (or a piece of noise) found in a capture."""
 
-    number: int  # record number (1-based); for TCP the record that completed the frame
+    number: int  # record number (1-based); for TCP and serial the record that completed the frame
     ts_ns: int
-    conv: tuple[str, str, int, str, int]  # (proto, src, sport, dst, dport)
+    #: (proto, src, sport, dst, dport); for serial captures (see :class:`SerialSplitter`)
+    #: ``("serial", direction name, link type, "", interface id)``
+    conv: tuple[str, str, int, str, int]
     raw: bytes  # the frame's bytes (CR LF included) or the noise
     frame: Frame | None  # None: noise that is not a frame
     error: str | None = None
@@ -173,20 +178,108 @@ class FrameSplitter:
         return out
 
 
+class SerialSplitter:
+    """Serial records (USER link types, ``docs/serial-capture-format.md``) -> SharedLink
+    frames and noise, with the incremental deframer of :mod:`sharedlink.serialcap`: one
+    :class:`~sharedlink.serialcap.StreamReader` per interface (protocol "auto"), one byte
+    stream per direction (EPB flags & 3; classic pcap has none: one stream).
+
+    * A frame or noise is given out when the record that completes it is fed, with that
+      record's number and timestamp; :meth:`flush` (end of the capture) gives the tails out,
+      numbered and timed by the last record they came from.
+    * ``conv`` is ``("serial", direction name, link type, "", interface id)``: the direction
+      name ("inbound", "outbound" or "unknown") stands for the source, the link type for the
+      source port; there is no destination address ("") and the interface id takes the
+      destination port's place, so the tuple keeps the shape and types of the IP ones.
+    * Bytes the auto-detection gave up on ("protocol not recognised") are noise, as
+      non-SharedLink bytes in a UDP datagram are.
+    * Directions carrying another protocol (P2OS, blackboard) are not SharedLink traffic:
+      each of their records comes out once as ``(number, ts_ns)``, like a record that is not
+      UDP/TCP (callers count those as other records, not as noise).
+    """
+
+    def __init__(self) -> None:
+        self._readers: dict[int, StreamReader] = {}
+        self._linktype: dict[int, int] = {}
+        self._reported: dict[tuple[int, int], int] = {}  # (interface, direction) -> last record given out
+        self._ts: dict[int, int] = {}  # record number -> timestamp, for records still held
+        self._prune_at = 64
+        self._last = (0, 0)  # (number, ts_ns) of the last record fed
+
+    def feed(
+        self, number: int, ts_ns: int, linktype: int, data: bytes, flags: int = 0, interface: int = 0
+    ) -> list[StreamFrame | tuple[int, int]]:
+        reader = self._readers.get(interface)
+        if reader is None:
+            reader = self._readers[interface] = StreamReader("auto")
+        self._linktype[interface] = linktype
+        self._last = (number, ts_ns)
+        self._ts[number] = ts_ns
+        d = flags & 3
+        out = self._convert(interface, d, reader.feed(d, data, number), number, ts_ns)
+        if len(self._ts) >= self._prune_at:
+            held = {r for rd in self._readers.values() for df in rd.dirs.values() for r in df.pending_records}
+            self._ts = {r: t for r, t in self._ts.items() if r in held}
+            self._prune_at = 2 * len(self._ts) + 64
+        return out
+
+    def flush(self) -> list[StreamFrame | tuple[int, int]]:
+        """The pieces still held at the end of the capture (then the splitter is empty)."""
+        out: list[StreamFrame | tuple[int, int]] = []
+        for interface, reader in self._readers.items():
+            for d, p in reader.flush():
+                number = p.records[-1] if p.records else self._last[0]
+                out += self._convert(interface, d, [p], number, self._ts.get(number, self._last[1]))
+        self._readers.clear()
+        self._ts.clear()
+        return out
+
+    def _convert(
+        self, interface: int, d: int, pieces: list[Piece], number: int, ts_ns: int
+    ) -> list[StreamFrame | tuple[int, int]]:
+        out: list[StreamFrame | tuple[int, int]] = []
+        for p in pieces:
+            if p.protocol in ("sharedlink", ""):
+                conv = ("serial", DIRECTION_NAMES.get(d, "unknown"), self._linktype.get(interface, 0), "", interface)
+                frame = p.frame if isinstance(p.frame, Frame) else None
+                out.append(StreamFrame(number, ts_ns, conv, p.data, frame, None if frame is not None else (p.reason or "noise")))
+            else:
+                key = (interface, d)
+                last = self._reported.get(key, 0)
+                for r in p.records:
+                    if r > last:
+                        out.append((r, self._ts.get(r, ts_ns)))
+                        last = r
+                self._reported[key] = last
+        return out
+
+
 def iter_frames(path: str | Path) -> Iterator[StreamFrame | tuple[int, int]]:
     """Every SharedLink frame and noise segment of a capture, in order.
 
-    Records that are not IPv4/IPv6 UDP or TCP yield ``(number, ts_ns)`` so callers can count
-    them. Raises :class:`~sharedlink.pcapio.CaptureError` on a damaged file, after everything
-    before the damage.
+    Records that are not IPv4/IPv6 UDP or TCP, nor serial (USER link types), yield
+    ``(number, ts_ns)`` so callers can count them. Serial records go through
+    :class:`SerialSplitter` (frames come out with the record that completed them; records of
+    a direction carrying P2OS or blackboard traffic yield ``(number, ts_ns)``). Raises
+    :class:`~sharedlink.pcapio.CaptureError` on a damaged file, after everything before the
+    damage (the serial tails held at that point included).
     """
     splitter = FrameSplitter()
-    for rec in read_records(path):
-        dg = decode_packet(rec.linktype, rec.data)
-        if dg is None:
-            yield rec.number, rec.ts_ns
-            continue
-        yield from splitter.split(rec.number, rec.ts_ns, dg)
+    serial = SerialSplitter()
+    try:
+        for rec in read_records(path):
+            if rec.linktype in USER_LINKTYPES:
+                yield from serial.feed(rec.number, rec.ts_ns, rec.linktype, rec.data, rec.flags, rec.interface)
+                continue
+            dg = decode_packet(rec.linktype, rec.data)
+            if dg is None:
+                yield rec.number, rec.ts_ns
+                continue
+            yield from splitter.split(rec.number, rec.ts_ns, dg)
+    except CaptureError:
+        yield from serial.flush()
+        raise
+    yield from serial.flush()
 
 
 # -- change records, fast ---------------------------------------------------------------------
@@ -345,6 +438,7 @@ class ChangeReader:
         self._sync: dict[bytes, list] = {}  # key -> [time of the last full frame, else of the first frame]
         self._hot: dict[bytes, tuple] = {}  # key -> _FastKey.hot
         self._splitter = FrameSplitter()
+        self._serial = SerialSplitter()
         self._base = 0  # index of the first frame of the chunk being built
         self._keys: set[bytes] = set()  # every key emitted so far
         self._bulk_backoff = 1  # blocks to leave to the per-record loop before trying _bulk
@@ -400,6 +494,7 @@ class ChangeReader:
                 yield self._chunk()
             if not data:
                 break
+        yield from self._serial_flush()
         if rest:
             if len(rest) < 16:
                 raise CaptureError(p, number + 1, f"truncated record header ({len(rest)} of 16 bytes)")
@@ -438,8 +533,7 @@ class ChangeReader:
             except CaptureError:
                 if batch:  # what came before the damage still counts
                     yield from flush()
-                if self._recs:
-                    yield self._chunk()
+                yield from self._serial_flush()
                 raise
             if self.stats.start_ns is None:
                 self.stats.start_ns = rec.ts_ns
@@ -450,18 +544,27 @@ class ChangeReader:
                 number = rec.number - 1
             n = len(rec.data)
             sec, frac = divmod(rec.ts_ns, NS)
-            if sec >= 1 << 32:  # beyond what a pcap header holds: one at a time
+            # serial records (their direction is in the EPB flags, which the re-packed
+            # records lose) and times beyond what a pcap header holds: one at a time
+            if sec >= 1 << 32 or rec.linktype in USER_LINKTYPES:
                 if batch:
                     yield from flush()
                 self.stats.records += 1
                 self.stats.wire_bytes += n
-                self._general(rec.number, rec.ts_ns, rec.linktype, rec.data)
+                self._general(rec.number, rec.ts_ns, rec.linktype, rec.data, rec.flags, rec.interface)
                 number = rec.number
+                if len(self._recs) >= 8192:
+                    yield self._chunk()
                 continue
             batch.append(pack(sec, frac, n, rec.orig_len) + rec.data)
             size += n
         if batch:
             yield from flush()
+        yield from self._serial_flush()
+
+    def _serial_flush(self) -> Iterator[Chunk]:
+        """The end of the capture (or the damage): the serial tails, then the last chunk."""
+        self._serial_items(self._serial.flush())
         if self._recs:
             yield self._chunk()
 
@@ -728,8 +831,11 @@ class ChangeReader:
 
     # -- the general path ---------------------------------------------------------------
 
-    def _general(self, number: int, ts: int, linktype: int, data: bytes) -> None:
+    def _general(self, number: int, ts: int, linktype: int, data: bytes, flags: int = 0, interface: int = 0) -> None:
         self._last_ts = ts
+        if linktype in USER_LINKTYPES:  # serial: the same splitter as iter_frames
+            self._serial_items(self._serial.feed(number, ts, linktype, data, flags, interface))
+            return
         dg = decode_packet(linktype, data)
         if dg is None:
             self.stats.other_packets += 1
@@ -739,6 +845,15 @@ class ChangeReader:
                 self.stats.undecodable += 1
             else:
                 self._frame(number, ts, sf.frame, len(sf.raw))
+
+    def _serial_items(self, items: list[StreamFrame | tuple[int, int]]) -> None:
+        for item in items:
+            if isinstance(item, tuple):  # a record of another protocol (P2OS, blackboard)
+                self.stats.other_packets += 1
+            elif item.frame is None:
+                self.stats.undecodable += 1
+            else:
+                self._frame(item.number, item.ts_ns, item.frame, len(item.raw))
 
     def _frame(self, number: int, ts: int, frame: Frame, size: int) -> None:
         st = self.stats
