@@ -22,6 +22,8 @@ help:
 	@echo "make bench     print speed and memory ratios"
 	@echo "make captures  regenerate captures/ (byte-identical)"
 	@echo "make install   put the dissectors into your personal Wireshark plugin folder"
+	@echo "make test-matrix  the tshark tests on Wireshark 4.0, 4.4 and 4.6 (root filesystems built once)"
+	@echo "make fuzz      the long fuzz run of the dissectors and the Python parsers"
 
 # --- set-up ------------------------------------------------------------------------------
 deps: tshark venv
