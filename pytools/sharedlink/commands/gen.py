@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 from pathlib import Path
 
-from ..cli import UsageError
+from ..errors import UsageError
 from ..gen import GenOptions, generate_file
+from ._output import generate_to, report
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -74,14 +73,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.frames is not None and args.frames <= 0:
         raise UsageError("--frames must be positive")
-    try:
-        opts.validate()
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    try:
-        stats = generate_file(opts, args.out)
-    except OSError as exc:
-        raise UsageError(f"{args.out}: {exc.strerror or exc}") from None
+    stats = generate_to(opts, generate_file, args.out)
     summary = {
         "file": str(args.out),
         "format": fmt,
@@ -91,17 +83,13 @@ def run(args: argparse.Namespace) -> int:
         "dropped": stats.dropped,
         "bad_checksums": stats.bad_checksums,
     }
-    if args.json:
-        json.dump(summary, sys.stdout)
-        print()
-    else:
-        kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
-        print(
-            f"wrote {args.out}: {stats.frames} frames ({kinds}), {stats.bytes} payload bytes"
-            + (f", {stats.dropped} dropped" if stats.dropped else "")
-            + (f", {stats.bad_checksums} bad checksums" if stats.bad_checksums else ""),
-            file=sys.stderr,
-        )
+    kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
+    report(
+        summary, args.json,
+        f"wrote {args.out}: {stats.frames} frames ({kinds}), {stats.bytes} payload bytes"
+        + (f", {stats.dropped} dropped" if stats.dropped else "")
+        + (f", {stats.bad_checksums} bad checksums" if stats.bad_checksums else ""),
+    )
     return 0
 
 
@@ -123,14 +111,7 @@ def run_session(args: argparse.Namespace, fmt: str) -> int:
         if args.port is not None:
             opts.port = args.port
         generate = generate_blackboard_file  # type: ignore[assignment]
-    try:
-        opts.validate()
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    try:
-        stats = generate(opts, args.out)  # type: ignore[arg-type]
-    except OSError as exc:
-        raise UsageError(f"{args.out}: {exc.strerror or exc}") from None
+    stats = generate_to(opts, generate, args.out)
     summary = {
         "file": str(args.out),
         "format": fmt,
@@ -141,10 +122,6 @@ def run_session(args: argparse.Namespace, fmt: str) -> int:
         "payload_bytes": stats.bytes,
         "kinds": stats.kinds,
     }
-    if args.json:
-        json.dump(summary, sys.stdout)
-        print()
-    else:
-        kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
-        print(f"wrote {args.out}: {stats.frames} frames over {opts.transport} port {opts.port} ({kinds})", file=sys.stderr)
+    kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
+    report(summary, args.json, f"wrote {args.out}: {stats.frames} frames over {opts.transport} port {opts.port} ({kinds})")
     return 0

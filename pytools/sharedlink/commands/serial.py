@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import BinaryIO
 
-from ..cli import UsageError
+from ..errors import UsageError
 from ..serial_import import FORMATS, ImportError_, read_log
 from ..serialcap import (
     DIR_IN,
@@ -24,6 +24,7 @@ from ..serialcap import (
     list_ports,
     parse_linktype,
 )
+from ._output import generate_to, report
 
 _DIRECTIONS = {"in": DIR_IN, "inbound": DIR_IN, "out": DIR_OUT, "outbound": DIR_OUT, "unknown": DIR_UNKNOWN}
 
@@ -86,14 +87,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     ls.set_defaults(func=run_ports)
 
 
-def _report(summary: dict, as_json: bool, line: str) -> None:
-    if as_json:
-        json.dump(summary, sys.stdout)
-        print()
-    else:
-        print(line, file=sys.stderr)
-
-
 def run_capture(args: argparse.Namespace) -> int:
     if args.tap and args.device:
         raise UsageError("give either DEVICE or --tap DEV_A DEV_B, not both")
@@ -132,7 +125,7 @@ def run_capture(args: argparse.Namespace) -> int:
         "by_direction": stats.by_direction,
         "stopped_by": stats.stopped_by,
     }
-    _report(summary, args.json, f"wrote {args.out}: {stats.records} records, {stats.bytes} bytes (stopped: {stats.stopped_by or 'end'})")
+    report(summary, args.json, f"wrote {args.out}: {stats.records} records, {stats.bytes} bytes (stopped: {stats.stopped_by or 'end'})")
     return 0
 
 
@@ -174,7 +167,7 @@ def run_import(args: argparse.Namespace) -> int:
     summary = {"file": str(args.out), "format": fmt, "records": records, "bytes": sum(len(c.data) for c in chunks)}
     if args.frame:
         summary["frames"] = frames
-    _report(summary, args.json, f"wrote {args.out}: {records} records from a {fmt} log" + (f" ({frames} frames)" if args.frame else ""))
+    report(summary, args.json, f"wrote {args.out}: {records} records from a {fmt} log" + (f" ({frames} frames)" if args.frame else ""))
     return 0
 
 
@@ -209,14 +202,7 @@ def run_gen_serial(args: argparse.Namespace) -> int:
         host=args.dst.upper(),
         vehicle=args.src.upper(),
     )
-    try:
-        opts.validate()
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    try:
-        stats = generate_serial_file(opts, args.out)
-    except OSError as exc:
-        raise UsageError(f"{args.out}: {exc.strerror or exc}") from None
+    stats = generate_to(opts, generate_serial_file, args.out)
     summary = {
         "file": str(args.out),
         "format": "pcapng",
@@ -229,7 +215,7 @@ def run_gen_serial(args: argparse.Namespace) -> int:
         "by_direction": stats.by_direction,
     }
     kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
-    _report(
+    report(
         summary, args.json,
         f"wrote {args.out}: {stats.frames} frames ({kinds}) in {stats.records} serial records at {opts.baud} baud"
         + (f", {stats.noise_bytes} noise bytes" if stats.noise_bytes else ""),
