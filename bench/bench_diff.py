@@ -18,8 +18,8 @@ import time
 from pathlib import Path
 
 from bench import Result
-from sharedlink.diff import DiffOptions, diff_captures
-from sharedlink.gen import GenOptions, generate_file
+from sharedlink.analysis.diff import DiffOptions, diff_captures
+from sharedlink.generators.beacon import GenOptions, generate_file
 
 BIG = 1_000_000
 SMALL = 100_000

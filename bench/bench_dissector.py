@@ -117,7 +117,7 @@ def run(capture: Path, repeat: int = 3, dissector: Path | None = None) -> list[t
 
 def make_beacon_capture(path: Path, frames: int = 200_000, compress: bool = False) -> Path:
     """A beacon capture made by `sharedlink gen` (the project's one generator)."""
-    from sharedlink.gen import GenOptions, generate_file
+    from sharedlink.generators.beacon import GenOptions, generate_file
 
     generate_file(GenOptions(frames=frames, compress=compress), path)
     return path

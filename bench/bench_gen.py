@@ -6,7 +6,7 @@ import time
 from pathlib import Path
 
 from bench import Result
-from sharedlink.gen import GenOptions, beacon_payloads, generate_file
+from sharedlink.generators.beacon import GenOptions, beacon_payloads, generate_file
 
 GEN_FRAMES = 200_000
 SCAPY_FRAMES = 4_000

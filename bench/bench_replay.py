@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from bench import Result
-from sharedlink.gen import GenOptions, generate_file
+from sharedlink.generators.beacon import GenOptions, generate_file
 
 TIMED_FRAMES = 100
 TOP_FRAMES = 200_000

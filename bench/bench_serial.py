@@ -22,11 +22,11 @@ import time
 from pathlib import Path
 
 from bench import Result
-from sharedlink.codec import iter_segments
-from sharedlink.gen_serial import SerialGenOptions, generate_serial_file, session_frames
-from sharedlink.packets import UdpBuilder
-from sharedlink.pcapio import PcapWriter, read_records
-from sharedlink.serialcap import read_capture
+from sharedlink.capture.packets import UdpBuilder
+from sharedlink.capture.pcapio import PcapWriter, read_records
+from sharedlink.capture.serial_format import read_capture
+from sharedlink.generators.serial import SerialGenOptions, generate_serial_file, session_frames
+from sharedlink.protocols.codec import iter_segments
 
 REPO = Path(__file__).resolve().parents[1]
 TSHARK = shutil.which("tshark") or "/usr/bin/tshark"

@@ -1,16 +1,16 @@
 #!/usr/bin/env python3
 """``make fuzz``: the long fuzz run of the Lua dissectors (under tshark) and of the Python parsers.
 
-tshark ($SHAREDLINK_TSHARK, default tshark), Wireshark's method (tests/fuzz_harness.py):
+tshark ($SHAREDLINK_TSHARK, default tshark), Wireshark's method (tests/fuzz/fuzz_harness.py):
   1. editcap -E 0.02 mutations of every sample capture, --seeds seeds each, headers kept (-o);
   2. every prefix of every frame of every sample capture (shorter datagram and snaplen cut);
   3. random, protocol-alphabet and mutated-frame payloads on every port of ours (UDP and TCP)
      and on a port where only the heuristics can claim them;
   4. 64 KB adversarial payloads, each pattern timed against the same bytes in 4 KB payloads.
-Python parsers (tests/fuzz_codecs.py): atheris, --codec-runs inputs per target (hypothesis
+Python parsers (tests/fuzz/fuzz_codecs.py): atheris, --codec-runs inputs per target (hypothesis
 when atheris is not installed).
 
-A failing capture is kept in tests/fuzz-regressions/ (replayed by tests/test_fuzz_short.py).
+A failing capture is kept in tests/fuzz/fuzz-regressions/ (replayed by tests/fuzz/test_fuzz_short.py).
 Exit status: 0 all clean, 1 a failure, 2 the harness could not run.
 """
 
@@ -32,11 +32,12 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
+sys.path.insert(0, str(REPO / "tests" / "fuzz"))
 
 import fuzz_harness as fh  # noqa: E402
 
-from sharedlink.packets import decode_packet  # noqa: E402
-from sharedlink.pcapio import CaptureError, read_records  # noqa: E402
+from sharedlink.capture.packets import decode_packet  # noqa: E402
+from sharedlink.capture.pcapio import CaptureError, read_records  # noqa: E402
 
 
 @dataclass
@@ -219,10 +220,10 @@ def stage_codecs(work: Path, args: argparse.Namespace) -> Stage:
             art.mkdir()
             for s in seeds.get(name.split(".")[0], []):
                 (corpus / hashlib.sha1(s).hexdigest()).write_bytes(s)
-            cmd = [py, str(REPO / "tests" / "fuzz_codecs.py"), name, f"-runs={args.codec_runs}", "-max_len=8192",
+            cmd = [py, str(REPO / "tests" / "fuzz" / "fuzz_codecs.py"), name, f"-runs={args.codec_runs}", "-max_len=8192",
                    f"-artifact_prefix={art}/", "-print_final_stats=1", str(corpus)]
         else:
-            cmd = [py, str(REPO / "tests" / "fuzz_codecs.py"), "--hypothesis", name, str(args.codec_runs)]
+            cmd = [py, str(REPO / "tests" / "fuzz" / "fuzz_codecs.py"), "--hypothesis", name, str(args.codec_runs)]
         env = dict(os.environ, SHAREDLINK_FUZZ_TMP=str(work))
         r = subprocess.run(cmd, capture_output=True, text=True, env=env, errors="replace")
         text = r.stdout + r.stderr

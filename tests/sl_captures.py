@@ -1,27 +1,33 @@
-"""Hypothesis strategies for varied SharedLink captures (test_diff, test_transform), written
+"""Test data builders shared by the test files. Hypothesis strategies for varied SharedLink captures (test_diff, test_transform), written
 as real pcap files with pcapio and packets: named and positional frames, full and delta,
 declarations, replies, queries, two directions, several frames in one datagram, noise, bad
 checksums, frames without CR LF, numbers written in different ways."""
 
 from __future__ import annotations
 
+import re
+import struct
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from hypothesis import strategies as st
 
-from sharedlink.codec import (
+from sharedlink.capture.packets import UdpBuilder
+from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.generators.beacon import DEFAULT_START_NS
+from sharedlink.protocols.codec import (
     Field,
     Frame,
     build_frame,
     declaration_fields,
+    encode_named,
+    encode_positional,
+    iter_segments,
     named_fields,
     positional_fields,
     query_fields,
     reply_fields,
 )
-from sharedlink.gen import DEFAULT_START_NS
-from sharedlink.packets import UdpBuilder
-from sharedlink.pcapio import PcapWriter
 
 #: variables per direction: (name, type); the positional list of direction B>A is the beacon's
 NAMES = {("B", "A"): [("AutoGpsLat", 2), ("AutoGpsLon", 2), ("Mode", 4), ("Count", 0)],
@@ -93,3 +99,112 @@ def write_capture(path: Path, datagrams: list[tuple[int, bytes]]) -> Path:
         for i, (ts, payload) in enumerate(datagrams):
             w.write(ts, b.frame(payload, i + 1))
     return path
+
+
+# -- stream strategies (test_serial, test_serial_dissector) ---------------------------------------
+
+_values = st.one_of(st.none(), st.integers(-999, 99999).map(str), st.floats(-1e3, 1e3, allow_nan=False).map(lambda f: "%.4f" % f))
+
+
+@st.composite
+def sl_frame(draw: st.DrawFn) -> bytes:
+    dst, src = draw(st.sampled_from("ABCP")), draw(st.sampled_from("ABCP"))
+    crlf = draw(st.booleans()) if draw(st.integers(0, 5)) == 0 else True
+    if draw(st.booleans()):
+        return encode_positional(dst, src, draw(st.lists(_values, min_size=1, max_size=6)), draw(st.integers(0, 3)), crlf)
+    vals = draw(st.lists(st.tuples(st.sampled_from(["Lat", "Lon", "X_1"]), st.sampled_from([0, 2, 4]), st.text("0123456789.-abc", max_size=8)), min_size=1, max_size=3))
+    return encode_named(dst, src, vals, 0, crlf)
+
+
+_noise = st.one_of(
+    st.binary(min_size=1, max_size=12),
+    st.text("[]:|\r\nABC xyz09", min_size=1, max_size=12).map(lambda t: t.encode()),
+)
+
+
+@st.composite
+def sl_stream(draw: st.DrawFn, min_items: int = 1, max_items: int = 12) -> bytes:
+    """Frames with noise and truncated frames between them, ending with a whole CR LF frame."""
+    parts = []
+    for _ in range(draw(st.integers(min_items, max_items))):
+        k = draw(st.integers(0, 9))
+        if k < 6:
+            parts.append(draw(sl_frame()))
+        elif k < 8:
+            parts.append(draw(_noise))
+        else:
+            f = draw(sl_frame())
+            parts.append(f[: draw(st.integers(1, len(f) - 1))])
+    parts.append(encode_positional("A", "B", ["end"]))
+    return b"".join(parts)
+
+
+def chunked(data: bytes, cuts: list[int]) -> list[bytes]:
+    pts = sorted({c % (len(data) + 1) for c in cuts} | {0, len(data)})
+    return [data[a:b] for a, b in zip(pts, pts[1:]) if b > a]
+
+
+def reference_frames(data: bytes) -> list[bytes]:
+    return [data[s.start : s.end] for s in iter_segments(data) if s.is_frame]
+
+
+# -- an independent reader of gen captures (test_export, test_stats) -------------------------
+
+BEACON = ["AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"]
+_FRAME = re.compile(rb"\[:(.)(.)\|(.*?)\|C([0-9A-Fa-f]{1,2})\]\r\n")
+
+
+@dataclass
+class RefFrame:
+    number: int
+    ts_ns: int
+    src: str
+    dst: str
+    ok: bool
+    values: dict[str, str] = field(default_factory=dict)  # every value after the frame
+    changed: dict[str, str] = field(default_factory=dict)  # values the frame changed
+    present: dict[str, str] = field(default_factory=dict)  # values the frame carries
+
+
+def pcap_payloads(path: Path):
+    """(record number, ts_ns, UDP payload) of a classic pcap of Ethernet/IPv4/UDP packets."""
+    data = path.read_bytes()
+    magic = struct.unpack("<I", data[:4])[0]
+    mult = 1 if magic == 0xA1B23C4D else 1000
+    off, n = 24, 0
+    while off + 16 <= len(data):
+        sec, frac, incl, _orig = struct.unpack("<IIII", data[off : off + 16])
+        pkt = data[off + 16 : off + 16 + incl]
+        off += 16 + incl
+        n += 1
+        yield n, sec * 1_000_000_000 + frac * mult, pkt[42:]
+
+
+def reference(path: Path) -> list[RefFrame]:
+    """Every SharedLink frame of a gen capture with the values it leaves (independent reader)."""
+    names = list(BEACON)
+    values: dict[str, str] = {}
+    out = []
+    for number, ts, payload in pcap_payloads(path):
+        for m in _FRAME.finditer(payload):
+            dst, src, body, ck = (g.decode("latin-1") for g in m.groups())
+            ok = (sum(f":{dst}{src}|{body}|C".encode("latin-1")) & 0xFF) == int(ck, 16)
+            fr = RefFrame(number, ts, src, dst, ok)
+            if ok:
+                fields = body.split("|")
+                if any(f.startswith("Q") for f in fields) and not any(f.startswith("D") for f in fields):
+                    names = [f[1:] for f in fields if f.startswith("Q")]  # a declaration
+                elif any(f.startswith("Q") for f in fields):
+                    for q, d in zip(fields[2::3], fields[3::3]):
+                        fr.present[q[1:]] = d[1:]
+                else:
+                    for name, d in zip(names, [f for f in fields if f.startswith("D")]):
+                        if d != "D":
+                            fr.present[name] = d[1:]
+                for k, v in fr.present.items():
+                    if values.get(k) != v:
+                        fr.changed[k] = v
+                values.update(fr.present)
+            fr.values = dict(values)
+            out.append(fr)
+    return out

@@ -1,6 +1,28 @@
-"""SharedLink tools: codec, stream state, capture generation and decoding helpers."""
+"""SharedLink tools: protocol codecs, capture files, generators and analyses, by role.
 
-from .codec import (
+Layout (``docs/architecture.md`` is the map):
+
+- ``sharedlink.protocols``: one codec per protocol (``codec`` for SharedLink, ``p2os``,
+  ``blackboard``) and the SharedLink variable state (``state``);
+- ``sharedlink.capture``: pcap/pcapng I/O, packet headers, the serial capture format and
+  live port capture, serial log import, and ``stream`` (records -> datagrams -> frames);
+- ``sharedlink.generators``: beacon, P2OS, blackboard and serial session generators;
+- ``sharedlink.analysis``: decode, stats, diff, transform (compress/expand), export, plot;
+- on top: ``replay``, ``extcap``, ``wireshark``, ``scapy_layer``, ``cli`` and ``commands``.
+
+The flat module names of earlier releases (``sharedlink.decode``, ``sharedlink.codec``,
+``sharedlink.serialcap``...) still import: they are aliases of the modules above.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.abc
+import importlib.machinery
+import sys
+import types
+
+from .protocols.codec import (
     Checksum,
     Field,
     Frame,
@@ -26,3 +48,58 @@ __all__ = [
     "split_frames",
 ]
 __version__ = "0.1.0"
+
+# -- old flat module names ------------------------------------------------------------------
+
+#: old name -> the module it now is (``serialcap`` was split: its live capture is ``serial_port``)
+MOVED = {
+    "codec": "protocols.codec",
+    "p2os": "protocols.p2os",
+    "blackboard": "protocols.blackboard",
+    "state": "protocols.state",
+    "pcapio": "capture.pcapio",
+    "packets": "capture.packets",
+    "serial_import": "capture.serial_import",
+    "stream": "capture.stream",
+    "serialcap": "capture.serial_format",
+    "gen": "generators.beacon",
+    "gen_p2os": "generators.p2os",
+    "gen_blackboard": "generators.blackboard",
+    "gen_serial": "generators.serial",
+    "scenario": "generators.scenario",
+    "decode": "analysis.decode",
+    "stats": "analysis.stats",
+    "diff": "analysis.diff",
+    "transform": "analysis.transform",
+    "export": "analysis.export",
+    "plot": "analysis.plot",
+}
+
+
+class _MovedFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Imports ``sharedlink.<old>`` as the module it moved to (the same module object, so
+    ``sharedlink.decode.iter_decoded is sharedlink.analysis.decode.iter_decoded``)."""
+
+    def find_spec(self, fullname: str, path: object = None, target: object = None):  # type: ignore[override]
+        prefix, _, old = fullname.partition(".")
+        if prefix != __name__ or old not in MOVED:
+            return None
+        return importlib.machinery.ModuleSpec(fullname, self)
+
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> types.ModuleType:
+        module = importlib.import_module(f"{__name__}.{MOVED[spec.name.partition('.')[2]]}")
+        self._real_spec = module.__spec__
+        return module
+
+    def exec_module(self, module: types.ModuleType) -> None:
+        module.__spec__ = self._real_spec  # the import machinery set the alias's spec on it
+
+
+if not any(isinstance(f, _MovedFinder) for f in sys.meta_path):
+    sys.meta_path.append(_MovedFinder())
+
+
+def __getattr__(name: str) -> types.ModuleType:
+    if name in MOVED:
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

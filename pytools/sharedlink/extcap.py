@@ -24,8 +24,10 @@ import os
 import sys
 from collections.abc import Sequence
 
+from sharedlink.capture.serial_format import SerialCaptureWriter, parse_linktype
+from sharedlink.capture.serial_port import capture, list_ports
+
 from . import __version__
-from .serialcap import SerialCaptureWriter, capture, list_ports, parse_linktype
 
 PREFIX = "sharedlink-serial"
 BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)

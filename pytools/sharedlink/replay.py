@@ -33,8 +33,8 @@ from pathlib import Path
 from socket import inet_ntoa
 from typing import Any, NamedTuple, Union
 
-from .packets import decode_packet
-from .pcapio import LINKTYPE_ETHERNET, LINKTYPE_USER0, CaptureError, read_records
+from sharedlink.capture.packets import decode_packet
+from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, LINKTYPE_USER0, CaptureError, read_records
 
 #: LINKTYPE_USER0 .. LINKTYPE_USER15: records taken as raw serial bytes
 USER_LINKTYPES = range(LINKTYPE_USER0, LINKTYPE_USER0 + 16)
@@ -100,7 +100,7 @@ class CaptureFrames:
     """The frames of a capture, read as they are needed; iterate again for another pass.
 
     A damaged capture yields every frame before the damage, then raises
-    :class:`~sharedlink.pcapio.CaptureError`.
+    :class:`~sharedlink.capture.pcapio.CaptureError`.
     """
 
     def __init__(self, path: str | Path, flt: FrameFilter | None = None) -> None:
@@ -144,7 +144,7 @@ def udp_fields(linktype: int, data: bytes) -> tuple[str, int, int, bytes] | None
     """(source address, source port, destination port, payload) of a UDP packet, else None.
 
     The common case (Ethernet, IPv4 without options or fragments, UDP) is read in place here,
-    as :func:`sharedlink.packets.decode_packet` would; everything else goes to it (a test holds
+    as :func:`sharedlink.capture.packets.decode_packet` would; everything else goes to it (a test holds
     the two to the same answers).
     """
     if (

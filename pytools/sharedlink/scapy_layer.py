@@ -8,7 +8,7 @@
 b'[:AB|N0|T2|QAutoGpsLat|D38.34698779|C..]\\r\\n'
 
 ``chksum`` left as None is computed by the codec when the packet is built; set it to a string
-to send a wrong one. Dissecting goes through :func:`sharedlink.codec.parse_frame`, so the
+to send a wrong one. Dissecting goes through :func:`sharedlink.protocols.codec.parse_frame`, so the
 layer and the command line tools agree on every byte.
 """
 
@@ -20,7 +20,7 @@ from scapy.fields import StrField
 from scapy.layers.inet import UDP
 from scapy.packet import Packet, bind_layers
 
-from .codec import Field, Frame, SharedLinkError, build_frame, parse_frame
+from sharedlink.protocols.codec import Field, Frame, SharedLinkError, build_frame, parse_frame
 
 SHAREDLINK_PORT = 7013
 

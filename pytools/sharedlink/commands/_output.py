@@ -9,7 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
-from ..errors import UsageError
+from sharedlink.errors import UsageError
 
 T = TypeVar("T")
 

@@ -8,11 +8,11 @@ import math
 import sys
 from pathlib import Path
 
-from ..errors import UsageError
-from ..pcapio import CaptureError
-from ..state import BEACON_VARIABLES
-from ..stream import parse_variable_list
-from ..transform import TransformError, transform_capture
+from sharedlink.analysis.transform import TransformError, transform_capture
+from sharedlink.capture.pcapio import CaptureError
+from sharedlink.capture.stream import parse_variable_list
+from sharedlink.errors import UsageError
+from sharedlink.protocols.state import BEACON_VARIABLES
 
 EXIT_OK, EXIT_USAGE = 0, 2
 

@@ -7,9 +7,10 @@ import json
 import sys
 from pathlib import Path
 
-from ..diff import DiffOptions, DiffReport, Divergence, Staleness, diff_captures
-from ..errors import UsageError
-from ..stream import SideStats
+from sharedlink.analysis.diff import DiffOptions, DiffReport, Divergence, Staleness, diff_captures
+from sharedlink.capture.stream import SideStats
+from sharedlink.errors import UsageError
+
 from ._transform import VARIABLES_HELP, variables_arg
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2

@@ -7,10 +7,10 @@ import json
 import sys
 from pathlib import Path
 
-from ..cli import EXIT_OK, EXIT_USAGE, UsageError
-from ..export import FORMATS, LAT, LON, ExportOptions, export, export_file
-from ..pcapio import CaptureError
-from .stats import add_decode_options, check_capture, decode_options
+from sharedlink.analysis.export import FORMATS, LAT, LON, ExportOptions, export, export_file
+from sharedlink.capture.pcapio import CaptureError
+from sharedlink.cli import EXIT_OK, EXIT_USAGE, UsageError
+from sharedlink.commands import add_decode_options, check_capture, decode_options
 
 _SUFFIXES = {".csv": "csv", ".jsonl": "jsonl", ".ndjson": "jsonl", ".geojson": "geojson", ".kml": "kml"}
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import UsageError
-from ..gen import GenOptions, generate_file
+from sharedlink.errors import UsageError
+from sharedlink.generators.beacon import GenOptions, generate_file
+
 from ._output import generate_to, report
 
 
@@ -95,8 +96,8 @@ def run(args: argparse.Namespace) -> int:
 
 def run_session(args: argparse.Namespace, fmt: str) -> int:
     """``--protocol p2os`` / ``blackboard``: a generated client/server session."""
-    from ..gen_blackboard import BlackboardGenOptions, generate_blackboard_file
-    from ..gen_p2os import P2osGenOptions, generate_p2os_file
+    from sharedlink.generators.blackboard import BlackboardGenOptions, generate_blackboard_file
+    from sharedlink.generators.p2os import P2osGenOptions, generate_p2os_file
 
     opts: P2osGenOptions | BlackboardGenOptions
     if args.protocol == "p2os":

@@ -7,10 +7,10 @@ import json
 import sys
 from pathlib import Path
 
-from ..cli import EXIT_OK, EXIT_USAGE, UsageError
-from ..export import LAT, LON
-from ..pcapio import CaptureError
-from .stats import add_decode_options, check_capture, decode_options
+from sharedlink.analysis.export import LAT, LON
+from sharedlink.capture.pcapio import CaptureError
+from sharedlink.cli import EXIT_OK, EXIT_USAGE, UsageError
+from sharedlink.commands import add_decode_options, check_capture, decode_options
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     import matplotlib
 
     matplotlib.use("Agg")  # headless, whatever the environment says
-    from ..plot import build_figure, collect
+    from sharedlink.analysis.plot import build_figure, collect
 
     try:
         data = collect(args.capture, variables, sync, max_points=args.max_points,

@@ -8,9 +8,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..cli import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, UsageError
-from ..pcapio import CaptureError
-from ..replay import (
+from sharedlink.capture.pcapio import CaptureError
+from sharedlink.cli import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, UsageError
+from sharedlink.replay import (
     USER_LINKTYPES,
     CaptureFrames,
     FrameFilter,

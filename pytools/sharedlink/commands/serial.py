@@ -11,19 +11,19 @@ import sys
 from pathlib import Path
 from typing import BinaryIO
 
-from ..errors import UsageError
-from ..serial_import import FORMATS, ImportError_, read_log
-from ..serialcap import (
+from sharedlink.capture.serial_format import (
     DIR_IN,
     DIR_OUT,
     DIR_UNKNOWN,
     PROTOCOLS,
     SerialCaptureWriter,
     StreamReader,
-    capture,
-    list_ports,
     parse_linktype,
 )
+from sharedlink.capture.serial_import import FORMATS, ImportError_, read_log
+from sharedlink.capture.serial_port import capture, list_ports
+from sharedlink.errors import UsageError
+
 from ._output import generate_to, report
 
 _DIRECTIONS = {"in": DIR_IN, "inbound": DIR_IN, "out": DIR_OUT, "outbound": DIR_OUT, "unknown": DIR_UNKNOWN}
@@ -184,7 +184,7 @@ def run_ports(args: argparse.Namespace) -> int:
 
 def run_gen_serial(args: argparse.Namespace) -> int:
     """``sharedlink gen OUT --transport serial``."""
-    from ..gen_serial import SerialGenOptions, generate_serial_file
+    from sharedlink.generators.serial import SerialGenOptions, generate_serial_file
 
     if getattr(args, "protocol", "sharedlink") not in (None, "sharedlink"):
         raise UsageError("--transport serial generates SharedLink (BUL-049) sessions only")

@@ -1,0 +1,383 @@
+"""Exports: a capture's frames (or variable changes) as CSV, JSON Lines, GeoJSON or KML.
+
+Streaming: rows are written as frames are decoded (:func:`sharedlink.analysis.decode.iter_decoded`);
+nothing grows with the capture except, for GeoJSON and KML, the track coordinates, which are
+spooled to a temporary file and copied into the document at the end. CSV needs its columns
+before the first row, so without ``variables`` it reads the capture twice (the first pass
+only learns the variable names).
+
+Rows, one per SharedLink frame (``changes=False``):
+``number, time (UTC ISO 8601, ns), ts_ns, t (s since the first frame), src, dst, kind,
+checksum (good/bad/none)`` then every variable's value as the frame leaves its direction's
+table (values carried forward included; a frame with a bad checksum changes nothing). With
+``changes=True``: one row per variable that a frame gave a new value: ``number, time, ts_ns,
+t, src, dst, name, type, value``. JSON exports carry typed values (numbers for long and
+double); CSV keeps the text as sent.
+
+GeoJSON: a FeatureCollection with one Point per frame that has a position (properties: the
+row) and one LineString track per direction. KML: one Placemark LineString track per direction
+with start and end points (with their times).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import tempfile
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+from xml.sax.saxutils import escape as xml_escape
+
+from sharedlink.analysis.decode import VALUE_KINDS, Decoded, format_time, iter_decoded
+from sharedlink.capture.pcapio import CaptureError, atomic_open
+from sharedlink.protocols.state import BEACON_VARIABLES, Variable
+
+FORMATS = ("csv", "jsonl", "geojson", "kml")
+LAT, LON = "AutoGpsLat", "AutoGpsLon"
+FRAME_COLUMNS = ["number", "time", "ts_ns", "t", "src", "dst", "kind", "checksum"]
+CHANGE_COLUMNS = ["number", "time", "ts_ns", "t", "src", "dst", "name", "type", "value"]
+
+
+@dataclass
+class ExportOptions:
+    fmt: str = "csv"
+    changes: bool = False
+    variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES  # a-priori positional list
+    columns: Sequence[str] | None = None  # variables to export (default: all in the capture)
+    sync_interval: float = 1.0
+    lat: str = LAT
+    lon: str = LON
+
+
+@dataclass
+class ExportResult:
+    rows: int = 0
+    frames: int = 0
+    points: int = 0  # positions written (GeoJSON/KML)
+    columns: list[str] = field(default_factory=list)
+    error: str | None = None  # the capture is damaged here; everything before it was written
+
+
+def _checksum(d: Decoded) -> str:
+    return "none" if d.checksum_ok is None else ("good" if d.checksum_ok else "bad")
+
+
+def _typed(v: Variable | None) -> Any:
+    """A variable's typed value for JSON (a number that JSON cannot hold stays text)."""
+    if v is None or v.text is None:
+        return None
+    x = v.value
+    if isinstance(x, float) and not math.isfinite(x):
+        return v.text
+    return x
+
+
+def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded]:
+    """The decoded frames; damage after the first record ends the stream with ``error`` set."""
+    try:
+        for item in iter_decoded(path, opts.variables, opts.sync_interval):
+            if isinstance(item, Decoded):
+                result.frames += 1
+                yield item
+    except CaptureError as exc:
+        if exc.record is None and result.frames == 0:
+            raise
+        result.error = str(exc)
+
+
+def scan_variables(path: str | Path, opts: ExportOptions) -> list[str]:
+    """Every variable name the capture's frames give a value, in order of first appearance."""
+    seen: dict[str, None] = {}
+    probe = ExportResult()
+    for d in _frames(path, opts, probe):
+        for u in d.updates:
+            if u.text is not None:
+                seen.setdefault(u.name, None)
+    return list(seen)
+
+
+class _Writer:
+    """Rows for one capture: the base of the four formats."""
+
+    def __init__(self, out: IO[str], opts: ExportOptions, columns: list[str]) -> None:
+        self.out, self.opts, self.columns = out, opts, columns
+        self.t0: int | None = None
+
+    def base(self, d: Decoded) -> dict[str, Any]:
+        if self.t0 is None:
+            self.t0 = d.ts_ns
+        return {
+            "number": d.number,
+            "time": format_time(d.ts_ns),
+            "ts_ns": d.ts_ns,
+            "t": round((d.ts_ns - self.t0) / 1e9, 9),
+            "src": d.src,
+            "dst": d.dst,
+        }
+
+    def frame_row(self, d: Decoded) -> dict[str, Any]:
+        row = self.base(d)
+        row["kind"] = d.kind
+        row["checksum"] = _checksum(d)
+        return row
+
+    def change_rows(self, d: Decoded) -> Iterator[dict[str, Any]]:
+        wanted = self.opts.columns
+        for u in d.changes():
+            if wanted is not None and u.name not in wanted:
+                continue
+            v = d.table.vars.get(u.name)
+            row = self.base(d)
+            row.update(name=u.name, type=v.type_code if v is not None else None, value=_typed(v))
+            yield row
+
+    def write(self, d: Decoded) -> int:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+
+class _Csv(_Writer):
+    def __init__(self, out: IO[str], opts: ExportOptions, columns: list[str]) -> None:
+        super().__init__(out, opts, columns)
+        self.w = csv.writer(out, lineterminator="\n")
+        self.w.writerow(CHANGE_COLUMNS if opts.changes else FRAME_COLUMNS + columns)
+
+    def write(self, d: Decoded) -> int:
+        if self.opts.changes:
+            n = 0
+            for row in self.change_rows(d):
+                v = d.table.vars[row["name"]]
+                row["value"] = v.text
+                self.w.writerow(["" if row[c] is None else row[c] for c in CHANGE_COLUMNS])
+                n += 1
+            return n
+        row = self.frame_row(d)
+        vars_ = d.table.vars
+        vals = []
+        for name in self.columns:
+            v = vars_.get(name)
+            vals.append("" if v is None or v.text is None else v.text)
+        self.w.writerow([row[c] for c in FRAME_COLUMNS] + vals)
+        return 1
+
+
+class _Jsonl(_Writer):
+    def write(self, d: Decoded) -> int:
+        if self.opts.changes:
+            n = 0
+            for row in self.change_rows(d):
+                self.out.write(json.dumps(row) + "\n")
+                n += 1
+            return n
+        row = self.frame_row(d)
+        row["values"] = self.values(d)
+        row["changed"] = [u.name for u in d.changes()]
+        self.out.write(json.dumps(row) + "\n")
+        return 1
+
+    def values(self, d: Decoded) -> dict[str, Any]:
+        wanted = self.opts.columns
+        return {
+            n: _typed(v)
+            for n, v in d.table.vars.items()
+            if v.text is not None and (wanted is None or n in wanted)
+        }
+
+
+class _Track:
+    """Per-direction positions spooled to a temporary file (``lon lat ts_ns`` lines)."""
+
+    def __init__(self) -> None:
+        self.files: dict[str, IO[str]] = {}
+        self.counts: dict[str, int] = {}
+        self.first: dict[str, tuple[float, float, int]] = {}
+        self.last: dict[str, tuple[float, float, int]] = {}
+
+    def add(self, pair: str, lon: float, lat: float, ts: int) -> None:
+        f = self.files.get(pair)
+        if f is None:
+            f = self.files[pair] = tempfile.TemporaryFile("w+", encoding="ascii")  # noqa: SIM115
+            self.counts[pair] = 0
+            self.first[pair] = (lon, lat, ts)
+        f.write("%r %r %d\n" % (lon, lat, ts))
+        self.counts[pair] += 1
+        self.last[pair] = (lon, lat, ts)
+
+    def coords(self, pair: str) -> Iterator[tuple[str, str, int]]:
+        f = self.files[pair]
+        f.flush()
+        f.seek(0)
+        for line in f:
+            lon, lat, ts = line.split()
+            yield lon, lat, int(ts)
+
+    def close(self) -> None:
+        for f in self.files.values():
+            f.close()
+
+
+def _position(d: Decoded, opts: ExportOptions) -> tuple[float, float] | None:
+    vars_ = d.table.vars
+    la, lo = vars_.get(opts.lat), vars_.get(opts.lon)
+    if la is None or lo is None or la.text is None or lo.text is None:
+        return None
+    try:
+        lat, lon = float(la.text), float(lo.text)
+    except ValueError:
+        return None
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+        return None
+    return lat, lon
+
+
+class _GeoJson(_Jsonl):
+    def __init__(self, out: IO[str], opts: ExportOptions, columns: list[str]) -> None:
+        super().__init__(out, opts, columns)
+        self.track = _Track()
+        self.first = True
+        out.write('{"type": "FeatureCollection", "features": [\n')
+
+    def _feature(self, obj: dict[str, Any]) -> None:
+        if not self.first:
+            self.out.write(",\n")
+        self.first = False
+        self.out.write(json.dumps(obj))
+
+    def write(self, d: Decoded) -> int:
+        if d.checksum_ok is False or d.kind not in VALUE_KINDS:
+            return 0
+        pos = _position(d, self.opts)
+        if pos is None:
+            return 0
+        lat, lon = pos
+        if self.opts.changes:
+            rows = list(self.change_rows(d))
+            if not rows:
+                return 0
+            props = self.frame_row(d)
+            props["changes"] = {r["name"]: r["value"] for r in rows}
+        else:
+            props = self.frame_row(d)
+            props["values"] = self.values(d)
+        self._feature({"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon, lat]}, "properties": props})
+        self.track.add(d.pair, lon, lat, d.ts_ns)
+        return 1
+
+    def close(self) -> None:
+        tr = self.track
+        for pair in sorted(tr.files):
+            src, _, dst = pair.partition(">")
+            if not self.first:
+                self.out.write(",\n")
+            self.first = False
+            self.out.write(
+                '{"type": "Feature", "properties": %s, "geometry": {"type": "LineString", "coordinates": ['
+                % json.dumps(
+                    {
+                        "track": pair,
+                        "src": src,
+                        "dst": dst,
+                        "points": tr.counts[pair],
+                        "start": format_time(tr.first[pair][2]),
+                        "end": format_time(tr.last[pair][2]),
+                    }
+                )
+            )
+            sep = ""
+            for lon, lat, _ts in tr.coords(pair):
+                self.out.write("%s[%s, %s]" % (sep, lon, lat))
+                sep = ", "
+            self.out.write("]}}")
+        self.out.write("\n]}\n")
+        tr.close()
+
+
+class _Kml(_Writer):
+    def __init__(self, out: IO[str], opts: ExportOptions, columns: list[str]) -> None:
+        super().__init__(out, opts, columns)
+        self.track = _Track()
+        self.name = ""
+
+    def write(self, d: Decoded) -> int:
+        if d.checksum_ok is False or d.kind not in VALUE_KINDS:
+            return 0
+        if self.opts.changes and not any(u.name in (self.opts.lat, self.opts.lon) for u in d.changes()):
+            return 0
+        pos = _position(d, self.opts)
+        if pos is None:
+            return 0
+        self.track.add(d.pair, pos[1], pos[0], d.ts_ns)
+        return 1
+
+    def close(self) -> None:
+        o, tr = self.out, self.track
+        o.write('<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="http://www.opengis.net/kml/2.2">\n<Document>\n')
+        o.write("<name>%s</name>\n" % xml_escape(self.name or "SharedLink tracks"))
+        o.write(
+            '<Style id="track"><LineStyle><color>ff0000ff</color><width>3</width></LineStyle></Style>\n'
+            '<Style id="start"><IconStyle><color>ff00ff00</color></IconStyle></Style>\n'
+            '<Style id="end"><IconStyle><color>ff0000ff</color></IconStyle></Style>\n'
+        )
+        for pair in sorted(tr.files):
+            first, last = tr.first[pair], tr.last[pair]
+            o.write("<Folder><name>%s</name>\n" % xml_escape(pair))
+            o.write(
+                "<Placemark><name>track %s</name><styleUrl>#track</styleUrl>"
+                "<TimeSpan><begin>%s</begin><end>%s</end></TimeSpan>"
+                "<LineString><tessellate>1</tessellate><coordinates>\n"
+                % (xml_escape(pair), format_time(first[2]), format_time(last[2]))
+            )
+            for lon, lat, _ts in tr.coords(pair):
+                o.write("%s,%s,0\n" % (lon, lat))
+            o.write("</coordinates></LineString></Placemark>\n")
+            for label, (lon, lat, ts) in (("start", first), ("end", last)):
+                o.write(
+                    "<Placemark><name>%s</name><styleUrl>#%s</styleUrl><TimeStamp><when>%s</when></TimeStamp>"
+                    "<Point><coordinates>%r,%r,0</coordinates></Point></Placemark>\n"
+                    % (label, label, format_time(ts), lon, lat)
+                )
+            o.write("</Folder>\n")
+        o.write("</Document>\n</kml>\n")
+        tr.close()
+
+
+_WRITERS: dict[str, type[_Writer]] = {"csv": _Csv, "jsonl": _Jsonl, "geojson": _GeoJson, "kml": _Kml}
+
+
+def export(path: str | Path, out: IO[str], opts: ExportOptions) -> ExportResult:
+    """Write ``path`` 's frames to ``out`` in ``opts.fmt``. A damaged capture: everything before
+    the damage is written (and the document closed), ``error`` set. A missing or unreadable
+    file raises :class:`~sharedlink.capture.pcapio.CaptureError`."""
+    if opts.fmt not in _WRITERS:
+        raise ValueError(f"unknown format {opts.fmt!r} (one of {', '.join(FORMATS)})")
+    result = ExportResult()
+    columns = list(opts.columns) if opts.columns is not None else []
+    if opts.fmt == "csv" and not opts.changes and opts.columns is None:
+        columns = scan_variables(path, opts)
+    result.columns = columns
+    frames = _frames(path, opts, result)
+    first = next(frames, None)  # a missing/unreadable file raises here, before any output
+    writer = _WRITERS[opts.fmt](out, opts, columns)
+    if isinstance(writer, _Kml):
+        writer.name = f"SharedLink tracks: {Path(path).name}"
+    try:
+        if first is not None:
+            result.rows += writer.write(first)
+        for d in frames:
+            result.rows += writer.write(d)
+    finally:
+        writer.close()
+    if isinstance(writer, (_GeoJson, _Kml)):
+        result.points = sum(writer.track.counts.values())
+    return result
+
+
+def export_file(path: str | Path, dest: str | Path, opts: ExportOptions) -> ExportResult:
+    """:func:`export` to a file, written beside it and renamed into place when complete."""
+    with atomic_open(dest, "w", encoding="utf-8", newline="") as fh:
+        return export(path, fh, opts)

@@ -1,0 +1,359 @@
+"""Rewrite a capture's shared-variable frames: ``sharedlink compress`` and ``expand``.
+
+``compress`` leaves out values a receiver already has (named form: the triplet goes;
+positional form: the slot stays as an empty ``D``) and sends a full set at least every
+``sync_interval`` seconds per direction; ``expand`` makes every value frame carry every value.
+Each frame keeps its form, addresses, timestamp and place in the capture; the UDP/IP headers
+around it are rewritten with correct lengths and checksums.
+
+The data never change: two :class:`~sharedlink.protocols.state.LinkState` s follow the stream, one as
+the input says it (what the sender meant), one as the output says it (what a receiver of the
+output knows), and each output frame carries exactly what the receiver lacks. Frames that
+are not plain value frames (declarations, queries, replies, commands, frames with unusual
+fields, bad checksums, frames inside TCP streams) are copied unchanged, and both views apply
+them alike. So ``sharedlink diff IN OUT`` agrees, and compressing a full beacon capture gives
+byte for byte what ``sharedlink gen --compress`` writes.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from sharedlink.capture.packets import ones_complement_checksum
+from sharedlink.capture.pcapio import (
+    LINKTYPE_ETHERNET,
+    LINKTYPE_LINUX_SLL,
+    LINKTYPE_NULL,
+    LINKTYPE_RAW,
+    PCAPNG_SHB,
+    CaptureError,
+    PcapngWriter,
+    PcapWriter,
+    read_records,
+)
+from sharedlink.protocols.codec import Field, Frame, build_frame, frame_kind, iter_segments
+from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, VariableTable
+
+NS = 1_000_000_000
+MODES = ("compress", "expand")
+
+
+class TransformError(Exception):
+    """The output cannot be written (bad option, unsupported capture layout, I/O error)."""
+
+
+@dataclass
+class TransformStats:
+    records: int = 0
+    frames: int = 0  # SharedLink frames
+    value_frames: int = 0  # of those, full and delta frames
+    rewritten: int = 0  # value frames written in the new form
+    full: int = 0  # full frames written
+    delta: int = 0  # delta frames written
+    copied: int = 0  # value frames copied unchanged (TCP, bad checksum, unusual fields)
+    bytes_in: int = 0  # SharedLink bytes read
+    bytes_out: int = 0  # SharedLink bytes written
+    error: str | None = None  # the input is damaged here: the records before it were written
+
+    @property
+    def saving(self) -> float | None:
+        return None if not self.bytes_in else 1.0 - self.bytes_out / self.bytes_in
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["saving"] = self.saving
+        return d
+
+
+# -- frames ------------------------------------------------------------------------------
+
+
+def _plain_layout(fields: Sequence[Field]) -> str | None:
+    """"named" or "positional" when a value frame has only the fields this module
+    regenerates (``N`` first, then ``[T] Q D`` triplets or ``D`` s); else None."""
+    if not fields or fields[0].letter != "N" or not (fields[0].text.isascii() and fields[0].text.isdigit()):
+        return None
+    rest = fields[1:]
+    if all(f.letter == "D" for f in rest):
+        return "positional"
+    i, n = 0, len(rest)
+    while i < n:
+        if rest[i].letter == "T":
+            i += 1
+        if i + 1 >= n or rest[i].letter != "Q" or rest[i + 1].letter != "D":
+            return None
+        i += 2
+    return "named"
+
+
+class Rewriter:
+    """Rewrites value frames one at a time, in capture order."""
+
+    def __init__(self, mode: str, sync_interval: float = 1.0, variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES) -> None:
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}")
+        if not sync_interval > 0:
+            raise ValueError("--sync-interval must be positive")
+        self.mode = mode
+        self.sync_ns = round(sync_interval * NS)
+        self.src = LinkState(default_list=list(variables))  # the data, as the input carries it
+        self.out = LinkState(default_list=list(variables))  # what a receiver of the output knows
+        self.next_sync: dict[tuple[str, str], int] = {}
+        self.form: dict[tuple[str, str], str] = {}  # the form each direction uses
+        self.stats = TransformStats()
+
+    def frame(self, frame: Frame, raw: bytes, ts_ns: int, rewritable: bool = True) -> bytes:
+        """The bytes to write for ``frame`` (``raw`` as read)."""
+        st = self.stats
+        st.frames += 1
+        st.bytes_in += len(raw)
+        kind = frame_kind(frame.fields)
+        value = kind in ("full", "delta")
+        st.value_frames += value
+        if frame.checksum is not None and frame.checksum.ok is False:
+            st.copied += value
+            st.bytes_out += len(raw)
+            return raw  # a receiver drops it: neither view applies it
+        layout = _plain_layout(frame.fields) if value else None
+        if layout is None or not rewritable:
+            st.copied += value
+            self.src.apply(frame, 0, ts_ns)
+            self.out.apply(frame, 0, ts_ns)
+            st.bytes_out += len(raw)
+            return raw
+        src = self.src.table(frame.src, frame.dst)
+        out = self.out.table(frame.src, frame.dst)
+        key = (frame.src, frame.dst)
+        if len(frame.fields) == 1:  # a bare N: the form the direction has been using
+            layout = self.form.get(key, layout)
+        else:
+            self.form[key] = layout
+        self.src.apply(frame, 0, ts_ns)
+        full = self.mode == "expand"
+        if not full:
+            due = self.next_sync.get(key)
+            if due is None or ts_ns >= due:
+                full = True
+                self.next_sync[key] = ts_ns + self.sync_ns
+        if layout == "named":
+            fields = self._named(src, out, full)
+        else:
+            fields = self._positional(frame.fields, src, out, full)
+        new = Frame(frame.dst, frame.src, fields, frame.crlf)
+        self.out.apply(new, 0, ts_ns)
+        data = build_frame(new)
+        st.rewritten += 1
+        st.full += full
+        st.delta += not full
+        st.bytes_out += len(data)
+        return data
+
+    @staticmethod
+    def _named(src: VariableTable, out: VariableTable, full: bool) -> tuple[Field, ...]:
+        fields = [Field("N", "0")]
+        for name, v in src.vars.items():
+            if v.text is None:
+                continue
+            if not full:
+                o = out.vars.get(name)
+                if o is not None and o.text == v.text:
+                    continue
+            if v.type_code is not None:
+                fields.append(Field("T", str(v.type_code)))
+            fields += [Field("Q", name), Field("D", v.text)]
+        return tuple(fields)
+
+    @staticmethod
+    def _positional(in_fields: Sequence[Field], src: VariableTable, out: VariableTable, full: bool) -> tuple[Field, ...]:
+        if full:
+            start, count = 0, len(src.names)
+        else:
+            start = int(in_fields[0].text)
+            count = sum(1 for f in in_fields if f.letter == "D")
+        fields = [Field("N", str(start))]
+        for i in range(start, start + count):
+            name = src.name_at(i)
+            v = src.vars.get(name) if name is not None else None
+            text = v.text if v is not None else None
+            if text is not None and not full:
+                o = out.vars.get(name)
+                if o is not None and o.text == text:
+                    text = None
+            fields.append(Field("D", text or ""))
+        return tuple(fields)
+
+
+# -- packets --------------------------------------------------------------------------------
+
+
+def _ip_offset(linktype: int, data: bytes) -> int | None:
+    if linktype == LINKTYPE_ETHERNET:
+        off = 12
+        etype = struct.unpack_from("!H", data, off)[0]
+        while etype in (0x8100, 0x88A8):
+            off += 4
+            etype = struct.unpack_from("!H", data, off)[0]
+        return off + 2 if etype in (0x0800, 0x86DD) else None
+    if linktype == LINKTYPE_LINUX_SLL:
+        return 16 if struct.unpack_from("!H", data, 14)[0] in (0x0800, 0x86DD) else None
+    if linktype == LINKTYPE_RAW:
+        return 0
+    if linktype == LINKTYPE_NULL:
+        return 4
+    return None
+
+
+def replace_udp_payload(linktype: int, data: bytes, payload: bytes) -> bytes | None:
+    """``data`` (one captured packet) with its UDP payload replaced, IP and UDP lengths and
+    checksums made right. None when the packet is not plain IPv4/IPv6 UDP (options are kept;
+    IPv6 extension headers, fragments and anything else give None)."""
+    try:
+        off = _ip_offset(linktype, data)
+        if off is None:
+            return None
+        ver = data[off] >> 4
+        if ver == 4:
+            ihl = (data[off] & 15) * 4
+            frag = struct.unpack_from("!H", data, off + 6)[0]
+            if ihl < 20 or data[off + 9] != 17 or frag & 0x3FFF:
+                return None
+            u = off + ihl
+            old_ck = struct.unpack_from("!H", data, u + 6)[0]
+            ulen = 8 + len(payload)
+            ip = bytearray(data[off:u])
+            struct.pack_into("!H", ip, 2, ihl + ulen)
+            struct.pack_into("!H", ip, 10, 0)
+            struct.pack_into("!H", ip, 10, ones_complement_checksum(bytes(ip)))
+            udp = bytearray(data[u : u + 8])
+            struct.pack_into("!HH", udp, 4, ulen, 0)
+            if old_ck:
+                pseudo = bytes(ip[12:20]) + struct.pack("!BBH", 0, 17, ulen)
+                struct.pack_into("!H", udp, 6, ones_complement_checksum(pseudo + bytes(udp) + payload) or 0xFFFF)
+            return data[:off] + bytes(ip) + bytes(udp) + payload
+        if ver == 6:
+            if data[off + 6] != 17:
+                return None
+            u = off + 40
+            ulen = 8 + len(payload)
+            ip = bytearray(data[off:u])
+            struct.pack_into("!H", ip, 4, ulen)
+            udp = bytearray(data[u : u + 8])
+            struct.pack_into("!HH", udp, 4, ulen, 0)
+            pseudo = bytes(ip[8:40]) + struct.pack("!IxxxB", ulen, 17)
+            struct.pack_into("!H", udp, 6, ones_complement_checksum(pseudo + bytes(udp) + payload) or 0xFFFF)
+            return data[:off] + bytes(ip) + bytes(udp) + payload
+    except (struct.error, IndexError):
+        return None
+    return None
+
+
+# -- captures -------------------------------------------------------------------------------
+
+
+def _capture_format(path: str) -> str:
+    with open(path, "rb") as fh:
+        head = fh.read(4)
+    if len(head) == 4 and struct.unpack("<I", head)[0] == PCAPNG_SHB:
+        return "pcapng"
+    return "pcap"
+
+
+def transform_capture(
+    src: str | Path,
+    dst: str | Path,
+    mode: str,
+    sync_interval: float = 1.0,
+    variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES,
+) -> TransformStats:
+    """Rewrite capture ``src`` into ``dst`` (same format: pcap or pcapng). Raises
+    :class:`~sharedlink.capture.pcapio.CaptureError` when the input is missing or not a capture
+    (``dst`` is then left as it was: the output goes to a temporary file renamed at the end)
+    and :class:`TransformError` when the output cannot be written. A capture damaged further
+    on gives the records before the damage, with ``error`` set in the stats."""
+    from sharedlink.capture.packets import decode_packet
+
+    rw = Rewriter(mode, sync_interval, variables)
+    st = rw.stats
+    s, d = str(src), Path(dst)
+    try:
+        fmt = _capture_format(s)
+    except OSError as exc:
+        raise CaptureError(s, None, exc.strerror or str(exc)) from None
+    tmp = d.with_name(d.name + ".part")
+    try:
+        fh = open(tmp, "wb")  # noqa: SIM115 - closed below
+    except OSError as exc:
+        raise TransformError(f"{d}: {exc.strerror or exc}") from None
+    ok = False
+    try:
+        writer: PcapWriter | PcapngWriter | None = None
+        linktype = None
+        chunk: list[bytes] = []
+        records = read_records(s)
+        while True:
+            try:
+                rec = next(records)
+            except StopIteration:
+                break
+            except CaptureError as exc:
+                if exc.record is None:
+                    raise
+                st.error = str(exc)
+                break
+            st.records += 1
+            if writer is None:
+                linktype = rec.linktype
+                writer = PcapngWriter(fh, linktype) if fmt == "pcapng" else PcapWriter(fh, linktype)
+            elif rec.linktype != linktype:
+                raise TransformError(f"{s}: record {rec.number} is on link type {rec.linktype}, not {linktype}: "
+                                     "captures mixing link types are not supported")
+            data = rec.data
+            dg = decode_packet(rec.linktype, data)
+            if dg is not None and dg.payload and b"[" in dg.payload:
+                if dg.proto == "udp":
+                    parts = []
+                    for seg in iter_segments(dg.payload):
+                        raw = dg.payload[seg.start : seg.end]
+                        parts.append(raw if seg.frame is None else rw.frame(seg.frame, raw, rec.ts_ns))
+                    payload = b"".join(parts)
+                    if payload != dg.payload:
+                        new = replace_udp_payload(rec.linktype, data, payload)
+                        if new is None:
+                            raise TransformError(f"{s}: record {rec.number}: cannot rewrite this UDP packet's headers")
+                        data = new
+                else:  # TCP: frames are copied; both views follow them
+                    for seg in iter_segments(dg.payload):
+                        if seg.frame is not None:
+                            rw.frame(seg.frame, dg.payload[seg.start : seg.end], rec.ts_ns, rewritable=False)
+            chunk.append(writer.record(rec.ts_ns, data, rec.flags))
+            if len(chunk) >= 4096:
+                fh.write(b"".join(chunk))
+                chunk.clear()
+        if writer is None:
+            writer = PcapngWriter(fh, LINKTYPE_ETHERNET) if fmt == "pcapng" else PcapWriter(fh, LINKTYPE_ETHERNET)
+        fh.write(b"".join(chunk))
+        ok = True
+    except OSError as exc:
+        raise TransformError(f"{d}: {exc.strerror or exc}") from None
+    finally:
+        fh.close()
+        if ok:
+            tmp.replace(d)
+        else:
+            tmp.unlink(missing_ok=True)
+    return st
+
+
+def compress_capture(src: str | Path, dst: str | Path, sync_interval: float = 1.0,
+                     variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES) -> TransformStats:
+    """Leave out unchanged values, a full set at least every ``sync_interval`` seconds."""
+    return transform_capture(src, dst, "compress", sync_interval, variables)
+
+
+def expand_capture(src: str | Path, dst: str | Path,
+                   variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES) -> TransformStats:
+    """Every value frame carries every value."""
+    return transform_capture(src, dst, "expand", 1.0, variables)

@@ -1,0 +1,325 @@
+"""Link, IPv4, UDP and TCP headers: fast building of beacon datagrams and decoding of captured
+packets down to their transport payload."""
+
+from __future__ import annotations
+
+import socket
+import struct
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from typing import BinaryIO
+
+from sharedlink.capture.pcapio import (
+    DIR_INBOUND,
+    DIR_OUTBOUND,
+    LINKTYPE_ETHERNET,
+    LINKTYPE_LINUX_SLL,
+    LINKTYPE_NULL,
+    LINKTYPE_RAW,
+    make_writer,
+)
+
+_IP_HDR = struct.Struct("!BBHHHBBH4s4s")
+_NET_HDR = struct.Struct("!BBHHHBBH4s4sHHHH")  # IPv4 + UDP
+
+
+def ones_complement_checksum(data: bytes) -> int:
+    """The Internet checksum of ``data`` (RFC 1071).
+
+    The one's-complement sum of 16-bit words is the data read as one big-endian integer
+    modulo 0xFFFF (2**16 is 1 modulo 0xFFFF), which Python computes in C.
+    """
+    if len(data) & 1:
+        data += b"\0"
+    r = int.from_bytes(data, "big") % 0xFFFF
+    # r == 0 means the sum is 0xFFFF (for non-zero data) or 0: the complement is 0 either way
+    return 0xFFFF - r if r else 0
+
+
+def mac_bytes(mac: str) -> bytes:
+    return bytes(int(x, 16) for x in mac.split(":"))
+
+
+class UdpBuilder:
+    """Builds Ethernet/IPv4/UDP frames between fixed endpoints with correct IP and UDP
+    checksums. Everything that does not change per packet is computed once."""
+
+    def __init__(
+        self,
+        src_ip: str,
+        dst_ip: str,
+        sport: int,
+        dport: int,
+        src_mac: str = "02:00:00:00:00:02",
+        dst_mac: str = "ff:ff:ff:ff:ff:ff",
+        ttl: int = 64,
+    ) -> None:
+        self.src = socket.inet_aton(src_ip)
+        self.dst = socket.inet_aton(dst_ip)
+        self.sport, self.dport, self.ttl = sport, dport, ttl
+        self.eth = mac_bytes(dst_mac) + mac_bytes(src_mac) + b"\x08\x00"
+        # partial sums of the constant parts of the IP header and the UDP pseudo header
+        self._ip_const = (0x4500 + (ttl << 8 | 17) + _sum16(self.src) + _sum16(self.dst)) & 0xFFFFFFFF
+        self._pseudo = _sum16(self.src) + _sum16(self.dst) + 17 + sport + dport
+
+    def frame(self, payload: bytes, ip_id: int) -> bytes:
+        return self.headers(len(payload), payload, ip_id) + payload
+
+    def headers(self, plen: int, payload: bytes, ip_id: int) -> bytes:
+        """The Ethernet, IPv4 and UDP headers for ``payload`` (its length is ``plen``)."""
+        ulen = 8 + plen
+        tlen = 20 + ulen
+        s = self._ip_const + tlen + ip_id + 0x4000  # DF set
+        s = (s & 0xFFFF) + (s >> 16)
+        s = (s & 0xFFFF) + (s >> 16)
+        ip_ck = 0xFFFF - s
+        # UDP checksum: pseudo header + header (length twice) + payload
+        data = payload + b"\0" if len(payload) & 1 else payload
+        r = (int.from_bytes(data, "big") + self._pseudo + 2 * ulen) % 0xFFFF
+        udp_ck = 0xFFFF - r if r else 0xFFFF
+        return self.eth + _NET_HDR.pack(
+            0x45, 0, tlen, ip_id, 0x4000, self.ttl, 17, ip_ck, self.src, self.dst, self.sport, self.dport, ulen, udp_ck
+        )
+
+
+def _sum16(b: bytes) -> int:
+    return sum(struct.unpack("!%dH" % (len(b) // 2), b))
+
+
+@dataclass(frozen=True)
+class Datagram:
+    """A transport payload and its addressing."""
+
+    proto: str  # "udp" or "tcp"
+    src: str
+    dst: str
+    sport: int
+    dport: int
+    payload: bytes
+    tcp_seq: int = 0
+    tcp_flags: int = 0
+
+
+def decode_packet(linktype: int, data: bytes) -> Datagram | None:
+    """Strip link, IPv4/IPv6 and UDP/TCP headers. None when the packet is something else or
+    too short. Never raises."""
+    try:
+        return _decode(linktype, data)
+    except (struct.error, IndexError, ValueError, OSError):
+        return None
+
+
+def _decode(linktype: int, data: bytes) -> Datagram | None:
+    if linktype == LINKTYPE_ETHERNET:
+        off = 12
+        etype = struct.unpack_from("!H", data, off)[0]
+        off += 2
+        while etype in (0x8100, 0x88A8):
+            etype = struct.unpack_from("!H", data, off + 2)[0]
+            off += 4
+    elif linktype == LINKTYPE_LINUX_SLL:
+        etype = struct.unpack_from("!H", data, 14)[0]
+        off = 16
+    elif linktype == LINKTYPE_RAW:
+        etype = 0x0800 if data[0] >> 4 == 4 else 0x86DD
+        off = 0
+    elif linktype == LINKTYPE_NULL:
+        fam = struct.unpack_from("<I", data, 0)[0]
+        etype = 0x0800 if fam == 2 else 0x86DD
+        off = 4
+    else:
+        return None
+    if etype == 0x0800:
+        vihl = data[off]
+        if vihl >> 4 != 4:
+            return None
+        ihl = (vihl & 15) * 4
+        tlen = struct.unpack_from("!H", data, off + 2)[0]
+        frag = struct.unpack_from("!H", data, off + 6)[0]
+        if frag & 0x1FFF or frag & 0x2000:
+            return None  # fragments are not reassembled
+        proto = data[off + 9]
+        src = socket.inet_ntoa(data[off + 12 : off + 16])
+        dst = socket.inet_ntoa(data[off + 16 : off + 20])
+        end = off + tlen if tlen >= ihl else len(data)
+        off += ihl
+    elif etype == 0x86DD:
+        proto = data[off + 6]
+        plen = struct.unpack_from("!H", data, off + 4)[0]
+        src = socket.inet_ntop(socket.AF_INET6, data[off + 8 : off + 24])
+        dst = socket.inet_ntop(socket.AF_INET6, data[off + 24 : off + 40])
+        off += 40
+        end = off + plen
+    else:
+        return None
+    if proto == 17:
+        if len(data) < off + 8:
+            return None
+        sport, dport, ulen = struct.unpack_from("!HHH", data, off)
+        stop = min(off + ulen, end, len(data)) if ulen >= 8 else min(end, len(data))
+        return Datagram("udp", src, dst, sport, dport, data[off + 8 : stop])
+    if proto == 6:
+        if len(data) < off + 20:
+            return None
+        sport, dport, seq = struct.unpack_from("!HHI", data, off)
+        doff = (data[off + 12] >> 4) * 4
+        flags = data[off + 13]
+        return Datagram("tcp", src, dst, sport, dport, data[off + doff : min(end, len(data))], seq, flags)
+    return None
+
+
+# --- TCP (generated sessions) -----------------------------------------------------------------
+
+TCP_FIN, TCP_SYN, TCP_RST, TCP_PSH, TCP_ACK = 0x01, 0x02, 0x04, 0x08, 0x10
+
+
+class TcpBuilder:
+    """Builds Ethernet/IPv4/TCP segments from one endpoint to another with correct IP and TCP
+    checksums (20-byte TCP header, a fixed window)."""
+
+    def __init__(
+        self,
+        src_ip: str,
+        dst_ip: str,
+        sport: int,
+        dport: int,
+        src_mac: str = "02:00:00:00:00:01",
+        dst_mac: str = "02:00:00:00:00:02",
+        ttl: int = 64,
+        window: int = 65535,
+    ) -> None:
+        self.src = socket.inet_aton(src_ip)
+        self.dst = socket.inet_aton(dst_ip)
+        self.sport, self.dport, self.ttl, self.window = sport, dport, ttl, window
+        self.eth = mac_bytes(dst_mac) + mac_bytes(src_mac) + b"\x08\x00"
+
+    def segment(self, seq: int, ack: int, flags: int, payload: bytes, ip_id: int) -> bytes:
+        tcp_len = 20 + len(payload)
+        tlen = 20 + tcp_len
+        ip = _IP_HDR.pack(0x45, 0, tlen, ip_id & 0xFFFF, 0x4000, self.ttl, 6, 0, self.src, self.dst)
+        ip = ip[:10] + struct.pack("!H", ones_complement_checksum(ip)) + ip[12:]
+        hdr = struct.pack(
+            "!HHIIBBHHH", self.sport, self.dport, seq & 0xFFFFFFFF, ack & 0xFFFFFFFF, 5 << 4, flags, self.window, 0, 0
+        )
+        pseudo = self.src + self.dst + struct.pack("!BBH", 0, 6, tcp_len)
+        ck = ones_complement_checksum(pseudo + hdr + payload)
+        return self.eth + ip + hdr[:16] + struct.pack("!H", ck) + hdr[18:] + payload
+
+
+class TcpConversation:
+    """One TCP connection between a client and a server with consistent sequence and
+    acknowledgement numbers: :meth:`open` (three-way handshake), :meth:`send` (data from
+    either side, acknowledging everything received so far), :meth:`ack`, :meth:`close`.
+    Each returns the link-layer frames to write."""
+
+    def __init__(
+        self, client_ip: str, client_port: int, server_ip: str, server_port: int, client_isn: int = 1000, server_isn: int = 5000
+    ) -> None:
+        self.c2s = TcpBuilder(client_ip, server_ip, client_port, server_port, "02:00:00:00:00:01", "02:00:00:00:00:02")
+        self.s2c = TcpBuilder(server_ip, client_ip, server_port, client_port, "02:00:00:00:00:02", "02:00:00:00:00:01")
+        self.seq = {True: client_isn, False: server_isn}  # next sequence number, by from_client
+        self.ip_id = {True: 0, False: 0}
+
+    def _seg(self, from_client: bool, flags: int, payload: bytes = b"") -> bytes:
+        b = self.c2s if from_client else self.s2c
+        self.ip_id[from_client] += 1
+        ack = self.seq[not from_client] if flags & TCP_ACK else 0
+        frame = b.segment(self.seq[from_client], ack, flags, payload, self.ip_id[from_client])
+        self.seq[from_client] += len(payload) + (1 if flags & (TCP_SYN | TCP_FIN) else 0)
+        return frame
+
+    def open(self) -> list[bytes]:
+        return [self._seg(True, TCP_SYN), self._seg(False, TCP_SYN | TCP_ACK), self._seg(True, TCP_ACK)]
+
+    def send(self, from_client: bool, payload: bytes) -> bytes:
+        return self._seg(from_client, TCP_PSH | TCP_ACK, payload)
+
+    def ack(self, from_client: bool) -> bytes:
+        return self._seg(from_client, TCP_ACK)
+
+    def close(self, from_client: bool = True) -> list[bytes]:
+        """FIN from one side, FIN+ACK back, final ACK."""
+        return [self._seg(from_client, TCP_FIN | TCP_ACK), self._seg(not from_client, TCP_FIN | TCP_ACK), self._seg(from_client, TCP_ACK)]
+
+
+#: a receiver acknowledges data it has no reply for after this long (Linux's delayed ACK)
+DELAYED_ACK_NS = 40_000_000
+
+
+def session_frames(
+    events: Iterable[tuple[int, bool, bytes]],
+    transport: str,
+    client: tuple[str, int],
+    server: tuple[str, int],
+    start_ns: int | None = None,
+    close: bool = True,
+) -> Iterator[tuple[int, bool, bytes]]:
+    """Link-layer frames ``(ts_ns, from_client, frame)`` for a client/server exchange given
+    as time-ordered ``(ts_ns, from_client, payload)`` events.
+
+    ``udp``: one datagram per event. ``tcp``: a real conversation: the three-way handshake
+    just before the first event (or at ``start_ns``), one segment per event acknowledging all
+    received data, a pure ACK from a receiver that has nothing to send within
+    :data:`DELAYED_ACK_NS`, and (``close``) a FIN exchange after the last event.
+    """
+    if transport == "udp":
+        c2s = UdpBuilder(client[0], server[0], client[1], server[1], "02:00:00:00:00:01", "02:00:00:00:00:02")
+        s2c = UdpBuilder(server[0], client[0], server[1], client[1], "02:00:00:00:00:02", "02:00:00:00:00:01")
+        ip_id = 0
+        for ts, from_client, payload in events:
+            ip_id = (ip_id + 1) & 0xFFFF
+            yield ts, from_client, (c2s if from_client else s2c).frame(payload, ip_id)
+        return
+    if transport != "tcp":
+        raise ValueError(f"unknown transport {transport!r} (udp or tcp)")
+    conv = TcpConversation(client[0], client[1], server[0], server[1])
+    pending_ack: dict[bool, int | None] = {True: None, False: None}  # side -> ACK due time
+    opened = False
+    last_ts = start_ns or 0
+
+    def flush(until: int) -> Iterator[tuple[int, bool, bytes]]:
+        for side in sorted((s for s in (True, False) if pending_ack[s] is not None), key=lambda s: pending_ack[s] or 0):
+            due = pending_ack[side]
+            if due is not None and due <= until:
+                pending_ack[side] = None
+                yield due, side, conv.ack(side)
+
+    for ts, from_client, payload in events:
+        if not opened:
+            t0 = start_ns if start_ns is not None else ts - 300_000
+            t0 = min(t0, ts - 300_000)
+            for i, frame in enumerate(conv.open()):
+                yield t0 + i * 50_000, i != 1, frame
+            opened = True
+        yield from flush(ts)
+        pending_ack[from_client] = None  # this segment carries the ACK
+        yield ts, from_client, conv.send(from_client, payload)
+        if pending_ack[not from_client] is None:
+            pending_ack[not from_client] = ts + DELAYED_ACK_NS
+        last_ts = ts
+    if opened:
+        yield from flush(last_ts + DELAYED_ACK_NS)
+        if close:
+            t = last_ts + DELAYED_ACK_NS + 1_000_000
+            for i, frame in enumerate(conv.close(True)):
+                yield t + i * 50_000, i != 1, frame
+
+
+def write_session(
+    out: BinaryIO,
+    fmt: str,
+    events: Iterable[tuple[int, bool, bytes]],
+    transport: str,
+    client: tuple[str, int],
+    server: tuple[str, int],
+) -> int:
+    """Write a client/server exchange (time-ordered ``(ts_ns, from_client, payload)``) as a
+    capture over ``transport``; in pcapng the client's packets are outbound. Returns the
+    number of records written."""
+    writer = make_writer(out, fmt)
+    records = [
+        writer.record(ts, frame, DIR_OUTBOUND if from_client else DIR_INBOUND)
+        for ts, from_client, frame in session_frames(events, transport, client, server)
+    ]
+    out.write(b"".join(records))
+    return len(records)

@@ -1,0 +1,479 @@
+"""SharedLink frame codec: parse and build frames, compute and check checksums.
+
+One module, used by every tool in the package. Protocol facts are in ``docs/protocol.md``.
+
+A frame on the wire::
+
+    [:AB|N0|T2|QAutoGpsLat|D38.34698779|...|CF8]\\r\\n
+
+``parse_frame`` accepts what real peers send (lower-case or one-digit checksums, no CR LF,
+empty fields, unknown field letters) and reports each deviation instead of failing. Input that
+is not a frame at all raises :class:`SharedLinkError`, which carries the byte offset and the
+reason. No other exception escapes the parsing functions, whatever the input.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+
+OPEN = ord("[")
+CLOSE = ord("]")
+SEP = b"|"
+CRLF = b"\r\n"
+
+#: Field letters the protocol defines, with their meaning.
+FIELD_LETTERS: dict[str, str] = {
+    "N": "start ordinal (outbound list)",
+    "L": "start ordinal (inbound list)",
+    "T": "type",
+    "Q": "query / variable name",
+    "R": "reply",
+    "D": "data",
+    "C": "checksum",
+    "E": "command",
+    "M": "mode",
+    "P": "ping",
+    "G": "pong",
+}
+
+#: Value type codes carried in ``T`` fields.
+TYPE_LONG = 0
+TYPE_DOUBLE = 2
+TYPE_STRING = 4
+TYPE_NAMES = {TYPE_LONG: "long", TYPE_DOUBLE: "double", TYPE_STRING: "string"}
+
+ADDRESS_LETTERS = "ABCDEFGHIJKLMNOP"
+
+#: Frame kinds, as labelled by :func:`frame_kind` and the dissector.
+KINDS = ("full", "delta", "query", "reply", "declaration", "command", "ping", "pong", "other")
+
+class SharedLinkError(ValueError):
+    """A byte sequence that is not a SharedLink frame. ``offset`` is relative to the input."""
+
+    def __init__(self, offset: int, reason: str) -> None:
+        super().__init__(f"offset {offset}: {reason}")
+        self.offset = offset
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class Field:
+    """One ``|``-separated field: its letter and the text after it (``letter`` is "" for an
+    empty field)."""
+
+    letter: str
+    text: str = ""
+
+    def encode(self) -> str:
+        return self.letter + self.text
+
+
+@dataclass(frozen=True)
+class Checksum:
+    """What the checksum field said and what the bytes add up to."""
+
+    text: str | None  # as written, None when the frame has no C field
+    calculated: int  # the sum we computed (mod 256)
+
+    @property
+    def value(self) -> int | None:
+        if self.text is None:
+            return None
+        try:
+            return int(self.text, 16) if self.text and len(self.text) <= 2 else None
+        except ValueError:
+            return None
+
+    @property
+    def ok(self) -> bool | None:
+        """True good, False bad, None unverified (no checksum field)."""
+        if self.text is None:
+            return None
+        return self.value == self.calculated
+
+    @property
+    def well_formed(self) -> bool:
+        t = self.text
+        return t is not None and len(t) == 2 and all(c in "0123456789ABCDEF" for c in t)
+
+
+@dataclass(frozen=True)
+class Frame:
+    """A SharedLink frame. Equality compares what the frame says (addresses, fields, CR LF),
+    not the checksum report or deviations that came with a parsed frame."""
+
+    dst: str
+    src: str
+    fields: tuple[Field, ...] = ()
+    crlf: bool = True
+    checksum: Checksum | None = field(default=None, compare=False)
+    deviations: tuple[str, ...] = field(default=(), compare=False)
+
+    # -- addressing -------------------------------------------------------------------
+    @property
+    def dst_node(self) -> int | None:
+        return address_node(self.dst)
+
+    @property
+    def src_node(self) -> int | None:
+        return address_node(self.src)
+
+    @property
+    def kind(self) -> str:
+        return frame_kind(self.fields)
+
+    def encode(self) -> bytes:
+        return build_frame(self)
+
+
+def address_node(letter: str) -> int | None:
+    """``A``..``P`` -> 1..16, anything else None."""
+    i = ADDRESS_LETTERS.find(letter) if len(letter) == 1 else -1
+    return i + 1 if i >= 0 else None
+
+
+def node_address(node: int) -> str:
+    if not 1 <= node <= 16:
+        raise ValueError(f"node {node} outside 1..16")
+    return ADDRESS_LETTERS[node - 1]
+
+
+def checksum(data: bytes) -> int:
+    """The SharedLink checksum of ``data``: the byte sum modulo 256. ``data`` runs from the
+    header ``:`` through the ``C`` of the checksum field inclusive."""
+    return sum(data) & 0xFF
+
+
+def build_frame(frame: Frame, checksum_text: str | None = None) -> bytes:
+    """Encode ``frame`` with a correct checksum (or ``checksum_text`` verbatim, for faults)."""
+    body = ":" + frame.dst + frame.src
+    for f in frame.fields:
+        body += "|" + f.letter + f.text
+    body += "|C"
+    raw = body.encode("latin-1")
+    if checksum_text is None:
+        checksum_text = "%02X" % checksum(raw)
+    out = b"[" + raw + checksum_text.encode("latin-1") + b"]"
+    return out + CRLF if frame.crlf else out
+
+
+def build_fields(frame_fields: Sequence[Field], dst: str = "A", src: str = "B", crlf: bool = True) -> bytes:
+    return build_frame(Frame(dst, src, tuple(frame_fields), crlf))
+
+
+def parse_frame(data: bytes) -> Frame:
+    """Parse exactly one frame: ``[`` ... ``]`` with an optional CR LF after it.
+
+    Raises :class:`SharedLinkError` (offset, reason) when ``data`` is not a frame.
+    """
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise SharedLinkError(0, "input is not bytes")
+    data = bytes(data)
+    if not data:
+        raise SharedLinkError(0, "empty input")
+    if data[0] != OPEN:
+        raise SharedLinkError(0, "frame does not start with '['")
+    end = data.find(b"]", 1)
+    if end < 0:
+        raise SharedLinkError(len(data), "unterminated frame: no ']'")
+    rest = data[end + 1 :]
+    deviations: list[str] = []
+    if rest == CRLF:
+        crlf = True
+    elif rest == b"":
+        crlf = False
+        deviations.append("no CR LF after ']'")
+    else:
+        raise SharedLinkError(end + 1, "bytes after ']' other than CR LF")
+    return _parse_inner(data, 1, end, crlf, deviations)
+
+
+def _parse_inner(data: bytes, start: int, end: int, crlf: bool, deviations: list[str]) -> Frame:
+    """Parse ``data[start:end]``, the bytes between ``[`` and ``]``."""
+    inner = data[start:end]
+    if len(inner) < 3 or inner[0] != 0x3A:  # ':'
+        raise SharedLinkError(start, "no ':' header after '['")
+    try:
+        text = inner.decode("latin-1")
+    except Exception as exc:  # pragma: no cover - latin-1 decodes any bytes
+        raise SharedLinkError(start, "undecodable bytes") from exc
+    dst, src = text[1], text[2]
+    if dst in "|]" or src in "|]":
+        raise SharedLinkError(start + 1, "header too short: need destination and source letters")
+    if address_node(dst) is None:
+        deviations.append(f"destination {dst!r} is not a node letter A-P")
+    if address_node(src) is None:
+        deviations.append(f"source {src!r} is not a node letter A-P")
+    after = text[3:]
+    if after and after[0] != "|":
+        raise SharedLinkError(start + 3, "header not followed by '|'")
+    parts = after[1:].split("|") if after else []
+    fields: list[Field] = []
+    ck_text: str | None = None
+    ck_end = None  # offset in inner just past the checksum 'C'
+    for i, p in enumerate(parts):
+        if i == len(parts) - 1 and p[:1] == "C":
+            ck_text = p[1:]
+            ck_end = len(inner) - len(ck_text)
+            break
+        if p == "":
+            deviations.append(f"empty field at position {i + 1}")
+            fields.append(Field("", ""))
+        else:
+            if p[0] not in FIELD_LETTERS or p[0] == "C":
+                deviations.append(f"unknown field letter {p[0]!r}")
+            fields.append(Field(p[0], p[1:]))
+    if ck_text is None:
+        deviations.append("no checksum field")
+        calc = checksum(inner)
+    else:
+        calc = checksum(inner[:ck_end])
+        if not (len(ck_text) == 2 and all(c in "0123456789ABCDEF" for c in ck_text)):
+            deviations.append(f"checksum {ck_text!r} is not two upper-case hex digits")
+    ck = Checksum(ck_text, calc)
+    if ck.ok is False:
+        deviations.append(f"checksum mismatch: frame says {ck_text!r}, bytes give {calc:02X}")
+    return Frame(dst, src, tuple(fields), crlf, ck, tuple(deviations))
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A piece of a byte stream: a frame, or noise that is not one."""
+
+    start: int
+    end: int
+    frame: Frame | None = None
+    error: SharedLinkError | None = None
+
+    @property
+    def is_frame(self) -> bool:
+        return self.frame is not None
+
+
+def split_frames(data: bytes) -> list[Segment]:
+    """Split a datagram or a buffer into frames and noise. Never raises."""
+    return list(iter_segments(data))
+
+
+def iter_segments(data: bytes) -> Iterator[Segment]:
+    """Yield frames and noise segments of ``data`` in order; linear in ``len(data)``.
+
+    A frame runs from ``[`` to the first ``]`` and takes a CR LF after it. A ``[`` inside a
+    would-be frame restarts the frame there (the earlier bytes become noise), so garbage
+    before a real frame cannot swallow it. An unterminated tail is reported as noise with
+    the error "unterminated frame".
+    """
+    data = bytes(data)
+    n = len(data)
+    pos = 0
+    noise_start = 0
+    while pos < n:
+        o = data.find(b"[", pos)
+        if o < 0:
+            break
+        c = data.find(b"]", o + 1)
+        if c < 0:
+            break
+        o2 = data.rfind(b"[", o, c)  # the last '[' before ']' starts the frame
+        end = c + 1
+        crlf = data[end : end + 2] == CRLF
+        if crlf:
+            end += 2
+        try:
+            devs: list[str] = [] if crlf else ["no CR LF after ']'"]
+            frame = _parse_inner(data, o2 + 1, c, crlf, devs)
+        except SharedLinkError:
+            pos = c + 1  # not a frame: it stays part of the noise; scan on after its ']'
+            continue
+        if o2 > noise_start:
+            yield Segment(noise_start, o2, error=SharedLinkError(noise_start, "noise between frames"))
+        yield Segment(o2, end, frame=frame)
+        noise_start = pos = end
+    if noise_start < n:
+        tail = data[noise_start:]
+        reason = "unterminated frame" if b"[" in tail else "noise between frames"
+        yield Segment(noise_start, n, error=SharedLinkError(noise_start, reason))
+
+
+# -- typed values ---------------------------------------------------------------------
+
+
+def typed_value(type_code: int | None, text: str) -> int | float | str:
+    """Convert ``text`` by the ``T`` type code; text that does not convert stays text."""
+    if type_code == TYPE_LONG:
+        try:
+            return int(text)
+        except ValueError:
+            return text
+    if type_code == TYPE_DOUBLE:
+        try:
+            return float(text)
+        except ValueError:
+            return text
+    return text
+
+
+def guess_value(text: str) -> int | float | str:
+    """Type a positional value that came with no ``T``: long, then double, else string."""
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def parse_int(text: str) -> int | None:
+    try:
+        return int(text)
+    except ValueError:
+        return None
+
+
+# -- frame semantics ------------------------------------------------------------------
+
+
+def frame_kind(fields: Sequence[Field]) -> str:
+    """Label a frame by its fields: full, delta, query, reply, declaration, command, ping,
+    pong or other. Without stream context a named frame starting at ordinal 0 with no empty
+    value counts as full; :class:`sharedlink.protocols.state.VariableTable` refines that."""
+    letters = [f.letter for f in fields]
+    has = set(letters)
+    if "E" in has or "M" in has:
+        return "command"
+    if "R" in has:
+        return "reply"
+    if "P" in has:
+        return "ping"
+    if "G" in has:
+        return "pong"
+    if "D" not in has:
+        if "N" in has or "L" in has:
+            # T/Q pairs and no value: a list declaration; a bare N: a delta with no change
+            return "declaration" if "Q" in has else ("delta" if "N" in has else "other")
+        if "Q" in has:
+            return "query"
+        return "other"
+    if "N" in has:
+        ordinal = next((parse_int(f.text) for f in fields if f.letter == "N"), None)
+        empty_d = any(f.letter == "D" and f.text == "" for f in fields)
+        return "full" if ordinal == 0 and not empty_d else "delta"
+    return "other"
+
+
+@dataclass(frozen=True)
+class NamedValue:
+    name: str
+    type_code: int | None
+    text: str
+
+    @property
+    def value(self) -> int | float | str:
+        return typed_value(self.type_code, self.text)
+
+
+def named_values(fields: Sequence[Field]) -> list[NamedValue]:
+    """The ``[T t|] Q name|D value`` triplets and ``R name|D value`` replies of a frame."""
+    out: list[NamedValue] = []
+    type_code: int | None = None
+    name: str | None = None
+    for f in fields:
+        if f.letter == "T":
+            type_code = parse_int(f.text)
+        elif f.letter in ("Q", "R"):
+            name = f.text
+        elif f.letter == "D" and name is not None:
+            out.append(NamedValue(name, type_code, f.text))
+            name, type_code = None, None
+    return out
+
+
+def positional_values(fields: Sequence[Field]) -> tuple[int, list[str | None]]:
+    """For a positional frame: the start ordinal and one entry per ``D`` (None = elided)."""
+    ordinal = 0
+    values: list[str | None] = []
+    for f in fields:
+        if f.letter == "N":
+            ordinal = parse_int(f.text) or 0
+        elif f.letter == "D":
+            values.append(f.text if f.text != "" else None)
+    return ordinal, values
+
+
+def is_named_form(fields: Sequence[Field]) -> bool:
+    return any(f.letter == "Q" for f in fields) and any(f.letter == "D" for f in fields)
+
+
+def declared_list(fields: Sequence[Field]) -> tuple[str, int, list[tuple[str, int | None]]] | None:
+    """For a declaration frame: ("N" or "L", start ordinal, [(name, type)])."""
+    if frame_kind(fields) != "declaration":
+        return None
+    which, ordinal = "N", 0
+    out: list[tuple[str, int | None]] = []
+    type_code: int | None = None
+    for f in fields:
+        if f.letter in ("N", "L"):
+            which, ordinal = f.letter, parse_int(f.text) or 0
+        elif f.letter == "T":
+            type_code = parse_int(f.text)
+        elif f.letter == "Q":
+            out.append((f.text, type_code))
+            type_code = None
+    return which, ordinal, out
+
+
+# -- builders for common frames ----------------------------------------------------------
+
+
+def named_fields(values: Sequence[tuple[str, int, str]], ordinal: int = 0) -> tuple[Field, ...]:
+    """Fields of a named (beacon) frame from (name, type, text) triplets."""
+    out = [Field("N", str(ordinal))]
+    for name, type_code, text in values:
+        out += [Field("T", str(type_code)), Field("Q", name), Field("D", text)]
+    return tuple(out)
+
+
+def positional_fields(values: Sequence[str | None], ordinal: int = 0) -> tuple[Field, ...]:
+    """Fields of a positional frame; None stands for an elided (unchanged) value."""
+    return (Field("N", str(ordinal)),) + tuple(Field("D", v or "") for v in values)
+
+
+def declaration_fields(names: Sequence[tuple[str, int]], ordinal: int = 0, inbound: bool = False) -> tuple[Field, ...]:
+    out = [Field("L" if inbound else "N", str(ordinal))]
+    for name, type_code in names:
+        out += [Field("T", str(type_code)), Field("Q", name)]
+    return tuple(out)
+
+
+def query_fields(name: str) -> tuple[Field, ...]:
+    return (Field("Q", name),)
+
+
+def reply_fields(name: str, text: str) -> tuple[Field, ...]:
+    return (Field("R", name), Field("D", text))
+
+
+# -- fast encoders (the generator's hot path; same bytes as build_frame) ------------------
+
+
+def encode_named(dst: str, src: str, values: Sequence[tuple[str, int, str]], ordinal: int = 0, crlf: bool = True) -> bytes:
+    """A named (beacon) frame from (name, type, text) triplets."""
+    body = ":%s%s|N%d" % (dst, src, ordinal) + "".join("|T%d|Q%s|D%s" % (t, n, x) for n, t, x in values) + "|C"
+    return _close(body.encode("latin-1"), crlf)
+
+
+def encode_positional(dst: str, src: str, texts: Sequence[str | None], ordinal: int = 0, crlf: bool = True) -> bytes:
+    """A positional frame; None is an elided (unchanged) value."""
+    body = ":%s%s|N%d|D" % (dst, src, ordinal) + "|D".join(t or "" for t in texts) + "|C"
+    return _close(body.encode("latin-1"), crlf)
+
+
+_HEX2 = tuple(b"%02X" % i for i in range(256))
+
+
+def _close(raw: bytes, crlf: bool) -> bytes:
+    tail = b"]\r\n" if crlf else b"]"
+    return b"[" + raw + _HEX2[sum(raw) & 0xFF] + tail

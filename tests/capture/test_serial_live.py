@@ -1,0 +1,290 @@
+"""Live serial capture through real pseudo-terminals: `sharedlink serial capture` (one port and
+a two-port tap) and the Wireshark extcap writing into a fifo."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import tty
+from pathlib import Path
+
+import pytest
+
+import tshark_util as tu
+from sharedlink.capture.pcapio import CaptureError, read_records
+from sharedlink.capture.serial_format import DIR_IN, DIR_OUT
+from sharedlink.protocols.codec import encode_positional
+
+REPO = Path(__file__).resolve().parents[2]
+CLI = [sys.executable, "-m", "sharedlink"]
+EXTCAP = [sys.executable, str(REPO / "extcap" / "sharedlink-serial")]
+pytestmark = pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs ptys")
+
+
+def pty_pair() -> tuple[int, str]:
+    """(master fd, slave path); the slave is opened by the capture under test."""
+    m, s = os.openpty()
+    tty.setraw(m)
+    path = os.ttyname(s)
+    os.close(s)
+    return m, path
+
+
+def wait_ready(proc: subprocess.Popen) -> None:
+    line = proc.stderr.readline()
+    if "capturing" not in line:
+        proc.kill()
+        raise AssertionError(f"capture did not start: {line}{proc.stderr.read()}")
+
+
+def wait_open(pid: int, path: str, timeout: float = 20) -> None:
+    """Until process ``pid`` has ``path`` open (the extcap prints nothing), then a little more
+    for its port set-up (which flushes the input)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        try:
+            fds = os.listdir(f"/proc/{pid}/fd")
+            if any(os.readlink(f"/proc/{pid}/fd/{fd}") == path for fd in fds):
+                time.sleep(0.3)
+                return
+        except OSError:
+            pass
+        time.sleep(0.02)
+    raise AssertionError(f"{path} never opened by {pid}")
+
+
+def read_all(fd: int, n: int, timeout: float = 10) -> bytes:
+    os.set_blocking(fd, False)
+    out = b""
+    end = time.monotonic() + timeout
+    while len(out) < n and time.monotonic() < end:
+        try:
+            out += os.read(fd, 4096)
+        except BlockingIOError:
+            time.sleep(0.01)
+    return out
+
+
+def captured(path: Path) -> int:
+    """Bytes in the records written so far (a record being written may be cut short)."""
+    n = 0
+    try:
+        for r in read_records(path):
+            n += len(r.data)
+    except CaptureError:
+        pass
+    return n
+
+
+def frames(n: int, tag: str) -> list[bytes]:
+    return [encode_positional("A", "B", [tag, str(i), "%.3f" % (i / 7)]) for i in range(n)]
+
+
+def test_capture_one_port_records_what_was_written(tmp_path):
+    m, path = pty_pair()
+    out = tmp_path / "live.pcapng"
+    proc = subprocess.Popen([*CLI, "serial", "capture", path, "--baud", "115200", "--out", str(out), "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_ready(proc)
+        sent = b""
+        for i, f in enumerate(frames(20, "x")):
+            for part in (f[: i % 9 + 1], f[i % 9 + 1 :]):  # frames split across writes
+                os.write(m, part)
+                sent += part
+            time.sleep(0.005)
+        # wait until everything is on disk (each record is flushed as it is written)
+        end = time.monotonic() + 10
+        while time.monotonic() < end and captured(out) < len(sent):
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=20)
+    finally:
+        os.close(m)
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    summary = json.loads(stdout)
+    recs = list(read_records(out))
+    assert b"".join(r.data for r in recs) == sent
+    assert summary["bytes"] == len(sent) and summary["records"] == len(recs) and summary["stopped_by"] == "SIGTERM"
+    assert all(r.linktype == 147 and r.flags & 3 == DIR_IN for r in recs)
+    assert all(b.ts_ns >= a.ts_ns for a, b in zip(recs, recs[1:]))
+    assert abs(recs[0].ts_ns - time.time_ns()) < 120 * 10**9
+
+
+def test_tap_relays_both_ways_and_records_both_directions(tmp_path):
+    ma, pa = pty_pair()
+    mb, pb = pty_pair()
+    out = tmp_path / "tap.pcapng"
+    proc = subprocess.Popen([*CLI, "serial", "capture", "--tap", pa, pb, "--baud", "9600", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_ready(proc)
+        a_to_b = b"".join(frames(5, "a"))
+        b_to_a = b"".join(frames(4, "b"))
+        os.write(ma, a_to_b[:50])
+        os.write(mb, b_to_a)
+        os.write(ma, a_to_b[50:])
+        got_b = read_all(mb, len(a_to_b))
+        got_a = read_all(ma, len(b_to_a))
+        time.sleep(0.2)
+        proc.send_signal(signal.SIGINT)  # Ctrl-C
+        _, stderr = proc.communicate(timeout=20)
+    finally:
+        os.close(ma)
+        os.close(mb)
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    assert got_b == a_to_b and got_a == b_to_a  # the relay works both ways
+    recs = list(read_records(out))
+    assert b"".join(r.data for r in recs if r.flags & 3 == DIR_IN) == a_to_b
+    assert b"".join(r.data for r in recs if r.flags & 3 == DIR_OUT) == b_to_a
+
+
+def test_extcap_answers_wireshark_and_captures_into_a_fifo(tmp_path):
+    r = subprocess.run([*EXTCAP, "--extcap-interfaces"], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0 and r.stdout.startswith("extcap {version=")
+    assert "interface {value=sharedlink-serial}{display=" in r.stdout
+    r = subprocess.run([*EXTCAP, "--extcap-interface", "sharedlink-serial", "--extcap-dlts"], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0 and r.stdout.startswith("dlt {number=147}{name=USER0}")
+    r = subprocess.run([*EXTCAP, "--extcap-interface", "sharedlink-serial", "--extcap-config"], capture_output=True, text=True, timeout=30)
+    args = [ln for ln in r.stdout.splitlines() if ln.startswith("arg ")]
+    assert r.returncode == 0 and [a.split("{call=")[1].split("}")[0] for a in args] == ["--device", "--baud", "--tap", "--linktype"]
+    assert "{call=--baud}{display=Baud rate}{type=integer}" in r.stdout and "{default=9600}" in r.stdout
+    bad = subprocess.run([*EXTCAP, "--capture", "--extcap-interface", "sharedlink-serial", "--fifo", str(tmp_path / "f"),
+                          "--device", str(tmp_path / "no-tty")], capture_output=True, text=True, timeout=30)
+    assert bad.returncode == 1 and "no-tty" in bad.stderr and "Traceback" not in bad.stderr
+
+    m, path = pty_pair()
+    fifo = tmp_path / "wireshark.fifo"
+    os.mkfifo(fifo)
+    proc = subprocess.Popen([*EXTCAP, "--capture", "--extcap-interface", "sharedlink-serial", "--fifo", str(fifo),
+                             "--device", path, "--baud", "57600", "--linktype", "user0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    received = bytearray()
+
+    def drain() -> None:
+        with open(fifo, "rb") as fh:  # as Wireshark does: read until the extcap closes it
+            while chunk := fh.read(4096):
+                received.extend(chunk)
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
+    try:
+        wait_open(proc.pid, path)
+        sent = b""
+        for f in frames(12, "e"):
+            os.write(m, f[:11])
+            time.sleep(0.003)
+            os.write(m, f[11:])
+            sent += f
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGTERM)  # how Wireshark stops an extcap
+        _, stderr = proc.communicate(timeout=20)
+        reader.join(timeout=20)
+    finally:
+        os.close(m)
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    cap = tmp_path / "from-fifo.pcapng"
+    cap.write_bytes(bytes(received))
+    recs = list(read_records(cap))
+    assert b"".join(r.data for r in recs) == sent and all(r.linktype == 147 for r in recs)
+    # and Wireshark decodes it: the same frames through the serial dispatcher
+    scripts = [a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua" for a in ("-X", f"lua_script:{s}")]
+    rows = tu.fields(cap, ["slserial.frame", "sharedlink.kind"], extra=scripts, two_pass=True)
+    got = [bytes.fromhex(h.replace(":", "")) for r in rows for h in r["slserial.frame"]]
+    assert got == frames(12, "e")
+
+
+def test_killed_capture_is_still_readable(tmp_path):
+    m, path = pty_pair()
+    out = tmp_path / "killed.pcapng"
+    proc = subprocess.Popen([*CLI, "serial", "capture", path, "--baud", "9600", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_ready(proc)
+        data = b"".join(frames(6, "k"))
+        os.write(m, data)
+        end = time.monotonic() + 10
+        while time.monotonic() < end and captured(out) < len(data):
+            time.sleep(0.05)
+        proc.kill()
+        proc.communicate(timeout=20)
+    finally:
+        os.close(m)
+    assert b"".join(r.data for r in read_records(out)) == data
+
+
+def _install_extcap(conf: Path) -> dict[str, str]:
+    """The extcap as `make install` puts it (first line: this Python) in a private config dir."""
+    d = conf / "wireshark" / "extcap"
+    d.mkdir(parents=True)
+    body = (REPO / "extcap" / "sharedlink-serial").read_text().split("\n", 1)[1]
+    (d / "sharedlink-serial").write_text(f"#!{sys.executable}\n{body}")
+    (d / "sharedlink-serial").chmod(0o755)
+    return dict(os.environ, WIRESHARKCONFIGDIR=str(conf / "wireshark"), HOME=str(conf), XDG_CONFIG_HOME=str(conf), LC_ALL="C.UTF-8")
+
+
+def test_tshark_captures_a_serial_port_through_the_extcap(tmp_path):
+    """What a Wireshark user does: pick the interface, set device and baud, capture."""
+    env = _install_extcap(tmp_path / "conf")
+    listed = subprocess.run([tu.TSHARK, "-D"], env=env, capture_output=True, text=True, timeout=60).stdout
+    assert "sharedlink-serial (SharedLink serial" in listed
+    m, path = pty_pair()
+    out = tmp_path / "ws.pcapng"
+    proc = subprocess.Popen([tu.TSHARK, "-i", "sharedlink-serial", "-o", f"extcap.sharedlink_serial.device:{path}",
+                             "-o", "extcap.sharedlink_serial.baud:19200", "-w", str(out), "-c", "3"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    f = encode_positional("A", "B", ["42"])
+    try:
+        end = time.monotonic() + 30
+        while proc.poll() is None and time.monotonic() < end:
+            os.write(m, f)  # until tshark has its three packets (bytes before the port opened are lost)
+            time.sleep(0.15)
+        _, stderr = proc.communicate(timeout=30)
+    finally:
+        os.close(m)
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    recs = list(read_records(out))
+    assert len(recs) == 3 and all(r.linktype == 147 and r.data == f for r in recs)
+
+
+def test_make_install_puts_the_extcap_where_tshark_finds_it(tmp_path):
+    env = dict(os.environ, HOME=str(tmp_path), XDG_CONFIG_HOME=str(tmp_path / ".config"))
+    env.pop("WIRESHARKCONFIGDIR", None)
+    r = subprocess.run(["make", "-s", "install"], cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "sharedlink-serial extcap into" in r.stdout
+    listed = subprocess.run([tu.TSHARK, "-D"], env=env, capture_output=True, text=True, timeout=60).stdout
+    assert "sharedlink-serial (SharedLink serial" in listed
+
+
+def test_capture_ends_cleanly_when_the_line_goes_away(tmp_path):
+    m, path = pty_pair()
+    out = tmp_path / "hangup.pcapng"
+    proc = subprocess.Popen([*CLI, "serial", "capture", path, "--baud", "9600", "--out", str(out), "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    f = encode_positional("A", "B", ["1"])
+    try:
+        wait_ready(proc)
+        os.write(m, f)
+        end = time.monotonic() + 10
+        while time.monotonic() < end and captured(out) < len(f):
+            time.sleep(0.05)
+    finally:
+        os.close(m)  # the device disappears (a USB adapter pulled out)
+    stdout, stderr = proc.communicate(timeout=20)
+    assert proc.returncode == 0, stderr
+    assert json.loads(stdout)["stopped_by"] in ("end of file", "read error: Input/output error")
+    assert b"".join(r.data for r in read_records(out)) == f

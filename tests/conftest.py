@@ -1,0 +1,23 @@
+"""Shared test set-up. The test folders mirror the package (protocols/, capture/, generators/,
+analysis/, dissector/ for the Lua side, tools/, fuzz/); helpers live in ``tshark_util`` (tshark
+runs, each checked for Lua errors) and ``sl_captures`` (test data builders), both importable
+from every test file because this folder is on ``sys.path``."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+TESTS = Path(__file__).resolve().parent
+if str(TESTS) not in sys.path:
+    sys.path.insert(0, str(TESTS))
+
+REPO = TESTS.parent
+
+
+@pytest.fixture(scope="session")
+def repo() -> Path:
+    """The repository root."""
+    return REPO

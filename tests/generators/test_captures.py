@@ -1,0 +1,38 @@
+"""The checked-in sample captures are what `make captures` makes, byte for byte."""
+
+from __future__ import annotations
+
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def make_captures_commands() -> list[list[str]]:
+    """The `sharedlink gen` lines of the Makefile's captures target."""
+    text = (ROOT / "Makefile").read_text()
+    block = text.split("\ncaptures:", 1)[1].split("\n\n", 1)[0]
+    return [shlex.split(line.strip())[1:] for line in block.splitlines() if re.match(r"\s+\$\(CLI\) gen ", line)]
+
+
+def test_makefile_lists_every_capture():
+    cmds = make_captures_commands()
+    made = sorted(Path(c[1]).name for c in cmds)
+    assert made == sorted(p.name for p in (ROOT / "captures").glob("*.pcap*"))
+    readme = (ROOT / "captures" / "README.md").read_text()
+    for name in made:
+        assert name in readme
+
+
+@pytest.mark.parametrize("cmd", make_captures_commands(), ids=lambda c: Path(c[1]).name)
+def test_capture_is_byte_identical_when_remade(tmp_path, cmd):
+    target = ROOT / cmd[1]
+    out = tmp_path / target.name
+    r = subprocess.run([sys.executable, "-m", "sharedlink", cmd[0], str(out), *cmd[2:]], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert out.read_bytes() == target.read_bytes()
