@@ -210,10 +210,11 @@ def json_packets(
     prefs: Mapping[str, Any] | None = None,
     display_filter: str | None = None,
     two_pass: bool = True,
+    extra: Sequence[str] = (),
     **kw: Any,
 ) -> list[dict[str, Any]]:
     """``-T json`` output (duplicate keys merged into lists) as a list of packets."""
-    args = ["-T", "json"]
+    args = ["-T", "json", *extra]
     if display_filter:
         args += ["-Y", display_filter]
     res = tshark(capture, args, prefs=prefs, two_pass=two_pass, **kw)

@@ -1,0 +1,121 @@
+"""Loader of the shared SharedLink vector table ``tests/vectors/sharedlink.json`` (issue 12).
+
+The table holds streams of packets, each with the frames the decoding rules of
+docs/fields-sharedlink.md ("Decoding rules") expect in it. Both the tshark tests
+(tests/dissector/test_vectors.py) and the Python tests read it, so the two sides cannot drift.
+
+Shape (a key left out means "not checked")::
+
+    {"streams": [
+      {"name": ..., "rules": [1, 2], "doc": "why the expectations are what they are",
+       "variables": "Lat:2,Lon:2,Note",       # optional a-priori list (sharedlink.variables / --variables)
+       "transport": "udp" | "tcp" | "serial",
+       "packets": [
+         {"t": 0.0,                            # seconds from the stream's start
+          "src": "10.0.0.2:7013", "dst": "10.0.0.255:7013",   # udp/tcp;  serial: "dir": "in" | "out"
+          "payload": "[:AB|N0|D1|C??]\\r\\n",  # latin-1 text; C?? = the right checksum, C!! = a wrong one
+          "frames": [                          # one entry per SharedLink frame in the packet, in order
+            {"kind": "full" | "delta" | "query" | "reply" | "declaration" | "command" | "ping" | "pong"
+                     | "other" | "malformed",
+             "checksum": "good" | "bad" | "missing",
+             "vars": [{"name", "index", "value", "type": "long" | "double" | "string" | null,
+                       "typed": number | string | null, "carried": bool, "carried_from": packet | null,
+                       "bad": bool}],          # every variable the frame shows, in index order
+             "experts": [...], "no_experts": [...],       # expert abbrevs that must / must not appear
+             "response_to": packet | null, "response_in": packet | null}]}]}]}
+
+Packet numbers are 1-based positions in the stream's ``packets`` (one capture record each).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+from sharedlink.capture.packets import TcpBuilder, UdpBuilder
+from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWriter
+
+VECTORS = Path(__file__).resolve().parent / "vectors" / "sharedlink.json"
+#: capture time of a stream's t = 0 (2026-01-01 12:00 UTC, as the generators use)
+START_NS = 1_767_268_800 * 1_000_000_000
+SERIAL_DIRS = {"in": DIR_IN, "out": DIR_OUT}
+_CHECKSUM_MARK = re.compile(rb"\|C(\?\?|!!)\]")
+
+Stream = dict[str, Any]
+
+
+def load_streams(path: Path = VECTORS) -> list[Stream]:
+    """The streams of the vector table."""
+    with open(path, encoding="utf-8") as fh:
+        return list(json.load(fh)["streams"])
+
+
+def stream_ids(streams: list[Stream]) -> list[str]:
+    return [s["name"] for s in streams]
+
+
+def payload_bytes(payload: str) -> bytes:
+    """The packet's bytes: ``C??`` becomes the frame's right checksum, ``C!!`` a wrong one.
+
+    The checksum covers the frame's bytes from the ':' after its '[' through the 'C'; the
+    frame starts at the last "[:" before the mark.
+    """
+    raw = payload.encode("latin-1")
+    out = bytearray()
+    pos = 0
+    for m in _CHECKSUM_MARK.finditer(raw):
+        start = raw.rfind(b"[:", 0, m.start())
+        if start < 0:
+            raise ValueError(f"checksum mark without a frame start: {payload!r}")
+        calc = sum(raw[start + 1 : m.start() + 2]) % 256
+        if m.group(1) == b"!!":
+            calc = (calc + 0x5A) % 256
+        out += raw[pos : m.start() + 2] + b"%02X]" % calc
+        pos = m.end()
+    out += raw[pos:]
+    return bytes(out)
+
+
+def _endpoint(text: str) -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    return host, int(port)
+
+
+def timestamp_ns(packet: dict[str, Any]) -> int:
+    return START_NS + round(float(packet["t"]) * 1e9)
+
+
+def write_stream(stream: Stream, path: Path) -> Path:
+    """Write the stream as a capture: Ethernet/IPv4/UDP or TCP pcap, or a serial pcapng."""
+    transport = stream.get("transport", "udp")
+    with open(path, "wb") as fh:
+        if transport == "serial":
+            sw = SerialCaptureWriter(fh, flush=False)
+            for p in stream["packets"]:
+                sw.write(payload_bytes(p["payload"]), SERIAL_DIRS[p["dir"]], timestamp_ns(p))
+            return Path(path)
+        w = PcapWriter(fh)
+        seqs: dict[tuple[str, int, str, int], int] = {}
+        for i, p in enumerate(stream["packets"]):
+            (sip, sport), (dip, dport) = _endpoint(p["src"]), _endpoint(p["dst"])
+            data = payload_bytes(p["payload"])
+            if transport == "udp":
+                frame = UdpBuilder(sip, dip, sport, dport).frame(data, i + 1)
+            elif transport == "tcp":
+                # consecutive segments of one direction, acknowledging the other (no handshake)
+                key, rkey = (sip, sport, dip, dport), (dip, dport, sip, sport)
+                seq, ack = seqs.setdefault(key, 1000), seqs.setdefault(rkey, 5000)
+                frame = TcpBuilder(sip, dip, sport, dport).segment(seq, ack, 0x18, data, i + 1)
+                seqs[key] = seq + len(data)
+            else:
+                raise ValueError(f"unknown transport {transport!r}")
+            w.write(timestamp_ns(p), frame)
+    return Path(path)
+
+
+def expected_frames(stream: Stream) -> list[tuple[int, int, dict[str, Any]]]:
+    """(packet number, frame index within the packet, expected frame) for every frame."""
+    return [(n, k, f) for n, p in enumerate(stream["packets"], 1) for k, f in enumerate(p["frames"])]
