@@ -16,14 +16,14 @@ import sys
 from collections.abc import Sequence
 
 from . import __version__
-from .errors import UsageError
+from .commands import EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
+from .errors import Error, UsageError
 
 #: sub-command modules, in the order ``--help`` lists them
 COMMANDS = ["gen", "replay", "serial", "compress", "expand", "diff", "stats", "export", "plot"]
 
-__all__ = ["UsageError", "main", "build_parser"]
+__all__ = ["EXIT_INTERRUPTED", "EXIT_OK", "EXIT_USAGE", "Error", "UsageError", "main", "build_parser"]
 
-EXIT_OK, EXIT_FAIL, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -45,7 +45,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except UsageError as exc:
+    except Error as exc:  # every error of the package, reported once: FILE: record N: reason
         print(f"sharedlink: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:

@@ -35,6 +35,7 @@ from typing import Any, NamedTuple, Union
 
 from sharedlink.capture.packets import decode_packet
 from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, LINKTYPE_USER0, CaptureError, read_records
+from sharedlink.errors import UsageError
 
 #: LINKTYPE_USER0 .. LINKTYPE_USER15: records taken as raw serial bytes
 USER_LINKTYPES = range(LINKTYPE_USER0, LINKTYPE_USER0 + 16)
@@ -50,7 +51,7 @@ SPIN_SHARE = 0.02  # ... nor longer than this share of the gap since the previou
 Target = Any  # what a sink needs to send one payload (an address for UDP); None = cannot send
 
 
-class ReplayError(Exception):
+class ReplayError(UsageError):
     """Bad replay setup: an unusable destination, source address or serial port."""
 
 

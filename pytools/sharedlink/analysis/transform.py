@@ -34,6 +34,7 @@ from sharedlink.capture.pcapio import (
     PcapWriter,
     read_records,
 )
+from sharedlink.errors import OutputError
 from sharedlink.protocols.codec import Field, Frame, build_frame, frame_kind, iter_segments
 from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, VariableTable
 
@@ -41,7 +42,7 @@ NS = 1_000_000_000
 MODES = ("compress", "expand")
 
 
-class TransformError(Exception):
+class TransformError(OutputError):
     """The output cannot be written (bad option, unsupported capture layout, I/O error)."""
 
 

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, BinaryIO
 
+from sharedlink.errors import InputError
+
 LINKTYPE_ETHERNET = 1
 LINKTYPE_RAW = 101
 LINKTYPE_LINUX_SLL = 113
@@ -29,14 +31,11 @@ PCAPNG_BOM = 0x1A2B3C4D
 DIR_UNKNOWN, DIR_INBOUND, DIR_OUTBOUND = 0, 1, 2
 
 
-class CaptureError(Exception):
+class CaptureError(InputError):
     """A capture that cannot be read (further). ``record`` counts from 1; ``None`` when the
     file header itself is bad."""
 
-    def __init__(self, path: str, record: int | None, reason: str) -> None:
-        where = f"record {record}" if record is not None else "file header"
-        super().__init__(f"{path}: {where}: {reason}")
-        self.path, self.record, self.reason = path, record, reason
+    whole = "file header"
 
 
 @dataclass(frozen=True)

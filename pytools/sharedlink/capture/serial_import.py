@@ -14,7 +14,7 @@ Formats (``detect_format`` picks one when asked for "auto"):
   become one record.
 
 Direction words: ``<``, RX, IN, R are inbound (read from the device); ``>``, TX, OUT, W are
-outbound. Input problems raise :class:`ImportError_` with the line number.
+outbound. Input problems raise :class:`SerialImportError` with the line number.
 """
 
 from __future__ import annotations
@@ -26,18 +26,25 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, DIR_UNKNOWN
+from sharedlink.errors import InputError
 
 NS = 1_000_000_000
 FORMATS = ("auto", "raw", "hex", "log")
 
 
-class ImportError_(ValueError):  # noqa: N801 - not the builtin ImportError
-    """A log that cannot be imported; ``line`` counts from 1 (None: the file as a whole)."""
+class SerialImportError(InputError, ValueError):
+    """A log that cannot be imported; ``line`` (= ``record``) counts from 1 (None: the file as
+    a whole). Also a ``ValueError``, as it always was."""
 
-    def __init__(self, path: str, line: int | None, reason: str) -> None:
-        where = f"line {line}: " if line else ""
-        super().__init__(f"{path}: {where}{reason}")
-        self.path, self.line, self.reason = path, line, reason
+    unit = "line"
+
+    @property
+    def line(self) -> int | None:
+        return self.record
+
+
+#: the old name of :class:`SerialImportError`
+ImportError_ = SerialImportError
 
 
 @dataclass(frozen=True)
@@ -115,7 +122,7 @@ def parse_hexdump(text: str, path: str = "<hex>") -> bytes:
             continue
         parsed = _hex_line(line)
         if parsed is None:
-            raise ImportError_(path, no, "not a hex dump line (xxd, hexdump -C or od)")
+            raise SerialImportError(path, no, "not a hex dump line (xxd, hexdump -C or od)")
         st, off, data = parsed
         if st == "end" and style == "od":
             off = int(line.strip().rstrip(":"), 8)  # od offsets are octal
@@ -126,12 +133,12 @@ def parse_hexdump(text: str, path: str = "<hex>") -> bytes:
                 out += prev
             repeat = False
         if off < len(out) and st != "end":
-            raise ImportError_(path, no, f"offset {off:#x} goes back (expected {len(out):#x})")
+            raise SerialImportError(path, no, f"offset {off:#x} goes back (expected {len(out):#x})")
         if st == "end":
             del out[off:]
             break
         if off > len(out):
-            raise ImportError_(path, no, f"offset {off:#x} skips bytes (expected {len(out):#x})")
+            raise SerialImportError(path, no, f"offset {off:#x} skips bytes (expected {len(out):#x})")
         out += data
         prev = data
     return bytes(out)
@@ -208,7 +215,7 @@ def parse_log(text: str, path: str = "<log>", start_ns: int = 0, byte_ns: int = 
             continue
         parsed = _log_line(line)
         if parsed is None:
-            raise ImportError_(path, no, "not a log line: expected TIMESTAMP [DIRECTION] DATA")
+            raise SerialImportError(path, no, "not a log line: expected TIMESTAMP [DIRECTION] DATA")
         ts, d, data = parsed
         if ts is None:  # interceptty: merge consecutive bytes of one direction
             clock += byte_ns
@@ -249,9 +256,9 @@ def read_log(
         data = p.read_bytes()
         mtime_ns = p.stat().st_mtime_ns
     except OSError as exc:
-        raise ImportError_(str(p), None, exc.strerror or str(exc)) from None
+        raise SerialImportError(str(p), None, exc.strerror or str(exc)) from None
     if fmt not in FORMATS:
-        raise ImportError_(str(p), None, f"unknown format {fmt!r} ({', '.join(FORMATS)})")
+        raise SerialImportError(str(p), None, f"unknown format {fmt!r} ({', '.join(FORMATS)})")
     if fmt == "auto":
         fmt = detect_format(data)
     byte_ns = 10 * NS // max(1, baud)
@@ -261,12 +268,12 @@ def read_log(
             text = data.decode("ascii")
         except UnicodeDecodeError as exc:
             line = data[: exc.start].count(b"\n") + 1
-            raise ImportError_(str(p), line, f"non-ASCII byte in a {fmt} file") from None
+            raise SerialImportError(str(p), line, f"non-ASCII byte in a {fmt} file") from None
     if fmt == "log":
         return fmt, parse_log(text, str(p), t0, byte_ns)
     raw = parse_hexdump(text, str(p)) if fmt == "hex" else data
     if chunk < 1:
-        raise ImportError_(str(p), None, "chunk size must be at least 1")
+        raise SerialImportError(str(p), None, "chunk size must be at least 1")
     return fmt, list(_timed_chunks(raw, t0, baud, chunk, direction))
 
 

@@ -13,6 +13,10 @@ from sharedlink.analysis.decode import parse_variables
 from sharedlink.errors import UsageError
 from sharedlink.protocols.state import BEACON_VARIABLES
 
+# -- exit codes, for every command ------------------------------------------------------------
+
+EXIT_OK, EXIT_FAIL, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
 
 def add_decode_options(p: argparse.ArgumentParser) -> None:
     """Options every capture-reading command of this family shares."""

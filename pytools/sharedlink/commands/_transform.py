@@ -8,13 +8,11 @@ import math
 import sys
 from pathlib import Path
 
-from sharedlink.analysis.transform import TransformError, transform_capture
-from sharedlink.capture.pcapio import CaptureError
+from sharedlink.analysis.transform import transform_capture
 from sharedlink.capture.stream import parse_variable_list
+from sharedlink.commands import EXIT_OK, EXIT_USAGE
 from sharedlink.errors import UsageError
 from sharedlink.protocols.state import BEACON_VARIABLES
-
-EXIT_OK, EXIT_USAGE = 0, 2
 
 
 def variables_arg(text: str | None) -> list[tuple[str, int | None]]:
@@ -43,12 +41,7 @@ def run_transform(args: argparse.Namespace, mode: str) -> int:
     if not (args.sync_interval > 0 and math.isfinite(args.sync_interval)):
         raise UsageError("--sync-interval must be a positive number of seconds")
     variables = variables_arg(args.variables)
-    try:
-        st = transform_capture(args.input, args.output, mode, args.sync_interval, variables)
-    except CaptureError as exc:
-        raise UsageError(str(exc)) from None
-    except TransformError as exc:
-        raise UsageError(str(exc)) from None
+    st = transform_capture(args.input, args.output, mode, args.sync_interval, variables)
     if args.json:
         json.dump({"input": str(args.input), "output": str(args.output), "mode": mode, **st.to_dict()}, sys.stdout)
         print()

@@ -9,11 +9,11 @@ from pathlib import Path
 
 from sharedlink.analysis.diff import DiffOptions, DiffReport, Divergence, Staleness, diff_captures
 from sharedlink.capture.stream import SideStats
+from sharedlink.commands import EXIT_FAIL, EXIT_OK, EXIT_USAGE
 from sharedlink.errors import UsageError
 
 from ._transform import VARIABLES_HELP, variables_arg
 
-EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
 TYPE_NAMES = {0: "long", 2: "double", 4: "string"}
 
 

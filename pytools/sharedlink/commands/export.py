@@ -8,9 +8,8 @@ import sys
 from pathlib import Path
 
 from sharedlink.analysis.export import FORMATS, LAT, LON, ExportOptions, export, export_file
-from sharedlink.capture.pcapio import CaptureError
-from sharedlink.cli import EXIT_OK, EXIT_USAGE, UsageError
-from sharedlink.commands import add_decode_options, check_capture, decode_options
+from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options
+from sharedlink.errors import UsageError
 
 _SUFFIXES = {".csv": "csv", ".jsonl": "jsonl", ".ndjson": "jsonl", ".geojson": "geojson", ".kml": "kml"}
 
@@ -56,8 +55,6 @@ def run(args: argparse.Namespace) -> int:
             result = export(args.capture, sys.stdout, opts)
         else:
             result = export_file(args.capture, args.output, opts)
-    except CaptureError as exc:
-        raise UsageError(str(exc)) from None
     except BrokenPipeError:
         raise
     except OSError as exc:

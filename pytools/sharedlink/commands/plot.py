@@ -8,9 +8,8 @@ import sys
 from pathlib import Path
 
 from sharedlink.analysis.export import LAT, LON
-from sharedlink.capture.pcapio import CaptureError
-from sharedlink.cli import EXIT_OK, EXIT_USAGE, UsageError
-from sharedlink.commands import add_decode_options, check_capture, decode_options
+from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options
+from sharedlink.errors import UsageError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -49,11 +48,8 @@ def run(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")  # headless, whatever the environment says
     from sharedlink.analysis.plot import build_figure, collect
 
-    try:
-        data = collect(args.capture, variables, sync, max_points=args.max_points,
-                       lat=args.lat, lon=args.lon, speed=args.speed)
-    except CaptureError as exc:
-        raise UsageError(str(exc)) from None
+    data = collect(args.capture, variables, sync, max_points=args.max_points,
+                   lat=args.lat, lon=args.lon, speed=args.speed)
     try:
         fig = build_figure(data, names)
     except ValueError as exc:

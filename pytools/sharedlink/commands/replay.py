@@ -9,13 +9,13 @@ from pathlib import Path
 from typing import Any
 
 from sharedlink.capture.pcapio import CaptureError
-from sharedlink.cli import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, UsageError
+from sharedlink.commands import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
+from sharedlink.errors import UsageError
 from sharedlink.replay import (
     USER_LINKTYPES,
     CaptureFrames,
     FrameFilter,
     Replayer,
-    ReplayError,
     ReplayOptions,
     ReplayStats,
     SerialSink,
@@ -98,14 +98,11 @@ def run(args: argparse.Namespace) -> int:
         limit=args.limit,
         realtime=args.realtime,
     )
-    try:
-        opts.validate()
-        flt = FrameFilter.build(args.filter_port, args.filter_src)
-        if not args.capture.exists():
-            raise UsageError(f"{args.capture}: no such file")
-        sink = _sink(args)
-    except ReplayError as exc:
-        raise UsageError(str(exc)) from None
+    opts.validate()
+    flt = FrameFilter.build(args.filter_port, args.filter_src)
+    if not args.capture.exists():
+        raise UsageError(f"{args.capture}: no such file")
+    sink = _sink(args)
     progress = None if args.quiet else _Progress(args.capture.name, sink.description, opts.mode)
     try:
         replayer = Replayer(CaptureFrames(args.capture, flt), sink, opts,

@@ -20,7 +20,7 @@ from sharedlink.capture.serial_format import (
     StreamReader,
     parse_linktype,
 )
-from sharedlink.capture.serial_import import FORMATS, ImportError_, read_log
+from sharedlink.capture.serial_import import FORMATS, read_log
 from sharedlink.capture.serial_port import capture, list_ports
 from sharedlink.errors import UsageError
 
@@ -133,10 +133,7 @@ def run_import(args: argparse.Namespace) -> int:
     start_ns = None if args.start is None else int(round(args.start * 1e9))
     if args.baud <= 0:
         raise UsageError("--baud must be positive")
-    try:
-        fmt, chunks = read_log(args.log, args.fmt, args.baud, args.chunk, _DIRECTIONS[args.direction], start_ns)
-    except ImportError_ as exc:
-        raise UsageError(str(exc)) from None
+    fmt, chunks = read_log(args.log, args.fmt, args.baud, args.chunk, _DIRECTIONS[args.direction], start_ns)
     if not chunks:
         raise UsageError(f"{args.log}: no bytes to import")
     tmp = args.out.with_name(args.out.name + ".part")

@@ -9,9 +9,7 @@ import sys
 from pathlib import Path
 
 from sharedlink.analysis.stats import capture_stats, render_text, tables
-from sharedlink.capture.pcapio import CaptureError
-from sharedlink.cli import EXIT_OK, EXIT_USAGE, UsageError
-from sharedlink.commands import add_decode_options, check_capture, decode_options
+from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,10 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     variables, sync = decode_options(args)
     check_capture(args.capture)
-    try:
-        st = capture_stats(args.capture, variables, sync)
-    except CaptureError as exc:
-        raise UsageError(str(exc)) from None
+    st = capture_stats(args.capture, variables, sync)
     if args.json:
         json.dump(st.to_dict(), sys.stdout, indent=2)
         print()

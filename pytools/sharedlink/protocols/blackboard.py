@@ -25,6 +25,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Union
 
+from sharedlink.errors import DecodeError
+
 SET = ord(":")
 REQUEST = ord(";")
 CR = 0x0D
@@ -32,13 +34,8 @@ HEXDIGITS = b"0123456789ABCDEFabcdef"
 TYPE_NAMES = {SET: "set", REQUEST: "request"}
 
 
-class BlackboardError(ValueError):
+class BlackboardError(DecodeError):
     """Bytes that are not a blackboard message. ``offset`` is relative to the input."""
-
-    def __init__(self, offset: int, reason: str) -> None:
-        super().__init__(f"offset {offset}: {reason}")
-        self.offset = offset
-        self.reason = reason
 
 
 def checksum(data: bytes) -> int:

@@ -17,6 +17,8 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
+from sharedlink.errors import DecodeError
+
 OPEN = ord("[")
 CLOSE = ord("]")
 SEP = b"|"
@@ -48,13 +50,8 @@ ADDRESS_LETTERS = "ABCDEFGHIJKLMNOP"
 #: Frame kinds, as labelled by :func:`frame_kind` and the dissector.
 KINDS = ("full", "delta", "query", "reply", "declaration", "command", "ping", "pong", "other")
 
-class SharedLinkError(ValueError):
+class SharedLinkError(DecodeError):
     """A byte sequence that is not a SharedLink frame. ``offset`` is relative to the input."""
-
-    def __init__(self, offset: int, reason: str) -> None:
-        super().__init__(f"offset {offset}: {reason}")
-        self.offset = offset
-        self.reason = reason
 
 
 @dataclass(frozen=True)

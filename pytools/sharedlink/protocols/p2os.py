@@ -26,6 +26,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Union
 
+from sharedlink.errors import DecodeError
+
 HEADER = b"\xfa\xfb"
 #: P2OS ignores a packet whose count exceeds this
 MAX_COUNT = 200
@@ -113,13 +115,8 @@ SERVER_TYPES: dict[int, str] = {
 DEGREES_PER_ANGLE_UNIT = 360.0 / 4096.0
 
 
-class P2osError(ValueError):
+class P2osError(DecodeError):
     """Bytes that are not a P2OS packet (or payload). ``offset`` is relative to the input."""
-
-    def __init__(self, offset: int, reason: str) -> None:
-        super().__init__(f"offset {offset}: {reason}")
-        self.offset = offset
-        self.reason = reason
 
 
 def checksum(payload: bytes) -> int:
