@@ -34,13 +34,12 @@ from socket import inet_ntoa
 from typing import Any, NamedTuple, Union
 
 from sharedlink.capture.packets import decode_packet
-from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, LINKTYPE_USER0, CaptureError, read_records
+from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, LINKTYPE_USER0, NS, CaptureError, read_records
 from sharedlink.errors import UsageError
 
 #: LINKTYPE_USER0 .. LINKTYPE_USER15: records taken as raw serial bytes
 USER_LINKTYPES = range(LINKTYPE_USER0, LINKTYPE_USER0 + 16)
 
-NS = 1_000_000_000
 TOPSPEED_CHUNK = 4096  # payloads pre-read at a time at top speed
 LOOP_CACHE_BYTES = 64 << 20  # at top speed, passes after the first reuse payloads up to this size
 LAG_SAMPLES = 65536  # lags kept for the median (reservoir sample beyond this many frames)

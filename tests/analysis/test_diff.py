@@ -261,7 +261,7 @@ def test_cli_output_and_exit_codes(beacon, tmp_path):
         ([str(tmp_path / "empty.pcap"), str(full)], "empty file"),
         ([str(full), str(tmp_path)], "directory"),
         ([str(full), str(comp), "--window", "-1"], "--window"),
-        ([str(full), str(comp), "--variables", "a,,b"], "--variables"),
+        ([str(full), str(comp), "--variables", "a|b,c"], "--variables"),
     ):
         r = subprocess.run(CLI + ["diff"] + args, capture_output=True, text=True)
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)

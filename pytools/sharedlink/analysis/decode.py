@@ -24,11 +24,12 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from sharedlink.capture.pcapio import NS
 from sharedlink.capture.stream import StreamFrame, iter_frames
 from sharedlink.protocols.codec import Frame
 from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, Update, VariableTable
+from sharedlink.protocols.state import parse_variables as parse_variables  # its home is state
 
-NS = 1_000_000_000
 #: seconds past the sync interval before a value frame counts as late (as in the dissector)
 SYNC_SLACK_S = 0.5
 #: kinds that carry values
@@ -127,25 +128,6 @@ def iter_decoded(
             yield dec.decode(item)
         else:
             yield item
-
-
-def parse_variables(text: str) -> list[tuple[str, int | None]]:
-    """``--variables`` text: ``Name[:type],...`` (type 0 long, 2 double, 4 string)."""
-    out: list[tuple[str, int | None]] = []
-    for part in text.split(","):
-        part = part.strip()
-        if not part:
-            continue
-        name, _, t = part.partition(":")
-        if not name or any(c in name for c in "|[]"):
-            raise ValueError(f"bad variable name {name!r}")
-        try:
-            out.append((name, int(t) if t else None))
-        except ValueError:
-            raise ValueError(f"bad type {t!r} for {name} (0 long, 2 double, 4 string)") from None
-    if not out:
-        raise ValueError("empty variable list")
-    return out
 
 
 def format_time(ts_ns: int) -> str:

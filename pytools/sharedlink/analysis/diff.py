@@ -37,9 +37,9 @@ from sharedlink.capture.stream import (
     unescape,
     unpack_ts,
 )
+from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG
 from sharedlink.protocols.state import BEACON_VARIABLES
 
-TYPE_LONG, TYPE_DOUBLE = 0, 2
 DEFAULT_WINDOW_NS = 100_000_000  # when the frame period cannot be measured
 _FIRST_UNMATCHED = 5  # unmatched frames listed per side
 #: --by sequence: frames of a direction waiting for the other side's; beyond this many the

@@ -28,6 +28,7 @@ from sharedlink.capture.pcapio import (
     LINKTYPE_LINUX_SLL,
     LINKTYPE_NULL,
     LINKTYPE_RAW,
+    NS,
     PCAPNG_SHB,
     CaptureError,
     PcapngWriter,
@@ -38,7 +39,6 @@ from sharedlink.errors import OutputError
 from sharedlink.protocols.codec import Field, Frame, build_frame, frame_kind, iter_segments
 from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, VariableTable
 
-NS = 1_000_000_000
 MODES = ("compress", "expand")
 
 

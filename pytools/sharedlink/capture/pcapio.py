@@ -16,6 +16,10 @@ from typing import IO, Any, BinaryIO
 
 from sharedlink.errors import InputError
 
+#: nanoseconds per second: every timestamp in the package is an integer count of ns (the one home
+#: of this constant; other modules import it)
+NS = 1_000_000_000
+
 LINKTYPE_ETHERNET = 1
 LINKTYPE_RAW = 101
 LINKTYPE_LINUX_SLL = 113

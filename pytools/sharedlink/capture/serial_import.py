@@ -25,10 +25,10 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
+from sharedlink.capture.pcapio import NS
 from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, DIR_UNKNOWN
 from sharedlink.errors import InputError
 
-NS = 1_000_000_000
 FORMATS = ("auto", "raw", "hex", "log")
 
 

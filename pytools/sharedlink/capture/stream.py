@@ -38,6 +38,7 @@ from pathlib import Path
 from sharedlink.capture.packets import Datagram, decode_packet
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
+    NS,
     PCAP_MAGIC_NS,
     PCAP_MAGIC_US,
     PCAPNG_SHB,
@@ -46,9 +47,7 @@ from sharedlink.capture.pcapio import (
 )
 from sharedlink.capture.serial_format import DIRECTION_NAMES, USER_LINKTYPES, Piece, StreamReader
 from sharedlink.protocols.codec import Frame, SharedLinkError, declared_list, frame_kind, iter_segments
-from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, VariableTable
-
-NS = 1_000_000_000
+from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, VariableTable, parse_variables
 
 #: Field separators of change records (ASCII unit/record separators); escaped in names/values.
 SEP_CHANGE = b"\x1f"
@@ -83,23 +82,8 @@ def parse_record(rec: bytes) -> tuple[bytes, list[tuple[bytes, bytes]]]:
     return rec[:2], out
 
 
-def parse_variable_list(text: str) -> list[tuple[str, int | None]]:
-    """``"Lat:2,Lon:2,Name:4,Count"`` -> [("Lat", 2), ("Lon", 2), ("Name", 4), ("Count", None)]:
-    the a-priori outbound list positional frames are named by (types: 0 long, 2 double,
-    4 string). Raises ValueError on a malformed list."""
-    out: list[tuple[str, int | None]] = []
-    for item in text.split(","):
-        name, sep, type_text = item.strip().partition(":")
-        if not name or any(c in name for c in "|[]"):
-            raise ValueError(f"bad variable name {name!r} in the list {text!r}")
-        if sep:
-            try:
-                out.append((name, int(type_text)))
-            except ValueError:
-                raise ValueError(f"bad type {type_text!r} for {name} (0 long, 2 double, 4 string)") from None
-        else:
-            out.append((name, None))
-    return out
+#: the old name of :func:`sharedlink.protocols.state.parse_variables`, the one ``--variables`` parser
+parse_variable_list = parse_variables
 
 
 def pack_ts(ts_ns: int) -> int:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._transform import add_common, run_transform
+from sharedlink.commands import add_transform_arguments, run_transform
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog="Exit codes: 0 written, 2 bad usage or a missing/damaged input (the records before the damage are "
         "still written), 130 interrupted.",
     )
-    add_common(p)
+    add_transform_arguments(p)
     p.add_argument("--sync-interval", type=float, default=1.0, metavar="S",
                    help="a full set at least every S seconds (default 1)")
     p.set_defaults(func=lambda args: run_transform(args, "compress"))

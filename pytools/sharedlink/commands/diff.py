@@ -9,12 +9,16 @@ from pathlib import Path
 
 from sharedlink.analysis.diff import DiffOptions, DiffReport, Divergence, Staleness, diff_captures
 from sharedlink.capture.stream import SideStats
-from sharedlink.commands import EXIT_FAIL, EXIT_OK, EXIT_USAGE
+from sharedlink.commands import (
+    EXIT_FAIL,
+    EXIT_OK,
+    EXIT_USAGE,
+    add_variables_option,
+    check_capture,
+    variables_option,
+)
 from sharedlink.errors import UsageError
-
-from ._transform import VARIABLES_HELP, variables_arg
-
-TYPE_NAMES = {0: "long", 2: "double", 4: "string"}
+from sharedlink.protocols.codec import TYPE_NAMES
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sync-interval", type=float, default=1.0, metavar="S",
                    help="a full set is due every S seconds: a gap between full sets that rounds to n >= 2 "
                    "intervals misses n - 1 (default 1)")
-    p.add_argument("--variables", metavar="LIST", default=None, help=VARIABLES_HELP)
+    add_variables_option(p)
     p.add_argument("--single-process", action="store_true",
                    help="read both captures in this process (default: each in its own)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
@@ -54,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
         window_ms=args.window,
         tolerance=args.tolerance,
         sync_interval=args.sync_interval,
-        variables=variables_arg(args.variables),
+        variables=variables_option(args.variables),
         parallel=not args.single_process,
     )
     try:
@@ -62,10 +66,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     for path in (args.a, args.b):
-        if not path.exists():
-            raise UsageError(f"{path}: no such file")
-        if path.is_dir():
-            raise UsageError(f"{path}: is a directory, not a capture")
+        check_capture(path)
     report = diff_captures(args.a, args.b, opts)
     unreadable = [s.error for s in (report.a, report.b) if s.error and s.records == 0]
     if unreadable:  # not a capture at all: nothing to compare

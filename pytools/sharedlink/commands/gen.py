@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from sharedlink.commands import generate_to, report
 from sharedlink.errors import UsageError
 from sharedlink.generators.beacon import GenOptions, generate_file
-
-from ._output import generate_to, report
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -46,8 +45,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.transport == "serial" and args.protocol == "sharedlink":
-        from .serial import run_gen_serial
-
         return run_gen_serial(args)
     fmt = args.fmt or ("pcapng" if str(args.out).endswith(".pcapng") or args.transport == "serial" else "pcap")
     if args.protocol != "sharedlink":
@@ -125,4 +122,45 @@ def run_session(args: argparse.Namespace, fmt: str) -> int:
     }
     kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
     report(summary, args.json, f"wrote {args.out}: {stats.frames} frames over {opts.transport} port {opts.port} ({kinds})")
+    return 0
+
+
+def run_gen_serial(args: argparse.Namespace) -> int:
+    """``sharedlink gen OUT --transport serial``."""
+    from sharedlink.generators.serial import SerialGenOptions, generate_serial_file
+
+    if getattr(args, "protocol", "sharedlink") not in (None, "sharedlink"):
+        raise UsageError("--transport serial generates SharedLink (BUL-049) sessions only")
+    if args.fmt == "pcap":
+        raise UsageError("serial captures are pcapng (the direction lives in the packet flags)")
+    duration = args.duration if args.frames is None else args.frames / args.rate
+    opts = SerialGenOptions(
+        duration=duration,
+        rate=args.rate,
+        baud=args.baud,
+        seed=args.seed,
+        compress=True,  # a BUL-049 session elides unchanged values (full set every --sync-interval)
+        sync_interval=args.sync_interval,
+        noise=args.noise,
+        host=args.dst.upper(),
+        vehicle=args.src.upper(),
+    )
+    stats = generate_to(opts, generate_serial_file, args.out)
+    summary = {
+        "file": str(args.out),
+        "format": "pcapng",
+        "transport": "serial",
+        "frames": stats.frames,
+        "records": stats.records,
+        "bytes": stats.bytes,
+        "noise_bytes": stats.noise_bytes,
+        "kinds": stats.kinds,
+        "by_direction": stats.by_direction,
+    }
+    kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
+    report(
+        summary, args.json,
+        f"wrote {args.out}: {stats.frames} frames ({kinds}) in {stats.records} serial records at {opts.baud} baud"
+        + (f", {stats.noise_bytes} noise bytes" if stats.noise_bytes else ""),
+    )
     return 0

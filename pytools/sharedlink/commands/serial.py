@@ -1,7 +1,4 @@
-"""``sharedlink serial``: capture a serial line into pcapng, import serial logs, list ports.
-
-Also the serial side of ``sharedlink gen --transport serial`` (:func:`run_gen_serial`).
-"""
+"""``sharedlink serial``: capture a serial line into pcapng, import serial logs, list ports."""
 
 from __future__ import annotations
 
@@ -22,9 +19,8 @@ from sharedlink.capture.serial_format import (
 )
 from sharedlink.capture.serial_import import FORMATS, read_log
 from sharedlink.capture.serial_port import capture, list_ports
+from sharedlink.commands import report
 from sharedlink.errors import UsageError
-
-from ._output import generate_to, report
 
 _DIRECTIONS = {"in": DIR_IN, "inbound": DIR_IN, "out": DIR_OUT, "outbound": DIR_OUT, "unknown": DIR_UNKNOWN}
 
@@ -176,45 +172,4 @@ def run_ports(args: argparse.Namespace) -> int:
     else:
         for d, desc in ports:
             print(f"{d}\t{desc}")
-    return 0
-
-
-def run_gen_serial(args: argparse.Namespace) -> int:
-    """``sharedlink gen OUT --transport serial``."""
-    from sharedlink.generators.serial import SerialGenOptions, generate_serial_file
-
-    if getattr(args, "protocol", "sharedlink") not in (None, "sharedlink"):
-        raise UsageError("--transport serial generates SharedLink (BUL-049) sessions only")
-    if args.fmt == "pcap":
-        raise UsageError("serial captures are pcapng (the direction lives in the packet flags)")
-    duration = args.duration if args.frames is None else args.frames / args.rate
-    opts = SerialGenOptions(
-        duration=duration,
-        rate=args.rate,
-        baud=args.baud,
-        seed=args.seed,
-        compress=True,  # a BUL-049 session elides unchanged values (full set every --sync-interval)
-        sync_interval=args.sync_interval,
-        noise=args.noise,
-        host=args.dst.upper(),
-        vehicle=args.src.upper(),
-    )
-    stats = generate_to(opts, generate_serial_file, args.out)
-    summary = {
-        "file": str(args.out),
-        "format": "pcapng",
-        "transport": "serial",
-        "frames": stats.frames,
-        "records": stats.records,
-        "bytes": stats.bytes,
-        "noise_bytes": stats.noise_bytes,
-        "kinds": stats.kinds,
-        "by_direction": stats.by_direction,
-    }
-    kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
-    report(
-        summary, args.json,
-        f"wrote {args.out}: {stats.frames} frames ({kinds}) in {stats.records} serial records at {opts.baud} baud"
-        + (f", {stats.noise_bytes} noise bytes" if stats.noise_bytes else ""),
-    )
     return 0

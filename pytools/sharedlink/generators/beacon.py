@@ -14,14 +14,13 @@ from pathlib import Path
 from typing import BinaryIO
 
 from sharedlink.capture.packets import UdpBuilder
-from sharedlink.capture.pcapio import atomic_open, make_writer
+from sharedlink.capture.pcapio import NS, atomic_open, make_writer
 from sharedlink.generators.scenario import drive_tuples
 from sharedlink.protocols.codec import _HEX2, address_node
 from sharedlink.protocols.state import BEACON_VARIABLES
 
 #: 2026-01-01T12:00:00Z: a fixed start so the same options give the same bytes
 DEFAULT_START_NS = 1_767_268_800 * 1_000_000_000
-NS = 1_000_000_000
 
 
 @dataclass

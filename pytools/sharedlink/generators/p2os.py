@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 from sharedlink.capture.packets import write_session
-from sharedlink.capture.pcapio import atomic_open
+from sharedlink.capture.pcapio import NS, atomic_open
 from sharedlink.generators.serial import write_line_session
 from sharedlink.protocols.p2os import (
     MOBILESIM_PORT,
@@ -36,7 +36,6 @@ from sharedlink.protocols.p2os import (
 )
 
 DEFAULT_START_NS = 1_767_268_800 * 1_000_000_000
-NS = 1_000_000_000
 MS = 1_000_000
 
 SIP_CYCLE_NS = 100 * MS

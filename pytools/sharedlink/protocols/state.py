@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from sharedlink.protocols.codec import (
+    TYPE_NAMES,
     Frame,
     declared_list,
     frame_kind,
@@ -28,6 +29,32 @@ BEACON_VARIABLES: tuple[tuple[str, int], ...] = (
     ("AutoGpsHead", 2),
     ("AutoGpsVel", 2),
 )
+
+_TYPE_HELP = ", ".join(f"{code} {name}" for code, name in TYPE_NAMES.items())
+
+
+def parse_variables(text: str) -> list[tuple[str, int | None]]:
+    """A variable list as ``--variables`` gives it, ``"Lat:2,Lon:2,Name:4,Count"`` ->
+    ``[("Lat", 2), ("Lon", 2), ("Name", 4), ("Count", None)]``: the a-priori outbound list
+    positional frames are named by (type codes as in ``T`` fields: 0 long, 2 double, 4 string;
+    none given, or an empty one, = guessed from the text). Empty items are skipped
+    (``"A:2,B,"`` is ``A`` and ``B``). Raises ValueError on a bad name or type, or no name at all.
+    The one parser of such lists: every command and library function uses it."""
+    out: list[tuple[str, int | None]] = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        name, _, type_text = part.partition(":")
+        if not name or any(c in name for c in "|[]"):
+            raise ValueError(f"bad variable name {name!r}")
+        try:
+            out.append((name, int(type_text) if type_text else None))
+        except ValueError:
+            raise ValueError(f"bad type {type_text!r} for {name} ({_TYPE_HELP})") from None
+    if not out:
+        raise ValueError("empty variable list")
+    return out
 
 
 @dataclass
