@@ -5,79 +5,90 @@
 --   Wireshark: Statistics > SharedLink
 --
 -- Needs dissector/sharedlink.lua loaded first (in a plugin folder files load in name order, so
--- sharedlink.lua comes before sharedlink_stats.lua).
+-- sharedlink.lua comes before sharedlink_stats.lua). Wireshark 4.0 (Lua 5.2) and later (Lua 5.4).
 --
--- Counts the same way as `sharedlink stats` (pytools/sharedlink/stats.py):
---  * frames per kind (sharedlink.kind) and per node pair "B>A" (from B to A);
---  * checksum failures: sharedlink.checksum.status == 0 (Bad);
+-- Costs nothing until asked for: loading this file registers only the `-z` argument and the menu
+-- item. The listener exists only once `-z sharedlink,stats` or the menu asks for it. No Field
+-- extractor (Field.new) is created at all: Wireshark 4.0 answers every Field.new with a hidden
+-- tap whose filter names the field, which makes every packet of every pass build a tree (a
+-- summary pass 4x slower), asked for or not.
+--
+-- Reads fields, not a full tree: the listener's filter names every field counted below, which
+-- makes Wireshark build just those items (and the sharedlink/sharedlink.var items they sit in)
+-- in its fake tree; the listener does not ask for all fields. all_field_infos() then yields that
+-- short list in tree order: a "sharedlink" item starts each frame, a "sharedlink.var" item each
+-- variable (a packet can hold several SharedLink frames).
+--
+-- Counts the same way as `sharedlink stats` (pytools/sharedlink/analysis/stats.py), and the
+-- way Expert Information counts:
+--  * frames per kind (sharedlink.kind) and per node pair, written as the packet list writes it:
+--    "B→A" (from B to A);
+--  * checksum failures: frames with sharedlink.checksum.status == 0 (Bad), one per
+--    sharedlink.checksum.bad expert;
+--  * sync late: one per sharedlink.sync.late expert, whatever the frame's checksum;
 --  * per node pair and variable: the number of values carried in frames with a good (or no)
 --    checksum -- a value carried forward (sharedlink.var.carried) is not counted -- and the last
---    such value;
---  * sync late: frames with the sharedlink.sync.late expert.
--- A packet can hold several SharedLink frames: the tap walks the packet's fields in tree order
--- (all_field_infos), a "sharedlink" protocol item starting each frame and a "sharedlink.var"
--- item each variable.
+--    such value.
 
 -- luacheck: read globals report_failure all_field_infos register_stat_cmd_arg gui_enabled TextWindow
--- luacheck: read globals retap_packets register_menu MENU_STAT_GENERIC MENU_STAT_UNSORTED
+-- luacheck: read globals retap_packets register_menu MENU_STAT_UNSORTED set_plugin_info Dissector Listener
 
-local ok, fields = pcall(function()
-    return {
-        kind = Field.new("sharedlink.kind"),
-        src = Field.new("sharedlink.src"),
-        dst = Field.new("sharedlink.dst"),
-        var_name = Field.new("sharedlink.var.name"),
-        var_value = Field.new("sharedlink.var.value"),
-        var_carried = Field.new("sharedlink.var.carried"),
-        checksum_status = Field.new("sharedlink.checksum.status"),
-    }
-end)
-if not ok then
+if set_plugin_info then
+    set_plugin_info({
+        version = "1.1.0",
+        description = "SharedLink statistics (tshark -z sharedlink,stats; Statistics > SharedLink)",
+        author = "SharedLink analyzer project",
+        repository = "dissector/sharedlink_stats.lua",
+    })
+end
+
+-- the fields the listener's filter primes, in no particular order; "sharedlink" and
+-- "sharedlink.var" are the frame and variable items the walk groups by
+local COUNTED = {
+    "sharedlink", "sharedlink.kind", "sharedlink.src", "sharedlink.dst", "sharedlink.var",
+    "sharedlink.var.name", "sharedlink.var.value", "sharedlink.var.carried",
+    "sharedlink.checksum.status", "sharedlink.sync.late",
+}
+local ARROW = "\226\134\146" -- U+2192, as in the packet list's "B→A"
+local TAP_FILTER = table.concat(COUNTED, " || ")
+
+local s_format, s_rep, t_concat, t_sort = string.format, string.rep, table.concat, table.sort
+
+-- (Dissector.get answers nil for an unknown name on 4.0 and raises an error on some releases)
+local have_dissector, sharedlink_dissector = pcall(Dissector.get, "sharedlink")
+if not (have_dissector and sharedlink_dissector) then
     report_failure("sharedlink_stats.lua: the SharedLink dissector (sharedlink.lua) is not loaded, so there are "
         .. "no sharedlink.* fields to count. Load sharedlink.lua first (tshark -X lua_script:sharedlink.lua "
         .. "-X lua_script:sharedlink_stats.lua), or put both files in the same plugin folder.")
     return
 end
 
-local f_kind = fields.kind
-local s_format, t_concat, t_sort = string.format, table.concat, table.sort
+-- ---------------------------------------------------------------------------------------------
+-- counting
 
 local function new_stats()
     return {
         frames = 0, bad = 0, late = 0,
         kinds = {},      -- kind -> frames
-        pairs = {},      -- "B>A" -> { frames, bad, late, kinds = {} }
-        vars = {},       -- "B>A\tname" -> { pair, name, count, last }
+        pairs = {},      -- "B→A" -> { frames, bad, late, kinds = {} }
+        vars = {},       -- "B→A\tname" -> { pair, name, count, last }
     }
 end
 
 local function inc(t, k) t[k] = (t[k] or 0) + 1 end
 
--- Fold one frame (collected from the field walk) into the statistics.
-local function add_frame(st, fr)
-    if not fr then return end
-    local kind = fr.kind or "unknown"
-    local pair = (fr.src or "?") .. ">" .. (fr.dst or "?")
-    st.frames = st.frames + 1
-    inc(st.kinds, kind)
+local function pair_stats(st, pair)
     local p = st.pairs[pair]
     if not p then
         p = { frames = 0, bad = 0, late = 0, kinds = {} }
         st.pairs[pair] = p
     end
-    p.frames = p.frames + 1
-    inc(p.kinds, kind)
-    if fr.bad then
-        st.bad = st.bad + 1
-        p.bad = p.bad + 1
-        return
-    end
-    if fr.late then
-        st.late = st.late + 1
-        p.late = p.late + 1
-    end
-    for i = 1, #fr.vars do
-        local v = fr.vars[i]
+    return p
+end
+
+local function add_values(st, pair, vars)
+    for i = 1, #vars do
+        local v = vars[i]
         if v.name and v.value ~= nil and not v.carried then
             local key = pair .. "\t" .. v.name
             local vs = st.vars[key]
@@ -91,9 +102,28 @@ local function add_frame(st, fr)
     end
 end
 
--- Walk the packet's fields; one table per SharedLink frame.
+-- Fold one frame (collected by the field walk) into the statistics.
+local function add_frame(st, fr)
+    if not fr then return end
+    local kind = fr.kind or "unknown"
+    local pair = (fr.src or "?") .. ARROW .. (fr.dst or "?")
+    local p = pair_stats(st, pair)
+    st.frames = st.frames + 1
+    p.frames = p.frames + 1
+    inc(st.kinds, kind)
+    inc(p.kinds, kind)
+    st.late = st.late + fr.late
+    p.late = p.late + fr.late
+    if fr.bad then
+        st.bad = st.bad + 1
+        p.bad = p.bad + 1
+    else
+        add_values(st, pair, fr.vars)
+    end
+end
+
+-- Walk the packet's primed fields; one table per SharedLink frame.
 local function collect(st)
-    if not f_kind() then return end
     local fr, var = nil, nil
     local infos = { all_field_infos() }
     for i = 1, #infos do
@@ -101,9 +131,9 @@ local function collect(st)
         local name = fi.name
         if name == "sharedlink" then
             add_frame(st, fr)
-            fr = { vars = {} }
+            fr = { vars = {}, late = 0 }
             var = nil
-        elseif fr and name:sub(1, 11) == "sharedlink." then
+        elseif fr then
             if name == "sharedlink.var" then
                 var = {}
                 fr.vars[#fr.vars + 1] = var
@@ -122,12 +152,16 @@ local function collect(st)
             elseif name == "sharedlink.checksum.status" then
                 fr.bad = (fi.value == 0)
             elseif name == "sharedlink.sync.late" then
-                fr.late = true
+                fr.late = fr.late + 1
             end
         end
     end
     add_frame(st, fr)
 end
+
+-- ---------------------------------------------------------------------------------------------
+-- the report: aligned plain-text tables (columns separated by at least two spaces; the last
+-- column of the variable table is the value, which may contain spaces)
 
 local function sorted_keys(t)
     local keys = {}
@@ -136,17 +170,33 @@ local function sorted_keys(t)
     return keys
 end
 
-local function kinds_text(kinds)
-    local parts = {}
-    for _, k in ipairs(sorted_keys(kinds)) do parts[#parts + 1] = k .. "=" .. kinds[k] end
-    return t_concat(parts, " ")
+-- width on screen of a UTF-8 string: its bytes less the continuation bytes
+local function width(s)
+    local _, cont = s:gsub("[\128-\191]", "")
+    return #s - cont
 end
 
--- The report: plain text, one table per section (machine-readable: columns separated by two or
--- more spaces; the last column of the variable table is the value, which may contain spaces).
+-- rows of cells -> lines; align[c] is "l" or "r"; the last column is not padded
+local function table_lines(out, rows, align)
+    local w = {}
+    for _, row in ipairs(rows) do
+        for c, cell in ipairs(row) do w[c] = math.max(w[c] or 0, width(cell)) end
+    end
+    for _, row in ipairs(rows) do
+        local cells = {}
+        for c, cell in ipairs(row) do
+            local pad = s_rep(" ", w[c] - width(cell))
+            if c == #row and align[c] ~= "r" then pad = "" end
+            cells[c] = (align[c] == "r") and (pad .. cell) or (cell .. pad)
+        end
+        out[#out + 1] = "  " .. t_concat(cells, "  ")
+    end
+end
+
 local function render(st, filter)
     local out = {}
     local function line(...) out[#out + 1] = s_format(...) end
+    local kinds = sorted_keys(st.kinds)
     line("===================================================================")
     line("SharedLink statistics%s", (filter and filter ~= "") and (" (filter: " .. filter .. ")") or "")
     line("Frames: %d", st.frames)
@@ -154,59 +204,78 @@ local function render(st, filter)
     line("Sync late: %d", st.late)
     line("")
     line("Frames per kind")
-    line("  %-14s  %8s", "Kind", "Frames")
-    for _, k in ipairs(sorted_keys(st.kinds)) do line("  %-14s  %8d", k, st.kinds[k]) end
+    local rows = { { "Kind", "Frames" } }
+    for _, k in ipairs(kinds) do rows[#rows + 1] = { k, tostring(st.kinds[k]) } end
+    table_lines(out, rows, { "l", "r" })
     line("")
     line("Frames per node pair")
-    line("  %-6s  %8s  %12s  %9s  %s", "Pair", "Frames", "Bad checksum", "Sync late", "Kinds")
-    for _, k in ipairs(sorted_keys(st.pairs)) do
-        local p = st.pairs[k]
-        line("  %-6s  %8d  %12d  %9d  %s", k, p.frames, p.bad, p.late, kinds_text(p.kinds))
+    rows = { { "Pair", "Frames", "Bad checksum", "Sync late" } }
+    local align = { "l", "r", "r", "r" }
+    for _, k in ipairs(kinds) do
+        rows[1][#rows[1] + 1] = k
+        align[#align + 1] = "r"
     end
+    for _, key in ipairs(sorted_keys(st.pairs)) do
+        local p = st.pairs[key]
+        local row = { key, tostring(p.frames), tostring(p.bad), tostring(p.late) }
+        for _, k in ipairs(kinds) do row[#row + 1] = tostring(p.kinds[k] or 0) end
+        rows[#rows + 1] = row
+    end
+    table_lines(out, rows, align)
     line("")
     line("Variables")
-    line("  %-6s  %-20s  %8s  %s", "Pair", "Variable", "Count", "Last value")
+    rows = { { "Pair", "Variable", "Count", "Last value" } }
     for _, k in ipairs(sorted_keys(st.vars)) do
         local v = st.vars[k]
-        line("  %-6s  %-20s  %8d  %s", v.pair, v.name, v.count, v.last or "")
+        rows[#rows + 1] = { v.pair, v.name, tostring(v.count), v.last or "" }
     end
+    table_lines(out, rows, { "l", "l", "r", "l" })
     line("===================================================================")
     return t_concat(out, "\n")
 end
 
-local function display_filter(arg)
+-- ---------------------------------------------------------------------------------------------
+-- the listener, made only on demand
+
+-- "sharedlink,stats[,FILTER]" -> the filter shown, the listener's filter
+local function tap_filter(arg)
     local filter = ""
     if type(arg) == "string" then
         filter = arg:gsub("^sharedlink,stats,?", "")
     end
-    if filter ~= "" then return filter, "sharedlink && (" .. filter .. ")" end
-    return nil, "sharedlink"
+    if filter ~= "" then return filter, "(" .. filter .. ") && (" .. TAP_FILTER .. ")" end
+    return nil, TAP_FILTER
 end
 
--- tshark -z sharedlink,stats[,FILTER]: print the table at the end
-register_stat_cmd_arg("sharedlink,stats", function(arg)
+-- A listener feeding a fresh statistics table; draw(st) shows it. Not asking for all fields
+-- (third argument false) is what keeps the tree to the primed fields.
+local function new_listener(dfilter, draw, reset)
     local st = new_stats()
-    local filter, dfilter = display_filter(arg)
-    local tap = Listener.new("frame", dfilter, true)
+    local tap = Listener.new("frame", dfilter, false)
     function tap.packet() collect(st) end
-    function tap.draw() print(render(st, filter)) end
-    function tap.reset() st = new_stats() end
+    function tap.draw() draw(st) end
+    function tap.reset()
+        st = new_stats()
+        if reset then reset() end
+    end
+    return tap
+end
+
+-- tshark -z sharedlink,stats[,FILTER]: print the tables at the end
+register_stat_cmd_arg("sharedlink,stats", function(arg)
+    local filter, dfilter = tap_filter(arg)
+    new_listener(dfilter, function(st) print(render(st, filter)) end)
 end)
 
--- Wireshark: Statistics > SharedLink, in a text window refreshed on retap
+-- Wireshark: Statistics > SharedLink, a text window refreshed on retap. MENU_STAT_UNSORTED: the
+-- Qt GUI of 4.0 does not show the MENU_STAT_GENERIC group at all; the unsorted group is shown
+-- in the Statistics menu by 4.0, 4.4 and 4.6.
 if gui_enabled() then
-    local function menu()
+    local function open_window()
         local tw = TextWindow.new("SharedLink statistics")
-        local st = new_stats()
-        local tap = Listener.new("frame", "sharedlink", true)
+        local tap = new_listener(TAP_FILTER, function(st) tw:set(render(st)) end, function() tw:clear() end)
         tw:set_atclose(function() tap:remove() end)
-        function tap.packet() collect(st) end
-        function tap.draw() tw:set(render(st)) end
-        function tap.reset()
-            st = new_stats()
-            tw:clear()
-        end
         retap_packets()
     end
-    register_menu("SharedLink", menu, MENU_STAT_GENERIC or MENU_STAT_UNSORTED)
+    register_menu("SharedLink", open_window, MENU_STAT_UNSORTED)
 end
