@@ -17,8 +17,9 @@
 --   sharedlink.ports              UDP/TCP port range always decoded (default 7013)
 --   sharedlink.heuristic          try the heuristic on other ports (default TRUE)
 --   sharedlink.validate_checksum  compute and check the checksum (default TRUE)
---   sharedlink.variables          a-priori list naming positional values
---                                 (default AutoGpsLat,AutoGpsLon,AutoGpsHead,AutoGpsVel)
+--   sharedlink.variables          a-priori list naming positional values, NAME or NAME:TYPE
+--                                 (0 long, 2 double, 4 string; default
+--                                 AutoGpsLat,AutoGpsLon,AutoGpsHead,AutoGpsVel, untyped)
 --   sharedlink.sync_interval      expected full-frame interval in ms (default 1000)
 -- Heuristic dissectors (Enabled Protocols / --disable-heuristic): sharedlink_udp,
 -- sharedlink_tcp.
@@ -27,7 +28,8 @@
 -- sharedlink.inbound_ordinal (L), sharedlink.command / .command.arg (E and its D
 -- arguments), sharedlink.mode (M), sharedlink.ping (P), sharedlink.pong (G),
 -- sharedlink.field.letter / .field.text (unknown fields), sharedlink.noise (bytes
--- between frames), sharedlink.checksum.text (a checksum that is not a hex byte).
+-- between frames), sharedlink.checksum.text (a checksum that is not a hex byte),
+-- sharedlink.sync.is_late (generated boolean: the sync.late condition, for taps/filters).
 -- Expert infos beyond the core set: sharedlink.checksum.missing (warning),
 -- sharedlink.var.badvalue (warning: value/type/ordinal not matching its type),
 -- sharedlink.crlf.missing (note), sharedlink.noise.skipped (note),
@@ -44,33 +46,42 @@
 -- per-direction history of changes, so that long compressed captures add few Lua
 -- objects (Wireshark runs full Lua garbage collections during a capture).
 --
--- Decoding choices (where the bulletins are silent):
+-- Decoding choices (where the bulletins are silent); the full set of rules, shared with
+-- the Python tools, is "Decoding rules" in docs/fields-sharedlink.md:
 --  * UDP/TCP ports from the "ports" preference (default 7013) are dissected
 --    unconditionally; elsewhere the heuristic dissectors "sharedlink_udp" and
 --    "sharedlink_tcp" claim a payload only if it starts with "[:" + two letters A-P +
---    "|" or "]", is printable ASCII up to the first "]" and that "]" is followed by
+--    "|" or "]", is printable ASCII (or CR, LF, TAB) up to the first "]" and that "]" is followed by
 --    CR LF, LF, "[" or the end of the payload (TCP also accepts a frame that is not
 --    finished yet).  A claimed conversation skips the heuristic afterwards.
---  * A frame ends at the first "]" after "[:" (BUL-049: a field ends with "|" or "]").
---    A "[:" before that "]" means the first frame is unterminated (malformed).
+--  * A frame ends at the first "]" after "[:" (BUL-049: a field ends with "|" or "]");
+--    CR/LF/TAB before it belong to the value.  A "[:" before that "]" means the first
+--    frame is unterminated (malformed).  Bytes between frames are noise.
 --  * A frame with no checksum field: status Unverified, expert
 --    sharedlink.checksum.missing (warning), not malformed.
 --  * A checksum that is not exactly two upper-case hex digits (lower case, one digit)
 --    but has the right value is Good with a sharedlink.checksum.format note.
---  * sync.late: for full/delta data frames, a warning when the last full frame in the
---    same direction (or the first frame seen, at the start of a capture) is older than
---    the sync interval preference plus a fixed slack of 0.5 s.
+--  * A frame with a bad checksum changes no state (values, lists, names, sync clock);
+--    its kind and carried values are judged against the state before it.  A frame
+--    with no checksum field counts as good.
+--  * sync.late: for full/delta data frames, a warning when the last good full frame in
+--    the same conversation (or the first frame seen, at the start of a capture) is
+--    older than the sync interval preference plus a fixed slack of 0.5 s.
 --  * Direction state (carried values, learnt lists, sync) is keyed on the network
---    addresses + ports + the SharedLink src/dst letters.  A list learnt from a
---    declaration is also remembered for the letter pair alone, used when the exact
---    endpoints have none (broadcast replies).  Queries and replies are matched on
---    the letters, the variable name and the (unordered) port pair.
---  * A data frame is "full" when N is 0 (or absent), no D is empty, every variable of
---    the positional list has its D, and every named variable seen before in that
---    direction is present; otherwise it is a "delta".
---  * Extra frame kinds beyond full/delta/query/reply/declaration/command/ping/pong:
---    "malformed" (unterminated or bad header: no state update) and "empty" (no
---    fields besides the checksum).
+--    addresses + ports + the capture direction (serial) + the SharedLink src/dst
+--    letters.  A list learnt from a declaration is also remembered for the letter pair
+--    alone, used when the exact endpoints have none (broadcast replies).  Queries,
+--    declarations and replies are matched on the letters, the variable name and the
+--    (unordered) port pair; a frame of R/D pairs answers a declaration too.
+--  * A positional frame is "full" when N is 0 and every slot that held a value before
+--    in the conversation has a non-empty D (never-filled slots may stay empty); a
+--    named frame is "full" when N is 0 (or absent) and every name sent before in a good
+--    frame is present; otherwise "delta".  A named triplet's empty D is an empty value.
+--  * Positional values are typed by the declaration (T before Q) or by NAME:TYPE in
+--    the variables preference; a value not matching its type gets var.badvalue.
+--  * Frame kinds: full, delta, query (also L? / N?), reply, declaration (T/Q pairs
+--    after a numeric N/L, no D), command, ping, pong, other (well formed, none of
+--    these), malformed (unterminated or bad header: no state update).
 
 local sl = Proto("sharedlink", "SharedLink Protocol")
 
@@ -123,6 +134,8 @@ local hf = {
     field_letter = ProtoField.string("sharedlink.field.letter", "Unknown field letter"),
     field_text = ProtoField.string("sharedlink.field.text", "Unknown field text"),
     noise = ProtoField.bytes("sharedlink.noise", "Noise"),
+    -- the sync.late condition as a field (the expert of the same name cannot be read by a tap)
+    sync_is_late = ProtoField.bool("sharedlink.sync.is_late", "Sync late"),
 }
 sl.fields = {
     hf.dst, hf.src, hf.dst_node, hf.src_node, hf.kind, hf.ordinal, hf.inbound_ordinal, hf.ftype,
@@ -130,6 +143,7 @@ sl.fields = {
     hf.var_long, hf.var_string, hf.var_carried, hf.var_carried_from, hf.checksum, hf.checksum_text,
     hf.checksum_calc, hf.checksum_status, hf.response_in, hf.response_to, hf.response_time,
     hf.command, hf.command_arg, hf.mode, hf.ping, hf.pong, hf.field_letter, hf.field_text, hf.noise,
+    hf.sync_is_late,
 }
 
 ------------------------------------------------------------------------------
@@ -192,12 +206,20 @@ local pref_validate = true
 local pref_heuristic = true
 local pref_sync = 1.0 + SYNC_SLACK
 
+-- "Name:T,Name,..." -> list of names with list.t[i] = type number (0 long, 2 double,
+-- 4 string) for the typed ones (twin: pytools sharedlink --variables parser)
 local function parse_list(str)
-    local list = {}
+    local list, types = {}, {}
+    list.t = types
     if type(str) ~= "string" then return list end
     for item in str:gmatch("[^,]+") do
         local name = item:match("^%s*(.-)%s*$")
-        if name ~= "" then list[#list + 1] = name end
+        local n, t = name:match("^(.-)%s*:%s*(%d+)$")
+        if n and n ~= "" then name = n end
+        if name ~= "" then
+            list[#list + 1] = name
+            if n and n ~= "" then types[#list] = tonumber(t) end
+        end
     end
     return list
 end
@@ -298,8 +320,13 @@ end
 ------------------------------------------------------------------------------
 -- Direction state
 ------------------------------------------------------------------------------
+-- vals/from: name -> last good value / its frame; names: named variables in the order first
+-- sent in a good frame, npos: name -> its index there, nfirst: name -> that frame;
+-- seen: name -> stamp of the last frame that had it; maxslot: highest positional slot that
+-- ever held a value; first/lastfull: times of the first frame and of the last good full one.
 local function new_dir()
-    return { vals = {}, from = {}, names = {}, seen = {}, first = nil, lastfull = nil, list = nil }
+    return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, seen = {}, maxslot = -1,
+        first = nil, lastfull = nil, list = nil }
 end
 
 -- Direction state for (src address, dst address, src port, dst port, letters).
@@ -309,7 +336,8 @@ local function get_dir(pinfo, num, dstb, srcb)
     if dir_cache_num == num then
         byaddr = dir_cache_key
     else
-        local akey = tostring(pinfo.src) .. ">" .. tostring(pinfo.dst)
+        -- the capture direction keeps the two directions of a serial line apart
+        local akey = tostring(pinfo.src) .. ">" .. tostring(pinfo.dst) .. "/" .. pinfo.p2p_dir
         byaddr = dirs[akey]
         if not byaddr then
             byaddr = {}
@@ -330,7 +358,9 @@ end
 
 -- The same for the reverse direction (dst -> src) of the current packet.
 local function get_rev_dir(pinfo, dstb, srcb)
-    local akey = tostring(pinfo.dst) .. ">" .. tostring(pinfo.src)
+    local pd = pinfo.p2p_dir
+    if pd == 0 or pd == 1 then pd = 1 - pd end
+    local akey = tostring(pinfo.dst) .. ">" .. tostring(pinfo.src) .. "/" .. pd
     local byaddr = dirs[akey]
     if not byaddr then
         byaddr = {}
@@ -363,15 +393,15 @@ local function from_text(fr)
     return last_from_str
 end
 
--- Line: num|sk|ne|value|frame|...(ne/2 pairs)|name|value|frame|...(nm/3 triples)
-local function carried_store(num, sk, ne, nm)
+-- Line: num|sk|kind|ne|value|frame|...(ne/2 pairs)|name|value|frame|...(nm/3 triples)
+local function carried_store(num, sk, ne, nm, kind)
     local sks = sk_str[sk]
     if not sks then
         sks = tostring(sk)
         if sk_str_n < 4096 then sk_str[sk] = sks; sk_str_n = sk_str_n + 1 end
     end
-    CPARTS[1], CPARTS[2], CPARTS[3] = num, sks, ne
-    local n = 3
+    CPARTS[1], CPARTS[2], CPARTS[3], CPARTS[4] = num, sks, kind, ne
+    local n = 4
     for k = 1, ne, 2 do
         local v = CARRY[k] or ""
         if s_find(v, "\n", 1, true) then return false end
@@ -407,13 +437,14 @@ local function carried_parse(line)
         p = q + 1
     end
     rec.sk = tonumber(parts[2])
-    local ne = tonumber(parts[3]) or 0
+    rec.kind = parts[3]
+    local ne = tonumber(parts[4]) or 0
     for k = 1, ne, 2 do
-        local v = parts[k + 3]
+        local v = parts[k + 4]
         rec[k] = v ~= "" and v or false
-        rec[k + 1] = tonumber(parts[k + 4]) or false
+        rec[k + 1] = tonumber(parts[k + 5]) or false
     end
-    local i = ne + 4
+    local i = ne + 5
     if i + 2 <= n then
         local miss = {}
         while i + 2 <= n do
@@ -597,11 +628,13 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     local idx = 0
     local cpos, ctext = nil, nil  -- checksum field start and text
     local cmd_start = nil         -- first E/M field
+    local ord_text = false        -- N or L with a non-numeric ordinal (N?, L?: a list request)
 
     -- Fast path (no tree only): a frame with the same layout as the last plain named
     -- frame between these two nodes is matched by one anchored pattern.
     local shape_key = nil
     local fast_sh = nil
+    local fast_hit = false
     if p == 6 and dnode and snode and not malformed_msg then
         shape_key = dstb * 256 + srcb
         local sh = (not rec_fields) and shapes[shape_key]
@@ -617,10 +650,10 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                 for k = 1, n do
                     VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], idx, false
                     idx = idx + 1
-                    if VV[k] == "" then n_empty_d = n_empty_d + 1 end
                 end
                 nv, nq, nd = n, n, n
                 p = nil   -- parsed
+                fast_hit = true
             else
                 fast_sh = nil
             end
@@ -641,6 +674,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                 end
                 nv, nd, n_pos = n, n, n
                 p = nil
+                fast_hit = true
             end
         end
     end
@@ -657,7 +691,6 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
             VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = t1, t2, t3, idx, false
             idx = idx + 1
             nq, nd = nq + 1, nd + 1
-            if t3 == "" then n_empty_d = n_empty_d + 1 end
             if rec_fields then
                 local q1 = p + #t1 + 2
                 local d1 = q1 + #t2 + 2
@@ -686,8 +719,10 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                         nv = nv + 1
                         VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, t1, idx, pend_r
                         VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, nf
-                        if not pend_q then n_pos = n_pos + 1 end
-                        if t1 == "" then n_empty_d = n_empty_d + 1 end
+                        if not pend_q then
+                            n_pos = n_pos + 1
+                            if t1 == "" then n_empty_d = n_empty_d + 1 end
+                        end
                         idx = idx + 1
                         pend_t, pend_q, pend_r, pend_tf, pend_qf = false, false, false, 0, 0
                     end
@@ -712,9 +747,15 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                     end
                     pend_t, pend_tf = t1, nf
                 elseif c == L_N then
-                    if not n_ord then n_ord = to_ordinal(t1); idx = n_ord; n_text = t1 end
+                    if not n_ord then
+                        n_ord = to_ordinal(t1); idx = n_ord; n_text = t1
+                        if not tonumber(t1) then ord_text = true end
+                    end
                 elseif c == L_L then
-                    if not l_ord then l_ord = to_ordinal(t1); idx = l_ord end
+                    if not l_ord then
+                        l_ord = to_ordinal(t1); idx = l_ord
+                        if not tonumber(t1) then ord_text = true end
+                    end
                 elseif c == L_C and fe == bodyend then
                     cpos, ctext = p, t1
                 elseif c == L_E or c == L_M then
@@ -772,6 +813,25 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
         end
     end
 
+    -- Checksum verdict, before the state: a frame with a bad checksum changes no state.
+    if fast_hit then
+        -- the fast patterns end in |C..] with no | after it
+        local q = bodyend
+        while s_byte(f, q) ~= B_PIPE do q = q - 1 end
+        cpos, ctext = q + 1, s_sub(f, q + 2, bodyend)
+    end
+    local cs_val, cs_calc, cs_status = nil, nil, nil  -- status 1 good, 0 bad, 2 unverified; nil: no C field
+    if cpos then
+        if #ctext >= 1 and #ctext <= 8 and not s_find(ctext, "[^0-9A-Fa-f]") then cs_val = tonumber(ctext, 16) end
+        if pref_validate then
+            cs_calc = byte_sum(f, 2, cpos)
+            cs_status = (cs_val == cs_calc) and 1 or 0
+        else
+            cs_status = 2
+        end
+    end
+    local good = cs_status ~= 0
+
     local kind
     local is_data = false
     if malformed_msg then kind = "malformed"
@@ -779,10 +839,10 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     elseif has_p then kind = "ping"
     elseif has_g then kind = "pong"
     elseif has_r then kind = "reply"
-    elseif nd == 0 and (l_ord or (n_ord and nq > 0)) then kind = "declaration"
-    elseif nd == 0 and nq > 0 then kind = "query"
+    elseif nd == 0 and nq > 0 and (l_ord or n_ord) and not ord_text then kind = "declaration"
+    elseif nd == 0 and (nq > 0 or ord_text) then kind = "query"
     elseif nd > 0 or n_ord then is_data = true
-    else kind = "empty" end
+    else kind = "other" end
 
     local letters = src .. dst
     local rec = nil
@@ -791,11 +851,15 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     local ne = 0       -- 2 x number of empty D fields with carried values
     local nm = 0       -- 3 x number of named variables missing from the frame
     local addrs_ok = dnode and snode
+    local d = nil      -- direction state (data frames)
+    -- without state: a data frame with N0 (or none), no empty positional D and no named
+    -- variable left out is full; the state-based verdict is stored when it differs
+    local full_local = nd > 0 and (n_ord == nil or n_ord == 0) and n_empty_d == 0
 
     -- State: the first pass computes and stores, later passes read the record
     if not visited then
         if (is_data or kind == "malformed") and addrs_ok then
-            local d = get_dir(pinfo, num, dstb, srcb)
+            d = get_dir(pinfo, num, dstb, srcb)
             list = d.list or pair_lists[letters] or pref_list
             -- remember when the list in use changes (read back on later passes)
             if list ~= (d.used_list or pref_list) then
@@ -806,7 +870,8 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                 h[#h + 1] = list
                 d.used_list = list
             end
-            if is_data and fast_sh and d.names_is == fast_sh.N and n_empty_d == 0 then
+            local full = false
+            if is_data and good and fast_sh and d.names_is == fast_sh.N then
                 -- same layout as the known variable set: nothing can be missing
                 local vals, from = d.vals, d.from
                 for v = 1, nv do
@@ -814,36 +879,59 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                     vals[name] = VV[v]
                     from[name] = num
                 end
+                full = full_local
             elseif is_data then
                 local vals, from, seen = d.vals, d.from, d.seen
+                local names = d.names
                 stamp_ctr = stamp_ctr + 1
                 local stamp = stamp_ctr
+                local required_missing = false   -- a slot that held a value is empty here
+                local maxslot = -1
                 ne = 0
                 for v = 1, nv do
                     local val = VV[v]
                     if val then
                         local name = VN[v]
-                        if not name then name = list[VI[v] + 1] or ("#" .. VI[v]) end
-                        if val == "" then
-                            CARRY[ne + 1] = vals[name] or false
-                            CARRY[ne + 2] = from[name] or false
-                            ne = ne + 2
-                        else
-                            vals[name] = val
-                            from[name] = num
-                        end
-                        if VN[v] then
-                            if not seen[name] then
-                                d.names[#d.names + 1] = name
-                                d.names_is = nil
+                        if name then
+                            if good then
+                                vals[name] = val
+                                from[name] = num
+                                if not seen[name] then
+                                    names[#names + 1] = name
+                                    d.npos[name] = #names - 1
+                                    d.nfirst[name] = num
+                                    d.names_is = nil
+                                end
+                                seen[name] = stamp
+                            elseif seen[name] then
+                                seen[name] = stamp
                             end
-                            seen[name] = stamp
+                        else
+                            local slot = VI[v]
+                            name = list[slot + 1] or ("#" .. slot)
+                            if slot > maxslot then maxslot = slot end
+                            if val == "" then
+                                local cv = vals[name]
+                                if cv then required_missing = true end
+                                CARRY[ne + 1] = cv or false
+                                CARRY[ne + 2] = from[name] or false
+                                ne = ne + 2
+                            elseif good then
+                                vals[name] = val
+                                from[name] = num
+                                if slot > d.maxslot then d.maxslot = slot end
+                            end
                         end
                     end
                 end
+                -- positional: required slots past the frame's last D
+                if n_pos > 0 then
+                    for slot = maxslot + 1, d.maxslot do
+                        if vals[list[slot + 1] or ("#" .. slot)] then required_missing = true; break end
+                    end
+                end
                 -- named: known variables missing from this frame
-                if n_pos == 0 and #d.names > 0 then
-                    local names = d.names
+                if n_pos == 0 and #names > 0 then
                     for k = 1, #names do
                         local name = names[k]
                         if seen[name] ~= stamp then
@@ -853,16 +941,16 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                         end
                     end
                 end
-                if fast_sh and miss_n == 0 and #d.names == fast_sh.n then d.names_is = fast_sh.N end
+                if fast_sh and good and miss_n == 0 and #names == fast_sh.n then d.names_is = fast_sh.N end
+                full = nd > 0 and (n_ord == nil or n_ord == 0) and not required_missing and miss_n == 0
+                if n_pos == 0 then full_local = full_local and miss_n == 0 end
             end
             if is_data then
-                local full = nd > 0 and (n_ord == nil or n_ord == 0) and n_empty_d == 0 and miss_n == 0 and
-                    (n_pos == 0 or n_pos >= #list)
                 local now = pinfo.rel_ts
                 local first = d.first
                 if not first then first = now; d.first = now end
                 if full then
-                    d.lastfull = now
+                    if good then d.lastfull = now end
                 else
                     local age = now - (d.lastfull or first)
                     if age > pref_sync then
@@ -870,10 +958,11 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                         rec.late = age
                     end
                 end
+                local kch = full and "f" or "d"
                 -- carried values of empty D fields: a packed text record unless the
                 -- frame has a table record anyway
                 if ne > 0 or nm > 0 then
-                    if rec or not carried_store(num, sk, ne, nm) then
+                    if rec or not carried_store(num, sk, ne, nm, kch) then
                         rec = rec or get_rec(num, sk, true)
                         for k = 1, ne do rec[k] = CARRY[k] end
                         if nm > 0 then
@@ -882,41 +971,52 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                             rec.miss = miss
                         end
                     end
+                elseif full ~= full_local then
+                    rec = rec or get_rec(num, sk, true)
                 end
+                if rec then rec.kind = kch end
+                kind = full and "full" or "delta"
             end
-        elseif kind == "declaration" and addrs_ok then
-            local d, rl
+        elseif kind == "declaration" and addrs_ok and good then
+            local dd, rl
             if l_ord then
                 -- the sender's inbound list = the list used from dst to src
-                d = get_rev_dir(pinfo, dstb, srcb)
+                dd = get_rev_dir(pinfo, dstb, srcb)
                 rl = dst .. src
             else
-                d = get_dir(pinfo, num, dstb, srcb)
+                dd = get_dir(pinfo, num, dstb, srcb)
                 rl = letters
             end
-            local base_list = d.list or pair_lists[rl] or pref_list
+            local base_list = dd.list or pair_lists[rl] or pref_list
             local newlist = {}
+            local types = {}
+            newlist.t = types
             local start = l_ord or n_ord or 0
-            for k = 1, math.min(start, #base_list) do newlist[k] = base_list[k] end
+            for k = 1, math.min(start, #base_list) do
+                newlist[k] = base_list[k]
+                types[k] = base_list.t and base_list.t[k]
+            end
             local maxi = #newlist
             for v = 1, nv do
                 if VN[v] then
                     newlist[VI[v] + 1] = VN[v]
+                    types[VI[v] + 1] = VT[v] and valid_type(VT[v]) or nil
                     if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
                 end
             end
             for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
-            d.list = newlist
+            dd.list = newlist
             pair_lists[rl] = newlist
-        elseif (kind == "query" or kind == "reply") and addrs_ok then
+        end
+        if (kind == "query" or kind == "reply" or kind == "declaration") and addrs_ok and good then
             local pa, pb = pinfo.src_port, pinfo.dst_port
             if pa > pb then pa, pb = pb, pa end
             local ports = ":" .. pa .. "-" .. pb
-            rec = get_rec(num, sk, true)
             for v = 1, nv do
                 local name = VN[v]
                 if name then
                     if VR[v] then
+                        rec = rec or get_rec(num, sk, true)
                         local qkey = dst .. ">" .. src .. ":" .. name .. ports
                         local qrec = pending_q[qkey]
                         if qrec then
@@ -931,7 +1031,8 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                             rec.unmatched = rec.unmatched or {}
                             rec.unmatched[name] = true
                         end
-                    elseif kind == "query" then
+                    elseif kind ~= "reply" then
+                        rec = rec or get_rec(num, sk, true)
                         rec.num = num
                         rec.t = pinfo.rel_ts
                         pending_q[src .. ">" .. dst .. ":" .. name .. ports] = rec
@@ -944,7 +1045,8 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
         if rec and rec.miss then miss_n = floor(#rec.miss / 3) end
         if (is_data or kind == "malformed") and addrs_ok then
             -- the list in use at this frame on the first pass
-            local h = get_dir(pinfo, num, dstb, srcb).uhist
+            d = get_dir(pinfo, num, dstb, srcb)
+            local h = d.uhist
             if h then
                 for k = #h - 2, 1, -3 do
                     local hn = h[k]
@@ -955,13 +1057,15 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                 end
             end
         end
+        if is_data then
+            if rec and rec.kind then
+                kind = rec.kind == "f" and "full" or "delta"
+            else
+                kind = (full_local and miss_n == 0) and "full" or "delta"
+            end
+        end
     end
-
-    if is_data then
-        local full = nd > 0 and (n_ord == nil or n_ord == 0) and n_empty_d == 0 and miss_n == 0 and
-            (n_pos == 0 or n_pos >= #list)
-        kind = full and "full" or "delta"
-    end
+    if is_data and not addrs_ok then kind = full_local and "full" or "delta" end
 
     -- Info column
     if frames_in_info > 0 then
@@ -986,7 +1090,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
             for v = 1, nv do
                 if info_full then break end
                 local val = VV[v]
-                if val and val ~= "" then
+                if val and (val ~= "" or VN[v]) then
                     local name = VN[v]
                     if not name then name = list[VI[v] + 1] or ("#" .. VI[v]) end
                     info_add(" " .. name .. "=" .. val)
@@ -1060,10 +1164,18 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
             local vend = df ~= 0 and df or (qf ~= 0 and qf or tf)
             local name = VN[v]
             local named = name and true or false
-            if not named then name = list[VI[v] + 1] end
+            local index = VI[v]
+            local vtype = nil
+            if not named then
+                name = list[index + 1]
+                vtype = list.t and list.t[index + 1]
+            elseif d then
+                -- a named variable's index: its place among the conversation's names
+                local first = d.nfirst[name]
+                index = (first and first <= num) and d.npos[name] or nil
+            end
             local vt = ti:add(hf.var, tvb(o + fs, FE[vend] - fs + 1))
             local label = name or ("#" .. VI[v])
-            local vtype = nil
             if tf ~= 0 then
                 vtype = valid_type(VT[v])
                 if vtype then
@@ -1083,10 +1195,10 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                 vt:add_proto_expert_info(ei.var_unknown,
                     "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
             end
-            if not VR[v] then vt:add(hf.var_index, VI[v]):set_generated() end
+            if not VR[v] and index then vt:add(hf.var_index, index):set_generated() end
             local val = VV[v]
             if val then
-                if val ~= "" then
+                if val ~= "" or named then
                     local vr = tvb(o + FS[df] + 1, FE[df] - FS[df])
                     vt:add(hf.var_value, vr, val)
                     if vtype then add_typed_value(vt, vr, vtype, val) end
@@ -1097,7 +1209,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                     if csrc then cv, cf = csrc[ke + 1], csrc[ke + 2] end
                     ke = ke + 2
                     local r0 = tvb(o + FS[df], 1)
-                    vt:add(hf.var_value, r0, cv or "?"):set_generated()
+                    if cv then vt:add(hf.var_value, r0, cv):set_generated() end
                     vt:add(hf.var_carried, r0, true):set_generated()
                     if cf then
                         vt:add(hf.var_carried_from, r0, cf):set_generated()
@@ -1116,6 +1228,9 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                 end
             else
                 vt:set_text(label .. (VR[v] and " (reply without value)" or " (declared)"))
+                if resp_in and resp_in[name] then
+                    vt:add(hf.response_in, resp_in[name]):set_generated()
+                end
             end
         elseif not FC[i] and fs ~= cpos then
             local text = (l ~= false) and s_sub(f, fs + 1, fe) or ""
@@ -1176,7 +1291,9 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
             local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
             local vt = ti:add(hf.var, zrange(tvb, o + bodyend))
             vt:add(hf.var_name, name):set_generated()
-            vt:add(hf.var_value, cv or "?"):set_generated()
+            local index = d and d.npos[name]
+            if index then vt:add(hf.var_index, index):set_generated() end
+            if cv then vt:add(hf.var_value, cv):set_generated() end
             vt:add(hf.var_carried, true):set_generated()
             if cf then
                 vt:add(hf.var_carried_from, cf):set_generated()
@@ -1189,6 +1306,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     end
 
     if rec and rec.late then
+        ti:add(hf.sync_is_late, true):set_generated()
         ti:add_proto_expert_info(ei.sync_late,
             s_format("No full frame for %.3f s (sync interval %.3f s + %.1f s slack)",
                 rec.late, pref_sync - SYNC_SLACK, SYNC_SLACK))
@@ -1197,8 +1315,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     -- Checksum
     if cpos then
         local cr = tvb(o + cpos, #ctext + 1)
-        local val = nil
-        if #ctext >= 1 and #ctext <= 8 and not s_find(ctext, "[^0-9A-Fa-f]") then val = tonumber(ctext, 16) end
+        local val = cs_val
         local ct
         if val and val <= 255 then
             ct = ti:add(hf.checksum, cr, val)
@@ -1210,9 +1327,9 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                 "\" is not two upper-case hex digits")
         end
         if pref_validate then
-            local calc = byte_sum(f, 2, cpos)
+            local calc = cs_calc
             ct:add(hf.checksum_calc, cr, calc):set_generated()
-            if val == calc then
+            if cs_status == 1 then
                 ct:add(hf.checksum_status, cr, 1):set_generated()
                 ct:append_text(" [correct]")
             else
@@ -1370,7 +1487,8 @@ local function looks_like_sharedlink(tvb, is_tcp)
     if b5 ~= B_PIPE and b5 ~= B_RBRACK then return false end
     local s = tvb:raw(0, n)
     local close = s_find(s, "]", o + 4, true)
-    local bad = s_find(s, "[^\32-\126]", o)
+    -- CR, LF and TAB may occur inside a value (a status text); other control bytes refuse
+    local bad = s_find(s, "[^\9\10\13\32-\126]", o)
     if close then
         if bad and bad < close then return false end
         local c = s_byte(s, close + 1)

@@ -394,7 +394,8 @@ def test_many_carried_records_across_passes(tmp_path):
     assert one_pass == fields(pcap, names, two_pass=True)
     r = one_pass[123]          # frame 124, last full frame 101
     assert r["sharedlink.var.carried_from"] == ["101", "101"]      # the A->B slot 0 never had a value
-    assert r["sharedlink.var.value"] == ["123", "101", "102", "126", "?", "123"]
+    # B->A slot 0 never had a value: carried with no value (issue 12 decoding rules)
+    assert r["sharedlink.var.value"] == ["123", "101", "102", "126", "123"]
 
 
 # ---------------------------------------------------------------------------

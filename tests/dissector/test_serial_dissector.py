@@ -164,4 +164,5 @@ def test_linktype_preference_picks_another_user_dlt(tmp_path):
         w.write(f[7:], DIR_IN, 10**18 + 10**6)
     rs = rows(cap, ["slserial.frame", "sharedlink.kind"], prefs={"slserial.user_linktype": "user5"})
     assert dissector_frames(rs)["1"] == [f]
-    assert [k for r in rs for k in r["sharedlink.kind"]] == ["delta"]
+    # N0 with the first two of four slots and no slot held a value before: full (issue 12 rule 4)
+    assert [k for r in rs for k in r["sharedlink.kind"]] == ["full"]

@@ -123,7 +123,7 @@ def _check_frame(where: str, exp: dict[str, Any], act: dict[str, Any]) -> None:
         if key in exp:
             assert act[key] == exp[key], f"{where}: {key} {act[key]!r} != expected {exp[key]!r}"
     if "vars" in exp:
-        got = sorted(act["vars"], key=lambda v: -1 if v["index"] is None else v["index"])
+        got = sorted(act["vars"], key=lambda v: 1 << 30 if v["index"] is None else v["index"])
         names = [v["name"] for v in got]
         assert names == [v["name"] for v in exp["vars"]], f"{where}: variables {names}"
         for e, a in zip(exp["vars"], got):
@@ -146,8 +146,6 @@ def _decode(stream: dict[str, Any], tmp_path: Path, two_pass: bool) -> list[list
     return [[_actual(t) for t in _frame_trees(p["_source"]["layers"])] for p in packets]
 
 
-# until dissector/sharedlink.lua follows the issue 12 rules (lua12 lands the fix next)
-@pytest.mark.xfail(reason="sharedlink.lua does not follow the issue 12 rules yet", strict=False)
 @pytest.mark.parametrize("stream", STREAMS, ids=stream_ids(STREAMS))
 def test_vector_stream(stream: dict[str, Any], tmp_path: Path) -> None:
     decoded = _decode(stream, tmp_path, two_pass=True)
