@@ -21,7 +21,8 @@ help:
 	@echo "make test      lint and run the whole test suite"
 	@echo "make bench     print speed and memory ratios"
 	@echo "make captures  regenerate captures/ (byte-identical)"
-	@echo "make install   put the dissectors into your personal Wireshark plugin folder"
+	@echo "make install   put the dissectors, the serial extcap and the coloring rules into your personal Wireshark folders"
+	@echo "make uninstall remove them again"
 	@echo "make test-matrix  the tshark tests on Wireshark 4.0, 4.4 and 4.6 (root filesystems built once)"
 	@echo "make fuzz      the long fuzz run of the dissectors and the Python parsers"
 
@@ -79,30 +80,47 @@ captures: deps
 	$(CLI) gen captures/beacon-full.pcap --duration 60 --seed 1
 	$(CLI) gen captures/beacon-compressed.pcap --duration 60 --seed 1 --compress --sync-interval 1
 
-# the personal plugin folder, as tshark reports it
-install: tshark
-	@dir=$$(tshark -G folders 2>/dev/null | sed -n 's/^Personal Lua Plugins:[[:space:]]*//p' | head -1); \
-	[ -n "$$dir" ] || dir=$$(tshark -G folders 2>/dev/null | sed -n 's/^Personal Plugins:[[:space:]]*//p' | head -1); \
-	[ -n "$$dir" ] || { echo "tshark -G folders names no personal plugin folder" >&2; exit 2; }; \
-	mkdir -p "$$dir" && cp $(DISSECTORS) "$$dir"/ && echo "installed $(notdir $(DISSECTORS)) into $$dir"
-	@# the serial extcap: "Personal Extcap path" (Wireshark 4.2+), else <Personal configuration>/extcap
-	@# (where Wireshark 3.x/4.0 look for personal extcaps); its first line is pointed at the venv's Python
-	@dir=$$(tshark -G folders 2>/dev/null | sed -n 's/^Personal Extcap path:[[:space:]]*//p' | head -1); \
-	[ -n "$$dir" ] || { conf=$$(tshark -G folders 2>/dev/null | sed -n 's/^Personal configuration:[[:space:]]*//p' | head -1); \
-	  [ -n "$$conf" ] && dir="$$conf/extcap"; }; \
-	[ -n "$$dir" ] || { echo "tshark -G folders names no personal extcap folder" >&2; exit 2; }; \
-	mkdir -p "$$dir" && sed '1s|.*|#!$(abspath $(PY))|' extcap/sharedlink-serial > "$$dir/sharedlink-serial" && \
-	chmod 755 "$$dir/sharedlink-serial" && echo "installed the sharedlink-serial extcap into $$dir"
+# a folder as `tshark -G folders` names it: $(call folder,Personal Lua Plugins)
+folder = $$(tshark -G folders 2>/dev/null | sed -n 's/^$(1):[[:space:]]*//p' | head -1)
+# the personal Lua plugin folder (else the personal plugin folder); the personal extcap folder
+# ("Personal Extcap path", Wireshark 4.2+, else <Personal configuration>/extcap, where 3.x/4.0
+# look); the personal configuration folder (the colorfilters file)
+PLUGIN_DIR_SH = dir=$(call folder,Personal Lua Plugins); [ -n "$$dir" ] || dir=$(call folder,Personal Plugins); \
+	[ -n "$$dir" ] || { echo "tshark -G folders names no personal plugin folder" >&2; exit 2; }
+EXTCAP_DIR_SH = ext=$(call folder,Personal Extcap path); \
+	[ -n "$$ext" ] || { c=$(call folder,Personal configuration); [ -n "$$c" ] && ext="$$c/extcap"; }; \
+	[ -n "$$ext" ] || { echo "tshark -G folders names no personal extcap folder" >&2; exit 2; }
+CONF_DIR_SH = conf=$(call folder,Personal configuration); glob=$(call folder,Global configuration); \
+	[ -n "$$conf" ] || { echo "tshark -G folders names no personal configuration folder" >&2; exit 2; }
+
+# every dissector/*.lua, the serial extcap (its first line pointed at the venv's Python, which
+# `venv` makes sure exists and imports sharedlink.extcap) and the coloring rules
+install: tshark venv
+	@$(PLUGIN_DIR_SH); mkdir -p "$$dir" && cp $(DISSECTORS) "$$dir"/ && echo "installed $(notdir $(DISSECTORS)) into $$dir"
+	@$(PY) -c 'import sharedlink.extcap' || { echo "$(abspath $(PY)) cannot import sharedlink.extcap: run make venv" >&2; exit 2; }
+	@$(EXTCAP_DIR_SH); mkdir -p "$$ext" && sed '1s|.*|#!$(abspath $(PY))|' extcap/sharedlink-serial > "$$ext/sharedlink-serial" && \
+	chmod 755 "$$ext/sharedlink-serial" && echo "installed the sharedlink-serial extcap into $$ext (interpreter $(abspath $(PY)))"
 	@# the coloring rules, once, at the top of the personal colorfilters (theirs kept below; with no
 	@# personal file, the global default's rules are kept below ours)
-	@conf=$$(tshark -G folders 2>/dev/null | sed -n 's/^Personal configuration:[[:space:]]*//p' | head -1); \
-	glob=$$(tshark -G folders 2>/dev/null | sed -n 's/^Global configuration:[[:space:]]*//p' | head -1); \
-	[ -n "$$conf" ] || { echo "tshark -G folders names no personal configuration folder" >&2; exit 2; }; \
-	cf="$$conf/colorfilters"; \
+	@$(CONF_DIR_SH); cf="$$conf/colorfilters"; \
 	if [ -f "$$cf" ] && grep -q '^@SharedLink ' "$$cf"; then echo "SharedLink coloring rules already in $$cf"; \
 	else mkdir -p "$$conf" && { [ -f "$$cf" ] && base="$$cf" || base="$$glob/colorfilters"; \
 	  { cat dissector/sharedlink.colorfilters; [ -f "$$base" ] && cat "$$base"; true; } > "$$cf.new" && \
 	  cat "$$cf.new" > "$$cf" && rm -f "$$cf.new" && echo "added the SharedLink coloring rules to $$cf"; }; fi
+
+# removes what install put there: the plugins, the extcap, and the lines of
+# dissector/sharedlink.colorfilters from the personal colorfilters (rules left behind would name
+# fields no dissector registers: "Could not compile" at every start). A colorfilters file that is
+# then the global default again (install made it from that) is removed.
+uninstall: tshark
+	@$(PLUGIN_DIR_SH); for f in $(notdir $(DISSECTORS)); do rm -f "$$dir/$$f"; done; echo "removed $(notdir $(DISSECTORS)) from $$dir"
+	@$(EXTCAP_DIR_SH); rm -f "$$ext/sharedlink-serial"; echo "removed the sharedlink-serial extcap from $$ext"
+	@$(CONF_DIR_SH); cf="$$conf/colorfilters"; \
+	if [ -f "$$cf" ] && grep -qxF -f dissector/sharedlink.colorfilters "$$cf"; then \
+	  { grep -vxF -f dissector/sharedlink.colorfilters "$$cf" || true; } > "$$cf.new" && cat "$$cf.new" > "$$cf" && rm -f "$$cf.new"; \
+	  if [ -f "$$glob/colorfilters" ] && cmp -s "$$cf" "$$glob/colorfilters"; then rm -f "$$cf"; fi; \
+	  echo "removed the SharedLink coloring rules from $$cf"; \
+	else echo "no SharedLink coloring rules in $$cf"; fi
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

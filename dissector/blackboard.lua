@@ -14,10 +14,26 @@
 -- and TCP port preferences (off by default: 0); heuristics on UDP and TCP (a well-formed
 -- message with a good checksum, or the answer a pending request expects).
 --
+-- A message's tree reads in wire order: type, hex text, count, address, node, data, checksum,
+-- then its terminator (CR, LF) last.
+--
 -- Field reference: docs/fields-p2os-blackboard.md. Self-contained: no other file needed.
+-- Twins (code that must exist in two self-contained files; tests/dissector/test_lua_twins.py
+-- shows they agree): istr, u8 <-> p2os.lua.
+-- File order (../shared/STYLE.md): header, plugin info, Proto and tables, fields and experts,
+-- preferences and state, helpers, dissect_*, the buffer dissector, heuristic, registration.
 
 -- luacheck: read globals Proto ProtoField ProtoExpert Pref DissectorTable ByteArray base expert frametype
--- luacheck: read globals DESEGMENT_ONE_MORE_SEGMENT
+-- luacheck: read globals DESEGMENT_ONE_MORE_SEGMENT set_plugin_info
+
+if set_plugin_info then
+    set_plugin_info({
+        version = "1.1.0",
+        description = "Blackboard messages (Holland) over serial captures, UDP and TCP",
+        author = "SharedLink analyzer project",
+        repository = "dissector/blackboard.lua",
+    })
+end
 
 local bb = Proto("blackboard", "Blackboard message (Holland)")
 
@@ -76,19 +92,44 @@ local ex = {
     unanswered = ProtoExpert.new("blackboard.unanswered", "Request superseded before an answer",
         expert.group.SEQUENCE, expert.severity.NOTE),
 }
-bb.experts = { ex.checksum_bad, ex.non_hex, ex.odd, ex.short, ex.count_bad, ex.no_cr, ex.ack_bad,
-    ex.response_bad, ex.response_short, ex.unexpected, ex.repeat_msg, ex.unanswered }
+local expert_list = {}
+for _, e in pairs(ex) do
+    expert_list[#expert_list + 1] = e
+end
+bb.experts = expert_list
+
+-- ---------------------------------------------------------------------------------------------
+-- preferences and per-capture state
 
 bb.prefs.udp_port = Pref.uint("UDP port", 0, "UDP port carrying blackboard messages (0: none, heuristic only)")
 bb.prefs.tcp_port = Pref.uint("TCP port", 0, "TCP port carrying blackboard messages (0: none, heuristic only)")
 
+-- conversation state: the request each side waits an answer to
+--
+-- pending[key] = { kind = "set" | "request", frame = n, checksum = c, count = n, sum = s,
+--                  text = "..." } where key names the direction the answer travels. On the
+-- first pass the live table is used and a copy is kept per frame, so later passes (and the
+-- GUI re-dissecting one frame) see the same state.
+
+local pending = {}
+local frame_state = {}
+local messages = {} -- "frame:offset" -> the record of a message, to show where it was answered
+
+function bb.init()
+    pending = {}
+    frame_state = {}
+    messages = {}
+end
+
 -- ---------------------------------------------------------------------------------------------
 -- helpers (every tvb access checked against the length first)
 
+-- <twin: p2os.lua istr>
 local function istr(n)
     return tostring(math.floor(n))
 end
 
+-- <twin: p2os.lua u8>
 local function u8(tvb, off)
     return tvb:range(off, 1):uint()
 end
@@ -109,22 +150,7 @@ local function hex2(n)
 end
 
 -- ---------------------------------------------------------------------------------------------
--- conversation state: the request each side waits an answer to
---
--- pending[key] = { kind = "set" | "request", frame = n, checksum = c, count = n, sum = s,
---                  text = "..." } where key names the direction the answer travels. On the
--- first pass the live table is used and a copy is kept per frame, so later passes (and the
--- GUI re-dissecting one frame) see the same state.
-
-local pending = {}
-local frame_state = {}
-local messages = {} -- "frame:offset" -> the record of a message, to show where it was answered
-
-function bb.init()
-    pending = {}
-    frame_state = {}
-    messages = {}
-end
+-- conversation state: helpers
 
 local function copy(t)
     local c = {}
@@ -230,16 +256,20 @@ local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more)
     if bad > 8 then
         t:add_proto_expert_info(ex.non_hex, istr(bad) .. " non-hex characters in all")
     end
-    if cr == nil then
-        t:add_proto_expert_info(ex.no_cr)
-    else
-        t:add(pf.terminator, tvb:range(cr, used - (cr - off)))
+    -- the terminator (CR and an LF with it) is added last, after the fields it ends
+    local function add_terminator()
+        if cr == nil then
+            t:add_proto_expert_info(ex.no_cr)
+        else
+            t:add(pf.terminator, tvb:range(cr, used - (cr - off)))
+        end
     end
     local summary
     if bad > 0 or ndig % 2 == 1 or #bytes < 5 then
         if #bytes < 5 and bad == 0 and ndig % 2 == 0 then
             t:add_proto_expert_info(ex.short, "Message too short: " .. istr(#bytes) .. " bytes, at least 5")
         end
+        add_terminator()
         t:append_text(", " .. name .. " (malformed)")
         return used, name .. " (malformed)"
     end
@@ -330,6 +360,7 @@ local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more)
             end
         end
     end
+    add_terminator()
     t:append_text(", " .. summary)
     return used, summary
 end
@@ -349,7 +380,10 @@ local function dissect_binary(tvb, pinfo, tree, off, stop, rec, can_more)
         n = have
     end
     local t = tree:add(bb, tvb:range(off, n))
-    t:add(pf.request_in, tvb:range(off, n), rec.frame):set_generated()
+    -- the link to the request goes last, after the answer's own fields
+    local function add_request_link()
+        t:add(pf.request_in, tvb:range(off, n), rec.frame):set_generated()
+    end
     if not pinfo.visited then
         rec.answered = pinfo.number
     end
@@ -374,6 +408,7 @@ local function dissect_binary(tvb, pinfo, tree, off, stop, rec, can_more)
             if n > 0 then
                 t:add(pf.data, tvb:range(off, n))
             end
+            add_request_link()
             return n, "response (truncated)"
         end
         local sum = rec.sum
@@ -397,6 +432,7 @@ local function dissect_binary(tvb, pinfo, tree, off, stop, rec, can_more)
         t:add(pf.checksum_status, cr, status):set_generated()
         summary = "response " .. istr(rec.count) .. " bytes" .. ((status == 1) and "" or " [bad checksum]")
     end
+    add_request_link()
     t:append_text(", " .. summary)
     return n, summary
 end

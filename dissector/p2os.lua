@@ -10,10 +10,26 @@
 -- segment; a heuristic on the FA FB header with a checksum check (TCP and UDP); and any bare
 -- byte buffer through Dissector.get("p2os") (serial captures).
 --
+-- Direction (client to robot: a command; robot to client: a server packet): the TCP port
+-- preference, else the capture's direction flag (serial: outbound = client), else the content.
+--
 -- Field reference: docs/fields-p2os-blackboard.md. Self-contained: no other file needed.
+-- Twins (code that must exist in two self-contained files; tests/dissector/test_lua_twins.py
+-- shows they agree): p2os_checksum <-> serial.lua p2os_checksum; istr, u8 <-> blackboard.lua.
+-- File order (../shared/STYLE.md): header, plugin info, Proto and tables, fields and experts,
+-- preferences and state, helpers, dissect_*, the buffer dissector, heuristic, registration.
 
 -- luacheck: read globals Proto ProtoField ProtoExpert Pref DissectorTable base expert bit
--- luacheck: read globals DESEGMENT_ONE_MORE_SEGMENT
+-- luacheck: read globals DESEGMENT_ONE_MORE_SEGMENT set_plugin_info
+
+if set_plugin_info then
+    set_plugin_info({
+        version = "1.1.0",
+        description = "P2OS (Pioneer robot protocol) over TCP, UDP and serial captures",
+        author = "SharedLink analyzer project",
+        repository = "dissector/p2os.lua",
+    })
+end
 
 local p2os = Proto("p2os", "P2OS (Pioneer robot protocol)")
 
@@ -46,6 +62,10 @@ local SERVER_TYPES = {
 
 local DEGREES_PER_UNIT = 360.0 / 4096.0
 
+-- p2os.direction values, and the Info column's prefix for each direction
+local DIRECTION_NAMES = { [0] = "client to robot (command)", [1] = "robot to client (server packet)" }
+local DIRECTION_INFO = { [0] = "Client\226\134\146Robot ", [1] = "Robot\226\134\146Client " } -- U+2192
+
 -- ---------------------------------------------------------------------------------------------
 -- fields (registered once, at load time)
 
@@ -57,8 +77,7 @@ local pf = {
     checksum_calc = ProtoField.uint16("p2os.checksum.calculated", "Calculated checksum", base.HEX),
     checksum_status = ProtoField.uint8("p2os.checksum.status", "Checksum status", base.DEC,
         { [0] = "Bad", [1] = "Good", [2] = "Unverified" }),
-    direction = ProtoField.uint8("p2os.direction", "Direction", base.DEC,
-        { [0] = "client command", [1] = "server packet" }),
+    direction = ProtoField.uint8("p2os.direction", "Direction", base.DEC, DIRECTION_NAMES),
     command = ProtoField.uint8("p2os.command", "Command", base.DEC, COMMANDS),
     command_name = ProtoField.string("p2os.command.name", "Command name"),
     argtype = ProtoField.uint8("p2os.argtype", "Argument type", base.HEX, ARG_TYPES),
@@ -161,22 +180,40 @@ local ex = {
     direction_guess = ProtoExpert.new("p2os.direction.guessed", "Direction guessed from the content",
         expert.group.SEQUENCE, expert.severity.CHAT),
 }
-p2os.experts = { ex.checksum_bad, ex.count_big, ex.count_small, ex.truncated, ex.empty, ex.arg_truncated,
-    ex.arg_unknown, ex.extra, ex.unknown_command, ex.unknown_type, ex.sip_truncated, ex.junk, ex.direction_guess }
+local expert_list = {}
+for _, e in pairs(ex) do
+    expert_list[#expert_list + 1] = e
+end
+p2os.experts = expert_list
+
+-- ---------------------------------------------------------------------------------------------
+-- preferences and per-capture state
 
 p2os.prefs.tcp_port = Pref.uint("MobileSim TCP port", 8101, "TCP port of the P2OS server (MobileSim: 8101; 0: none)")
+
+-- connection state: the frame of the first SYNC2 echo per conversation. Commands 0..2
+-- without argument before it are SYNC0..SYNC2, after it PULSE, OPEN, CLOSE.
+local sync2_frame = {}
+
+function p2os.init()
+    sync2_frame = {}
+end
 
 -- ---------------------------------------------------------------------------------------------
 -- helpers: every tvb access goes through a length check
 
+-- <twin: blackboard.lua istr>
 local function istr(n)
     return tostring(math.floor(n))
 end
 
+-- <twin: blackboard.lua u8>
 local function u8(tvb, off)
     return tvb:range(off, 1):uint()
 end
 
+-- <twin: serial.lua p2os_checksum (on a Lua string there)> the payload as big-endian 16-bit
+-- words added (16 bits kept); an odd last byte XORed into the low byte
 local function p2os_checksum(tvb, off, len)
     local c = 0
     local i = off
@@ -247,13 +284,6 @@ local function add_string(tree, field, tvb, off, len, nul)
     return tree:add(field, tvb:range(off, rlen), text), text
 end
 
--- ---------------------------------------------------------------------------------------------
--- client commands
-
--- connection state: the frame of the first SYNC2 echo per conversation. Commands 0..2
--- without argument before it are SYNC0..SYNC2, after it PULSE, OPEN, CLOSE.
-local sync2_frame = {}
-
 local function conversation_key(pinfo)
     local a = tostring(pinfo.src) .. ":" .. istr(pinfo.src_port)
     local b = tostring(pinfo.dst) .. ":" .. istr(pinfo.dst_port)
@@ -263,9 +293,8 @@ local function conversation_key(pinfo)
     return b .. "-" .. a
 end
 
-function p2os.init()
-    sync2_frame = {}
-end
+-- ---------------------------------------------------------------------------------------------
+-- client commands
 
 local function dissect_command(tvb, tree, off, plen, in_handshake)
     local num = u8(tvb, off)
@@ -540,16 +569,16 @@ local function direction(pinfo, tvb, off, plen)
     local port = p2os.prefs.tcp_port
     if port ~= 0 then
         if pinfo.dst_port == port then
-            return true, "port"
+            return true, "the server's TCP port"
         elseif pinfo.src_port == port then
-            return false, "port"
+            return false, "the server's TCP port"
         end
     end
     local d = pinfo.p2p_dir
     if d == 0 then
-        return true, "capture direction: sent"
+        return true, "the capture (sent by the client's side)"
     elseif d == 1 then
-        return false, "capture direction: received"
+        return false, "the capture (received by the client's side)"
     end
     return guess_client(tvb, off, plen), nil
 end
@@ -574,9 +603,9 @@ local function dissect_one(tvb, pinfo, tree, h, count)
     local di = pt:add(pf.direction, tvb:range(h, total), client and 0 or 1)
     di:set_generated()
     if how then
-        di:append_text(" (" .. how .. ")")
+        di:append_text(", from " .. how)
     else
-        di:append_text(" (guessed from the content)")
+        di:append_text(", guessed from the content")
         di:add_proto_expert_info(ex.direction_guess)
     end
     local summary
@@ -616,8 +645,22 @@ local function dissect_one(tvb, pinfo, tree, h, count)
     if count > MAX_COUNT then
         summary = summary .. " [count > 200]"
     end
-    pt:append_text(", " .. (client and "client: " or "server: ") .. summary)
-    return (client and "> " or "< ") .. summary
+    pt:append_text(", " .. (client and "client to robot: " or "robot to client: ") .. summary)
+    return summary, client and 0 or 1
+end
+
+-- "Client→Robot SYNC0; SYNC1; Robot→Client SYNC0 echo": the direction said when it changes;
+-- past 6 entries the first 3 and the count
+local function info_text(infos, dirs)
+    local parts, last = {}, nil
+    local shown = #infos > 6 and 3 or #infos
+    for i = 1, shown do
+        local d = dirs[i]
+        parts[i] = ((d ~= nil and d ~= last) and DIRECTION_INFO[d] or "") .. infos[i]
+        if d ~= nil then last = d end
+    end
+    if shown < #infos then parts[#parts + 1] = "... (" .. istr(#infos) .. " packets)" end
+    return table.concat(parts, "; ")
 end
 
 -- whole buffer: packets and the bytes between them. Returns bytes consumed, or the buffer
@@ -630,6 +673,7 @@ local function dissect_buffer(tvb, pinfo, tree)
     pinfo.cols.protocol = "P2OS"
     local can_more = pinfo.can_desegment > 0
     local infos = {}
+    local dirs = {} -- infos[i]'s direction (0 client to robot, 1 robot to client), if a packet
     local off = 0
     while off < n do
         local h = find_header(tvb, off, n)
@@ -684,16 +728,12 @@ local function dissect_buffer(tvb, pinfo, tree)
             infos[#infos + 1] = "bad count"
             off = h + 3
         else
-            infos[#infos + 1] = dissect_one(tvb, pinfo, tree, h, count)
+            infos[#infos + 1], dirs[#infos + 1] = dissect_one(tvb, pinfo, tree, h, count)
             off = h + 3 + count
         end
     end
     if #infos > 0 then
-        local shown = infos
-        if #infos > 6 then
-            shown = { infos[1], infos[2], infos[3], "... (" .. istr(#infos) .. " packets)" }
-        end
-        pinfo.cols.info = table.concat(shown, "; ")
+        pinfo.cols.info = info_text(infos, dirs)
     end
     return n
 end

@@ -34,7 +34,30 @@
 --    message comes first in the capture.
 -- An unfinished frame longer than 65536 bytes is given up as noise.
 --
+-- What the GUI shows: the Source and Destination columns name the direction ("device" ->
+-- "host" for inbound bytes, "host" -> "device" for outbound ones); a record that only holds
+-- bytes of an unfinished frame says so in one Info line ("[26 bytes held, part of a SharedLink
+-- frame completed in record 14]") and one tree row; the record that completes a frame names the
+-- protocol in its tree and shows Wireshark's fragment subtree, as TCP and IP do ("[3 Reassembled
+-- fragments (52 bytes): #12(26), #13(18), #14(8)]", one "[Frame: N, payload: a-b (n bytes)]" row
+-- per record, the count and the length).
+--
 -- Self-contained; works with Wireshark 4.0 (Lua 5.2) and later.
+-- Twins (code that must exist in two self-contained files; tests/dissector/test_lua_twins.py
+-- shows they agree): p2os_checksum <-> p2os.lua p2os_checksum.
+-- File order (../shared/STYLE.md): header, plugin info, Proto and tables, fields and experts,
+-- preferences and state, helpers (framing), first pass, display, registration.
+
+-- luacheck: read globals set_plugin_info
+
+if set_plugin_info then
+    set_plugin_info({
+        version = "1.1.0",
+        description = "Serial link captures (pcapng, USER link type): SharedLink, P2OS and blackboard",
+        author = "SharedLink analyzer project",
+        repository = "dissector/serial.lua",
+    })
+end
 
 local slserial = Proto("slserial", "Serial link")
 
@@ -53,6 +76,8 @@ local B_CR, B_LF, B_C, B_SEMI = 13, 10, 67, 59
 local PROTO_NAMES = { "sharedlink", "p2os", "blackboard" }
 local PROTO_LABELS = { sharedlink = "SharedLink", p2os = "P2OS", blackboard = "Blackboard" }
 local DIR_NAMES = { [0] = "outbound", [1] = "inbound" }
+-- the Source and Destination columns for each direction (the capture is taken at the host)
+local DIR_ENDS = { [0] = { "host", "device" }, [1] = { "device", "host" } }
 
 ------------------------------------------------------------------------------
 -- Fields, expert infos, preferences
@@ -65,14 +90,17 @@ local hf = {
     noise = ProtoField.bytes("slserial.noise", "Noise"),
     held = ProtoField.bytes("slserial.held", "Held back (unfinished frame)"),
     completed_in = ProtoField.framenum("slserial.completed_in", "Completed in record", base.NONE),
-    fragment = ProtoField.framenum("slserial.fragment", "Reassembled from record", base.NONE),
+    fragments = ProtoField.none("slserial.fragments", "Reassembled fragments"),
+    fragment = ProtoField.framenum("slserial.fragment", "Frame", base.NONE),
+    fragment_count = ProtoField.uint32("slserial.fragment.count", "Fragment count", base.DEC),
     reassembled_length = ProtoField.uint32("slserial.reassembled.length", "Reassembled length", base.DEC),
     frames = ProtoField.uint32("slserial.frames", "Frames completed", base.DEC),
 }
-slserial.fields = {
-    hf.direction, hf.protocol, hf.frame, hf.noise, hf.held, hf.completed_in, hf.fragment,
-    hf.reassembled_length, hf.frames,
-}
+local field_list = {}
+for _, f in pairs(hf) do
+    field_list[#field_list + 1] = f
+end
+slserial.fields = field_list
 
 local ei = {
     noise = ProtoExpert.new("slserial.noise.skipped", "Bytes outside any frame",
@@ -82,7 +110,11 @@ local ei = {
     missing = ProtoExpert.new("slserial.dissector.missing", "Protocol dissector not loaded",
         expert.group.UNDECODED, expert.severity.WARN),
 }
-slserial.experts = { ei.noise, ei.undetected, ei.missing }
+local expert_list = {}
+for _, e in pairs(ei) do
+    expert_list[#expert_list + 1] = e
+end
+slserial.experts = expert_list
 
 local linktype_enum = {}
 for i = 0, 15 do
@@ -198,7 +230,8 @@ local function xor8(a, b)
     return r
 end
 
--- add the payload as big-endian 16-bit pairs (16 bits kept); XOR an odd last byte into the low byte
+-- <twin: p2os.lua p2os_checksum (on a tvb there)> the payload as big-endian 16-bit words
+-- added (16 bits kept); an odd last byte XORed into the low byte
 local function p2os_checksum(s, a, len)
     local c, i, stop = 0, a, a + len - 1
     while i < stop do
@@ -476,9 +509,13 @@ local function first_pass(raw, dir, num)
     }
     if prefix_len > 0 and region_len > 0 then
         res.region = s_sub(s, 1, region_len)
+        -- { record number, offset in the region, length } of each record's share
         local frags = {}
         for _, r in ipairs(st.recs) do
-            if r[2] <= region_len then frags[#frags + 1] = r[1] end
+            if r[2] <= region_len then
+                local last = r[3] < region_len and r[3] or region_len
+                frags[#frags + 1] = { r[1], r[2] - 1, last - r[2] + 1 }
+            end
         end
         res.frags = frags
     end
@@ -522,30 +559,93 @@ local function show_as_data(rtvb, pinfo, tree)
     if d then d:call(rtvb, pinfo, tree) end
 end
 
+local function plural(n, word)
+    return n .. " " .. word .. (n == 1 and "" or "s")
+end
+
+-- Wireshark's fragment subtree, as TCP and IP show it: "[3 Reassembled fragments (52 bytes):
+-- #12(26), #13(18), #14(8)]", a "[Frame: N, payload: a-b (n bytes)]" row per record, the
+-- count and the length
+local function add_fragments(t, rtvb, res)
+    local list = {}
+    for i, f in ipairs(res.frags) do list[i] = "#" .. f[1] .. "(" .. f[3] .. ")" end
+    local ft = t:add(hf.fragments, rtvb:range(0, res.region_len))
+    ft:set_generated()
+    ft:set_text(#res.frags .. " Reassembled fragments (" .. plural(res.region_len, "byte") .. "): "
+        .. table.concat(list, ", "))
+    for _, f in ipairs(res.frags) do
+        local fi = ft:add(hf.fragment, rtvb:range(f[2], f[3]), f[1])
+        fi:set_generated()
+        fi:append_text(", payload: " .. f[2] .. "-" .. (f[2] + f[3] - 1) .. " (" .. plural(f[3], "byte") .. ")")
+    end
+    ft:add(hf.fragment_count, #res.frags):set_generated()
+    ft:add(hf.reassembled_length, res.region_len):set_generated()
+end
+
+-- the frames and noise of the region; returns the number of frames
+local function add_pieces(t, rtvb, res, sub, label)
+    local nframes = 0
+    for _, p in ipairs(res.pieces) do
+        local r = rtvb:range(p[1] - 1, p[2])
+        if p[3] then
+            nframes = nframes + 1
+            t:add(hf.frame, r):set_text(label .. " frame: " .. plural(p[2], "byte"))
+        else
+            local ni = t:add(hf.noise, r)
+            -- the protocol dissector reports noise itself; without it, report it here
+            if not sub then ni:add_proto_expert_info(ei.noise, p[2] .. " bytes outside any frame") end
+        end
+    end
+    return nframes
+end
+
+-- "26 bytes held, part of a SharedLink frame completed in record 14" (the record only on a
+-- second pass; bytes held before the protocol was recognised take the protocol of the record
+-- completing them)
+local function held_text(held, res, label)
+    local done = res.completed_in and results[res.completed_in]
+    if not res.proto and done and done.proto then label = PROTO_LABELS[done.proto] end
+    if not (res.proto or (done and done.proto)) then
+        return plural(held, "byte") .. " held, protocol not recognised yet"
+    end
+    return plural(held, "byte") .. " held, part of a " .. label .. " frame" ..
+        (res.completed_in and (" completed in record " .. res.completed_in) or "")
+end
+
+local function first_pass_result(tvb, pinfo, n, dir)
+    local num = pinfo.number
+    local res = results[num]
+    if res then return res end
+    if pinfo.visited then
+        -- a record the first pass never saw (should not happen): dissect it alone
+        local saved = dirs
+        dirs = {}
+        res = first_pass(tvb:raw(0, n), dir, num)
+        dirs = saved
+        return res
+    end
+    res = first_pass(tvb:raw(0, n), dir, num)
+    results[num] = res
+    return res
+end
+
 local function dissect(tvb, pinfo, tree)
     local n = tvb:len()
     if n <= 0 then return 0 end
     local dir = pinfo.p2p_dir
     if dir ~= 0 and dir ~= 1 then dir = -1 end
-    local num = pinfo.number
-    local res = results[num]
-    if not res then
-        if pinfo.visited then
-            -- a record the first pass never saw (should not happen): dissect it alone
-            local saved = dirs
-            dirs = {}
-            res = first_pass(tvb:raw(0, n), dir, num)
-            dirs = saved
-        else
-            res = first_pass(tvb:raw(0, n), dir, num)
-            results[num] = res
-        end
-    end
+    local res = first_pass_result(tvb, pinfo, n, dir)
 
     pinfo.cols.protocol = "Serial"
+    local ends = DIR_ENDS[dir]
+    if ends then
+        pinfo.cols.src = ends[1]
+        pinfo.cols.dst = ends[2]
+    end
     local label = PROTO_LABELS[res.proto or ""] or "not recognised"
+    local held = n - res.held_from
     local t = tree:add(slserial, tvb:range(0, n))
-    t:append_text(", " .. (DIR_NAMES[dir] or "direction unknown") .. ", " .. n .. " bytes, " .. label)
+    t:append_text(", " .. (DIR_NAMES[dir] or "direction unknown") .. ", " .. plural(n, "byte"))
     t:add(hf.direction, dir):set_generated()
     local pi = t:add(hf.protocol, res.proto or "")
     pi:set_generated()
@@ -558,33 +658,27 @@ local function dissect(tvb, pinfo, tree)
     if res.region_len > 0 then
         if res.region then
             rtvb = ByteArray.new(res.region, true):tvb("Reassembled " .. label)
-            t:add(hf.reassembled_length, res.region_len):set_generated()
-            for _, f in ipairs(res.frags) do
-                t:add(hf.fragment, f):set_generated()
-            end
+            add_fragments(t, rtvb, res)
         else
             rtvb = tvb:range(0, res.region_len):tvb()
         end
-        for _, p in ipairs(res.pieces) do
-            local r = rtvb:range(p[1] - 1, p[2])
-            if p[3] then
-                nframes = nframes + 1
-                t:add(hf.frame, r)
-            else
-                local ni = t:add(hf.noise, r)
-                -- the protocol dissector reports noise itself; without it, report it here
-                if not sub then ni:add_proto_expert_info(ei.noise, p[2] .. " bytes outside any frame") end
-            end
-        end
+        nframes = add_pieces(t, rtvb, res, sub, label)
     end
     t:add(hf.frames, nframes):set_generated()
-    local held = n - res.held_from
+    if nframes > 0 then
+        t:append_text(", completes " .. plural(nframes, label .. " frame") ..
+            (res.region and (" (" .. plural(res.region_len, "byte") .. " reassembled from " ..
+                plural(#res.frags, "record") .. ")") or ""))
+    elseif not res.proto then
+        t:append_text(", protocol not recognised yet")
+    end
     if held > 0 then
+        -- one row for the held bytes; the record completing them inside it (second pass)
         local hi = t:add(hf.held, tvb:range(res.held_from, held))
+        hi:set_text(held_text(held, res, label))
         if res.completed_in then
-            t:add(hf.completed_in, res.completed_in):set_generated()
+            hi:add(hf.completed_in, res.completed_in):set_generated()
         end
-        hi:append_text(" (" .. held .. " bytes)")
     end
     if rtvb then
         if sub then
@@ -597,14 +691,9 @@ local function dissect(tvb, pinfo, tree)
             show_as_data(rtvb, pinfo, tree)
         end
     end
-    if not rtvb or nframes == 0 then
-        local what = (DIR_NAMES[dir] or "unknown direction") .. ": "
-        if held > 0 and not rtvb then
-            pinfo.cols.info = what .. n .. " bytes held (unfinished frame" ..
-                (res.completed_in and (", completed in record " .. res.completed_in) or "") .. ")"
-        elseif not rtvb then
-            pinfo.cols.info = what .. n .. " bytes"
-        end
+    if not rtvb then
+        pinfo.cols.info = held > 0 and ("[" .. held_text(held, res, label) .. "]")
+            or ((DIR_NAMES[dir] or "unknown direction") .. ": " .. plural(n, "byte"))
     end
     return n
 end
