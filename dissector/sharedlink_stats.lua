@@ -25,7 +25,8 @@
 --    "B→A" (from B to A);
 --  * checksum failures: frames with sharedlink.checksum.status == 0 (Bad), one per
 --    sharedlink.checksum.bad expert;
---  * sync late: one per sharedlink.sync.late expert, whatever the frame's checksum;
+--  * sync late: frames with the sharedlink.sync.is_late field, which sharedlink.lua adds exactly
+--    where it adds the sharedlink.sync.late expert (so one per expert), whatever the checksum;
 --  * per node pair and variable: the number of values carried in frames with a good (or no)
 --    checksum -- a value carried forward (sharedlink.var.carried) is not counted -- and the last
 --    such value.
@@ -47,7 +48,7 @@ end
 local COUNTED = {
     "sharedlink", "sharedlink.kind", "sharedlink.src", "sharedlink.dst", "sharedlink.var",
     "sharedlink.var.name", "sharedlink.var.value", "sharedlink.var.carried",
-    "sharedlink.checksum.status", "sharedlink.sync.late",
+    "sharedlink.checksum.status", "sharedlink.sync.is_late",
 }
 local ARROW = "\226\134\146" -- U+2192, as in the packet list's "B→A"
 local TAP_FILTER = table.concat(COUNTED, " || ")
@@ -151,7 +152,7 @@ local function collect(st)
                 fr.dst = tostring(fi.value)
             elseif name == "sharedlink.checksum.status" then
                 fr.bad = (fi.value == 0)
-            elseif name == "sharedlink.sync.late" then
+            elseif name == "sharedlink.sync.is_late" then
                 fr.late = fr.late + 1
             end
         end
