@@ -4,6 +4,7 @@ library and the CLI; the stream reader's fast path against its general path."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -102,6 +103,63 @@ def test_a_single_changed_value_is_reported_at_its_variable_and_frame(beacon, tm
         assert bad[0].worst_staleness.ms == pytest.approx(200.0) or i == 199
 
 
+@st.composite
+def episodes(draw, n_frames: int = 200) -> list[tuple[int, int]]:
+    """Disjoint runs of frame indexes (first, last), in order, at least one frame apart;
+    the last may reach the end of the capture."""
+    cuts = sorted(draw(st.sets(st.integers(1, n_frames - 1), min_size=2, max_size=8)))
+    runs = []
+    for s, e in zip(cuts[::2], cuts[1::2]):
+        e = min(e, s + draw(st.integers(0, 6)))
+        if not runs or s > runs[-1][1] + 1:
+            runs.append((s, e))
+    return runs
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.data())
+def test_several_divergence_episodes_per_variable_are_counted_per_sample(beacon, tmp_path_factory, data):
+    """B differs from A in runs of frames (several per variable). The first divergence is the
+    first run's first frame, every frame of every run is one mismatch, and the worst
+    staleness is the longest run (the first of equal ones), from the frame it started at to
+    the frame the sides agreed again (None when they never did)."""
+    full, comp = beacon
+    runs = {v: data.draw(episodes(), label=f"runs of {v}") for v in VARS[:2]}
+    runs[VARS[2]] = [(3, 3), (10, 12), (40, 41)]  # always several episodes, at least one variable
+    bad = {v: {i for s, e in r for i in range(s, e + 1)} for v, r in runs.items()}
+
+    def change(idx, payload):
+        f = parse_frame(payload)
+        fields = tuple(Field("D", str(float(fl.text) + 0.5)) if fl.letter == "D" and idx in bad.get(prev.text, ()) else fl
+                       for prev, fl in zip((Field(""),) + f.fields, f.fields))
+        return build_frame(Frame(f.dst, f.src, fields, f.crlf))
+
+    changed = rewrite(full, tmp_path_factory.mktemp("episodes") / "changed.pcap", change)
+    ts = [r.ts_ns for r in read_records(full)]
+    n = len(ts)
+    for other, by in ((full, "time"), (comp, "time"), (full, "sequence")):
+        rep = diff(other, changed, by=by)
+        assert rep.pairs == n and rep.unmatched_a == rep.unmatched_b == 0
+        got = {v.name: v for v in rep.variables}
+        assert {v for v in got if not got[v].agree} == {v for v, r in runs.items() if r}
+        for name, r in runs.items():
+            v = got[name]
+            assert (v.samples, v.mismatches) == (n, len(bad[name])), (name, r)
+            if not r:
+                assert v.first_divergence is None and v.worst_staleness is None
+                continue
+            fd = v.first_divergence
+            assert (fd.a_frame, fd.b_frame, fd.a_time_ns, fd.b_time_ns) == (r[0][0] + 1, r[0][0] + 1, ts[r[0][0]], ts[r[0][0]])
+            assert float(fd.b_value) == pytest.approx(float(fd.a_value) + 0.5)
+            durations = [(ts[e + 1] if e + 1 < n else ts[-1]) - ts[s] for s, e in r]
+            s, e = r[durations.index(max(durations))]
+            ws = v.worst_staleness
+            assert ws.ms == pytest.approx(max(durations) / 1e6)
+            assert (ws.from_a_frame, ws.from_b_frame) == (s + 1, s + 1)
+            assert (ws.to_a_frame, ws.to_b_frame) == ((e + 2, e + 2) if e + 1 < n else (None, None))
+        assert all(v.agree for v in rep.variables if v.name not in runs)
+
+
 def expected_divergence(a: Path, b: Path, pairs: list[tuple[int, int]]) -> dict[str, tuple[int, int]]:
     """An oracle: each capture's values after each value frame (the general codec and
     LinkState), compared at the given (A index, B index) pairs; the first pair where each
@@ -163,6 +221,16 @@ def test_fast_path_and_general_path_agree_on_varied_input(tmp_path_factory, dgs)
     assert diff(x, x).agree
 
 
+def bad_checksums(path: Path) -> int:
+    """Frames whose checksum is wrong, counted here: the byte sum of ':' through 'C' mod 256
+    against the hex digits after it (independent of the codec)."""
+    bad = 0
+    for r in read_records(path):
+        for body, digits in re.findall(rb"\[(:[^\[\]]*\|C)([0-9A-Fa-f]{1,2})\]", decode_packet(r.linktype, r.data).payload):
+            bad += int(digits, 16) != sum(body) % 256
+    return bad
+
+
 def test_fast_path_and_general_path_agree_on_generated_beacons(tmp_path):
     for i, opts in enumerate([
         GenOptions(duration=30, compress=True, bad_checksum=0.1, drop=0.1, jitter_ms=20, seed=9),
@@ -174,7 +242,8 @@ def test_fast_path_and_general_path_agree_on_generated_beacons(tmp_path):
         fast = [c.as_tuple() if isinstance(c, Chunk) else c.to_dict() for c in read_changes(p)]
         slow = [c.as_tuple() if isinstance(c, Chunk) else c.to_dict() for c in read_changes(p, fast=False)]
         assert fast == slow
-        assert fast[-1]["checksum_failures"] == (0 if i == 2 else fast[-1]["checksum_failures"])
+        assert fast[-1]["checksum_failures"] == bad_checksums(p)
+        assert (fast[-1]["checksum_failures"] > 0) == (opts.bad_checksum > 0)
 
 
 def test_values_compare_by_type():

@@ -20,6 +20,7 @@ from sharedlink.capture.serial_format import (
     DIR_IN,
     DIR_OUT,
     DIR_UNKNOWN,
+    MAX_PENDING,
     Deframer,
     SerialCaptureWriter,
     StreamReader,
@@ -87,6 +88,43 @@ def test_hold_rules_at_chunk_ends():
     out = d.feed(b"x")
     assert [p.data for p in out] == [g, b"x"] and not out[0].frame.crlf
     assert [p.data for p in d.flush()] == []
+
+
+@pytest.mark.parametrize("protocol,opener", [("sharedlink", b"[:AB|N0|D"), ("blackboard", b":031F00")])
+def test_an_unfinished_frame_is_held_at_most_max_pending_bytes(tmp_path, protocol, opener):
+    """A frame that never ends (no ']' or CR) is held only up to MAX_PENDING bytes, then given
+    up as noise: the bytes held stay bounded however long the line babbles, nothing is lost,
+    and a good frame after it is still found."""
+    good = encode_positional("A", "B", ["1"]) if protocol == "sharedlink" else (
+        blackboard.build_message(blackboard.SetMessage(0x1F00, 1, b"\x01")))
+    chunk = 1000
+    babble = opener + b"7" * (3 * MAX_PENDING)
+    d = Deframer(protocol)
+    pieces, held = [], []
+    for i in range(0, len(babble), chunk):
+        pieces += d.feed(babble[i : i + chunk])
+        held.append(len(d.pending))
+    pieces += d.feed(good)
+    pieces += d.flush()
+    assert max(held) <= MAX_PENDING + chunk
+    assert max(held) > MAX_PENDING - chunk  # it did hold, up to the cap
+    assert b"".join(p.data for p in pieces) == babble + good
+    assert [p.data for p in pieces if p.is_frame] == [good]
+    released = [p for p in pieces if not p.is_frame]
+    assert released and released[0].start == 0 and released[0].end <= MAX_PENDING + chunk
+    # the same through a capture file: the noise is given up while the capture is read, long
+    # before its end, with the records it came from
+    cap = tmp_path / "babble.pcapng"
+    with open(cap, "wb") as fh:
+        w = SerialCaptureWriter(fh)
+        for i in range(0, len(babble), chunk):
+            w.write(babble[i : i + chunk], DIR_IN, 10**9 + i)
+        w.write(good, DIR_IN, 10**10)
+    out = list(read_capture(cap, protocol))
+    first_rec, _d, first = out[0]
+    assert not first.is_frame and first_rec is not None and first_rec.number <= MAX_PENDING // chunk + 2
+    assert first.records == tuple(range(1, first_rec.number + 1))
+    assert [p.data for _r, _d, p in out if p.is_frame] == [good]
 
 
 def test_p2os_and_blackboard_deframing_and_detection():
@@ -222,7 +260,6 @@ def test_hex_dumps_of_real_tools_round_trip(tmp_path, tool):
 def test_text_log_and_raw_dump_and_cli_import(tmp_path):
     f1, f2 = encode_positional("A", "B", ["1", "2"]), encode_positional("B", "A", ["9"])
     log = tmp_path / "session.log"
-    esc = f1[:10].decode() + "\\r\\n"
     log.write_text(
         "# a terminal logger's output\n"
         f"2026-01-01T12:00:00.250Z RX: {f1[:10].decode()}\n"
@@ -230,10 +267,11 @@ def test_text_log_and_raw_dump_and_cli_import(tmp_path):
         f"[1767268800.5] TX {' '.join('%02x' % b for b in f2)}\n"
         "< 0x5b ([)\n< 0x3a (:)\n"
     )
-    assert esc  # (the escape form is exercised above through \\r\\n)
     fmt, chunks = read_log(log)
     assert fmt == "log"
     assert [(c.direction, c.data) for c in chunks] == [(DIR_IN, f1[:10]), (DIR_IN, f1[10:]), (DIR_OUT, f2), (DIR_IN, b"[:")]
+    # the quoted line's escaped \\r\\n (four characters in the log) is the two bytes CR LF
+    assert f1.endswith(b"\r\n") and chunks[1].data.endswith(b"\r\n") and b"\\" not in chunks[1].data
     assert chunks[0].ts_ns == 1_767_268_800_250_000_000 and chunks[2].ts_ns == 1_767_268_800_500_000_000
 
     out = tmp_path / "o.pcapng"

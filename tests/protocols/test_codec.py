@@ -108,7 +108,8 @@ def test_real_peer_deviations_are_reported_not_fatal():
     assert "no CR LF" in text and "empty field" in text and "unknown field letter 'Z'" in text
     if ck < 16 or any(c in "abcdef" for c in "%x" % ck):
         assert "not two upper-case hex digits" in text
-    unpadded = parse_frame(b"[:AB|D|C6]")  # sum is 0x1f6 -> F6: a bad checksum, but parsed
+    unpadded = parse_frame(b"[:AB|D|C6]")  # sum is 0x23c -> 3C, not 06: one digit and a bad checksum, but parsed
+    assert unpadded.checksum.calculated == sum(b":AB|D|C") % 256 == 0x3C
     assert unpadded.checksum.ok is False and any("checksum mismatch" in d for d in unpadded.deviations)
 
 

@@ -1,13 +1,16 @@
 """`sharedlink replay`: real captures sent over real sockets on 127.0.0.1 (and a pty), checked
-by receivers on loopback. Timing checks are loose here; the precise figures are in the bench."""
+by receivers on loopback. Timing is checked as the ratio of receive-time spacing to the capture's
+spacing over many frames (robust on a loaded machine); the precise figures are in the bench."""
 
 from __future__ import annotations
 
 import json
 import os
+import random
 import select
 import signal
 import socket
+import statistics
 import struct
 import subprocess
 import sys
@@ -38,6 +41,7 @@ from sharedlink.replay import (
 CLI = [sys.executable, "-m", "sharedlink", "replay"]
 T0 = 1_767_268_800 * 1_000_000_000
 MS = 1_000_000
+NS = 1_000_000_000
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 
 
@@ -292,6 +296,50 @@ def test_capture_timing_is_followed_loosely(tmp_path, rx):
     assert all(20 < g < 120 for g in gaps), gaps
     assert st.lag_median_ns is not None and st.lag_median_ns < 5 * MS
     assert 0.33 < st.elapsed_s < 0.8
+
+
+def median_spacing_ratio(arrivals: list[int], scheduled: list[int]) -> float:
+    """How the receive-time spacing compares with the scheduled spacing: the median, over
+    every frame i of the first half, of (arrival[i+k] - arrival[i]) / (scheduled[i+k] -
+    scheduled[i]) with k half the frames. Each ratio spans many gaps, so a late frame moves it
+    by its lateness over a long span; late frames on a loaded machine move ratios both ways,
+    and the median keeps the centre. A schedule that is off by a factor moves every ratio."""
+    k = len(arrivals) // 2
+    return statistics.median(
+        (arrivals[i + k] - arrivals[i]) / (scheduled[i + k] - scheduled[i]) for i in range(len(arrivals) - k)
+    )
+
+
+@pytest.mark.parametrize("mode", ["speed=1", "speed=2.5", "pps=40"])
+def test_frames_keep_the_capture_spacing(tmp_path, rx, mode):
+    """Irregular capture spacing (8 to 40 ms) replayed to a loopback socket: the spacing at
+    the receiver (kernel timestamps) over many frames is the capture's divided by the speed
+    (or 1/pps per frame) within 2.5%. A schedule 5% off fails."""
+    rng = random.Random(18)
+    n = 70
+    capture_ts = [T0]
+    for _ in range(n - 1):
+        capture_ts.append(capture_ts[-1] + rng.randint(8, 40) * MS)
+    key, value = mode.split("=")
+    factor = float(value)
+    if key == "speed":
+        capture_ts = [T0 + round((t - T0) * factor) for t in capture_ts]  # 8 to 40 ms at the receiver
+        opts = ReplayOptions(speed=factor)
+        scheduled = [(t - T0) / factor for t in capture_ts]
+    else:
+        opts = ReplayOptions(pps=factor)
+        scheduled = [i * NS / factor for i in range(n)]
+    cap = tmp_path / "spaced.pcap"
+    b = UdpBuilder("10.0.0.1", "10.0.0.2", 7013, rx.port)
+    with open(cap, "wb") as fh:
+        w = PcapWriter(fh)
+        for i, t in enumerate(capture_ts):
+            w.write(t, b.frame(b"frame %d" % i, i))
+    st = replay(cap, UdpSink(), opts)
+    assert rx.wait(n) == [b"frame %d" % i for i in range(n)]
+    assert st.frames == n
+    ratio = median_spacing_ratio([g[0] for g in rx.got], scheduled)
+    assert 0.975 < ratio < 1.025, ratio
 
 
 def test_pps_and_out_of_order_timestamps(tmp_path, rx):
