@@ -1,4 +1,4 @@
-"""Exports: a capture's frames (or variable changes) as CSV, JSON Lines, GeoJSON or KML.
+"""Exports: a capture's frames (or variable changes) as CSV, JSON Lines, GeoJSON, KML or MCAP.
 
 Streaming: rows are written as frames are decoded (:func:`sharedlink.analysis.decode.iter_decoded`);
 nothing grows with the capture except, for GeoJSON and KML, the track coordinates, which are
@@ -17,6 +17,10 @@ double); CSV keeps the text as sent.
 GeoJSON: a FeatureCollection with one Point per frame that has a position (properties: the
 row) and one LineString track per direction. KML: one Placemark LineString track per direction
 with start and end points (with their times).
+
+MCAP (a binary file, for Foxglove and PlotJuggler) is written by
+:mod:`sharedlink.analysis.mcap_export` (its channels: :mod:`sharedlink.analysis.foxglove_channels`);
+:func:`export_file` dispatches to it.
 """
 
 from __future__ import annotations
@@ -35,8 +39,10 @@ from sharedlink.analysis.decode import VALUE_KINDS, Decoded, format_time, iter_d
 from sharedlink.capture.pcapio import CaptureError, atomic_open
 from sharedlink.protocols.state import BEACON_VARIABLES, Variable
 
-FORMATS = ("csv", "jsonl", "geojson", "kml")
-LAT, LON = "AutoGpsLat", "AutoGpsLon"
+FORMATS = ("csv", "jsonl", "geojson", "kml", "mcap")
+#: formats written as bytes to a file by their own module (not through :func:`export`)
+BINARY_FORMATS = ("mcap",)
+LAT, LON, HEADING, VELOCITY = "AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"
 FRAME_COLUMNS = ["number", "time", "ts_ns", "t", "src", "dst", "kind", "checksum"]
 CHANGE_COLUMNS = ["number", "time", "ts_ns", "t", "src", "dst", "name", "type", "value"]
 
@@ -50,6 +56,8 @@ class ExportOptions:
     sync_interval: float = 1.0
     lat: str = LAT
     lon: str = LON
+    heading: str = HEADING  # mcap: the LocationFix heading
+    velocity: str = VELOCITY  # mcap: the speed variable (LocationFix velocity)
 
 
 @dataclass
@@ -354,6 +362,8 @@ def export(path: str | Path, out: IO[str], opts: ExportOptions) -> ExportResult:
     the damage is written (and the document closed), ``error`` set. A missing or unreadable
     file raises :class:`~sharedlink.capture.pcapio.CaptureError`."""
     if opts.fmt not in _WRITERS:
+        if opts.fmt in BINARY_FORMATS:
+            raise ValueError(f"{opts.fmt} is written to a file: use export_file")
         raise ValueError(f"unknown format {opts.fmt!r} (one of {', '.join(FORMATS)})")
     result = ExportResult()
     columns = list(opts.columns) if opts.columns is not None else []
@@ -379,5 +389,9 @@ def export(path: str | Path, out: IO[str], opts: ExportOptions) -> ExportResult:
 
 def export_file(path: str | Path, dest: str | Path, opts: ExportOptions) -> ExportResult:
     """:func:`export` to a file, written beside it and renamed into place when complete."""
+    if opts.fmt == "mcap":
+        from sharedlink.analysis.mcap_export import export_mcap  # foxglove-sdk loads only for MCAP
+
+        return export_mcap(path, dest, opts)
     with atomic_open(dest, "w", encoding="utf-8", newline="") as fh:
         return export(path, fh, opts)

@@ -1,0 +1,369 @@
+"""Decoded traffic as Foxglove channels: what the MCAP export writes and ``watch --foxglove`` serves.
+
+:class:`FoxgloveChannels` turns :class:`~sharedlink.analysis.decode.Decoded` frames and
+:class:`~sharedlink.analysis.sessions.SessionMessage` s into messages on channels of a
+``foxglove.Context``; whatever sink is attached to the context (an MCAP writer, the WebSocket
+server) receives them. Log time is the capture (or arrival) time in ns.
+
+Topics (``B_to_A`` is the direction from node B to node A; a second conversation carrying the
+same pair gets ``B_to_A_2``, the conversation is in the channel metadata):
+
+* ``/sharedlink/B_to_A/location`` ``foxglove.LocationFix`` after each good value frame once the
+  direction has a valid latitude and longitude (``lat``/``lon`` variables); ``heading`` from
+  the heading variable (degrees, clockwise from north), ``velocity`` east/north from the speed
+  variable and the heading (in the speed variable's unit).
+* ``/sharedlink/B_to_A/values`` JSON, after every frame: each variable's typed value
+  (numbers for long and double, text for strings and for numbers JSON cannot hold).
+* ``/sharedlink/B_to_A/frames`` JSON, every frame: number, src, dst, kind, checksum
+  (good/bad/none), late, changed (names), text (as sent, CR LF left out).
+* ``/p2os/N/pose`` ``foxglove.PoseInFrame`` (frame ``odom``) for each standard SIP of session N:
+  x, y in metres, the heading as a rotation about z; ``/p2os/N/sip`` the whole SIP as JSON
+  (velocities, battery, ...); ``/p2os/N/commands`` the client's commands as JSON;
+  ``/p2os/N/server`` the robot's other packets (SYNC echoes, CONFIG, ENCODER) as JSON.
+* ``/blackboard/N/messages`` JSON: the master's set and request messages and the slave's
+  answers (ack or read response), with their checksum verdicts.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+import foxglove
+from foxglove.channels import LocationFixChannel, PoseInFrameChannel
+from foxglove.messages import LocationFix, Pose, PoseInFrame, Quaternion, Timestamp, Vector3
+
+from sharedlink.analysis.decode import VALUE_KINDS, Decoded
+from sharedlink.analysis.sessions import Ack, SessionMessage
+from sharedlink.protocols import blackboard, p2os
+from sharedlink.protocols.codec import ADDRESS_LETTERS
+
+NS = 1_000_000_000
+
+# -- default variable names (the beacon's, BUL-009)
+LAT, LON, HEADING, SPEED = "AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"
+
+# -- JSON schemas (titles are the schema names tools show)
+_ANY = {"type": ["number", "string", "null"]}
+VALUES_SCHEMA = {"type": "object", "title": "sharedlink.Values", "additionalProperties": _ANY}
+FRAME_SCHEMA = {
+    "type": "object",
+    "title": "sharedlink.Frame",
+    "properties": {
+        "number": {"type": "integer"}, "src": {"type": "string"}, "dst": {"type": "string"},
+        "kind": {"type": "string"}, "checksum": {"type": "string", "enum": ["good", "bad", "none"]},
+        "late": {"type": "boolean"}, "changed": {"type": "array", "items": {"type": "string"}},
+        "text": {"type": "string"},
+    },
+}
+SIP_SCHEMA = {"type": "object", "title": "p2os.Sip", "additionalProperties": True}
+COMMAND_SCHEMA = {"type": "object", "title": "p2os.Command", "additionalProperties": True}
+SERVER_SCHEMA = {"type": "object", "title": "p2os.ServerPacket", "additionalProperties": True}
+BLACKBOARD_SCHEMA = {"type": "object", "title": "blackboard.Message", "additionalProperties": True}
+
+
+@dataclass
+class ChannelOptions:
+    lat: str = LAT
+    lon: str = LON
+    heading: str = HEADING
+    speed: str = SPEED
+
+
+def _typed(v: Any) -> Any:
+    x = v.value
+    if isinstance(x, float) and not math.isfinite(x):
+        return v.text
+    return x
+
+
+#: a JSON number; a value sent in this form goes into the values message as sent
+_JSON_NUMBER = re.compile(r"-?(?:0|[1-9][0-9]*)(?:\.[0-9]+)?(?:[eE][+-]?[0-9]+)?\Z")
+
+
+def _fragment(name: str, v: Any) -> tuple[Any, str]:
+    """A variable's typed value and its ``"name": value`` JSON member. A number whose text is
+    already a JSON number of the same kind (integer text for a long, a fraction or exponent
+    for a double) is written as sent: JSON reads it back as the same value, and the float is
+    not formatted again."""
+    x = _typed(v)
+    t = v.text
+    if type(x) is float:
+        plain = _JSON_NUMBER.match(t) is not None and ("." in t or "e" in t or "E" in t)
+    elif type(x) is int:
+        plain = _JSON_NUMBER.match(t) is not None and t.lstrip("-").isdigit()
+    else:
+        plain = False
+    return x, _jstr(name) + ": " + (t if plain else _dumps(x))
+
+
+def _number(x: Any) -> float | None:
+    """A typed value as a number (None: absent or text)."""
+    if isinstance(x, (int, float)) and not isinstance(x, bool):
+        return float(x)
+    return None
+
+
+_dumps = json.dumps
+#: a str as a JSON string (the C function json.dumps uses for one, without its overhead)
+_jstr = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
+#: JSON of node letters and of lists of changed names (FoxgloveChannels.frame's caches)
+_QUOTED = {c: _dumps(c) for c in ADDRESS_LETTERS}
+_NAMES: dict[tuple[str, ...], str] = {}
+_NAMES_MAX = 4096
+#: the frames message, formatted by hand (see FoxgloveChannels.frame)
+_ROW = '{"number": %d, "src": %s, "dst": %s, "kind": "%s", "checksum": "%s", "late": %s, "changed": %s, "text": %s}'
+
+
+def values_json(d: Decoded) -> dict[str, Any]:
+    """A frame's ``values`` message (the reference for :meth:`FoxgloveChannels.frame`)."""
+    return {n: _typed(v) for n, v in d.table.vars.items() if v.text is not None}
+
+
+def frame_json(d: Decoded) -> dict[str, Any]:
+    """A frame's ``frames`` message (the reference :meth:`FoxgloveChannels.frame` formats by hand)."""
+    text = d.raw.decode("latin-1")
+    return {"number": d.number, "src": d.src, "dst": d.dst, "kind": d.kind, "checksum": _checksum(d.checksum_ok),
+            "late": d.late, "changed": [u.name for u in d.changes()], "text": text[:-2] if text.endswith("\r\n") else text}
+
+
+def _stamp(ts_ns: int) -> Timestamp:
+    return Timestamp(ts_ns // NS, ts_ns % NS)
+
+
+def _checksum(ok: bool | None) -> str:
+    return "none" if ok is None else ("good" if ok else "bad")
+
+
+@dataclass
+class _Direction:
+    """The channels of one direction, and its last values message (reused while unchanged)."""
+
+    location: Any
+    values: Any
+    frames: Any
+    log_frames: Any = None  # the channels' log methods (bytes, log time)
+    log_values: Any = None
+    nvars: int = -1
+    typed: dict[str, Any] = field(default_factory=dict)  # name -> typed value
+    frags: dict[str, str] = field(default_factory=dict)  # name -> '"name": value' (JSON)
+    values_json: bytes = b"{}"
+    location_topic: str = ""
+    values_topic: str = ""
+    frames_topic: str = ""
+    nframes: int = 0
+    nlocations: int = 0
+
+
+@dataclass
+class _Session:
+    prefix: str
+    metadata: dict[str, str]
+    channels: dict[str, Any] = field(default_factory=dict)
+
+
+class FoxgloveChannels:
+    """Publishes decoded frames and session messages on channels of ``context``."""
+
+    def __init__(self, context: foxglove.Context, opts: ChannelOptions | None = None) -> None:
+        self.ctx = context
+        self.opts = opts or ChannelOptions()
+        self._counts: dict[str, int] = {}  # session topic -> messages logged (directions count their own)
+        self._dirs: dict[tuple[object, str, str], _Direction] = {}
+        self._pair_convs: dict[str, int] = {}
+        self._sessions: dict[tuple[str, int], _Session] = {}
+
+    # -- SharedLink ------------------------------------------------------------------------
+
+    def _direction(self, d: Decoded) -> _Direction:
+        key = (d.conv, d.src, d.dst)
+        dr = self._dirs.get(key)
+        if dr is None:
+            name = f"{d.src}_to_{d.dst}"
+            n = self._pair_convs[name] = self._pair_convs.get(name, 0) + 1
+            base = f"/sharedlink/{name}" + (f"_{n}" if n > 1 else "")
+            meta = {"src": d.src, "dst": d.dst, "conversation": " ".join(map(str, d.conv))}
+            dr = self._dirs[key] = _Direction(
+                LocationFixChannel(base + "/location", metadata=meta, context=self.ctx),
+                foxglove.Channel(base + "/values", schema=VALUES_SCHEMA, metadata=meta, context=self.ctx),
+                foxglove.Channel(base + "/frames", schema=FRAME_SCHEMA, metadata=meta, context=self.ctx),
+            )
+            dr.location_topic, dr.values_topic, dr.frames_topic = base + "/location", base + "/values", base + "/frames"
+            # the base channels' log, called with encoded bytes (foxglove.Channel.log's own path
+            # for bytes, without its type checks)
+            dr.log_frames, dr.log_values = dr.frames.base.log, dr.values.base.log
+        return dr
+
+    def frame(self, d: Decoded) -> None:
+        """The frames, values and (when known) location messages of one frame.
+
+        Hot path (one call per frame): typed values are kept per direction and redone only for
+        the variables the frame changed (all of them when the table grew or a list was
+        declared), the values message is re-encoded only then, and the frame row is formatted
+        by hand; :func:`frame_json` and :func:`values_json` are the plain references."""
+        dr = self._dirs.get((d.conv, d.src, d.dst)) or self._direction(d)
+        ts = d.ts_ns
+        vars_ = d.table.vars
+        changed = [u.name for u in d.updates if u.changed and not u.carried and u.text is not None]
+        typed = dr.typed
+        if len(vars_) != dr.nvars or d.kind == "declaration":
+            dr.nvars = len(vars_)
+            dr.typed, dr.frags = typed, frags = {}, {}
+            for n, v in vars_.items():
+                if v.text is not None:
+                    typed[n], frags[n] = _fragment(n, v)
+            dr.values_json = ("{%s}" % ", ".join(frags.values())).encode()
+        elif changed:
+            frags = dr.frags
+            for n in changed:
+                typed[n], frags[n] = _fragment(n, vars_[n])
+            dr.values_json = ("{%s}" % ", ".join(frags.values())).encode()
+        ok = d.checksum_ok
+        raw = d.raw
+        names = _NAMES.get(tuple(changed)) if changed else "[]"
+        if names is None:
+            names = _dumps(changed)
+            if len(_NAMES) < _NAMES_MAX:
+                _NAMES[tuple(changed)] = names
+        row = _ROW % (
+            d.number, _QUOTED.get(d.src) or _jstr(d.src), _QUOTED.get(d.dst) or _jstr(d.dst), d.kind,
+            "none" if ok is None else ("good" if ok else "bad"), "true" if d.late else "false", names,
+            _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
+        dr.log_frames(row.encode(), ts)
+        dr.log_values(dr.values_json, ts)
+        dr.nframes += 1
+        if ok is not False and d.kind in VALUE_KINDS:
+            fix = self._location(typed, d.ts_ns, d.pair)
+            if fix is not None:
+                dr.location.log(fix, log_time=ts)
+                dr.nlocations += 1
+
+    def location(self, d: Decoded) -> LocationFix | None:
+        """The direction's position after ``d`` (None: no valid latitude and longitude)."""
+        typed = {n: _typed(v) for n, v in d.table.vars.items() if v.text is not None}
+        return self._location(typed, d.ts_ns, d.pair)
+
+    def _location(self, typed: dict[str, Any], ts_ns: int, frame_id: str) -> LocationFix | None:
+        o = self.opts
+        lat, lon = _number(typed.get(o.lat)), _number(typed.get(o.lon))
+        if lat is None or lon is None or not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+            return None
+        head, speed = _number(typed.get(o.heading)), _number(typed.get(o.speed))
+        velocity = None
+        if speed is not None and head is not None:
+            rad = math.radians(head)
+            velocity = Vector3(x=speed * math.sin(rad), y=speed * math.cos(rad), z=0.0)
+        return LocationFix(timestamp=_stamp(ts_ns), frame_id=frame_id, latitude=lat, longitude=lon,
+                           heading=head, velocity=velocity)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages logged per topic."""
+        out = dict(self._counts)
+        for dr in self._dirs.values():
+            out[dr.frames_topic] = out[dr.values_topic] = dr.nframes
+            out[dr.location_topic] = dr.nlocations
+        return out
+
+    # -- P2OS and blackboard -----------------------------------------------------------------
+
+    def _channel(self, m: SessionMessage, name: str, schema: Any) -> Any:
+        key = (m.protocol, m.session)
+        s = self._sessions.get(key)
+        if s is None:
+            s = self._sessions[key] = _Session(f"/{m.protocol}/{m.session}", {"session": m.label})
+        ch = s.channels.get(name)
+        if ch is None:
+            topic = f"{s.prefix}/{name}"
+            if schema is None:
+                ch = PoseInFrameChannel(topic, metadata=s.metadata, context=self.ctx)
+            else:
+                ch = foxglove.Channel(topic, schema=schema, metadata=s.metadata, context=self.ctx)
+            s.channels[name] = ch
+            self._counts[topic] = 0
+        return ch
+
+    def _log(self, ch: Any, msg: Any, ts: int) -> None:
+        ch.log(msg, log_time=ts)
+        self._counts[ch.topic()] += 1
+
+    def session(self, m: SessionMessage) -> None:
+        """The messages of one P2OS packet or blackboard message."""
+        base = {"number": m.number, "side": m.side, "checksum": _checksum(m.ok)}
+        if m.protocol == "blackboard":
+            self._log(self._channel(m, "messages", BLACKBOARD_SCHEMA), json.dumps({**base, **blackboard_json(m)}).encode(), m.ts_ns)
+            return
+        msg = m.message
+        if isinstance(msg, p2os.Sip):
+            self._log(self._channel(m, "pose", None), sip_pose(msg, m.ts_ns), m.ts_ns)
+            self._log(self._channel(m, "sip", SIP_SCHEMA), json.dumps({**base, **sip_json(msg)}).encode(), m.ts_ns)
+        elif isinstance(msg, p2os.Command):
+            self._log(self._channel(m, "commands", COMMAND_SCHEMA), json.dumps({**base, **command_json(msg)}).encode(), m.ts_ns)
+        else:
+            row = {**base, **server_json(msg)}
+            if m.error:
+                row["error"] = m.error
+            self._log(self._channel(m, "server", SERVER_SCHEMA), json.dumps(row).encode(), m.ts_ns)
+
+
+# -- message contents ------------------------------------------------------------------------------
+
+
+def _text(b: bytes) -> str:
+    return b.decode("latin-1")
+
+
+def sip_pose(s: p2os.Sip, ts_ns: int) -> PoseInFrame:
+    """A SIP's position (mm -> m) and heading (rotation about z) in frame ``odom``."""
+    half = math.radians(s.heading_deg) / 2
+    return PoseInFrame(
+        timestamp=_stamp(ts_ns),
+        frame_id="odom",
+        pose=Pose(position=Vector3(x=s.xpos / 1000.0, y=s.ypos / 1000.0, z=0.0),
+                  orientation=Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half))),
+    )
+
+
+def sip_json(s: p2os.Sip) -> dict[str, Any]:
+    return {
+        "moving": s.moving, "x_mm": s.xpos, "y_mm": s.ypos, "heading_deg": s.heading_deg, "lvel_mm_s": s.lvel,
+        "rvel_mm_s": s.rvel, "battery_v": s.volts, "stall_bumpers": s.stall_bumpers, "control": s.control,
+        "flags": s.flags, "compass": s.compass, "sonars": [{"number": n, "range_mm": r} for n, r in s.sonars],
+        "grip_state": s.grip_state, "anport": s.anport, "analog": s.analog, "digin": s.digin, "digout": s.digout,
+    }
+
+
+def command_json(c: p2os.Command) -> dict[str, Any]:
+    value: Any = _text(c.value) if isinstance(c.value, bytes) else c.value
+    return {"command": c.number, "name": c.name, "argtype": p2os.ARG_TYPES.get(c.argtype or -1), "value": value}
+
+
+def server_json(msg: Any) -> dict[str, Any]:
+    if isinstance(msg, p2os.SyncReply):
+        return {"type": "sync", "sync": msg.number, "strings": [_text(s) for s in msg.strings]}
+    if isinstance(msg, p2os.Encoder):
+        return {"type": "encoder", "left": msg.left, "right": msg.right}
+    if isinstance(msg, p2os.Config):
+        return {"type": "config", **{k: (_text(v) if isinstance(v, bytes) else v) for k, v in msg.values}}
+    if isinstance(msg, p2os.Raw):
+        return {"type": "raw", "type_byte": msg.type, "data": msg.data.hex()}
+    return {"type": "undecoded"}
+
+
+def blackboard_json(m: SessionMessage) -> dict[str, Any]:
+    msg = m.message
+    if isinstance(msg, blackboard.SetMessage):
+        return {"type": "set", "address": msg.address, "node": msg.node, "data": msg.data.hex()}
+    if isinstance(msg, blackboard.RequestMessage):
+        return {"type": "request", "address": msg.address, "node": msg.node, "count": msg.count}
+    req = m.request
+    addr = req.address if req is not None else None
+    if isinstance(msg, Ack):
+        return {"type": "ack", "address": addr, "crc": msg.crc}
+    if isinstance(msg, blackboard.ReadResponse):
+        return {"type": "response", "address": addr, "data": msg.data.hex()}
+    return {"type": "undecoded", "data": m.raw.hex()}
+

@@ -1,0 +1,70 @@
+"""``export --format mcap``: a capture as an MCAP file for Foxglove and PlotJuggler.
+
+One streaming pass of :func:`sharedlink.analysis.decode.iter_decoded` publishes every SharedLink
+frame on the channels of :class:`~sharedlink.analysis.foxglove_channels.FoxgloveChannels`, which
+foxglove-sdk's MCAP writer (zstd chunks, indexed) records with log time = capture time (ns).
+When that pass met traffic that is not SharedLink (noise or other records), a second pass,
+:func:`sharedlink.analysis.sessions.iter_sessions`, adds the P2OS and blackboard sessions (MCAP
+readers order messages by log time, so the two passes need not interleave).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import foxglove
+from foxglove.mcap import MCAPWriteOptions
+
+from sharedlink.analysis.decode import Decoded, iter_decoded
+from sharedlink.analysis.export import ExportOptions, ExportResult
+from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
+from sharedlink.analysis.sessions import iter_sessions
+from sharedlink.capture.pcapio import CaptureError, atomic_open
+
+PROFILE = "sharedlink"
+
+
+def channel_options(opts: ExportOptions) -> ChannelOptions:
+    return ChannelOptions(lat=opts.lat, lon=opts.lon, heading=opts.heading, speed=opts.velocity)
+
+
+def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOptions, result: ExportResult) -> None:
+    """Every frame and session message of ``path`` onto ``channels``; damage after the first
+    record sets ``result.error`` (what came before it is published)."""
+    other = False
+    try:
+        for item in iter_decoded(path, opts.variables, opts.sync_interval):
+            if isinstance(item, Decoded):
+                result.frames += 1
+                channels.frame(item)
+            else:
+                other = True
+    except CaptureError as exc:
+        if exc.record is None and result.frames == 0:
+            raise
+        result.error = str(exc)
+        return
+    if other:
+        try:
+            for m in iter_sessions(path):
+                result.frames += 1
+                channels.session(m)
+        except CaptureError as exc:  # pragma: no cover - the first pass met the damage first
+            result.error = str(exc)
+
+
+def export_mcap(path: str | Path, dest: str | Path, opts: ExportOptions) -> ExportResult:
+    """Write ``path`` as an MCAP file at ``dest`` (written beside it, renamed into place when
+    complete). ``rows`` is the number of messages written; ``columns`` the topics."""
+    result = ExportResult()
+    ctx = foxglove.Context()
+    channels = FoxgloveChannels(ctx, channel_options(opts))
+    with atomic_open(dest, "wb") as fh:
+        writer = foxglove.open_mcap(fh, context=ctx, writer_options=MCAPWriteOptions(profile=PROFILE))
+        try:
+            publish_capture(path, channels, opts, result)
+        finally:
+            writer.close()
+    result.rows = sum(channels.counts.values())
+    result.columns = sorted(channels.counts)
+    return result

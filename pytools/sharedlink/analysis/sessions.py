@@ -1,0 +1,197 @@
+"""P2OS and blackboard messages of a capture, per session and side, in capture order.
+
+:func:`iter_sessions` is the counterpart of :func:`sharedlink.analysis.decode.iter_decoded`
+for the two binary-ish protocols: it reads UDP, TCP and serial (USER link type) records, keeps
+one byte stream per side of each session (a TCP or UDP endpoint pair; a serial interface) and
+gives out every message as a :class:`SessionMessage` when the record that completes it is read.
+
+* A side's protocol is found by :class:`~sharedlink.capture.serial_format.Deframer` ("auto": the
+  first good P2OS packet or blackboard message); SharedLink sides are left to ``iter_decoded``.
+* P2OS, as the dissector decides: the side on TCP port 8101 is the robot; on serial, outbound
+  bytes are the client's and inbound the robot's; else the side that sent a server packet (SIP,
+  CONFIG, ENCODER, a SYNC2 echo with the robot's name) is the robot, and until one is seen each
+  packet's direction is guessed from its payload (:func:`~sharedlink.protocols.p2os.guess_from_client`).
+* Blackboard: the side that sends ``:``/``;`` messages is the master; the other side's bytes
+  are the slave's binary answers, cut by the length the pending message implies (one checksum
+  byte for a set, ``count`` + 1 for a request). A new master message drops a pending one that
+  was never answered (the master repeats after a timeout). Bytes with nothing pending are noise
+  and not reported.
+* TCP segments are taken in capture order; data the stream has already had (a retransmission)
+  is skipped, as in :class:`~sharedlink.capture.stream.FrameSplitter`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Union
+
+from sharedlink.capture.packets import decode_packet
+from sharedlink.capture.pcapio import read_records
+from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, DIRECTION_NAMES, USER_LINKTYPES, Deframer
+from sharedlink.protocols import blackboard, p2os
+
+#: serial direction -> whether it is a P2OS client's (the dissector's p2p_dir rule)
+_SERIAL_CLIENT = {DIR_OUT: True, DIR_IN: False}
+
+#: what a session message carries
+Payload = Union[p2os.Message, blackboard.Message, blackboard.ReadResponse, "Ack", None]
+
+
+@dataclass(frozen=True)
+class Ack:
+    """A blackboard slave's one-byte acknowledgement of a set message."""
+
+    crc: int
+    expected: int
+
+    @property
+    def ok(self) -> bool:
+        return self.crc == self.expected
+
+
+@dataclass(frozen=True)
+class SessionMessage:
+    """One P2OS packet or blackboard message (or slave answer) of a session."""
+
+    number: int  # record that completed it
+    ts_ns: int
+    session: int  # 1, 2, ... in the order the sessions' first messages appear
+    label: str  # "tcp 127.0.0.1:45678 - 127.0.0.1:8101", "serial interface 0"
+    protocol: str  # "p2os" or "blackboard"
+    side: str  # p2os: "client" / "robot"; blackboard: "master" / "slave"
+    raw: bytes
+    ok: bool | None  # checksum verdict (None: none to check)
+    message: Payload  # the decoded message; None when a P2OS payload does not decode
+    error: str = ""  # why the payload did not decode
+    request: blackboard.Message | None = None  # blackboard answers: the message answered
+
+
+@dataclass
+class _Session:
+    index: int
+    label: str
+    sides: dict[object, Deframer] = field(default_factory=dict)
+    protocol: str | None = None
+    robot: object = None  # p2os: the side that sent a server packet
+    master: object = None  # blackboard: the side that sent messages
+    pending: blackboard.Message | None = None
+    answer: bytes = b""
+    tcp_next: dict[object, int] = field(default_factory=dict)
+
+
+class SessionReader:
+    """Byte streams in, :class:`SessionMessage` s out (see the module doc)."""
+
+    def __init__(self) -> None:
+        self.sessions: dict[object, _Session] = {}
+        self.numbered = 0
+
+    def _session(self, key: object, label: str) -> _Session:
+        s = self.sessions.get(key)
+        if s is None:
+            s = self.sessions[key] = _Session(0, label)
+        return s
+
+    def feed(
+        self, key: object, label: str, side: object, number: int, ts_ns: int, data: bytes, client: bool | None = None
+    ) -> list[SessionMessage]:
+        """The messages ``data`` completes. ``client``: whether ``side`` is a P2OS client (None: unknown)."""
+        s = self._session(key, label)
+        if s.protocol == "blackboard" and s.master is not None and side != s.master:
+            return self._answer(s, number, ts_ns, data)
+        d = s.sides.get(side)
+        if d is None:
+            d = s.sides[side] = Deframer(s.protocol if s.protocol in ("p2os", "blackboard") else "auto")
+        out: list[SessionMessage] = []
+        for piece in d.feed(data, number):
+            if piece.frame is None or piece.protocol not in ("p2os", "blackboard"):
+                continue
+            if s.protocol is None:
+                s.protocol = piece.protocol
+                self.numbered += 1
+                s.index = self.numbered
+            if piece.protocol == "p2os":
+                out.append(self._p2os(s, side, client, number, ts_ns, piece.data, piece.frame))  # type: ignore[arg-type]
+            else:
+                if s.master is None:
+                    s.master = side
+                msg = piece.frame
+                s.pending, s.answer = msg, b""  # type: ignore[assignment]
+                out.append(SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "master", piece.data,
+                                          msg.ok, msg))  # type: ignore[union-attr,arg-type]
+        return out
+
+    def _p2os(
+        self, s: _Session, side: object, client: bool | None, number: int, ts_ns: int, raw: bytes, pkt: p2os.Packet
+    ) -> SessionMessage:
+        if s.robot is None and not p2os.guess_from_client(pkt.payload):
+            s.robot = side
+        if client is not None:
+            from_client = client
+        else:
+            from_client = p2os.guess_from_client(pkt.payload) if s.robot is None else side != s.robot
+        msg: Payload = None
+        error = ""
+        try:
+            msg = p2os.decode_payload(pkt.payload, from_client)
+        except p2os.P2osError as exc:
+            error = exc.reason
+        return SessionMessage(number, ts_ns, s.index, s.label, "p2os", "client" if from_client else "robot", raw,
+                              pkt.ok, msg, error)
+
+    def _answer(self, s: _Session, number: int, ts_ns: int, data: bytes) -> list[SessionMessage]:
+        out: list[SessionMessage] = []
+        buf = s.answer + data
+        while s.pending is not None and buf:
+            req = s.pending
+            need = 1 if isinstance(req, blackboard.SetMessage) else req.count + 1
+            if len(buf) < need:
+                break
+            chunk, buf = buf[:need], buf[need:]
+            if isinstance(req, blackboard.SetMessage):
+                ans: Payload = Ack(chunk[0], req.checksum)
+            else:
+                ans = blackboard.parse_response(req, chunk)
+            s.pending = None
+            out.append(SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "slave", chunk,
+                                      ans.ok, ans, request=req))  # type: ignore[union-attr]
+        s.answer = buf if s.pending is not None else b""
+        return out
+
+    def tcp_new(self, key: object, side: object, seq: int, flags: int, length: int) -> bool:
+        """Whether a TCP segment brings data the stream has not had (False: a retransmission)."""
+        s = self.sessions[key]
+        nxt = s.tcp_next.get(side)
+        if nxt is not None and length and ((seq - nxt) & 0xFFFFFFFF) >= 0x80000000:
+            return False
+        if length or flags & 0x03:
+            s.tcp_next[side] = (seq + length + (1 if flags & 0x03 else 0)) & 0xFFFFFFFF
+        return True
+
+
+def iter_sessions(path: str | Path) -> Iterator[SessionMessage]:
+    """Every P2OS packet and blackboard message (and slave answer) of a capture, in order.
+    Raises :class:`~sharedlink.capture.pcapio.CaptureError` on damage, after what came before."""
+    reader = SessionReader()
+    for rec in read_records(path):
+        if rec.linktype in USER_LINKTYPES:
+            key: object = ("serial", rec.interface)
+            d = rec.flags & 3
+            yield from reader.feed(key, f"serial interface {rec.interface}", DIRECTION_NAMES.get(d, "unknown"),
+                                   rec.number, rec.ts_ns, rec.data, _SERIAL_CLIENT.get(d))
+            continue
+        dg = decode_packet(rec.linktype, rec.data)
+        if dg is None:
+            continue
+        a, b = (dg.src, dg.sport), (dg.dst, dg.dport)
+        key = (dg.proto, *sorted((a, b)))
+        lo, hi = key[1], key[2]  # type: ignore[index]
+        label = f"{dg.proto} {lo[0]}:{lo[1]} - {hi[0]}:{hi[1]}"
+        reader._session(key, label)
+        if dg.proto == "tcp" and not reader.tcp_new(key, a, dg.tcp_seq, dg.tcp_flags, len(dg.payload)):
+            continue
+        if dg.payload:
+            client = True if dg.dport == p2os.MOBILESIM_PORT else False if dg.sport == p2os.MOBILESIM_PORT else None
+            yield from reader.feed(key, label, a, rec.number, rec.ts_ns, dg.payload, client)

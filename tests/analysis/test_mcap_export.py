@@ -1,0 +1,243 @@
+"""`sharedlink export --format mcap`: the file read back with the independent `mcap` reader.
+
+Counts are compared with what tshark and the dissectors see in the same capture, values and
+times with ``sl_captures.reference`` (an independent reading of the pcap) and with tshark's
+P2OS fields. Protobuf messages (LocationFix, PoseInFrame) are decoded with the `protobuf`
+package from the schema stored in the file, as Foxglove does.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import pytest
+from sl_captures import BEACON, reference
+
+import tshark_util as tu
+from sharedlink.generators.beacon import GenOptions, generate_file
+
+mcap_reader = pytest.importorskip("mcap.reader")
+descriptor_pb2 = pytest.importorskip("google.protobuf.descriptor_pb2")
+from google.protobuf import descriptor_pool, message_factory  # noqa: E402
+
+CLI = [sys.executable, "-m", "sharedlink"]
+REPO = Path(__file__).resolve().parents[2]
+OTHERS = [a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua"
+          for a in ("-X", f"lua_script:{s}")]
+
+
+def run_cli(*args: object) -> subprocess.CompletedProcess:
+    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
+
+
+def epoch_ns(text: str) -> int:
+    """tshark's frame.time_epoch ("1767268801.383333333") as integer ns, exactly."""
+    sec, _, frac = text.partition(".")
+    return int(sec) * 10**9 + int((frac + "000000000")[:9])
+
+
+class Mcap:
+    """Everything in an MCAP file, read with the `mcap` package's reader."""
+
+    def __init__(self, path: Path) -> None:
+        with open(path, "rb") as fh:
+            r = mcap_reader.make_reader(fh)
+            self.header = r.get_header()
+            self.summary = r.get_summary()
+            self.msgs: dict[str, list] = defaultdict(list)
+            self.schemas: dict[str, tuple[str, str, str]] = {}
+            self._decoders: dict[str, object] = {}
+            for schema, channel, message in r.iter_messages(log_time_order=False):
+                self.schemas[channel.topic] = (schema.name, schema.encoding, channel.message_encoding)
+                self.msgs[channel.topic].append((message.log_time, self.decode(schema, channel, message.data)))
+
+    def decode(self, schema, channel, data: bytes):
+        if channel.message_encoding == "json":
+            return json.loads(data)
+        assert channel.message_encoding == "protobuf" and schema.encoding == "protobuf"
+        cls = self._decoders.get(schema.name)
+        if cls is None:
+            pool = descriptor_pool.DescriptorPool()
+            for fd in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
+                pool.Add(fd)
+            cls = self._decoders[schema.name] = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+        return cls.FromString(data)  # type: ignore[attr-defined]
+
+    def counts(self) -> dict[str, int]:
+        """Message counts per topic as the summary's statistics record states them."""
+        by_id = {cid: ch.topic for cid, ch in self.summary.channels.items()}
+        return {by_id[cid]: n for cid, n in self.summary.statistics.channel_message_counts.items()}
+
+
+@pytest.fixture(scope="module")
+def beacon(tmp_path_factory) -> tuple[Path, Mcap]:
+    d = tmp_path_factory.mktemp("mcap")
+    cap = d / "drive.pcap"
+    generate_file(GenOptions(duration=30, seed=3, compress=True, drop=0.05, bad_checksum=0.05), cap)
+    out = d / "drive.mcap"
+    r = run_cli("export", cap, "-o", out)
+    assert r.returncode == 0, r.stderr
+    assert "messages" in r.stderr
+    return cap, Mcap(out)
+
+
+def test_beacon_schemas_topics_and_counts_match_tshark(beacon):
+    cap, m = beacon
+    assert m.header.profile == "sharedlink"
+    base = "/sharedlink/B_to_A"
+    assert m.schemas == {
+        f"{base}/location": ("foxglove.LocationFix", "protobuf", "protobuf"),
+        f"{base}/values": ("sharedlink.Values", "jsonschema", "json"),
+        f"{base}/frames": ("sharedlink.Frame", "jsonschema", "json"),
+    }
+    rows = tu.fields(cap, ["sharedlink.src", "sharedlink.dst", "sharedlink.checksum.status", "sharedlink.kind"])
+    pairs = Counter((r["sharedlink.src"][0], r["sharedlink.dst"][0]) for r in rows if r["sharedlink.src"])
+    assert pairs == {("B", "A"): len(m.msgs[f"{base}/frames"])}
+    good = sum(1 for r in rows if r["sharedlink.checksum.status"] == ["1"])
+    bad = len(rows) - good
+    assert bad > 0 and good > 100
+    assert m.counts() == {t: len(v) for t, v in m.msgs.items()}
+    assert len(m.msgs[f"{base}/values"]) == len(m.msgs[f"{base}/frames"])
+    assert len(m.msgs[f"{base}/location"]) == good  # every good frame of a beacon has a position
+    assert Counter(f["checksum"] for _t, f in m.msgs[f"{base}/frames"]) == {"good": good, "bad": bad}
+
+
+def test_beacon_log_times_values_and_positions_match_the_capture(beacon):
+    cap, m = beacon
+    ref = reference(cap)
+    base = "/sharedlink/B_to_A"
+    frames, values = m.msgs[f"{base}/frames"], m.msgs[f"{base}/values"]
+    assert len(frames) == len(ref)
+    for (t, f), (tv, v), fr in zip(frames, values, ref):
+        assert t == tv == fr.ts_ns
+        assert f["number"] == fr.number and (f["src"], f["dst"]) == (fr.src, fr.dst)
+        assert f["checksum"] == ("good" if fr.ok else "bad")
+        assert f["text"].startswith(f"[:{fr.dst}{fr.src}|") and f["text"].endswith("]")
+        assert sorted(f["changed"]) == sorted(fr.changed)
+        assert set(v) == set(fr.values)
+        for name in BEACON:
+            if name in fr.values:
+                assert isinstance(v[name], float) and v[name] == float(fr.values[name])
+    good = [fr for fr in ref if fr.ok]
+    locs = m.msgs[f"{base}/location"]
+    for (t, fix), fr in zip(locs, good):
+        assert t == fr.ts_ns == fix.timestamp.seconds * 10**9 + fix.timestamp.nanos
+        assert fix.latitude == float(fr.values["AutoGpsLat"]) and fix.longitude == float(fr.values["AutoGpsLon"])
+        assert fix.heading == float(fr.values["AutoGpsHead"])
+        speed = float(fr.values["AutoGpsVel"])
+        assert math.hypot(fix.velocity.x, fix.velocity.y) == pytest.approx(speed, abs=1e-9)
+        assert fix.frame_id == "B>A"
+    # first and last, spelled out
+    assert locs[0][0] == good[0].ts_ns and locs[-1][0] == good[-1].ts_ns
+    assert values[-1][1]["AutoGpsLat"] == float(ref[-1].values["AutoGpsLat"])
+
+
+def test_other_lat_lon_names(tmp_path):
+    cap = tmp_path / "p.pcap"
+    generate_file(GenOptions(duration=5, seed=2), cap)
+    out = tmp_path / "p.mcap"
+    r = run_cli("export", cap, "--format", "mcap", "-o", out, "--lat", "AutoGpsLon", "--lon", "AutoGpsLat",
+                "--heading", "Nope", "--velocity", "Nope")
+    assert r.returncode == 0, r.stderr
+    m = Mcap(out)
+    ref = reference(cap)
+    fixes = m.msgs["/sharedlink/B_to_A/location"]
+    assert len(fixes) == len(ref)
+    fix = fixes[-1][1]
+    assert fix.latitude == float(ref[-1].values["AutoGpsLon"]) and fix.longitude == float(ref[-1].values["AutoGpsLat"])
+    assert not fix.HasField("heading") and not fix.HasField("velocity")
+
+
+@pytest.mark.parametrize("transport", ["tcp", "serial"])
+def test_p2os_session_poses_and_commands_match_tshark(tmp_path, transport):
+    cap = tmp_path / f"p2os-{transport}.pcapng"
+    r = run_cli("gen", cap, "--protocol", "p2os", "--transport", transport, "--duration", "8")
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "p2os.mcap"
+    r = run_cli("export", cap, "-o", out)
+    assert r.returncode == 0, r.stderr
+    m = Mcap(out)
+    assert m.schemas["/p2os/1/pose"] == ("foxglove.PoseInFrame", "protobuf", "protobuf")
+    assert m.schemas["/p2os/1/commands"][2] == "json"
+    rows = tu.fields(cap, ["frame.time_epoch", "p2os.direction", "p2os.type", "p2os.command", "p2os.sip.xpos",
+                           "p2os.sip.ypos", "p2os.sip.thpos", "p2os.sip.lvel"], extra=OTHERS)
+    clients = [c for r in rows for d, c in zip(r["p2os.direction"], r["p2os.command"] or [None] * 99) if d == "0"]
+    n_client = sum(d == "0" for r in rows for d in r["p2os.direction"])
+    n_server = sum(d == "1" for r in rows for d in r["p2os.direction"])
+    sips = [(int(x), int(y), int(th), int(lv)) for r in rows
+            for x, y, th, lv in zip(r["p2os.sip.xpos"], r["p2os.sip.ypos"], r["p2os.sip.thpos"], r["p2os.sip.lvel"])]
+    assert n_client == len(m.msgs["/p2os/1/commands"]) > 10 and clients
+    assert n_server == len(m.msgs["/p2os/1/sip"]) + len(m.msgs["/p2os/1/server"])
+    assert len(sips) == len(m.msgs["/p2os/1/pose"]) == len(m.msgs["/p2os/1/sip"]) > 10
+    assert [c["command"] for _t, c in m.msgs["/p2os/1/commands"]] == [int(c) for c in clients]
+    for (t, pose), (_t2, sip), (x, y, th, lv) in zip(m.msgs["/p2os/1/pose"], m.msgs["/p2os/1/sip"], sips):
+        assert pose.pose.position.x == x / 1000 and pose.pose.position.y == y / 1000
+        yaw = 2 * math.atan2(pose.pose.orientation.z, pose.pose.orientation.w)
+        assert math.isclose(math.remainder(yaw - th * 2 * math.pi / 4096, 2 * math.pi), 0, abs_tol=1e-9)
+        assert (sip["x_mm"], sip["y_mm"], sip["lvel_mm_s"]) == (x, y, lv)
+        assert t == pose.timestamp.seconds * 10**9 + pose.timestamp.nanos
+    # log times are the capture times of the records that carried the SIPs
+    sip_times = [epoch_ns(r["frame.time_epoch"][0]) for r in rows for _x in r["p2os.sip.xpos"]]
+    assert [t for t, _p in m.msgs["/p2os/1/pose"]] == sip_times
+
+
+def test_blackboard_messages_match_tshark(tmp_path):
+    cap = tmp_path / "bb.pcap"
+    r = run_cli("gen", cap, "--protocol", "blackboard", "--duration", "5")
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "bb.mcap"
+    assert run_cli("export", cap, "-o", out).returncode == 0
+    m = Mcap(out)
+    rows = tu.fields(cap, ["blackboard.type"], extra=OTHERS)
+    want = Counter(t for r in rows for t in r["blackboard.type"])
+    got = Counter(msg["type"] for _t, msg in m.msgs["/blackboard/1/messages"])
+    assert got == want and got["set"] > 10 and got["response"] > 5
+
+
+def test_mcap_needs_a_file_and_a_readable_capture(tmp_path):
+    cap = tmp_path / "x.pcap"
+    generate_file(GenOptions(duration=2), cap)
+    r = run_cli("export", cap, "--format", "mcap")
+    assert r.returncode == 2 and "sharedlink: error:" in r.stderr and "-o" in r.stderr
+    r = run_cli("export", tmp_path / "missing.pcap", "-o", tmp_path / "y.mcap")
+    assert r.returncode == 2 and not (tmp_path / "y.mcap").exists()
+    bad = tmp_path / "bad.pcap"
+    bad.write_bytes(b"not a capture at all")
+    r = run_cli("export", bad, "-o", tmp_path / "z.mcap")
+    assert r.returncode == 2 and "Traceback" not in r.stderr and not (tmp_path / "z.mcap").exists()
+
+
+@pytest.mark.parametrize("form", ["named", "positional"])
+def test_hot_path_messages_equal_the_reference_builders(tmp_path, form):
+    """FoxgloveChannels.frame's hand-formatted rows and cached values equal frame_json/values_json."""
+    import io
+
+    import foxglove
+
+    from sharedlink.analysis.decode import Decoded, iter_decoded
+    from sharedlink.analysis.foxglove_channels import FoxgloveChannels, frame_json, values_json
+
+    cap = tmp_path / "c.pcap"
+    generate_file(GenOptions(duration=10, seed=9, form=form, compress=True, bad_checksum=0.1, drop=0.1), cap)
+    ctx = foxglove.Context()
+    buf = io.BytesIO()
+    writer = foxglove.open_mcap(buf, context=ctx)
+    channels = FoxgloveChannels(ctx)
+    want_frames, want_values = [], []
+    for d in iter_decoded(cap):
+        if isinstance(d, Decoded):
+            channels.frame(d)
+            want_frames.append(frame_json(d))
+            want_values.append(values_json(d))
+    writer.close()
+    path = tmp_path / "c.mcap"
+    path.write_bytes(buf.getvalue())
+    m = Mcap(path)
+    assert [f for _t, f in m.msgs["/sharedlink/B_to_A/frames"]] == want_frames
+    assert [v for _t, v in m.msgs["/sharedlink/B_to_A/values"]] == want_values
+    assert channels.counts == m.counts()
