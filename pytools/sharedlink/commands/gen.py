@@ -39,8 +39,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bad-checksum", type=float, default=0.0, metavar="RATE", help="fraction of frames sent with a wrong checksum")
     p.add_argument("--drop", type=float, default=0.0, metavar="RATE", help="fraction of frames lost")
     p.add_argument("--jitter", type=float, default=0.0, metavar="MS", help="timing jitter, uniform over +-MS/2 milliseconds")
+    p.add_argument("--start", type=_start_time, default=None, metavar="TIME",
+                   help="time of the first beacon, UTC ISO 8601 (e.g. 2026-03-02T08:00:00Z; default 2026-01-01T12:00:00Z)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run)
+
+
+def _start_time(text: str) -> int:
+    """``--start``: UTC ISO 8601 date or time -> ns since 1970."""
+    import datetime as dt
+
+    try:
+        t = dt.datetime.fromisoformat(text[:-1] + "+00:00" if text.endswith("Z") else text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an ISO 8601 time (e.g. 2026-03-02T08:00:00Z)") from None
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=dt.timezone.utc)
+    return int(t.timestamp()) * 1_000_000_000 + t.microsecond * 1000
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,6 +84,8 @@ def run(args: argparse.Namespace) -> int:
         drop=args.drop,
         jitter_ms=args.jitter,
     )
+    if args.start is not None:
+        opts.start_ns = args.start
     if args.frames is not None and args.frames <= 0:
         raise UsageError("--frames must be positive")
     stats = generate_to(opts, generate_file, args.out)

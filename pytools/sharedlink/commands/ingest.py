@@ -1,0 +1,69 @@
+"""``sharedlink ingest``: captures (files or directories) into a fleet Parquet dataset."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from sharedlink.cli import EXIT_OK, EXIT_USAGE
+from sharedlink.commands import add_decode_options, decode_options
+from sharedlink.errors import UsageError
+from sharedlink.fleet.ingest import BATCH_ROWS, Outcome, ingest
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "ingest",
+        help="decode captures into a Parquet dataset (frames and values tables)",
+        description="Decode every capture into the Parquet dataset DATASET (Hive-partitioned by day and node pair; "
+        "tables frames and values; see docs/fleet.md). Incremental: a capture already in the dataset with the same "
+        "content is skipped, a changed one has its rows replaced. A damaged capture keeps the rows before the damage "
+        "and is reported (exit 2 once everything else is ingested).",
+    )
+    p.add_argument("inputs", nargs="+", type=Path, metavar="CAPTURE_OR_DIR",
+                   help="capture files, or directories searched for *.pcap, *.pcapng and *.cap")
+    p.add_argument("--to", dest="dataset", type=Path, required=True, metavar="DATASET", help="the dataset directory")
+    p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the tasks on this Dask distributed scheduler (e.g. tcp://host:8786) instead; "
+                   "its workers must see the captures and DATASET at the same paths")
+    p.add_argument("--vehicle", metavar="NAME",
+                   help="the vehicle of every capture given (default: the name of the directory a capture is in)")
+    p.add_argument("--force", action="store_true", help="re-ingest captures even when unchanged")
+    p.add_argument("--batch-rows", type=int, default=BATCH_ROWS, metavar="N",
+                   help=f"rows held per table before a row group is written (bounds memory; default {BATCH_ROWS})")
+    p.add_argument("--quiet", "-q", action="store_true", help="no line per capture")
+    add_decode_options(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    variables, sync = decode_options(args)
+
+    def say(o: Outcome) -> None:
+        if args.quiet and o.status in ("ingested", "unchanged"):
+            return
+        if o.status == "unchanged":
+            line = "unchanged"
+        elif o.entry is not None:
+            line = f"{o.status}: {o.entry.frames} frames, {o.entry.values} values"
+        else:
+            line = o.status
+        print(f"{o.path}: {line}", file=sys.stderr)
+        if o.error:
+            print(f"sharedlink: error: {o.error}", file=sys.stderr)
+
+    if args.batch_rows < 1:
+        raise UsageError("--batch-rows must be at least 1")
+    report = ingest(
+        args.inputs, args.dataset, workers=args.workers, scheduler=args.scheduler, vehicle=args.vehicle,
+        variables=variables, sync_interval=sync, force=args.force, batch_rows=args.batch_rows, on_outcome=say,
+    )
+    bad = report.count("damaged") + report.count("failed")
+    print(
+        f"{args.dataset}: {report.count('ingested')} ingested ({report.frames} frames, {report.values} values), "
+        f"{report.count('unchanged')} unchanged, {bad} damaged or unreadable",
+        file=sys.stderr,
+    )
+    return EXIT_OK if report.ok else EXIT_USAGE

@@ -1,0 +1,51 @@
+"""``sharedlink query``: SQL (DuckDB) over a fleet dataset's views frames, values and captures."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from sharedlink.cli import EXIT_OK
+from sharedlink.fleet.query import run_query, text, write_csv, write_json
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "query",
+        help="SQL over a dataset made by ingest (DuckDB)",
+        description="Run one SQL statement (DuckDB's dialect) over the dataset's views frames, values and captures "
+        "(columns in docs/fleet.md) and print the result as a table, CSV or JSON.",
+    )
+    p.add_argument("dataset", type=Path, help="dataset directory made by sharedlink ingest")
+    p.add_argument("sql", help='e.g. "SELECT pair, count(*) FROM frames GROUP BY pair"')
+    p.add_argument("--format", dest="fmt", choices=("table", "csv", "json"), default="table",
+                   help="output format (default table)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    result = run_query(args.dataset, args.sql)
+    if args.fmt == "csv":
+        write_csv(result, sys.stdout)
+    elif args.fmt == "json":
+        write_json(result, sys.stdout)
+    elif result.columns:
+        _table(result)
+    return EXIT_OK
+
+
+def _table(result) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(show_header=True, header_style="bold")
+    for c in result.columns:
+        t.add_column(c, overflow="fold")
+    n = 0
+    for row in result.rows():
+        t.add_row(*(text(x) for x in row))
+        n += 1
+    console = Console(width=None if sys.stdout.isatty() else 200)
+    console.print(t)
+    console.print(f"{n} row{'s' if n != 1 else ''}", style="dim")

@@ -1,0 +1,184 @@
+"""A fleet dataset on disk: its two Parquet tables, their Hive partitions and the manifest.
+
+Layout (``docs/fleet.md``)::
+
+    DATASET/_manifest.json                     which captures are in, and their files
+    DATASET/frames/day=2026-01-01/link=B-A/<capture id>-<run>.parquet
+    DATASET/values/day=2026-01-01/link=B-A/<capture id>-<run>.parquet
+
+* ``day`` is the frame's UTC date, ``link`` its node pair as ``SRC-DST`` (``B-A``: from B to A;
+  ``>`` is kept out of directory names). Both come from the path (Hive partitioning), not from the
+  files, so every engine that reads Hive partitions (DuckDB, pyarrow, Dask, Polars, Spark) sees
+  them as columns.
+* The manifest is the truth: a query reads the files it lists. A capture's files are written
+  under hidden names (``.<name>``, which Parquet readers skip) and renamed when complete; the
+  manifest is replaced atomically; then the files it no longer lists are deleted. A crash leaves
+  at worst files no manifest lists; the next ingest deletes them.
+* One ingest at a time per dataset (an exclusive lock on ``DATASET/_lock``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import os
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import pyarrow as pa
+
+from sharedlink.capture.pcapio import atomic_open
+from sharedlink.errors import UsageError
+
+# -- layout --------------------------------------------------------------------------------------
+MANIFEST = "_manifest.json"
+LOCK = "_lock"
+TABLES = ("frames", "values")
+#: manifest format version
+VERSION = 1
+#: partition keys, in directory order
+PARTITION_KEYS = ("day", "link")
+
+# -- tables --------------------------------------------------------------------------------------
+#: one row per SharedLink frame
+FRAMES_SCHEMA = pa.schema(
+    [
+        ("capture", pa.string()),  # the capture's path as ingested
+        ("vehicle", pa.string()),
+        ("seq", pa.int64()),  # the frame's ordinal in its capture, from 1 (several frames may share a record)
+        ("frame", pa.int64()),  # record number (Wireshark's frame.number)
+        ("time_ns", pa.int64()),  # UTC, ns since 1970
+        ("transport", pa.string()),  # udp, tcp or serial
+        ("conversation", pa.string()),  # "udp 10.0.0.2:7013 > 255.255.255.255:7013", "serial outbound if0"
+        ("src", pa.string()),
+        ("dst", pa.string()),
+        ("pair", pa.string()),  # "B>A": from B to A
+        ("kind", pa.string()),  # full, delta, reply, query, declaration, ... (as the dissector)
+        ("checksum_ok", pa.bool_()),  # null: the frame has no checksum field
+        ("late", pa.bool_()),  # sharedlink.sync.late
+        ("size", pa.int32()),  # bytes of the frame, CR LF included
+        ("raw", pa.binary()),  # the frame's bytes
+    ]
+)
+#: one row per variable value a frame with a good (or no) checksum leaves
+VALUES_SCHEMA = pa.schema(
+    [
+        ("capture", pa.string()),
+        ("vehicle", pa.string()),
+        ("seq", pa.int64()),  # joins frames.seq (with capture)
+        ("frame", pa.int64()),
+        ("time_ns", pa.int64()),
+        ("src", pa.string()),
+        ("dst", pa.string()),
+        ("pair", pa.string()),
+        ("name", pa.string()),
+        ("type", pa.int8()),  # the T code (0 long, 2 double, 4 string); null when none was declared
+        ("text", pa.string()),  # the value as written
+        ("value_long", pa.int64()),  # integers
+        ("value_double", pa.float64()),  # every numeric value (integers too)
+        ("value_string", pa.string()),  # values that are not numbers
+        ("carried", pa.bool_()),  # not in the frame: carried forward from an earlier one (compression)
+        ("changed", pa.bool_()),  # differs from the value before this frame
+    ]
+)
+SCHEMAS = {"frames": FRAMES_SCHEMA, "values": VALUES_SCHEMA}
+
+
+def partition_dir(day: str, link: str) -> str:
+    """``day=2026-01-01/link=B-A``: a partition's directory below a table's."""
+    return f"day={day}/link={link}"
+
+
+# -- manifest ------------------------------------------------------------------------------------
+
+
+@dataclass
+class CaptureEntry:
+    """One ingested capture, as the manifest records it."""
+
+    path: str
+    size: int
+    hash: str  # "blake2b:<hex>" of the content
+    id: str  # stable per path: the prefix of its files
+    vehicle: str
+    options: str  # the decode options it was ingested with
+    frames: int = 0
+    values: int = 0
+    records: int = 0
+    first_ns: int | None = None
+    last_ns: int | None = None
+    error: str | None = None  # damaged here: the rows are what came before
+    files: list[str] = field(default_factory=list)  # relative to the dataset
+
+
+@dataclass
+class Manifest:
+    captures: dict[str, CaptureEntry] = field(default_factory=dict)  # by path
+
+    def files(self, table: str) -> list[str]:
+        return sorted(f for e in self.captures.values() for f in e.files if f.startswith(table + "/"))
+
+
+def load_manifest(root: Path) -> Manifest:
+    """The manifest of ``root`` (empty when there is none yet); UsageError if unreadable."""
+    p = root / MANIFEST
+    if not p.exists():
+        return Manifest()
+    try:
+        doc = json.loads(p.read_text())
+        if doc.get("version") != VERSION:
+            raise ValueError(f"version {doc.get('version')!r}, expected {VERSION}")
+        return Manifest({k: CaptureEntry(**v) for k, v in doc["captures"].items()})
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise UsageError(f"{p}: not a fleet dataset manifest ({exc})") from None
+
+
+def save_manifest(root: Path, manifest: Manifest) -> None:
+    doc = {"version": VERSION, "captures": {k: asdict(v) for k, v in sorted(manifest.captures.items())}}
+    with atomic_open(root / MANIFEST, "w") as fh:
+        json.dump(doc, fh, indent=1)
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
+def require_dataset(root: Path) -> Manifest:
+    """The manifest of an existing dataset; UsageError when ``root`` is not one."""
+    if not (root / MANIFEST).exists():
+        raise UsageError(f"{root}: not a fleet dataset (no {MANIFEST}; make one with sharedlink ingest)")
+    return load_manifest(root)
+
+
+@contextlib.contextmanager
+def locked(root: Path) -> Iterator[None]:
+    """Hold the dataset's ingest lock (one ingest at a time); UsageError if another holds it."""
+    root.mkdir(parents=True, exist_ok=True)
+    with open(root / LOCK, "a") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise UsageError(f"{root}: another ingest is writing this dataset") from None
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def sweep(root: Path, manifest: Manifest) -> int:
+    """Delete the table files (finished or half-written) the manifest does not list, and the
+    partition directories left empty; the number of files deleted."""
+    keep = {f for e in manifest.captures.values() for f in e.files}
+    gone = 0
+    for table in TABLES:
+        base = root / table
+        if not base.is_dir():
+            continue
+        for p in sorted(base.rglob("*.parquet")):
+            if p.relative_to(root).as_posix() not in keep:
+                p.unlink()
+                gone += 1
+        for d in sorted((d for d in base.rglob("*") if d.is_dir()), key=lambda d: -len(d.parts)):
+            with contextlib.suppress(OSError):
+                d.rmdir()  # only empty ones go
+    return gone

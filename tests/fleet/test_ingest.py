@@ -1,0 +1,336 @@
+"""`sharedlink ingest` and `sharedlink query`: a small fleet (sample captures and `sharedlink gen`
+captures of several vehicles, days and faults, UDP and serial) into one Parquet dataset.
+
+Frame counts per capture are checked against the real tshark with the dissectors, the query
+results against `sharedlink stats` (capture_stats) on the same captures; re-ingesting changes
+nothing, a changed capture has its rows replaced, a damaged one keeps what came before the damage.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import functools
+import json
+import re
+import shutil
+import subprocess
+import sys
+import tracemalloc
+from decimal import Decimal
+from pathlib import Path
+
+import pyarrow.dataset as pads
+import pytest
+
+from sharedlink.analysis.stats import capture_stats
+from sharedlink.cli import main as cli_main
+from sharedlink.fleet.dataset import load_manifest
+from sharedlink.fleet.ingest import ingest
+from sharedlink.fleet.query import run_query
+from tshark_util import REPO, fields
+
+CLI = [sys.executable, "-m", "sharedlink"]
+SERIAL_LUA = REPO / "dissector" / "serial.lua"
+
+#: vehicle/file -> sharedlink gen options: vehicles on nodes B, C and D, three days, faults
+FLEET = {
+    "v1/day1.pcap": "--duration 30 --src B --start 2026-03-02T08:00:00Z --seed 1 --bad-checksum 0.005",
+    "v1/day2.pcap": "--duration 30 --src B --start 2026-03-03T08:00:00Z --seed 2 --compress --drop 0.05",
+    "v2/day1.pcap": "--duration 20 --src C --start 2026-03-02T09:00:00Z --seed 3 --bad-checksum 0.2",
+    "v2/day1-later.pcap": "--duration 10 --src C --start 2026-03-02T09:05:00Z --seed 7",  # C silent 280 s
+    "v2/day2.pcapng": "--duration 20 --src C --start 2026-03-03T09:00:00Z --seed 4 --form positional --compress",
+    "v3/midnight.pcap": "--duration 20 --src D --start 2026-03-02T23:59:50Z --seed 5 --jitter 20 --bad-checksum 0.05",
+    "v3/serial.pcapng": "--duration 15 --transport serial --seed 6",
+}
+
+
+def q(dataset: Path, sql: str) -> list[tuple]:
+    return list(run_query(dataset, sql).rows())
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("fleet") / "captures"
+    for name, opts in FLEET.items():
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        assert cli_main(["gen", str(root / name), *opts.split()]) == 0
+    (root / "samples").mkdir()
+    for p in sorted((REPO / "captures").glob("*.pcap")):
+        shutil.copy(p, root / "samples" / p.name)
+    return root
+
+
+@pytest.fixture(scope="module")
+def dataset(fleet, tmp_path_factory) -> Path:
+    ds = tmp_path_factory.mktemp("ds") / "fleet"
+    report = ingest([fleet], ds)
+    assert report.ok and report.count("ingested") == len(FLEET) + 2, report
+    return ds
+
+
+def captures(fleet: Path) -> list[Path]:
+    return sorted(p.resolve() for p in fleet.rglob("*.pcap*"))
+
+
+def snapshot(ds: Path) -> dict[str, tuple[int, int]]:
+    return {p.relative_to(ds).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns) for p in ds.rglob("*") if p.is_file()}
+
+
+# -- against tshark and stats -------------------------------------------------------------------------
+
+
+@functools.cache
+def tshark_frames(path: Path) -> list[tuple[int, str, str, str]]:
+    """(time ns, src, dst, checksum status: 0 bad, 1 good, 2 none) of every SharedLink frame, by
+    the real tshark with the dissectors."""
+    extra = ["-X", f"lua_script:{SERIAL_LUA}"] if path.name.startswith("serial") else []
+    names = ["frame.time_epoch", "sharedlink.src", "sharedlink.dst", "sharedlink.checksum.status"]
+    out = []
+    for r in fields(path, names, extra=extra):
+        ts = int(Decimal(r["frame.time_epoch"][0]) * 10**9)
+        assert len(r["sharedlink.src"]) == len(r["sharedlink.dst"]) == len(r["sharedlink.checksum.status"])
+        out += [(ts, *f) for f in zip(r["sharedlink.src"], r["sharedlink.dst"], r["sharedlink.checksum.status"])]
+    return out
+
+
+def test_frames_per_capture_equal_tsharks(fleet, dataset):
+    got = dict(q(dataset, "SELECT capture, count(*) FROM frames GROUP BY capture"))
+    assert set(got) == {str(p) for p in captures(fleet)}
+    for p in captures(fleet):
+        assert got[str(p)] == len(tshark_frames(p)) > 0, p
+        bad = q(dataset, f"SELECT count(*) FROM frames WHERE capture = '{p}' AND checksum_ok = false")
+        assert bad == [(sum(f[3] == "0" for f in tshark_frames(p)),)]
+
+
+def test_queries_agree_with_stats(fleet, dataset):
+    for p in captures(fleet):
+        st = capture_stats(p)
+        cap = str(p).replace("'", "''")
+        pairs = q(dataset, f"""SELECT pair, count(*), sum(size), count(*) FILTER (WHERE checksum_ok = false),
+                                      count(*) FILTER (WHERE late), min(time_ns), max(time_ns)
+                               FROM frames WHERE capture = '{cap}' GROUP BY pair""")
+        assert {r[0]: r[1:] for r in pairs} == {
+            k: (v.frames, v.bytes, v.checksum_failures, v.sync_late, v.first_ns, v.last_ns) for k, v in st.pairs.items()
+        }, p
+        kinds = dict(q(dataset, f"SELECT kind, count(*) FROM frames WHERE capture = '{cap}' GROUP BY kind"))
+        assert kinds == st.kinds
+        variables = q(dataset, f"""SELECT pair, name, count(*), count(*) FILTER (WHERE changed),
+                                          min(value_double), max(value_double), arg_max(text, seq)
+                                   FROM values WHERE capture = '{cap}' AND NOT carried GROUP BY pair, name""")
+        assert {(r[0], r[1]): r[2:] for r in variables} == {
+            k: (v.count, v.changes, v.min, v.max, v.last) for k, v in st.variables.items()
+        }, p
+
+
+def test_partitions_and_typed_values(fleet, dataset):
+    parts = q(dataset, "SELECT DISTINCT vehicle, CAST(day AS VARCHAR), link FROM frames WHERE vehicle LIKE 'v%' ORDER BY ALL")
+    assert ("v3", "2026-03-02", "D-A") in parts and ("v3", "2026-03-03", "D-A") in parts  # across midnight
+    assert {r[0] for r in parts} == {"v1", "v2", "v3"}
+    assert q(dataset, "SELECT count(*) FROM frames WHERE day <> CAST(time AS DATE) OR link <> src || '-' || dst") == [(0,)]
+    # every value of a good frame; none of a bad one; typed columns agree with the text
+    assert q(dataset, """SELECT count(*) FROM values v JOIN frames f USING (capture, seq)
+                         WHERE f.checksum_ok = false""") == [(0,)]
+    bad = q(dataset, """SELECT count(*) FROM values WHERE value_double IS NOT NULL
+                        AND abs(value_double - CAST(text AS DOUBLE)) > 1e-9""")
+    assert bad == [(0,)]
+    # the other engines' road: pyarrow reads the same directory with its Hive partitions
+    table = pads.dataset(dataset / "frames", format="parquet", partitioning="hive").to_table()
+    assert table.num_rows == q(dataset, "SELECT count(*) FROM frames")[0][0]
+    assert {"day", "link", "pair", "checksum_ok", "raw"} <= set(table.column_names)
+
+
+# -- incremental, idempotent, damage ------------------------------------------------------------------
+
+
+def test_reingest_changes_nothing(fleet, dataset):
+    before = snapshot(dataset)
+    counts = q(dataset, "SELECT (SELECT count(*) FROM frames), (SELECT count(*) FROM values)")
+    report = ingest([fleet], dataset)
+    assert report.ok and report.count("unchanged") == len(FLEET) + 2 and report.count("ingested") == 0
+    assert snapshot(dataset) == before
+    assert q(dataset, "SELECT (SELECT count(*) FROM frames), (SELECT count(*) FROM values)") == counts
+
+
+def test_changed_capture_replaces_its_rows(fleet, tmp_path):
+    ds = tmp_path / "ds"
+    work = tmp_path / "caps"
+    shutil.copytree(fleet / "v1", work / "v1")
+    assert ingest([work], ds).ok
+    day1 = (work / "v1" / "day1.pcap").resolve()
+    assert cli_main(["gen", str(day1), "--duration", "12", "--seed", "9", "--start", "2026-03-02T08:00:00Z"]) == 0
+    files_before = set(load_manifest(ds).captures[str(day1)].files)
+    report = ingest([work], ds)
+    assert report.count("ingested") == 1 and report.count("unchanged") == 1
+    rows = dict(q(ds, "SELECT capture, count(*) FROM frames GROUP BY capture"))
+    assert rows[str(day1)] == capture_stats(day1).frames == 60
+    assert not any((ds / f).exists() for f in files_before)
+    # --force rewrites, never duplicates; a new vehicle name is a change too
+    assert ingest([work], ds, force=True).count("ingested") == 2
+    assert ingest([work], ds, vehicle="truck-7").count("ingested") == 2
+    assert dict(q(ds, "SELECT capture, count(*) FROM frames GROUP BY capture")) == rows
+    assert q(ds, "SELECT DISTINCT vehicle FROM values") == [("truck-7",)]
+    assert len(list(ds.rglob("*.parquet"))) == len({f for e in load_manifest(ds).captures.values() for f in e.files})
+
+
+def test_damaged_capture_is_kept_up_to_the_damage_and_reported(fleet, tmp_path):
+    caps = tmp_path / "caps"
+    caps.mkdir()
+    good = caps / "good.pcap"
+    shutil.copy(fleet / "v1" / "day1.pcap", good)
+    data = (fleet / "v2" / "day1.pcap").read_bytes()
+    cut = caps / "cut.pcap"
+    cut.write_bytes(data[: len(data) // 2 + 7])
+    (caps / "junk.pcap").write_bytes(b"not a capture at all")
+    ds = tmp_path / "ds"
+    r = subprocess.run([*CLI, "ingest", str(caps), "--to", str(ds)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr and f"{cut.resolve()}: record" in r.stderr and "junk.pcap" in r.stderr
+    st = capture_stats(cut)
+    assert st.error and st.frames > 10
+    got = dict(q(ds, "SELECT capture, count(*) FROM frames GROUP BY capture"))
+    assert got == {str(cut.resolve()): st.frames, str(good.resolve()): capture_stats(good).frames}
+    errors = dict(q(ds, "SELECT path, error FROM captures WHERE error IS NOT NULL"))
+    assert set(errors) == {str(cut.resolve()), str((caps / "junk.pcap").resolve())}
+    # again: nothing to do, still reported
+    r = subprocess.run([*CLI, "ingest", str(caps), "--to", str(ds)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "3 unchanged" not in r.stderr and "1 unchanged" in r.stderr
+    assert dict(q(ds, "SELECT capture, count(*) FROM frames GROUP BY capture")) == got
+
+
+def test_stray_files_of_an_interrupted_ingest_are_swept(fleet, tmp_path):
+    ds = tmp_path / "ds"
+    assert ingest([fleet / "v1"], ds).ok
+    stray = ds / "frames" / "day=2026-03-02" / "link=B-A" / ".deadbeef-00000000.parquet"
+    stray.write_bytes(b"half")
+    report = ingest([fleet / "v1"], ds)
+    assert report.swept == 1 and not stray.exists()
+
+
+# -- parallel: processes and Dask -----------------------------------------------------------------------
+
+SUMMARY = """SELECT capture, vehicle, pair, CAST(day AS VARCHAR), count(*), sum(size), sum(hash(raw))
+             FROM frames GROUP BY ALL ORDER BY ALL"""
+VALUES_SUMMARY = "SELECT capture, name, count(*), round(sum(value_double), 6), sum(hash(text)) FROM values GROUP BY ALL ORDER BY ALL"
+
+
+def test_two_workers_give_the_same_dataset(fleet, dataset, tmp_path):
+    ds = tmp_path / "ds2"
+    report = ingest([fleet], ds, workers=2)
+    assert report.ok and report.count("ingested") == len(FLEET) + 2
+    assert q(ds, SUMMARY) == q(dataset, SUMMARY)
+    assert q(ds, VALUES_SUMMARY) == q(dataset, VALUES_SUMMARY)
+
+
+def test_dask_local_cluster_gives_the_same_dataset(fleet, dataset, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    ds = tmp_path / "ds-dask"
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
+        report = ingest([fleet], ds, scheduler=cluster.scheduler_address, batch_rows=100)
+    assert report.ok and report.count("ingested") == len(FLEET) + 2
+    assert q(ds, SUMMARY) == q(dataset, SUMMARY)
+    assert q(ds, VALUES_SUMMARY) == q(dataset, VALUES_SUMMARY)
+
+
+def test_unreachable_scheduler_is_a_usage_error(fleet, tmp_path):
+    r = subprocess.run([*CLI, "ingest", str(fleet / "v1"), "--to", str(tmp_path / "d"), "--scheduler", "tcp://127.0.0.1:9"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "Dask scheduler" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_memory_does_not_grow_with_the_capture(tmp_path):
+    peaks = []
+    for n in (1000, 8000):
+        cap = tmp_path / f"c{n}.pcap"
+        assert cli_main(["gen", str(cap), "--frames", str(n), "--compress"]) == 0
+        tracemalloc.start()
+        report = ingest([cap], tmp_path / f"ds{n}", batch_rows=500)
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+        assert report.ok and q(tmp_path / f"ds{n}", "SELECT count(*) FROM frames") == [(n,)]
+    # the larger capture may fill the 1 MiB read buffers (hash, capture reader) the smaller one
+    # does not; rows held are bounded by batch_rows (8000 frames' rows would be ~10 MB)
+    assert peaks[1] < peaks[0] + 2 * (1 << 20) + 300_000, peaks
+
+
+# -- the query command ------------------------------------------------------------------------------------
+
+
+def test_query_cli_formats(dataset):
+    sql = "SELECT pair, count(*) AS frames FROM frames WHERE vehicle = 'v2' GROUP BY pair ORDER BY pair"
+    want = q(dataset, sql)
+    r = subprocess.run([*CLI, "query", str(dataset), sql, "--format", "json"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert [(d["pair"], d["frames"]) for d in json.loads(r.stdout)] == want
+    r = subprocess.run([*CLI, "query", str(dataset), sql, "--format", "csv"], capture_output=True, text=True, timeout=120)
+    assert r.stdout.splitlines() == ["pair,frames"] + [f"{a},{b}" for a, b in want]
+    r = subprocess.run([*CLI, "query", str(dataset), sql], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "C>A" in r.stdout and f"{len(want)} row" in r.stdout
+
+
+def test_query_bad_input(dataset, tmp_path):
+    r = subprocess.run([*CLI, "query", str(dataset), "SELECT nope FROM frames"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.startswith("sharedlink: error: query:") and "Traceback" not in r.stderr
+    r = subprocess.run([*CLI, "query", str(tmp_path), "SELECT 1"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "not a fleet dataset" in r.stderr
+    r = subprocess.run([*CLI, "ingest", str(tmp_path / "none.pcap"), "--to", str(tmp_path / "d")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "no such file" in r.stderr
+
+
+def test_empty_dataset_has_the_columns(tmp_path):
+    ds = tmp_path / "ds"
+    (tmp_path / "empty").mkdir()
+    assert ingest([tmp_path / "empty"], ds).ok
+    assert q(ds, "SELECT count(*), max(time), max(value_double) FROM values") == [(0, None, None)]
+    assert q(ds, "SELECT count(*), max(day) FROM frames") == [(0, None)]
+
+
+# -- the questions of docs/fleet.md -----------------------------------------------------------------------
+
+
+def docs_queries() -> list[str]:
+    return re.findall(r"```sql\n(.*?)```", (REPO / "docs" / "fleet.md").read_text(), re.S)
+
+
+def day_of(ts_ns: int) -> dt.date:
+    return dt.datetime.fromtimestamp(ts_ns // 10**9, dt.timezone.utc).date()
+
+
+def as_time(ts_ns: int) -> dt.datetime:
+    return dt.datetime(1970, 1, 1) + dt.timedelta(microseconds=ts_ns // 1000)
+
+
+def test_docs_questions(fleet, dataset):
+    lossy, top_speed, c_last, c_silences = docs_queries()
+    vehicle = {str(p): p.parent.name for p in captures(fleet)}
+    # 1. links losing more than 1 % of frames to bad checksums, per vehicle per day (tshark's counts)
+    per: dict[tuple, list[int]] = {}
+    for p in captures(fleet):
+        for ts, src, dst, status in tshark_frames(p):
+            n = per.setdefault((vehicle[str(p)], day_of(ts), f"{src}>{dst}"), [0, 0])
+            n[0] += 1
+            n[1] += status == "0"
+    want = sorted((*k, n, bad) for k, (n, bad) in per.items() if bad > 0.01 * n)
+    got = [r[:5] for r in q(dataset, lossy)]
+    assert got == want and ("v2", dt.date(2026, 3, 2), "C>A") in {r[:3] for r in got}
+    # 2. top speed per vehicle (sharedlink stats' max of AutoGpsVel)
+    best: dict[str, float] = {}
+    for p in captures(fleet):
+        for (_pair, name), v in capture_stats(p).variables.items():
+            if name == "AutoGpsVel" and v.max is not None:
+                best[vehicle[str(p)]] = max(best.get(vehicle[str(p)], v.max), v.max)
+    assert {r[0]: r[1] for r in q(dataset, top_speed)} == best
+    # 3. when did node C stop answering (good frames by tshark's verdict)
+    heard: dict[dt.date, list[int]] = {}
+    for p in captures(fleet):
+        for ts, src, _dst, status in tshark_frames(p):
+            if status != "0":
+                h = heard.setdefault(day_of(ts), [0, 0])
+                h[1] = max(h[1], ts)
+                if src == "C":
+                    h[0] = max(h[0], ts)
+    want3 = [(d, as_time(c), as_time(a)) for d, (c, a) in sorted(heard.items()) if c]
+    assert [r[:3] for r in q(dataset, c_last)] == want3 and len(want3) == 2
+    # ... and its silences: the 280 s between the two captures of v2 on 2026-03-02
+    rows = q(dataset, c_silences)
+    assert len(rows) == 1 and rows[0][0] == "v2" and 270 < rows[0][3].total_seconds() < 290
