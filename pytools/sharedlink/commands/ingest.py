@@ -6,8 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from sharedlink.cli import EXIT_OK, EXIT_USAGE
-from sharedlink.commands import add_decode_options, decode_options
+from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, decode_options
 from sharedlink.errors import UsageError
 from sharedlink.fleet.ingest import BATCH_ROWS, Outcome, ingest
 

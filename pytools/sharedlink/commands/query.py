@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from sharedlink.cli import EXIT_OK
+from sharedlink.commands import EXIT_OK
 from sharedlink.fleet.query import run_query, text, write_csv, write_json
 
 

@@ -26,8 +26,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from sharedlink.analysis.decode import NS, Decoded, iter_decoded
-from sharedlink.capture.pcapio import CaptureError
-from sharedlink.errors import UsageError
+from sharedlink.errors import InputError, UsageError
 from sharedlink.fleet.dataset import (
     MANIFEST,
     SCHEMAS,
@@ -146,7 +145,7 @@ def _decode_into(task: Task, entry: CaptureEntry, frames: _TableWriter, values: 
                 tc = tv.type_code if tv is not None else None
                 values.add(key, head + (u.name, tc, u.text, *_typed(tc, u.text), u.carried, u.changed))
                 entry.values += 1
-    except CaptureError as exc:
+    except InputError as exc:  # damage: the rows before it are kept
         entry.error = str(exc)
 
 
@@ -267,8 +266,7 @@ def find_captures(inputs: Iterable[str | Path]) -> list[Path]:
             out.append(p)
         else:
             raise UsageError(f"{p}: no such file or directory")
-    seen: set[Path] = set()
-    return [p for p in (q.resolve() for q in out) if not (p in seen or seen.add(p))]  # type: ignore[func-returns-value]
+    return list(dict.fromkeys(p.resolve() for p in out))  # each once, in order
 
 
 def options_key(variables: Sequence[tuple[str, int | None]], sync_interval: float) -> str:
