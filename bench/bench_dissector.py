@@ -163,18 +163,19 @@ def run_tshark(beacon: Path, compressed: Path, homes: dict[str, dict[str, str]],
 # -- the Wireshark GUI ------------------------------------------------------------------------
 
 
-def _cpu_seconds(pid: int) -> float:
-    """User + sys CPU of a process and its reaped children, from /proc."""
+def _proc_stat(pid: int) -> tuple[str, float]:
+    """(state letter, user + sys CPU seconds) of a process's main thread, from /proc."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     ticks = sum(int(x) for x in fields[11:15])
-    return ticks / os.sysconf("SC_CLK_TCK")
+    return fields[0], ticks / os.sysconf("SC_CLK_TCK")
 
 
 def gui_open_until_idle(capture: Path, env: dict[str, str], display: str, extra: list[str],
-                        timeout: float = 900.0, quiet: float = 3.0) -> Measure:
-    """Start Wireshark on ``capture`` and wait until it is idle: its CPU time has not grown by
-    more than 5% of the elapsed time for ``quiet`` seconds. Returns the time until the last
-    busy sample (wall) and the CPU used by then."""
+                        timeout: float = 1800.0, quiet: float = 3.0) -> Measure:
+    """Start Wireshark on ``capture`` and wait until it is idle: for ``quiet`` seconds its main
+    thread was never runnable (state R) and used no CPU. On a busy machine a loading Wireshark
+    waiting for a core is still runnable, so being starved is not mistaken for idle. Returns the
+    time until the last busy sample (wall) and the CPU used by then."""
     env = dict(env, DISPLAY=display)
     proc = subprocess.Popen([WIRESHARK, "-r", str(capture), *extra], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -182,12 +183,12 @@ def gui_open_until_idle(capture: Path, env: dict[str, str], display: str, extra:
     try:
         last_cpu, last_busy_t, last_busy_cpu = 0.0, 0.0, 0.0
         while True:
-            time.sleep(0.5)
+            time.sleep(0.2)
             now = time.perf_counter() - t0
             if proc.poll() is not None:
                 raise RuntimeError(f"wireshark exited ({proc.returncode}) while loading {capture}")
-            cpu = _cpu_seconds(proc.pid)
-            if cpu - last_cpu > 0.05 * 0.5:
+            state, cpu = _proc_stat(proc.pid)
+            if state == "R" or cpu > last_cpu:
                 last_busy_t, last_busy_cpu = now, cpu
             last_cpu = cpu
             if now - last_busy_t >= quiet and now > 5:
