@@ -12,7 +12,7 @@ DISSECTORS := $(wildcard dissector/*.lua)
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: all demo test lint bench captures install uninstall deps tshark venv clean help rootfs test-matrix fuzz
+.PHONY: all demo test lint bench captures install uninstall deps tshark venv clean help rootfs test-matrix fuzz mutate
 
 all: help
 
@@ -25,6 +25,7 @@ help:
 	@echo "make uninstall remove them again"
 	@echo "make test-matrix  the tshark tests on Wireshark 4.0, 4.4 and 4.6 (root filesystems built once)"
 	@echo "make fuzz      the long fuzz run of the dissectors and the Python parsers"
+	@echo "make mutate    mutation testing of the core modules (share of mutants killed)"
 
 # --- set-up ------------------------------------------------------------------------------
 deps: tshark venv
@@ -75,6 +76,12 @@ test: deps lint
 
 bench: deps
 	$(PY) bench/bench.py
+
+# mutation testing (mutmut) of the core modules, each against its fast subset of the tests;
+# MUTATE_ARGS: module names (codec state stream diff serial_format replay), --jobs, --resume
+mutate: deps
+	@$(BIN)/python -c 'import mutmut' 2>/dev/null || $(BIN)/pip install -q 'mutmut>=3.3'  # the [mutate] extra
+	env -u PYTHONPATH $(PY) scripts/mutate.py $(MUTATE_ARGS)
 
 captures: deps
 	$(CLI) gen captures/beacon-full.pcap --duration 60 --seed 1

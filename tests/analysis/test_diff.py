@@ -4,6 +4,7 @@ library and the CLI; the stream reader's fast path against its general path."""
 from __future__ import annotations
 
 import json
+import math
 import re
 import subprocess
 import sys
@@ -309,6 +310,58 @@ def test_variables_on_one_side_and_positional_against_named(tmp_path):
     assert [v.type for v in rep.variables] == [None, 2, None, 4]
 
 
+def test_a_change_carried_only_by_an_unmatched_frame_is_compared(tmp_path):
+    """X changes in frame 6 only; B (X sent only when it changes, everything every tenth
+    frame) loses that frame. From the next pair on, B's X is stale until its next full set:
+    four mismatches, from A's frame 7 (B's frame 6) on."""
+
+    def named(vals: dict[str, str]) -> bytes:
+        return build_frame(Frame("A", "B", (Field("N", "0"),) + tuple(
+            f for n, v in vals.items() for f in (Field("T", "2"), Field("Q", n), Field("D", v)))))
+
+    xs = ["1.0"] * 5 + ["2.0"] * 15
+    ys = [f"{i}.5" for i in range(20)]  # Y changes in every frame
+    t = [1_000_000_000 + i * 200_000_000 for i in range(20)]
+    a = write_capture(tmp_path / "a.pcap", [(t[i], named({"X": xs[i], "Y": ys[i]})) for i in range(20)])
+    b = write_capture(tmp_path / "b.pcap", [
+        (t[i], named({"X": xs[i], "Y": ys[i]} if i % 10 == 0 or xs[i] != xs[i - 1] else {"Y": ys[i]}))
+        for i in range(20) if i != 5])
+    rep = diff(a, b, variables=[])
+    assert (rep.pairs, rep.unmatched_a, rep.unmatched_b) == (19, 1, 0)
+    got = {v.name: v for v in rep.variables}
+    assert got["Y"].agree
+    x = got["X"]
+    assert x.mismatches == 4
+    assert (x.first_divergence.a_frame, x.first_divergence.b_frame) == (7, 6)
+    assert (x.first_divergence.a_value, x.first_divergence.b_value) == ("2.0", "1.0")
+    assert x.worst_staleness.late == "b" and (x.worst_staleness.to_a_frame, x.worst_staleness.to_b_frame) == (11, 10)
+
+
+def test_window_is_half_the_frame_period_of_each_direction(tmp_path):
+    """The default window is half the median gap between frames of one direction: 50 ms at
+    10 Hz; with two directions interleaved, still half of each direction's own period."""
+    fast = tmp_path / "fast.pcap"
+    generate_file(GenOptions(duration=10, seed=4, rate=10), fast)
+    assert diff(fast, fast).window_ms == 50.0
+    b, c = tmp_path / "b.pcap", tmp_path / "c.pcap"
+    generate_file(GenOptions(duration=10, seed=4), b)
+    generate_file(GenOptions(duration=10, seed=5, src="C"), c)
+    both = [(r.ts_ns, decode_packet(r.linktype, r.data).payload) for r in read_records(b)]
+    both += [(r.ts_ns + 100_000_000, decode_packet(r.linktype, r.data).payload) for r in read_records(c)]
+    merged = write_capture(tmp_path / "both.pcap", sorted(both))
+    rep = diff(merged, merged)
+    assert rep.window_ms == 100.0 and rep.agree and rep.pairs == 100
+    assert diff(merged, merged, window_ms=30).window_ms == 30.0
+
+
+def test_bad_options_are_refused():
+    for kw in ({"by": "frame"}, {"window_ms": -1}, {"window_ms": math.inf}, {"tolerance": -0.1},
+               {"tolerance": math.inf}, {"tolerance": math.nan}, {"sync_interval": 0}, {"sync_interval": math.inf}):
+        with pytest.raises(ValueError):
+            DiffOptions(**kw).validate()
+    DiffOptions(window_ms=0, tolerance=0).validate()
+
+
 def test_cli_output_and_exit_codes(beacon, tmp_path):
     full, comp = beacon
     r = subprocess.run(CLI + ["diff", str(full), str(comp)], capture_output=True, text=True)
@@ -334,6 +387,35 @@ def test_cli_output_and_exit_codes(beacon, tmp_path):
     ):
         r = subprocess.run(CLI + ["diff"] + args, capture_output=True, text=True)
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
+
+
+def test_report_as_json_data(beacon, tmp_path):
+    """What --json prints (DiffReport.to_dict): the derived keys next to the fields."""
+    full, comp = beacon
+    d = diff(full, comp).to_dict()
+    assert d["agree"] is True and d["errors"] == [] and d["only_a"] == [] and d["only_b"] == []
+    assert d["saving_wire"] == pytest.approx(1 - d["b"]["wire_bytes"] / d["a"]["wire_bytes"]) and d["saving_wire"] > 0
+    assert d["saving_payload"] == pytest.approx(1 - d["b"]["payload_bytes"] / d["a"]["payload_bytes"])
+    assert [v["agree"] for v in d["variables"]] == [True] * 4
+
+    def change(idx, payload):  # AutoGpsLat one higher in frame 11
+        f = parse_frame(payload)
+        return build_frame(Frame(f.dst, f.src, tuple(
+            Field("D", str(float(fl.text) + 1)) if idx == 10 and prev.text == "AutoGpsLat" else fl
+            for prev, fl in zip((Field(""),) + f.fields, f.fields)), f.crlf))
+
+    d = diff(full, rewrite(full, tmp_path / "changed.pcap", change)).to_dict()
+    assert d["agree"] is False and d["errors"] == []
+    assert [(v["name"], v["mismatches"], v["agree"]) for v in d["variables"]] == [
+        (n, int(n == "AutoGpsLat"), n != "AutoGpsLat") for n in VARS]
+    other = tmp_path / "other.pcap"
+    generate_file(GenOptions(duration=10, seed=3, src="C"), other)
+    d = diff(full, other).to_dict()
+    assert d["only_a"] == VARS and d["only_b"] == VARS and not any(v["agree"] for v in d["variables"])
+    data = comp.read_bytes()
+    (tmp_path / "cut.pcap").write_bytes(data[: len(data) // 2])
+    d = diff(full, tmp_path / "cut.pcap").to_dict()
+    assert d["agree"] is False and len(d["errors"]) == 1 and "cut.pcap" in d["errors"][0] and d["b"]["error"] == d["errors"][0]
 
 
 def test_rich_table(beacon, capsys):
