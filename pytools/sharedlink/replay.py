@@ -31,7 +31,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from socket import inet_ntoa
-from typing import Any, NamedTuple, Union
+from typing import Any, NamedTuple, Optional, Union
 
 from sharedlink.capture.packets import decode_packet
 from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, LINKTYPE_USER0, NS, CaptureError, read_records
@@ -564,7 +564,6 @@ class Replayer:
         self._rng = random.Random(0)
         self._next_progress = 0
         self._start = 0
-        self._kept_bytes = 0
 
     # -- bookkeeping
     def _lag(self, lag: int) -> None:
@@ -594,7 +593,7 @@ class Replayer:
         self._next_progress = self._start + self.progress_ns
         try:
             if self.opts.topspeed:
-                self._run_topspeed()
+                _TopSpeed(self).run()
             else:
                 with latency_hints(self.opts.realtime) as granted:
                     st.realtime = granted
@@ -617,7 +616,7 @@ class Replayer:
             yield n
             n += 1
 
-    # -- timed modes: streaming, absolute deadlines
+    # -- the reference path (timed modes): one frame at a time, streaming, absolute deadlines
     def _run_timed(self) -> None:
         opts, st, sink = self.opts, self.stats, self.sink
         send, target_of = sink.send, sink.target
@@ -675,19 +674,38 @@ class Replayer:
                 mean_gap = round(interval) if interval is not None else (prev - base) // (count - 1) if count > 1 else 0
             base = prev + mean_gap + delay
 
-    # -- top speed: chunks of pre-read payloads sent in a tight loop
-    def _run_topspeed(self) -> None:
+
+class _TopSpeed:
+    """The fast tier of :class:`Replayer`, for ``topspeed``: payloads pre-read in chunks of
+    :data:`TOPSPEED_CHUNK` and sent in a tight loop, passes after the first from a cache (up to
+    :data:`LOOP_CACHE_BYTES`). Same contract as the reference path (``Replayer._run_timed``
+    without pacing): the same frames to the same targets in the same order, the same counts,
+    errors, passes and limit; only the timing (none) and the progress calls (per chunk) differ."""
+
+    def __init__(self, replayer: Replayer) -> None:
+        self.replayer = replayer
+        self.opts, self.stats, self.sink, self.source = replayer.opts, replayer.stats, replayer.sink, replayer.source
+        self._kept_bytes = 0
+
+    def run(self) -> None:
         opts, st = self.opts, self.stats
         limit = opts.limit
         delay = opts.loop_delay
         cache: list[_Chunk] | None = None
-        for npass in self._passes():
+        for npass in self.replayer._passes():
             if npass and delay:
                 time.sleep(delay)
             keep: list[_Chunk] | None = [] if cache is None and opts.loop != 1 else None
             chunks = iter(cache) if cache is not None else self._chunks(keep)
             taken = st.attempted
             for numbers, payloads, targets in chunks:
+                if targets is None:  # frames without a target fail on every pass, as in the reference path
+                    for number in numbers:
+                        if limit is not None and st.attempted >= limit:
+                            return
+                        st.attempted += 1
+                        st.error("no-port", _NO_PORT % number)
+                    continue
                 if limit is not None:
                     room = limit - st.attempted
                     if room <= 0:
@@ -696,7 +714,7 @@ class Replayer:
                         self._send_chunk(numbers[:room], payloads[:room], targets[:room])
                         return
                 self._send_chunk(numbers, payloads, targets)
-                self._report(time.monotonic_ns())
+                self.replayer._report(time.monotonic_ns())
             if st.attempted == taken:
                 return  # nothing to send: looping would spin forever
             st.passes += 1
@@ -704,9 +722,10 @@ class Replayer:
                 cache = keep
 
     def _chunks(self, keep: list[_Chunk] | None) -> Iterator[_Chunk]:
-        """Chunks of (record numbers, payloads, targets); frames without a target are counted
-        as errors here. With ``keep``, chunks are also kept while they fit the cache."""
-        st, target_of = self.stats, self.sink.target
+        """Chunks of (record numbers, payloads, targets); a frame without a target is a chunk
+        of its own with targets None. With ``keep``, chunks are also kept while they fit the
+        cache."""
+        target_of = self.sink.target
         self._kept_bytes = 0
         numbers: list[int] = []
         payloads: list[bytes] = []
@@ -715,10 +734,13 @@ class Replayer:
             for fr in self.source:
                 t = target_of(fr)
                 if t is None:
-                    if self.opts.limit is not None and st.attempted >= self.opts.limit:
-                        break
-                    st.attempted += 1
-                    st.error("no-port", _NO_PORT % fr.number)
+                    if payloads:
+                        self._keep(keep, (numbers, payloads, targets))
+                        yield numbers, payloads, targets
+                        numbers, payloads, targets = [], [], []
+                    alone: _Chunk = ([fr.number], [], None)
+                    self._keep(keep, alone)
+                    yield alone
                     continue
                 numbers.append(fr.number)
                 payloads.append(fr.payload)
@@ -762,7 +784,7 @@ class Replayer:
         st.bytes += sum(map(len, payloads)) - failed_bytes
 
 
-_Chunk = tuple[list[int], list[bytes], list[Target]]
+_Chunk = tuple[list[int], list[bytes], Optional[list[Target]]]
 _NO_PORT = "record %d: a serial record has no destination port (give --to HOST:PORT)"
 
 

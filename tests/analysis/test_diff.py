@@ -1,5 +1,6 @@
 """`sharedlink diff`: real captures (generated, hypothesis-made, deliberately damaged), the
-library and the CLI; the stream reader's fast path against its general path."""
+library and the CLI; the stream reader's fast path against its general path, the aligner's bulk
+tier against its reference path."""
 
 from __future__ import annotations
 
@@ -245,6 +246,28 @@ def test_fast_path_and_general_path_agree_on_generated_beacons(tmp_path):
         assert fast == slow
         assert fast[-1]["checksum_failures"] == bad_checksums(p)
         assert (fast[-1]["checksum_failures"] > 0) == (opts.bad_checksum > 0)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck))
+@given(captures(), captures())
+def test_bulk_tier_and_reference_aligner_agree_on_varied_input(tmp_path_factory, dga, dgb):
+    d = tmp_path_factory.mktemp("bulk")
+    x, y = write_capture(d / "x.pcap", dga), write_capture(d / "y.pcap", dgb)
+    for a, b in ((x, x), (x, y), (y, x)):
+        for by in ("time", "sequence"):
+            assert diff(a, b, by=by).to_dict() == diff(a, b, by=by, bulk=False).to_dict(), (a, b, by)
+
+
+def test_bulk_tier_and_reference_aligner_agree_on_generated_beacons(beacon, tmp_path):
+    full, comp = beacon
+    bad = tmp_path / "bad.pcap"
+    generate_file(GenOptions(duration=40, seed=3, compress=True, drop=0.1, bad_checksum=0.1, jitter_ms=30), bad)
+    pos = tmp_path / "pos.pcap"
+    generate_file(GenOptions(duration=40, seed=3, form="positional"), pos)
+    for a, b in ((full, comp), (full, bad), (bad, comp), (pos, full)):
+        for by in ("time", "sequence"):
+            bulk, ref = diff(a, b, by=by).to_dict(), diff(a, b, by=by, bulk=False).to_dict()
+            assert bulk == ref and bulk["pairs"] >= 180, (a, b, by)
 
 
 def test_values_compare_by_type():

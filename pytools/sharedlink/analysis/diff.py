@@ -56,6 +56,7 @@ class DiffOptions:
     variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES
     parallel: bool = True  # read each capture in its own process
     fast: bool = True  # the stream reader's fast path (False: general path only)
+    bulk: bool = True  # the aligner's bulk tier, equal runs at once (False: frame by frame only)
 
     def validate(self) -> None:
         if self.by not in ("time", "sequence"):
@@ -394,6 +395,10 @@ def _frame_period(side: _Side) -> int | None:
 
 
 class _Aligner:
+    """The reference aligner: takes the two sides' frames one at a time (the earlier first),
+    pairs them per direction (within the window, or by order) and compares the values each
+    pair leaves. :class:`_BulkAligner` is the same with a bulk tier in front."""
+
     def __init__(self, a: _Side, b: _Side, opts: DiffOptions) -> None:
         self.sides = (a, b)
         self.opts = opts
@@ -413,6 +418,13 @@ class _Aligner:
     # -- main loop -------------------------------------------------------------------------
 
     def run(self) -> None:
+        self._start()
+        while self._refill():
+            self._slow_step()
+        self._finish()
+
+    def _start(self) -> None:
+        """The first chunks, and the window (measured unless given)."""
         a, b = self.sides
         for s in self.sides:
             s.fetch()
@@ -421,61 +433,18 @@ class _Aligner:
         else:
             periods = [p for p in (_frame_period(a), _frame_period(b)) if p]
             self.window = min(periods) // 2 if periods else DEFAULT_WINDOW_NS
-        n_try = 64
-        while True:
-            for s in self.sides:
-                while not s.has and not s.done:
-                    s.fetch()
-            if not a.has and not b.has:
-                break
-            if a.has and b.has:
-                n = self._try_fast(n_try)
-                if n > 0:
-                    n_try = min(n_try * 4, 1 << 16)
-                    continue
-                if n < 0 and n_try > 8:
-                    n_try //= 4
-                    continue
-                n_try = 8
-            self._slow_step()
+
+    def _refill(self) -> bool:
+        """Fetch where a side ran dry; False when both sides are done."""
+        for s in self.sides:
+            while not s.has and not s.done:
+                s.fetch()
+        return self.sides[0].has or self.sides[1].has
+
+    def _finish(self) -> None:
         for s in self.sides:
             self.end_ts = max(self.end_ts, s.last_ts)
         self._drain(final=True)
-
-    def _try_fast(self, n_try: int) -> int:
-        """Accept up to ``n_try`` frames at once when both sides carry equal change records
-        (and equal times, aligning by time). Returns frames accepted, 0 when not possible
-        here, -1 when the run was not equal."""
-        a, b = self.sides
-        n = min(a.end - a.pos, b.end - b.pos, n_try, a.next_event() - a.pos, b.next_event() - b.pos)
-        if n <= 0:
-            return 0
-        single = len(a.keys) == 1 and a.keys == b.keys
-        if single:
-            k = next(iter(a.keys))
-            if k in self.pending or k in self.dirty or self.bad_keys[k]:
-                return 0
-        ia, ib = a.pos - a.start, b.pos - b.start
-        ra = a.recs[ia : ia + n]
-        if ra != b.recs[ib : ib + n]:
-            return -1
-        if self.by_time and a.ts[ia : ia + n] != b.ts[ib : ib + n]:
-            return -1
-        if single:
-            counts: dict[bytes, int] = {k: n}
-        else:
-            counts = Counter(r[:2] for r in ra)
-            for k in counts:
-                if k in self.pending or k in self.dirty or self.bad_keys[k]:
-                    return 0
-        for k, c in counts.items():
-            self.pairs[k] += c
-        self.total_pairs += n
-        a.pos += n
-        b.pos += n
-        a.last_ts = unpack_ts(a.ts[ia + n - 1])
-        b.last_ts = unpack_ts(b.ts[ib + n - 1])
-        return n
 
     def _slow_step(self) -> None:
         a, b = self.sides
@@ -499,7 +468,9 @@ class _Aligner:
         key = rec[:2]
         while s.events and s.events[0][0] < s.pos:
             _, ek, ename, etype = s.events.popleft()
-            v = self._var(ek, ename, self.pairs[ek])
+            # the frame pairs after the ones of its direction still waiting on this side
+            waiting = s.queues.get(ek)
+            v = self._var(ek, ename, self.pairs[ek] + (len(waiting) if waiting else 0))
             if s.index == 0:
                 v.type_a = etype
             else:
@@ -652,6 +623,67 @@ class _Aligner:
         return r
 
 
+class _BulkAligner(_Aligner):
+    """The fast tier: where both sides carry equal change records (and equal times, aligning
+    by time) for a direction in a quiet state, whole runs of them are accepted at once, without
+    pairing or comparing frame by frame: equal records leave equal values, so the reference
+    path would find nothing either. The values are caught up lazily (``_Side.replay``). The run
+    length adapts (longer after a success, shorter after a miss); everything else is the
+    reference path's. Same contract and the same report as :class:`_Aligner`."""
+
+    def run(self) -> None:
+        self._start()
+        a, b = self.sides
+        n_try = 64
+        while self._refill():
+            if a.has and b.has:
+                n = self._try_fast(n_try)
+                if n > 0:
+                    n_try = min(n_try * 4, 1 << 16)
+                    continue
+                if n < 0 and n_try > 8:
+                    n_try //= 4
+                    continue
+                n_try = 8
+            self._slow_step()
+        self._finish()
+
+    def _try_fast(self, n_try: int) -> int:
+        """Accept up to ``n_try`` frames at once when both sides carry equal change records
+        (and equal times, aligning by time). Returns frames accepted, 0 when not possible
+        here, -1 when the run was not equal."""
+        a, b = self.sides
+        n = min(a.end - a.pos, b.end - b.pos, n_try, a.next_event() - a.pos, b.next_event() - b.pos)
+        if n <= 0:
+            return 0
+        single = len(a.keys) == 1 and a.keys == b.keys
+        if single:
+            k = next(iter(a.keys))
+            if k in self.pending or k in self.dirty or self.bad_keys[k]:
+                return 0
+        ia, ib = a.pos - a.start, b.pos - b.start
+        ra = a.recs[ia : ia + n]
+        if ra != b.recs[ib : ib + n]:
+            return -1
+        if self.by_time and a.ts[ia : ia + n] != b.ts[ib : ib + n]:
+            return -1
+        if single:
+            counts: dict[bytes, int] = {k: n}
+        else:
+            counts = Counter(r[:2] for r in ra)
+            for k in counts:
+                if k in self.pending or k in self.dirty or self.bad_keys[k]:
+                    return 0
+        for k, c in counts.items():
+            self.pairs[k] += c
+        self.total_pairs += n
+        a.pos += n
+        b.pos += n
+        a.last_ts = unpack_ts(a.ts[ia + n - 1])
+        b.last_ts = unpack_ts(b.ts[ib + n - 1])
+        return n
+
+
 def diff_captures(a: str | Path, b: str | Path, opts: DiffOptions | None = None) -> DiffReport:
     """Compare captures ``a`` and ``b``. A missing or damaged file is reported in the
     report's ``errors`` (with everything before the damage compared)."""
@@ -661,7 +693,8 @@ def diff_captures(a: str | Path, b: str | Path, opts: DiffOptions | None = None)
     gc.disable()  # millions of short-lived objects and no cycles: the collector only costs time
     sources = [_source(str(a), opts), _source(str(b), opts)]
     try:
-        al = _Aligner(_Side(0, sources[0]), _Side(1, sources[1]), opts)
+        aligner = _BulkAligner if opts.bulk else _Aligner
+        al = aligner(_Side(0, sources[0]), _Side(1, sources[1]), opts)
         al.run()
         return al.report()
     finally:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
@@ -152,26 +152,36 @@ def _clamp16(v: float) -> int:
     return max(-32768, min(32767, int(round(v))))
 
 
-def session_packets(opts: P2osGenOptions) -> Iterator[tuple[int, bool, bytes, str]]:
-    """(timestamp ns, from_client, P2OS packet, kind) in time order."""
+#: one packet of the session: (timestamp ns, from_client, P2OS packet, kind)
+Event = tuple[int, bool, bytes, str]
+
+
+def session_packets(opts: P2osGenOptions) -> Iterator[Event]:
+    """(timestamp ns, from_client, P2OS packet, kind) in time order: the handshake, then the
+    drive one SIP cycle at a time until the client closes the connection."""
     rng = random.Random(opts.seed)
-    t = opts.start_ns + MS
+    t = yield from _handshake(opts, opts.start_ns + MS)
+    yield from _Drive(opts, rng, t).run()
+
+
+def _command(name: str, arg: int | bytes | None = None) -> bytes:
+    return build_packet(command(name, arg).encode())
+
+
+def _handshake(opts: P2osGenOptions, t: int) -> Generator[Event, None, int]:
+    """SYNC0..2 (each echoed about a millisecond later), OPEN, CONFIG and the robot's CONFIG
+    packet; returns the time the drive starts."""
     name = opts.robot_name.encode("latin-1", "replace")
     cls = opts.robot_class.encode("latin-1", "replace")
     sub = opts.robot_subclass.encode("latin-1", "replace")
-
-    def cmd(name_: str, arg: int | bytes | None = None) -> bytes:
-        return build_packet(command(name_, arg).encode())
-
-    # handshake: SYNC0..2, each echoed about a millisecond later
     for n in range(3):
         yield t, True, build_packet(bytes((n,))), f"SYNC{n}"
         strings = (name, cls, sub) if n == 2 else ()
         yield t + 900_000, False, build_packet(SyncReply(n, strings).encode()), f"SYNC{n} echo"
         t += 3 * MS
-    yield t, True, cmd("OPEN"), "OPEN"
+    yield t, True, _command("OPEN"), "OPEN"
     t += 5 * MS
-    yield t, True, cmd("CONFIG"), "CONFIG"
+    yield t, True, _command("CONFIG"), "CONFIG"
     config = Config(
         (
             ("robot_type", cls), ("subtype", sub), ("serial", b"SIM"), ("four_mots", 0), ("rotvel_top", 300),
@@ -181,76 +191,99 @@ def session_packets(opts: P2osGenOptions) -> Iterator[tuple[int, bool, bytes, st
         )
     )
     yield t + MS, False, build_packet(config.encode()), "CONFIG"
-    t += 5 * MS
+    return t + 5 * MS
 
-    robot = _Robot()
-    # client commands queued as (time, name, arg); applied to the robot when sent
-    queue: list[tuple[int, str, int | bytes | None]] = [
-        (t, "ENCODER", 2),
-        (t + 5 * MS, "SETA", 300),
-        (t + 10 * MS, "SETA", -400),
-        (t + 15 * MS, "SETRA", 100),
-        (t + 20 * MS, "SONAR", 1),
-        (t + 200 * MS, "ENABLE", 1),
-        (t + 210 * MS, "SAY", bytes((5, 60, 5, 64, 10, 67))),
-    ]
-    first_sip = opts.start_ns + 100 * MS * ((t - opts.start_ns) // (100 * MS) + 1)
-    end = first_sip + int(opts.duration * NS)
-    encoders = False
-    last_sent = t
-    sonar_next = 0
-    mode = "start"  # start, cruise, turn, stop
-    mode_until = first_sip + NS
-    cruise_v = 300
-    sip_t = first_sip
-    sim_t = t
-    closing = False
-    closed_at: int | None = None
 
-    def apply(name_: str, arg: int | bytes | None) -> None:
-        nonlocal encoders
-        if name_ == "ENABLE":
+class _Drive:
+    """The session after the handshake: each SIP cycle, the client's queued commands due
+    before it, the robot's SIP (and ENCODER packet), then the client's reaction to it."""
+
+    def __init__(self, opts: P2osGenOptions, rng: random.Random, t: int) -> None:
+        self.rng = rng
+        self.robot = _Robot()
+        # client commands queued as (time, name, arg); applied to the robot when sent
+        self.queue: list[tuple[int, str, int | bytes | None]] = [
+            (t, "ENCODER", 2),
+            (t + 5 * MS, "SETA", 300),
+            (t + 10 * MS, "SETA", -400),
+            (t + 15 * MS, "SETRA", 100),
+            (t + 20 * MS, "SONAR", 1),
+            (t + 200 * MS, "ENABLE", 1),
+            (t + 210 * MS, "SAY", bytes((5, 60, 5, 64, 10, 67))),
+        ]
+        first_sip = opts.start_ns + SIP_CYCLE_NS * ((t - opts.start_ns) // SIP_CYCLE_NS + 1)
+        self.end = first_sip + int(opts.duration * NS)
+        self.encoders = False
+        self.last_sent = t
+        self.sonar_next = 0
+        self.mode = "start"  # start, cruise, turn, stop
+        self.mode_until = first_sip + NS
+        self.cruise_v = 300
+        self.sip_t = first_sip
+        self.sim_t = t
+        self.closing = False
+        self.closed = False
+
+    def run(self) -> Iterator[Event]:
+        while True:
+            yield from self._send_due()
+            if self.closed:
+                return
+            self._simulate(self.sip_t)
+            sonars = yield from self._robot_packets()
+            react = self.sip_t + 5 * MS + self.rng.randint(0, 2 * MS)  # the client reacts about 5 ms after the SIP
+            sent = self._react(react, sonars)
+            if not sent and not self.queue and self.sip_t - self.last_sent >= NS:
+                self.queue.append((react, "PULSE", None))
+            self.sip_t += SIP_CYCLE_NS
+
+    def _simulate(self, until: int) -> None:
+        """Step the robot in 10 ms steps up to ``until``."""
+        while self.sim_t + 10 * MS <= until:
+            self.robot.step(0.01)
+            self.sim_t += 10 * MS
+
+    def _send_due(self) -> Iterator[Event]:
+        """The queued commands due before the next SIP, each applied to the robot."""
+        queue = self.queue
+        queue.sort(key=lambda q: q[0])
+        while queue and queue[0][0] < self.sip_t:
+            qt, qname, qarg = queue.pop(0)
+            self._simulate(qt)
+            yield qt, True, _command(qname, qarg), qname
+            self._apply(qname, qarg)
+            self.last_sent = qt
+            if qname == "CLOSE":
+                self.closed = True
+
+    def _apply(self, name: str, arg: int | bytes | None) -> None:
+        robot = self.robot
+        if name == "ENABLE":
             robot.enabled = bool(arg)
-        elif name_ == "VEL" and isinstance(arg, int):
+        elif name == "VEL" and isinstance(arg, int):
             robot.v_cmd = float(arg)
-        elif name_ == "RVEL" and isinstance(arg, int):
+        elif name == "RVEL" and isinstance(arg, int):
             robot.w_cmd = float(arg)
-        elif name_ == "STOP":
+        elif name == "STOP":
             robot.v_cmd = robot.w_cmd = 0.0
-        elif name_ == "SETA" and isinstance(arg, int):
+        elif name == "SETA" and isinstance(arg, int):
             if arg >= 0:
                 robot.accel = float(arg or 300)
             else:
                 robot.decel = float(-arg)
-        elif name_ == "SETRA" and isinstance(arg, int):
+        elif name == "SETRA" and isinstance(arg, int):
             robot.raccel = float(abs(arg) or 100)
-        elif name_ == "ENCODER" and isinstance(arg, int):
-            encoders = arg > 0
+        elif name == "ENCODER" and isinstance(arg, int):
+            self.encoders = arg > 0
 
-    while True:
-        # send queued commands due before the next SIP
-        queue.sort(key=lambda q: q[0])
-        while queue and queue[0][0] < sip_t:
-            qt, qname, qarg = queue.pop(0)
-            while sim_t + 10 * MS <= qt:
-                robot.step(0.01)
-                sim_t += 10 * MS
-            yield qt, True, cmd(qname, qarg), qname
-            apply(qname, qarg)
-            last_sent = qt
-            if qname == "CLOSE":
-                closed_at = qt
-        if closed_at is not None:
-            return
-        while sim_t + 10 * MS <= sip_t:
-            robot.step(0.01)
-            sim_t += 10 * MS
-        # the robot's SIP (and ENCODER packet) for this cycle
+    def _robot_packets(self) -> Generator[Event, None, list[tuple[int, int]]]:
+        """The robot's SIP for this cycle (and its ENCODER packet); returns the sonar readings."""
+        robot, sip_t = self.robot, self.sip_t
         lv, rv = robot.wheels()
         # the front ring every cycle, the rear ring a few at a time
-        fired = list(range(8)) + [8 + (sonar_next + k) % 8 for k in range(REAR_PER_SIP)]
-        sonar_next = (sonar_next + REAR_PER_SIP) % 8
-        sonars = [(n, max(0, min(SONAR_MAX, robot.sonar(n) + rng.randint(-15, 15)))) for n in fired]
+        fired = list(range(8)) + [8 + (self.sonar_next + k) % 8 for k in range(REAR_PER_SIP)]
+        self.sonar_next = (self.sonar_next + REAR_PER_SIP) % 8
+        sonars = [(n, max(0, min(SONAR_MAX, robot.sonar(n) + self.rng.randint(-15, 15)))) for n in fired]
         moving = abs(robot.v) > 0.5 or abs(robot.w) > 0.05
         sip = Sip(
             moving=moving,
@@ -265,58 +298,62 @@ def session_packets(opts: P2osGenOptions) -> Iterator[tuple[int, bool, bytes, st
             sonars=tuple(sonars),
         )
         yield sip_t, False, build_packet(sip.encode()), "SIP"
-        if encoders:
+        if self.encoders:
             enc = Encoder(int(robot.left_ticks), int(robot.right_ticks))
             yield sip_t + 200_000, False, build_packet(enc.encode()), "ENCODER"
-        # the client reacts about 5 ms after the SIP
-        react = sip_t + 5 * MS + rng.randint(0, 2 * MS)
+        return sonars
+
+    def _react(self, react: int, sonars: list[tuple[int, int]]) -> bool:
+        """The client's driving decisions after a SIP, queued for ``react``; True if it queued
+        a command (closing, turning away from a wall, cruising on)."""
+        if self.closing or not self.robot.enabled:
+            return False
+        rng, queue, sip_t = self.rng, self.queue, self.sip_t
         front = min(r for n, r in sonars if 2 <= n <= 5)
         rear = min(r for n, r in sonars if 10 <= n <= 13 or n > 13)
-        sent = False
-        if not closing and robot.enabled:
-            if sip_t >= end:
-                closing = True
-                queue += [
-                    (react, "VEL", 0),
-                    (react + MS, "RVEL", 0),
-                    (react + 1500 * MS, "STOP", None),
-                    (react + 1600 * MS, "ENABLE", 0),
-                    (react + 1700 * MS, "CLOSE", None),
-                ]
-                sent = True
-            elif mode in ("start", "cruise") and front < 1000:
-                mode, mode_until = "turn", sip_t + rng.choice((1500, 2000, 2500)) * MS
-                queue[:] = [q for q in queue if q[1] not in ("VEL", "RVEL")]  # plans change
-                queue += [(react, "VEL", 100), (react + MS, "RVEL", rng.choice((-40, 40)))]
-                sent = True
-            elif mode == "turn" and front < 600 and robot.v_cmd != 0:
-                queue.append((react, "VEL", 0))  # too close: turn on the spot
-                sent = True
-            elif mode == "turn" and sip_t >= mode_until and front > 1500:
-                mode, mode_until = "cruise", sip_t + rng.choice((3, 4, 5, 6)) * NS
-                cruise_v = rng.choice((200, 300, 400, 500))
-                queue += [(react, "RVEL", 0), (react + MS, "VEL", cruise_v)]
-                sent = True
-            elif mode == "start" and sip_t >= mode_until:
-                mode, mode_until = "cruise", sip_t + 4 * NS
-                queue.append((react, "VEL", cruise_v))
-                sent = True
-            elif mode == "cruise" and sip_t >= mode_until:
-                mode_until = sip_t + rng.choice((2, 3, 4)) * NS
-                r = rng.random()
-                if r < 0.4:
-                    cruise_v = rng.choice((150, 250, 350, 450, 600))
-                    queue.append((react, "VEL", cruise_v))
-                elif r < 0.8:
-                    queue.append((react, "RVEL", rng.choice((-20, -10, 10, 20))))
-                    queue.append((react + rng.choice((1000, 1500)) * MS, "RVEL", 0))
-                elif rear > 1500 and front > 1500:
-                    queue.append((react, "VEL", -cruise_v // 2))
-                    queue.append((react + 1200 * MS, "VEL", cruise_v))
-                sent = True
-        if not sent and not queue and sip_t - last_sent >= NS:
-            queue.append((react, "PULSE", None))
-        sip_t += SIP_CYCLE_NS
+        mode = self.mode
+        if sip_t >= self.end:
+            self.closing = True
+            queue += [
+                (react, "VEL", 0),
+                (react + MS, "RVEL", 0),
+                (react + 1500 * MS, "STOP", None),
+                (react + 1600 * MS, "ENABLE", 0),
+                (react + 1700 * MS, "CLOSE", None),
+            ]
+        elif mode in ("start", "cruise") and front < 1000:
+            self.mode, self.mode_until = "turn", sip_t + rng.choice((1500, 2000, 2500)) * MS
+            queue[:] = [q for q in queue if q[1] not in ("VEL", "RVEL")]  # plans change
+            queue += [(react, "VEL", 100), (react + MS, "RVEL", rng.choice((-40, 40)))]
+        elif mode == "turn" and front < 600 and self.robot.v_cmd != 0:
+            queue.append((react, "VEL", 0))  # too close: turn on the spot
+        elif mode == "turn" and sip_t >= self.mode_until and front > 1500:
+            self.mode, self.mode_until = "cruise", sip_t + rng.choice((3, 4, 5, 6)) * NS
+            self.cruise_v = rng.choice((200, 300, 400, 500))
+            queue += [(react, "RVEL", 0), (react + MS, "VEL", self.cruise_v)]
+        elif mode == "start" and sip_t >= self.mode_until:
+            self.mode, self.mode_until = "cruise", sip_t + 4 * NS
+            queue.append((react, "VEL", self.cruise_v))
+        elif mode == "cruise" and sip_t >= self.mode_until:
+            self._cruise_change(react, front, rear)
+        else:
+            return False
+        return True
+
+    def _cruise_change(self, react: int, front: int, rear: int) -> None:
+        """While cruising, now and then: a new speed, a gentle turn, or a short reverse."""
+        rng, queue = self.rng, self.queue
+        self.mode_until = self.sip_t + rng.choice((2, 3, 4)) * NS
+        r = rng.random()
+        if r < 0.4:
+            self.cruise_v = rng.choice((150, 250, 350, 450, 600))
+            queue.append((react, "VEL", self.cruise_v))
+        elif r < 0.8:
+            queue.append((react, "RVEL", rng.choice((-20, -10, 10, 20))))
+            queue.append((react + rng.choice((1000, 1500)) * MS, "RVEL", 0))
+        elif rear > 1500 and front > 1500:
+            queue.append((react, "VEL", -self.cruise_v // 2))
+            queue.append((react + 1200 * MS, "VEL", self.cruise_v))
 
 
 def generate_p2os(opts: P2osGenOptions, out: BinaryIO) -> P2osStats:
