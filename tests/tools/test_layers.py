@@ -1,0 +1,92 @@
+"""The layer rule of docs/architecture.md: a module imports only from its own or a lower layer
+(and no cycles can run back up). Walks every module's imports, deferred ones included."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import sharedlink
+
+PACKAGE = Path(sharedlink.__file__).resolve().parent
+
+#: the layers, lowest first; a module's layer is that of its first name part under sharedlink
+LAYERS = [
+    {"errors"},
+    {"protocols"},
+    {"capture"},
+    {"generators"},
+    {"analysis"},
+    {"replay", "extcap", "wireshark", "scapy_layer"},
+    {"commands"},
+    {"cli", "__main__"},
+]
+
+
+def layer_of(part: str) -> int:
+    if part in sharedlink.MOVED:  # an old flat name: the module it now is
+        part = sharedlink.MOVED[part].split(".")[0]
+    if not (PACKAGE / f"{part}.py").exists() and not (PACKAGE / part).is_dir():
+        # a name of the package root: its version (no layer) or the codec it re-exports
+        return 0 if part == "__version__" else layer_of("protocols")
+    for i, names in enumerate(LAYERS):
+        if part in names:
+            return i
+    raise AssertionError(f"sharedlink.{part} is in no layer: add it to LAYERS and docs/architecture.md")
+
+
+def module_parts(path: Path) -> list[str]:
+    rel = path.relative_to(PACKAGE).with_suffix("")
+    parts = list(rel.parts)
+    return parts[:-1] if parts[-1] == "__init__" else parts
+
+
+def imported(path: Path) -> list[tuple[int, str]]:
+    """(line, dotted name under sharedlink) of every sharedlink import in the file."""
+    tree = ast.parse(path.read_text(), str(path))
+    here = module_parts(path)
+    package = here if path.name == "__init__.py" else here[:-1]
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names if a.name.startswith("sharedlink.")]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - (node.level - 1)]
+                mod = ".".join(["sharedlink", *base, *([node.module] if node.module else [])])
+            else:
+                mod = node.module or ""
+            if mod == "sharedlink":  # from sharedlink import x: x is a module or a name of the root
+                out += [(node.lineno, f"sharedlink.{a.name}") for a in node.names]
+            elif mod.startswith("sharedlink."):
+                out.append((node.lineno, mod))
+    return out
+
+
+def test_no_module_imports_from_a_higher_layer():
+    bad = []
+    checked = 0
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = module_parts(path)
+        if not parts:  # the package root: re-exports the codec and maps old names (sharedlink.MOVED)
+            continue
+        mine = layer_of(parts[0])
+        for line, name in imported(path):
+            target = name.split(".")[1]
+            checked += 1
+            if layer_of(target) > mine:
+                bad.append(f"{path.relative_to(PACKAGE)}:{line} imports {name}")
+    assert checked > 50
+    assert not bad, "imports from a higher layer:\n" + "\n".join(bad)
+
+
+def test_no_command_imports_another():
+    commands = PACKAGE / "commands"
+    names = {p.stem for p in commands.glob("*.py") if p.stem != "__init__"}
+    bad = [
+        f"{path.name}:{line} imports {name}"
+        for path in commands.glob("*.py")
+        for line, name in imported(path)
+        if name.startswith("sharedlink.commands.") and name.split(".")[2] in names
+    ]
+    assert not bad, bad
