@@ -17,7 +17,7 @@ LAYERS = [
     {"capture"},
     {"generators"},
     {"analysis"},
-    {"replay", "extcap", "wireshark", "scapy_layer"},
+    {"replay", "extcap", "wireshark", "scapy_layer", "fleet"},
     {"commands"},
     {"cli", "__main__"},
 ]
