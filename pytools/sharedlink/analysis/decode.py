@@ -10,12 +10,18 @@ serial SharedLink pass through unchanged (a :class:`~sharedlink.capture.stream.S
 
 Choices (shared with the dissector, see ``docs/protocol.md``):
 
-* State is kept per direction, keyed on the source and destination letters (as ``diff`` does).
-* A frame whose checksum is wrong is counted and labelled but does not touch the state: its
-  values are not trusted, so nothing is carried from it.
-* ``late`` is the dissector's ``sharedlink.sync.late``: a value frame that is not a full set,
+* State is kept per conversation and direction, as the dissector keys it: UDP/TCP by
+  addresses, ports and the source and destination letters, serial by capture direction and
+  letters (:class:`~sharedlink.protocols.state.LinkState`). ``pair`` (``"B>A"``) is what
+  reports group by.
+* A frame whose checksum is wrong is counted, labelled and judged against the state before it,
+  but does not touch the state: nothing is stored or carried from it, no list learnt, no sync
+  clock reset. ``shown`` has its values as sent; ``updates`` is empty.
+* ``late`` is the dissector's ``sharedlink.sync.late``: a data frame that is not a full set,
   seen more than the sync interval plus :data:`SYNC_SLACK_S` after the direction's last full
-  set (or its first value frame, before any full set).
+  set with a good (or no) checksum, or its first data frame before any.
+* ``response_to``: a reply's query or declaration (the latest unanswered one the other way
+  between the same ports whose names include the reply's).
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ from pathlib import Path
 from sharedlink.capture.pcapio import NS
 from sharedlink.capture.stream import StreamFrame, iter_frames
 from sharedlink.protocols.codec import Frame
-from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, Update, VariableTable
+from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, Update, VariableTable, conversation_key
 from sharedlink.protocols.state import parse_variables as parse_variables  # its home is state
 
 #: seconds past the sync interval before a value frame counts as late (as in the dissector)
@@ -57,6 +63,8 @@ class Decoded:
     table: VariableTable
     late: bool  # sync late (see the module doc)
     sync_gap_ns: int | None  # on a full frame: time since the direction's previous full one
+    shown: tuple[Update, ...] = ()  # the values the frame shows: ``updates``, or as sent when bad
+    response_to: int | None = None  # a reply: the number of its query or declaration
 
     @property
     def src(self) -> str:
@@ -86,32 +94,58 @@ class Decoder:
     def __init__(self, variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES, sync_interval: float = 1.0) -> None:
         self.link = LinkState(default_list=list(variables))
         self.late_ns = round((sync_interval + SYNC_SLACK_S) * NS)
-        self._sync: dict[tuple[str, str], list[int | None]] = {}  # (src, dst) -> [first data ts, last full ts]
+        self._sync: dict[tuple, list[int | None]] = {}  # table key -> [first data ts, last full ts]
+        self._asks: list[tuple[tuple, frozenset[str], int]] = []  # unanswered (match key, names, number)
 
     def decode(self, sf: StreamFrame) -> Decoded:
         frame = sf.frame
         assert frame is not None
-        table = self.link.table(frame.src, frame.dst)
+        conv = conversation_key(sf.conv)
+        table = self.link.table(frame.src, frame.dst, conv)
         kind = table.kind(frame)
         ok = frame.checksum.ok if frame.checksum is not None else None
         late = False
         gap: int | None = None
         if ok is False:
             updates: tuple[Update, ...] = ()
+            shown = tuple(table.preview(frame, sf.number, sf.ts_ns)) if kind in VALUE_KINDS else ()
         else:
-            updates = tuple(self.link.apply(frame, sf.number, sf.ts_ns))
-            if kind in DATA_KINDS:
-                sync = self._sync.get((frame.src, frame.dst))
-                if sync is None:
-                    sync = self._sync[(frame.src, frame.dst)] = [sf.ts_ns, None]
-                if kind == "full":
-                    if sync[1] is not None:
-                        gap = sf.ts_ns - sync[1]
-                    sync[1] = sf.ts_ns
-                else:
-                    since = sync[1] if sync[1] is not None else sync[0]
-                    late = sf.ts_ns - since > self.late_ns  # type: ignore[operator]
-        return Decoded(sf.number, sf.ts_ns, sf.conv, sf.raw, frame, kind, ok, updates, table, late, gap)
+            updates = shown = tuple(self.link.apply(frame, sf.number, sf.ts_ns, conv))
+        if kind in DATA_KINDS:
+            skey = (conv, frame.src, frame.dst)
+            sync = self._sync.get(skey)
+            if sync is None:
+                sync = self._sync[skey] = [sf.ts_ns, None]
+            if kind == "full" and ok is not False:
+                if sync[1] is not None:
+                    gap = sf.ts_ns - sync[1]
+                sync[1] = sf.ts_ns
+            elif kind != "full":
+                since = sync[1] if sync[1] is not None else sync[0]
+                late = sf.ts_ns - since > self.late_ns  # type: ignore[operator]
+        response_to = self._link_response(sf, frame, kind) if kind in ("query", "declaration", "reply") else None
+        return Decoded(
+            sf.number, sf.ts_ns, sf.conv, sf.raw, frame, kind, ok, updates, table, late, gap, shown, response_to
+        )
+
+    def _link_response(self, sf: StreamFrame, frame: Frame, kind: str) -> int | None:
+        """Remember a query or declaration; for a reply, the one it answers."""
+        proto, _src, sport, _dst, dport = sf.conv
+        ports = (proto, min(sport, dport), max(sport, dport))
+        if kind != "reply":
+            names = frozenset(f.text for f in frame.fields if f.letter == "Q")
+            self._asks.append(((ports, frame.src, frame.dst), names, sf.number))
+            if len(self._asks) > 4096:
+                del self._asks[:1024]
+            return None
+        want = {f.text for f in frame.fields if f.letter == "R"}
+        key = (ports, frame.dst, frame.src)
+        for i in range(len(self._asks) - 1, -1, -1):
+            k, names, number = self._asks[i]
+            if k == key and want <= names:
+                del self._asks[i]
+                return number
+        return None
 
 
 def iter_decoded(

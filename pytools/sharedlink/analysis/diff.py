@@ -319,7 +319,7 @@ class _Side:
         self.recs.extend(item.records)
         self.end = item.start + len(item.records)
         self.events.extend(item.events)
-        self.snapshot = (self.end, item.snapshot)
+        self.snapshot = (self.end, item.snapshot) if item.snapshot is not None else None
         self.keys.update(item.keys)
 
     def replay(self, upto: int) -> None:

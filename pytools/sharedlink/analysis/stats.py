@@ -266,6 +266,8 @@ def capture_stats(
             else:
                 st.noise_segments += 1
                 st.noise_bytes += len(item.raw)
+                if item.raw.startswith(b"[:"):  # a frame that is not one: the dissector's "malformed"
+                    st.kinds["malformed"] = st.kinds.get("malformed", 0) + 1
     except CaptureError as exc:
         if exc.record is None and st.frames == 0 and st.other_records == 0 and st.noise_segments == 0:
             raise

@@ -18,7 +18,7 @@ byte for byte what ``sharedlink gen --compress`` writes.
 from __future__ import annotations
 
 import struct
-from collections.abc import Sequence
+from collections.abc import Hashable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -102,12 +102,14 @@ class Rewriter:
         self.sync_ns = round(sync_interval * NS)
         self.src = LinkState(default_list=list(variables))  # the data, as the input carries it
         self.out = LinkState(default_list=list(variables))  # what a receiver of the output knows
-        self.next_sync: dict[tuple[str, str], int] = {}
-        self.form: dict[tuple[str, str], str] = {}  # the form each direction uses
+        self.next_sync: dict[tuple[Hashable, str, str], int] = {}
+        self.form: dict[tuple[Hashable, str, str], str] = {}  # the form each direction uses
         self.stats = TransformStats()
 
-    def frame(self, frame: Frame, raw: bytes, ts_ns: int, rewritable: bool = True) -> bytes:
-        """The bytes to write for ``frame`` (``raw`` as read)."""
+    def frame(self, frame: Frame, raw: bytes, ts_ns: int, rewritable: bool = True, conv: Hashable = None) -> bytes:
+        """The bytes to write for ``frame`` (``raw`` as read). ``conv`` keys the state: the
+        conversation (a :class:`~sharedlink.capture.stream.StreamFrame` ``conv``), as the
+        dissector keys it; each direction of each conversation is rewritten on its own."""
         st = self.stats
         st.frames += 1
         st.bytes_in += len(raw)
@@ -121,18 +123,18 @@ class Rewriter:
         layout = _plain_layout(frame.fields) if value else None
         if layout is None or not rewritable:
             st.copied += value
-            self.src.apply(frame, 0, ts_ns)
-            self.out.apply(frame, 0, ts_ns)
+            self.src.apply(frame, 0, ts_ns, conv)
+            self.out.apply(frame, 0, ts_ns, conv)
             st.bytes_out += len(raw)
             return raw
-        src = self.src.table(frame.src, frame.dst)
-        out = self.out.table(frame.src, frame.dst)
-        key = (frame.src, frame.dst)
+        src = self.src.table(frame.src, frame.dst, conv)
+        out = self.out.table(frame.src, frame.dst, conv)
+        key = (conv, frame.src, frame.dst)
         if len(frame.fields) == 1:  # a bare N: the form the direction has been using
             layout = self.form.get(key, layout)
         else:
             self.form[key] = layout
-        self.src.apply(frame, 0, ts_ns)
+        self.src.apply(frame, 0, ts_ns, conv)
         full = self.mode == "expand"
         if not full:
             due = self.next_sync.get(key)
@@ -144,7 +146,7 @@ class Rewriter:
         else:
             fields = self._positional(frame.fields, src, out, full)
         new = Frame(frame.dst, frame.src, fields, frame.crlf)
-        self.out.apply(new, 0, ts_ns)
+        self.out.apply(new, 0, ts_ns, conv)
         data = build_frame(new)
         st.rewritten += 1
         st.full += full
@@ -314,11 +316,12 @@ def transform_capture(
             data = rec.data
             dg = decode_packet(rec.linktype, data)
             if dg is not None and dg.payload and b"[" in dg.payload:
+                conv = (dg.proto, dg.src, dg.sport, dg.dst, dg.dport)
                 if dg.proto == "udp":
                     parts = []
                     for seg in iter_segments(dg.payload):
                         raw = dg.payload[seg.start : seg.end]
-                        parts.append(raw if seg.frame is None else rw.frame(seg.frame, raw, rec.ts_ns))
+                        parts.append(raw if seg.frame is None else rw.frame(seg.frame, raw, rec.ts_ns, conv=conv))
                     payload = b"".join(parts)
                     if payload != dg.payload:
                         new = replace_udp_payload(rec.linktype, data, payload)
@@ -328,7 +331,7 @@ def transform_capture(
                 else:  # TCP: frames are copied; both views follow them
                     for seg in iter_segments(dg.payload):
                         if seg.frame is not None:
-                            rw.frame(seg.frame, dg.payload[seg.start : seg.end], rec.ts_ns, rewritable=False)
+                            rw.frame(seg.frame, dg.payload[seg.start : seg.end], rec.ts_ns, False, conv)
             chunk.append(writer.record(rec.ts_ns, data, rec.flags))
             if len(chunk) >= 4096:
                 fh.write(b"".join(chunk))

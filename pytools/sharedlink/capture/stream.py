@@ -13,7 +13,9 @@ Two layers, both streaming (memory does not grow with the capture):
   recognises the common case — one frame per Ethernet/IPv4/UDP datagram, in the layout the
   stream has been using — with one compiled regular expression; everything else goes through
   the general reader and :class:`~sharedlink.protocols.state.LinkState`, so both paths give identical
-  results (the tests check this on varied input).
+  results (the tests check this on varied input). State is kept per conversation (addresses,
+  ports and letters; serial: capture direction and letters), as the dissector keys it; change
+  records carry the letters, which is what ``diff`` aligns on.
 
 Change records are bytes: the frame's destination and source letters, then for each changed
 variable ``\\x1f`` name ``\\x1e`` value, in frame order (names and values escaped with
@@ -47,7 +49,13 @@ from sharedlink.capture.pcapio import (
 )
 from sharedlink.capture.serial_format import DIRECTION_NAMES, USER_LINKTYPES, Piece, StreamReader
 from sharedlink.protocols.codec import Frame, SharedLinkError, declared_list, frame_kind, iter_segments
-from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, VariableTable, parse_variables
+from sharedlink.protocols.state import (
+    BEACON_VARIABLES,
+    LinkState,
+    VariableTable,
+    parse_variables,
+    reverse_conversation,
+)
 
 #: Field separators of change records (ASCII unit/record separators); escaped in names/values.
 SEP_CHANGE = b"\x1f"
@@ -272,9 +280,14 @@ def iter_frames(path: str | Path) -> Iterator[StreamFrame | tuple[int, int]]:
 _V = rb"[^|\x00-\x1f\[\]]"
 #: Ethernet II, IPv4 without options, not fragmented, UDP: 42 bytes before the payload
 _ETH_IP_UDP = rb"(?s).{12}\x08\x00\x45.{5}[\x00\x40]\x00.\x11.{18}"
-#: the same with the pcap record header before it, for whole blocks of records (see
-#: ChangeReader._bulk): groups record header, IP total length, UDP length
-_BULK_HEAD = rb"(?s)(.{16}).{12}\x08\x00\x45.(..)..[\x00\x40]\x00.\x11.{14}(..).."
+#: the same with the pcap record header before it, for whole blocks of records of one
+#: conversation (see ChangeReader._bulk): groups record header, IP total length, UDP length
+
+
+def _bulk_head(addr: bytes) -> bytes:
+    """The pattern of a record header and the packet headers of conversation ``addr`` (IPv4
+    source and destination, UDP source and destination ports: 12 bytes)."""
+    return rb"(?s)(.{16}).{12}\x08\x00\x45.(..)..[\x00\x40]\x00.\x11.." + re.escape(addr) + rb"(..).."
 #: checksum digits -> what to subtract from (1 + byte sum of the whole payload) so that the
 #: rest is the checksum's own sum: '[' (91), ']' CR LF (116), the two digits, the value
 _CKADJ = {b"%02X" % i: 1 + 91 + 116 + (b"%02X" % i)[0] + (b"%02X" % i)[1] + i for i in range(256)}
@@ -307,7 +320,8 @@ class Chunk:
     """A run of frames of one capture. ``start`` is the index of the first frame (counting
     from 0 over the capture); ``events`` name frames where a variable got its first value or
     a new type: ``(frame index, key, name, type code or None)``; ``snapshot`` is every
-    variable's value after the last frame: ``(key, name, value)``."""
+    variable's value after the last frame: ``(key, name, value)`` (None when several
+    conversations share a key's letters: the records then say what the values are)."""
 
     start: int
     ts: bytes  # array('Q') of packed timestamps (see pack_ts), native byte order
@@ -315,7 +329,7 @@ class Chunk:
     records: list[bytes]  # change records
     keys: list[bytes]  # the keys of this chunk's frames (each once)
     events: list[tuple[int, bytes, bytes, int | None]] = field(default_factory=list)
-    snapshot: list[tuple[bytes, bytes, bytes]] = field(default_factory=list)
+    snapshot: list[tuple[bytes, bytes, bytes]] | None = field(default_factory=list)
 
     def as_tuple(self) -> tuple:
         return (self.start, self.ts, self.numbers, self.records, self.keys, self.events, self.snapshot)
@@ -326,15 +340,23 @@ class Chunk:
 
 
 class _FastKey:
-    """The fast path's view of one direction: compiled layouts and current values (bytes),
-    kept in step with the :class:`VariableTable` (flushed to it before the general path
-    touches the direction, reloaded after)."""
+    """The fast path's view of one direction of one UDP conversation: compiled layouts and
+    current values (bytes), kept in step with the :class:`VariableTable` (flushed to it
+    before the general path touches the direction, reloaded after). ``key`` is the letters
+    (destination, source) the change records carry, ``hkey`` the letters plus the
+    conversation's addresses and ports as the packet holds them (the hot loop's lookup).
 
-    __slots__ = ("key", "table", "sig", "slots", "cur", "pre", "types", "named", "nslots", "pos", "pslots", "sync", "hot",
-                 "bulk_named", "bulk_pos")
+    The fast layouts hold only while the table's "required" sets match its values: every
+    positional slot with a value has been filled by a positional frame, every variable
+    with a value has been sent by a named frame (else the layout is left to the general
+    path). A frame that gives a variable its first value updates those sets and rebuilds
+    (:meth:`first_values`)."""
 
-    def __init__(self, key: bytes, table: VariableTable, sync: list) -> None:
-        self.key, self.table, self.sync = key, table, sync
+    __slots__ = ("key", "hkey", "table", "sig", "slots", "cur", "pre", "types", "named", "nslots", "pos", "pslots",
+                 "preq", "sync", "hot", "bulk_named", "bulk_pos", "registry")
+
+    def __init__(self, key: bytes, hkey: bytes, table: VariableTable, sync: list, registry: dict) -> None:
+        self.key, self.hkey, self.table, self.sync, self.registry = key, hkey, table, sync, registry
         self.sig: tuple = ()
         self.build()
 
@@ -343,6 +365,8 @@ class _FastKey:
         return (
             tuple((n, v.type_code, v.text is None) for n, v in table.vars.items()),
             tuple(table.names),
+            tuple(sorted(table.filled)),
+            tuple(table.sent_names),
         )
 
     def build(self) -> None:
@@ -354,32 +378,60 @@ class _FastKey:
         self.types = [v.type_code for v in t.vars.values()]
         head = rb"\[:" + re.escape(self.key) + rb"\|N0"
         tail = rb"\|C([0-9A-F]{2})\]\r\n"
+        bulk_head = _bulk_head(self.hkey[2:])
         latin = [n.encode("latin-1", "replace") for n in self.slots]
+        valued = {n for n, v in t.vars.items() if v.text is not None}
         # named: optional T/Q/D triplets in table order, for typed variables; only when no
-        # variable with a value lacks a type (else "full" would be judged differently)
-        if all(v.type_code is not None or v.text is None for v in t.vars.values()):
+        # variable with a value lacks a type and every one was sent named (else "full"
+        # would be judged differently)
+        if all(v.type_code is not None or v.text is None for v in t.vars.values()) and valued == set(t.sent_names):
             self.nslots = [i for i, v in enumerate(t.vars.values()) if v.type_code is not None]
             body = b"".join(
                 rb"(?:\|T" + str(self.types[i]).encode() + rb"\|Q" + re.escape(latin[i]) + rb"\|D(" + _V + rb"+))?"
                 for i in self.nslots
             )
             self.named = re.compile(_ETH_IP_UDP + head + body + tail).fullmatch
-            self.bulk_named = re.compile(_BULK_HEAD + b"(" + head + body + tail + b")")
+            self.bulk_named = re.compile(bulk_head + b"(" + head + body + tail + b")")
         else:
             self.nslots, self.named, self.bulk_named = [], None, None
         names = t.names
-        if names and len(set(names)) == len(names) and all(n in t.vars for n in names):
+        if (
+            names
+            and len(set(names)) == len(names)
+            and all(n in t.vars for n in names)
+            and t.filled == {i for i, n in enumerate(names) if n in valued}
+            and valued <= set(names)
+        ):
             self.pslots = [self.slots.index(n) for n in names]
+            self.preq = sorted(t.filled)
             body = (rb"\|D(" + _V + rb"*)") * len(names)
             self.pos = re.compile(_ETH_IP_UDP + head + body + tail).fullmatch
-            self.bulk_pos = re.compile(_BULK_HEAD + b"(" + head + body + tail + b")")
+            self.bulk_pos = re.compile(bulk_head + b"(" + head + body + tail + b")")
         else:
-            self.pslots, self.pos, self.bulk_pos = [], None, None
+            self.pslots, self.preq, self.pos, self.bulk_pos = [], [], None, None
         self._hot()
 
     def _hot(self) -> None:
-        """What the hot loop unpacks, in one tuple."""
-        self.hot = (self.key, self.named, self.pos, self.cur, self.pre, self.nslots, self.pslots, self.types, self.sync)
+        """What the hot loop unpacks, in one tuple (published in the reader's registry)."""
+        self.hot = (self.key, self.named, self.pos, self.cur, self.pre, self.nslots, self.pslots, self.types, self.sync,
+                    self.preq, self)
+        self.registry[self.hkey] = self.hot
+
+    def first_values(self, groups: Sequence[bytes | None], positional: bool) -> None:
+        """The hot loop gave variables their first value (``groups``: the frame's values,
+        ``cur`` already updated): record the slots filled or names sent, then rebuild."""
+        t = self.table
+        vars_ = t.vars
+        if positional:
+            for i, (v, k) in enumerate(zip(groups, self.pslots)):
+                if v and vars_[self.slots[k]].text is None:
+                    t.filled.add(i)
+        else:
+            for v, k in zip(groups, self.nslots):
+                if v is not None:
+                    t.sent_names.setdefault(self.slots[k], len(t.sent_names))
+        self.flush()
+        self.build()
 
     def flush(self) -> None:
         """Write the fast path's values back into the table."""
@@ -418,9 +470,9 @@ class ChangeReader:
         self.fast_enabled = fast
         self.block = block
         self.stats = SideStats()
-        self._fast: dict[bytes, _FastKey] = {}
-        self._sync: dict[bytes, list] = {}  # key -> [time of the last full frame, else of the first frame]
-        self._hot: dict[bytes, tuple] = {}  # key -> _FastKey.hot
+        self._fast: dict[bytes, _FastKey] = {}  # hot key (letters, addresses, ports) -> fast view
+        self._sync: dict[tuple, list] = {}  # table key -> [time of the last full frame, else of the first frame]
+        self._hot: dict[bytes, tuple] = {}  # hot key -> _FastKey.hot
         self._splitter = FrameSplitter()
         self._serial = SerialSplitter()
         self._base = 0  # index of the first frame of the chunk being built
@@ -708,7 +760,7 @@ class ChangeReader:
         ts = self._last_ts
         while True:
             try:
-                sec, frac, incl, _orig, tl, ul, kb, c50 = unpack_x(buf, off)
+                sec, frac, incl, _orig, tl, ab, ul, kb, c50 = unpack_x(buf, off)
             except struct_error:
                 if off + 16 > end:
                     break
@@ -726,9 +778,9 @@ class ChangeReader:
             wire += incl
             ts = sec * NS + frac * mult
             tp = sec | (frac * mult) << 32
-            h = hotget(kb) if kb is not None and 50 < incl < 65000 else None
+            h = hotget(kb + ab) if kb is not None and 50 < incl < 65000 else None
             if h is not None and tl == swap[incl - 14] and ul == swap[incl - 34]:
-                key, named, pos, cur, pre, nslots, pslots, types, sy = h
+                key, named, pos, cur, pre, nslots, pslots, types, sy, preq, fk = h
                 if c50 == 68:  # 'D': positional
                     m = pos(buf, d, e) if pos is not None else None
                     if m is not None:
@@ -743,19 +795,24 @@ class ChangeReader:
                             rec_app(key)
                             continue
                         parts = [key]
+                        first = False
                         for v, k in zip(g, pslots):
                             if v and v != cur[k]:
                                 if cur[k] is None:
                                     events.append((base + len(recs), key, pre[k][1:-1], types[k]))
+                                    first = True
                                 cur[k] = v
                                 parts += (pre[k], v)
-                        if b"" not in g:
+                        # full: every slot that has held a value is present (preq: before this frame)
+                        if b"" not in g or all(g[i] for i in preq):
                             nfull += 1
                             gap = ts - sy[0]
                             if gap >= limit:
                                 missed += (gap + half) // sync_ns - 1
                             sy[0] = ts
                         rec_app(join(parts))
+                        if first:
+                            fk.first_values(g, True)
                         continue
                 else:
                     m = named(buf, d, e) if named is not None else None
@@ -781,10 +838,12 @@ class ChangeReader:
                         else:
                             full = len(g) > 1
                         parts = [key]
+                        first = False
                         for v, k in zip(g, nslots):
                             if v is not None and v != cur[k]:
                                 if cur[k] is None:
                                     events.append((base + len(recs), key, pre[k][1:-1], types[k]))
+                                    first = True
                                 cur[k] = v
                                 parts += (pre[k], v)
                         if full:
@@ -794,6 +853,8 @@ class ChangeReader:
                                 missed += (gap + half) // sync_ns - 1
                             sy[0] = ts
                         rec_app(join(parts))
+                        if first:
+                            fk.first_values(g, False)
                         continue
             # anything else: the general path (flush counters first: it updates stats itself)
             st = self.stats
@@ -824,11 +885,17 @@ class ChangeReader:
         if dg is None:
             self.stats.other_packets += 1
             return
+        # the conversation as the hot loop sees it (plain Ethernet/IPv4/UDP only)
+        addr = (
+            data[26:38]
+            if linktype == LINKTYPE_ETHERNET and dg.proto == "udp" and data[12:15] == b"\x08\x00\x45" and data[23] == 17
+            else None
+        )
         for sf in self._splitter.split(number, ts, dg):
             if sf.frame is None:
                 self.stats.undecodable += 1
             else:
-                self._frame(number, ts, sf.frame, len(sf.raw))
+                self._frame(number, ts, sf.frame, len(sf.raw), sf.conv, addr)
 
     def _serial_items(self, items: list[StreamFrame | tuple[int, int]]) -> None:
         for item in items:
@@ -837,13 +904,21 @@ class ChangeReader:
             elif item.frame is None:
                 self.stats.undecodable += 1
             else:
-                self._frame(item.number, item.ts_ns, item.frame, len(item.raw))
+                self._frame(item.number, item.ts_ns, item.frame, len(item.raw), item.conv, None)
 
-    def _frame(self, number: int, ts: int, frame: Frame, size: int) -> None:
+    def _frame(
+        self, number: int, ts: int, frame: Frame, size: int, conv: tuple, addr: bytes | None
+    ) -> None:
+        """One frame through the general path: :class:`LinkState` keyed by the conversation
+        (``conv``); ``addr`` is the packet's addresses and ports when the fast path can take
+        this conversation's later frames (plain Ethernet/IPv4/UDP), else None."""
         st = self.stats
         st.payload_bytes += size
         key = (frame.dst + frame.src).encode("latin-1", "replace")
         rkey = (frame.src + frame.dst).encode("latin-1", "replace")
+        raddr = addr[4:8] + addr[:4] + addr[10:12] + addr[8:10] if addr is not None else None
+        hk = key + addr if addr is not None and len(key) == 2 else None
+        rhk = rkey + raddr if raddr is not None and len(rkey) == 2 else None
         value_frame = frame_kind(frame.fields) in _VALUE_KINDS
         if frame.checksum is not None and frame.checksum.ok is False:
             st.checksum_failures += 1
@@ -852,19 +927,19 @@ class ChangeReader:
             else:
                 st.frames += 1
             return
-        sync = self._sync.get(key)
+        sync = self._sync.get((conv, key))
         if sync is None:
-            sync = self._sync[key] = [ts]
-        for k in (key, rkey):
-            fk = self._fast.get(k)
+            sync = self._sync[(conv, key)] = [ts]
+        for k in (hk, rhk):
+            fk = self._fast.get(k) if k is not None else None
             if fk is not None:
                 fk.flush()
-        table = self.link.table(frame.src, frame.dst)
+        table = self.link.table(frame.src, frame.dst, conv)
         decl = declared_list(frame.fields)
-        target = self.link.table(frame.dst, frame.src) if decl is not None and decl[0] == "L" else table
+        target = self.link.table(frame.dst, frame.src, reverse_conversation(conv)) if decl is not None and decl[0] == "L" else table
         before = {n: (v.text is not None, v.type_code) for n, v in target.vars.items()}
         kind = table.kind(frame)
-        updates = self.link.apply(frame, number, ts)
+        updates = self.link.apply(frame, number, ts, conv)
         parts = [key]
         idx = self._base + len(self._recs)
         for u in updates:
@@ -882,15 +957,13 @@ class ChangeReader:
             self._emit(ts, number, b"".join(parts))
         else:
             st.frames += 1
-        for k, t in ((key, table), (rkey, target)):
-            fk = self._fast.get(k)
+        self._keys.add(key)
+        for k, t in ((hk, table), (rhk, target)):
+            fk = self._fast.get(k) if k is not None else None
             if fk is not None:
                 fk.refresh()
-            elif k == key and self.fast_enabled and len(k) == 2:
-                fk = self._fast[k] = _FastKey(k, t, sync)
-                self._keys.add(k)  # the fast path emits frames of this key from now on
-            if fk is not None:
-                self._hot[k] = fk.hot
+            elif k == hk and k is not None and self.fast_enabled:
+                self._fast[k] = _FastKey(key, k, t, sync, self._hot)
             if target is table:
                 break
 
@@ -903,9 +976,14 @@ class ChangeReader:
     def _chunk(self) -> Chunk:
         for fk in self._fast.values():
             fk.flush()
-        snapshot = []
+        snapshot: list[tuple[bytes, bytes, bytes]] | None = []
+        seen: set[bytes] = set()
         for (_conv, src, dst), t in self.link.tables.items():
             key = (dst + src).encode("latin-1", "replace")
+            if key in seen:  # two conversations with these letters: their records interleave
+                snapshot = None
+                break
+            seen.add(key)
             for n, v in t.vars.items():
                 if v.text is not None:
                     snapshot.append((key, escape(n), escape(v.text)))
@@ -941,9 +1019,10 @@ class ChangeReader:
 
 _REC = struct.Struct("<IIII")
 #: the record header plus, at fixed offsets of an Ethernet/IPv4/UDP packet: IP total length,
-#: UDP length (both read little-endian: compared against _SWAP16), the frame's two address
-#: letters and the byte after "[:AB|N0|"
-_REC_X = struct.Struct("<IIII16xH20xH4x2s4xB")
+#: IP addresses and UDP ports (12 bytes: the conversation), UDP length (both lengths read
+#: little-endian: compared against _SWAP16), the frame's two address letters and the byte
+#: after "[:AB|N0|"
+_REC_X = struct.Struct("<IIII16xH8x12sH4x2s4xB")
 _SWAP16 = [((x & 0xFF) << 8) | (x >> 8) for x in range(65536)]
 
 

@@ -14,6 +14,7 @@ reason. No other exception escapes the parsing functions, whatever the input.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
@@ -47,8 +48,11 @@ TYPE_NAMES = {TYPE_LONG: "long", TYPE_DOUBLE: "double", TYPE_STRING: "string"}
 
 ADDRESS_LETTERS = "ABCDEFGHIJKLMNOP"
 
-#: Frame kinds, as labelled by :func:`frame_kind` and the dissector.
-KINDS = ("full", "delta", "query", "reply", "declaration", "command", "ping", "pong", "other")
+#: Frame kinds: the one vocabulary of :func:`frame_kind`, the tools' reports and the dissector
+#: (``docs/fields-sharedlink.md``, "Decoding rules"). ``other``: a well-formed frame whose
+#: fields give it no other kind; ``malformed``: ``[:`` with a bad header or no ``]`` (noise to
+#: the codec, a frame kind in reports).
+KINDS = ("full", "delta", "query", "reply", "declaration", "command", "ping", "pong", "other", "malformed")
 
 class SharedLinkError(DecodeError):
     """A byte sequence that is not a SharedLink frame. ``offset`` is relative to the input."""
@@ -296,49 +300,58 @@ def iter_segments(data: bytes) -> Iterator[Segment]:
 # -- typed values ---------------------------------------------------------------------
 
 
+_LONG_TEXT = re.compile(r"[+-]?[0-9]+")
+_DOUBLE_TEXT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+
+
+def parse_typed(type_code: int | None, text: str) -> tuple[int | float | str, bool]:
+    """``text`` as its ``T`` type: (value, fits). A long is optional sign and digits, a double a
+    decimal number with an optional exponent (no ``nan``, ``inf``, ``_`` or spaces); text
+    that does not fit its type stays text and ``fits`` is False (the dissector's
+    ``sharedlink.var.badvalue``). Strings and untyped values are the text, and fit."""
+    if type_code == TYPE_LONG:
+        if _LONG_TEXT.fullmatch(text):
+            return int(text), True
+        return text, False
+    if type_code == TYPE_DOUBLE:
+        if _DOUBLE_TEXT.fullmatch(text):
+            return float(text), True
+        return text, False
+    return text, True
+
+
 def typed_value(type_code: int | None, text: str) -> int | float | str:
     """Convert ``text`` by the ``T`` type code; text that does not convert stays text."""
-    if type_code == TYPE_LONG:
-        try:
-            return int(text)
-        except ValueError:
-            return text
-    if type_code == TYPE_DOUBLE:
-        try:
-            return float(text)
-        except ValueError:
-            return text
-    return text
+    return parse_typed(type_code, text)[0]
 
 
 def guess_value(text: str) -> int | float | str:
     """Type a positional value that came with no ``T``: long, then double, else string."""
-    try:
+    if _LONG_TEXT.fullmatch(text):
         return int(text)
-    except ValueError:
-        pass
-    try:
+    if _DOUBLE_TEXT.fullmatch(text):
         return float(text)
-    except ValueError:
-        return text
+    return text
 
 
 def parse_int(text: str) -> int | None:
-    try:
-        return int(text)
-    except ValueError:
-        return None
+    """A non-negative decimal ordinal or type code, else None."""
+    return int(text) if text.isascii() and text.isdigit() else None
 
 
 # -- frame semantics ------------------------------------------------------------------
 
 
 def frame_kind(fields: Sequence[Field]) -> str:
-    """Label a frame by its fields: full, delta, query, reply, declaration, command, ping,
-    pong or other. Without stream context a named frame starting at ordinal 0 with no empty
-    value counts as full; :class:`sharedlink.protocols.state.VariableTable` refines that."""
-    letters = [f.letter for f in fields]
-    has = set(letters)
+    """Label a frame by its fields alone (one of :data:`KINDS` but ``malformed``).
+
+    command (E or M), reply (R), ping (P), pong (G); with no ``D``: a declaration (an ``N``
+    or ``L`` ordinal and at least one ``T``/``Q`` pair), a query (``Q`` names, or a list
+    request ``L?``/``N?``: a non-numeric ordinal and no pairs), a bare ``N0`` (a delta with no
+    change); any ``D``: a data frame, full when its ordinal is 0 or absent and no ``D`` is
+    empty. Everything else is ``other``. Stream context refines full/delta:
+    :meth:`sharedlink.protocols.state.VariableTable.kind`."""
+    has = {f.letter for f in fields}
     if "E" in has or "M" in has:
         return "command"
     if "R" in has:
@@ -348,17 +361,26 @@ def frame_kind(fields: Sequence[Field]) -> str:
     if "G" in has:
         return "pong"
     if "D" not in has:
-        if "N" in has or "L" in has:
-            # T/Q pairs and no value: a list declaration; a bare N: a delta with no change
-            return "declaration" if "Q" in has else ("delta" if "N" in has else "other")
-        if "Q" in has:
-            return "query"
-        return "other"
-    if "N" in has:
-        ordinal = next((parse_int(f.text) for f in fields if f.letter == "N"), None)
-        empty_d = any(f.letter == "D" and f.text == "" for f in fields)
-        return "full" if ordinal == 0 and not empty_d else "delta"
-    return "other"
+        ord_field = next((f for f in fields if f.letter in ("N", "L")), None)
+        if ord_field is not None:
+            if "Q" in has:
+                return "declaration"
+            if parse_int(ord_field.text) is None:
+                return "query"  # L? / N?: a list request
+            return "delta" if ord_field.letter == "N" else "other"
+        return "query" if "Q" in has else "other"
+    ordinal = frame_ordinal(fields)
+    empty_d = any(f.letter == "D" and f.text == "" for f in fields)
+    return "full" if ordinal == 0 and not empty_d else "delta"
+
+
+def frame_ordinal(fields: Sequence[Field]) -> int | None:
+    """The start ordinal of a data frame: its first ``N`` (0 when it has none; None when
+    the ``N`` is not a number)."""
+    for f in fields:
+        if f.letter == "N":
+            return parse_int(f.text)
+    return 0
 
 
 @dataclass(frozen=True)

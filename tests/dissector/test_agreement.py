@@ -1,0 +1,233 @@
+"""Issue 12's property test: the dissector and the Python decoder agree frame by frame.
+
+Left out of the drawn streams, because the rules do not settle them (the two sides differ):
+replies in a direction that carries data (Python's table takes the reply's value, the
+dissector does not) and declarations that shorten a list under once-filled slots.
+
+Hypothesis draws captures of several SharedLink conversations at once (named and positional,
+compressed, typed and badly typed values, declarations, list requests, queries and replies,
+bad and missing checksums, frames lost, the same letters on several source ports), writes
+each as a real pcap and decodes it twice: with ``tshark -T json`` and dissector/sharedlink.lua,
+and with :func:`sharedlink.analysis.decode.iter_decoded`. For every frame the two must agree on
+the kind, the checksum verdict and, for value frames, every variable shown: name, value,
+carried flag and (for sent values) the bad-value flag. Many conversations go in one capture so
+that each example costs one tshark run.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import strategies as st
+
+import tshark_util as tu
+from sharedlink.analysis.decode import Decoded, iter_decoded, parse_variables
+from sharedlink.capture.packets import UdpBuilder
+from sharedlink.capture.pcapio import PcapWriter
+
+VARIABLES = "P0:2,P1:0,P2:4,P3"
+NAMED = (("Lat", 2), ("Lon", 2), ("Mode", 4), ("Cnt", 0))
+TEXTS = ["1", "-2", "3.5", "0", "x", "None", "1.5e3", "on", "a\r\nb", "a b"]
+T0 = 1_767_268_800 * 1_000_000_000
+CHECKSUM_WORD = {"1": "good", "0": "bad"}
+TRUE = ("1", "True", "true")
+
+# -- captures -----------------------------------------------------------------------------
+
+conversation = st.tuples(
+    st.sampled_from([("A", "B"), ("A", "C")]),  # (destination, source) letters
+    st.sampled_from(["10.0.0.2", "10.0.0.3"]),
+    st.sampled_from([7013, 40001, 40002]),  # source port: a new port is a new conversation
+    st.booleans(),  # named form
+)
+text = st.sampled_from(TEXTS)
+
+
+@st.composite
+def positional_body(draw: Any) -> str:
+    start = draw(st.sampled_from([0, 0, 0, 1]))
+    n = draw(st.integers(0 if start == 0 else 1, 4 - start))
+    vals = [draw(st.one_of(st.just(""), text)) for _ in range(n)]
+    return f"N{start}" + "".join(f"|D{v}" for v in vals)
+
+
+@st.composite
+def named_body(draw: Any) -> str:
+    ordinal = draw(st.sampled_from(["N0|", "N0|", "N0|", "N1|", ""]))
+    picked = [x for x in NAMED if draw(st.booleans())] or [NAMED[0]]
+    parts = [f"T{t}|Q{name}|D{draw(st.one_of(st.just(''), text))}" for name, t in picked]
+    return ordinal + "|".join(parts)
+
+
+@st.composite
+def other_body(draw: Any, named: bool) -> str:
+    names = [n for n, _ in NAMED] if named else ["P0", "P1", "P2", "P3"]
+    return draw(
+        st.sampled_from(
+            [
+                "L?",
+                "N?",
+                f"Q{names[0]}",
+                # declarations: new types for the four positional slots (a list that shrinks
+                # under a conversation's once-filled slots is left out: the rules do not say
+                # whether a slot past the new list stays required)
+                "N0|T0|QP0|T2|QP1|T4|QP2|T2|QP3",
+                "N0|T4|QP0|T4|QP1|T0|QP2|QP3",
+                "Xz",
+                "N0",
+            ]
+        )
+    )
+
+
+@st.composite
+def captures(draw: Any) -> list[tuple[tuple, str, str]]:
+    """(conversation, frame text without checksum, checksum mode) per packet."""
+    convs = draw(st.lists(conversation, min_size=1, max_size=5, unique_by=lambda c: c[:3]))
+    out = []
+    for _ in range(draw(st.integers(5, 60))):
+        c = draw(st.sampled_from(convs))
+        kind = draw(st.sampled_from(["data"] * 6 + ["other"]))
+        if kind == "data":
+            body = draw(named_body() if c[3] else positional_body())
+        else:
+            body = draw(other_body(c[3]))
+        ck = draw(st.sampled_from(["good"] * 8 + ["bad", "missing"]))
+        if draw(st.integers(0, 9)) == 0:
+            continue  # a frame lost on the way
+        out.append((c, body, ck))
+    return out
+
+
+def write_capture(path: Path, packets: list[tuple[tuple, str, str]]) -> Path:
+    with open(path, "wb") as fh:
+        w = PcapWriter(fh)
+        for i, ((letters, ip, sport, _named), body, ck) in enumerate(packets):
+            head = f":{letters[0]}{letters[1]}|{body}"
+            if ck == "missing":
+                raw = f"[{head}]\r\n".encode("latin-1")
+            else:
+                calc = sum(f"{head}|C".encode("latin-1")) % 256
+                if ck == "bad":
+                    calc = (calc + 0x5A) % 256
+                raw = f"[{head}|C{calc:02X}]\r\n".encode("latin-1")
+            w.write(T0 + i * 100_000_000, UdpBuilder(ip, "10.0.0.1", sport, 7013).frame(raw, i + 1))
+    return path
+
+
+# -- the two decoders -----------------------------------------------------------------------
+
+
+def _as_list(x: Any) -> list[Any]:
+    if x is None:
+        return []
+    return list(x) if isinstance(x, list) else [x]
+
+
+def _walk(node: Any, key: str) -> list[Any]:
+    out: list[Any] = []
+    if isinstance(node, dict):
+        for k, v in node.items():
+            if k == key:
+                out += _as_list(v)
+            for item in _as_list(v):
+                out += _walk(item, key)
+    return out
+
+
+def _one(node: dict, key: str) -> Any:
+    vals = _as_list(node.get(key))
+    return vals[0] if vals else None
+
+
+def _placeholder(name: str | None) -> str | None:
+    """A slot past the known list has no name of its own: Python calls it ``var<i>``, the
+    dissector ``#<i>`` (or shows none); both compare as None."""
+    if name is None or re.fullmatch(r"(var|#)[0-9]+", name):
+        return None
+    return name
+
+
+def lua_frames(cap: Path, normalize: bool = True) -> list[list[dict[str, Any]]]:
+    packets = tu.json_packets(cap, prefs={"sharedlink.variables": VARIABLES}, two_pass=True)
+    out = []
+    for p in packets:
+        trees = [t for t in _as_list(p["_source"]["layers"].get("sharedlink")) if isinstance(t, dict)]
+        frames = []
+        for t in trees:
+            if "sharedlink.noise" in t:
+                continue
+            status = _walk(t, "sharedlink.checksum.status")
+            has_ck = "sharedlink.checksum" in t or "sharedlink.checksum.text" in t
+            kind = _one(t, "sharedlink.kind")
+            variables = []
+            for v in _as_list(t.get("sharedlink.var")):
+                if not isinstance(v, dict):
+                    continue
+                experts = {k for e in _walk(v, "_ws.expert") if isinstance(e, dict) for k in e}
+                carried = _one(v, "sharedlink.var.carried") in TRUE
+                value = _one(v, "sharedlink.var.value")
+                variables.append(
+                    (_placeholder(_one(v, "sharedlink.var.name")), None if normalize and carried and value == "" else value, carried,
+                     "sharedlink.var.badvalue" in experts and not carried)
+                )
+            frames.append({
+                "kind": kind,
+                "checksum": CHECKSUM_WORD.get(status[0], "?") if has_ck and status else "missing",
+                "vars": sorted(variables, key=repr) if kind in ("full", "delta", "reply") else None,
+            })
+        out.append(frames)
+    return out
+
+
+def _known_gap(u: Any) -> str | None:
+    """The one known disagreement, kept out of the property test (both sides compare a carried
+    empty value as no value) and pinned by :func:`test_carried_empty_named_value`: the
+    dissector shows a carried empty value (a named triplet sent with an empty ``D``, rule 3)
+    sometimes as "" and sometimes with no value at all."""
+    return None if u.carried and u.text == "" else u.text
+
+
+def python_frames(cap: Path, n: int) -> list[list[dict[str, Any]]]:
+    out: list[list[dict[str, Any]]] = [[] for _ in range(n)]
+    for d in iter_decoded(cap, parse_variables(VARIABLES)):
+        if not isinstance(d, Decoded):
+            continue
+        variables = [(_placeholder(u.name), _known_gap(u), u.carried, u.bad and not u.carried) for u in d.shown]
+        out[d.number - 1].append({
+            "kind": d.kind,
+            "checksum": {True: "good", False: "bad", None: "missing"}[d.checksum_ok],
+            "vars": sorted(variables, key=repr) if d.kind in ("full", "delta", "reply") else None,
+        })
+    return out
+
+
+# no shrinking: each step would be a tshark run; the failing capture is reported as drawn
+@settings(
+    max_examples=12,
+    deadline=None,
+    suppress_health_check=list(HealthCheck),
+    phases=(Phase.explicit, Phase.reuse, Phase.generate),
+)
+@given(captures())
+def test_dissector_and_python_decoder_agree(tmp_path_factory, packets):
+    cap = write_capture(tmp_path_factory.mktemp("agree") / "x.pcap", packets)
+    lua = lua_frames(cap)
+    py = python_frames(cap, len(packets))
+    assert len(lua) == len(packets)
+    for i, (lf, pf) in enumerate(zip(lua, py), 1):
+        assert lf == pf, f"packet {i}: {packets[i - 1][1]!r} ({packets[i - 1][2]} checksum)"
+
+
+@pytest.mark.xfail(reason="sharedlink.lua shows a carried empty named value with no value (its packed carry "
+                   "records use '' for 'none'); Python carries ''", strict=False)
+def test_carried_empty_named_value(tmp_path):
+    conv = (("A", "B"), "10.0.0.2", 7013, True)
+    cap = write_capture(tmp_path / "e.pcap", [(conv, "N0|T4|QNote|D|T4|QMode|Dx", "good"), (conv, "N0|T4|QMode|Dy", "good")])
+    assert python_frames(cap, 2)[1][0]["vars"] == [("Mode", "y", False, False), ("Note", None, True, False)]
+    note = [v for v in lua_frames(cap, normalize=False)[1][0]["vars"] if v[0] == "Note"]
+    assert note == [("Note", "", True, False)]
