@@ -90,3 +90,24 @@ def test_no_command_imports_another():
         if name.startswith("sharedlink.commands.") and name.split(".")[2] in names
     ]
     assert not bad, bad
+
+
+def test_shared_constants_have_one_home():
+    """NS, the SharedLink type codes and the generators' start time are defined once and
+    imported elsewhere."""
+    homes = {
+        "NS": "capture/pcapio.py",
+        "TYPE_LONG": "protocols/codec.py",
+        "TYPE_DOUBLE": "protocols/codec.py",
+        "TYPE_STRING": "protocols/codec.py",
+        "DEFAULT_START_NS": "generators/beacon.py",
+    }
+    found: dict[str, list[str]] = {name: [] for name in homes}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.parse(path.read_text(), str(path)).body:
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
+            for t in targets:
+                for name in [e.id for e in (t.elts if isinstance(t, ast.Tuple) else [t]) if isinstance(e, ast.Name)]:
+                    if name in found:
+                        found[name].append(str(path.relative_to(PACKAGE)))
+    assert found == {name: [home] for name, home in homes.items()}

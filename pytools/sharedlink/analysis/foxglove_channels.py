@@ -38,10 +38,9 @@ from foxglove.messages import LocationFix, Pose, PoseInFrame, Quaternion, Timest
 
 from sharedlink.analysis.decode import VALUE_KINDS, Decoded
 from sharedlink.analysis.sessions import Ack, SessionMessage
+from sharedlink.capture.pcapio import NS
 from sharedlink.protocols import blackboard, p2os
 from sharedlink.protocols.codec import ADDRESS_LETTERS
-
-NS = 1_000_000_000
 
 # -- default variable names (the beacon's, BUL-009)
 LAT, LON, HEADING, SPEED = "AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"

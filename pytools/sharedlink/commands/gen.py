@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from sharedlink.capture.pcapio import NS
 from sharedlink.commands import generate_to, report
 from sharedlink.errors import UsageError
 from sharedlink.generators.beacon import GenOptions, generate_file
@@ -55,7 +56,7 @@ def _start_time(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not an ISO 8601 time (e.g. 2026-03-02T08:00:00Z)") from None
     if t.tzinfo is None:
         t = t.replace(tzinfo=dt.timezone.utc)
-    return int(t.timestamp()) * 1_000_000_000 + t.microsecond * 1000
+    return int(t.timestamp()) * NS + t.microsecond * 1000
 
 
 def run(args: argparse.Namespace) -> int:

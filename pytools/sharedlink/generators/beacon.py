@@ -20,7 +20,8 @@ from sharedlink.protocols.codec import _HEX2, address_node
 from sharedlink.protocols.state import BEACON_VARIABLES
 
 #: 2026-01-01T12:00:00Z: a fixed start so the same options give the same bytes
-DEFAULT_START_NS = 1_767_268_800 * 1_000_000_000
+#: 2026-01-01T12:00:00Z, where every generated session starts unless told (the one home of it)
+DEFAULT_START_NS = 1_767_268_800 * NS
 
 
 @dataclass

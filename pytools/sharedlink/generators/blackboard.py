@@ -29,10 +29,10 @@ from typing import BinaryIO
 
 from sharedlink.capture.packets import write_session
 from sharedlink.capture.pcapio import NS, atomic_open
+from sharedlink.generators.beacon import DEFAULT_START_NS
 from sharedlink.generators.serial import write_line_session
 from sharedlink.protocols.blackboard import RequestMessage, SetMessage
 
-DEFAULT_START_NS = 1_767_268_800 * 1_000_000_000
 MS = 1_000_000
 
 SETPOINT_ADDR = 0x1F00

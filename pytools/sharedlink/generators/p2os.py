@@ -24,6 +24,7 @@ from typing import BinaryIO
 
 from sharedlink.capture.packets import write_session
 from sharedlink.capture.pcapio import NS, atomic_open
+from sharedlink.generators.beacon import DEFAULT_START_NS
 from sharedlink.generators.serial import write_line_session
 from sharedlink.protocols.p2os import (
     MOBILESIM_PORT,
@@ -35,7 +36,6 @@ from sharedlink.protocols.p2os import (
     command,
 )
 
-DEFAULT_START_NS = 1_767_268_800 * 1_000_000_000
 MS = 1_000_000
 
 SIP_CYCLE_NS = 100 * MS
