@@ -38,7 +38,10 @@
 -- Query/reply links: a reply links back to its query in any pass; the query's
 -- "Response in" needs the reply to have been seen, i.e. a second pass (GUI, tshark -2).
 --
--- Performance: with no tree (tshark summary pass) no tree items are built; a frame
+-- Performance: with no tree (tshark summary pass) no tree items are built; with a tree
+-- nobody sees (-Y, coloring rules, taps) a fast-path frame gets its fields without byte
+-- ranges, labels or flags (tree_compact); the fast paths check the checksum as a fixed
+-- sum plus the values' sums; a frame
 -- with the same layout as the previous plain named frame of the same node pair is
 -- parsed by one anchored pattern.  Per-frame state is stored only for frames that
 -- need it (carried values, late sync, queries/replies); carried-only records are
@@ -82,6 +85,14 @@
 --  * Frame kinds: full, delta, query (also L? / N?), reply, declaration (T/Q pairs
 --    after a numeric N/L, no D), command, ping, pong, other (well formed, none of
 --    these), malformed (unterminated or bad header: no state update).
+
+if set_plugin_info then
+    set_plugin_info({
+        version = "1.2.0",
+        description = "SharedLink (Kairos Autonomi BUL-009/BUL-049) dissector",
+        repository = "dissector/sharedlink.lua",
+    })
+end
 
 local sl = Proto("sharedlink", "SharedLink Protocol")
 
@@ -137,14 +148,17 @@ local hf = {
     -- the sync.late condition as a field (the expert of the same name cannot be read by a tap)
     sync_is_late = ProtoField.bool("sharedlink.sync.is_late", "Sync late"),
 }
-sl.fields = {
-    hf.dst, hf.src, hf.dst_node, hf.src_node, hf.kind, hf.ordinal, hf.inbound_ordinal, hf.ftype,
-    hf.query, hf.response, hf.var, hf.var_name, hf.var_index, hf.var_value, hf.var_double,
-    hf.var_long, hf.var_string, hf.var_carried, hf.var_carried_from, hf.checksum, hf.checksum_text,
-    hf.checksum_calc, hf.checksum_status, hf.response_in, hf.response_to, hf.response_time,
-    hf.command, hf.command_arg, hf.mode, hf.ping, hf.pong, hf.field_letter, hf.field_text, hf.noise,
-    hf.sync_is_late,
-}
+-- fields and experts are registered by a loop over their keyed tables, in key order
+-- (a stable order for tshark -G fields)
+local function register(tbl)
+    local keys = {}
+    for k in pairs(tbl) do keys[#keys + 1] = k end
+    table.sort(keys)
+    local list = {}
+    for i, k in ipairs(keys) do list[i] = tbl[k] end
+    return list
+end
+sl.fields = register(hf)
 
 ------------------------------------------------------------------------------
 -- Expert infos
@@ -177,11 +191,7 @@ local ei = {
     unanswered = ProtoExpert.new("sharedlink.reply.unmatched", "Reply without a matching query",
         expert.group.SEQUENCE, expert.severity.NOTE),
 }
-sl.experts = {
-    ei.checksum_bad, ei.checksum_format, ei.checksum_missing, ei.address_invalid, ei.field_unknown,
-    ei.field_empty, ei.malformed, ei.sync_late, ei.var_unknown, ei.var_badvalue, ei.crlf_missing,
-    ei.noise, ei.unanswered,
-}
+sl.experts = register(ei)
 
 ------------------------------------------------------------------------------
 -- Preferences
@@ -232,6 +242,7 @@ local pair_lists    -- "SD" letters -> learnt list
 local recs          -- frame number -> { [subkey] = record }
 local pending_q     -- query key -> record of the query frame
 local dir_cache_key, dir_cache_num, dir_cache_ports -- cache for the current packet
+local last_asrc, last_adst, last_pdir, last_akey     -- addresses of the last packet and their key
 local shapes        -- node pair -> layout of the last plain named frame (fast path)
 local pshapes       -- node pair -> layout of the last plain positional frame (fast path)
 local stamp_ctr = 0
@@ -243,6 +254,7 @@ local function reset_state()
     cr_pend, cr_npend, cr_pend_first, cr_chunks, cr_first = {}, 0, 0, {}, {}
     last_from, last_from_str, sk_str, sk_str_n = -1, "", {}, 0
     dir_cache_key, dir_cache_num, dir_cache_ports = nil, nil, 0
+    last_asrc, last_adst, last_pdir, last_akey = nil, nil, nil, nil
 end
 reset_state()
 
@@ -268,7 +280,7 @@ local B_CR, B_LF = 13, 10
 local B_A, B_P = 65, 80
 local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = 78, 84, 81, 82, 68, 67, 76, 69, 77, 80, 71
 
--- Sum of the bytes s[i..j] (linear, 8 bytes per call).
+-- Sum of the bytes s[i..j] (linear, 8 bytes per call), not reduced.
 local function byte_sum(s, i, j)
     local sum = 0
     while i + 7 <= j do
@@ -280,7 +292,51 @@ local function byte_sum(s, i, j)
         sum = sum + s_byte(s, i)
         i = i + 1
     end
-    return sum % 256
+    return sum
+end
+
+-- Sum of the bytes of a value.  Speed trick (measured): the fast paths check a checksum
+-- as the shape's fixed sum plus the sums of the values, one s_byte call per value.
+local function str_sum(v)
+    local n = #v
+    if n > 12 then return byte_sum(v, 1, n) end
+    local b1, b2, b3, b4, b5, b6, b7, b8, b9, b10, b11, b12 = s_byte(v, 1, n)
+    return (b1 or 0) + (b2 or 0) + (b3 or 0) + (b4 or 0) + (b5 or 0) + (b6 or 0) + (b7 or 0) + (b8 or 0) +
+        (b9 or 0) + (b10 or 0) + (b11 or 0) + (b12 or 0)
+end
+
+-- Checksum texts of two hex digits -> value (the common case without a pattern match)
+local HEXV = {}
+do
+    local digits = "0123456789ABCDEFabcdef"
+    for i = 1, #digits do
+        for j = 1, #digits do
+            local t = s_sub(digits, i, i) .. s_sub(digits, j, j)
+            HEXV[t] = tonumber(t, 16)
+        end
+    end
+end
+
+-- The value of a checksum text: two hex digits (either case) or up to 8; nil otherwise.
+local function checksum_value(ctext)
+    local v = HEXV[ctext]
+    if v then return v end
+    if #ctext >= 1 and #ctext <= 8 and not s_find(ctext, "[^0-9A-Fa-f]") then return tonumber(ctext, 16) end
+    return nil
+end
+
+-- Info text builders for the named fast path, one per value count: head .. v1 .. sep2 .. v2 ...
+-- Speed trick (measured): one concatenation instead of string.format.
+local INFO_BUILD = {}
+for n = 1, 8 do
+    local args, body = {}, { "P[1]" }
+    for k = 1, n do
+        args[k] = "v" .. k
+        body[#body + 1] = "v" .. k
+        if k < n then body[#body + 1] = "P[" .. (k + 1) .. "]" end
+    end
+    INFO_BUILD[n] = assert(load("return function(P, " .. t_concat(args, ", ") .. ") return " ..
+        t_concat(body, " .. ") .. " end"))()
 end
 
 local INT64_MAX = "9223372036854775807"
@@ -336,8 +392,17 @@ local function get_dir(pinfo, num, dstb, srcb)
     if dir_cache_num == num then
         byaddr = dir_cache_key
     else
-        -- the capture direction keeps the two directions of a serial line apart
-        local akey = tostring(pinfo.src) .. ">" .. tostring(pinfo.dst) .. "/" .. pinfo.p2p_dir
+        -- the capture direction keeps the two directions of a serial line apart.  Speed
+        -- trick (measured): Address objects compare cheaper than they print, so the key
+        -- text is rebuilt only when the addresses differ from the previous packet's.
+        local asrc, adst, pdir = pinfo.src, pinfo.dst, pinfo.p2p_dir
+        local akey
+        if pdir == last_pdir and asrc == last_asrc and adst == last_adst then
+            akey = last_akey
+        else
+            akey = tostring(asrc) .. ">" .. tostring(adst) .. "/" .. pdir
+            last_asrc, last_adst, last_pdir, last_akey = asrc, adst, pdir, akey
+        end
         byaddr = dirs[akey]
         if not byaddr then
             byaddr = {}
@@ -545,17 +610,88 @@ for b = 0, 255 do
 end
 
 -- Add a typed value below a variable item.
+local function valid_type(t)
+    local n = tonumber(t)
+    if n and n >= 0 and n <= 255 and n == floor(n) then return floor(n) end
+    return nil
+end
+
+-- The typed field is hidden: the Value line above it shows the same fact.  With no range
+-- (a tree nobody sees) the item is added with its value only.
 local function add_typed_value(vt, range, vtype, text)
+    local field, v
     if vtype == 2 then
-        local v = tonumber(text)
-        if v then vt:add(hf.var_double, range, v)
-        else vt:add_proto_expert_info(ei.var_badvalue, "Not a double: " .. text) end
+        field, v = hf.var_double, tonumber(text)
+        if not v then vt:add_proto_expert_info(ei.var_badvalue, "Not a double: " .. text) end
     elseif vtype == 0 then
-        local v = parse_long(text)
-        if v then vt:add(hf.var_long, range, v)
-        else vt:add_proto_expert_info(ei.var_badvalue, "Not a long (int64): " .. text) end
+        field, v = hf.var_long, parse_long(text)
+        if not v then vt:add_proto_expert_info(ei.var_badvalue, "Not a long (int64): " .. text) end
     elseif vtype == 4 then
-        vt:add(hf.var_string, range, text)
+        field, v = hf.var_string, text
+    end
+    if v then
+        if range then vt:add(field, range, v):set_hidden() else vt:add(field, v) end
+    end
+end
+
+-- Fields of a frame parsed by a fast path, for a tree nobody sees (a display filter,
+-- coloring rules, a tap): the fields of the full tree with their values, without byte
+-- ranges, labels or flags, which only a visible tree shows.  Speed trick (measured: each
+-- TvbRange, label or flag is one more Lua-to-C call).  The full tree is built below.
+-- vals: the frame's values; carry: carried values of its empty D fields (value, frame, ...);
+-- miss: named variables left out (name, value, frame, ...), nmiss entries.
+local function tree_compact(ti, dstb, srcb, kind, n_ord, nvars, list, d, num, carry, miss, nmiss)
+    ti:add(hf.dst, LETTER[dstb])
+    ti:add(hf.dst_node, dstb - B_A + 1)
+    ti:add(hf.src, LETTER[srcb])
+    ti:add(hf.src_node, srcb - B_A + 1)
+    ti:add(hf.kind, kind)
+    ti:add(hf.ordinal, n_ord)
+    local ke = 0
+    for v = 1, nvars do
+        local vt = ti:add(hf.var)
+        local name, val = VN[v], VV[v]
+        local vtype
+        local index = VI[v]
+        if name then
+            vtype = valid_type(VT[v])
+            vt:add(hf.ftype, vtype)
+            if d then
+                local first = d.nfirst[name]
+                index = (first and first <= num) and d.npos[name] or nil
+            end
+        else
+            name = list[index + 1]
+            vtype = list.t and list.t[index + 1]
+        end
+        if name then
+            vt:add(hf.var_name, name)
+        else
+            vt:add_proto_expert_info(ei.var_unknown,
+                "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
+        end
+        if index then vt:add(hf.var_index, index) end
+        if val ~= "" or VN[v] then
+            vt:add(hf.var_value, val)
+            if vtype then add_typed_value(vt, nil, vtype, val) end
+        else
+            local cv, cf = false, false
+            if carry then cv, cf = carry[ke + 1], carry[ke + 2] end
+            ke = ke + 2
+            if cv then vt:add(hf.var_value, cv) end
+            vt:add(hf.var_carried, true)
+            if cf then vt:add(hf.var_carried_from, cf) end
+        end
+    end
+    for k = 1, nmiss, 3 do
+        local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
+        local vt = ti:add(hf.var)
+        vt:add(hf.var_name, name)
+        local index = d and d.npos[name]
+        if index then vt:add(hf.var_index, index) end
+        if cv then vt:add(hf.var_value, cv) end
+        vt:add(hf.var_carried, true)
+        if cf then vt:add(hf.var_carried_from, cf) end
     end
 end
 
@@ -571,11 +707,6 @@ local function pat_escape(text)
     return (s_gsub(text, "[%^%$%(%)%%%.%[%]%*%+%-%?]", "%%%0"))
 end
 
-local function valid_type(t)
-    local n = tonumber(t)
-    if n and n >= 0 and n <= 255 and n == floor(n) then return floor(n) end
-    return nil
-end
 
 ------------------------------------------------------------------------------
 -- One frame
@@ -594,6 +725,9 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
         ti = tree:add(sl, tvb(a - 1, e - a + 1))
     end
     local rec_fields = ti ~= nil
+    -- a tree that is shown (-V, -T fields/json, the GUI's details) gets every range and
+    -- label; one nobody sees (-Y, coloring rules, taps) takes the fast paths too
+    local vis = rec_fields and ti.visible
 
     local malformed_msg = nil
     if not terminated then malformed_msg = "Unterminated frame (no closing ])" end
@@ -635,16 +769,21 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     local shape_key = nil
     local fast_sh = nil
     local fast_hit = false
+    local fast_sum = nil      -- checksum computed by a fast path
     if p == 6 and dnode and snode and not malformed_msg then
         shape_key = dstb * 256 + srcb
-        local sh = (not rec_fields) and shapes[shape_key]
+        local sh = (not vis) and shapes[shape_key]
         if sh then
             fast_sh = sh
-            local _, _, c1, c2, c3, c4, c5, c6, c7, c8 = s_find(f, sh.pat)
+            local _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, sh.pat)
             if c1 then
-                VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8] = c1, c2, c3, c4, c5, c6, c7, c8
+                VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
                 local n = sh.n
                 local st, sn = sh.T, sh.N
+                ctext = VV[n + 1]
+                local sum = sh.fixed
+                for k = 1, n do sum = sum + str_sum(VV[k]) end
+                fast_sum = sum % 256
                 idx = sh.ord
                 n_ord = idx
                 for k = 1, n do
@@ -659,12 +798,16 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
             end
         end
         -- the same for a plain positional frame: N, D fields, C
-        local ps = p and (not rec_fields) and pshapes[shape_key]
+        local ps = p and (not vis) and pshapes[shape_key]
         if ps then
-            local _, _, c1, c2, c3, c4, c5, c6, c7, c8 = s_find(f, ps.pat)
+            local _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, ps.pat)
             if c1 then
-                VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8] = c1, c2, c3, c4, c5, c6, c7, c8
+                VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
                 local n = ps.n
+                ctext = VV[n + 1]
+                local sum = ps.fixed
+                for k = 1, n do sum = sum + str_sum(VV[k]) end
+                fast_sum = sum % 256
                 idx = ps.ord
                 n_ord = idx
                 for k = 1, n do
@@ -776,55 +919,59 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
 
     -- remember the layout of a plain named frame: N, T/Q/D triplets, C
     if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == 3 * nv + 2 and n_pos == 0
-        and s_byte(f, 6) == L_N then
+        and s_byte(f, 6) == L_N and not ord_text then
         local ok = true
         for k = 1, nv do
-            if not (VT[k] and VN[k] and VV[k]) or VR[k] then ok = false; break end
+            if not (VT[k] and VN[k] and VV[k] and valid_type(VT[k])) or VR[k] then ok = false; break end
         end
         if ok then
             local parts = { "^%[:", pat_escape(LETTER[dstb] .. LETTER[srcb]), "|N", pat_escape(n_text) }
             local st, sn = {}, {}
             local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
-            local fmt, ilen = { (s_gsub(head, "%%", "%%%%")) }, #head
+            local pieces, ilen = { head .. " " .. s_gsub(VN[1], CTRL, "?") .. "=" }, #head
+            local fixed = byte_sum(f, 2, cpos)
             for k = 1, nv do
                 st[k], sn[k] = VT[k], VN[k]
                 parts[#parts + 1] = "|T" .. pat_escape(VT[k]) .. "|Q" .. pat_escape(VN[k]) .. "|D([^|%]\0-\31\127]*)"
-                fmt[#fmt + 1] = " " .. s_gsub(s_gsub(VN[k], CTRL, "?"), "%%", "%%%%") .. "=%s"
+                if k > 1 then pieces[k] = " " .. s_gsub(VN[k], CTRL, "?") .. "=" end
                 ilen = ilen + #VN[k] + 2
+                fixed = fixed - str_sum(VV[k])
             end
-            parts[#parts + 1] = "|C[^|%]]*%]"
+            parts[#parts + 1] = "|C([^|%]]*)%]"
             shapes[shape_key] = { pat = t_concat(parts), n = nv, T = st, N = sn, ord = n_ord,
-                fmt = t_concat(fmt), info_len = ilen }
+                info = pieces, info_len = ilen, fixed = fixed % 256, build = INFO_BUILD[nv] }
         end
     end
 
     -- remember the layout of a plain positional frame: N, D fields, C
     if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == nv + 2 and n_pos == nv and nq == 0
-        and not has_r and s_byte(f, 6) == L_N then
+        and not has_r and s_byte(f, 6) == L_N and not ord_text then
         local ok = true
         for k = 1, nv do
             if VT[k] or VN[k] or not VV[k] then ok = false; break end
         end
         if ok then
             local pat = "^%[:" .. pat_escape(LETTER[dstb] .. LETTER[srcb]) .. "|N" .. pat_escape(n_text) ..
-                s_rep("|D([^|%]\0-\31\127]*)", nv) .. "|C[^|%]]*%]"
+                s_rep("|D([^|%]\0-\31\127]*)", nv) .. "|C([^|%]]*)%]"
             local ps = pshapes[shape_key]
-            if not ps or ps.pat ~= pat then pshapes[shape_key] = { pat = pat, n = nv, ord = n_ord } end
+            if not ps or ps.pat ~= pat then
+                local fixed = byte_sum(f, 2, cpos)
+                for k = 1, nv do fixed = fixed - str_sum(VV[k]) end
+                pshapes[shape_key] = { pat = pat, n = nv, ord = n_ord, fixed = fixed % 256 }
+            end
         end
     end
 
     -- Checksum verdict, before the state: a frame with a bad checksum changes no state.
     if fast_hit then
-        -- the fast patterns end in |C..] with no | after it
-        local q = bodyend
-        while s_byte(f, q) ~= B_PIPE do q = q - 1 end
-        cpos, ctext = q + 1, s_sub(f, q + 2, bodyend)
+        -- the fast patterns end in |C<ctext>] (captured)
+        cpos = bodyend - #ctext
     end
     local cs_val, cs_calc, cs_status = nil, nil, nil  -- status 1 good, 0 bad, 2 unverified; nil: no C field
     if cpos then
-        if #ctext >= 1 and #ctext <= 8 and not s_find(ctext, "[^0-9A-Fa-f]") then cs_val = tonumber(ctext, 16) end
+        cs_val = checksum_value(ctext)
         if pref_validate then
-            cs_calc = byte_sum(f, 2, cpos)
+            cs_calc = fast_sum or byte_sum(f, 2, cpos) % 256
             cs_status = (cs_val == cs_calc) and 1 or 0
         else
             cs_status = 2
@@ -1079,7 +1226,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
         for k = 1, nv do total = total + #VV[k] end
         if total <= INFO_MAX then
             ninfo, info_len = 1, total
-            INFO[1] = s_format(fast_sh.fmt, VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8])
+            INFO[1] = fast_sh.build(fast_sh.info, VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8])
             info_done = true
         end
     end
@@ -1116,21 +1263,53 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
 
     -- Tree (skipped entirely when there is none, e.g. tshark summary pass)
     if not ti then return ti ~= nil or tree == nil end
-    ti:append_text(", " .. src .. ARROW .. dst .. " " .. kind)
+    if fast_hit and not vis then
+        local carry = rec or (ne > 0 and CARRY)
+        local miss = rec and rec.miss
+        local nmiss = miss and #miss or 0
+        if not miss and nm > 0 then miss, nmiss = MISS, nm end
+        tree_compact(ti, dstb, srcb, kind, n_ord, nv, list, d, num, carry, miss, nmiss)
+        if rec and rec.late then
+            ti:add(hf.sync_is_late, true)
+            ti:add_proto_expert_info(ei.sync_late)
+        end
+        if cs_val then ti:add(hf.checksum, cs_val) else ti:add(hf.checksum_text, ctext) end
+        if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then ti:add_proto_expert_info(ei.checksum_format) end
+        if pref_validate then
+            ti:add(hf.checksum_calc, cs_calc)
+            ti:add(hf.checksum_status, cs_status)
+            if cs_status == 0 then ti:add_proto_expert_info(ei.checksum_bad) end
+        else
+            ti:add(hf.checksum_status, 2)
+        end
+        local b = a + fl - 1
+        if not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
+            ti:add_proto_expert_info(ei.crlf_missing)
+        end
+        return true
+    end
+    local line = ", " .. src .. ARROW .. dst .. " " .. kind
+    if malformed_msg then line = line .. ", malformed" end
+    if cs_status == 0 then line = line .. ", bad checksum" end
+    ti:append_text(line)
 
+    -- "Destination: A (node 1)": the node number is folded into the letter's line, its
+    -- field kept for filters but hidden
     local it
-    if dstb then it = ti:add(hf.dst, tvb(o + 3, 1), dst) end
     if dnode then
-        it:append_text(" (node " .. (dstb - B_A + 1) .. ")")
-        ti:add(hf.dst_node, tvb(o + 3, 1), dstb - B_A + 1):set_generated()
+        local r = tvb(o + 3, 1)
+        ti:add(hf.dst, r, dst, "Destination: " .. dst .. " (node " .. (dstb - B_A + 1) .. ")")
+        ti:add(hf.dst_node, r, dstb - B_A + 1):set_hidden()
     elseif dstb then
+        it = ti:add(hf.dst, tvb(o + 3, 1), dst)
         it:add_proto_expert_info(ei.address_invalid, "Destination " .. dst .. " is not a letter A-P")
     end
-    if srcb then it = ti:add(hf.src, tvb(o + 4, 1), src) end
     if snode then
-        it:append_text(" (node " .. (srcb - B_A + 1) .. ")")
-        ti:add(hf.src_node, tvb(o + 4, 1), srcb - B_A + 1):set_generated()
+        local r = tvb(o + 4, 1)
+        ti:add(hf.src, r, src, "Source: " .. src .. " (node " .. (srcb - B_A + 1) .. ")")
+        ti:add(hf.src_node, r, srcb - B_A + 1):set_hidden()
     elseif srcb then
+        it = ti:add(hf.src, tvb(o + 4, 1), src)
         it:add_proto_expert_info(ei.address_invalid, "Source " .. src .. " is not a letter A-P")
     end
     ti:add(hf.kind, kind):set_generated()
@@ -1185,12 +1364,13 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                         :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
                 end
             end
+            -- the name is the subtree's label: its field is kept for filters, hidden
             if named then
                 local qr = tvb(o + FS[qf] + 1, FE[qf] - FS[qf])
                 if VR[v] then vt:add(hf.response, qr, name) end
-                vt:add(hf.var_name, qr, name)
+                vt:add(hf.var_name, qr, name):set_hidden()
             elseif name then
-                vt:add(hf.var_name, tvb(o + FS[df], 1), name):set_generated()
+                vt:add(hf.var_name, tvb(o + FS[df], 1), name):set_hidden()
             else
                 vt:add_proto_expert_info(ei.var_unknown,
                     "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
@@ -1290,7 +1470,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
         for k = 1, miss_len, 3 do
             local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
             local vt = ti:add(hf.var, zrange(tvb, o + bodyend))
-            vt:add(hf.var_name, name):set_generated()
+            vt:add(hf.var_name, name):set_hidden()
             local index = d and d.npos[name]
             if index then vt:add(hf.var_index, index):set_generated() end
             if cv then vt:add(hf.var_value, cv):set_generated() end

@@ -163,3 +163,35 @@ def test_vector_stream_one_pass_equals_two_pass(stream: dict[str, Any], tmp_path
         for f in (f for p in frames for f in p):
             f.pop("response_in")
     assert one == two
+
+
+# A tree nobody sees (-Y with a summary, coloring rules, taps) is built by a fast path without
+# ranges or labels; a shown tree (-T fields) by the full one.  Both must give the same fields.
+FILTERS = [
+    "sharedlink.var.double > 50 && sharedlink.var.index == 2", "sharedlink.var.carried_from == 1",
+    'sharedlink.kind == "delta" && sharedlink.checksum.status == 0', "sharedlink.sync.is_late",
+    'sharedlink.var.name == "AutoGpsVel" && sharedlink.src.node == 2', "sharedlink.var.badvalue || sharedlink.crlf.missing",
+]
+
+
+def _matched_hidden(cap: Path, flt: str, prefs: dict | None) -> set[int]:
+    lines = tu.summary(cap, prefs=prefs, extra=["-Y", flt, "-o", 'gui.column.format:"No.","%m"', *OTHERS])
+    return {int(x.split()[0]) for x in lines if x.strip()}
+
+
+def _matched_shown(cap: Path, flt: str, prefs: dict | None) -> set[int]:
+    rows = tu.fields(cap, ["frame.number"], prefs=prefs, display_filter=flt, two_pass=False, extra=OTHERS)
+    return {int(r["frame.number"][0]) for r in rows}
+
+
+@pytest.mark.parametrize("form", ["named", "positional"])
+def test_hidden_tree_matches_shown_tree(form: str, tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    cap = tmp_path / f"{form}.pcap"
+    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--frames", "60", "--compress", "--form", form,
+                    "--bad-checksum", "0.1", "--drop", "0.1", str(cap)], check=True, capture_output=True)
+    prefs = {"sharedlink.variables": "AutoGpsLat:2,AutoGpsLon:2,AutoGpsHead:2,AutoGpsVel:2"}
+    for flt in FILTERS:
+        assert _matched_hidden(cap, flt, prefs) == _matched_shown(cap, flt, prefs), flt
