@@ -26,17 +26,17 @@ carried them.
 
 from __future__ import annotations
 
-import re
 import struct
-import sys
-import zlib
 from array import array
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
-from itertools import chain, compress, repeat
-from operator import add, and_, contains, ge, mul, ne, not_, sub
 from pathlib import Path
 
+from sharedlink.capture import fast_blocks, fast_records
+from sharedlink.capture.change_records import SEP_CHANGE as SEP_CHANGE
+from sharedlink.capture.change_records import SEP_VALUE as SEP_VALUE
+from sharedlink.capture.change_records import escape as escape
+from sharedlink.capture.change_records import unescape as unescape
 from sharedlink.capture.packets import Datagram, decode_packet
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
@@ -52,31 +52,9 @@ from sharedlink.protocols.codec import Frame, SharedLinkError, declared_list, fr
 from sharedlink.protocols.state import (
     BEACON_VARIABLES,
     LinkState,
-    VariableTable,
     parse_variables,
     reverse_conversation,
 )
-
-#: Field separators of change records (ASCII unit/record separators); escaped in names/values.
-SEP_CHANGE = b"\x1f"
-SEP_VALUE = b"\x1e"
-_ESC = b"\x1d"
-_ESCAPES = ((b"\x1d", b"\x1d0"), (b"\x1e", b"\x1d1"), (b"\x1f", b"\x1d2"))
-
-
-def escape(text: str) -> bytes:
-    """A name or value as it appears in a change record (latin-1, separators escaped)."""
-    b = text.encode("latin-1", "replace")
-    if b"\x1d" in b or b"\x1e" in b or b"\x1f" in b:
-        for raw, esc in _ESCAPES:
-            b = b.replace(raw, esc)
-    return b
-
-
-def unescape(b: bytes) -> str:
-    if _ESC in b:
-        b = b.replace(b"\x1d2", b"\x1f").replace(b"\x1d1", b"\x1e").replace(b"\x1d0", b"\x1d")
-    return b.decode("latin-1")
 
 
 def parse_record(rec: bytes) -> tuple[bytes, list[tuple[bytes, bytes]]]:
@@ -276,23 +254,6 @@ def iter_frames(path: str | Path) -> Iterator[StreamFrame | tuple[int, int]]:
 
 # -- change records, fast ---------------------------------------------------------------------
 
-#: a value as the fast path accepts it (the general path takes anything else)
-_V = rb"[^|\x00-\x1f\[\]]"
-#: Ethernet II, IPv4 without options, not fragmented, UDP: 42 bytes before the payload
-_ETH_IP_UDP = rb"(?s).{12}\x08\x00\x45.{5}[\x00\x40]\x00.\x11.{18}"
-#: the same with the pcap record header before it, for whole blocks of records of one
-#: conversation (see ChangeReader._bulk): groups record header, IP total length, UDP length
-
-
-def _bulk_head(addr: bytes) -> bytes:
-    """The pattern of a record header and the packet headers of conversation ``addr`` (IPv4
-    source and destination, UDP source and destination ports: 12 bytes)."""
-    return rb"(?s)(.{16}).{12}\x08\x00\x45.(..)..[\x00\x40]\x00.\x11.." + re.escape(addr) + rb"(..).."
-#: checksum digits -> what to subtract from (1 + byte sum of the whole payload) so that the
-#: rest is the checksum's own sum: '[' (91), ']' CR LF (116), the two digits, the value
-_CKADJ = {b"%02X" % i: 1 + 91 + 116 + (b"%02X" % i)[0] + (b"%02X" % i)[1] + i for i in range(256)}
-
-
 @dataclass
 class SideStats:
     """What one capture holds, as the change reader saw it."""
@@ -339,116 +300,6 @@ class Chunk:
         return cls(*t)
 
 
-class _FastKey:
-    """The fast path's view of one direction of one UDP conversation: compiled layouts and
-    current values (bytes), kept in step with the :class:`VariableTable` (flushed to it
-    before the general path touches the direction, reloaded after). ``key`` is the letters
-    (destination, source) the change records carry, ``hkey`` the letters plus the
-    conversation's addresses and ports as the packet holds them (the hot loop's lookup).
-
-    The fast layouts hold only while the table's "required" sets match its values: every
-    positional slot with a value has been filled by a positional frame, every variable
-    with a value has been sent by a named frame (else the layout is left to the general
-    path). A frame that gives a variable its first value updates those sets and rebuilds
-    (:meth:`first_values`)."""
-
-    __slots__ = ("key", "hkey", "table", "sig", "slots", "cur", "pre", "types", "named", "nslots", "pos", "pslots",
-                 "preq", "sync", "hot", "bulk_named", "bulk_pos", "registry")
-
-    def __init__(self, key: bytes, hkey: bytes, table: VariableTable, sync: list, registry: dict) -> None:
-        self.key, self.hkey, self.table, self.sync, self.registry = key, hkey, table, sync, registry
-        self.sig: tuple = ()
-        self.build()
-
-    @staticmethod
-    def signature(table: VariableTable) -> tuple:
-        return (
-            tuple((n, v.type_code, v.text is None) for n, v in table.vars.items()),
-            tuple(table.names),
-            tuple(sorted(table.filled)),
-            tuple(table.sent_names),
-        )
-
-    def build(self) -> None:
-        t = self.table
-        self.sig = self.signature(t)
-        self.slots = list(t.vars)
-        self.cur = [None if v.text is None else v.text.encode("latin-1", "replace") for v in t.vars.values()]
-        self.pre = [SEP_CHANGE + escape(n) + SEP_VALUE for n in self.slots]
-        self.types = [v.type_code for v in t.vars.values()]
-        head = rb"\[:" + re.escape(self.key) + rb"\|N0"
-        tail = rb"\|C([0-9A-F]{2})\]\r\n"
-        bulk_head = _bulk_head(self.hkey[2:])
-        latin = [n.encode("latin-1", "replace") for n in self.slots]
-        valued = {n for n, v in t.vars.items() if v.text is not None}
-        # named: optional T/Q/D triplets in table order, for typed variables; only when no
-        # variable with a value lacks a type and every one was sent named (else "full"
-        # would be judged differently)
-        if all(v.type_code is not None or v.text is None for v in t.vars.values()) and valued == set(t.sent_names):
-            self.nslots = [i for i, v in enumerate(t.vars.values()) if v.type_code is not None]
-            body = b"".join(
-                rb"(?:\|T" + str(self.types[i]).encode() + rb"\|Q" + re.escape(latin[i]) + rb"\|D(" + _V + rb"+))?"
-                for i in self.nslots
-            )
-            self.named = re.compile(_ETH_IP_UDP + head + body + tail).fullmatch
-            self.bulk_named = re.compile(bulk_head + b"(" + head + body + tail + b")")
-        else:
-            self.nslots, self.named, self.bulk_named = [], None, None
-        names = t.names
-        if (
-            names
-            and len(set(names)) == len(names)
-            and all(n in t.vars for n in names)
-            and t.filled == {i for i, n in enumerate(names) if n in valued}
-            and valued <= set(names)
-        ):
-            self.pslots = [self.slots.index(n) for n in names]
-            self.preq = sorted(t.filled)
-            body = (rb"\|D(" + _V + rb"*)") * len(names)
-            self.pos = re.compile(_ETH_IP_UDP + head + body + tail).fullmatch
-            self.bulk_pos = re.compile(bulk_head + b"(" + head + body + tail + b")")
-        else:
-            self.pslots, self.preq, self.pos, self.bulk_pos = [], [], None, None
-        self._hot()
-
-    def _hot(self) -> None:
-        """What the hot loop unpacks, in one tuple (published in the reader's registry)."""
-        self.hot = (self.key, self.named, self.pos, self.cur, self.pre, self.nslots, self.pslots, self.types, self.sync,
-                    self.preq, self)
-        self.registry[self.hkey] = self.hot
-
-    def first_values(self, groups: Sequence[bytes | None], positional: bool) -> None:
-        """The hot loop gave variables their first value (``groups``: the frame's values,
-        ``cur`` already updated): record the slots filled or names sent, then rebuild."""
-        t = self.table
-        vars_ = t.vars
-        if positional:
-            for i, (v, k) in enumerate(zip(groups, self.pslots)):
-                if v and vars_[self.slots[k]].text is None:
-                    t.filled.add(i)
-        else:
-            for v, k in zip(groups, self.nslots):
-                if v is not None:
-                    t.sent_names.setdefault(self.slots[k], len(t.sent_names))
-        self.flush()
-        self.build()
-
-    def flush(self) -> None:
-        """Write the fast path's values back into the table."""
-        vars_ = self.table.vars
-        for name, val in zip(self.slots, self.cur):
-            if val is not None:
-                vars_[name].text = val.decode("latin-1")
-
-    def refresh(self) -> None:
-        """After the general path changed the table: reload (rebuild when the layout moved)."""
-        if self.signature(self.table) != self.sig:
-            self.build()
-        else:
-            self.cur = [None if v.text is None else v.text.encode("latin-1", "replace") for v in self.table.vars.values()]
-            self._hot()
-
-
 class ChangeReader:
     """Reads one capture into :class:`Chunk` s of change records (see the module doc).
 
@@ -456,6 +307,18 @@ class ChangeReader:
     declaration says otherwise; ``sync_interval`` (seconds) is what "missed" full syncs are
     measured against: a gap between full frames of a direction that rounds to n >= 2
     intervals misses n - 1. ``fast=False`` sends every frame through the general path.
+
+    Tiers, each with the same contract (take records, append the same change records, events
+    and statistics, return how far they got), the tests checking they agree:
+
+    * the reference path, readable on its own: :meth:`_walk_plain` hands every record to
+      :meth:`_general` (datagrams -> :class:`FrameSplitter` / :class:`SerialSplitter` ->
+      :class:`LinkState` -> :meth:`_frame`, which emits the record);
+    * the per-record fast tier, :func:`sharedlink.capture.fast_records.walk`, for plain
+      Ethernet/IPv4/UDP frames of a known layout (:class:`~sharedlink.capture.fast_records.FastKey`,
+      made by :meth:`_frame`), everything else passed to :meth:`_general`;
+    * the block tier, :func:`sharedlink.capture.fast_blocks.take`, for whole blocks of one
+      direction with every value known.
     """
 
     def __init__(
@@ -470,14 +333,14 @@ class ChangeReader:
         self.fast_enabled = fast
         self.block = block
         self.stats = SideStats()
-        self._fast: dict[bytes, _FastKey] = {}  # hot key (letters, addresses, ports) -> fast view
+        self._fast: dict[bytes, fast_records.FastKey] = {}  # hot key (letters, addresses, ports) -> fast view
         self._sync: dict[tuple, list] = {}  # table key -> [time of the last full frame, else of the first frame]
-        self._hot: dict[bytes, tuple] = {}  # hot key -> _FastKey.hot
+        self._hot: dict[bytes, tuple] = {}  # hot key -> FastKey.hot
         self._splitter = FrameSplitter()
         self._serial = SerialSplitter()
         self._base = 0  # index of the first frame of the chunk being built
         self._keys: set[bytes] = set()  # every key emitted so far
-        self._bulk_backoff = 1  # blocks to leave to the per-record loop before trying _bulk
+        self._bulk_backoff = 1  # blocks to leave to the per-record loop before trying the block tier
         self._reset()
         self._last_ts = 0
 
@@ -520,8 +383,8 @@ class ChangeReader:
             if not buf:
                 break
             start = 0
-            if mult == 1 and self._bulk_ready(linktype):
-                done = self._bulk(buf, mult, number)
+            if mult == 1 and fast_blocks.ready(self, linktype):
+                done = fast_blocks.take(self, buf, mult, number)
                 if done is not None:
                     start, number = done
             off, number = self._walk(buf, linktype, mult, number, p, start)
@@ -552,8 +415,8 @@ class ChangeReader:
             batch.clear()
             size = 0
             start = 0
-            if self._bulk_ready(linktype):
-                done = self._bulk(buf, 1, number)
+            if fast_blocks.ready(self, linktype):
+                done = fast_blocks.take(self, buf, 1, number)
                 if done is not None:
                     start, number = done
             off, number = self._walk(buf, linktype, 1, number, p, start)
@@ -604,168 +467,26 @@ class ChangeReader:
         if self._recs:
             yield self._chunk()
 
-    def _bulk_ready(self, linktype: int) -> bool:
-        """Whole blocks at once: one direction so far, all its values known (no first-value
-        events to report), and the last attempt did not fail."""
-        if self._bulk_backoff:
-            self._bulk_backoff -= 1
-            return False
-        if not self.fast_enabled or linktype != LINKTYPE_ETHERNET or len(self._fast) != 1:
-            return False
-        fk = next(iter(self._fast.values()))
-        return None not in fk.cur
-
-    def _bulk(self, buf: bytes, mult: int, number: int) -> tuple[int, int] | None:
-        """Take a block where every record is one frame of the only direction in its current
-        layout, all at once: one ``findall`` and C-level passes over its columns (no Python
-        code per frame). Returns (bytes consumed, last record number), or None when the block
-        does not qualify (then the per-record loop does it: the results are the same)."""
-        fk = next(iter(self._fast.values()))
-        positional = len(buf) > 66 and buf[66] == 68
-        rx = fk.bulk_pos if positional else fk.bulk_named
-        if rx is None:
-            return None
-        rows = rx.findall(buf)
-        n = len(rows)
-        if n < 64:
-            self._bulk_backoff = 4
-            return None
-        cols = list(zip(*rows))
-        hdrs, tls, uls, pays, cks = cols[0], cols[1], cols[2], cols[3], cols[-1]
-        vals = cols[4:-1]
-        sizes = list(map(len, pays))
-        if max(sizes) > 256:  # the checksum shortcut below needs short frames
-            return None
-        total = 58 * n + sum(sizes)
-        # the matches must tile the block from its start: then the last one ends at total
-        m = rx.match(buf, total - 58 - sizes[-1])
-        if m is None or m.end() != total:
-            self._bulk_backoff = 4
-            return None
-        hdr = array("I")
-        hdr.frombytes(b"".join(hdrs))
-        lens = array("H")
-        lens.frombytes(b"".join(tls))
-        lens2 = array("H")
-        lens2.frombytes(b"".join(uls))
-        if sys.byteorder == "little":
-            lens.byteswap()
-            lens2.byteswap()
-        else:  # pragma: no cover - big-endian hosts
-            hdr.byteswap()
-        incl = hdr[2::4]
-        if (
-            incl != array("I", map(add, sizes, repeat(42, n)))
-            or lens != array("H", map(add, sizes, repeat(28, n)))
-            or lens2 != array("H", map(add, sizes, repeat(8, n)))
-        ):
-            return None
-        # checksums: adler32's low half is 1 + the byte sum for frames up to 256 bytes
-        if any(map(and_, map(sub, map(zlib.adler32, pays), map(_CKADJ.__getitem__, cks)), repeat(255, n))):
-            return None  # a bad checksum in the block: the per-record loop reports it
-        secs, fracs = hdr[0::4], hdr[1::4]
-        if max(fracs) >= NS:
-            return None
-        tsq = array("Q")
-        tsq.frombytes(b"".join(hdrs))
-        if sys.byteorder != "little":  # pragma: no cover - big-endian hosts
-            tsq.byteswap()
-        ts = tsq[0::2]  # the first 8 bytes of each record header: pack_ts for nanosecond pcaps
-        # changes, column by column
-        cur, pre = fk.cur, fk.pre
-        slots = fk.pslots if positional else fk.nslots
-        pieces = []
-        dense = 0
-        for col, k in zip(vals, slots):
-            last = cur[k]
-            if all(col):  # every frame carries it (a full stream)
-                dense += 1
-                changed = map(ne, col, chain((last,), col))
-                pieces.append(list(map(mul, map(add, repeat(pre[k], n), col), changed)))
-                cur[k] = col[-1]
-            else:  # present in some frames (compressed): look at those only
-                piece = [b""] * n
-                p = pre[k]
-                for i in compress(range(n), col):
-                    v = col[i]
-                    if v != last:
-                        piece[i] = p + v
-                        last = v
-                cur[k] = last
-                pieces.append(piece)
-        key = fk.key
-        records = list(map(b"".join, zip(repeat(key, n), *pieces)))
-        # full frames: every value present (the block has no first values, so "every value
-        # known" is "every value present"); findall gives b"" for an absent named triplet as
-        # for an empty positional slot, and the other groups are never empty
-        if dense == len(vals) and vals:
-            fidx: Sequence[int] = range(n)
-        elif vals:
-            fidx = list(compress(range(n), map(not_, map(contains, rows, repeat(b"", n)))))
-        else:
-            fidx = []
-        st = self.stats
-        if fidx:
-            sy = fk.sync
-            limit = 2 * self.sync_ns - self.sync_ns // 2
-            # only a gap of at least limit // NS whole seconds can reach the limit
-            fsecs = [secs[i] for i in fidx] if not isinstance(fidx, range) else secs
-            prev_sec = sy[0] // NS
-            for j in compress(range(len(fidx)), map(ge, map(sub, fsecs, chain((prev_sec,), fsecs)), repeat(limit // NS))):
-                i = fidx[j]
-                t_ns = secs[i] * NS + fracs[i]
-                p_ns = sy[0] if j == 0 else secs[fidx[j - 1]] * NS + fracs[fidx[j - 1]]
-                if t_ns - p_ns >= limit:
-                    st.sync_missed += self._missed(t_ns - p_ns)
-            last = fidx[-1]
-            sy[0] = secs[last] * NS + fracs[last]
-        st.full += len(fidx)
-        st.records += n
-        st.wire_bytes += sum(incl)
-        st.payload_bytes += total - 58 * n
-        self._ts.extend(ts)
-        self._num.extend(range(number + 1, number + n + 1))
-        self._recs.extend(records)
-        self._last_ts = secs[-1] * NS + fracs[-1]
-        return total, number + n
-
     def _walk(self, buf: bytes, linktype: int, mult: int, number: int, p: str, start: int = 0) -> tuple[int, int]:
-        """Process the complete records in ``buf``; return (offset of the rest, last number).
+        """The per-record tiers: the fast one (:func:`sharedlink.capture.fast_records.walk`) when
+        enabled, else the reference path; both have the same contract."""
+        if self.fast_enabled:
+            return fast_records.walk(self, buf, linktype, mult, number, p, start)
+        return self._walk_plain(buf, linktype, mult, number, p, start)
 
-        The hot loop: everything it needs is in locals. One struct call reads the record
-        header and, for an Ethernet/IPv4/UDP packet, the IP and UDP lengths, the frame's
-        address letters and the letter after ``N0|``; one regular expression match checks
-        the headers and the frame's layout and takes out its values."""
-        unpack, unpack_x = _REC.unpack_from, _REC_X.unpack_from
-        struct_error = struct.error
-        hot = self._hot if (self.fast_enabled and linktype == LINKTYPE_ETHERNET) else {}
-        hotget = hot.get
-        swap = _SWAP16
-        adler = zlib.adler32
-        ckadj = _CKADJ
-        ts_app, num_app, rec_app = self._ts.append, self._num.append, self._recs.append
-        recs, events = self._recs, self._events
-        join = b"".join
-        general = self._general
-        sync_ns = self.sync_ns
-        half = sync_ns // 2
-        limit = sync_ns + sync_ns - half  # a gap must round to 2 intervals to miss one
+    def _walk_plain(self, buf: bytes, linktype: int, mult: int, number: int, p: str, start: int = 0) -> tuple[int, int]:
+        """The reference path: every complete record in ``buf`` through :meth:`_general`;
+        return (offset of the rest, last record number). The fast tier
+        (:func:`sharedlink.capture.fast_records.walk`) has the same contract."""
+        unpack = _REC.unpack_from
         end = len(buf)
         off = start
-        if self.stats.start_ns is None and end >= 16:
+        st = self.stats
+        if st.start_ns is None and end >= 16:
             sec, frac = unpack(buf, 0)[:2]
-            self.stats.start_ns = sec * NS + frac * mult
-        nrec = wire = pbytes = nfull = missed = bad = 0
-        base = self._base
-        ts = self._last_ts
-        while True:
-            try:
-                sec, frac, incl, _orig, tl, ab, ul, kb, c50 = unpack_x(buf, off)
-            except struct_error:
-                if off + 16 > end:
-                    break
-                sec, frac, incl, _orig = unpack(buf, off)
-                kb = None
+            st.start_ns = sec * NS + frac * mult
+        while off + 16 <= end:
+            sec, frac, incl, _orig = unpack(buf, off)
             d = off + 16
             e = d + incl
             if e > end:
@@ -774,104 +495,9 @@ class ChangeReader:
                 break
             off = e
             number += 1
-            nrec += 1
-            wire += incl
-            ts = sec * NS + frac * mult
-            tp = sec | (frac * mult) << 32
-            h = hotget(kb + ab) if kb is not None and 50 < incl < 65000 else None
-            if h is not None and tl == swap[incl - 14] and ul == swap[incl - 34]:
-                key, named, pos, cur, pre, nslots, pslots, types, sy, preq, fk = h
-                if c50 == 68:  # 'D': positional
-                    m = pos(buf, d, e) if pos is not None else None
-                    if m is not None:
-                        g = m.groups()
-                        plen = incl - 42
-                        s = (adler(buf[d + 42 : e]) & 0xFFFF) if plen <= 256 else sum(buf[d + 42 : e]) + 1
-                        pbytes += plen
-                        ts_app(tp)
-                        num_app(number)
-                        if (s - ckadj[g[-1]]) & 255:
-                            bad += 1
-                            rec_app(key)
-                            continue
-                        parts = [key]
-                        first = False
-                        for v, k in zip(g, pslots):
-                            if v and v != cur[k]:
-                                if cur[k] is None:
-                                    events.append((base + len(recs), key, pre[k][1:-1], types[k]))
-                                    first = True
-                                cur[k] = v
-                                parts += (pre[k], v)
-                        # full: every slot that has held a value is present (preq: before this frame)
-                        if b"" not in g or all(g[i] for i in preq):
-                            nfull += 1
-                            gap = ts - sy[0]
-                            if gap >= limit:
-                                missed += (gap + half) // sync_ns - 1
-                            sy[0] = ts
-                        rec_app(join(parts))
-                        if first:
-                            fk.first_values(g, True)
-                        continue
-                else:
-                    m = named(buf, d, e) if named is not None else None
-                    if m is not None:
-                        g = m.groups()
-                        plen = incl - 42
-                        s = (adler(buf[d + 42 : e]) & 0xFFFF) if plen <= 256 else sum(buf[d + 42 : e]) + 1
-                        pbytes += plen
-                        ts_app(tp)
-                        num_app(number)
-                        if (s - ckadj[g[-1]]) & 255:
-                            bad += 1
-                            rec_app(key)
-                            continue
-                        if None in g:
-                            # full only if every variable with a value is present (and one is)
-                            full = g.count(None) < len(g) - 1
-                            if full:
-                                for v, k in zip(g, nslots):
-                                    if v is None and cur[k] is not None:
-                                        full = False
-                                        break
-                        else:
-                            full = len(g) > 1
-                        parts = [key]
-                        first = False
-                        for v, k in zip(g, nslots):
-                            if v is not None and v != cur[k]:
-                                if cur[k] is None:
-                                    events.append((base + len(recs), key, pre[k][1:-1], types[k]))
-                                    first = True
-                                cur[k] = v
-                                parts += (pre[k], v)
-                        if full:
-                            nfull += 1
-                            gap = ts - sy[0]
-                            if gap >= limit:
-                                missed += (gap + half) // sync_ns - 1
-                            sy[0] = ts
-                        rec_app(join(parts))
-                        if first:
-                            fk.first_values(g, False)
-                        continue
-            # anything else: the general path (flush counters first: it updates stats itself)
-            st = self.stats
-            st.payload_bytes += pbytes
-            st.full += nfull
-            st.sync_missed += missed
-            st.checksum_failures += bad
-            pbytes = nfull = missed = bad = 0
-            general(number, ts, linktype, buf[d:e])
-        st = self.stats
-        st.records += nrec
-        st.wire_bytes += wire
-        st.payload_bytes += pbytes
-        st.full += nfull
-        st.sync_missed += missed
-        st.checksum_failures += bad
-        self._last_ts = ts
+            st.records += 1
+            st.wire_bytes += incl
+            self._general(number, sec * NS + frac * mult, linktype, buf[d:e])
         return off, number
 
     # -- the general path ---------------------------------------------------------------
@@ -963,7 +589,7 @@ class ChangeReader:
             if fk is not None:
                 fk.refresh()
             elif k == hk and k is not None and self.fast_enabled:
-                self._fast[k] = _FastKey(key, k, t, sync, self._hot)
+                self._fast[k] = fast_records.FastKey(key, k, t, sync, self._hot)
             if target is table:
                 break
 
@@ -1018,12 +644,6 @@ class ChangeReader:
 
 
 _REC = struct.Struct("<IIII")
-#: the record header plus, at fixed offsets of an Ethernet/IPv4/UDP packet: IP total length,
-#: IP addresses and UDP ports (12 bytes: the conversation), UDP length (both lengths read
-#: little-endian: compared against _SWAP16), the frame's two address letters and the byte
-#: after "[:AB|N0|"
-_REC_X = struct.Struct("<IIII16xH8x12sH4x2s4xB")
-_SWAP16 = [((x & 0xFF) << 8) | (x >> 8) for x in range(65536)]
 
 
 def read_changes(
