@@ -13,6 +13,7 @@ from sharedlink.protocols.codec import (
     SharedLinkError,
     build_frame,
     checksum,
+    declaration_fields,
     declared_list,
     encode_named,
     encode_positional,
@@ -221,3 +222,26 @@ def test_hostile_64k_payload():
         data = (pattern * (65536 // len(pattern) + 1))[:65536]
         segs = split_frames(data)
         assert sum(s.end - s.start for s in segs) == len(data)
+
+
+def test_small_rules_mutation_testing_found_unchecked():
+    """Details a mutation run showed no test looked at (scripts/mutate.py)."""
+    # an empty field is Field("", ""); C anywhere but last is an unknown letter
+    f = parse_frame(b"[:AB||D1|C5|CFF]")
+    assert f.fields[:3] == (Field("", ""), Field("D", "1"), Field("C", "5"))
+    assert "unknown field letter 'C'" in " / ".join(f.deviations)
+    # noise carries the offset where it starts
+    segs = list(iter_segments(b"xx" + encode_positional("A", "B", ["1"]) + b"yyy"))
+    noise = [s for s in segs if not s.is_frame]
+    assert [(s.start, s.end, s.error.offset) for s in noise] == [(0, 2, 0), (segs[1].end, segs[1].end + 3, segs[1].end)]
+    # frames of no known kind
+    assert frame_kind((Field("X", "1"),)) == "other"
+    assert frame_kind((Field("T", "2"),)) == "other"
+    assert frame_kind(()) == "other"
+    assert frame_kind((Field("D", "1"),)) == "other"  # a value with no N or R
+    assert frame_kind((Field("L", "0"),)) == "other"  # an L with nothing declared
+    # a name declared without a type has type None; declarations written with their types
+    assert declared_list((Field("N", "0"), Field("Q", "A"), Field("T", "4"), Field("Q", "B"))) == ("N", 0, [("A", None), ("B", 4)])
+    assert declaration_fields([("A", 2), ("B", 4)], 3) == (
+        Field("N", "3"), Field("T", "2"), Field("Q", "A"), Field("T", "4"), Field("Q", "B"))
+    assert declaration_fields([("A", 0)], inbound=True)[0] == Field("L", "0")
