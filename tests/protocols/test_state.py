@@ -11,7 +11,7 @@ from sharedlink.protocols.codec import (
     query_fields,
     reply_fields,
 )
-from sharedlink.protocols.state import LinkState, VariableTable
+from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, VariableTable
 
 
 def frame(fields, dst="A", src="B"):
@@ -98,3 +98,24 @@ def test_unknown_and_command_frames_do_not_disturb_state():
     for fields in ((Field("E", "Link"), Field("D", "0, outbound, on")), (Field("P", ""),), (Field("Z", "?"),)):
         t.apply(frame(fields), 2)
     assert t.vars["a"].text == "1" and t.vars["a"].set_in == 1
+
+
+def test_types_names_and_conversations_are_kept_apart():
+    """Details a mutation run showed no test looked at (scripts/mutate.py)."""
+    link = LinkState()
+    link.apply(frame(declaration_fields([("X", 2), ("Y", 4)])), 1)
+    link.apply(frame(positional_fields(["1.5", "15"])), 2)
+    # the declared names join the table (after the default list it started with), nothing else
+    assert list(link.table("B", "A").values().items())[-3:] == [("AutoGpsVel", None), ("X", "1.5"), ("Y", "15")]
+    assert len(link.table("B", "A").vars) == len(BEACON_VARIABLES) + 2
+    assert link.table("B", "A").vars["Y"].value == "15"  # declared a string: not guessed as a number
+    # a named frame's T field types its value
+    link.apply(frame(named_fields([("S", 4, "7"), ("L", 0, "7")]), dst="C", src="D"), 3)
+    t = link.table("D", "C")
+    assert (t.vars["S"].type_code, t.vars["S"].value, t.vars["L"].value) == (4, "7", 7)
+    # an inbound list declared in one conversation stays in it
+    link.apply(frame(declaration_fields([("Cmd", 0)], inbound=True)), 4, conv="port 1")
+    assert link.table("A", "B", "port 1").names == ["Cmd"]
+    assert link.table("A", "B").names[0] == "AutoGpsLat"
+    ups = link.apply(frame(positional_fields(["3"]), dst="B", src="A"), 5, conv="port 1")
+    assert ups[0].name == "Cmd"
