@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from sharedlink.protocols.codec import (
     Field,
     Frame,
@@ -11,7 +13,7 @@ from sharedlink.protocols.codec import (
     query_fields,
     reply_fields,
 )
-from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, VariableTable
+from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, VariableTable, parse_variables
 
 
 def frame(fields, dst="A", src="B"):
@@ -119,3 +121,12 @@ def test_types_names_and_conversations_are_kept_apart():
     assert link.table("A", "B").names[0] == "AutoGpsLat"
     ups = link.apply(frame(positional_fields(["3"]), dst="B", src="A"), 5, conv="port 1")
     assert ups[0].name == "Cmd"
+
+
+def test_variable_lists_as_given_on_the_command_line():
+    assert parse_variables("Lat:2, Lon:2,Name:4,Count") == [("Lat", 2), ("Lon", 2), ("Name", 4), ("Count", None)]
+    assert parse_variables("A:2,B,") == [("A", 2), ("B", None)]
+    assert parse_variables("A:") == [("A", None)]
+    for bad in ("", ",", "A:x", "A|B", ":2"):
+        with pytest.raises(ValueError):
+            parse_variables(bad)
