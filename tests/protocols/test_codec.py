@@ -11,6 +11,7 @@ from sharedlink.protocols.codec import (
     Field,
     Frame,
     SharedLinkError,
+    build_fields,
     build_frame,
     checksum,
     declaration_fields,
@@ -245,3 +246,6 @@ def test_small_rules_mutation_testing_found_unchecked():
     assert declaration_fields([("A", 2), ("B", 4)], 3) == (
         Field("N", "3"), Field("T", "2"), Field("Q", "A"), Field("T", "4"), Field("Q", "B"))
     assert declaration_fields([("A", 0)], inbound=True)[0] == Field("L", "0")
+    # build_fields: CR LF unless asked not to
+    assert build_fields((Field("N", "0"), Field("D", "1")), "A", "B") == encode_positional("A", "B", ["1"])
+    assert build_fields((Field("N", "0"), Field("D", "1")), crlf=False).endswith(b"]")
