@@ -294,7 +294,10 @@ def test_capture_timing_is_followed_loosely(tmp_path, rx):
     assert 330 < span < 600, arrivals  # 350 ms scheduled
     gaps = [(b - a) / MS for a, b in zip(arrivals, arrivals[1:])]
     assert all(20 < g < 120 for g in gaps), gaps
-    assert st.lag_median_ns is not None and st.lag_median_ns < 5 * MS
+    # lateness is measured (how much depends on the machine's load: no bound on it here
+    # beyond being well under the frame gap; test_frames_keep_the_capture_spacing and the bench
+    # hold the timing)
+    assert st.lag_median_ns is not None and 0 <= st.lag_median_ns < 25 * MS
     assert 0.33 < st.elapsed_s < 0.8
 
 
