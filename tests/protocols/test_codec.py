@@ -239,7 +239,6 @@ def test_small_rules_mutation_testing_found_unchecked():
     assert frame_kind((Field("X", "1"),)) == "other"
     assert frame_kind((Field("T", "2"),)) == "other"
     assert frame_kind(()) == "other"
-    assert frame_kind((Field("D", "1"),)) == "other"  # a value with no N or R
     assert frame_kind((Field("L", "0"),)) == "other"  # an L with nothing declared
     # a name declared without a type has type None; declarations written with their types
     assert declared_list((Field("N", "0"), Field("Q", "A"), Field("T", "4"), Field("Q", "B"))) == ("N", 0, [("A", None), ("B", 4)])
