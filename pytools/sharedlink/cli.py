@@ -20,7 +20,7 @@ from .commands import EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 from .errors import Error, UsageError
 
 #: sub-command modules, in the order ``--help`` lists them
-COMMANDS = ["gen", "replay", "serial", "compress", "expand", "diff", "stats", "export", "plot", "ingest", "query"]
+COMMANDS = ["gen", "replay", "serial", "compress", "expand", "diff", "stats", "export", "plot", "watch", "ingest", "query"]
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_OK", "EXIT_USAGE", "Error", "UsageError", "main", "build_parser"]
 

@@ -1,0 +1,587 @@
+"""``sharedlink watch``: decode a live link (UDP, serial) or a capture at its pace, as it happens.
+
+Sources give :class:`~sharedlink.capture.stream.StreamFrame` s in batches; one
+:class:`~sharedlink.analysis.decode.Decoder` turns them into
+:class:`~sharedlink.analysis.decode.Decoded` frames (the rules of every other command), which go
+to the outputs: the live terminal view (:class:`LiveView`, drawn with rich), one JSON line per
+frame (:func:`json_line`), and the Foxglove channels
+(:class:`~sharedlink.analysis.foxglove_channels.FoxgloveChannels`) behind foxglove-sdk's
+WebSocket server.
+
+* UDP: bound to the port on every address with SO_REUSEADDR and SO_REUSEPORT, so it runs beside
+  the vehicle software bound to the same port; broadcasts are received; a large receive buffer
+  and a drain-then-draw loop keep up with bursts. Frames are stamped with the arrival time.
+* Serial: :class:`~sharedlink.capture.serial_format.Deframer` over the bytes read (SharedLink),
+  stamped with the arrival time of the chunk that completed the frame.
+* Capture: :func:`~sharedlink.capture.stream.iter_frames` played at the recorded pace (times
+  ``speed``); frames keep their capture times and the view's clock follows the capture's.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import socket
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any, NamedTuple
+
+from sharedlink.analysis.decode import DATA_KINDS, NS, VALUE_KINDS, Decoded, Decoder, format_time
+from sharedlink.capture.packets import Datagram
+from sharedlink.capture.stream import FrameSplitter, StreamFrame, iter_frames
+from sharedlink.protocols.codec import Frame, parse_frame
+from sharedlink.protocols.state import BEACON_VARIABLES, Update, VariableTable, conversation_key
+from sharedlink.protocols.state import _update as _state_update  # the general path's Update builder, shared
+
+DEFAULT_PORT = 7013
+#: how long a change (value, failure, late sync, gap) stays highlighted, seconds
+HIGHLIGHT_S = 2.0
+#: receive buffer asked for (the kernel caps it at net.core.rmem_max)
+RCVBUF = 8 << 20
+
+Batch = list[StreamFrame]
+
+
+class RawDatagram(NamedTuple):
+    """A UDP datagram as received: split into frames by the decoder (its fast path first)."""
+
+    number: int
+    ts_ns: int
+    conv: tuple[str, str, int, str, int]
+    data: bytes
+
+
+# -- sources ----------------------------------------------------------------------------------
+
+
+class UdpSource:
+    """Datagrams on ``port`` (every address, broadcasts included), shared with other listeners."""
+
+    def __init__(self, port: int = DEFAULT_PORT, host: str = "") -> None:
+        self.port = port
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if hasattr(socket, "SO_REUSEPORT"):
+                self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+            try:  # past net.core.rmem_max when privileged (SO_RCVBUFFORCE), else up to it
+                self.sock.setsockopt(socket.SOL_SOCKET, getattr(socket, "SO_RCVBUFFORCE", 33), RCVBUF)
+            except OSError:
+                try:
+                    self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF)
+                except OSError:
+                    pass
+            self.sock.bind((host, port))
+        except BaseException:
+            self.sock.close()
+            raise
+        self.number = 0
+        self.description = f"udp port {port}"
+
+    def batches(self, timeout: float) -> Iterator[Batch]:
+        """Everything that arrived (as :class:`RawDatagram` s), drained without blocking, then
+        one wait of ``timeout``."""
+        sock = self.sock
+        recv = sock.recvfrom
+        port = self.port
+        while True:
+            sock.settimeout(timeout)
+            out: list = []
+            try:
+                data, addr = recv(65535)
+            except (socket.timeout, BlockingIOError):
+                yield out
+                continue
+            sock.setblocking(False)
+            while True:
+                self.number += 1
+                out.append(RawDatagram(self.number, time.time_ns(), ("udp", addr[0], addr[1], "", port), data))
+                if len(out) >= 512:
+                    break
+                try:
+                    data, addr = recv(65535)
+                except (BlockingIOError, InterruptedError):
+                    break
+            yield out
+
+    def now_ns(self) -> int:
+        return time.time_ns()
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class SerialSource:
+    """SharedLink frames read from a serial device with the serial deframer."""
+
+    def __init__(self, device: str, baud: int = 9600) -> None:
+        from sharedlink.capture.serial_format import Deframer
+        from sharedlink.capture.serial_port import open_port
+
+        self.port = open_port(device, baud, timeout=0)
+        self.deframer = Deframer("sharedlink")
+        self.number = 0
+        self.conv = ("serial", device, baud, "", 0)
+        self.description = f"serial {device} at {baud} baud"
+
+    def batches(self, timeout: float) -> Iterator[Batch]:
+        import selectors
+
+        sel = selectors.DefaultSelector()
+        fd = self.port.fileno()  # type: ignore[attr-defined]
+        sel.register(fd, selectors.EVENT_READ)
+        while True:
+            out: Batch = []
+            if sel.select(timeout):
+                import os
+
+                chunk = os.read(fd, 65536)
+                self.number += 1
+                ts = time.time_ns()
+                for p in self.deframer.feed(chunk, self.number):
+                    frame = p.frame if isinstance(p.frame, Frame) else None
+                    out.append(StreamFrame(self.number, ts, self.conv, p.data, frame, None if frame else (p.reason or "noise")))
+            yield out
+
+    def now_ns(self) -> int:
+        return time.time_ns()
+
+    def close(self) -> None:
+        self.port.close()  # type: ignore[attr-defined]
+
+
+class CaptureSource:
+    """A capture's frames at its recorded pace times ``speed``; the clock is the capture's."""
+
+    def __init__(self, path: str | Path, speed: float = 1.0) -> None:
+        self.path, self.speed = path, speed
+        self.description = f"{path} at {speed:g}x"
+        self._t0: int | None = None  # capture time of the first frame
+        self._m0 = 0.0  # monotonic time it was shown
+        self.done = False
+
+    def now_ns(self) -> int:
+        if self._t0 is None:
+            return 0
+        return self._t0 + round((time.monotonic() - self._m0) * self.speed * NS)
+
+    def batches(self, timeout: float) -> Iterator[Batch]:
+        out: Batch = []
+        due = time.monotonic() + timeout
+        for item in iter_frames(self.path):
+            if not isinstance(item, StreamFrame):
+                continue
+            if self._t0 is None:
+                self._t0, self._m0 = item.ts_ns, time.monotonic()
+            at = self._m0 + (item.ts_ns - self._t0) / NS / self.speed
+            while True:  # wait for the frame's time, handing out what is due meanwhile
+                now = time.monotonic()
+                if at <= now:
+                    break
+                if out or now >= due:
+                    yield out
+                    out = []
+                    due = time.monotonic() + timeout
+                    continue
+                time.sleep(min(at, due) - now)
+            out.append(item)
+            if len(out) >= 512 or time.monotonic() >= due:
+                yield out
+                out = []
+                due = time.monotonic() + timeout
+        self.done = True
+        yield out
+
+    def close(self) -> None:
+        pass
+
+
+# -- decoding, with a fast path for the beacon's steady state ---------------------------------
+
+#: one named full/delta frame alone in a datagram, with plain names and numeric values
+_HOT = re.compile(rb"\[:([A-P])([A-P])\|N0\|((?:T[024]\|Q[A-Za-z0-9_.]+\|D[-+0-9.eE]+\|)+)C([0-9A-F]{2})\]\r\n")
+
+#: a D field's value (after a "|"), cut out to make the layout key / taken out as the values
+_VALUE = re.compile(rb"(?<=\|)D[^|]*")
+_VALUES = re.compile(rb"\|D([^|]*)")
+
+
+class _FastDecoded(Decoded):
+    """A :class:`Decoded` from the fast path: its ``frame`` is parsed from ``raw`` only when
+    someone asks for it (the outputs of the watch read the letters, kind and updates)."""
+
+    def __init__(self, number: int, ts_ns: int, conv: tuple, raw: bytes, src: str, dst: str, kind: str,
+                 updates: tuple[Update, ...], table: VariableTable, late: bool, gap: int | None) -> None:
+        # one dict update instead of a frozen dataclass's setattr per field (measured: the hot path)
+        self.__dict__.update(number=number, ts_ns=ts_ns, conv=conv, raw=raw, kind=kind, checksum_ok=True,
+                             updates=updates, table=table, late=late, sync_gap_ns=gap, shown=updates, response_to=None,
+                             _src=src, _dst=dst, _frame=None)
+
+    @property  # type: ignore[override]
+    def frame(self) -> Frame:
+        f = self._frame  # type: ignore[attr-defined]
+        if f is None:
+            f = parse_frame(self.raw)
+            object.__setattr__(self, "_frame", f)
+        return f
+
+    @property
+    def src(self) -> str:
+        return self._src  # type: ignore[attr-defined]
+
+    @property
+    def dst(self) -> str:
+        return self._dst  # type: ignore[attr-defined]
+
+    @property
+    def pair(self) -> str:
+        return f"{self._src}>{self._dst}"  # type: ignore[attr-defined]
+
+
+@dataclass
+class _Layout:
+    """One frame layout of a direction: its names, their types and positions in the list."""
+
+    names: tuple[str, ...]
+    types: tuple[int, ...]
+
+
+@dataclass
+class _Hot:
+    """A direction's steady state: its table, sync state and the layouts (types and names,
+    in order) its good full and delta frames have had."""
+
+    table: VariableTable
+    sync: list
+    layouts: dict[tuple[bytes, ...], _Layout] = field(default_factory=dict)
+
+
+#: layouts kept per direction (a compressed beacon has a handful)
+MAX_LAYOUTS = 32
+
+
+class FastDecoder:
+    """:class:`~sharedlink.analysis.decode.Decoder` with a fast path for the beacon's steady
+    state, the same results (a test decodes varied captures both ways and compares).
+
+    The fast path takes a datagram holding exactly one named ``N0`` frame with a good checksum
+    whose layout (types and names, in order) one of the direction's earlier good full or delta
+    frames had when it went through the general decoder, its variables still of those types;
+    it then does what the general path does for such a frame (``VariableTable.apply``'s named
+    branch and the decoder's sync tracking) without parsing the frame into fields. Anything
+    else (a bad checksum, several frames, declarations, replies, queries, positional frames)
+    goes through the general decoder; a frame there that changes the direction's state in
+    another way forgets its layouts, a declaration forgets every layout (lists change names)."""
+
+    def __init__(self, variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES, sync_interval: float = 1.0) -> None:
+        self.general = Decoder(variables, sync_interval)
+        self.late_ns = self.general.late_ns
+        self._hot: dict[tuple, _Hot] = {}
+        self.fast = 0  # frames decoded by the fast path
+        self.splitter = FrameSplitter()
+        # the general decoder's sync state; without it (a changed Decoder) there is no fast path
+        self._sync: dict | None = getattr(self.general, "_sync", None)
+
+    def decode(self, sf: StreamFrame) -> Decoded:
+        """One frame (``sf.frame`` parsed)."""
+        d = self._try_fast(sf.number, sf.ts_ns, sf.conv, sf.raw)
+        if d is None:
+            d = self.general.decode(sf)
+            self._learn(d)
+        return d
+
+    def datagram(self, dg: RawDatagram) -> list[Decoded | StreamFrame]:
+        """The frames of a UDP datagram, and its noise (a :class:`StreamFrame` with ``frame``
+        None). A datagram that is one hot frame is not parsed at all."""
+        d = self._try_fast(dg.number, dg.ts_ns, dg.conv, dg.data)
+        if d is not None:
+            return [d]
+        proto, src, sport, dst, dport = dg.conv
+        out: list[Decoded | StreamFrame] = []
+        for sf in self.splitter.split(dg.number, dg.ts_ns, Datagram(proto, src, dst, sport, dport, dg.data)):
+            if sf.frame is None:
+                out.append(sf)
+            else:
+                d = self.general.decode(sf)
+                self._learn(d)
+                out.append(d)
+        return out
+
+    def _try_fast(self, number: int, ts: int, conv: tuple, raw: bytes) -> Decoded | None:
+        m = _HOT.fullmatch(raw) if self._sync is not None else None
+        if m is None:
+            return None
+        src, dst = m.group(2).decode(), m.group(1).decode()
+        h = self._hot.get((conv, src, dst))
+        if h is None:
+            return None
+        body = m.group(3)
+        lay = h.layouts.get(_VALUE.sub(b"D", body))
+        if lay is None or (sum(raw[1 : m.end(3) + 1]) & 0xFF) != int(m.group(4), 16):
+            return None
+        vars_ = h.table.vars
+        for n, t in zip(lay.names, lay.types):
+            if vars_[n].type_code != t:
+                return None
+        return self._fast(number, ts, conv, raw, h, lay, src, dst, _VALUES.findall(body))
+
+    def _learn(self, d: Decoded) -> None:
+        if d.kind == "declaration":
+            self._hot.clear()
+            return
+        if d.checksum_ok is False:
+            return  # changed nothing
+        key = (d.conv, d.src, d.dst)
+        m = _HOT.fullmatch(d.raw) if self._sync is not None else None
+        sync = self._sync.get((conversation_key(d.conv), d.src, d.dst)) if self._sync is not None else None
+        if m is None or d.checksum_ok is not True or d.kind not in DATA_KINDS or sync is None:
+            self._hot.pop(key, None)
+            return
+        h = self._hot.get(key)
+        if h is None or h.table is not d.table or h.sync is not sync:
+            h = self._hot[key] = _Hot(d.table, sync)
+        body = m.group(3)
+        parts = body[:-1].split(b"|")  # the body ends with its last "|"
+        names = tuple(q[1:].decode() for q in parts[1::3])
+        if len(h.layouts) < MAX_LAYOUTS:
+            h.layouts[_VALUE.sub(b"D", body)] = _Layout(
+                names, tuple(int(t[1:]) for t in parts[0::3]))
+
+    def _fast(self, number: int, ts: int, conv: tuple, raw: bytes, h: _Hot, lay: _Layout, src: str, dst: str,
+              values: list[bytes]) -> Decoded:
+        table = h.table
+        vars_ = table.vars
+        sent = table.sent_names
+        updates: list[Update] = []
+        present = set(lay.names)
+        full = all(n in present for n in sent)  # the kind before the frame, as VariableTable.kind
+        for name, dval in zip(lay.names, values):
+            text = dval.decode()
+            v = vars_[name]
+            changed = v.text != text
+            v.text, v.set_in, v.set_at = text, number, ts
+            updates.append(_state_update(v, sent.setdefault(name, len(sent)), False, None, changed))
+        for name, v in vars_.items():
+            if name not in present and v.text is not None:
+                updates.append(_state_update(v, sent.get(name, table._index(name)), True, v.set_in, False))
+        table.named = True
+        sync = h.sync
+        gap: int | None = None
+        late = False
+        if full:
+            table.last_full_at, table.last_full_in = ts, number
+            if sync[1] is not None:
+                gap = ts - sync[1]
+            sync[1] = ts
+        else:
+            since = sync[1] if sync[1] is not None else sync[0]
+            late = ts - since > self.late_ns
+        self.fast += 1
+        return _FastDecoded(number, ts, conv, raw, src, dst, "full" if full else "delta", tuple(updates), table, late, gap)
+
+
+# -- the live view ---------------------------------------------------------------------------
+
+
+@dataclass
+class VarStat:
+    text: str | None = None
+    changed_ns: int = 0  # when its value last changed
+    updates: int = 0  # frames that carried it, this second
+    rate: float = 0.0  # frames per second that carried it, last full second
+
+
+@dataclass
+class DirStat:
+    """What the view shows for one direction."""
+
+    pair: str
+    conv: tuple
+    frames: int = 0
+    bad: int = 0
+    late: int = 0
+    gaps: int = 0
+    last_ns: int = 0
+    bad_ns: int = -(1 << 62)
+    late_ns: int = -(1 << 62)
+    gap_ns: int = -(1 << 62)
+    second: int = 0  # the second the counters below count
+    in_second: int = 0
+    fps: float = 0.0
+    vars: dict[str, VarStat] = field(default_factory=dict)
+
+
+class LiveView:
+    """Per direction: variables' last values, age since they changed, update rates; link
+    frames/s, checksum failures, late syncs and gaps (a full set more than the sync interval
+    + 0.5 s after the previous one); what just happened is highlighted for :data:`HIGHLIGHT_S`."""
+
+    def __init__(self, sync_interval: float = 1.0, title: str = "") -> None:
+        self.dirs: dict[tuple, DirStat] = {}
+        self.gap_ns = round((sync_interval + 0.5) * NS)
+        self.title = title
+        self.frames = 0
+        self.stats = WatchStats()  # the loop's counts (noise)
+
+    def update(self, d: Decoded) -> None:
+        key = (d.conv, d.src, d.dst)
+        st = self.dirs.get(key)
+        if st is None:
+            st = self.dirs[key] = DirStat(d.pair, d.conv)
+        ts = d.ts_ns
+        self.frames += 1
+        st.frames += 1
+        st.last_ns = ts
+        sec = ts // NS
+        if sec != st.second:
+            self._roll(st, sec)
+        st.in_second += 1
+        if d.checksum_ok is False:
+            st.bad += 1
+            st.bad_ns = ts
+            return
+        if d.late:
+            st.late += 1
+            st.late_ns = ts
+        if d.sync_gap_ns is not None and d.sync_gap_ns > self.gap_ns:
+            st.gaps += 1
+            st.gap_ns = ts
+        if d.kind not in VALUE_KINDS:
+            return
+        vars_ = st.vars
+        for u in d.updates:
+            if u.carried or u.text is None:
+                continue
+            vs = vars_.get(u.name)
+            if vs is None:
+                vs = vars_[u.name] = VarStat()
+            vs.updates += 1
+            if u.text != vs.text:
+                vs.text, vs.changed_ns = u.text, ts
+
+    def _roll(self, st: DirStat, sec: int) -> None:
+        fresh = sec == st.second + 1
+        st.fps = float(st.in_second) if fresh else 0.0
+        for vs in st.vars.values():
+            vs.rate = float(vs.updates) if fresh else 0.0
+            vs.updates = 0
+        st.in_second = 0
+        st.second = sec
+
+    def render(self, now_ns: int) -> Any:
+        from rich.console import Group
+        from rich.table import Table
+        from rich.text import Text
+
+        parts: list[Any] = [Text(f"{self.title}: {self.frames} frames, {self.stats.noise} noise", style="bold")]
+        hl = round(HIGHLIGHT_S * NS)
+        for st in self.dirs.values():
+            if now_ns // NS > st.second + 1:
+                self._roll(st, now_ns // NS)
+            head = Text(f"{st.pair}  {' '.join(map(str, st.conv))}", style="bold cyan")
+            line = Text(f"  {st.fps:.0f} frames/s  ")
+            for label, n, at in (("checksum failures", st.bad, st.bad_ns), ("late syncs", st.late, st.late_ns),
+                                 ("gaps", st.gaps, st.gap_ns)):
+                line.append(f"{label} {n}", style="bold white on red" if now_ns - at < hl else ("red" if n else ""))
+                line.append("  ")
+            line.append(f"last frame {_age(now_ns - st.last_ns)} ago")
+            parts += [head, line]
+            t = Table(box=None, pad_edge=False, show_header=True, header_style="dim")
+            t.add_column("variable")
+            t.add_column("value", justify="right")
+            t.add_column("changed", justify="right")
+            t.add_column("rate", justify="right")
+            for name, vs in st.vars.items():
+                fresh = now_ns - vs.changed_ns < hl
+                t.add_row(name, Text(vs.text or "", style="bold green" if fresh else ""), _age(now_ns - vs.changed_ns) + " ago",
+                          f"{vs.rate:.0f}/s")
+            parts.append(t)
+        return Group(*parts)
+
+
+def _age(ns: int) -> str:
+    s = max(ns, 0) / NS
+    if s < 10:
+        return f"{s:.1f} s"
+    if s < 3600:
+        return f"{s:.0f} s"
+    return f"{s / 3600:.1f} h"
+
+
+# -- JSON lines ------------------------------------------------------------------------------
+
+
+def _typed(v: Any) -> Any:
+    x = v.value
+    return v.text if isinstance(x, float) and not math.isfinite(x) else x
+
+
+def json_line(d: Decoded) -> str:
+    """One frame as a JSON object (the keys of ``export --format jsonl`` rows, without ``t``,
+    plus ``late``)."""
+    ok = d.checksum_ok
+    return json.dumps({
+        "number": d.number, "time": format_time(d.ts_ns), "ts_ns": d.ts_ns, "src": d.src, "dst": d.dst,
+        "kind": d.kind, "checksum": "none" if ok is None else ("good" if ok else "bad"), "late": d.late,
+        "values": {n: _typed(v) for n, v in d.table.vars.items() if v.text is not None},
+        "changed": [u.name for u in d.changes()],
+    })
+
+
+# -- the loop --------------------------------------------------------------------------------
+
+
+@dataclass
+class WatchStats:
+    frames: int = 0
+    noise: int = 0
+
+
+def run_watch(
+    source: Any,
+    decoder: Decoder | FastDecoder,
+    outputs: list[Callable[[Decoded], None]],
+    tick: Callable[[int], None] | None = None,
+    interval: float = 0.25,
+    stats: WatchStats | None = None,
+    out: IO[str] | None = None,
+) -> WatchStats:
+    """Decode ``source`` 's batches into ``outputs`` until it ends (a capture) or Ctrl-C
+    (KeyboardInterrupt propagates: the caller cleans up). ``tick(now_ns)`` is called at most
+    every ``interval`` seconds, and after every batch when the source is idle."""
+    stats = stats if stats is not None else WatchStats()
+    decode = decoder.decode
+    next_tick = time.monotonic()
+    datagram = getattr(decoder, "datagram", None)
+    for batch in source.batches(interval):
+        for item in batch:
+            if isinstance(item, RawDatagram):
+                for d in datagram(item):  # type: ignore[misc]
+                    if isinstance(d, Decoded):
+                        stats.frames += 1
+                        for o in outputs:
+                            o(d)
+                    else:
+                        stats.noise += 1
+                continue
+            if item.frame is None:
+                stats.noise += 1
+                continue
+            d = decode(item)
+            stats.frames += 1
+            for o in outputs:
+                o(d)
+        if out is not None and batch:
+            out.flush()
+        if tick is not None and time.monotonic() >= next_tick:
+            tick(source.now_ns())
+            next_tick = time.monotonic() + interval
+        if getattr(source, "done", False):
+            break
+    if tick is not None:
+        tick(source.now_ns())
+    return stats

@@ -1,0 +1,294 @@
+"""`sharedlink watch`: a capture replayed to a loopback port is seen frame by frame (--json), a
+Foxglove WebSocket client receives the positions, the live view counts what happened, Ctrl-C
+exits 130. Values are checked against ``sl_captures.reference`` (an independent reading of the
+capture), not against the package's decoder."""
+
+from __future__ import annotations
+
+import base64
+import json
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from sl_captures import BEACON, reference
+
+from sharedlink.generators.beacon import GenOptions, generate_file
+
+CLI = [sys.executable, "-m", "sharedlink"]
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_watch(*args: object) -> subprocess.Popen:
+    p = subprocess.Popen([*CLI, "watch", *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return p
+
+
+def wait_line(p: subprocess.Popen, needle: str) -> str:
+    """The first stderr line holding ``needle`` (the watch is listening once it is printed)."""
+    while True:
+        line = p.stderr.readline()  # type: ignore[union-attr]
+        assert line, f"watch ended early: rc={p.poll()}"
+        if needle in line:
+            return line
+
+
+def replay(cap: Path, port: int, *args: object) -> None:
+    r = subprocess.run([*CLI, "replay", str(cap), "--to", f"127.0.0.1:{port}", *map(str, args)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+
+
+def interrupt(p: subprocess.Popen) -> tuple[str, str]:
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    assert "Traceback" not in err
+    return out, err
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("watch") / "drive.pcap"
+    generate_file(GenOptions(duration=12, seed=4, compress=True, bad_checksum=0.1, drop=0.05), path)
+    return path
+
+
+def check_rows(rows: list[dict], cap: Path, same_times: bool) -> None:
+    ref = reference(cap)
+    assert len(rows) == len(ref) > 40
+    assert any(not fr.ok for fr in ref)
+    for row, fr in zip(rows, ref):
+        assert (row["src"], row["dst"]) == (fr.src, fr.dst)
+        assert row["checksum"] == ("good" if fr.ok else "bad")
+        assert sorted(row["changed"]) == sorted(fr.changed)
+        assert set(row["values"]) == set(fr.values)
+        for name in BEACON:
+            if name in fr.values:
+                assert row["values"][name] == float(fr.values[name])
+        if same_times:
+            assert row["ts_ns"] == fr.ts_ns and row["number"] == fr.number
+
+
+def test_json_sees_every_replayed_frame(capture):
+    port = free_port()
+    w = start_watch("--port", port, "--json")
+    try:
+        wait_line(w, "udp port")
+        replay(capture, port, "--speed", 20)
+        time.sleep(0.5)
+    finally:
+        out, _err = interrupt(w)
+    rows = [json.loads(line) for line in out.splitlines()]
+    check_rows(rows, capture, same_times=False)
+    assert [r["number"] for r in rows] == list(range(1, len(rows) + 1))  # one datagram each, none lost
+    assert all(a["ts_ns"] <= b["ts_ns"] for a, b in zip(rows, rows[1:]))
+
+
+def test_runs_beside_another_listener_on_the_same_port(capture):
+    """The vehicle software holds the port (with SO_REUSEADDR/SO_REUSEPORT, as the beacon's
+    listeners do): the watch binds it too, and both get every broadcast frame."""
+    port = free_port()
+    other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    other.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    other.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+    other.bind(("", port))
+    other.settimeout(5)
+    w = start_watch("--port", port, "--json")
+    try:
+        wait_line(w, "udp port")
+        r = subprocess.run([*CLI, "replay", str(capture), "--to", f"127.255.255.255:{port}", "--broadcast", "--limit", "10",
+                            "--speed", "20"], capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        theirs = [other.recv(65535) for _ in range(10)]
+        time.sleep(0.5)
+    finally:
+        out, _err = interrupt(w)
+        other.close()
+    ours = [json.loads(line) for line in out.splitlines()]
+    assert len(ours) == len(theirs) == 10
+    assert [r["changed"] for r in ours][:1] == [BEACON]
+
+
+def test_from_capture_keeps_capture_times(capture):
+    r = subprocess.run([*CLI, "watch", "--from", str(capture), "--speed", "50", "--json"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    check_rows([json.loads(line) for line in r.stdout.splitlines()], capture, same_times=True)
+
+
+def test_live_view_shows_counts_and_exits_130(capture):
+    r = subprocess.run([*CLI, "watch", "--from", str(capture), "--speed", "60"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    ref = reference(capture)
+    bad = sum(1 for fr in ref if not fr.ok)
+    assert f"checksum failures {bad}" in r.stdout
+    assert "B>A" in r.stdout and f": {len(ref)} frames" in r.stdout
+    last = ref[-1].values
+    for name in BEACON:
+        assert name in r.stdout
+    assert last["AutoGpsLat"] in r.stdout
+    w = start_watch("--port", free_port())
+    wait_line(w, "udp port")
+    time.sleep(0.5)
+    interrupt(w)
+
+
+def test_view_counts_late_syncs_and_gaps(tmp_path):
+    from sharedlink.analysis.decode import Decoded, iter_decoded
+    from sharedlink.watch import LiveView
+
+    cap = tmp_path / "gappy.pcap"
+    generate_file(GenOptions(duration=30, seed=8, compress=True, drop=0.3), cap)
+    view = LiveView(1.0)
+    items = [d for d in iter_decoded(cap) if isinstance(d, Decoded)]
+    late = sum(d.late for d in items)
+    gaps = sum(1 for d in items if d.sync_gap_ns is not None and d.sync_gap_ns > 1.5e9)
+    for d in items:
+        view.update(d)
+    (st,) = view.dirs.values()
+    assert (st.late, st.gaps, st.frames) == (late, gaps, len(items))
+    assert late > 0 and gaps > 0
+    from rich.console import Console
+
+    console = Console(record=True, width=120)
+    console.print(view.render(items[-1].ts_ns))
+    text = console.export_text()
+    assert f"late syncs {late}" in text and f"gaps {gaps}" in text
+
+
+def _foxglove_messages(ws_port: int, watch_port: int, cap: Path) -> tuple[str, list[tuple[int, bytes]], dict]:
+    from websockets.sync.client import connect
+
+    src = free_port()
+    replay(cap, watch_port, "--limit", 1, "--bind", f"127.0.0.1:{src}")  # makes the direction's channels
+    # Foxglove offers both names of its protocol; foxglove-sdk's server speaks foxglove.sdk.v1
+    with connect(f"ws://127.0.0.1:{ws_port}", subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"]) as ws:
+        chans: dict[str, dict] = {}
+        deadline = time.monotonic() + 20
+        while "/sharedlink/B_to_A/location" not in chans and time.monotonic() < deadline:
+            m = ws.recv(timeout=20)
+            if isinstance(m, str):
+                j = json.loads(m)
+                if j["op"] == "advertise":
+                    chans.update({c["topic"]: c for c in j["channels"]})
+        loc = chans["/sharedlink/B_to_A/location"]
+        ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": loc["id"]}]}))
+        time.sleep(1.0)
+        replay(cap, watch_port, "--speed", 20, "--bind", f"127.0.0.1:{src}")
+        got: list[tuple[int, bytes]] = []
+        while True:
+            try:
+                m = ws.recv(timeout=3)
+            except TimeoutError:
+                break
+            if isinstance(m, bytes):
+                op, sub, log_time = struct.unpack_from("<BIQ", m)
+                assert (op, sub) == (1, 7)
+                got.append((log_time, m[13:]))
+        return ws.subprotocol, got, loc
+
+
+def test_foxglove_client_receives_the_positions(capture):
+    pytest.importorskip("websockets")
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    watch_port = free_port()
+    w = start_watch("--port", watch_port, "--json", "--foxglove", "--foxglove-port", 0)
+    try:
+        line = wait_line(w, "Foxglove WebSocket server on ws://")
+        ws_port = int(line.strip().rsplit(":", 1)[1])
+        proto, got, loc = _foxglove_messages(ws_port, watch_port, capture)
+    finally:
+        interrupt(w)
+    assert proto == "foxglove.sdk.v1"
+    assert (loc["schemaName"], loc["encoding"], loc["schemaEncoding"]) == ("foxglove.LocationFix", "protobuf", "protobuf")
+    pool = descriptor_pool.DescriptorPool()
+    for fd in descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(loc["schema"])).file:
+        pool.Add(fd)
+    cls = message_factory.GetMessageClass(pool.FindMessageTypeByName("foxglove.LocationFix"))
+    fixes = [(t, cls.FromString(data)) for t, data in got]
+    want = [fr for fr in reference(capture) if fr.ok]
+    assert [(f.latitude, f.longitude) for _t, f in fixes] == [
+        (float(fr.values["AutoGpsLat"]), float(fr.values["AutoGpsLon"])) for fr in want]
+    for t, f in fixes:
+        assert t == f.timestamp.seconds * 10**9 + f.timestamp.nanos
+
+
+def _same(a, b, tables: bool = True) -> None:
+    assert (a.number, a.ts_ns, a.conv, a.raw, a.src, a.dst, a.pair, a.kind, a.checksum_ok, a.updates, a.late, a.sync_gap_ns,
+            a.shown, a.response_to) == (
+        b.number, b.ts_ns, b.conv, b.raw, b.src, b.dst, b.pair, b.kind, b.checksum_ok, b.updates, b.late, b.sync_gap_ns,
+        b.shown, b.response_to)
+    assert a.frame == b.frame
+    if not tables:
+        return
+    assert {n: (v.text, v.type_code, v.set_in, v.set_at) for n, v in a.table.vars.items()} == {
+        n: (v.text, v.type_code, v.set_in, v.set_at) for n, v in b.table.vars.items()}
+    assert (a.table.last_full_at, a.table.last_full_in, a.table.named, a.table.sent_names) == (
+        b.table.last_full_at, b.table.last_full_in, b.table.named, b.table.sent_names)
+
+
+def _compare(cap: Path) -> tuple[int, int]:
+    """Decode ``cap`` with the general decoder and with FastDecoder (frame by frame, and datagram
+    by datagram as the UDP source feeds it); every result equal. Returns the fast path's counts."""
+    from sharedlink.analysis.decode import Decoded, Decoder
+    from sharedlink.capture.packets import decode_packet
+    from sharedlink.capture.pcapio import read_records
+    from sharedlink.capture.stream import StreamFrame, iter_frames
+    from sharedlink.watch import FastDecoder, RawDatagram
+
+    ref, fast = Decoder(), FastDecoder()
+    refs = []
+    for sf in iter_frames(cap):
+        if isinstance(sf, StreamFrame) and sf.frame is not None:
+            refs.append(sf)
+            _same(fast.decode(sf), ref.decode(sf))
+    # the same through datagram(), as the UDP source feeds it
+    ref, fast2 = Decoder(), FastDecoder()
+    pending = iter(refs)
+    n = 0
+    for rec in read_records(cap):
+        dg = decode_packet(rec.linktype, rec.data)
+        conv = (dg.proto, dg.src, dg.sport, dg.dst, dg.dport)
+        ds = [d for d in fast2.datagram(RawDatagram(rec.number, rec.ts_ns, conv, dg.payload)) if isinstance(d, Decoded)]
+        rs = [ref.decode(next(pending)) for _d in ds]
+        for i, (d, r) in enumerate(zip(ds, rs)):  # tables are live: equal after the datagram's last frame
+            _same(d, r, tables=i == len(ds) - 1)
+        n += len(ds)
+    assert n == len(refs)
+    assert fast2.fast <= fast.fast  # a datagram with noise around its frame is not taken whole
+    return fast.fast, fast2.fast
+
+
+@pytest.mark.parametrize("variant", [dict(compress=True, bad_checksum=0.1, drop=0.1, jitter_ms=300.0),
+                                     dict(), dict(form="positional", compress=True)])
+def test_fast_decoder_equals_the_general_one_on_drives(tmp_path, variant):
+    cap = tmp_path / "d.pcap"
+    generate_file(GenOptions(duration=40, seed=6, **variant), cap)
+    _n, n = _compare(cap)
+    assert n > 100 or variant.get("form") == "positional"
+
+
+def test_fast_decoder_equals_the_general_one_on_varied_captures(tmp_path):
+    from hypothesis import HealthCheck, given, settings
+    from sl_captures import captures, write_capture
+
+    fast: list[int] = []
+
+    @settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(captures(max_frames=40))
+    def check(datagrams):
+        fast.append(_compare(write_capture(tmp_path / "v.pcap", datagrams))[0])
+
+    check()  # (the drives above are where the fast path is taken most; here every frame must agree)
