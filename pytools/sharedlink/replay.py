@@ -33,7 +33,7 @@ from pathlib import Path
 from socket import inet_ntoa
 from typing import Any, NamedTuple, Optional, Union
 
-from sharedlink.capture.packets import decode_packet
+from sharedlink.capture.packets import Datagram, PacketDecoder, decode_packet
 from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, LINKTYPE_USER0, NS, CaptureError, read_records
 from sharedlink.errors import UsageError
 
@@ -114,6 +114,7 @@ class CaptureFrames:
         nets = self.filter.src
         active = self.filter.active
         user = USER_LINKTYPES
+        decode = PacketDecoder().decode  # IP fragments reassembled, as Wireshark does
         for rec in read_records(self.path):
             counts.records += 1
             linktype, data = rec.linktype, rec.data
@@ -123,7 +124,7 @@ class CaptureFrames:
                     continue
                 yield OutFrame(rec.number, rec.ts_ns, data, None, None)
                 continue
-            u = udp_fields(linktype, data)
+            u = udp_fields(linktype, data, decode)
             if u is None:
                 counts.skipped += 1
                 continue
@@ -140,12 +141,14 @@ class CaptureFrames:
             yield OutFrame(rec.number, rec.ts_ns, payload, dport, src)
 
 
-def udp_fields(linktype: int, data: bytes) -> tuple[str, int, int, bytes] | None:
+def udp_fields(
+    linktype: int, data: bytes, decode: Callable[[int, bytes], Datagram | None] = decode_packet
+) -> tuple[str, int, int, bytes] | None:
     """(source address, source port, destination port, payload) of a UDP packet, else None.
 
     The common case (Ethernet, IPv4 without options or fragments, UDP) is read in place here,
-    as :func:`sharedlink.capture.packets.decode_packet` would; everything else goes to it (a test holds
-    the two to the same answers).
+    as :func:`sharedlink.capture.packets.decode_packet` would; everything else goes to ``decode``
+    (a test holds the two to the same answers).
     """
     if (
         linktype == LINKTYPE_ETHERNET
@@ -164,7 +167,7 @@ def udp_fields(linktype: int, data: bytes) -> tuple[str, int, int, bytes] | None
         stop = 34 + ulen if ulen >= 8 else n
         stop = min(stop, end, n)
         return inet_ntoa(data[26:30]), (data[34] << 8) | data[35], (data[36] << 8) | data[37], data[42:stop]
-    d = decode_packet(linktype, data)
+    d = decode(linktype, data)
     if d is None or d.proto != "udp":
         return None
     return d.src, d.sport, d.dport, d.payload

@@ -22,12 +22,9 @@ from collections.abc import Hashable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from sharedlink.capture.packets import ones_complement_checksum
+from sharedlink.capture.packets import PacketDecoder, network_offset, ones_complement_checksum
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
-    LINKTYPE_LINUX_SLL,
-    LINKTYPE_NULL,
-    LINKTYPE_RAW,
     NS,
     PCAPNG_SHB,
     CaptureError,
@@ -192,20 +189,25 @@ class Rewriter:
 # -- packets --------------------------------------------------------------------------------
 
 
-def _ip_offset(linktype: int, data: bytes) -> int | None:
-    if linktype == LINKTYPE_ETHERNET:
-        off = 12
-        etype = struct.unpack_from("!H", data, off)[0]
-        while etype in (0x8100, 0x88A8):
-            off += 4
-            etype = struct.unpack_from("!H", data, off)[0]
-        return off + 2 if etype in (0x0800, 0x86DD) else None
-    if linktype == LINKTYPE_LINUX_SLL:
-        return 16 if struct.unpack_from("!H", data, 14)[0] in (0x0800, 0x86DD) else None
-    if linktype == LINKTYPE_RAW:
-        return 0
-    if linktype == LINKTYPE_NULL:
-        return 4
+def _udp_header(linktype: int, data: bytes) -> tuple[int, int, int] | None:
+    """(IP header offset, IP version, UDP header offset) of a plain IPv4/IPv6 UDP packet
+    whose headers this module can rewrite (IPv4 options are kept); None for anything else
+    (IPv6 extension headers, fragments, other protocols)."""
+    try:
+        off = network_offset(linktype, data)
+        if off is None:
+            return None
+        ver = data[off] >> 4
+        if ver == 4:
+            ihl = (data[off] & 15) * 4
+            frag = struct.unpack_from("!H", data, off + 6)[0]
+            if ihl < 20 or data[off + 9] != 17 or frag & 0x3FFF or len(data) < off + ihl + 8:
+                return None
+            return off, 4, off + ihl
+        if ver == 6 and data[off + 6] == 17 and len(data) >= off + 48:
+            return off, 6, off + 40
+    except (struct.error, IndexError):
+        return None
     return None
 
 
@@ -213,44 +215,30 @@ def replace_udp_payload(linktype: int, data: bytes, payload: bytes) -> bytes | N
     """``data`` (one captured packet) with its UDP payload replaced, IP and UDP lengths and
     checksums made right. None when the packet is not plain IPv4/IPv6 UDP (options are kept;
     IPv6 extension headers, fragments and anything else give None)."""
-    try:
-        off = _ip_offset(linktype, data)
-        if off is None:
-            return None
-        ver = data[off] >> 4
-        if ver == 4:
-            ihl = (data[off] & 15) * 4
-            frag = struct.unpack_from("!H", data, off + 6)[0]
-            if ihl < 20 or data[off + 9] != 17 or frag & 0x3FFF:
-                return None
-            u = off + ihl
-            old_ck = struct.unpack_from("!H", data, u + 6)[0]
-            ulen = 8 + len(payload)
-            ip = bytearray(data[off:u])
-            struct.pack_into("!H", ip, 2, ihl + ulen)
-            struct.pack_into("!H", ip, 10, 0)
-            struct.pack_into("!H", ip, 10, ones_complement_checksum(bytes(ip)))
-            udp = bytearray(data[u : u + 8])
-            struct.pack_into("!HH", udp, 4, ulen, 0)
-            if old_ck:
-                pseudo = bytes(ip[12:20]) + struct.pack("!BBH", 0, 17, ulen)
-                struct.pack_into("!H", udp, 6, ones_complement_checksum(pseudo + bytes(udp) + payload) or 0xFFFF)
-            return data[:off] + bytes(ip) + bytes(udp) + payload
-        if ver == 6:
-            if data[off + 6] != 17:
-                return None
-            u = off + 40
-            ulen = 8 + len(payload)
-            ip = bytearray(data[off:u])
-            struct.pack_into("!H", ip, 4, ulen)
-            udp = bytearray(data[u : u + 8])
-            struct.pack_into("!HH", udp, 4, ulen, 0)
-            pseudo = bytes(ip[8:40]) + struct.pack("!IxxxB", ulen, 17)
-            struct.pack_into("!H", udp, 6, ones_complement_checksum(pseudo + bytes(udp) + payload) or 0xFFFF)
-            return data[:off] + bytes(ip) + bytes(udp) + payload
-    except (struct.error, IndexError):
+    loc = _udp_header(linktype, data)
+    if loc is None:
         return None
-    return None
+    off, ver, u = loc
+    ulen = 8 + len(payload)
+    if ver == 4:
+        old_ck = struct.unpack_from("!H", data, u + 6)[0]
+        ip = bytearray(data[off:u])
+        struct.pack_into("!H", ip, 2, u - off + ulen)
+        struct.pack_into("!H", ip, 10, 0)
+        struct.pack_into("!H", ip, 10, ones_complement_checksum(bytes(ip)))
+        udp = bytearray(data[u : u + 8])
+        struct.pack_into("!HH", udp, 4, ulen, 0)
+        if old_ck:
+            pseudo = bytes(ip[12:20]) + struct.pack("!BBH", 0, 17, ulen)
+            struct.pack_into("!H", udp, 6, ones_complement_checksum(pseudo + bytes(udp) + payload) or 0xFFFF)
+        return data[:off] + bytes(ip) + bytes(udp) + payload
+    ip = bytearray(data[off:u])
+    struct.pack_into("!H", ip, 4, ulen)
+    udp = bytearray(data[u : u + 8])
+    struct.pack_into("!HH", udp, 4, ulen, 0)
+    pseudo = bytes(ip[8:40]) + struct.pack("!IxxxB", ulen, 17)
+    struct.pack_into("!H", udp, 6, ones_complement_checksum(pseudo + bytes(udp) + payload) or 0xFFFF)
+    return data[:off] + bytes(ip) + bytes(udp) + payload
 
 
 # -- captures -------------------------------------------------------------------------------
@@ -276,8 +264,6 @@ def transform_capture(
     (``dst`` is then left as it was: the output goes to a temporary file renamed at the end)
     and :class:`TransformError` when the output cannot be written. A capture damaged further
     on gives the records before the damage, with ``error`` set in the stats."""
-    from sharedlink.capture.packets import decode_packet
-
     rw = Rewriter(mode, sync_interval, variables)
     st = rw.stats
     s, d = str(src), Path(dst)
@@ -295,6 +281,7 @@ def transform_capture(
         writer: PcapWriter | PcapngWriter | None = None
         linktype = None
         chunk: list[bytes] = []
+        decode = PacketDecoder().decode  # IP fragments reassembled
         records = read_records(s)
         while True:
             try:
@@ -314,10 +301,11 @@ def transform_capture(
                 raise TransformError(f"{s}: record {rec.number} is on link type {rec.linktype}, not {linktype}: "
                                      "captures mixing link types are not supported")
             data = rec.data
-            dg = decode_packet(rec.linktype, data)
+            dg = decode(rec.linktype, data)
             if dg is not None and dg.payload and b"[" in dg.payload:
                 conv = (dg.proto, dg.src, dg.sport, dg.dst, dg.dport)
-                if dg.proto == "udp":
+                # UDP in plain headers is rewritten; fragments and IPv6 extension headers copied
+                if dg.proto == "udp" and _udp_header(rec.linktype, data) is not None:
                     parts = []
                     for seg in iter_segments(dg.payload):
                         raw = dg.payload[seg.start : seg.end]
@@ -328,7 +316,7 @@ def transform_capture(
                         if new is None:
                             raise TransformError(f"{s}: record {rec.number}: cannot rewrite this UDP packet's headers")
                         data = new
-                else:  # TCP: frames are copied; both views follow them
+                else:  # TCP and the rest: frames are copied; both views follow them
                     for seg in iter_segments(dg.payload):
                         if seg.frame is not None:
                             rw.frame(seg.frame, dg.payload[seg.start : seg.end], rec.ts_ns, False, conv)

@@ -200,8 +200,8 @@ def walk(reader: ChangeReader, buf: bytes, linktype: int, mult: int, number: int
         d = off + 16
         e = d + incl
         if e > end:
-            if incl > 0x4000000:
-                raise CaptureError(p, number + 1, f"record length {incl} is implausible (damaged file)")
+            if incl > 0x4000000:  # reported by the reader once this block's frames are out
+                reader._damage = CaptureError(p, number + 1, f"record length {incl} is implausible (damaged file)")
             break
         off = e
         number += 1

@@ -5,17 +5,23 @@ from __future__ import annotations
 
 import socket
 import struct
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from sharedlink.capture.pcapio import (
     DIR_INBOUND,
     DIR_OUTBOUND,
     LINKTYPE_ETHERNET,
+    LINKTYPE_IPV4,
+    LINKTYPE_IPV6,
     LINKTYPE_LINUX_SLL,
+    LINKTYPE_LINUX_SLL2,
+    LINKTYPE_LOOP,
     LINKTYPE_NULL,
     LINKTYPE_RAW,
+    LINKTYPE_RAW_DLT12,
+    LINKTYPE_RAW_DLT14,
     make_writer,
 )
 
@@ -101,15 +107,166 @@ class Datagram:
 
 
 def decode_packet(linktype: int, data: bytes) -> Datagram | None:
-    """Strip link, IPv4/IPv6 and UDP/TCP headers. None when the packet is something else or
-    too short. Never raises."""
+    """Strip link, IPv4/IPv6 (extension headers walked) and UDP/TCP headers. None when the
+    packet is something else, too short, or an IP fragment (see :class:`PacketDecoder` for
+    reassembly). Never raises."""
     try:
-        return _decode(linktype, data)
+        return _decode(linktype, data, None)
     except (struct.error, IndexError, ValueError, OSError):
         return None
 
 
-def _decode(linktype: int, data: bytes) -> Datagram | None:
+class PacketDecoder:
+    """:func:`decode_packet` for the packets of one capture, in order, with IPv4 and IPv6
+    fragments reassembled as Wireshark does it (``ip.defragment`` and ``ipv6.defragment``
+    on): the datagram comes out of the fragment that completes it, so it carries that
+    fragment's frame number; the other fragments give None."""
+
+    def __init__(self) -> None:
+        self.reassembler = Reassembler()
+
+    def decode(self, linktype: int, data: bytes) -> Datagram | None:
+        try:
+            return _decode(linktype, data, self.reassembler)
+        except (struct.error, IndexError, ValueError, OSError):
+            return None
+
+
+# -- fragments ---------------------------------------------------------------------------
+
+#: fragmented datagrams waiting for their missing pieces; the oldest is dropped beyond this
+MAX_PENDING_DATAGRAMS = 1024
+
+
+class Reassembler:
+    """IP fragments put back together, streaming. Written by hand rather than with scapy's
+    ``defragment``, which takes a whole packet list in memory: here a datagram is complete
+    at the fragment that fills its last hole (any order, duplicates and overlaps allowed;
+    the first copy of a byte wins, as in Wireshark), and memory stays bounded."""
+
+    def __init__(self, max_pending: int = MAX_PENDING_DATAGRAMS) -> None:
+        self.max_pending = max_pending
+        self._pending: dict[tuple, tuple[list[tuple[int, bytes]], list[int]]] = {}
+
+    def add(self, key: tuple, offset: int, payload: bytes, more: bool) -> bytes | None:
+        """Add one fragment (``offset`` in bytes); the whole payload once it is complete."""
+        entry = self._pending.get(key)
+        if entry is None:
+            if len(self._pending) >= self.max_pending:
+                del self._pending[next(iter(self._pending))]
+            entry = self._pending[key] = ([], [-1])
+        parts, total = entry
+        parts.append((offset, payload))
+        if not more:
+            total[0] = offset + len(payload)
+        if total[0] < 0:
+            return None
+        end = total[0]
+        covered = 0
+        for off, data in sorted(parts, key=lambda p: p[0]):
+            if off > covered:
+                return None  # a hole
+            covered = max(covered, off + len(data))
+        if covered < end:
+            return None
+        del self._pending[key]
+        buf = bytearray(end)
+        for off, data in reversed(parts):  # the first copy of a byte wins
+            buf[off : off + len(data)] = data[: max(0, end - off)]
+        return bytes(buf)
+
+
+# -- link layers -------------------------------------------------------------------------
+
+_ETYPE_IPV4, _ETYPE_IPV6 = 0x0800, 0x86DD
+#: BSD loopback address families that mean IPv6 (NetBSD/OpenBSD, FreeBSD, Darwin; Linux)
+_AF_INET6 = frozenset({24, 28, 30, 10})
+
+
+def _ip_version(data: bytes, off: int) -> int:
+    return _ETYPE_IPV4 if data[off] >> 4 == 4 else _ETYPE_IPV6
+
+
+def _null_family(data: bytes, order: str) -> tuple[int, int] | None:
+    fam = struct.unpack_from(order + "I", data, 0)[0]
+    if fam > 0xFFFF:  # written on a host of the other byte order
+        fam = struct.unpack_from(("<" if order == ">" else ">") + "I", data, 0)[0]
+    if fam == 2:
+        return _ETYPE_IPV4, 4
+    return (_ETYPE_IPV6, 4) if fam in _AF_INET6 else None
+
+
+#: link type -> function giving (EtherType, offset of the network header), for link types
+#: with a fixed header (Ethernet, the common case, is decoded inline in _decode)
+_LINK_LAYERS: dict[int, Callable[[bytes], tuple[int, int] | None]] = {
+    LINKTYPE_LINUX_SLL: lambda d: (struct.unpack_from("!H", d, 14)[0], 16),
+    LINKTYPE_LINUX_SLL2: lambda d: (struct.unpack_from("!H", d, 0)[0], 20),
+    LINKTYPE_RAW: lambda d: (_ip_version(d, 0), 0),
+    LINKTYPE_RAW_DLT12: lambda d: (_ip_version(d, 0), 0),
+    LINKTYPE_RAW_DLT14: lambda d: (_ip_version(d, 0), 0),
+    LINKTYPE_IPV4: lambda d: (_ETYPE_IPV4, 0),
+    LINKTYPE_IPV6: lambda d: (_ETYPE_IPV6, 0),
+    LINKTYPE_NULL: lambda d: _null_family(d, "<"),
+    LINKTYPE_LOOP: lambda d: _null_family(d, ">"),
+}
+
+def network_offset(linktype: int, data: bytes) -> int | None:
+    """Where the IPv4/IPv6 header of a packet starts (link types with a fixed header only;
+    None for anything else)."""
+    try:
+        if linktype == LINKTYPE_ETHERNET:
+            off = 12
+            etype = struct.unpack_from("!H", data, off)[0]
+            while etype in (0x8100, 0x88A8):
+                off += 4
+                etype = struct.unpack_from("!H", data, off)[0]
+            return off + 2 if etype in (_ETYPE_IPV4, _ETYPE_IPV6) else None
+        link = _LINK_LAYERS.get(linktype)
+        found = link(data) if link is not None else None
+    except (struct.error, IndexError):
+        return None
+    return found[1] if found is not None and found[0] in (_ETYPE_IPV4, _ETYPE_IPV6) else None
+
+
+#: link types no IP rides on here (serial captures): never handed to scapy
+_NOT_IP = frozenset(range(147, 163))
+_scapy_classes: dict[int, Any] = {}
+
+
+def _scapy_link(linktype: int, data: bytes) -> tuple[int, bytes] | None:
+    """Any other link type scapy knows (802.11, PPP, ...): scapy dissects the packet, and the
+    IP layer inside it, as bytes, comes back with its EtherType. Rare, so scapy is only
+    imported when such a capture is read."""
+    if linktype in _NOT_IP:
+        return None
+    cls = _scapy_classes.get(linktype, False)
+    if cls is False:
+        from scapy.config import conf  # noqa: PLC0415 - slow import, rare path
+        from scapy.layers import all as _layers  # noqa: F401, PLC0415 - fills conf.l2types
+
+        cls = _scapy_classes[linktype] = conf.l2types.get(linktype)
+    if cls is None:
+        return None
+    from scapy.layers.inet import IP  # noqa: PLC0415
+    from scapy.layers.inet6 import IPv6  # noqa: PLC0415
+
+    pkt = cls(data)
+    for layer, etype in ((IP, _ETYPE_IPV4), (IPv6, _ETYPE_IPV6)):
+        inner = pkt.getlayer(layer)
+        if inner is not None:
+            return etype, bytes(inner)
+    return None
+
+
+# -- network and transport layers -----------------------------------------------------------
+
+#: IPv6 extension headers Wireshark walks: Hop-by-Hop, Routing, Fragment, Destination
+#: Options (8-octet units) and the Authentication Header (4-octet units)
+_IPV6_HOPOPT, _IPV6_ROUTING, _IPV6_FRAGMENT, _IPV6_DSTOPTS, _IPPROTO_AH = 0, 43, 44, 60, 51
+_IPV6_EXTENSIONS = frozenset({_IPV6_HOPOPT, _IPV6_ROUTING, _IPV6_FRAGMENT, _IPV6_DSTOPTS, _IPPROTO_AH})
+
+
+def _decode(linktype: int, data: bytes, reasm: Reassembler | None) -> Datagram | None:
     if linktype == LINKTYPE_ETHERNET:
         off = 12
         etype = struct.unpack_from("!H", data, off)[0]
@@ -117,54 +274,83 @@ def _decode(linktype: int, data: bytes) -> Datagram | None:
         while etype in (0x8100, 0x88A8):
             etype = struct.unpack_from("!H", data, off + 2)[0]
             off += 4
-    elif linktype == LINKTYPE_LINUX_SLL:
-        etype = struct.unpack_from("!H", data, 14)[0]
-        off = 16
-    elif linktype == LINKTYPE_RAW:
-        etype = 0x0800 if data[0] >> 4 == 4 else 0x86DD
-        off = 0
-    elif linktype == LINKTYPE_NULL:
-        fam = struct.unpack_from("<I", data, 0)[0]
-        etype = 0x0800 if fam == 2 else 0x86DD
-        off = 4
     else:
-        return None
-    if etype == 0x0800:
+        link = _LINK_LAYERS.get(linktype)
+        if link is not None:
+            found = link(data)
+        else:
+            inner = _scapy_link(linktype, data)
+            found = None if inner is None else (inner[0], 0)
+            if inner is not None:
+                data = inner[1]
+        if found is None:
+            return None
+        etype, off = found
+    if etype == _ETYPE_IPV4:
         vihl = data[off]
         if vihl >> 4 != 4:
             return None
         ihl = (vihl & 15) * 4
         tlen = struct.unpack_from("!H", data, off + 2)[0]
         frag = struct.unpack_from("!H", data, off + 6)[0]
-        if frag & 0x1FFF or frag & 0x2000:
-            return None  # fragments are not reassembled
         proto = data[off + 9]
         src = socket.inet_ntoa(data[off + 12 : off + 16])
         dst = socket.inet_ntoa(data[off + 16 : off + 20])
-        end = off + tlen if tlen >= ihl else len(data)
+        end = min(off + tlen, len(data)) if tlen >= ihl else len(data)
         off += ihl
-    elif etype == 0x86DD:
+        if frag & 0x3FFF:  # an offset or more fragments
+            if reasm is None:
+                return None
+            ident = struct.unpack_from("!H", data, off - ihl + 4)[0]
+            whole = reasm.add((4, src, dst, ident, proto), (frag & 0x1FFF) * 8, data[off:end], bool(frag & 0x2000))
+            if whole is None:
+                return None
+            data, off, end = whole, 0, len(whole)
+        if proto == _IPPROTO_AH:
+            proto, off = data[off], off + (data[off + 1] + 2) * 4
+    elif etype == _ETYPE_IPV6:
         proto = data[off + 6]
         plen = struct.unpack_from("!H", data, off + 4)[0]
         src = socket.inet_ntop(socket.AF_INET6, data[off + 8 : off + 24])
         dst = socket.inet_ntop(socket.AF_INET6, data[off + 24 : off + 40])
         off += 40
-        end = off + plen
+        end = min(off + plen, len(data)) if plen else len(data)  # 0: a jumbogram
+        while proto in _IPV6_EXTENSIONS:
+            nxt = data[off]
+            if proto == _IPV6_FRAGMENT:
+                fo, ident = struct.unpack_from("!HI", data, off + 2)
+                off += 8
+                if fo & 0xFFF9:  # an offset or more fragments: not an atomic fragment
+                    if reasm is None:
+                        return None
+                    whole = reasm.add((6, src, dst, ident), fo & 0xFFF8, data[off:end], bool(fo & 1))
+                    if whole is None:
+                        return None
+                    data, off, end = whole, 0, len(whole)
+            elif proto == _IPPROTO_AH:
+                off += (data[off + 1] + 2) * 4
+            else:
+                off += (data[off + 1] + 1) * 8
+            proto = nxt
     else:
         return None
+    return _transport(proto, src, dst, data, off, end)
+
+
+def _transport(proto: int, src: str, dst: str, data: bytes, off: int, end: int) -> Datagram | None:
     if proto == 17:
-        if len(data) < off + 8:
+        if end < off + 8:
             return None
         sport, dport, ulen = struct.unpack_from("!HHH", data, off)
-        stop = min(off + ulen, end, len(data)) if ulen >= 8 else min(end, len(data))
+        stop = min(off + ulen, end) if ulen >= 8 else end
         return Datagram("udp", src, dst, sport, dport, data[off + 8 : stop])
     if proto == 6:
-        if len(data) < off + 20:
+        if end < off + 20:
             return None
         sport, dport, seq = struct.unpack_from("!HHI", data, off)
         doff = (data[off + 12] >> 4) * 4
         flags = data[off + 13]
-        return Datagram("tcp", src, dst, sport, dport, data[off + doff : min(end, len(data))], seq, flags)
+        return Datagram("tcp", src, dst, sport, dport, data[off + doff : end], seq, flags)
     return None
 
 

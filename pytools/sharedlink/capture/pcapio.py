@@ -20,11 +20,23 @@ from sharedlink.errors import InputError
 #: of this constant; other modules import it)
 NS = 1_000_000_000
 
+# -- link types (tcpdump.org LINKTYPE_ values) --
+LINKTYPE_NULL = 0  # BSD loopback, host-order address family
 LINKTYPE_ETHERNET = 1
 LINKTYPE_RAW = 101
+LINKTYPE_RAW_DLT12 = 12  # DLT_RAW as some systems number it (libpcap maps it to RAW)
+LINKTYPE_RAW_DLT14 = 14
+LINKTYPE_LOOP = 108  # OpenBSD loopback, network-order address family
 LINKTYPE_LINUX_SLL = 113
-LINKTYPE_NULL = 0
 LINKTYPE_USER0 = 147
+LINKTYPE_IPV4 = 228
+LINKTYPE_IPV6 = 229
+LINKTYPE_LINUX_SLL2 = 276
+#: link types a classic pcap header may name (tcpdump.org's registry, where Wireshark maps
+#: them): anything else is a header tshark refuses ("network type N unknown or unsupported")
+KNOWN_LINKTYPES = frozenset(range(0, 16)) | {50, 51} | frozenset(range(98, 300))
+#: the pcap header's link-type field: bits 16-25 are reserved and must be zero
+PCAP_LINKTYPE_RESERVED = 0x03FF0000
 
 PCAP_MAGIC_US = 0xA1B2C3D4
 PCAP_MAGIC_NS = 0xA1B23C4D
@@ -33,6 +45,12 @@ PCAPNG_BOM = 0x1A2B3C4D
 
 #: pcapng EPB flags: direction bits
 DIR_UNKNOWN, DIR_INBOUND, DIR_OUTBOUND = 0, 1, 2
+
+# -- pcapng block types --
+BT_IDB, BT_SPB, BT_EPB, BT_JOURNAL = 1, 3, 6, 9
+#: blocks that are no packet but that Wireshark shows as frames (custom blocks, copied and not,
+#: systemd journal exports, sysdig events): they take a frame number
+FRAME_BLOCKS = frozenset({0x00000BAD, 0x40000BAD, BT_JOURNAL, 0x204, 0x208, 0x216, 0x217, 0x221, 0x222})
 
 
 class CaptureError(InputError):
@@ -175,18 +193,32 @@ def read_records(path: str | Path, chunk: int = 1 << 20) -> Iterator[Record]:
         fh.close()
 
 
-def _read_pcap(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
+def pcap_header(p: str, header: bytes) -> tuple[str, int, int]:
+    """``(endian, nanoseconds per time unit, link type)`` of a classic pcap file header (24
+    bytes). Raises :class:`CaptureError` where tshark refuses the file: a major version
+    below 2, reserved bits set in the link-type field, a link type nobody registered."""
+    head = header[:4]
     for endian in ("<", ">"):
         magic = struct.unpack(endian + "I", head)[0]
         if magic in (PCAP_MAGIC_US, PCAP_MAGIC_NS):
             break
     else:
         raise CaptureError(p, None, f"not a pcap or pcapng file (magic {head.hex()})")
-    rest = fh.read(20)
-    if len(rest) < 20:
+    if len(header) < 24:
         raise CaptureError(p, None, "truncated pcap file header")
-    linktype = struct.unpack(endian + "I", rest[16:20])[0] & 0x0FFFFFFF
-    mult = 1 if magic == PCAP_MAGIC_NS else 1000
+    major, _minor, _zone, _sigfigs, _snaplen, network = struct.unpack(endian + "HHiIII", header[4:24])
+    if major < 2:
+        raise CaptureError(p, None, f"pcap major version {major} is not supported (damaged header?)")
+    if network & PCAP_LINKTYPE_RESERVED:
+        raise CaptureError(p, None, f"link-type field has reserved bits set (0x{network:08x}): damaged header")
+    linktype = network & 0xFFFF
+    if linktype not in KNOWN_LINKTYPES:
+        raise CaptureError(p, None, f"unknown link type {linktype} (damaged header?)")
+    return endian, (1 if magic == PCAP_MAGIC_NS else 1000), linktype
+
+
+def _read_pcap(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
+    endian, mult, linktype = pcap_header(p, head + fh.read(20))
     hdr = struct.Struct(endian + "IIII")
     read = fh.read
     number = 0
@@ -250,7 +282,7 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
         if len(body) < total - 8:
             raise CaptureError(p, number + 1, f"truncated block ({len(body) + 8} of {total} bytes)")
         body = body[:-4]
-        if btype == 1:  # IDB
+        if btype == BT_IDB:
             if len(body) < 8:
                 raise CaptureError(p, number + 1, "truncated interface description")
             linktype = struct.unpack(endian + "H", body[:2])[0]
@@ -260,7 +292,7 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
                     r = val[0]
                     units = 2 ** (r & 0x7F) if r & 0x80 else 10 ** (r & 0x7F)
             interfaces.append((linktype, units, 0))
-        elif btype == 6:  # EPB
+        elif btype == BT_EPB:
             number += 1
             if len(body) < 20:
                 raise CaptureError(p, number, "truncated enhanced packet block")
@@ -280,14 +312,16 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
             ts = (hi << 32) | lo
             ts_ns = ts * 1_000_000_000 // units if units != 1_000_000_000 else ts
             yield Record(number, ts_ns, linktype, data, orig, flags, iface)
-        elif btype == 3:  # SPB
+        elif btype == BT_SPB:
             number += 1
             if not interfaces or len(body) < 4:
                 raise CaptureError(p, number, "simple packet block without interface")
             orig = struct.unpack(endian + "I", body[:4])[0]
             data = body[4 : 4 + orig]
             yield Record(number, 0, interfaces[0][0], data, orig)
-        # other blocks (name resolution, statistics, custom) are skipped
+        elif btype in FRAME_BLOCKS:
+            number += 1  # no packet, but Wireshark gives it a frame number
+        # other blocks (name resolution, statistics, secrets) are skipped
 
 
 def _options(buf: bytes, endian: str) -> Iterator[tuple[int, bytes]]:

@@ -37,7 +37,7 @@ from sharedlink.capture.change_records import SEP_CHANGE as SEP_CHANGE
 from sharedlink.capture.change_records import SEP_VALUE as SEP_VALUE
 from sharedlink.capture.change_records import escape as escape
 from sharedlink.capture.change_records import unescape as unescape
-from sharedlink.capture.packets import Datagram, decode_packet
+from sharedlink.capture.packets import Datagram, PacketDecoder
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
     NS,
@@ -45,6 +45,7 @@ from sharedlink.capture.pcapio import (
     PCAP_MAGIC_US,
     PCAPNG_SHB,
     CaptureError,
+    pcap_header,
     read_records,
 )
 from sharedlink.capture.serial_format import DIRECTION_NAMES, USER_LINKTYPES, Piece, StreamReader
@@ -236,12 +237,13 @@ def iter_frames(path: str | Path) -> Iterator[StreamFrame | tuple[int, int]]:
     """
     splitter = FrameSplitter()
     serial = SerialSplitter()
+    decode = PacketDecoder().decode  # IP fragments reassembled
     try:
         for rec in read_records(path):
             if rec.linktype in USER_LINKTYPES:
                 yield from serial.feed(rec.number, rec.ts_ns, rec.linktype, rec.data, rec.flags, rec.interface)
                 continue
-            dg = decode_packet(rec.linktype, rec.data)
+            dg = decode(rec.linktype, rec.data)
             if dg is None:
                 yield rec.number, rec.ts_ns
                 continue
@@ -338,11 +340,13 @@ class ChangeReader:
         self._hot: dict[bytes, tuple] = {}  # hot key -> FastKey.hot
         self._splitter = FrameSplitter()
         self._serial = SerialSplitter()
+        self._packets = PacketDecoder()  # IP fragments reassembled
         self._base = 0  # index of the first frame of the chunk being built
         self._keys: set[bytes] = set()  # every key emitted so far
         self._bulk_backoff = 1  # blocks to leave to the per-record loop before trying the block tier
         self._reset()
         self._last_ts = 0
+        self._damage: CaptureError | None = None  # a damaged record _walk stopped at
 
     def _reset(self) -> None:
         self._ts = array("Q")  # packed timestamps
@@ -363,7 +367,8 @@ class ChangeReader:
         with fh:
             head = fh.read(24)
             magic = struct.unpack("<I", head[:4])[0] if len(head) >= 4 else None
-            if magic in (PCAP_MAGIC_NS, PCAP_MAGIC_US) and len(head) == 24:
+            if magic in (PCAP_MAGIC_NS, PCAP_MAGIC_US):
+                pcap_header(p, head)  # a garbage header is refused, as tshark does
                 yield from self._pcap(fh, p, head)
                 return
         if magic == PCAPNG_SHB or magic is not None:
@@ -374,7 +379,7 @@ class ChangeReader:
     def _pcap(self, fh, p: str, head: bytes) -> Iterator[Chunk]:
         """Classic little-endian pcap: walk records in large blocks."""
         mult = 1 if struct.unpack("<I", head[:4])[0] == PCAP_MAGIC_NS else 1000
-        linktype = struct.unpack("<I", head[20:24])[0] & 0x0FFFFFFF
+        linktype = pcap_header(p, head)[2]
         rest = b""
         number = 0
         while True:
@@ -391,9 +396,11 @@ class ChangeReader:
             rest = buf[off:]
             if self._recs:
                 yield self._chunk()
-            if not data:
+            if not data or self._damage is not None:
                 break
         yield from self._serial_flush()
+        if self._damage is not None:
+            raise self._damage
         if rest:
             if len(rest) < 16:
                 raise CaptureError(p, number + 1, f"truncated record header ({len(rest)} of 16 bytes)")
@@ -490,8 +497,8 @@ class ChangeReader:
             d = off + 16
             e = d + incl
             if e > end:
-                if incl > 0x4000000:
-                    raise CaptureError(p, number + 1, f"record length {incl} is implausible (damaged file)")
+                if incl > 0x4000000:  # reported by _pcap once this block's frames are out
+                    self._damage = CaptureError(p, number + 1, f"record length {incl} is implausible (damaged file)")
                 break
             off = e
             number += 1
@@ -507,7 +514,7 @@ class ChangeReader:
         if linktype in USER_LINKTYPES:  # serial: the same splitter as iter_frames
             self._serial_items(self._serial.feed(number, ts, linktype, data, flags, interface))
             return
-        dg = decode_packet(linktype, data)
+        dg = self._packets.decode(linktype, data)
         if dg is None:
             self.stats.other_packets += 1
             return
