@@ -28,12 +28,12 @@ from scapy.layers.inet6 import (
 from scapy.layers.l2 import CookedLinuxV2, Loopback
 from scapy.layers.ppp import PPP
 from scapy.utils import wrpcap
-from tshark_util import TSHARK_CMD, _clean_env, fields
 
 from sharedlink.capture.packets import PacketDecoder, decode_packet
 from sharedlink.capture.pcapio import read_records
 from sharedlink.cli import main
 from sharedlink.generators.beacon import GenOptions, generate_file
+from tshark_util import TSHARK_CMD, _clean_env, fields
 
 
 @pytest.fixture(scope="module")
