@@ -16,24 +16,27 @@ The flat module names of earlier releases (``sharedlink.decode``, ``sharedlink.c
 
 from __future__ import annotations
 
-import importlib
-import importlib.abc
-import importlib.machinery
-import sys
-import types
+from ._interrupt import quiet_interrupt
 
-from .protocols.codec import (
-    Checksum,
-    Field,
-    Frame,
-    SharedLinkError,
-    build_frame,
-    checksum,
-    frame_kind,
-    iter_segments,
-    parse_frame,
-    split_frames,
-)
+with quiet_interrupt():  # Ctrl-C while the command loads: exit 130, no traceback
+    import importlib
+    import importlib.abc
+    import importlib.machinery
+    import sys
+    import types
+
+    from .protocols.codec import (
+        Checksum,
+        Field,
+        Frame,
+        SharedLinkError,
+        build_frame,
+        checksum,
+        frame_kind,
+        iter_segments,
+        parse_frame,
+        split_frames,
+    )
 
 __all__ = [
     "Checksum",

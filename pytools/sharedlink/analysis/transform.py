@@ -18,19 +18,22 @@ byte for byte what ``sharedlink gen --compress`` writes.
 from __future__ import annotations
 
 import struct
-from collections.abc import Hashable, Sequence
+from collections.abc import Hashable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 from sharedlink.capture.packets import PacketDecoder, network_offset, ones_complement_checksum
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
     NS,
-    PCAPNG_SHB,
     CaptureError,
     PcapngWriter,
     PcapWriter,
-    read_records,
+    Record,
+    open_output,
+    open_records,
+    refuse_overwrite,
 )
 from sharedlink.errors import OutputError
 from sharedlink.protocols.codec import Field, Frame, build_frame, frame_kind, iter_segments
@@ -244,14 +247,6 @@ def replace_udp_payload(linktype: int, data: bytes, payload: bytes) -> bytes | N
 # -- captures -------------------------------------------------------------------------------
 
 
-def _capture_format(path: str) -> str:
-    with open(path, "rb") as fh:
-        head = fh.read(4)
-    if len(head) == 4 and struct.unpack("<I", head)[0] == PCAPNG_SHB:
-        return "pcapng"
-    return "pcap"
-
-
 def transform_capture(
     src: str | Path,
     dst: str | Path,
@@ -267,76 +262,64 @@ def transform_capture(
     rw = Rewriter(mode, sync_interval, variables)
     st = rw.stats
     s, d = str(src), Path(dst)
-    try:
-        fmt = _capture_format(s)
-    except OSError as exc:
-        raise CaptureError(s, None, exc.strerror or str(exc)) from None
-    tmp = d.with_name(d.name + ".part")
-    try:
-        fh = open(tmp, "wb")  # noqa: SIM115 - closed below
-    except OSError as exc:
-        raise TransformError(f"{d}: {exc.strerror or exc}") from None
-    ok = False
-    try:
-        writer: PcapWriter | PcapngWriter | None = None
-        linktype = None
-        chunk: list[bytes] = []
-        decode = PacketDecoder().decode  # IP fragments reassembled
-        records = read_records(s)
-        while True:
-            try:
-                rec = next(records)
-            except StopIteration:
-                break
-            except CaptureError as exc:
-                if exc.record is None:
-                    raise
-                st.error = str(exc)
-                break
-            st.records += 1
-            if writer is None:
-                linktype = rec.linktype
-                writer = PcapngWriter(fh, linktype) if fmt == "pcapng" else PcapWriter(fh, linktype)
-            elif rec.linktype != linktype:
-                raise TransformError(f"{s}: record {rec.number} is on link type {rec.linktype}, not {linktype}: "
-                                     "captures mixing link types are not supported")
-            data = rec.data
-            dg = decode(rec.linktype, data)
-            if dg is not None and dg.payload and b"[" in dg.payload:
-                conv = (dg.proto, dg.src, dg.sport, dg.dst, dg.dport)
-                # UDP in plain headers is rewritten; fragments and IPv6 extension headers copied
-                if dg.proto == "udp" and _udp_header(rec.linktype, data) is not None:
-                    parts = []
-                    for seg in iter_segments(dg.payload):
-                        raw = dg.payload[seg.start : seg.end]
-                        parts.append(raw if seg.frame is None else rw.frame(seg.frame, raw, rec.ts_ns, conv=conv))
-                    payload = b"".join(parts)
-                    if payload != dg.payload:
-                        new = replace_udp_payload(rec.linktype, data, payload)
-                        if new is None:
-                            raise TransformError(f"{s}: record {rec.number}: cannot rewrite this UDP packet's headers")
-                        data = new
-                else:  # TCP and the rest: frames are copied; both views follow them
-                    for seg in iter_segments(dg.payload):
-                        if seg.frame is not None:
-                            rw.frame(seg.frame, dg.payload[seg.start : seg.end], rec.ts_ns, False, conv)
-            chunk.append(writer.record(rec.ts_ns, data, rec.flags))
-            if len(chunk) >= 4096:
-                fh.write(b"".join(chunk))
-                chunk.clear()
-        if writer is None:
-            writer = PcapngWriter(fh, LINKTYPE_ETHERNET) if fmt == "pcapng" else PcapWriter(fh, LINKTYPE_ETHERNET)
-        fh.write(b"".join(chunk))
-        ok = True
-    except OSError as exc:
-        raise TransformError(f"{d}: {exc.strerror or exc}") from None
-    finally:
-        fh.close()
-        if ok:
-            tmp.replace(d)
-        else:
-            tmp.unlink(missing_ok=True)
+    refuse_overwrite(d, s)
+    fmt, records = open_records(s)  # read once: a pipe will do
+    with open_output(d) as fh:
+        _transform_records(rw, s, fmt, records, fh)
     return st
+
+
+def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record], fh: BinaryIO) -> None:
+    """Rewrite the records of capture ``s`` into ``fh``."""
+    st = rw.stats
+    writer: PcapWriter | PcapngWriter | None = None
+    linktype = None
+    chunk: list[bytes] = []
+    decode = PacketDecoder().decode  # IP fragments reassembled
+    while True:
+        try:
+            rec = next(records)
+        except StopIteration:
+            break
+        except CaptureError as exc:
+            if exc.record is None:
+                raise
+            st.error = str(exc)
+            break
+        st.records += 1
+        if writer is None:
+            linktype = rec.linktype
+            writer = PcapngWriter(fh, linktype) if fmt == "pcapng" else PcapWriter(fh, linktype)
+        elif rec.linktype != linktype:
+            raise TransformError(f"{s}: record {rec.number} is on link type {rec.linktype}, not {linktype}: "
+                                 "captures mixing link types are not supported")
+        data = rec.data
+        dg = decode(rec.linktype, data)
+        if dg is not None and dg.payload and b"[" in dg.payload:
+            conv = (dg.proto, dg.src, dg.sport, dg.dst, dg.dport)
+            # UDP in plain headers is rewritten; fragments and IPv6 extension headers copied
+            if dg.proto == "udp" and _udp_header(rec.linktype, data) is not None:
+                parts = []
+                for seg in iter_segments(dg.payload):
+                    raw = dg.payload[seg.start : seg.end]
+                    parts.append(raw if seg.frame is None else rw.frame(seg.frame, raw, rec.ts_ns, conv=conv))
+                payload = b"".join(parts)
+                if payload != dg.payload:
+                    new = replace_udp_payload(rec.linktype, data, payload)
+                    if new is None:
+                        raise TransformError(f"{s}: record {rec.number}: cannot rewrite this UDP packet's headers")
+                    data = new
+            else:  # TCP and the rest: frames are copied; both views follow them
+                for seg in iter_segments(dg.payload):
+                    if seg.frame is not None:
+                        rw.frame(seg.frame, dg.payload[seg.start : seg.end], rec.ts_ns, False, conv)
+        chunk.append(writer.record(rec.ts_ns, data, rec.flags))
+        if len(chunk) >= 4096:
+            fh.write(b"".join(chunk))
+            chunk.clear()
+    if writer is None:
+        writer = PcapngWriter(fh, LINKTYPE_ETHERNET) if fmt == "pcapng" else PcapWriter(fh, LINKTYPE_ETHERNET)
+    fh.write(b"".join(chunk))
 
 
 def compress_capture(src: str | Path, dst: str | Path, sync_interval: float = 1.0,

@@ -7,14 +7,18 @@ integers (a float loses nanoseconds at today's epoch).
 
 from __future__ import annotations
 
+import os
+import stat
 import struct
-from collections.abc import Iterator
+import sys
+import tempfile
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, BinaryIO
 
-from sharedlink.errors import InputError
+from sharedlink.errors import InputError, OutputError
 
 #: nanoseconds per second: every timestamp in the package is an integer count of ns (the one home
 #: of this constant; other modules import it)
@@ -150,20 +154,110 @@ def make_writer(fh: BinaryIO, fmt: str = "pcap", linktype: int = LINKTYPE_ETHERN
     raise ValueError(f"unknown capture format {fmt!r} (pcap or pcapng)")
 
 
-@contextmanager
-def atomic_open(path: str | Path, mode: str = "wb", **kw: Any) -> Iterator[IO[Any]]:
-    """Open ``path``'s sibling ``<name>.part`` for writing and rename it into place when the
-    block ends without an exception; on one, remove it: no half-written file under the
-    real name."""
-    p = Path(path)
-    tmp = p.with_name(p.name + ".part")
+#: the output path that means standard output
+STDOUT_PATH = "-"
+
+
+def is_stdout(path: str | Path | None) -> bool:
+    return path is not None and str(path) == STDOUT_PATH
+
+
+def _in_place(path: Path) -> bool:
+    """Whether ``path`` must be written where it is: anything but a regular file (a FIFO, a
+    terminal, a device, a socket) and every path under ``/dev`` or ``/proc`` (``/dev/stdout``
+    is a link to whatever standard output is, a regular file included)."""
+    text = str(path)
+    if text.startswith(("/dev/", "/proc/")):
+        return True
     try:
-        with open(tmp, mode, **kw) as fh:
-            yield fh
-        tmp.replace(p)
+        return not stat.S_ISREG(os.stat(path).st_mode)
+    except OSError:
+        return False  # does not exist (yet): a new regular file
+
+
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether two paths name one file (the same inode: hard links and symbolic links too)."""
+    try:
+        sa, sb = os.stat(a), os.stat(b)
+    except OSError:
+        return False
+    return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)
+
+
+def refuse_overwrite(output: str | Path | None, *inputs: str | Path | None) -> None:
+    """Raise :class:`~sharedlink.errors.OutputError` when ``output`` is one of ``inputs``
+    (same inode): writing it would destroy the data being read."""
+    if output is None or is_stdout(output):
+        return
+    for inp in inputs:
+        if inp is not None and not is_stdout(inp) and same_file(output, inp):
+            raise OutputError(f"{output}: is the input {inp}: refusing to overwrite it (write elsewhere)")
+
+
+@contextmanager
+def open_output(path: str | Path, mode: str = "wb", inputs: Iterable[str | Path | None] = (), **kw: Any) -> Iterator[IO[Any]]:
+    """The one way a command writes a file: a context manager giving the open file.
+
+    * ``-``: standard output (not closed).
+    * Special files (FIFO, terminal, ``/dev/stdout`` and the rest of ``/dev`` and ``/proc``):
+      opened and written in place, never replaced.
+    * A regular file: written to a hidden sibling ``.<name>.<random>.part`` that is renamed over
+      it (through a symbolic link, to its target) only when the block ends without an
+      exception. On any exception (a full disk, Ctrl-C, SIGTERM) the sibling is removed: the
+      old file, if any, stays as it was, and nothing is left behind.
+
+    ``inputs``: files being read; writing over one of them is refused (:func:`refuse_overwrite`).
+    An ``OSError`` opening, writing or closing becomes :class:`~sharedlink.errors.OutputError`
+    naming ``path``.
+    """
+    refuse_overwrite(path, *inputs)
+    if is_stdout(path):
+        yield sys.stdout.buffer if "b" in mode else sys.stdout
+        (sys.stdout.buffer if "b" in mode else sys.stdout).flush()
+        return
+    p = Path(path)
+    try:
+        if _in_place(p):
+            with open(p, mode, **kw) as fh:
+                yield fh
+            return
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise OutputError(f"{path}: {exc.strerror or exc}") from None
+    try:
+        target = Path(os.path.realpath(p))
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
+    except OSError as exc:
+        raise OutputError(f"{path}: {exc.strerror or exc}") from None
+    tmp = Path(tmp_name)
+    try:
+        try:
+            os.chmod(tmp, _new_file_mode(target))
+            with open(fd, mode, **kw) as fh:
+                yield fh
+            tmp.replace(target)
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise OutputError(f"{path}: {exc.strerror or exc}") from None
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def _new_file_mode(target: Path) -> int:
+    """The mode the finished file gets: the old file's, else what ``open`` would give."""
+    try:
+        return stat.S_IMODE(os.stat(target).st_mode)
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
+#: the old name of :func:`open_output`
+atomic_open = open_output
 
 
 # -- reading ------------------------------------------------------------------------------
@@ -173,24 +267,78 @@ def read_records(path: str | Path, chunk: int = 1 << 20) -> Iterator[Record]:
     """Yield the records of a pcap or pcapng file, one at a time.
 
     On damage it yields every good record before it, then raises :class:`CaptureError`
-    naming the file and the record.
+    naming the file and the record. The file is read once, front to back: a pipe will do.
     """
     p = str(path)
+    fh = _open_input(p)
     try:
-        fh = open(p, "rb")  # noqa: SIM115 - closed in finally
-    except OSError as exc:
-        raise CaptureError(p, None, exc.strerror or str(exc)) from None
-    try:
-        head = fh.read(4)
-        if len(head) < 4:
-            raise CaptureError(p, None, "file too short to be a capture" if head else "empty file")
-        magic_le = struct.unpack("<I", head)[0]
-        if magic_le == PCAPNG_SHB:
-            yield from _read_pcapng(fh, p, head)
-        else:
-            yield from _read_pcap(fh, p, head)
+        yield from records_from(fh, p)
     finally:
         fh.close()
+
+
+def open_records(path: str | Path) -> tuple[str, Iterator[Record]]:
+    """``("pcap" or "pcapng", the records)`` of a capture, the file opened once (a pipe will
+    do). A missing, empty or foreign file raises :class:`CaptureError` here."""
+    p = str(path)
+    fh = _open_input(p)
+    try:
+        head = fh.read(4)
+        fmt = capture_format(p, head)
+    except BaseException:
+        fh.close()
+        raise
+
+    def records() -> Iterator[Record]:
+        try:
+            yield from records_from(fh, p, head)
+        finally:
+            fh.close()
+
+    return fmt, records()
+
+
+def capture_format(p: str, head: bytes) -> str:
+    """"pcapng" or "pcap" from a file's first four bytes (CaptureError for fewer)."""
+    if len(head) < 4:
+        raise CaptureError(p, None, "file too short to be a capture" if head else "empty file")
+    return "pcapng" if struct.unpack("<I", head[:4])[0] == PCAPNG_SHB else "pcap"
+
+
+def records_from(fh: BinaryIO, p: str, head: bytes = b"") -> Iterator[Record]:
+    """The records of capture ``p`` open as ``fh``, whose first bytes ``head`` were read
+    already (a pipe cannot seek back to them)."""
+    src: Any = _Prefixed(head, fh) if head else fh
+    first = src.read(4)
+    if capture_format(p, first) == "pcapng":
+        yield from _read_pcapng(src, p, first)
+    else:
+        yield from _read_pcap(src, p, first)
+
+
+def _open_input(p: str) -> BinaryIO:
+    try:
+        return open(p, "rb")
+    except OSError as exc:
+        raise CaptureError(p, None, exc.strerror or str(exc)) from None
+
+
+class _Prefixed:
+    """A binary file whose first bytes were read already: ``read`` gives them first."""
+
+    def __init__(self, head: bytes, fh: BinaryIO) -> None:
+        self._head, self._fh = head, fh
+
+    def read(self, n: int = -1) -> bytes:
+        if not self._head:
+            return self._fh.read(n)
+        if n < 0:
+            out, self._head = self._head + self._fh.read(), b""
+            return out
+        out, self._head = self._head[:n], self._head[n:]
+        if len(out) < n:
+            out += self._fh.read(n - len(out))
+        return out
 
 
 def pcap_header(p: str, header: bytes) -> tuple[str, int, int]:

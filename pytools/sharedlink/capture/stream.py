@@ -43,10 +43,11 @@ from sharedlink.capture.pcapio import (
     NS,
     PCAP_MAGIC_NS,
     PCAP_MAGIC_US,
-    PCAPNG_SHB,
     CaptureError,
+    Record,
     pcap_header,
     read_records,
+    records_from,
 )
 from sharedlink.capture.serial_format import DIRECTION_NAMES, USER_LINKTYPES, Piece, StreamReader
 from sharedlink.protocols.codec import Frame, SharedLinkError, declared_list, frame_kind, iter_segments
@@ -364,16 +365,16 @@ class ChangeReader:
             fh = open(p, "rb")  # noqa: SIM115 - closed below
         except OSError as exc:
             raise CaptureError(p, None, exc.strerror or str(exc)) from None
-        with fh:
+        with fh:  # opened once and read front to back: a pipe will do
             head = fh.read(24)
             magic = struct.unpack("<I", head[:4])[0] if len(head) >= 4 else None
             if magic in (PCAP_MAGIC_NS, PCAP_MAGIC_US):
                 pcap_header(p, head)  # a garbage header is refused, as tshark does
                 yield from self._pcap(fh, p, head)
                 return
-        if magic == PCAPNG_SHB or magic is not None:
-            yield from self._generic(p)
-            return
+            if magic is not None:
+                yield from self._generic(p, records_from(fh, p, head))
+                return
         raise CaptureError(p, None, "file too short to be a capture" if head else "empty file")
 
     def _pcap(self, fh, p: str, head: bytes) -> Iterator[Chunk]:
@@ -407,7 +408,7 @@ class ChangeReader:
             incl = struct.unpack_from("<I", rest, 8)[0]
             raise CaptureError(p, number + 1, f"truncated record ({len(rest) - 16} of {incl} bytes)")
 
-    def _generic(self, p: str) -> Iterator[Chunk]:
+    def _generic(self, p: str, records: Iterator[Record]) -> Iterator[Chunk]:
         """Any other capture (pcapng, big-endian pcap): records via pcapio, re-packed in
         batches as nanosecond pcap records so the same loops take them."""
         batch: list[bytes] = []
@@ -430,7 +431,6 @@ class ChangeReader:
             if self._recs:
                 yield self._chunk()
 
-        records = read_records(p)
         while True:
             try:
                 rec = next(records)

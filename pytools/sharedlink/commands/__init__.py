@@ -25,6 +25,8 @@ T = TypeVar("T")
 # -- exit codes, for every command ------------------------------------------------------------
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: stopped by SIGTERM (128 + 15), cleaned up as on Ctrl-C
+EXIT_TERMINATED = 143
 
 # -- options: --variables (one parser, one meaning in every command) and --sync-interval -----
 

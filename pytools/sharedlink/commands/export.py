@@ -18,6 +18,7 @@ from sharedlink.analysis.export import (
     export,
     export_file,
 )
+from sharedlink.capture.pcapio import is_stdout, refuse_overwrite
 from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options
 from sharedlink.errors import UsageError
 
@@ -37,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("capture", type=Path, help="pcap or pcapng file")
     p.add_argument("--format", dest="fmt", choices=FORMATS, default=None,
                    help="output format (default: from the -o file name, else csv)")
-    p.add_argument("-o", "--output", type=Path, default=None, help="file to write (default: standard output)")
+    p.add_argument("-o", "--output", type=Path, default=None, help="file to write (default, or -: standard output)")
     p.add_argument("--changes", action="store_true", help="one row per variable change instead of one per frame")
     p.add_argument("--vars", default=None, metavar="NAME,...", help="variables to export (default: all)")
     p.add_argument("--lat", default=LAT, help=f"latitude variable for geojson/kml/mcap (default {LAT})")
@@ -63,14 +64,15 @@ def run(args: argparse.Namespace) -> int:
     if args.output is not None and args.output.is_dir():
         raise UsageError(f"{args.output}: is a directory")
     if fmt in BINARY_FORMATS:
-        if args.output is None:
+        if args.output is None or is_stdout(args.output):
             raise UsageError(f"--format {fmt} is binary: give the file with -o")
         if args.changes or columns is not None:
             raise UsageError(f"--format {fmt} writes every frame and variable: no --changes or --vars")
+    refuse_overwrite(args.output, args.capture)
     opts = ExportOptions(fmt=fmt, changes=args.changes, variables=variables, columns=columns,
                          sync_interval=sync, lat=args.lat, lon=args.lon, heading=args.heading, velocity=args.velocity)
     try:
-        if args.output is None:
+        if args.output is None or is_stdout(args.output):
             result = export(args.capture, sys.stdout, opts)
         else:
             result = export_file(args.capture, args.output, opts)
@@ -82,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
                "frames": result.frames, "rows": result.rows, "points": result.points, "error": result.error}
     if args.json:
         print(json.dumps(summary), file=sys.stderr)
-    elif args.output is not None:
+    elif args.output is not None and not is_stdout(args.output):
         what = "points" if fmt in ("geojson", "kml") else "messages" if fmt == "mcap" else "rows"
         n = result.points if what == "points" else result.rows
         print(f"wrote {args.output}: {n} {what} from {result.frames} frames ({fmt})", file=sys.stderr)

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from sharedlink.analysis.export import LAT, LON
+from sharedlink.capture.pcapio import open_output, refuse_overwrite
 from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options
 from sharedlink.errors import UsageError
 
@@ -36,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
     check_capture(args.capture)
     if args.output.suffix.lower() not in (".png", ".svg", ".pdf"):
         raise UsageError(f"{args.output}: give a .png, .svg or .pdf file name")
+    refuse_overwrite(args.output, args.capture)
     if args.max_points < 10:
         raise UsageError("--max-points must be at least 10")
     names = None
@@ -54,10 +56,8 @@ def run(args: argparse.Namespace) -> int:
         fig = build_figure(data, names)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    try:
-        fig.savefig(str(args.output))
-    except OSError as exc:
-        raise UsageError(f"{args.output}: {exc.strerror or exc}") from None
+    with open_output(args.output) as fh:  # complete or not at all, even on a full disk
+        fig.savefig(fh, format=args.output.suffix.lower()[1:])
     panels = len(names) if names is not None else len(data.variables)
     summary = {"capture": str(args.capture), "output": str(args.output), "frames": data.frames,
                "variables": names if names is not None else data.variables, "panels": 1 + panels,

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import BinaryIO
 
+from sharedlink.capture.pcapio import open_output
 from sharedlink.capture.serial_format import (
     DIR_IN,
     DIR_OUT,
@@ -132,31 +133,23 @@ def run_import(args: argparse.Namespace) -> int:
     fmt, chunks = read_log(args.log, args.fmt, args.baud, args.chunk, _DIRECTIONS[args.direction], start_ns)
     if not chunks:
         raise UsageError(f"{args.log}: no bytes to import")
-    tmp = args.out.with_name(args.out.name + ".part")
     records = frames = 0
-    try:
-        with open(tmp, "wb") as fh:
-            w = SerialCaptureWriter(fh, args.linktype, if_name=str(args.log), if_description=f"imported {fmt} log", flush=False)
-            if args.frame:
-                reader = StreamReader(args.protocol)
-                for c in chunks:
-                    for p in reader.feed(c.direction, c.data):
-                        w.write(p.data, c.direction, c.ts_ns)
-                        frames += p.is_frame
-                last = chunks[-1].ts_ns
-                for d, p in reader.flush():
-                    w.write(p.data, d, last)
+    with open_output(args.out, inputs=(args.log,)) as fh:
+        w = SerialCaptureWriter(fh, args.linktype, if_name=str(args.log), if_description=f"imported {fmt} log", flush=False)
+        if args.frame:
+            reader = StreamReader(args.protocol)
+            for c in chunks:
+                for p in reader.feed(c.direction, c.data):
+                    w.write(p.data, c.direction, c.ts_ns)
                     frames += p.is_frame
-            else:
-                for c in chunks:
-                    w.write(c.data, c.direction, c.ts_ns)
-            records = w.records
-        tmp.replace(args.out)
-    except OSError as exc:
-        raise UsageError(f"{args.out}: {exc.strerror or exc}") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+            last = chunks[-1].ts_ns
+            for d, p in reader.flush():
+                w.write(p.data, d, last)
+                frames += p.is_frame
+        else:
+            for c in chunks:
+                w.write(c.data, c.direction, c.ts_ns)
+        records = w.records
     summary = {"file": str(args.out), "format": fmt, "records": records, "bytes": sum(len(c.data) for c in chunks)}
     if args.frame:
         summary["frames"] = frames

@@ -1,0 +1,195 @@
+"""Every command that writes never loses data: it refuses to write over its input (same inode),
+writes standard output, /dev/stdout and FIFOs in place, leaves nothing behind and the old file
+as it was on a full disk (a file-size limit in the subprocess), and cleans up on SIGTERM as on
+Ctrl-C."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import resource
+import signal
+import stat
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from tshark_util import fields
+
+from sharedlink.generators.beacon import GenOptions, generate_file
+
+CLI = [sys.executable, "-m", "sharedlink"]
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory) -> Path:
+    p = tmp_path_factory.mktemp("keep") / "in.pcap"
+    generate_file(GenOptions(frames=600), p)
+    return p
+
+
+def digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def cli(*args: object, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run([*CLI, *map(str, args)], capture_output=True, timeout=120, **kw)
+
+
+def sl_frames(path: Path) -> int:
+    return len(fields(path, ["frame.number"], display_filter="sharedlink"))
+
+
+def _writers(inp: Path, out: Path) -> dict[str, list[object]]:
+    """Each writing command with ``inp`` as input and ``out`` as output."""
+    return {
+        "export": ["export", inp, "-o", out, "--format", "csv"],
+        "compress": ["compress", inp, out],
+        "expand": ["expand", inp, out],
+        "plot": ["plot", inp, "-o", out],
+        "serial import": ["serial", "import", inp, "--out", out, "--format", "raw"],
+    }
+
+
+# -- output = input ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("command, how", [
+    ("export", "same path"), ("plot", "same path"), ("compress", "hard link"), ("serial import", "hard link"),
+    ("expand", "symbolic link"),
+])
+def test_output_that_is_the_input_is_refused(capture, tmp_path, command, how):
+    inp = tmp_path / "in.png"  # plot wants an image name; every reader goes by content
+    inp.write_bytes(capture.read_bytes())
+    out = inp
+    if how == "hard link":
+        out = tmp_path / "other.png"
+        os.link(inp, out)
+    elif how == "symbolic link":
+        out = tmp_path / "other.png"
+        out.symlink_to(inp.name)
+    before = digest(inp)
+    r = cli(*_writers(inp, out)[command])
+    assert r.returncode == 2, r.stderr
+    assert b"is the input" in r.stderr and b"Traceback" not in r.stderr
+    assert digest(inp) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({inp.name, out.name})
+
+
+# -- streams and special files ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("target", ["-", "/dev/stdout"])
+def test_standard_output_is_written_in_place(capture, tmp_path, target):
+    r = cli("compress", capture, target)
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "piped.pcap"
+    out.write_bytes(r.stdout)
+    assert sl_frames(out) == 600
+    assert os.path.islink("/dev/stdout")
+    r = cli("export", capture, "-o", target)
+    assert r.returncode == 0 and r.stdout.count(b"\n") == 601, r.stderr
+
+
+def test_dev_stdout_redirected_to_a_file(capture, tmp_path):
+    out = tmp_path / "redirected.csv"
+    with open(out, "wb") as fh:
+        r = subprocess.run([*CLI, "export", str(capture), "-o", "/dev/stdout"], stdout=fh, stderr=subprocess.PIPE, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert out.read_bytes().count(b"\n") == 601
+    assert os.path.islink("/dev/stdout")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["redirected.csv"]
+
+
+def test_fifo_stays_a_fifo(capture, tmp_path):
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    got: list[bytes] = []
+
+    def reader() -> None:
+        with open(fifo, "rb") as fh:
+            got.append(fh.read())
+
+    t = threading.Thread(target=reader)
+    t.start()
+    r = cli("compress", capture, fifo)
+    t.join(60)
+    assert r.returncode == 0, r.stderr
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    out = tmp_path / "from-fifo.pcap"
+    out.write_bytes(got[0])
+    assert sl_frames(out) == 600
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fifo", "from-fifo.pcap"]
+
+
+# -- full disk --------------------------------------------------------------------------------
+
+
+def _file_size_limit(limit: int):
+    def apply() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes fail with EFBIG instead
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    return apply
+
+
+@pytest.mark.parametrize("command", ["export", "compress", "expand", "plot", "gen", "serial import"])
+def test_full_disk_leaves_the_old_file_and_nothing_else(capture, tmp_path, command):
+    suffix = {"export": ".csv", "plot": ".png"}.get(command, ".pcap")
+    out = tmp_path / f"out{suffix}"
+    out.write_bytes(b"the previous version")
+    args = _writers(capture, out).get(command) or ["gen", "--frames", "5000", out]
+    r = subprocess.run([*CLI, *map(str, args)], capture_output=True, timeout=120, preexec_fn=_file_size_limit(8000))
+    assert r.returncode == 2, r.stderr
+    assert b"sharedlink: error:" in r.stderr and b"Traceback" not in r.stderr, r.stderr
+    assert str(out).encode() in r.stderr
+    assert out.read_bytes() == b"the previous version"
+    assert [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
+# -- signals ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_signal_while_writing_cleans_up(tmp_path, sig, code):
+    out = tmp_path / "big.pcap"
+    proc = subprocess.Popen([*CLI, "gen", "--frames", "20000000", str(out)], stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while not any(p.name.endswith(".part") for p in tmp_path.iterdir()):
+        assert time.monotonic() < deadline and proc.poll() is None
+        time.sleep(0.05)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == code, err
+    assert b"Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+_CTRL_C_AT_IMPORT = """
+import os, signal, sys
+target = sys.argv[1]
+def hook(event, args):
+    if event == "import" and args[0] == target:
+        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C just as this module starts loading
+sys.addaudithook(hook)
+from sharedlink.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.parametrize("module", [
+    "sharedlink.protocols.codec",  # while the package loads
+    "sharedlink.commands",  # while the command line loads
+    "sharedlink.analysis.export",  # while the parser is built
+    "sharedlink.analysis.stats",  # while the command runs
+])
+def test_ctrl_c_while_the_command_loads(capture, module):
+    """Ctrl-C at any moment once the package starts loading: 130 and one line, no traceback
+    (before that Python itself is starting, out of our hands)."""
+    r = subprocess.run([sys.executable, "-c", _CTRL_C_AT_IMPORT, module, "stats", str(capture)],
+                       capture_output=True, timeout=120)
+    assert r.returncode == 130, r.stderr
+    assert r.stderr == b"sharedlink: interrupted\n"
