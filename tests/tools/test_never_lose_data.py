@@ -17,9 +17,9 @@ import time
 from pathlib import Path
 
 import pytest
-from tshark_util import fields
 
 from sharedlink.generators.beacon import GenOptions, generate_file
+from tshark_util import fields
 
 CLI = [sys.executable, "-m", "sharedlink"]
 
