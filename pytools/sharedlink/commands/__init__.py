@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from sharedlink.analysis.transform import transform_capture
+from sharedlink.capture.pcapio import is_stdout
 from sharedlink.errors import UsageError
 from sharedlink.protocols.state import BEACON_VARIABLES, parse_variables
 
@@ -118,6 +119,8 @@ def run_transform(args: argparse.Namespace, mode: str) -> int:
     if not (args.sync_interval > 0 and math.isfinite(args.sync_interval)):
         raise UsageError("--sync-interval must be a positive number of seconds")
     variables = variables_option(args.variables)
+    if args.json and is_stdout(args.output):
+        raise UsageError("--json needs an output file (the capture goes to standard output)")
     st = transform_capture(args.input, args.output, mode, args.sync_interval, variables)
     if args.json:
         json.dump({"input": str(args.input), "output": str(args.output), "mode": mode, **st.to_dict()}, sys.stdout)
