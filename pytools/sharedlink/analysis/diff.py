@@ -274,6 +274,7 @@ class _Side:
         self.cur: dict[tuple[bytes, bytes], bytes] = {}
         self.cur_pos = 0
         self.last_ts = -(1 << 62)
+        self.disordered = False  # a frame was stamped before the one read before it
         self.keys: set[bytes] = set()
         self.queues: dict[bytes, deque] = {}
 
@@ -464,6 +465,8 @@ class _Aligner:
         ts, num, rec = unpack_ts(s.ts[i]), s.num[i], s.recs[i]
         s.pos += 1
         s.cur_pos = s.pos
+        if ts < s.last_ts:
+            s.disordered = True
         s.last_ts = ts
         key = rec[:2]
         while s.events and s.events[0][0] < s.pos:
@@ -514,7 +517,9 @@ class _Aligner:
                     if (
                         final
                         or o.exhausted
-                        or (self.by_time and q[0][0] + self.window < o.last_ts)
+                        # the other side is past it in time; only while both sides' times
+                        # only went forward (records need not be in time order)
+                        or (self.by_time and not (s.disordered or o.disordered) and q[0][0] + self.window < o.last_ts)
                         or len(q) > MAX_WAITING
                     ):
                         self._unmatched(s, key, q.popleft())
@@ -679,8 +684,10 @@ class _BulkAligner(_Aligner):
         self.total_pairs += n
         a.pos += n
         b.pos += n
-        a.last_ts = unpack_ts(a.ts[ia + n - 1])
-        b.last_ts = unpack_ts(b.ts[ib + n - 1])
+        for s, i in ((a, ia), (b, ib)):
+            if unpack_ts(s.ts[i]) < s.last_ts:
+                s.disordered = True
+            s.last_ts = unpack_ts(s.ts[i + n - 1])
         return n
 
 

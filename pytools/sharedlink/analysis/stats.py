@@ -122,8 +122,8 @@ class CaptureStats:
     other_records: int = 0  # capture records that are not UDP/TCP over IP
     value_bytes: int = 0  # bytes of good full/delta frames
     full_bytes: int = 0  # what those frames would take as full sets
-    first_ns: int | None = None
-    last_ns: int | None = None
+    first_ns: int | None = None  # the earliest and the latest frame time (not the first and last
+    last_ns: int | None = None  # records: a capture's records need not be in time order)
     error: str | None = None  # the capture is damaged here (everything before it is counted)
 
     @property
@@ -177,17 +177,22 @@ class CaptureStats:
         self.frames += 1
         self.bytes += size
         self.kinds[d.kind] = self.kinds.get(d.kind, 0) + 1
-        if self.first_ns is None:
+        # the real time span: records are frames in file order, whatever their time stamps say
+        if self.first_ns is None or ts < self.first_ns:
             self.first_ns = ts
-        self.last_ns = ts
+        if self.last_ns is None or ts > self.last_ns:
+            self.last_ns = ts
         pair = d.pair
         p = self.pairs.get(pair)
         if p is None:
-            p = self.pairs[pair] = PairStats(pair, first_ns=ts)
+            p = self.pairs[pair] = PairStats(pair, first_ns=ts, last_ns=ts)
         p.frames += 1
         p.bytes += size
         p.kinds[d.kind] = p.kinds.get(d.kind, 0) + 1
-        p.last_ns = ts
+        if ts < p.first_ns:  # type: ignore[operator]
+            p.first_ns = ts
+        if ts > p.last_ns:  # type: ignore[operator]
+            p.last_ns = ts
         if d.checksum_ok is False:
             self.checksum_failures += 1
             p.checksum_failures += 1

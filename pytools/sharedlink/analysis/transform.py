@@ -138,7 +138,9 @@ class Rewriter:
         full = self.mode == "expand"
         if not full:
             due = self.next_sync.get(key)
-            if due is None or ts_ns >= due:
+            # a full set when the interval is over, or when time went back before the last one
+            # (records in file order need not be in time order)
+            if due is None or ts_ns >= due or ts_ns < due - self.sync_ns:
                 full = True
                 self.next_sync[key] = ts_ns + self.sync_ns
         if layout == "named":
