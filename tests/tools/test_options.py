@@ -1,59 +1,53 @@
-"""Options shared by several commands mean one thing everywhere: one ``--variables`` parser."""
+"""Number options: one validator for all of them. NaN, infinities, huge and tiny values end in
+exit 2 with a message naming the option, never a traceback and never a file."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
 
-from sharedlink.analysis import decode
-from sharedlink.capture import stream
-from sharedlink.cli import main
-from sharedlink.protocols.codec import TYPE_NAMES
-from sharedlink.protocols.state import parse_variables
+CLI = [sys.executable, "-m", "sharedlink"]
+
+BAD = [
+    ("gen", "--rate", "nan"),
+    ("gen", "--duration", "inf"),
+    ("gen", "--sync-interval", "1e300"),
+    ("gen", "--jitter", "1e15"),
+    ("gen", "--rate", "1e10"),  # five frames in one nanosecond
+    ("gen", "--frames", "0"),
+    ("gen", "--drop", "-0.5"),
+    ("gen", "--port", "70000"),
+    ("gen", "--transport", "serial", "--frames", "10", "--rate", "0"),  # the option named is the last
+    ("replay", "--speed", "1e-300"),
+    ("replay", "--loop-delay", "nan"),
+    ("replay", "--pps", "-1"),
+    ("stats", "--sync-interval", "0"),
+    ("diff", "--window", "nan"),
+    ("compress", "--sync-interval", "-inf"),
+    ("plot", "--max-points", "1e3"),
+    ("serial", "import", "--start", "-1"),
+    ("serial", "import", "--start", "nan"),
+]
 
 
-@pytest.mark.parametrize(
-    ("text", "expected"),
-    [
-        ("Lat:2,Lon:2,Name:4,Count", [("Lat", 2), ("Lon", 2), ("Name", 4), ("Count", None)]),
-        ("A:2,B,", [("A", 2), ("B", None)]),  # empty items are skipped
-        (" A , ,B:0 ", [("A", None), ("B", 0)]),
-        ("A:", [("A", None)]),  # an empty type is no type
-    ],
-)
-def test_parse_variables(text, expected):
-    assert parse_variables(text) == expected
+@pytest.mark.parametrize("args", BAD, ids=[" ".join(a) for a in BAD])
+def test_bad_numbers_exit_2_with_a_message(tmp_path, args):
+    cap = tmp_path / "in.pcap"
+    cap.write_bytes(b"")
+    out = tmp_path / "out.pcap"
+    place = {"gen": [out], "replay": [cap], "stats": [cap], "diff": [cap, cap], "compress": [cap, out],
+             "plot": [cap, "-o", tmp_path / "p.png"], "serial": [cap, "--out", out]}[args[0]]
+    r = subprocess.run([*CLI, *args, *map(str, place)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, r.stderr
+    option = [a for a in args if a.startswith("--")][-1]
+    assert f"argument {option}" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.pcap"]
 
 
-@pytest.mark.parametrize(("text", "words"), [("A:x", "bad type 'x' for A"), ("a|b", "bad variable name"),
-                                             (":2", "bad variable name"), (",, ,", "empty variable list")])
-def test_parse_variables_rejects(text, words):
-    with pytest.raises(ValueError, match=words):
-        parse_variables(text)
-
-
-def test_one_parser_and_one_set_of_type_codes():
-    assert decode.parse_variables is parse_variables and stream.parse_variable_list is parse_variables
-    with pytest.raises(ValueError) as ei:
-        parse_variables("A:x")
-    assert all(f"{code} {name}" in str(ei.value) for code, name in TYPE_NAMES.items())
-
-
-def test_every_command_reads_variables_alike(tmp_path, capsys):
-    cap = tmp_path / "b.pcap"
-    assert main(["gen", str(cap), "--frames", "6", "--form", "positional"]) == 0
-    out = tmp_path / "o.pcap"
-    commands = {
-        "stats": ["stats", str(cap)],
-        "export": ["export", str(cap), "-o", str(tmp_path / "o.csv")],
-        "plot": ["plot", str(cap), "-o", str(tmp_path / "o.png")],
-        "compress": ["compress", str(cap), str(out)],
-        "expand": ["expand", str(cap), str(out)],
-        "diff": ["diff", str(cap), str(cap), "--single-process"],
-    }
-    for name, argv in commands.items():
-        capsys.readouterr()
-        assert main([*argv, "--variables", "AutoGpsLat:2,AutoGpsLon:2,"]) == 0, (name, capsys.readouterr().err)
-        capsys.readouterr()
-        assert main([*argv, "--variables", "A:x"]) == 2, name
-        assert capsys.readouterr().err == (
-            "sharedlink: error: --variables: bad type 'x' for A (0 long, 2 double, 4 string)\n"), name
+def test_gen_says_what_it_would_write(tmp_path):
+    out = tmp_path / "huge.pcap"
+    r = subprocess.run([*CLI, "gen", "--rate", "1e9", "--duration", "1e6", str(out)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "would write 1,000,000,000,000,000 frames" in r.stderr, r.stderr
+    assert not out.exists() and list(tmp_path.iterdir()) == []

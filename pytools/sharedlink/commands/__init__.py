@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -28,6 +29,57 @@ T = TypeVar("T")
 EXIT_OK, EXIT_FAIL, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: stopped by SIGTERM (128 + 15), cleaned up as on Ctrl-C
 EXIT_TERMINATED = 143
+
+# -- number options: one validator for all of them -----------------------------------------
+
+#: the largest number of seconds any option takes (about 115 days)
+MAX_SECONDS = 1e7
+#: the latest time a timestamp option takes: 9999-12-31T23:59:59Z (what dates can show)
+MAX_TIMESTAMP_S = 253_402_300_799
+#: the highest rate in frames per second: one frame per nanosecond, the capture's resolution
+MAX_RATE = 1e9
+
+
+def number(
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    above: bool = False,
+    integer: bool = False,
+    unit: str = "",
+) -> Callable[[str], Any]:
+    """An argparse ``type=`` for a number option: finite, at least ``low`` (more than it with
+    ``above``), at most ``high``. NaN, infinities, huge or tiny values and words end in
+    argparse's usage error (exit 2, ``argument --X: ...``), never in a traceback later on."""
+
+    def bounds() -> str:
+        lo = "" if low is None else (f"more than {low:g}" if above else f"at least {low:g}")
+        hi = "" if high is None else f"at most {high:g}"
+        return " and ".join(x for x in (lo, hi) if x) + (f" {unit}" if unit else "")
+
+    def parse(text: str) -> int | float:
+        try:
+            value: int | float = int(text) if integer else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'a whole' if integer else 'a'} number") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+        if (low is not None and (value < low or (above and value == low))) or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"{text} is out of range: give a number {bounds()}")
+        return value
+
+    parse.__name__ = "integer" if integer else "number"  # argparse names the type in messages
+    return parse
+
+
+#: number types shared by several commands
+SECONDS = number(0, MAX_SECONDS, above=True, unit="seconds")
+SECONDS_OR_ZERO = number(0, MAX_SECONDS, unit="seconds")
+RATE = number(0, MAX_RATE, above=True, unit="per second (a period of at least 1 ns)")
+FRACTION = number(0, 1)
+COUNT = number(1, 1e12, integer=True)
+PORT = number(1, 65535, integer=True)
+BAUD = number(1, 100_000_000, integer=True)
 
 # -- options: --variables (one parser, one meaning in every command) and --sync-interval -----
 
@@ -57,7 +109,7 @@ def add_decode_options(p: argparse.ArgumentParser) -> None:
     """Options every capture-reading command of this family shares."""
     add_variables_option(p)
     p.add_argument(
-        "--sync-interval", type=float, default=1.0, metavar="S",
+        "--sync-interval", type=SECONDS, default=1.0, metavar="S",
         help="a full set is expected every S seconds (default 1; late = more than S + 0.5 s)",
     )
 
@@ -79,6 +131,37 @@ def check_capture(path: Path) -> None:
 
 
 # -- commands that write a file (gen, serial) ----------------------------------------------------
+
+
+#: about what one beacon record takes in a capture file (record header, headers, frame)
+BEACON_RECORD_BYTES = 175
+#: above this, a generator says what it is about to write before it starts
+ANNOUNCE_BYTES = 1 << 30
+
+
+def _size(n: float) -> str:
+    for unit in ("bytes", "KB", "MB", "GB", "TB", "PB"):
+        if n < 1000 or unit == "PB":
+            return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
+        n /= 1000
+    return f"{n:.1f} PB"  # pragma: no cover
+
+
+def check_room(out: Path, records: int, record_bytes: int) -> None:
+    """Say what a run would write: refuse (UsageError) when it cannot fit on the output's file
+    system, announce it on stderr when it is large."""
+    size = records * record_bytes
+    if not is_stdout(out) and not str(out).startswith("/dev/"):
+        folder = Path(out).resolve().parent
+        try:
+            free = shutil.disk_usage(folder).free
+        except OSError:
+            free = None
+        if free is not None and size > free:
+            raise UsageError(f"{out}: would write {records:,} frames, about {_size(size)}, but {folder} has "
+                             f"{_size(free)} free (lower --rate, --duration or --frames)")
+    if size > ANNOUNCE_BYTES:
+        print(f"writing {records:,} frames to {out}, about {_size(size)}", file=sys.stderr)
 
 
 def generate_to(opts: Any, generate: Callable[[Any, Path], T], out: Path) -> T:

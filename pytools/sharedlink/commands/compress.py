@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from sharedlink.commands import add_transform_arguments, run_transform
+from sharedlink.commands import SECONDS, add_transform_arguments, run_transform
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,6 +19,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         "still written), 130 interrupted.",
     )
     add_transform_arguments(p)
-    p.add_argument("--sync-interval", type=float, default=1.0, metavar="S",
+    p.add_argument("--sync-interval", type=SECONDS, default=1.0, metavar="S",
                    help="a full set at least every S seconds (default 1)")
     p.set_defaults(func=lambda args: run_transform(args, "compress"))

@@ -13,8 +13,11 @@ from sharedlink.commands import (
     EXIT_FAIL,
     EXIT_OK,
     EXIT_USAGE,
+    MAX_SECONDS,
+    SECONDS,
     add_variables_option,
     check_capture,
+    number,
     variables_option,
 )
 from sharedlink.errors import UsageError
@@ -38,11 +41,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("b", type=Path, help="second capture, e.g. the compressed stream")
     p.add_argument("--by", choices=("time", "sequence"), default="time",
                    help="align frames by time within --window (default) or by their order")
-    p.add_argument("--window", type=float, default=None, metavar="MS",
+    p.add_argument("--window", type=number(0, MAX_SECONDS * 1000, above=True, unit="ms"), default=None, metavar="MS",
                    help="with --by time: frames match when this close, in ms (default half the frame period)")
-    p.add_argument("--tolerance", type=float, default=0.0, metavar="X",
+    p.add_argument("--tolerance", type=number(0), default=0.0, metavar="X",
                    help="doubles within X of each other are equal (default 0: equal as numbers)")
-    p.add_argument("--sync-interval", type=float, default=1.0, metavar="S",
+    p.add_argument("--sync-interval", type=SECONDS, default=1.0, metavar="S",
                    help="a full set is due every S seconds: a gap between full sets that rounds to n >= 2 "
                    "intervals misses n - 1 (default 1)")
     add_variables_option(p)

@@ -6,7 +6,19 @@ import argparse
 from pathlib import Path
 
 from sharedlink.capture.pcapio import NS
-from sharedlink.commands import generate_to, report
+from sharedlink.commands import (
+    BAUD,
+    BEACON_RECORD_BYTES,
+    COUNT,
+    FRACTION,
+    PORT,
+    RATE,
+    SECONDS,
+    check_room,
+    generate_to,
+    number,
+    report,
+)
 from sharedlink.errors import UsageError
 from sharedlink.generators.beacon import GenOptions, generate_file
 
@@ -19,27 +31,27 @@ def register(sub: argparse._SubParsersAction) -> None:
         "broadcast over UDP at --rate Hz, with optional compression and faults.",
     )
     p.add_argument("out", type=Path, help="capture file to write")
-    p.add_argument("--duration", type=float, default=60.0, help="seconds of traffic (default 60)")
-    p.add_argument("--frames", type=int, default=None, help="number of beacon frames (overrides --duration)")
-    p.add_argument("--rate", type=float, default=5.0, help="frames per second (default 5: every 200 ms)")
+    p.add_argument("--duration", type=SECONDS, default=60.0, help="seconds of traffic (default 60)")
+    p.add_argument("--frames", type=COUNT, default=None, help="number of beacon frames (overrides --duration)")
+    p.add_argument("--rate", type=RATE, default=5.0, help="frames per second (default 5: every 200 ms)")
     p.add_argument("--compress", action="store_true", help="leave out unchanged values (shared-variable compression)")
-    p.add_argument("--sync-interval", type=float, default=1.0, help="with --compress: full set at least every S seconds (default 1)")
+    p.add_argument("--sync-interval", type=SECONDS, default=1.0, help="with --compress: full set at least every S seconds (default 1)")
     p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same bytes (default 1)")
     p.add_argument("--format", dest="fmt", choices=("pcap", "pcapng"), default=None, help="file format (default: from the file name, else pcap)")
-    p.add_argument("--port", type=int, default=None, help="port (default: sharedlink 7013, p2os 8101, blackboard 7100)")
+    p.add_argument("--port", type=PORT, default=None, help="port (default: sharedlink 7013, p2os 8101, blackboard 7100)")
     p.add_argument("--protocol", choices=("sharedlink", "p2os", "blackboard"), default="sharedlink",
                    help="what to generate: SharedLink beacons (default), a P2OS robot session, or a blackboard master/slave session")
     p.add_argument("--transport", choices=("udp", "tcp", "serial"), default=None,
                    help="sharedlink: udp beacons (default) or serial (a BUL-049 point-to-point session); p2os: tcp (default) or "
                    "serial; blackboard: udp (default), tcp or serial. Serial captures are pcapng with a USER link type")
-    p.add_argument("--baud", type=int, default=9600, help="--transport serial: line speed (default 9600)")
-    p.add_argument("--noise", type=float, default=0.0, metavar="RATE", help="--transport serial: chance of a burst of line noise before a frame")
+    p.add_argument("--baud", type=BAUD, default=9600, help="--transport serial: line speed (default 9600)")
+    p.add_argument("--noise", type=FRACTION, default=0.0, metavar="RATE", help="--transport serial: chance of a burst of line noise before a frame")
     p.add_argument("--src", default="B", help="source node letter A-P (default B)")
     p.add_argument("--dst", default="A", help="destination node letter A-P (default A)")
     p.add_argument("--form", choices=("named", "positional"), default="named", help="value form: named T/Q/D triplets (beacon, default) or positional D fields")
-    p.add_argument("--bad-checksum", type=float, default=0.0, metavar="RATE", help="fraction of frames sent with a wrong checksum")
-    p.add_argument("--drop", type=float, default=0.0, metavar="RATE", help="fraction of frames lost")
-    p.add_argument("--jitter", type=float, default=0.0, metavar="MS", help="timing jitter, uniform over +-MS/2 milliseconds")
+    p.add_argument("--bad-checksum", type=FRACTION, default=0.0, metavar="RATE", help="fraction of frames sent with a wrong checksum")
+    p.add_argument("--drop", type=FRACTION, default=0.0, metavar="RATE", help="fraction of frames lost")
+    p.add_argument("--jitter", type=number(0, 3_600_000, unit="ms"), default=0.0, metavar="MS", help="timing jitter, uniform over +-MS/2 milliseconds")
     p.add_argument("--start", type=_start_time, default=None, metavar="TIME",
                    help="time of the first beacon, UTC ISO 8601 (e.g. 2026-03-02T08:00:00Z; default 2026-01-01T12:00:00Z)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -89,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
         opts.start_ns = args.start
     if args.frames is not None and args.frames <= 0:
         raise UsageError("--frames must be positive")
+    frames = args.frames if args.frames is not None else int(args.duration * args.rate)
+    check_room(args.out, frames, BEACON_RECORD_BYTES)
     stats = generate_to(opts, generate_file, args.out)
     summary = {
         "file": str(args.out),

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from sharedlink.analysis.export import LAT, LON
 from sharedlink.capture.pcapio import open_output, refuse_overwrite
-from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options
+from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options, number
 from sharedlink.errors import UsageError
 
 
@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lat", default=LAT, help=f"latitude variable (default {LAT})")
     p.add_argument("--lon", default=LON, help=f"longitude variable (default {LON})")
     p.add_argument("--speed", default="AutoGpsVel", help="variable the track is coloured by (default AutoGpsVel)")
-    p.add_argument("--max-points", type=int, default=5000, help="points kept per series (default 5000)")
+    p.add_argument("--max-points", type=number(10, 1e9, integer=True), default=5000, help="points kept per series (default 5000)")
     add_decode_options(p)
     p.add_argument("--json", action="store_true", help="print a summary as JSON")
     p.set_defaults(func=run)

@@ -9,7 +9,18 @@ from pathlib import Path
 from typing import Any
 
 from sharedlink.capture.pcapio import CaptureError
-from sharedlink.commands import EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
+from sharedlink.commands import (
+    BAUD,
+    COUNT,
+    EXIT_FAIL,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_USAGE,
+    PORT,
+    RATE,
+    SECONDS_OR_ZERO,
+    number,
+)
 from sharedlink.errors import UsageError
 from sharedlink.replay import (
     USER_LINKTYPES,
@@ -43,21 +54,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     dest.add_argument("--broadcast", action="store_true", help="allow a broadcast destination (sets SO_BROADCAST)")
     dest.add_argument("--bind", metavar="ADDR", default=None, help="source address (ADDR or ADDR:PORT) or interface name")
     dest.add_argument("--serial", metavar="DEVICE", default=None, help="write the bytes to this serial port or pty instead")
-    dest.add_argument("--baud", type=int, default=9600, help="with --serial: baud rate (default 9600)")
+    dest.add_argument("--baud", type=BAUD, default=9600, help="with --serial: baud rate (default 9600)")
     timing = p.add_argument_group("timing")
     pace = timing.add_mutually_exclusive_group()
-    pace.add_argument("--speed", type=float, default=1.0, metavar="X", help="capture timing times X (2 = twice as fast)")
-    pace.add_argument("--pps", type=float, default=None, metavar="N", help="a steady N frames per second instead")
+    pace.add_argument("--speed", type=number(1e-3, 1e6, unit="(1e-3: a thousand times slower)"), default=1.0, metavar="X", help="capture timing times X (2 = twice as fast)")
+    pace.add_argument("--pps", type=RATE, default=None, metavar="N", help="a steady N frames per second instead")
     pace.add_argument("--topspeed", action="store_true", help="as fast as possible")
-    timing.add_argument("--loop", type=int, default=1, metavar="N", help="passes over the capture (0 = until stopped; default 1)")
-    timing.add_argument("--loop-delay", type=float, default=0.0, metavar="S",
+    timing.add_argument("--loop", type=number(0, 1e12, integer=True), default=1, metavar="N", help="passes over the capture (0 = until stopped; default 1)")
+    timing.add_argument("--loop-delay", type=SECONDS_OR_ZERO, default=0.0, metavar="S",
                         help="extra pause between passes in seconds (timed passes are also one frame gap apart)")
-    timing.add_argument("--limit", type=int, default=None, metavar="N", help="stop after N frames")
+    timing.add_argument("--limit", type=COUNT, default=None, metavar="N", help="stop after N frames")
     timing.add_argument("--realtime", action="store_true",
                         help="pace at real-time priority (SCHED_FIFO) for steadier timing on a busy machine; needs root, "
                         "CAP_SYS_NICE or an RLIMIT_RTPRIO, else a warning and ordinary scheduling")
     sel = p.add_argument_group("selection")
-    sel.add_argument("--filter-port", type=int, action="append", default=[], metavar="PORT",
+    sel.add_argument("--filter-port", type=PORT, action="append", default=[], metavar="PORT",
                      help="only frames from or to this UDP port (repeatable)")
     sel.add_argument("--filter-src", action="append", default=[], metavar="ADDR",
                      help="only frames from this source address or network, e.g. 192.168.1.12 or 10.0.0.0/8 (repeatable)")

@@ -20,7 +20,7 @@ from sharedlink.capture.serial_format import (
 )
 from sharedlink.capture.serial_import import FORMATS, read_log
 from sharedlink.capture.serial_port import capture, list_ports
-from sharedlink.commands import report
+from sharedlink.commands import BAUD, COUNT, MAX_TIMESTAMP_S, SECONDS, number, report
 from sharedlink.errors import UsageError
 
 _DIRECTIONS = {"in": DIR_IN, "inbound": DIR_IN, "out": DIR_OUT, "outbound": DIR_OUT, "unknown": DIR_UNKNOWN}
@@ -51,12 +51,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "Ctrl-C or SIGTERM ends the capture; every record is flushed as written.",
     )
     c.add_argument("device", nargs="?", help="serial port, e.g. /dev/ttyUSB0 (not with --tap)")
-    c.add_argument("--baud", type=int, required=True, help="line speed, bits per second")
+    c.add_argument("--baud", type=BAUD, required=True, help="line speed, bits per second")
     c.add_argument("--out", default="-", help="capture file (default: standard output)")
     c.add_argument("--tap", nargs=2, metavar=("DEV_A", "DEV_B"), help="relay between two ports, recording both directions")
     c.add_argument("--linktype", type=_linktype, default=147, help="USER link type: 147..162 or user0..user15 (default user0)")
-    c.add_argument("--duration", type=float, default=None, help="stop after S seconds")
-    c.add_argument("--count", type=int, default=None, help="stop after N records")
+    c.add_argument("--duration", type=SECONDS, default=None, help="stop after S seconds")
+    c.add_argument("--count", type=COUNT, default=None, help="stop after N records")
     c.add_argument("--json", action="store_true", help="print the summary as JSON")
     c.set_defaults(func=run_capture)
 
@@ -71,10 +71,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     i.add_argument("--format", dest="fmt", choices=FORMATS, default="auto", help="log format (default: detected)")
     i.add_argument("--frame", action="store_true", help="one record per decoded frame (and per noise run) instead of per chunk")
     i.add_argument("--protocol", choices=("auto",) + PROTOCOLS, default="auto", help="with --frame: the protocol (default: detected)")
-    i.add_argument("--baud", type=int, default=9600, help="raw and hex dumps: line speed for the timestamps (default 9600)")
-    i.add_argument("--chunk", type=int, default=64, help="raw and hex dumps: bytes per record (default 64)")
+    i.add_argument("--baud", type=BAUD, default=9600, help="raw and hex dumps: line speed for the timestamps (default 9600)")
+    i.add_argument("--chunk", type=number(1, 1 << 24, integer=True), default=64, help="raw and hex dumps: bytes per record (default 64)")
     i.add_argument("--direction", choices=sorted(_DIRECTIONS), default="in", help="raw and hex dumps: direction of the bytes (default in)")
-    i.add_argument("--start", type=float, default=None, help="raw and hex dumps: time of the first byte, seconds since 1970 (default: the file's modification time)")
+    i.add_argument("--start", type=number(0, MAX_TIMESTAMP_S, unit="seconds since 1970 (up to year 9999)"), default=None, help="raw and hex dumps: time of the first byte, seconds since 1970 (default: the file's modification time)")
     i.add_argument("--linktype", type=_linktype, default=147, help="USER link type (default user0 = 147)")
     i.add_argument("--json", action="store_true", help="print the summary as JSON")
     i.set_defaults(func=run_import)
