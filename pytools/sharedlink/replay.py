@@ -319,8 +319,14 @@ class UdpSink:
         self.sock.close()
 
 
+class SinkStalled(OSError):
+    """The destination takes nothing (a serial port nobody reads: the write timed out). The
+    replay stops at the first one instead of waiting out the timeout for every frame."""
+
+
 class SerialSink:
-    """Writes payloads to a serial port or pty (pyserial), raw 8N1 at ``baud``."""
+    """Writes payloads to a serial port or pty (pyserial), raw 8N1 at ``baud``. A write that
+    times out raises :class:`SinkStalled`."""
 
     def __init__(self, device: str, baud: int = 9600, write_timeout: float = 5.0) -> None:
         import serial  # pyserial
@@ -330,8 +336,15 @@ class SerialSink:
         except (serial.SerialException, ValueError, OSError) as exc:
             raise ReplayError(f"--serial {device}: {exc}") from None
         self.device, self.baud = device, baud
-        write = self.port.write
-        self.send: Callable[[bytes, Target], Any] = lambda payload, _t: write(payload)
+        write, stalled = self.port.write, serial.SerialTimeoutException
+
+        def send(payload: bytes, _t: Target) -> Any:
+            try:
+                return write(payload)
+            except stalled:
+                raise SinkStalled(f"{device}: write timed out after {write_timeout:g} s: is anything reading the port?") from None
+
+        self.send: Callable[[bytes, Target], Any] = send
 
     @property
     def description(self) -> str:
@@ -603,6 +616,8 @@ class Replayer:
                     self._run_timed()
         except KeyboardInterrupt:
             st.interrupted = True
+        except SinkStalled:
+            pass  # counted as a send error: exit 1
         except CaptureError as exc:
             st.capture_error = str(exc)
         st.elapsed_s = (time.monotonic_ns() - self._start) / NS
@@ -664,6 +679,8 @@ class Replayer:
                     self._lag(now - deadline)
                     st.attempted += 1
                     st.error(_error_kind(exc), f"record {fr.number}: {exc.strerror or exc}")
+                    if isinstance(exc, SinkStalled):
+                        return
                 else:
                     self._lag(now - deadline)
                     st.attempted += 1
@@ -770,21 +787,30 @@ class _TopSpeed:
         send = self.sink.send
         n = len(payloads)
         failed = failed_bytes = 0
-        start = 0
-        while start < n:
-            i = start
-            try:
-                for i in range(start, n):
-                    send(payloads[i], targets[i])
-                start = n
-            except OSError as exc:
-                failed += 1
-                failed_bytes += len(payloads[i])
-                st.error(_error_kind(exc), f"record {numbers[i]}: {exc.strerror or exc}")
-                start = i + 1
-        st.attempted += n
-        st.frames += n - failed
-        st.bytes += sum(map(len, payloads)) - failed_bytes
+        start = i = 0
+        try:
+            while start < n:
+                i = start
+                try:
+                    for i in range(start, n):
+                        send(payloads[i], targets[i])
+                    start = n
+                except SinkStalled as exc:  # nobody reads: stop here, say so
+                    st.error(_error_kind(exc), f"record {numbers[i]}: {exc}")
+                    failed, failed_bytes, start = failed + 1, failed_bytes + len(payloads[i]), i + 1
+                    raise
+                except OSError as exc:
+                    failed += 1
+                    failed_bytes += len(payloads[i])
+                    st.error(_error_kind(exc), f"record {numbers[i]}: {exc.strerror or exc}")
+                    start = i + 1
+        except BaseException:  # Ctrl-C or a stalled sink: count what really went (frame i did not)
+            start = max(start, i)
+            raise
+        finally:  # the frames really handed to the sink (all of them, unless interrupted)
+            st.attempted += start
+            st.frames += start - failed
+            st.bytes += sum(map(len, payloads[:start])) - failed_bytes
 
 
 _Chunk = tuple[list[int], list[bytes], Optional[list[Target]]]

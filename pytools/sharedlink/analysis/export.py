@@ -36,7 +36,7 @@ from typing import IO, Any
 from xml.sax.saxutils import escape as xml_escape
 
 from sharedlink.analysis.decode import VALUE_KINDS, Decoded, format_time, iter_decoded
-from sharedlink.capture.pcapio import CaptureError, atomic_open
+from sharedlink.capture.pcapio import CaptureError, atomic_open, display_name, rereadable
 from sharedlink.protocols.state import BEACON_VARIABLES, Variable
 
 FORMATS = ("csv", "jsonl", "geojson", "kml", "mcap")
@@ -367,14 +367,21 @@ def export(path: str | Path, out: IO[str], opts: ExportOptions) -> ExportResult:
         raise ValueError(f"unknown format {opts.fmt!r} (one of {', '.join(FORMATS)})")
     result = ExportResult()
     columns = list(opts.columns) if opts.columns is not None else []
-    if opts.fmt == "csv" and not opts.changes and opts.columns is None:
-        columns = scan_variables(path, opts)
+    if opts.fmt == "csv" and not opts.changes and opts.columns is None:  # two passes
+        with rereadable(path) as again:
+            columns = scan_variables(again, opts)
+            result.columns = columns
+            return _write(again, out, opts, columns, result)
     result.columns = columns
+    return _write(path, out, opts, columns, result)
+
+
+def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[str], result: ExportResult) -> ExportResult:
     frames = _frames(path, opts, result)
     first = next(frames, None)  # a missing/unreadable file raises here, before any output
     writer = _WRITERS[opts.fmt](out, opts, columns)
     if isinstance(writer, _Kml):
-        writer.name = f"SharedLink tracks: {Path(path).name}"
+        writer.name = f"SharedLink tracks: {display_name(Path(path).name)}"
     try:
         if first is not None:
             result.rows += writer.write(first)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from sharedlink.analysis.decode import NS, Decoded, iter_decoded
 from sharedlink.analysis.export import LAT, LON
-from sharedlink.capture.pcapio import CaptureError
+from sharedlink.capture.pcapio import CaptureError, display_name
 from sharedlink.protocols.codec import guess_value, typed_value
 from sharedlink.protocols.state import BEACON_VARIABLES
 
@@ -202,7 +202,7 @@ def build_figure(data: PlotData, variables: Sequence[str] | None = None, title: 
     gs = fig.add_gridspec(1 + n, 1, height_ratios=[4.5] + [1.5] * n)
     ax = fig.add_subplot(gs[0])
     _draw_track(fig, ax, data)
-    label = title or Path(data.path).name
+    label = title or display_name(Path(data.path).name)
     fig.suptitle(
         f"{label}: {data.frames} frames, {data.duration_s:.1f} s, "
         f"{data.gaps} gaps, {data.checksum_failures} checksum failures"

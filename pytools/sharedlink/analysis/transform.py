@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import BinaryIO
 
+from sharedlink.analysis.decode import format_time
 from sharedlink.capture.packets import PacketDecoder, network_offset, ones_complement_checksum
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
@@ -315,7 +316,11 @@ def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record]
                 for seg in iter_segments(dg.payload):
                     if seg.frame is not None:
                         rw.frame(seg.frame, dg.payload[seg.start : seg.end], rec.ts_ns, False, conv)
-        chunk.append(writer.record(rec.ts_ns, data, rec.flags))
+        try:
+            chunk.append(writer.record(rec.ts_ns, data, rec.flags))
+        except struct.error:  # a time stamp the output format cannot hold
+            raise OutputError(f"{s}: record {rec.number}: its time stamp ({format_time(rec.ts_ns)}) cannot be written "
+                              f"as a nanosecond {fmt} (pcap ends in 2106, pcapng in 2554)") from None
         if len(chunk) >= 4096:
             fh.write(b"".join(chunk))
             chunk.clear()

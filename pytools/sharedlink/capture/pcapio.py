@@ -8,6 +8,7 @@ integers (a float loses nanoseconds at today's epoch).
 from __future__ import annotations
 
 import os
+import shutil
 import stat
 import struct
 import sys
@@ -175,6 +176,12 @@ def _in_place(path: Path) -> bool:
         return False  # does not exist (yet): a new regular file
 
 
+def display_name(name: str | Path) -> str:
+    """A file name as text that can be written anywhere: bytes that are not UTF-8 (which
+    Python keeps as surrogates) become U+FFFD."""
+    return os.fsencode(str(name)).decode("utf-8", "replace")
+
+
 def same_file(a: str | Path, b: str | Path) -> bool:
     """Whether two paths name one file (the same inode: hard links and symbolic links too)."""
     try:
@@ -254,6 +261,29 @@ def _new_file_mode(target: Path) -> int:
         umask = os.umask(0)
         os.umask(umask)
         return 0o666 & ~umask
+
+
+@contextmanager
+def rereadable(path: str | Path) -> Iterator[Path]:
+    """A path that can be read more than once: ``path`` itself when it is a regular file, else
+    (a pipe such as ``<(cat capture.pcap)``, a FIFO) a temporary copy of everything it gives,
+    read once and removed after the block. For readers that need two passes."""
+    p = Path(path)
+    try:
+        regular = stat.S_ISREG(os.stat(p).st_mode)
+    except OSError:
+        regular = True  # missing: the reader reports it
+    if regular:
+        yield p
+        return
+    src = _open_input(str(p))
+    fd, name = tempfile.mkstemp(prefix="sharedlink-", suffix=".spool")
+    try:
+        with src, open(fd, "wb") as dst:
+            shutil.copyfileobj(src, dst, 1 << 20)
+        yield Path(name)
+    finally:
+        os.unlink(name)
 
 
 #: the old name of :func:`open_output`

@@ -37,6 +37,8 @@ class SerialImportError(InputError, ValueError):
     a whole). Also a ``ValueError``, as it always was."""
 
     unit = "line"
+    #: what the log gave before the bad line (a text log: the chunks of the lines before it)
+    partial: list = []
 
     @property
     def line(self) -> int | None:
@@ -205,17 +207,29 @@ def _parse_data(text: str) -> bytes:
     return _ESC.sub(lambda m: bytes((int(m.group(1)[1:], 16),)) if m.group(1)[:1] == b"x" else _ESC_MAP[m.group(1)], raw)
 
 
+#: the latest time a log line may carry: what a nanosecond pcapng holds (the year 2554)
+MAX_LOG_NS = (1 << 64) - 1
+
+
 def parse_log(text: str, path: str = "<log>", start_ns: int = 0, byte_ns: int = 0) -> list[Chunk]:
     """Chunks of a text log. interceptty-style lines carry no time: they get ``start_ns``
-    plus ``byte_ns`` per byte."""
+    plus ``byte_ns`` per byte. A bad line raises :class:`SerialImportError` whose ``partial``
+    holds the chunks of the lines before it."""
     out: list[Chunk] = []
     clock = start_ns
     for no, line in enumerate(text.splitlines(), 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         parsed = _log_line(line)
+        reason = None
         if parsed is None:
-            raise SerialImportError(path, no, "not a log line: expected TIMESTAMP [DIRECTION] DATA")
+            reason = "not a log line: expected TIMESTAMP [DIRECTION] DATA"
+        elif parsed[0] is not None and not 0 <= parsed[0] <= MAX_LOG_NS:
+            reason = "time stamp out of range (a capture holds 1970 to 2554)"
+        if parsed is None or reason is not None:
+            err = SerialImportError(path, no, reason or "")
+            err.partial = [Chunk(c.ts_ns, c.direction, c.data) for c in out]
+            raise err
         ts, d, data = parsed
         if ts is None:  # interceptty: merge consecutive bytes of one direction
             clock += byte_ns

@@ -34,8 +34,6 @@ EXIT_TERMINATED = 143
 
 #: the largest number of seconds any option takes (about 115 days)
 MAX_SECONDS = 1e7
-#: the latest time a timestamp option takes: 9999-12-31T23:59:59Z (what dates can show)
-MAX_TIMESTAMP_S = 253_402_300_799
 #: the highest rate in frames per second: one frame per nanosecond, the capture's resolution
 MAX_RATE = 1e9
 

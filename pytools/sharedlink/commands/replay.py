@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sharedlink.capture.pcapio import CaptureError
+from sharedlink.capture.pcapio import CaptureError, rereadable
 from sharedlink.commands import (
     BAUD,
     COUNT,
@@ -93,13 +93,21 @@ def _sink(args: argparse.Namespace) -> UdpSink | SerialSink:
             lt = None  # reported by the replay itself, after the good frames
         if lt in USER_LINKTYPES:
             raise UsageError(
-                f"{args.capture} holds serial records (link type {lt}), which have no UDP port: "
+                f"{args.source} holds serial records (link type {lt}), which have no UDP port: "
                 "give one with --to HOST:PORT, or write them to a serial port with --serial"
             )
     return UdpSink(host, port, bind=args.bind, broadcast=args.broadcast)
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.capture.exists():
+        raise UsageError(f"{args.capture}: no such file")
+    args.source = args.capture  # what messages name
+    with rereadable(args.capture) as args.capture:  # a pipe is read once, then replayed from a copy
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     opts = ReplayOptions(
         speed=args.speed,
         pps=args.pps,
@@ -111,10 +119,8 @@ def run(args: argparse.Namespace) -> int:
     )
     opts.validate()
     flt = FrameFilter.build(args.filter_port, args.filter_src)
-    if not args.capture.exists():
-        raise UsageError(f"{args.capture}: no such file")
     sink = _sink(args)
-    progress = None if args.quiet else _Progress(args.capture.name, sink.description, opts.mode)
+    progress = None if args.quiet else _Progress(args.source.name, sink.description, opts.mode)
     try:
         replayer = Replayer(CaptureFrames(args.capture, flt), sink, opts,
                             progress=progress, progress_interval=progress.interval if progress else 1.0)
@@ -123,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
         if progress is not None:
             progress.close()
         sink.close()
-    summary: dict[str, Any] = {"file": str(args.capture), "destination": sink.description, "mode": opts.mode}
+    summary: dict[str, Any] = {"file": str(args.source), "destination": sink.description, "mode": opts.mode}
     summary.update(stats.as_dict())
     if args.json:
         json.dump(summary, sys.stdout)
@@ -132,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
         print(_summary_text(stats), file=sys.stderr)
     if stats.attempted == 0 and not stats.capture_error and not stats.interrupted:
         c = stats.counts
-        print(f"sharedlink: warning: nothing to replay in {args.capture}: {c.records} records, {c.skipped} without a "
+        print(f"sharedlink: warning: nothing to replay in {args.source}: {c.records} records, {c.skipped} without a "
               f"UDP payload, {c.filtered} left out by the filter", file=sys.stderr)
     if args.realtime and not stats.realtime and not args.topspeed:
         print("sharedlink: warning: --realtime: real-time scheduling not permitted (needs root, CAP_SYS_NICE or "

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import BinaryIO
 
-from sharedlink.capture.pcapio import open_output
+from sharedlink.capture.pcapio import open_output, refuse_overwrite
 from sharedlink.capture.serial_format import (
     DIR_IN,
     DIR_OUT,
@@ -18,9 +18,9 @@ from sharedlink.capture.serial_format import (
     StreamReader,
     parse_linktype,
 )
-from sharedlink.capture.serial_import import FORMATS, read_log
+from sharedlink.capture.serial_import import FORMATS, MAX_LOG_NS, SerialImportError, read_log
 from sharedlink.capture.serial_port import capture, list_ports
-from sharedlink.commands import BAUD, COUNT, MAX_TIMESTAMP_S, SECONDS, number, report
+from sharedlink.commands import BAUD, COUNT, EXIT_USAGE, SECONDS, number, report
 from sharedlink.errors import UsageError
 
 _DIRECTIONS = {"in": DIR_IN, "inbound": DIR_IN, "out": DIR_OUT, "outbound": DIR_OUT, "unknown": DIR_UNKNOWN}
@@ -74,7 +74,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     i.add_argument("--baud", type=BAUD, default=9600, help="raw and hex dumps: line speed for the timestamps (default 9600)")
     i.add_argument("--chunk", type=number(1, 1 << 24, integer=True), default=64, help="raw and hex dumps: bytes per record (default 64)")
     i.add_argument("--direction", choices=sorted(_DIRECTIONS), default="in", help="raw and hex dumps: direction of the bytes (default in)")
-    i.add_argument("--start", type=number(0, MAX_TIMESTAMP_S, unit="seconds since 1970 (up to year 9999)"), default=None, help="raw and hex dumps: time of the first byte, seconds since 1970 (default: the file's modification time)")
+    i.add_argument("--start", type=number(0, MAX_LOG_NS / 1e9 - 1, unit="seconds since 1970 (a capture holds times up to 2554)"), default=None, help="raw and hex dumps: time of the first byte, seconds since 1970 (default: the file's modification time)")
     i.add_argument("--linktype", type=_linktype, default=147, help="USER link type (default user0 = 147)")
     i.add_argument("--json", action="store_true", help="print the summary as JSON")
     i.set_defaults(func=run_import)
@@ -130,7 +130,14 @@ def run_import(args: argparse.Namespace) -> int:
     start_ns = None if args.start is None else int(round(args.start * 1e9))
     if args.baud <= 0:
         raise UsageError("--baud must be positive")
-    fmt, chunks = read_log(args.log, args.fmt, args.baud, args.chunk, _DIRECTIONS[args.direction], start_ns)
+    refuse_overwrite(args.out, args.log)
+    damage: SerialImportError | None = None
+    try:
+        fmt, chunks = read_log(args.log, args.fmt, args.baud, args.chunk, _DIRECTIONS[args.direction], start_ns)
+    except SerialImportError as exc:
+        if not exc.partial:
+            raise
+        fmt, chunks, damage = "log", exc.partial, exc  # the lines before the bad one are written
     if not chunks:
         raise UsageError(f"{args.log}: no bytes to import")
     records = frames = 0
@@ -154,6 +161,9 @@ def run_import(args: argparse.Namespace) -> int:
     if args.frame:
         summary["frames"] = frames
     report(summary, args.json, f"wrote {args.out}: {records} records from a {fmt} log" + (f" ({frames} frames)" if args.frame else ""))
+    if damage is not None:
+        print(f"sharedlink: error: {damage} (the lines before it were written)", file=sys.stderr)
+        return EXIT_USAGE
     return 0
 
 
