@@ -51,3 +51,12 @@ def test_gen_says_what_it_would_write(tmp_path):
     r = subprocess.run([*CLI, "gen", "--rate", "1e9", "--duration", "1e6", str(out)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "would write 1,000,000,000,000,000 frames" in r.stderr, r.stderr
     assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", ["late.pcap", "late.pcapng"])
+def test_gen_start_past_what_the_format_holds(tmp_path, name):
+    out = tmp_path / name
+    start = "2200-01-01T00:00:00Z" if name.endswith(".pcap") else "9999-12-31T00:00:00Z"
+    r = subprocess.run([*CLI, "gen", "--start", start, "--frames", "5", str(out)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "do not fit" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert list(tmp_path.iterdir()) == []

@@ -12,6 +12,7 @@ import argparse
 import json
 import math
 import shutil
+import struct
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -173,6 +174,9 @@ def generate_to(opts: Any, generate: Callable[[Any, Path], T], out: Path) -> T:
         return generate(opts, out)
     except OSError as exc:
         raise UsageError(f"{out}: {exc.strerror or exc}") from None
+    except struct.error:  # a time stamp the file format cannot hold (the file is not left behind)
+        raise UsageError(f"{out}: the times do not fit a nanosecond capture (pcap ends in 2106, pcapng in 2554): "
+                         "give an earlier --start") from None
 
 
 def report(summary: dict, as_json: bool, line: str) -> None:
