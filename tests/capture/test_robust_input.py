@@ -120,6 +120,13 @@ def test_sll2_as_one_interface_of_a_pcapng(beacon, tmp_path, capsys):
     assert code == 0 and json.loads(out)["frames"] == 48, err
     code, out, err = run(capsys, "diff", "--json", merged, merged)
     assert code == 0 and json.loads(out)["a"]["value_frames"] == 48, err
+    compressed = tmp_path / "c.pcapng"  # one output interface per input interface
+    code, _, err = run(capsys, "compress", merged, compressed)
+    assert code == 0, err
+    assert {r.linktype for r in read_records(compressed)} == {1, 276}
+    assert tshark_numbers(compressed) == expected
+    code, out, err = run(capsys, "diff", merged, compressed)
+    assert code == 0, out
 
 
 @pytest.mark.parametrize("kind", ["null", "loop", "raw", "ipv4", "ppp"])

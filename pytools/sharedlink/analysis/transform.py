@@ -277,6 +277,7 @@ def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record]
     st = rw.stats
     writer: PcapWriter | PcapngWriter | None = None
     linktype = None
+    interfaces: dict[tuple[int, int], int] = {}  # (input interface, link type) -> output interface
     chunk: list[bytes] = []
     decode = PacketDecoder().decode  # IP fragments reassembled
     while True:
@@ -293,9 +294,13 @@ def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record]
         if writer is None:
             linktype = rec.linktype
             writer = PcapngWriter(fh, linktype) if fmt == "pcapng" else PcapWriter(fh, linktype)
-        elif rec.linktype != linktype:
-            raise TransformError(f"{s}: record {rec.number} is on link type {rec.linktype}, not {linktype}: "
-                                 "captures mixing link types are not supported")
+            interfaces[(rec.interface, rec.linktype)] = 0
+        iface = interfaces.get((rec.interface, rec.linktype))
+        if iface is None:  # pcapng: one more interface (a pcap has one link type)
+            if not isinstance(writer, PcapngWriter):
+                raise TransformError(f"{s}: record {rec.number} is on link type {rec.linktype}, not {linktype}")
+            chunk.append(writer.interface(rec.linktype))
+            iface = interfaces[(rec.interface, rec.linktype)] = writer.interfaces - 1
         data = rec.data
         dg = decode(rec.linktype, data)
         if dg is not None and dg.payload and b"[" in dg.payload:
@@ -317,7 +322,7 @@ def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record]
                     if seg.frame is not None:
                         rw.frame(seg.frame, dg.payload[seg.start : seg.end], rec.ts_ns, False, conv)
         try:
-            chunk.append(writer.record(rec.ts_ns, data, rec.flags))
+            chunk.append(writer.record(rec.ts_ns, data, rec.flags, iface))
         except struct.error:  # a time stamp the output format cannot hold
             raise OutputError(f"{s}: record {rec.number}: its time stamp ({format_time(rec.ts_ns)}) cannot be written "
                               f"as a nanosecond {fmt} (pcap ends in 2106, pcapng in 2554)") from None

@@ -87,8 +87,8 @@ class PcapWriter:
         fh.write(struct.pack("<IHHiIII", PCAP_MAGIC_NS, 2, 4, 0, 0, snaplen, linktype))
         self._hdr = struct.Struct("<IIII")
 
-    def record(self, ts_ns: int, data: bytes, flags: int = 0) -> bytes:
-        """The bytes of one record (for writers that batch)."""
+    def record(self, ts_ns: int, data: bytes, flags: int = 0, interface: int = 0) -> bytes:
+        """The bytes of one record (for writers that batch); a pcap has one interface."""
         n = len(data)
         return self._hdr.pack(ts_ns // 1_000_000_000, ts_ns % 1_000_000_000, n, n) + data
 
@@ -120,14 +120,21 @@ class PcapngWriter:
             opts += _opt(3, if_description.encode())
         opts += _opt(9, b"\x09") + _opt(0, b"")
         fh.write(_block(1, struct.pack("<HHI", linktype, 0, snaplen) + opts))
+        self.interfaces = 1
 
-    def record(self, ts_ns: int, data: bytes, flags: int = 0) -> bytes:
+    def interface(self, linktype: int, snaplen: int = 262144) -> bytes:
+        """The bytes of one more Interface Description Block (nanosecond times), to write before
+        the records on it; its id is ``interfaces - 1`` after the call."""
+        self.interfaces += 1
+        return _block(1, struct.pack("<HHI", linktype, 0, snaplen) + _opt(9, b"\x09") + _opt(0, b""))
+
+    def record(self, ts_ns: int, data: bytes, flags: int = 0, interface: int = 0) -> bytes:
         n = len(data)
         pad = (-n) & 3
         opts = struct.pack("<HHI", 2, 4, flags) + b"\0\0\0\0" if flags else b""
         total = 32 + n + pad + len(opts)
         return (
-            struct.pack("<IIIIIII", 6, total, 0, ts_ns >> 32, ts_ns & 0xFFFFFFFF, n, n)
+            struct.pack("<IIIIIII", 6, total, interface, ts_ns >> 32, ts_ns & 0xFFFFFFFF, n, n)
             + data
             + b"\0" * pad
             + opts
