@@ -172,10 +172,10 @@ def is_stdout(path: str | Path | None) -> bool:
 
 def _in_place(path: Path) -> bool:
     """Whether ``path`` must be written where it is: anything but a regular file (a FIFO, a
-    terminal, a device, a socket) and every path under ``/dev`` or ``/proc`` (``/dev/stdout``
-    is a link to whatever standard output is, a regular file included)."""
+    terminal, a device, a socket) and a file descriptor's name (``/dev/stdout``, ``/dev/fd/N``,
+    ``/proc/...``: links to whatever the descriptor is, a redirected regular file included)."""
     text = str(path)
-    if text.startswith(("/dev/", "/proc/")):
+    if text.startswith(("/proc/", "/dev/fd/", "/dev/std")) or os.path.realpath(text).startswith("/proc/"):
         return True
     try:
         return not stat.S_ISREG(os.stat(path).st_mode)
