@@ -17,7 +17,7 @@ import signal
 import sys
 import threading
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NoReturn
 
 from . import __version__
 from ._interrupt import quiet_interrupt
@@ -33,14 +33,24 @@ __all__ = ["EXIT_INTERRUPTED", "EXIT_OK", "EXIT_USAGE", "Error", "UsageError", "
 
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors (a bad number, a missing argument) raised as UsageError: the
+    usage line, then ``sharedlink: error: ...`` once from :func:`main`, exit 2 (also when
+    :func:`main` is called from Python)."""
+
+    def error(self, message: str) -> NoReturn:  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        raise UsageError(message)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="sharedlink",
         description="Generate, replay, compare and decode SharedLink beacon captures.",
         epilog="Exit codes: 0 ok, 1 check failed (e.g. diff found a divergence), 2 bad input or usage, 130 interrupted (143 by SIGTERM).",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for name in COMMANDS:
         importlib.import_module(f"sharedlink.commands.{name}").register(sub)
