@@ -450,7 +450,8 @@ local CPARTS = {}
 
 -- Carried-only records (the bulk of a compressed stream) are kept as text lines
 -- "num|sk|value|frame|value|frame..." (a D value never holds "|" or a line break;
--- "" = none), packed 256 to a string: Wireshark runs full Lua garbage collections
+-- "" = none; a carried named value is stored as "=" .. value, as it may be ""),
+-- packed 256 to a string: Wireshark runs full Lua garbage collections
 -- during a capture, and their cost grows with the number of live Lua objects.
 local function from_text(fr)
     if not fr then return "" end
@@ -474,7 +475,10 @@ local function carried_store(num, sk, ne, nm, kind)
         n = n + 2
     end
     for k = 1, nm, 3 do
-        local name, v = MISS[k], MISS[k + 1] or ""
+        -- a named value can be "" (an empty D, rule 3): present values are stored as
+        -- "=" .. value so that "" still means none
+        local name, v = MISS[k], MISS[k + 1]
+        v = v and ("=" .. v) or ""
         if s_find(name, "\n", 1, true) or s_find(v, "\n", 1, true) then return false end
         CPARTS[n + 1], CPARTS[n + 2], CPARTS[n + 3] = name, v, from_text(MISS[k + 2])
         n = n + 3
@@ -515,7 +519,7 @@ local function carried_parse(line)
         while i + 2 <= n do
             local v = parts[i + 1]
             miss[#miss + 1] = parts[i]
-            miss[#miss + 1] = v ~= "" and v or false
+            miss[#miss + 1] = v ~= "" and s_sub(v, 2) or false
             miss[#miss + 1] = tonumber(parts[i + 2]) or false
             i = i + 3
         end
