@@ -205,6 +205,26 @@ def fields(
     return rows
 
 
+
+def as_list(x: Any) -> list[Any]:
+    """A tshark JSON value as a list (one value is not wrapped in a list there)."""
+    if x is None:
+        return []
+    return list(x) if isinstance(x, list) else [x]
+
+
+def walk(node: Any, key: str) -> list[Any]:
+    """Every value of ``key`` anywhere below ``node`` of a tshark JSON tree."""
+    out: list[Any] = []
+    if isinstance(node, dict):
+        for k, v in node.items():
+            if k == key:
+                out += as_list(v)
+            for item in as_list(v):
+                out += walk(item, key)
+    return out
+
+
 def json_packets(
     capture: str | Path,
     prefs: Mapping[str, Any] | None = None,

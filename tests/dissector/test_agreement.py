@@ -121,21 +121,7 @@ def write_capture(path: Path, packets: list[tuple[tuple, str, str]]) -> Path:
 # -- the two decoders -----------------------------------------------------------------------
 
 
-def _as_list(x: Any) -> list[Any]:
-    if x is None:
-        return []
-    return list(x) if isinstance(x, list) else [x]
-
-
-def _walk(node: Any, key: str) -> list[Any]:
-    out: list[Any] = []
-    if isinstance(node, dict):
-        for k, v in node.items():
-            if k == key:
-                out += _as_list(v)
-            for item in _as_list(v):
-                out += _walk(item, key)
-    return out
+_as_list, _walk = tu.as_list, tu.walk
 
 
 def _one(node: dict, key: str) -> Any:

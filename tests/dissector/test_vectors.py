@@ -27,22 +27,7 @@ TYPED_FIELDS = {"long": "sharedlink.var.long", "double": "sharedlink.var.double"
 TRUE = ("1", "True", "true")
 
 
-def _as_list(x: Any) -> list[Any]:
-    if x is None:
-        return []
-    return list(x) if isinstance(x, list) else [x]
-
-
-def _walk(node: Any, key: str) -> list[Any]:
-    """Every value of ``key`` anywhere below ``node``."""
-    out: list[Any] = []
-    if isinstance(node, dict):
-        for k, v in node.items():
-            if k == key:
-                out += _as_list(v)
-            for item in _as_list(v):
-                out += _walk(item, key)
-    return out
+_as_list, _walk = tu.as_list, tu.walk
 
 
 def _experts(node: Any) -> set[str]:
