@@ -90,12 +90,13 @@ class _MovedFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         return importlib.machinery.ModuleSpec(fullname, self)
 
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> types.ModuleType:
-        module = importlib.import_module(f"{__name__}.{MOVED[spec.name.partition('.')[2]]}")
-        self._real_spec = module.__spec__
-        return module
+        return importlib.import_module(f"{__name__}.{MOVED[spec.name.partition('.')[2]]}")
 
     def exec_module(self, module: types.ModuleType) -> None:
-        module.__spec__ = self._real_spec  # the import machinery set the alias's spec on it
+        # the import machinery set the alias's spec on the module; its own spec is the one
+        # its package's path finds (the module keeps its real __name__)
+        package = module.__name__.rpartition(".")[0]
+        module.__spec__ = importlib.machinery.PathFinder.find_spec(module.__name__, sys.modules[package].__path__)
 
 
 if not any(isinstance(f, _MovedFinder) for f in sys.meta_path):
