@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import select
 import socket
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -39,6 +40,9 @@ from sharedlink.protocols.state import _update as _state_update  # the general p
 DEFAULT_PORT = 7013
 #: how long a change (value, failure, late sync, gap) stays highlighted, seconds
 HIGHLIGHT_S = 2.0
+#: the pause after a UDP batch that was not full, seconds: 10,000 frames/s arrive 50 at a time
+#: instead of waking the watch for each (measured: a wake-up costs more CPU than decoding a frame)
+GATHER_S = 0.005
 #: receive buffer asked for (the kernel caps it at net.core.rmem_max)
 RCVBUF = 8 << 20
 
@@ -76,6 +80,7 @@ class UdpSource:
                 except OSError:
                     pass
             self.sock.bind((host, port))
+            self.sock.setblocking(False)
         except BaseException:
             self.sock.close()
             raise
@@ -83,30 +88,30 @@ class UdpSource:
         self.description = f"udp port {port}"
 
     def batches(self, timeout: float) -> Iterator[Batch]:
-        """Everything that arrived (as :class:`RawDatagram` s), drained without blocking, then
-        one wait of ``timeout``."""
-        sock = self.sock
-        recv = sock.recvfrom
+        """Everything that arrived (as :class:`RawDatagram` s, up to 512), drained without
+        blocking, then (nothing there) one wait of ``timeout``. After a batch that was not full
+        the loop pauses :data:`GATHER_S` so the next datagrams arrive together. (Measured at
+        10,000 frames/s: ``recvmmsg`` through ctypes saved 1.7 µs a frame over this loop, the
+        pause 25 µs; not worth a ctypes binding.)"""
+        recv = self.sock.recvfrom
+        fd = self.sock.fileno()
         port = self.port
         while True:
-            sock.settimeout(timeout)
             out: list = []
-            try:
-                data, addr = recv(65535)
-            except (socket.timeout, BlockingIOError):
-                yield out
-                continue
-            sock.setblocking(False)
-            while True:
-                self.number += 1
-                out.append(RawDatagram(self.number, time.time_ns(), ("udp", addr[0], addr[1], "", port), data))
-                if len(out) >= 512:
-                    break
+            n = self.number
+            while len(out) < 512:
                 try:
                     data, addr = recv(65535)
                 except (BlockingIOError, InterruptedError):
-                    break
+                    if out or not select.select([fd], [], [], timeout)[0]:
+                        break
+                    continue
+                n += 1
+                out.append(RawDatagram(n, time.time_ns(), ("udp", addr[0], addr[1], "", port), data))
+            self.number = n
             yield out
+            if len(out) < 512:  # let the next ones gather: a wake-up per frame costs more than the frame
+                time.sleep(GATHER_S)
 
     def now_ns(self) -> int:
         return time.time_ns()
@@ -202,12 +207,16 @@ class CaptureSource:
 
 # -- decoding, with a fast path for the beacon's steady state ---------------------------------
 
-#: one named full/delta frame alone in a datagram, with plain names and numeric values
-_HOT = re.compile(rb"\[:([A-P])([A-P])\|N0\|((?:T[024]\|Q[A-Za-z0-9_.]+\|D[-+0-9.eE]+\|)+)C([0-9A-F]{2})\]\r\n")
+#: one named full/delta frame alone in a datagram (decoded as latin-1), with plain names and
+#: numeric values, or a bare ``N0`` (nothing changed): groups destination letter, source letter,
+#: body ("T2|QName|Dvalue|" ..., empty when bare), checksum
+_HOT = re.compile(r"\[:([A-P])([A-P])\|N0\|((?:T[024]\|Q[A-Za-z0-9_.]+\|D[-+0-9.eE]+\|)*)C([0-9A-F]{2})\]\r\n")
+_HEX = {f"{i:02X}": i for i in range(256)}
 
-#: a D field's value (after a "|"), cut out to make the layout key / taken out as the values
-_VALUE = re.compile(rb"(?<=\|)D[^|]*")
-_VALUES = re.compile(rb"\|D([^|]*)")
+
+def _layout_key(parts: list[str]) -> tuple[str, ...]:
+    """A hot body's layout (its ``T`` and ``Q`` fields, no values) from ``body.split("|")``."""
+    return (*parts[0::3], *parts[1::3])
 
 
 class _FastDecoded(Decoded):
@@ -244,10 +253,16 @@ class _FastDecoded(Decoded):
 
 @dataclass
 class _Layout:
-    """One frame layout of a direction: its names, their types and positions in the list."""
+    """One frame layout of a direction: its names, their types and positions in the list, and
+    what follows from them while the direction's names stay the same (``stamp``): the names
+    the frame leaves out (carried) and whether it is full."""
 
     names: tuple[str, ...]
     types: tuple[int, ...]
+    present: frozenset[str] = frozenset()
+    stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) the two below hold for
+    missing: tuple[str, ...] = ()
+    full: bool = False
 
 
 @dataclass
@@ -258,6 +273,10 @@ class _Hot:
     table: VariableTable
     sync: list
     layouts: dict[tuple[bytes, ...], _Layout] = field(default_factory=dict)
+    #: the last Update the fast path made for each variable: reused while it still holds (Updates
+    #: are frozen), since most of a compressed frame's updates are the same carried values again
+    last: dict[str, Update] = field(default_factory=dict)
+    stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) ``last`` was made for
 
 
 #: layouts kept per direction (a compressed beacon has a handful)
@@ -312,22 +331,24 @@ class FastDecoder:
         return out
 
     def _try_fast(self, number: int, ts: int, conv: tuple, raw: bytes) -> Decoded | None:
-        m = _HOT.fullmatch(raw) if self._sync is not None else None
+        # measured choices: one latin-1 decode of the datagram, then str operations (the values
+        # come out as str, no decode each); one split of the body gives the layout and values
+        m = _HOT.fullmatch(raw.decode("latin-1")) if self._sync is not None else None
         if m is None:
             return None
-        src, dst = m.group(2).decode(), m.group(1).decode()
+        dst, src, body, cs = m.groups()
         h = self._hot.get((conv, src, dst))
         if h is None:
             return None
-        body = m.group(3)
-        lay = h.layouts.get(_VALUE.sub(b"D", body))
-        if lay is None or (sum(raw[1 : m.end(3) + 1]) & 0xFF) != int(m.group(4), 16):
+        parts = body.split("|")
+        lay = h.layouts.get(_layout_key(parts))
+        if lay is None or (sum(raw[1 : m.end(3) + 1]) & 0xFF) != _HEX[cs]:
             return None
         vars_ = h.table.vars
         for n, t in zip(lay.names, lay.types):
             if vars_[n].type_code != t:
                 return None
-        return self._fast(number, ts, conv, raw, h, lay, src, dst, _VALUES.findall(body))
+        return self._fast(number, ts, conv, raw, h, lay, src, dst, parts[2::3])
 
     def _learn(self, d: Decoded) -> None:
         if d.kind == "declaration":
@@ -336,42 +357,66 @@ class FastDecoder:
         if d.checksum_ok is False:
             return  # changed nothing
         key = (d.conv, d.src, d.dst)
-        m = _HOT.fullmatch(d.raw) if self._sync is not None else None
+        m = _HOT.fullmatch(d.raw.decode("latin-1")) if self._sync is not None else None
         sync = self._sync.get((conversation_key(d.conv), d.src, d.dst)) if self._sync is not None else None
-        if m is None or d.checksum_ok is not True or d.kind not in DATA_KINDS or sync is None:
+        # (a bare N0 is named only in a direction already named, else it is read as positional)
+        if m is None or d.checksum_ok is not True or d.kind not in DATA_KINDS or sync is None or d.table.named is not True:
             self._hot.pop(key, None)
             return
         h = self._hot.get(key)
         if h is None or h.table is not d.table or h.sync is not sync:
             h = self._hot[key] = _Hot(d.table, sync)
-        body = m.group(3)
-        parts = body[:-1].split(b"|")  # the body ends with its last "|"
-        names = tuple(q[1:].decode() for q in parts[1::3])
+        parts = m.group(3).split("|")  # the body ends with its last "|": one more, empty part
+        names = tuple(q[1:] for q in parts[1::3])
         if len(h.layouts) < MAX_LAYOUTS:
-            h.layouts[_VALUE.sub(b"D", body)] = _Layout(
-                names, tuple(int(t[1:]) for t in parts[0::3]))
+            h.layouts[_layout_key(parts)] = _Layout(names, tuple(int(t[1:]) for t in parts[0:-1:3]), frozenset(names))
 
     def _fast(self, number: int, ts: int, conv: tuple, raw: bytes, h: _Hot, lay: _Layout, src: str, dst: str,
-              values: list[bytes]) -> Decoded:
+              values: list[str]) -> Decoded:
         table = h.table
         vars_ = table.vars
         sent = table.sent_names
+        last = h.last
         updates: list[Update] = []
-        present = set(lay.names)
-        full = all(n in present for n in sent)  # the kind before the frame, as VariableTable.kind
+        add = updates.append
+        stamp = (len(vars_), len(sent))
+        if h.stamp != stamp:  # new names: indexes and types may differ, make every Update again
+            last.clear()
+            h.stamp = stamp
+        if lay.stamp != stamp:  # the direction's names changed: what the layout leaves out, again
+            present = lay.present
+            lay.missing = tuple(n for n in vars_ if n not in present)
+            # the kind before the frame, as VariableTable.kind (a bare N0 is a delta)
+            lay.full = bool(present) and all(n in present for n in sent)
+            lay.stamp = stamp
         for name, dval in zip(lay.names, values):
-            text = dval.decode()
+            text = dval[1:]
             v = vars_[name]
+            index = sent.get(name)
+            if index is None:
+                index = sent[name] = len(sent)
             changed = v.text != text
             v.text, v.set_in, v.set_at = text, number, ts
-            updates.append(_state_update(v, sent.setdefault(name, len(sent)), False, None, changed))
-        for name, v in vars_.items():
-            if name not in present and v.text is not None:
-                updates.append(_state_update(v, sent.get(name, table._index(name)), True, v.set_in, False))
+            u = last.get(name)
+            if changed or u is None or u.changed or u.carried or u.index != index or u.text != text:
+                u = last[name] = _state_update(v, index, False, None, changed)
+            add(u)
+        if len(sent) != stamp[1]:
+            lay.stamp = (-1, -1)
+        for name in lay.missing:
+            v = vars_[name]
+            text = v.text
+            if text is None:
+                continue
+            u = last.get(name)
+            if u is None or not u.carried or u.carried_from != v.set_in or u.text != text:
+                u = last[name] = _state_update(v, sent.get(name, table._index(name)), True, v.set_in, False)
+            add(u)
         table.named = True
         sync = h.sync
         gap: int | None = None
         late = False
+        full = lay.full
         if full:
             table.last_full_at, table.last_full_in = ts, number
             if sync[1] is not None:
