@@ -243,16 +243,17 @@ local recs          -- frame number -> { [subkey] = record }
 local pending_q     -- query key -> record of the query frame
 local dir_cache_key, dir_cache_num, dir_cache_ports -- cache for the current packet
 local last_asrc, last_adst, last_pdir, last_akey     -- addresses of the last packet and their key
-local shapes        -- node pair -> layout of the last plain named frame (fast path)
+local shapes        -- node pair -> layouts of its recent plain named frames (fast path), newest first
+local MAX_SHAPES = 8
 local pshapes       -- node pair -> layout of the last plain positional frame (fast path)
 local stamp_ctr = 0
 local cr_pend, cr_npend, cr_pend_first, cr_chunks, cr_first  -- packed carried records
-local last_from, last_from_str, sk_str, sk_str_n             -- number -> text caches for them
+local sk_str, sk_str_n       -- frame key -> its text, for them
 
 local function reset_state()
     dirs, pair_lists, recs, pending_q, shapes, pshapes = {}, {}, {}, {}, {}, {}
     cr_pend, cr_npend, cr_pend_first, cr_chunks, cr_first = {}, 0, 0, {}, {}
-    last_from, last_from_str, sk_str, sk_str_n = -1, "", {}, 0
+    sk_str, sk_str_n = {}, 0
     dir_cache_key, dir_cache_num, dir_cache_ports = nil, nil, 0
     last_asrc, last_adst, last_pdir, last_akey = nil, nil, nil, nil
 end
@@ -395,7 +396,11 @@ local function get_dir(pinfo, num, dstb, srcb)
         -- the capture direction keeps the two directions of a serial line apart.  Speed
         -- trick (measured): Address objects compare cheaper than they print, so the key
         -- text is rebuilt only when the addresses differ from the previous packet's.
-        local asrc, adst, pdir = pinfo.src, pinfo.dst, pinfo.p2p_dir
+        local sport, dport = pinfo.src_port, pinfo.dst_port
+        -- the capture direction only where no port tells the directions apart (a serial line);
+        -- a UDP/TCP flow is one direction whatever direction flags its link layer had
+        local asrc, adst = pinfo.src, pinfo.dst
+        local pdir = (sport == 0 and dport == 0) and pinfo.p2p_dir or -1
         local akey
         if pdir == last_pdir and asrc == last_asrc and adst == last_adst then
             akey = last_akey
@@ -410,7 +415,7 @@ local function get_dir(pinfo, num, dstb, srcb)
         end
         dir_cache_key = byaddr
         dir_cache_num = num
-        dir_cache_ports = (pinfo.src_port * 65536 + pinfo.dst_port) * 65536
+        dir_cache_ports = (sport * 65536 + dport) * 65536
     end
     local key = dir_cache_ports + dstb * 256 + srcb
     local d = byaddr[key]
@@ -423,15 +428,19 @@ end
 
 -- The same for the reverse direction (dst -> src) of the current packet.
 local function get_rev_dir(pinfo, dstb, srcb)
-    local pd = pinfo.p2p_dir
-    if pd == 0 or pd == 1 then pd = 1 - pd end
+    local sport, dport = pinfo.src_port, pinfo.dst_port
+    local pd = -1
+    if sport == 0 and dport == 0 then
+        pd = pinfo.p2p_dir
+        if pd == 0 or pd == 1 then pd = 1 - pd end
+    end
     local akey = tostring(pinfo.dst) .. ">" .. tostring(pinfo.src) .. "/" .. pd
     local byaddr = dirs[akey]
     if not byaddr then
         byaddr = {}
         dirs[akey] = byaddr
     end
-    local key = (pinfo.dst_port * 65536 + pinfo.src_port) * 65536 + srcb * 256 + dstb
+    local key = (dport * 65536 + sport) * 65536 + srcb * 256 + dstb
     local d = byaddr[key]
     if not d then
         d = new_dir()
@@ -453,10 +462,17 @@ local CPARTS = {}
 -- "" = none; a carried named value is stored as "=" .. value, as it may be ""),
 -- packed 256 to a string: Wireshark runs full Lua garbage collections
 -- during a capture, and their cost grows with the number of live Lua objects.
+local FROM_STR, from_str_n = {}, 0   -- frame number -> its text (the carried values' frames)
 local function from_text(fr)
     if not fr then return "" end
-    if fr ~= last_from then last_from, last_from_str = fr, tostring(fr) end
-    return last_from_str
+    local t = FROM_STR[fr]
+    if not t then
+        if from_str_n >= 4096 then FROM_STR, from_str_n = {}, 0 end
+        t = tostring(fr)
+        FROM_STR[fr] = t
+        from_str_n = from_str_n + 1
+    end
+    return t
 end
 
 -- Line: num|sk|kind|ne|value|frame|...(ne/2 pairs)|name|value|frame|...(nm/3 triples)
@@ -469,23 +485,21 @@ local function carried_store(num, sk, ne, nm, kind)
     CPARTS[1], CPARTS[2], CPARTS[3], CPARTS[4] = num, sks, kind, ne
     local n = 4
     for k = 1, ne, 2 do
-        local v = CARRY[k] or ""
-        if s_find(v, "\n", 1, true) then return false end
-        CPARTS[n + 1], CPARTS[n + 2] = v, from_text(CARRY[k + 1])
+        CPARTS[n + 1], CPARTS[n + 2] = CARRY[k] or "", from_text(CARRY[k + 1])
         n = n + 2
     end
     for k = 1, nm, 3 do
         -- a named value can be "" (an empty D, rule 3): present values are stored as
         -- "=" .. value so that "" still means none
-        local name, v = MISS[k], MISS[k + 1]
-        v = v and ("=" .. v) or ""
-        if s_find(name, "\n", 1, true) or s_find(v, "\n", 1, true) then return false end
-        CPARTS[n + 1], CPARTS[n + 2], CPARTS[n + 3] = name, v, from_text(MISS[k + 2])
+        local v = MISS[k + 1]
+        CPARTS[n + 1], CPARTS[n + 2], CPARTS[n + 3] = MISS[k], v and ("=" .. v) or "", from_text(MISS[k + 2])
         n = n + 3
     end
+    local line = t_concat(CPARTS, "|", 1, n)
+    if s_find(line, "\n", 1, true) then return false end   -- a line break in a value: a table record
     if cr_npend == 0 then cr_pend_first = num end
     cr_npend = cr_npend + 1
-    cr_pend[cr_npend] = t_concat(CPARTS, "|", 1, n)
+    cr_pend[cr_npend] = line
     if cr_npend >= 256 then
         cr_chunks[#cr_chunks + 1] = "\n" .. t_concat(cr_pend, "\n", 1, cr_npend) .. "\n"
         cr_first[#cr_first + 1] = cr_pend_first
@@ -644,6 +658,33 @@ end
 -- TvbRange, label or flag is one more Lua-to-C call).  The full tree is built below.
 -- vals: the frame's values; carry: carried values of its empty D fields (value, frame, ...);
 -- miss: named variables left out (name, value, frame, ...), nmiss entries.
+--
+-- Only the fields somebody asked for are repeated per variable.  In a tree nobody sees,
+-- Wireshark adds a field only when a filter, coloring rule or tap references it; for any
+-- other it hands back the parent item (proto.c, TRY_TO_FAKE_THIS_ITEM), whose text is the
+-- parent's text.  So the first item of each per-variable field in a frame tells whether the
+-- field is referenced (its text differs from its parent's: a real item has its own label;
+-- checked on 4.0, 4.4 and 4.6), and an unreferenced field is not added again for the
+-- frame's other variables (about 18 fewer Lua-to-C calls in a beacon frame).  Decided
+-- again in every frame, as the referenced fields change when the user changes a filter.
+local REF = {}      -- per-variable field -> referenced in this frame (nil: not known yet)
+local VAR_FIELDS = { hf.var, hf.ftype, hf.var_name, hf.var_index, hf.var_value, hf.var_double,
+    hf.var_long, hf.var_string, hf.var_carried, hf.var_carried_from }
+
+-- Add field = value under parent (whose text is ptext) unless the field is known to be
+-- unreferenced in this frame; learn that on its first item.  Returns the item or nil.
+local function ref_add(parent, ptext, field, value)
+    local r = REF[field]
+    if r == false then return nil end
+    local it
+    if value == nil then it = parent:add(field) else it = parent:add(field, value) end
+    if r == nil then
+        r = it.text ~= ptext
+        REF[field] = r
+    end
+    return r and it or nil
+end
+
 local function tree_compact(ti, dstb, srcb, kind, n_ord, nvars, list, d, num, carry, miss, nmiss)
     ti:add(hf.dst, LETTER[dstb])
     ti:add(hf.dst_node, dstb - B_A + 1)
@@ -651,15 +692,26 @@ local function tree_compact(ti, dstb, srcb, kind, n_ord, nvars, list, d, num, ca
     ti:add(hf.src_node, srcb - B_A + 1)
     ti:add(hf.kind, kind)
     ti:add(hf.ordinal, n_ord)
+    for k = 1, #VAR_FIELDS do REF[VAR_FIELDS[k]] = nil end
+    local ttext = ti.text
+    local vtext = nil   -- text of a real variable item (when hf.var is referenced)
     local ke = 0
     for v = 1, nvars do
-        local vt = ti:add(hf.var)
+        -- the variable's subtree, or ti itself when nobody asked for sharedlink.var
+        local vt = ref_add(ti, ttext, hf.var)
+        local ptext = ttext
+        if vt then
+            vtext = vtext or vt.text
+            ptext = vtext
+        else
+            vt = ti
+        end
         local name, val = VN[v], VV[v]
         local vtype
         local index = VI[v]
         if name then
             vtype = valid_type(VT[v])
-            vt:add(hf.ftype, vtype)
+            ref_add(vt, ptext, hf.ftype, vtype)
             if d then
                 local first = d.nfirst[name]
                 index = (first and first <= num) and d.npos[name] or nil
@@ -669,33 +721,52 @@ local function tree_compact(ti, dstb, srcb, kind, n_ord, nvars, list, d, num, ca
             vtype = list.t and list.t[index + 1]
         end
         if name then
-            vt:add(hf.var_name, name)
+            ref_add(vt, ptext, hf.var_name, name)
         else
             vt:add_proto_expert_info(ei.var_unknown,
                 "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
         end
-        if index then vt:add(hf.var_index, index) end
+        if index then ref_add(vt, ptext, hf.var_index, index) end
         if val ~= "" or VN[v] then
-            vt:add(hf.var_value, val)
-            if vtype then add_typed_value(vt, nil, vtype, val) end
+            ref_add(vt, ptext, hf.var_value, val)
+            if vtype then
+                if vtype == 2 then
+                    local x = tonumber(val)
+                    if x then ref_add(vt, ptext, hf.var_double, x)
+                    else vt:add_proto_expert_info(ei.var_badvalue, "Not a double: " .. val) end
+                elseif vtype == 0 then
+                    local x = parse_long(val)
+                    if x then ref_add(vt, ptext, hf.var_long, x)
+                    else vt:add_proto_expert_info(ei.var_badvalue, "Not a long (int64): " .. val) end
+                elseif vtype == 4 then
+                    ref_add(vt, ptext, hf.var_string, val)
+                end
+            end
         else
             local cv, cf = false, false
             if carry then cv, cf = carry[ke + 1], carry[ke + 2] end
             ke = ke + 2
-            if cv then vt:add(hf.var_value, cv) end
-            vt:add(hf.var_carried, true)
-            if cf then vt:add(hf.var_carried_from, cf) end
+            if cv then ref_add(vt, ptext, hf.var_value, cv) end
+            ref_add(vt, ptext, hf.var_carried, true)
+            if cf then ref_add(vt, ptext, hf.var_carried_from, cf) end
         end
     end
     for k = 1, nmiss, 3 do
         local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
-        local vt = ti:add(hf.var)
-        vt:add(hf.var_name, name)
+        local vt = ref_add(ti, ttext, hf.var)
+        local ptext = ttext
+        if vt then
+            vtext = vtext or vt.text
+            ptext = vtext
+        else
+            vt = ti
+        end
+        ref_add(vt, ptext, hf.var_name, name)
         local index = d and d.npos[name]
-        if index then vt:add(hf.var_index, index) end
-        if cv then vt:add(hf.var_value, cv) end
-        vt:add(hf.var_carried, true)
-        if cf then vt:add(hf.var_carried_from, cf) end
+        if index then ref_add(vt, ptext, hf.var_index, index) end
+        if cv then ref_add(vt, ptext, hf.var_value, cv) end
+        ref_add(vt, ptext, hf.var_carried, true)
+        if cf then ref_add(vt, ptext, hf.var_carried_from, cf) end
     end
 end
 
@@ -776,10 +847,23 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     local fast_sum = nil      -- checksum computed by a fast path
     if p == 6 and dnode and snode and not malformed_msg then
         shape_key = dstb * 256 + srcb
-        local sh = (not vis) and shapes[shape_key]
-        if sh then
+        -- the pair's recent layouts, most recently matched first (a compressed stream's
+        -- deltas cycle through a few subsets of the variables): a layout that does not fit
+        -- fails its anchored pattern within the first differing name, cheaply
+        local mru = (not vis) and shapes[shape_key]
+        local _, sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
+        if mru then
+            for k = 1, #mru do
+                sh = mru[k]
+                _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, sh.pat)
+                if c1 then
+                    if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
+                    break
+                end
+            end
+        end
+        if mru then
             fast_sh = sh
-            local _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, sh.pat)
             if c1 then
                 VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
                 local n = sh.n
@@ -804,7 +888,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
         -- the same for a plain positional frame: N, D fields, C
         local ps = p and (not vis) and pshapes[shape_key]
         if ps then
-            local _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, ps.pat)
+            _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, ps.pat)
             if c1 then
                 VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
                 local n = ps.n
@@ -932,7 +1016,9 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
             local parts = { "^%[:", pat_escape(LETTER[dstb] .. LETTER[srcb]), "|N", pat_escape(n_text) }
             local st, sn = {}, {}
             local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
-            local pieces, ilen = { head .. " " .. s_gsub(VN[1], CTRL, "?") .. "=" }, #head
+            local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
+            local first = " " .. s_gsub(VN[1], CTRL, "?") .. "="
+            local pieces, ilen = { head .. first }, #head
             local fixed = byte_sum(f, 2, cpos)
             for k = 1, nv do
                 st[k], sn[k] = VT[k], VN[k]
@@ -942,8 +1028,18 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                 fixed = fixed - str_sum(VV[k])
             end
             parts[#parts + 1] = "|C([^|%]]*)%]"
-            shapes[shape_key] = { pat = t_concat(parts), n = nv, T = st, N = sn, ord = n_ord,
-                info = pieces, info_len = ilen, fixed = fixed % 256, build = INFO_BUILD[nv] }
+            local mru = shapes[shape_key]
+            if not mru then mru = {}; shapes[shape_key] = mru end
+            local pat = t_concat(parts)
+            for k = #mru, 1, -1 do
+                if mru[k].pat == pat then table.remove(mru, k) end
+            end
+            if #mru >= MAX_SHAPES then mru[#mru] = nil end
+            local dpieces = { dhead .. first }
+            for k = 2, nv do dpieces[k] = pieces[k] end
+            table.insert(mru, 1, { pat = pat, n = nv, T = st, N = sn, ord = n_ord,
+                info = pieces, info_len = ilen, dinfo = dpieces, dinfo_len = ilen + #dhead - #head,
+                fixed = fixed % 256, build = INFO_BUILD[nv] })
         end
     end
 
@@ -1224,13 +1320,18 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     end
     frames_in_info = frames_in_info + 1
     local info_done = false
-    if fast_sh and frames_in_info == 1 and kind == "full" and not (rec and rec.late) then
-        -- same text as the pieces below, in one string.format
-        local total = fast_sh.info_len
+    if fast_sh and frames_in_info == 1 and (kind == "full" or kind == "delta") and not (rec and rec.late) then
+        -- same text as the pieces below, in one concatenation (speed trick, measured)
+        local full = kind == "full"
+        local total = full and fast_sh.info_len or fast_sh.dinfo_len
         for k = 1, nv do total = total + #VV[k] end
+        local tail = (miss_n > 0) and (" (+" .. miss_n .. " carried)") or nil
+        if tail then total = total + #tail end
         if total <= INFO_MAX then
             ninfo, info_len = 1, total
-            INFO[1] = fast_sh.build(fast_sh.info, VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8])
+            INFO[1] = fast_sh.build(full and fast_sh.info or fast_sh.dinfo, VV[1], VV[2], VV[3], VV[4], VV[5], VV[6],
+                VV[7], VV[8])
+            if tail then INFO[1] = INFO[1] .. tail end
             info_done = true
         end
     end
@@ -1565,10 +1666,9 @@ local function add_noise(s, i, j, tvb, tree)
 end
 
 local function dissect(tvb, pinfo, tree)
-    local n = tvb:len()
+    local s = tvb:raw()
+    local n = #s
     if n <= 0 then return 0 end
-    local s = tvb:raw(0, n)
-    local can_deseg = pinfo.can_desegment > 0
     local sk_base = n * 1048576
     local cols = pinfo.cols
 
@@ -1581,8 +1681,11 @@ local function dissect(tvb, pinfo, tree)
     -- -T fields / -Y on 4.6, but its tostring() tells "has subtree=false" only when there
     -- is no tree (4.0 to 4.6).  Should that text ever change, we build the tree: slower,
     -- never wrong.
+    -- Speed trick (measured, 1.5 us a packet): on 4.0 and 4.4 a tree's root item is hidden
+    -- (wslua's fake item) and "no tree" is not, so hidden == false says "no tree" with one
+    -- attribute read; 4.6 says hidden in both cases and the text decides.
     local t = tree
-    if t ~= nil and s_find(tostring(t), "has subtree=false", 1, true) then t = nil end
+    if t ~= nil and (t.hidden == false or s_find(tostring(t), "has subtree=false", 1, true)) then t = nil end
     local pos = 1
     local open_at, close_at = 0, 0 -- cached search results (false = none left)
     local r
@@ -1590,7 +1693,7 @@ local function dissect(tvb, pinfo, tree)
         if open_at ~= false and open_at < pos then open_at = s_find(s, "[:", pos, true) or false end
         local a = open_at
         if not a then
-            if can_deseg and s_byte(s, n) == B_LBRACK then
+            if s_byte(s, n) == B_LBRACK and pinfo.can_desegment > 0 then
                 -- a frame may start with this '[' in the next segment
                 if n > pos then add_noise(s, pos, n - 1, tvb, t) end
                 pinfo.desegment_offset = n - 1
@@ -1627,7 +1730,7 @@ local function dissect(tvb, pinfo, tree)
             r = dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, tvb, pinfo, t, sk, s)
             pos = na
         else
-            if can_deseg and (n - a) < MAX_PENDING then
+            if (n - a) < MAX_PENDING and pinfo.can_desegment > 0 then
                 pinfo.desegment_offset = a - 1
                 pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
                 break

@@ -156,6 +156,10 @@ FILTERS = [
     "sharedlink.var.double > 50 && sharedlink.var.index == 2", "sharedlink.var.carried_from == 1",
     'sharedlink.kind == "delta" && sharedlink.checksum.status == 0', "sharedlink.sync.is_late",
     'sharedlink.var.name == "AutoGpsVel" && sharedlink.src.node == 2', "sharedlink.var.badvalue || sharedlink.crlf.missing",
+    # per-variable fields are probed once a frame in the hidden tree (referenced or not): every
+    # variable's item must be there when a filter counts or picks a later one
+    "count(sharedlink.var.name) == 4", 'count(sharedlink.var) == 4 && sharedlink.kind == "delta"',
+    "sharedlink.var.carried && sharedlink.var.index == 3", "count(sharedlink.var.double) == 2",
 ]
 
 
