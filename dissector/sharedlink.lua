@@ -784,36 +784,41 @@ end
 
 
 ------------------------------------------------------------------------------
--- One frame
+-- One frame, in phases: parse (fast paths, else every field), learn the layout for the
+-- fast paths, checksum verdict, kind, state (first pass: compute and store; later passes:
+-- read the record), Info column, tree (compact when nobody sees it, else full).
 ------------------------------------------------------------------------------
--- f: a string holding the frame at f[1..fl] ('[' .. ']' when terminated, else up to
--- where it stops; bytes after fl may follow when terminated); a: index of f[1] in the
--- payload s; e: index in s of the last byte including the line end.
-local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
-    local o = a - 2            -- tvb offset of f[i] is o + i
-    local visited = pinfo.visited
-    local num = pinfo.number
+-- What parsing found in the current frame, beside the field and variable arrays above
+-- (pr_*: module-level locals, reset by parse_reset; speed trick, measured: fields of a table
+-- cost 3 us a frame more).  n_ord/l_ord: the N/L ordinals (n_text: N's text);
+-- has_e..has_r: an E, M, P, G or R field; nq/nd: Q and D fields; n_pos: positional D fields,
+-- n_empty_d: empty ones; cpos/ctext: the checksum field's start and text; cmd_start: the
+-- first E/M field; ord_text: N? or L? (a list request); fast_sh: the named layout matched,
+-- fast_hit: a fast path parsed the frame, fast_sum: the checksum it computed.
+local pr_n_ord, pr_l_ord, pr_n_text, pr_ord_text
+local pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r
+local pr_nq, pr_nd, pr_n_empty_d, pr_n_pos
+local pr_cpos, pr_ctext, pr_cmd_start
+local pr_fast_sh, pr_fast_hit, pr_fast_sum
 
-    -- protocol item first: tells whether there is a real tree
-    local ti = nil
-    if tree then
-        ti = tree:add(sl, tvb(a - 1, e - a + 1))
-    end
-    local rec_fields = ti ~= nil
-    -- a tree that is shown (-V, -T fields/json, the GUI's details) gets every range and
-    -- label; one nobody sees (-Y, coloring rules, taps) takes the fast paths too
-    local vis = rec_fields and ti.visible
+local function parse_reset()
+    nf, nv = 0, 0
+    pr_n_ord, pr_l_ord, pr_n_text = nil, nil, nil
+    pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r = false, false, false, false, false
+    pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = 0, 0, 0, 0
+    pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = nil, nil, nil, false
+    pr_fast_sh, pr_fast_hit, pr_fast_sum = nil, false, nil
+end
 
+-- The header: last index of the content, the address bytes (nil when cut short), the index of
+-- the first field (nil: none), and why the frame is malformed (nil: it is not).
+local function parse_header(f, fl, terminated)
     local malformed_msg = nil
     if not terminated then malformed_msg = "Unterminated frame (no closing ])" end
-    local bodyend = terminated and fl - 1 or fl     -- last index of the content
+    local bodyend = terminated and fl - 1 or fl
     local dstb, srcb = s_byte(f, 3), s_byte(f, 4)
     if bodyend < 3 then dstb = nil end
     if bodyend < 4 then srcb = nil end
-    local dnode = dstb and dstb >= B_A and dstb <= B_P
-    local snode = srcb and srcb >= B_A and srcb <= B_P
-    local dst, src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
-
     local p
     if bodyend < 5 then
         p = nil
@@ -825,11 +830,71 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
         p = q and q + 1 or nil
         if not malformed_msg then malformed_msg = "Expected | after the addresses" end
     end
+    return bodyend, dstb, srcb, p, malformed_msg
+end
 
-    -- Parse + semantic walk in one pass
-    nf, nv = 0, 0
-    local n_ord, l_ord = nil, nil
-    local n_text = nil
+-- Fast path (a tree nobody sees or none): a frame with the layout of one of the node pair's
+-- recent plain named frames is matched by one anchored pattern.  mru: the pair's layouts,
+-- most recently matched first (a compressed stream's deltas cycle through a few subsets of
+-- the variables): a layout that does not fit fails within the first differing name, cheaply.
+-- Returns true when it parsed the frame.
+local function parse_fast_named(f, mru)
+    local _, sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
+    for k = 1, #mru do
+        sh = mru[k]
+        _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, sh.pat)
+        if c1 then
+            if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
+            break
+        end
+    end
+    if not c1 then return false end
+    VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
+    local n = sh.n
+    local st, sn = sh.T, sh.N
+    pr_ctext = VV[n + 1]
+    -- speed trick (measured): the layout's fixed sum plus the values' sums
+    local sum = sh.fixed
+    for k = 1, n do sum = sum + str_sum(VV[k]) end
+    pr_fast_sum = sum % 256
+    local idx = sh.ord
+    pr_n_ord = idx
+    for k = 1, n do
+        VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], idx, false
+        idx = idx + 1
+    end
+    nv, pr_nq, pr_nd = n, n, n
+    pr_fast_sh, pr_fast_hit = sh, true
+    return true
+end
+
+-- The same for the pair's last plain positional frame (N, D fields, C).
+local function parse_fast_positional(f, ps)
+    local _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, ps.pat)
+    if not c1 then return false end
+    VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
+    local n = ps.n
+    pr_ctext = VV[n + 1]
+    local sum = ps.fixed
+    for k = 1, n do sum = sum + str_sum(VV[k]) end
+    pr_fast_sum = sum % 256
+    local idx = ps.ord
+    pr_n_ord = idx
+    local n_empty_d = 0
+    for k = 1, n do
+        VT[k], VN[k], VI[k], VR[k] = false, false, idx, false
+        idx = idx + 1
+        if VV[k] == "" then n_empty_d = n_empty_d + 1 end
+    end
+    nv, pr_nd, pr_n_pos, pr_n_empty_d = n, n, n, n_empty_d
+    pr_fast_hit = true
+    return true
+end
+
+-- The plain path: every field from p on, in one pass (fields recorded with their positions
+-- when a tree is built), variables gathered as T/Q/R/D come; results in P.
+local function parse_general(f, p, bodyend, rec_fields)
+    local n_ord, l_ord, n_text = nil, nil, nil
     local has_e, has_m, has_p, has_g, has_r = false, false, false, false, false
     local nq, nd, n_empty_d, n_pos = 0, 0, 0, 0
     local pend_t, pend_q, pend_r = false, false, false   -- pending T text, Q/R name
@@ -838,78 +903,6 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     local cpos, ctext = nil, nil  -- checksum field start and text
     local cmd_start = nil         -- first E/M field
     local ord_text = false        -- N or L with a non-numeric ordinal (N?, L?: a list request)
-
-    -- Fast path (no tree only): a frame with the same layout as the last plain named
-    -- frame between these two nodes is matched by one anchored pattern.
-    local shape_key = nil
-    local fast_sh = nil
-    local fast_hit = false
-    local fast_sum = nil      -- checksum computed by a fast path
-    if p == 6 and dnode and snode and not malformed_msg then
-        shape_key = dstb * 256 + srcb
-        -- the pair's recent layouts, most recently matched first (a compressed stream's
-        -- deltas cycle through a few subsets of the variables): a layout that does not fit
-        -- fails its anchored pattern within the first differing name, cheaply
-        local mru = (not vis) and shapes[shape_key]
-        local _, sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
-        if mru then
-            for k = 1, #mru do
-                sh = mru[k]
-                _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, sh.pat)
-                if c1 then
-                    if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
-                    break
-                end
-            end
-        end
-        if mru then
-            fast_sh = sh
-            if c1 then
-                VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
-                local n = sh.n
-                local st, sn = sh.T, sh.N
-                ctext = VV[n + 1]
-                local sum = sh.fixed
-                for k = 1, n do sum = sum + str_sum(VV[k]) end
-                fast_sum = sum % 256
-                idx = sh.ord
-                n_ord = idx
-                for k = 1, n do
-                    VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], idx, false
-                    idx = idx + 1
-                end
-                nv, nq, nd = n, n, n
-                p = nil   -- parsed
-                fast_hit = true
-            else
-                fast_sh = nil
-            end
-        end
-        -- the same for a plain positional frame: N, D fields, C
-        local ps = p and (not vis) and pshapes[shape_key]
-        if ps then
-            _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, ps.pat)
-            if c1 then
-                VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
-                local n = ps.n
-                ctext = VV[n + 1]
-                local sum = ps.fixed
-                for k = 1, n do sum = sum + str_sum(VV[k]) end
-                fast_sum = sum % 256
-                idx = ps.ord
-                n_ord = idx
-                for k = 1, n do
-                    VT[k], VN[k], VI[k], VR[k] = false, false, idx, false
-                    idx = idx + 1
-                    if VV[k] == "" then n_empty_d = n_empty_d + 1 end
-                end
-                nv, nd, n_pos = n, n, n
-                p = nil
-                fast_hit = true
-            end
-        end
-    end
-
     while p and p <= bodyend + 1 do
         local c = s_byte(f, p)
         local _, fe, t1, t2, t3
@@ -1004,8 +997,15 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
         VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
         VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
     end
+    pr_n_ord, pr_l_ord, pr_n_text = n_ord, l_ord, n_text
+    pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r = has_e, has_m, has_p, has_g, has_r
+    pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = nq, nd, n_empty_d, n_pos
+    pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = cpos, ctext, cmd_start, ord_text
+end
 
-    -- remember the layout of a plain named frame: N, T/Q/D triplets, C
+-- Remember the layout of a plain named frame (N, T/Q/D triplets, C) for parse_fast_named.
+local function learn_named_shape(f, shape_key, dstb, srcb)
+    local n_text, cpos, n_pos, ord_text, n_ord = pr_n_text, pr_cpos, pr_n_pos, pr_ord_text, pr_n_ord
     if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == 3 * nv + 2 and n_pos == 0
         and s_byte(f, 6) == L_N and not ord_text then
         local ok = true
@@ -1042,8 +1042,12 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
                 fixed = fixed % 256, build = INFO_BUILD[nv] })
         end
     end
+end
 
-    -- remember the layout of a plain positional frame: N, D fields, C
+-- Remember the layout of a plain positional frame (N, D fields, C) for parse_fast_positional.
+local function learn_positional_shape(f, shape_key, dstb, srcb)
+    local n_text, cpos, n_pos, nq, has_r = pr_n_text, pr_cpos, pr_n_pos, pr_nq, pr_has_r
+    local ord_text, n_ord = pr_ord_text, pr_n_ord
     if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == nv + 2 and n_pos == nv and nq == 0
         and not has_r and s_byte(f, 6) == L_N and not ord_text then
         local ok = true
@@ -1061,260 +1065,317 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
             end
         end
     end
+end
 
-    -- Checksum verdict, before the state: a frame with a bad checksum changes no state.
-    if fast_hit then
-        -- the fast patterns end in |C<ctext>] (captured)
-        cpos = bodyend - #ctext
-    end
-    local cs_val, cs_calc, cs_status = nil, nil, nil  -- status 1 good, 0 bad, 2 unverified; nil: no C field
-    if cpos then
-        cs_val = checksum_value(ctext)
-        if pref_validate then
-            cs_calc = fast_sum or byte_sum(f, 2, cpos) % 256
-            cs_status = (cs_val == cs_calc) and 1 or 0
-        else
-            cs_status = 2
+-- Parse a frame: header, then a fast path when one fits, else every field.  Returns the last
+-- index of the content, the address bytes and why it is malformed (nil: it is not).
+local function parse_frame(f, fl, terminated, vis, rec_fields)
+    parse_reset()
+    local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)
+    local shape_key = nil
+    if p == 6 and not malformed_msg and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P then
+        shape_key = dstb * 256 + srcb
+        if not vis then
+            local mru = shapes[shape_key]
+            if mru and parse_fast_named(f, mru) then return bodyend, dstb, srcb, malformed_msg end
+            local ps = pshapes[shape_key]
+            if ps and parse_fast_positional(f, ps) then return bodyend, dstb, srcb, malformed_msg end
         end
     end
-    local good = cs_status ~= 0
+    if p then parse_general(f, p, bodyend, rec_fields) end
+    if shape_key then
+        learn_named_shape(f, shape_key, dstb, srcb)
+        learn_positional_shape(f, shape_key, dstb, srcb)
+    end
+    return bodyend, dstb, srcb, malformed_msg
+end
 
-    local kind
-    local is_data = false
-    if malformed_msg then kind = "malformed"
-    elseif has_e or has_m then kind = "command"
-    elseif has_p then kind = "ping"
-    elseif has_g then kind = "pong"
-    elseif has_r then kind = "reply"
-    elseif nd == 0 and nq > 0 and (l_ord or n_ord) and not ord_text then kind = "declaration"
-    elseif nd == 0 and (nq > 0 or ord_text) then kind = "query"
-    elseif nd > 0 or n_ord then is_data = true
-    else kind = "other" end
+-- Checksum verdict, before the state (a frame with a bad checksum changes no state): the
+-- value of the checksum text (nil: not hex), the calculated value, the status (1 good, 0 bad,
+-- 2 unverified; nil: no C field).
+local function checksum_verdict(f, bodyend)
+    local ctext = pr_ctext
+    if pr_fast_hit then pr_cpos = bodyend - #ctext end   -- the fast patterns end in |C<ctext>]
+    local cpos = pr_cpos
+    if not cpos then return nil, nil, nil end
+    local cs_val = checksum_value(ctext)
+    if not pref_validate then return cs_val, nil, 2 end
+    local cs_calc = pr_fast_sum or byte_sum(f, 2, cpos) % 256
+    return cs_val, cs_calc, (cs_val == cs_calc) and 1 or 0
+end
 
-    local letters = src .. dst
-    local rec = nil
-    local list = pref_list
-    local miss_n = 0   -- named variables carried (not in the frame)
-    local ne = 0       -- 2 x number of empty D fields with carried values
-    local nm = 0       -- 3 x number of named variables missing from the frame
-    local addrs_ok = dnode and snode
-    local d = nil      -- direction state (data frames)
-    -- without state: a data frame with N0 (or none), no empty positional D and no named
-    -- variable left out is full; the state-based verdict is stored when it differs
-    local full_local = nd > 0 and (n_ord == nil or n_ord == 0) and n_empty_d == 0
+-- The kind the fields alone tell; a data frame (full or delta, told by the state) gives nil, true.
+local function kind_of_fields(malformed_msg)
+    if malformed_msg then return "malformed", false end
+    if pr_has_e or pr_has_m then return "command", false end
+    if pr_has_p then return "ping", false end
+    if pr_has_g then return "pong", false end
+    if pr_has_r then return "reply", false end
+    local nd, nq, ord_text = pr_nd, pr_nq, pr_ord_text
+    if nd == 0 and nq > 0 and (pr_l_ord or pr_n_ord) and not ord_text then return "declaration", false end
+    if nd == 0 and (nq > 0 or ord_text) then return "query", false end
+    if nd > 0 or pr_n_ord then return nil, true end
+    return "other", false
+end
 
-    -- State: the first pass computes and stores, later passes read the record
-    if not visited then
-        if (is_data or kind == "malformed") and addrs_ok then
-            d = get_dir(pinfo, num, dstb, srcb)
-            list = d.list or pair_lists[letters] or pref_list
-            -- remember when the list in use changes (read back on later passes)
-            if list ~= (d.used_list or pref_list) then
-                local h = d.uhist
-                if not h then h = {}; d.uhist = h end
-                h[#h + 1] = num
-                h[#h + 1] = sk
-                h[#h + 1] = list
-                d.used_list = list
-            end
-            local full = false
-            if is_data and good and fast_sh and d.names_is == fast_sh.N then
-                -- same layout as the known variable set: nothing can be missing
-                local vals, from = d.vals, d.from
-                for v = 1, nv do
-                    local name = VN[v]
-                    vals[name] = VV[v]
-                    from[name] = num
-                end
-                full = full_local
-            elseif is_data then
-                local vals, from, seen = d.vals, d.from, d.seen
-                local names = d.names
-                stamp_ctr = stamp_ctr + 1
-                local stamp = stamp_ctr
-                local required_missing = false   -- a slot that held a value is empty here
-                local maxslot = -1
-                ne = 0
-                for v = 1, nv do
-                    local val = VV[v]
-                    if val then
-                        local name = VN[v]
-                        if name then
-                            if good then
-                                vals[name] = val
-                                from[name] = num
-                                if not seen[name] then
-                                    names[#names + 1] = name
-                                    d.npos[name] = #names - 1
-                                    d.nfirst[name] = num
-                                    d.names_is = nil
-                                end
-                                seen[name] = stamp
-                            elseif seen[name] then
-                                seen[name] = stamp
-                            end
-                        else
-                            local slot = VI[v]
-                            name = list[slot + 1] or ("#" .. slot)
-                            if slot > maxslot then maxslot = slot end
-                            if val == "" then
-                                local cv = vals[name]
-                                if cv then required_missing = true end
-                                CARRY[ne + 1] = cv or false
-                                CARRY[ne + 2] = from[name] or false
-                                ne = ne + 2
-                            elseif good then
-                                vals[name] = val
-                                from[name] = num
-                                if slot > d.maxslot then d.maxslot = slot end
-                            end
-                        end
-                    end
-                end
-                -- positional: required slots past the frame's last D
-                if n_pos > 0 then
-                    for slot = maxslot + 1, d.maxslot do
-                        if vals[list[slot + 1] or ("#" .. slot)] then required_missing = true; break end
-                    end
-                end
-                -- named: known variables missing from this frame
-                if n_pos == 0 and #names > 0 then
-                    for k = 1, #names do
-                        local name = names[k]
-                        if seen[name] ~= stamp then
-                            MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
-                            nm = nm + 3
-                            miss_n = miss_n + 1
-                        end
-                    end
-                end
-                if fast_sh and good and miss_n == 0 and #names == fast_sh.n then d.names_is = fast_sh.N end
-                full = nd > 0 and (n_ord == nil or n_ord == 0) and not required_missing and miss_n == 0
-                if n_pos == 0 then full_local = full_local and miss_n == 0 end
-            end
-            if is_data then
-                local now = pinfo.rel_ts
-                local first = d.first
-                if not first then first = now; d.first = now end
-                if full then
-                    if good then d.lastfull = now end
-                else
-                    local age = now - (d.lastfull or first)
-                    if age > pref_sync then
-                        rec = rec or get_rec(num, sk, true)
-                        rec.late = age
-                    end
-                end
-                local kch = full and "f" or "d"
-                -- carried values of empty D fields: a packed text record unless the
-                -- frame has a table record anyway
-                if ne > 0 or nm > 0 then
-                    if rec or not carried_store(num, sk, ne, nm, kch) then
-                        rec = rec or get_rec(num, sk, true)
-                        for k = 1, ne do rec[k] = CARRY[k] end
-                        if nm > 0 then
-                            local miss = {}
-                            for k = 1, nm do miss[k] = MISS[k] end
-                            rec.miss = miss
-                        end
-                    end
-                elseif full ~= full_local then
-                    rec = rec or get_rec(num, sk, true)
-                end
-                if rec then rec.kind = kch end
-                kind = full and "full" or "delta"
-            end
-        elseif kind == "declaration" and addrs_ok and good then
-            local dd, rl
-            if l_ord then
-                -- the sender's inbound list = the list used from dst to src
-                dd = get_rev_dir(pinfo, dstb, srcb)
-                rl = dst .. src
-            else
-                dd = get_dir(pinfo, num, dstb, srcb)
-                rl = letters
-            end
-            local base_list = dd.list or pair_lists[rl] or pref_list
-            local newlist = {}
-            local types = {}
-            newlist.t = types
-            local start = l_ord or n_ord or 0
-            for k = 1, math.min(start, #base_list) do
-                newlist[k] = base_list[k]
-                types[k] = base_list.t and base_list.t[k]
-            end
-            local maxi = #newlist
-            for v = 1, nv do
-                if VN[v] then
-                    newlist[VI[v] + 1] = VN[v]
-                    types[VI[v] + 1] = VT[v] and valid_type(VT[v]) or nil
-                    if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
-                end
-            end
-            for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
-            dd.list = newlist
-            pair_lists[rl] = newlist
+-- State, first pass, a data frame: its values go into the direction's state (good checksum),
+-- what it leaves out is gathered in CARRY (empty D fields: value, frame, ...; ne entries) and
+-- MISS (named variables: name, value, frame, ...; nm entries).  Returns whether it is full,
+-- ne, nm, the number of named variables carried, and full_local (the verdict without state).
+local function data_values(d, list, num, good, full_local)
+    local fast_sh, n_pos, nd, n_ord = pr_fast_sh, pr_n_pos, pr_nd, pr_n_ord
+    local ne, nm, miss_n = 0, 0, 0
+    local full
+    if good and fast_sh and d.names_is == fast_sh.N then
+        -- same layout as the known variable set: nothing can be missing
+        local vals, from = d.vals, d.from
+        for v = 1, nv do
+            local name = VN[v]
+            vals[name] = VV[v]
+            from[name] = num
         end
-        if (kind == "query" or kind == "reply" or kind == "declaration") and addrs_ok and good then
-            local pa, pb = pinfo.src_port, pinfo.dst_port
-            if pa > pb then pa, pb = pb, pa end
-            local ports = ":" .. pa .. "-" .. pb
-            for v = 1, nv do
+        full = full_local
+    else
+        local vals, from, seen = d.vals, d.from, d.seen
+        local names = d.names
+        stamp_ctr = stamp_ctr + 1
+        local stamp = stamp_ctr
+        local required_missing = false   -- a slot that held a value is empty here
+        local maxslot = -1
+        ne = 0
+        for v = 1, nv do
+            local val = VV[v]
+            if val then
                 local name = VN[v]
                 if name then
-                    if VR[v] then
-                        rec = rec or get_rec(num, sk, true)
-                        local qkey = dst .. ">" .. src .. ":" .. name .. ports
-                        local qrec = pending_q[qkey]
-                        if qrec then
-                            pending_q[qkey] = nil
-                            qrec.resp_in = qrec.resp_in or {}
-                            qrec.resp_in[name] = num
-                            rec.resp_to = rec.resp_to or {}
-                            rec.resp_to[name] = qrec.num
-                            rec.rt = rec.rt or {}
-                            rec.rt[name] = pinfo.rel_ts - qrec.t
-                        else
-                            rec.unmatched = rec.unmatched or {}
-                            rec.unmatched[name] = true
+                    if good then
+                        vals[name] = val
+                        from[name] = num
+                        if not seen[name] then
+                            names[#names + 1] = name
+                            d.npos[name] = #names - 1
+                            d.nfirst[name] = num
+                            d.names_is = nil
                         end
-                    elseif kind ~= "reply" then
-                        rec = rec or get_rec(num, sk, true)
-                        rec.num = num
-                        rec.t = pinfo.rel_ts
-                        pending_q[src .. ">" .. dst .. ":" .. name .. ports] = rec
+                        seen[name] = stamp
+                    elseif seen[name] then
+                        seen[name] = stamp
+                    end
+                else
+                    local slot = VI[v]
+                    name = list[slot + 1] or ("#" .. slot)
+                    if slot > maxslot then maxslot = slot end
+                    if val == "" then
+                        local cv = vals[name]
+                        if cv then required_missing = true end
+                        CARRY[ne + 1] = cv or false
+                        CARRY[ne + 2] = from[name] or false
+                        ne = ne + 2
+                    elseif good then
+                        vals[name] = val
+                        from[name] = num
+                        if slot > d.maxslot then d.maxslot = slot end
                     end
                 end
             end
         end
+        -- positional: required slots past the frame's last D
+        if n_pos > 0 then
+            for slot = maxslot + 1, d.maxslot do
+                if vals[list[slot + 1] or ("#" .. slot)] then required_missing = true; break end
+            end
+        end
+        -- named: known variables missing from this frame
+        if n_pos == 0 and #names > 0 then
+            for k = 1, #names do
+                local name = names[k]
+                if seen[name] ~= stamp then
+                    MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
+                    nm = nm + 3
+                    miss_n = miss_n + 1
+                end
+            end
+        end
+        if fast_sh and good and miss_n == 0 and #names == fast_sh.n then d.names_is = fast_sh.N end
+        full = nd > 0 and (n_ord == nil or n_ord == 0) and not required_missing and miss_n == 0
+        if n_pos == 0 then full_local = full_local and miss_n == 0 end
+    end
+    return full, ne, nm, miss_n, full_local
+end
+
+-- State, first pass, a data frame: the sync clock, and the record later passes read (late
+-- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
+local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
+    local rec = nil
+    local kind
+    local now = pinfo.rel_ts
+    local first = d.first
+    if not first then first = now; d.first = now end
+    if full then
+        if good then d.lastfull = now end
     else
-        rec = get_rec(num, sk, false)
-        if rec and rec.miss then miss_n = floor(#rec.miss / 3) end
-        if (is_data or kind == "malformed") and addrs_ok then
-            -- the list in use at this frame on the first pass
-            d = get_dir(pinfo, num, dstb, srcb)
-            local h = d.uhist
-            if h then
-                for k = #h - 2, 1, -3 do
-                    local hn = h[k]
-                    if hn < num or (hn == num and h[k + 1] <= sk) then
-                        list = h[k + 2]
-                        break
-                    end
-                end
+        local age = now - (d.lastfull or first)
+        if age > pref_sync then
+            rec = rec or get_rec(num, sk, true)
+            rec.late = age
+        end
+    end
+    local kch = full and "f" or "d"
+    -- carried values of empty D fields: a packed text record unless the
+    -- frame has a table record anyway
+    if ne > 0 or nm > 0 then
+        if rec or not carried_store(num, sk, ne, nm, kch) then
+            rec = rec or get_rec(num, sk, true)
+            for k = 1, ne do rec[k] = CARRY[k] end
+            if nm > 0 then
+                local miss = {}
+                for k = 1, nm do miss[k] = MISS[k] end
+                rec.miss = miss
             end
         end
-        if is_data then
-            if rec and rec.kind then
-                kind = rec.kind == "f" and "full" or "delta"
-            else
-                kind = (full_local and miss_n == 0) and "full" or "delta"
+    elseif full ~= full_local then
+        rec = rec or get_rec(num, sk, true)
+    end
+    if rec then rec.kind = kch end
+    kind = full and "full" or "delta"
+    return rec, kind
+end
+
+-- State, first pass, a declaration with a good checksum: the list it declares.
+local function learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
+    local l_ord, n_ord = pr_l_ord, pr_n_ord
+    local dd, rl
+    if l_ord then
+        -- the sender's inbound list = the list used from dst to src
+        dd = get_rev_dir(pinfo, dstb, srcb)
+        rl = dst .. src
+    else
+        dd = get_dir(pinfo, num, dstb, srcb)
+        rl = letters
+    end
+    local base_list = dd.list or pair_lists[rl] or pref_list
+    local newlist = {}
+    local types = {}
+    newlist.t = types
+    local start = l_ord or n_ord or 0
+    for k = 1, math.min(start, #base_list) do
+        newlist[k] = base_list[k]
+        types[k] = base_list.t and base_list.t[k]
+    end
+    local maxi = #newlist
+    for v = 1, nv do
+        if VN[v] then
+            newlist[VI[v] + 1] = VN[v]
+            types[VI[v] + 1] = VT[v] and valid_type(VT[v]) or nil
+            if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
+        end
+    end
+    for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
+    dd.list = newlist
+    pair_lists[rl] = newlist
+end
+
+-- State, first pass: a query or declaration waits for its reply; a reply finds its query.
+local function link_query_reply(pinfo, num, sk, kind, dst, src, rec)
+    local pa, pb = pinfo.src_port, pinfo.dst_port
+    if pa > pb then pa, pb = pb, pa end
+    local ports = ":" .. pa .. "-" .. pb
+    for v = 1, nv do
+        local name = VN[v]
+        if name then
+            if VR[v] then
+                rec = rec or get_rec(num, sk, true)
+                local qkey = dst .. ">" .. src .. ":" .. name .. ports
+                local qrec = pending_q[qkey]
+                if qrec then
+                    pending_q[qkey] = nil
+                    qrec.resp_in = qrec.resp_in or {}
+                    qrec.resp_in[name] = num
+                    rec.resp_to = rec.resp_to or {}
+                    rec.resp_to[name] = qrec.num
+                    rec.rt = rec.rt or {}
+                    rec.rt[name] = pinfo.rel_ts - qrec.t
+                else
+                    rec.unmatched = rec.unmatched or {}
+                    rec.unmatched[name] = true
+                end
+            elseif kind ~= "reply" then
+                rec = rec or get_rec(num, sk, true)
+                rec.num = num
+                rec.t = pinfo.rel_ts
+                pending_q[src .. ">" .. dst .. ":" .. name .. ports] = rec
             end
         end
     end
-    if is_data and not addrs_ok then kind = full_local and "full" or "delta" end
+    return rec
+end
 
-    -- Info column
+-- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
+-- direction state (data frames), the named variables carried, and ne/nm (see data_values).
+local function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, full_local)
+    local rec, list, d = nil, pref_list, nil
+    local miss_n, ne, nm = 0, 0, 0
+    local letters = src .. dst
+    local addrs_ok = dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P
+    if (is_data or kind == "malformed") and addrs_ok then
+        d = get_dir(pinfo, num, dstb, srcb)
+        list = d.list or pair_lists[letters] or pref_list
+        -- remember when the list in use changes (read back on later passes)
+        if list ~= (d.used_list or pref_list) then
+            local h = d.uhist
+            if not h then h = {}; d.uhist = h end
+            h[#h + 1] = num
+            h[#h + 1] = sk
+            h[#h + 1] = list
+            d.used_list = list
+        end
+        if is_data then
+            local full
+            full, ne, nm, miss_n, full_local = data_values(d, list, num, good, full_local)
+            rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
+        end
+    elseif kind == "declaration" and addrs_ok and good then
+        learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
+    end
+    if (kind == "query" or kind == "reply" or kind == "declaration") and addrs_ok and good then
+        rec = link_query_reply(pinfo, num, sk, kind, dst, src, rec)
+    end
+    return kind, rec, list, d, miss_n, ne, nm
+end
+
+-- State on a later pass: the record, and the list in use at this frame on the first pass.
+local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, full_local)
+    local rec = get_rec(num, sk, false)
+    local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
+    local list, d = pref_list, nil
+    local addrs_ok = dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P
+    if (is_data or kind == "malformed") and addrs_ok then
+        d = get_dir(pinfo, num, dstb, srcb)
+        local h = d.uhist
+        if h then
+            for k = #h - 2, 1, -3 do
+                local hn = h[k]
+                if hn < num or (hn == num and h[k + 1] <= sk) then
+                    list = h[k + 2]
+                    break
+                end
+            end
+        end
+    end
+    if is_data then
+        if rec and rec.kind then
+            kind = rec.kind == "f" and "full" or "delta"
+        else
+            kind = (full_local and miss_n == 0) and "full" or "delta"
+        end
+    end
+    return kind, rec, list, d, miss_n
+end
+
+-- Info column: this frame's piece.
+local function info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
+    local fast_sh, n_empty_d, l_ord, n_ord = pr_fast_sh, pr_n_empty_d, pr_l_ord, pr_n_ord
+    local cmd_start, cpos = pr_cmd_start, pr_cpos
     if frames_in_info > 0 then
         if info_full then frames_dropped = frames_dropped + 1 else info_add(" ; ") end
     end
@@ -1365,34 +1426,46 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
         end
         if rec and rec.late then info_add(" [sync late]") end
     end
+end
 
-    -- Tree (skipped entirely when there is none, e.g. tshark summary pass)
-    if not ti then return ti ~= nil or tree == nil end
-    if fast_hit and not vis then
-        local carry = rec or (ne > 0 and CARRY)
-        local miss = rec and rec.miss
-        local nmiss = miss and #miss or 0
-        if not miss and nm > 0 then miss, nmiss = MISS, nm end
-        tree_compact(ti, dstb, srcb, kind, n_ord, nv, list, d, num, carry, miss, nmiss)
-        if rec and rec.late then
-            ti:add(hf.sync_is_late, true)
-            ti:add_proto_expert_info(ei.sync_late)
-        end
-        if cs_val then ti:add(hf.checksum, cs_val) else ti:add(hf.checksum_text, ctext) end
-        if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then ti:add_proto_expert_info(ei.checksum_format) end
-        if pref_validate then
-            ti:add(hf.checksum_calc, cs_calc)
-            ti:add(hf.checksum_status, cs_status)
-            if cs_status == 0 then ti:add_proto_expert_info(ei.checksum_bad) end
-        else
-            ti:add(hf.checksum_status, 2)
-        end
-        local b = a + fl - 1
-        if not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
-            ti:add_proto_expert_info(ei.crlf_missing)
-        end
-        return true
+-- The compact tree of a fast-path frame nobody sees: its fields (tree_compact), the sync and
+-- checksum fields and experts, without ranges or labels.
+local function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, rec, ne, nm,
+                                  cs_val, cs_calc, cs_status)
+    local ctext = pr_ctext
+    local carry = rec or (ne > 0 and CARRY)
+    local miss = rec and rec.miss
+    local nmiss = miss and #miss or 0
+    if not miss and nm > 0 then miss, nmiss = MISS, nm end
+    tree_compact(ti, dstb, srcb, kind, pr_n_ord, nv, list, d, num, carry, miss, nmiss)
+    if rec and rec.late then
+        ti:add(hf.sync_is_late, true)
+        ti:add_proto_expert_info(ei.sync_late)
     end
+    if cs_val then ti:add(hf.checksum, cs_val) else ti:add(hf.checksum_text, ctext) end
+    if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then ti:add_proto_expert_info(ei.checksum_format) end
+    if pref_validate then
+        ti:add(hf.checksum_calc, cs_calc)
+        ti:add(hf.checksum_status, cs_status)
+        if cs_status == 0 then ti:add_proto_expert_info(ei.checksum_bad) end
+    else
+        ti:add(hf.checksum_status, 2)
+    end
+    local b = a + fl - 1
+    if not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
+        ti:add_proto_expert_info(ei.crlf_missing)
+    end
+end
+
+-- The full tree (shown: every range and label).  TC holds what its parts share (reused).
+local TC = {}
+
+-- Its first lines: the protocol line's summary, addresses, kind, malformed.
+local function tree_head(tc)
+    local ti, tvb, o, src, dst, kind = tc.ti, tc.tvb, tc.o, tc.src, tc.dst, tc.kind
+    local dstb, srcb, malformed_msg, cs_status = tc.dstb, tc.srcb, tc.malformed_msg, tc.cs_status
+    local dnode = dstb and dstb >= B_A and dstb <= B_P
+    local snode = srcb and srcb >= B_A and srcb <= B_P
     local line = ", " .. src .. ARROW .. dst .. " " .. kind
     if malformed_msg then line = line .. ", malformed" end
     if cs_status == 0 then line = line .. ", bad checksum" end
@@ -1421,14 +1494,145 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     if malformed_msg then
         ti:add_proto_expert_info(ei.malformed, malformed_msg)
     end
+end
 
-    local ke = 0          -- carried values of empty D fields: rec[ke + 1], rec[ke + 2]
-    local resp_in = rec and rec.resp_in
-    local resp_to = rec and rec.resp_to
-    local rts = rec and rec.rt
-    local unmatched = rec and rec.unmatched
+-- A variable's subtree, at its first field fs.
+local function tree_variable(tc, v, fs)
+    local ti, tvb, o, list, d, num, rec, ne = tc.ti, tc.tvb, tc.o, tc.list, tc.d, tc.num, tc.rec, tc.ne
+    local resp_in, resp_to, rts, unmatched = tc.resp_in, tc.resp_to, tc.rts, tc.unmatched
+    local ke = tc.ke
+    local tf, qf, df = VTf[v], VQf[v], VDf[v]
+    local vend = df ~= 0 and df or (qf ~= 0 and qf or tf)
+    local name = VN[v]
+    local named = name and true or false
+    local index = VI[v]
+    local vtype = nil
+    if not named then
+        name = list[index + 1]
+        vtype = list.t and list.t[index + 1]
+    elseif d then
+        -- a named variable's index: its place among the conversation's names
+        local first = d.nfirst[name]
+        index = (first and first <= num) and d.npos[name] or nil
+    end
+    local vt = ti:add(hf.var, tvb(o + fs, FE[vend] - fs + 1))
+    local label = name or ("#" .. VI[v])
+    if tf ~= 0 then
+        vtype = valid_type(VT[v])
+        if vtype then
+            vt:add(hf.ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
+        else
+            vt:add(tvb(o + FS[tf], FE[tf] - FS[tf] + 1), "Type (T): " .. tostring(VT[v] or ""))
+                :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
+        end
+    end
+    -- the name is the subtree's label: its field is kept for filters, hidden
+    if named then
+        local qr = tvb(o + FS[qf] + 1, FE[qf] - FS[qf])
+        if VR[v] then vt:add(hf.response, qr, name) end
+        vt:add(hf.var_name, qr, name):set_hidden()
+    elseif name then
+        vt:add(hf.var_name, tvb(o + FS[df], 1), name):set_hidden()
+    else
+        vt:add_proto_expert_info(ei.var_unknown,
+            "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
+    end
+    if not VR[v] and index then vt:add(hf.var_index, index):set_generated() end
+    local val = VV[v]
+    if val then
+        if val ~= "" or named then
+            local vr = tvb(o + FS[df] + 1, FE[df] - FS[df])
+            vt:add(hf.var_value, vr, val)
+            if vtype then add_typed_value(vt, vr, vtype, val) end
+            vt:set_text(label .. " = " .. val)
+        else
+            local cv, cf = false, false
+            local csrc = rec or (ne > 0 and CARRY)
+            if csrc then cv, cf = csrc[ke + 1], csrc[ke + 2] end
+            ke = ke + 2
+            local r0 = tvb(o + FS[df], 1)
+            if cv then vt:add(hf.var_value, r0, cv):set_generated() end
+            vt:add(hf.var_carried, r0, true):set_generated()
+            if cf then
+                vt:add(hf.var_carried_from, r0, cf):set_generated()
+                vt:set_text(label .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
+            else
+                vt:set_text(label .. " = ? (carried, no earlier value)")
+            end
+        end
+        if VR[v] then
+            if resp_to and resp_to[name] then
+                vt:add(hf.response_to, resp_to[name]):set_generated()
+                vt:add(hf.response_time, nstime_of(rts[name])):set_generated()
+            elseif unmatched and unmatched[name] then
+                vt:add_proto_expert_info(ei.unanswered)
+            end
+        end
+    else
+        vt:set_text(label .. (VR[v] and " (reply without value)" or " (declared)"))
+        if resp_in and resp_in[name] then
+            vt:add(hf.response_in, resp_in[name]):set_generated()
+        end
+    end
+    tc.ke = ke
+end
 
-    -- fields in order; a variable is rendered at its first field
+-- A field that is not part of a variable (letter l, f[fs..fe]).
+local function tree_plain_field(tc, l, fs, fe)
+    local ti, tvb, o, f, resp_in = tc.ti, tc.tvb, tc.o, tc.f, tc.resp_in
+    local cmd_item = tc.cmd_item
+    local text = (l ~= false) and s_sub(f, fs + 1, fe) or ""
+    local vr = tvb(o + fs + 1, fe - fs)     -- the text after the letter
+    if l == false then
+        ti:add(zrange(tvb, o + fs), "Empty field"):add_proto_expert_info(ei.field_empty)
+    elseif l == L_N or l == L_L then
+        local n = tonumber(text)
+        if n and n >= 0 and n < 4294967296 and n == floor(n) then
+            ti:add(l == L_N and hf.ordinal or hf.inbound_ordinal, vr, floor(n))
+        else
+            ti:add(tvb(o + fs, fe - fs + 1), (l == L_N and "Ordinal (N): " or "Inbound ordinal (L): ") ..
+                text):add_proto_expert_info(ei.var_badvalue, "Ordinal is not a number")
+        end
+    elseif l == L_Q then
+        local qt = ti:add(hf.query, vr, text)
+        if resp_in and resp_in[text] then
+            qt:add(hf.response_in, resp_in[text]):set_generated()
+        end
+    elseif l == L_R then
+        ti:add(hf.response, vr, text)
+    elseif l == L_T then
+        local t = valid_type(text)
+        if t then
+            ti:add(hf.ftype, vr, t)
+        else
+            ti:add(tvb(o + fs, fe - fs + 1), "Type (T): " .. text)
+                :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
+        end
+    elseif l == L_E then
+        cmd_item = ti:add(hf.command, vr, text)
+    elseif l == L_M then
+        ti:add(hf.mode, vr, text)
+    elseif l == L_P then
+        ti:add(hf.ping, vr, text)
+    elseif l == L_G then
+        ti:add(hf.pong, vr, text)
+    elseif l == L_D then
+        (cmd_item or ti):add(hf.command_arg, vr, text)
+    else
+        local ft = ti:add(hf.field_letter, tvb(o + fs, 1), LETTER[l])
+        ft:add(hf.field_text, tvb(o + fs, fe - fs + 1), s_sub(f, fs, fe))
+        if l == L_C then
+            ft:add_proto_expert_info(ei.field_unknown, "Checksum field C that is not the last field")
+        else
+            ft:add_proto_expert_info(ei.field_unknown, "Unknown field letter " .. LETTER[l])
+        end
+    end
+    tc.cmd_item = cmd_item
+end
+
+-- The fields in order; a variable is rendered at its first field.
+local function tree_fields(tc)
+    local kind, cpos = tc.kind, pr_cpos
     for i = 1, nf do FV[i] = 0; FC[i] = false end
     for v = 1, nv do
         if VV[v] or kind == "declaration" or VR[v] then
@@ -1438,135 +1642,20 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
             if VDf[v] ~= 0 and VDf[v] ~= first then FC[VDf[v]] = true end
         end
     end
-    local cmd_item = nil
     for i = 1, nf do
-        local l = FL[i]
-        local fs, fe = FS[i], FE[i]
+        local fs = FS[i]
         local v = FV[i]
         if v ~= 0 then
-            local tf, qf, df = VTf[v], VQf[v], VDf[v]
-            local vend = df ~= 0 and df or (qf ~= 0 and qf or tf)
-            local name = VN[v]
-            local named = name and true or false
-            local index = VI[v]
-            local vtype = nil
-            if not named then
-                name = list[index + 1]
-                vtype = list.t and list.t[index + 1]
-            elseif d then
-                -- a named variable's index: its place among the conversation's names
-                local first = d.nfirst[name]
-                index = (first and first <= num) and d.npos[name] or nil
-            end
-            local vt = ti:add(hf.var, tvb(o + fs, FE[vend] - fs + 1))
-            local label = name or ("#" .. VI[v])
-            if tf ~= 0 then
-                vtype = valid_type(VT[v])
-                if vtype then
-                    vt:add(hf.ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
-                else
-                    vt:add(tvb(o + FS[tf], FE[tf] - FS[tf] + 1), "Type (T): " .. tostring(VT[v] or ""))
-                        :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
-                end
-            end
-            -- the name is the subtree's label: its field is kept for filters, hidden
-            if named then
-                local qr = tvb(o + FS[qf] + 1, FE[qf] - FS[qf])
-                if VR[v] then vt:add(hf.response, qr, name) end
-                vt:add(hf.var_name, qr, name):set_hidden()
-            elseif name then
-                vt:add(hf.var_name, tvb(o + FS[df], 1), name):set_hidden()
-            else
-                vt:add_proto_expert_info(ei.var_unknown,
-                    "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
-            end
-            if not VR[v] and index then vt:add(hf.var_index, index):set_generated() end
-            local val = VV[v]
-            if val then
-                if val ~= "" or named then
-                    local vr = tvb(o + FS[df] + 1, FE[df] - FS[df])
-                    vt:add(hf.var_value, vr, val)
-                    if vtype then add_typed_value(vt, vr, vtype, val) end
-                    vt:set_text(label .. " = " .. val)
-                else
-                    local cv, cf = false, false
-                    local csrc = rec or (ne > 0 and CARRY)
-                    if csrc then cv, cf = csrc[ke + 1], csrc[ke + 2] end
-                    ke = ke + 2
-                    local r0 = tvb(o + FS[df], 1)
-                    if cv then vt:add(hf.var_value, r0, cv):set_generated() end
-                    vt:add(hf.var_carried, r0, true):set_generated()
-                    if cf then
-                        vt:add(hf.var_carried_from, r0, cf):set_generated()
-                        vt:set_text(label .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
-                    else
-                        vt:set_text(label .. " = ? (carried, no earlier value)")
-                    end
-                end
-                if VR[v] then
-                    if resp_to and resp_to[name] then
-                        vt:add(hf.response_to, resp_to[name]):set_generated()
-                        vt:add(hf.response_time, nstime_of(rts[name])):set_generated()
-                    elseif unmatched and unmatched[name] then
-                        vt:add_proto_expert_info(ei.unanswered)
-                    end
-                end
-            else
-                vt:set_text(label .. (VR[v] and " (reply without value)" or " (declared)"))
-                if resp_in and resp_in[name] then
-                    vt:add(hf.response_in, resp_in[name]):set_generated()
-                end
-            end
+            tree_variable(tc, v, fs)
         elseif not FC[i] and fs ~= cpos then
-            local text = (l ~= false) and s_sub(f, fs + 1, fe) or ""
-            local vr = tvb(o + fs + 1, fe - fs)     -- the text after the letter
-            if l == false then
-                ti:add(zrange(tvb, o + fs), "Empty field"):add_proto_expert_info(ei.field_empty)
-            elseif l == L_N or l == L_L then
-                local n = tonumber(text)
-                if n and n >= 0 and n < 4294967296 and n == floor(n) then
-                    ti:add(l == L_N and hf.ordinal or hf.inbound_ordinal, vr, floor(n))
-                else
-                    ti:add(tvb(o + fs, fe - fs + 1), (l == L_N and "Ordinal (N): " or "Inbound ordinal (L): ") ..
-                        text):add_proto_expert_info(ei.var_badvalue, "Ordinal is not a number")
-                end
-            elseif l == L_Q then
-                local qt = ti:add(hf.query, vr, text)
-                if resp_in and resp_in[text] then
-                    qt:add(hf.response_in, resp_in[text]):set_generated()
-                end
-            elseif l == L_R then
-                ti:add(hf.response, vr, text)
-            elseif l == L_T then
-                local t = valid_type(text)
-                if t then
-                    ti:add(hf.ftype, vr, t)
-                else
-                    ti:add(tvb(o + fs, fe - fs + 1), "Type (T): " .. text)
-                        :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
-                end
-            elseif l == L_E then
-                cmd_item = ti:add(hf.command, vr, text)
-            elseif l == L_M then
-                ti:add(hf.mode, vr, text)
-            elseif l == L_P then
-                ti:add(hf.ping, vr, text)
-            elseif l == L_G then
-                ti:add(hf.pong, vr, text)
-            elseif l == L_D then
-                (cmd_item or ti):add(hf.command_arg, vr, text)
-            else
-                local ft = ti:add(hf.field_letter, tvb(o + fs, 1), LETTER[l])
-                ft:add(hf.field_text, tvb(o + fs, fe - fs + 1), s_sub(f, fs, fe))
-                if l == L_C then
-                    ft:add_proto_expert_info(ei.field_unknown, "Checksum field C that is not the last field")
-                else
-                    ft:add_proto_expert_info(ei.field_unknown, "Unknown field letter " .. LETTER[l])
-                end
-            end
+            tree_plain_field(tc, FL[i], fs, FE[i])
         end
     end
+end
 
+-- Named variables this frame left out (carried forward).
+local function tree_carried_names(tc)
+    local ti, tvb, o, rec, nm, d, bodyend = tc.ti, tc.tvb, tc.o, tc.rec, tc.nm, tc.d, tc.bodyend
     -- carried named variables (left out of this frame)
     local miss = rec and rec.miss
     local miss_len = miss and #miss or 0
@@ -1589,7 +1678,14 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
             vt:set_generated()
         end
     end
+end
 
+-- Its last lines: sync, checksum, line terminator.
+local function tree_trailer(tc)
+    local ti, tvb, o, rec, s, a, e, fl = tc.ti, tc.tvb, tc.o, tc.rec, tc.s, tc.a, tc.e, tc.fl
+    local cs_val, cs_calc, cs_status, terminated, malformed_msg = tc.cs_val, tc.cs_calc, tc.cs_status, tc.terminated,
+        tc.malformed_msg
+    local cpos, ctext = pr_cpos, pr_ctext
     if rec and rec.late then
         ti:add(hf.sync_is_late, true):set_generated()
         ti:add_proto_expert_info(ei.sync_late,
@@ -1640,6 +1736,64 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
             ti:add_proto_expert_info(ei.crlf_missing)
         end
     end
+end
+
+-- f: a string holding the frame at f[1..fl] ('[' .. ']' when terminated, else up to
+-- where it stops; bytes after fl may follow when terminated); a: index of f[1] in the
+-- payload s; e: index in s of the last byte including the line end.  Returns false when
+-- there turned out to be no real tree.
+local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
+    local num = pinfo.number
+
+    -- protocol item first: tells whether there is a real tree
+    local ti = nil
+    if tree then
+        ti = tree:add(sl, tvb(a - 1, e - a + 1))
+    end
+    -- a tree that is shown (-V, -T fields/json, the GUI's details) gets every range and
+    -- label; one nobody sees (-Y, coloring rules, taps) takes the fast paths too
+    local vis = ti ~= nil and ti.visible
+
+    local bodyend, dstb, srcb, malformed_msg = parse_frame(f, fl, terminated, vis, ti ~= nil)
+    local cs_val, cs_calc, cs_status = checksum_verdict(f, bodyend)
+    local good = cs_status ~= 0
+    local kind, is_data = kind_of_fields(malformed_msg)
+    local dst, src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
+    -- without state: a data frame with N0 (or none), no empty positional D and no named
+    -- variable left out is full; the state-based verdict is stored when it differs
+    local full_local = pr_nd > 0 and (pr_n_ord == nil or pr_n_ord == 0) and pr_n_empty_d == 0
+
+    local rec, list, d, miss_n
+    local ne, nm = 0, 0
+    if not pinfo.visited then
+        kind, rec, list, d, miss_n, ne, nm = state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src,
+            full_local)
+    else
+        kind, rec, list, d, miss_n = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, full_local)
+    end
+    if is_data and not kind then kind = full_local and "full" or "delta" end   -- addresses not A-P
+
+    info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
+
+    -- Tree (skipped entirely when there is none, e.g. tshark summary pass)
+    if not ti then return tree == nil end
+    if pr_fast_hit and not vis then
+        tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, rec, ne, nm, cs_val, cs_calc, cs_status)
+        return true
+    end
+    local tc = TC
+    tc.ti, tc.tvb, tc.o, tc.f, tc.s, tc.a, tc.e, tc.fl = ti, tvb, a - 2, f, s, a, e, fl   -- tvb offset of f[i] is o + i
+    tc.num, tc.kind, tc.dst, tc.src, tc.dstb, tc.srcb = num, kind, dst, src, dstb, srcb
+    tc.malformed_msg, tc.terminated, tc.bodyend = malformed_msg, terminated, bodyend
+    tc.list, tc.d, tc.rec, tc.ne, tc.nm = list, d, rec, ne, nm
+    tc.cs_val, tc.cs_calc, tc.cs_status = cs_val, cs_calc, cs_status
+    tc.resp_in, tc.resp_to = rec and rec.resp_in, rec and rec.resp_to
+    tc.rts, tc.unmatched = rec and rec.rt, rec and rec.unmatched
+    tc.ke, tc.cmd_item = 0, nil   -- carried values of empty D fields used so far; the E field's item
+    tree_head(tc)
+    tree_fields(tc)
+    tree_carried_names(tc)
+    tree_trailer(tc)
     return true
 end
 ------------------------------------------------------------------------------
