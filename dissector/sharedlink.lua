@@ -1343,13 +1343,14 @@ local function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb,
     return kind, rec, list, d, miss_n, ne, nm
 end
 
--- State on a later pass: the record, and the list in use at this frame on the first pass.
-local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, full_local)
+-- State on a later pass: the record, and the list in use at this frame on the first pass
+-- (looked up only where it names something: positional values, or a tree to show indexes).
+local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, full_local, has_tree)
     local rec = get_rec(num, sk, false)
     local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
     local list, d = pref_list, nil
     local addrs_ok = dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P
-    if (is_data or kind == "malformed") and addrs_ok then
+    if (is_data or kind == "malformed") and addrs_ok and (has_tree or pr_n_pos > 0) then
         d = get_dir(pinfo, num, dstb, srcb)
         local h = d.uhist
         if h then
@@ -1769,7 +1770,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
         kind, rec, list, d, miss_n, ne, nm = state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src,
             full_local)
     else
-        kind, rec, list, d, miss_n = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, full_local)
+        kind, rec, list, d, miss_n = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, full_local, ti ~= nil)
     end
     if is_data and not kind then kind = full_local and "full" or "delta" end   -- addresses not A-P
 
