@@ -40,10 +40,11 @@
 --
 -- Performance: with no tree (tshark summary pass) no tree items are built; with a tree
 -- nobody sees (-Y, coloring rules, taps) a fast-path frame gets its fields without byte
--- ranges, labels or flags (tree_compact); the fast paths check the checksum as a fixed
--- sum plus the values' sums; a frame
--- with the same layout as the previous plain named frame of the same node pair is
--- parsed by one anchored pattern.  Per-frame state is stored only for frames that
+-- ranges, labels or flags, and a per-variable field no filter references is added once a
+-- frame, not once a variable (tree_compact); the fast paths check the checksum as a fixed
+-- sum plus the values' sums; a frame with the layout of one of the node pair's recent
+-- plain named frames (up to 8: a compressed stream's deltas) is parsed by one anchored
+-- pattern.  Per-frame state is stored only for frames that
 -- need it (carried values, late sync, queries/replies); carried-only records are
 -- packed as text lines, 256 per Lua string, and the list in use is kept as a
 -- per-direction history of changes, so that long compressed captures add few Lua
