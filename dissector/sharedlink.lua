@@ -686,6 +686,24 @@ local function ref_add(parent, ptext, field, value)
     return r and it or nil
 end
 
+-- A variable's item in the compact tree: its subtree, or ti itself when nobody asked for
+-- sharedlink.var; and the text its children are compared with (var_text: a real variable
+-- item's text, the same for all; reset each frame).
+local var_text = nil
+local function compact_var(ti, ttext)
+    local vt = ref_add(ti, ttext, hf.var)
+    if not vt then return ti, ttext end
+    var_text = var_text or vt.text
+    return vt, var_text
+end
+
+-- A carried value's fields: its value and frame when known.
+local function compact_carried(vt, ptext, cv, cf)
+    if cv then ref_add(vt, ptext, hf.var_value, cv) end
+    ref_add(vt, ptext, hf.var_carried, true)
+    if cf then ref_add(vt, ptext, hf.var_carried_from, cf) end
+end
+
 local function tree_compact(ti, dstb, srcb, kind, n_ord, nvars, list, d, num, carry, miss, nmiss)
     ti:add(hf.dst, LETTER[dstb])
     ti:add(hf.dst_node, dstb - B_A + 1)
@@ -695,18 +713,10 @@ local function tree_compact(ti, dstb, srcb, kind, n_ord, nvars, list, d, num, ca
     ti:add(hf.ordinal, n_ord)
     for k = 1, #VAR_FIELDS do REF[VAR_FIELDS[k]] = nil end
     local ttext = ti.text
-    local vtext = nil   -- text of a real variable item (when hf.var is referenced)
+    var_text = nil
     local ke = 0
     for v = 1, nvars do
-        -- the variable's subtree, or ti itself when nobody asked for sharedlink.var
-        local vt = ref_add(ti, ttext, hf.var)
-        local ptext = ttext
-        if vt then
-            vtext = vtext or vt.text
-            ptext = vtext
-        else
-            vt = ti
-        end
+        local vt, ptext = compact_var(ti, ttext)
         local name, val = VN[v], VV[v]
         local vtype
         local index = VI[v]
@@ -747,27 +757,16 @@ local function tree_compact(ti, dstb, srcb, kind, n_ord, nvars, list, d, num, ca
             local cv, cf = false, false
             if carry then cv, cf = carry[ke + 1], carry[ke + 2] end
             ke = ke + 2
-            if cv then ref_add(vt, ptext, hf.var_value, cv) end
-            ref_add(vt, ptext, hf.var_carried, true)
-            if cf then ref_add(vt, ptext, hf.var_carried_from, cf) end
+            compact_carried(vt, ptext, cv, cf)
         end
     end
     for k = 1, nmiss, 3 do
-        local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
-        local vt = ref_add(ti, ttext, hf.var)
-        local ptext = ttext
-        if vt then
-            vtext = vtext or vt.text
-            ptext = vtext
-        else
-            vt = ti
-        end
+        local name = miss[k]
+        local vt, ptext = compact_var(ti, ttext)
         ref_add(vt, ptext, hf.var_name, name)
         local index = d and d.npos[name]
         if index then ref_add(vt, ptext, hf.var_index, index) end
-        if cv then ref_add(vt, ptext, hf.var_value, cv) end
-        ref_add(vt, ptext, hf.var_carried, true)
-        if cf then ref_add(vt, ptext, hf.var_carried_from, cf) end
+        compact_carried(vt, ptext, miss[k + 1], miss[k + 2])
     end
 end
 
@@ -834,6 +833,20 @@ local function parse_header(f, fl, terminated)
     return bodyend, dstb, srcb, p, malformed_msg
 end
 
+-- A fast pattern's captures (the values, then the checksum text) into VV and pr_*; the
+-- checksum as the layout's fixed sum plus the values' sums (speed trick, measured).  Returns
+-- the number of values.
+local function take_fast_values(layout, c1, c2, c3, c4, c5, c6, c7, c8, c9)
+    VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
+    local n = layout.n
+    pr_ctext = VV[n + 1]
+    local sum = layout.fixed
+    for k = 1, n do sum = sum + str_sum(VV[k]) end
+    pr_fast_sum = sum % 256
+    pr_n_ord = layout.ord
+    return n
+end
+
 -- Fast path (a tree nobody sees or none): a frame with the layout of one of the node pair's
 -- recent plain named frames is matched by one anchored pattern.  mru: the pair's layouts,
 -- most recently matched first (a compressed stream's deltas cycle through a few subsets of
@@ -850,16 +863,9 @@ local function parse_fast_named(f, mru)
         end
     end
     if not c1 then return false end
-    VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
-    local n = sh.n
+    local n = take_fast_values(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
     local st, sn = sh.T, sh.N
-    pr_ctext = VV[n + 1]
-    -- speed trick (measured): the layout's fixed sum plus the values' sums
-    local sum = sh.fixed
-    for k = 1, n do sum = sum + str_sum(VV[k]) end
-    pr_fast_sum = sum % 256
     local idx = sh.ord
-    pr_n_ord = idx
     for k = 1, n do
         VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], idx, false
         idx = idx + 1
@@ -873,14 +879,8 @@ end
 local function parse_fast_positional(f, ps)
     local _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, ps.pat)
     if not c1 then return false end
-    VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
-    local n = ps.n
-    pr_ctext = VV[n + 1]
-    local sum = ps.fixed
-    for k = 1, n do sum = sum + str_sum(VV[k]) end
-    pr_fast_sum = sum % 256
+    local n = take_fast_values(ps, c1, c2, c3, c4, c5, c6, c7, c8, c9)
     local idx = ps.ord
-    pr_n_ord = idx
     local n_empty_d = 0
     for k = 1, n do
         VT[k], VN[k], VI[k], VR[k] = false, false, idx, false
