@@ -801,294 +801,299 @@ local pr_nq, pr_nd, pr_n_empty_d, pr_n_pos
 local pr_cpos, pr_ctext, pr_cmd_start
 local pr_fast_sh, pr_fast_hit, pr_fast_sum
 
-local function parse_reset()
-    nf, nv = 0, 0
-    pr_n_ord, pr_l_ord, pr_n_text = nil, nil, nil
-    pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r = false, false, false, false, false
-    pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = 0, 0, 0, 0
-    pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = nil, nil, nil, false
-    pr_fast_sh, pr_fast_hit, pr_fast_sum = nil, false, nil
-end
-
--- The header: last index of the content, the address bytes (nil when cut short), the index of
--- the first field (nil: none), and why the frame is malformed (nil: it is not).
-local function parse_header(f, fl, terminated)
-    local malformed_msg = nil
-    if not terminated then malformed_msg = "Unterminated frame (no closing ])" end
-    local bodyend = terminated and fl - 1 or fl
-    local dstb, srcb = s_byte(f, 3), s_byte(f, 4)
-    if bodyend < 3 then dstb = nil end
-    if bodyend < 4 then srcb = nil end
-    local p
-    if bodyend < 5 then
-        p = nil
-        if not malformed_msg and not srcb then malformed_msg = "Frame too short for a header" end
-    elseif s_byte(f, 5) == B_PIPE then
-        p = 6
-    else
-        local q = s_find(f, "|", 5, true)
-        p = q and q + 1 or nil
-        if not malformed_msg then malformed_msg = "Expected | after the addresses" end
+-- parse_frame and the helpers only it uses (a block: the main chunk may hold 200 locals)
+local parse_frame
+do
+    local function parse_reset()
+        nf, nv = 0, 0
+        pr_n_ord, pr_l_ord, pr_n_text = nil, nil, nil
+        pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r = false, false, false, false, false
+        pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = 0, 0, 0, 0
+        pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = nil, nil, nil, false
+        pr_fast_sh, pr_fast_hit, pr_fast_sum = nil, false, nil
     end
-    return bodyend, dstb, srcb, p, malformed_msg
-end
 
--- A fast pattern's captures (the values, then the checksum text) into VV and pr_*; the
--- checksum as the layout's fixed sum plus the values' sums (speed trick, measured).  Returns
--- the number of values.
-local function take_fast_values(layout, c1, c2, c3, c4, c5, c6, c7, c8, c9)
-    VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
-    local n = layout.n
-    pr_ctext = VV[n + 1]
-    local sum = layout.fixed
-    for k = 1, n do sum = sum + str_sum(VV[k]) end
-    pr_fast_sum = sum % 256
-    pr_n_ord = layout.ord
-    return n
-end
-
--- Fast path (a tree nobody sees or none): a frame with the layout of one of the node pair's
--- recent plain named frames is matched by one anchored pattern.  mru: the pair's layouts,
--- most recently matched first (a compressed stream's deltas cycle through a few subsets of
--- the variables): a layout that does not fit fails within the first differing name, cheaply.
--- Returns true when it parsed the frame.
-local function parse_fast_named(f, mru)
-    local _, sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
-    for k = 1, #mru do
-        sh = mru[k]
-        _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, sh.pat)
-        if c1 then
-            if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
-            break
-        end
-    end
-    if not c1 then return false end
-    local n = take_fast_values(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
-    local st, sn = sh.T, sh.N
-    local idx = sh.ord
-    for k = 1, n do
-        VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], idx, false
-        idx = idx + 1
-    end
-    nv, pr_nq, pr_nd = n, n, n
-    pr_fast_sh, pr_fast_hit = sh, true
-    return true
-end
-
--- The same for the pair's last plain positional frame (N, D fields, C).
-local function parse_fast_positional(f, ps)
-    local _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, ps.pat)
-    if not c1 then return false end
-    local n = take_fast_values(ps, c1, c2, c3, c4, c5, c6, c7, c8, c9)
-    local idx = ps.ord
-    local n_empty_d = 0
-    for k = 1, n do
-        VT[k], VN[k], VI[k], VR[k] = false, false, idx, false
-        idx = idx + 1
-        if VV[k] == "" then n_empty_d = n_empty_d + 1 end
-    end
-    nv, pr_nd, pr_n_pos, pr_n_empty_d = n, n, n, n_empty_d
-    pr_fast_hit = true
-    return true
-end
-
--- The plain path: every field from p on, in one pass (fields recorded with their positions
--- when a tree is built), variables gathered as T/Q/R/D come; results in P.
-local function parse_general(f, p, bodyend, rec_fields)
-    local n_ord, l_ord, n_text = nil, nil, nil
-    local has_e, has_m, has_p, has_g, has_r = false, false, false, false, false
-    local nq, nd, n_empty_d, n_pos = 0, 0, 0, 0
-    local pend_t, pend_q, pend_r = false, false, false   -- pending T text, Q/R name
-    local pend_tf, pend_qf = 0, 0
-    local idx = 0
-    local cpos, ctext = nil, nil  -- checksum field start and text
-    local cmd_start = nil         -- first E/M field
-    local ord_text = false        -- N or L with a non-numeric ordinal (N?, L?: a list request)
-    while p and p <= bodyend + 1 do
-        local c = s_byte(f, p)
-        local _, fe, t1, t2, t3
-        if c == L_T and not pend_q then
-            _, fe, t1, t2, t3 = s_find(f, "^T([^|%]]*)|Q([^|%]]*)|D([^|%]]*)", p)
-        end
-        if fe and fe <= bodyend then
-            -- fast path: a complete T/Q/D triplet
-            nv = nv + 1
-            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = t1, t2, t3, idx, false
-            idx = idx + 1
-            nq, nd = nq + 1, nd + 1
-            if rec_fields then
-                local q1 = p + #t1 + 2
-                local d1 = q1 + #t2 + 2
-                FL[nf + 1], FS[nf + 1], FE[nf + 1] = L_T, p, q1 - 2
-                FL[nf + 2], FS[nf + 2], FE[nf + 2] = L_Q, q1, d1 - 2
-                FL[nf + 3], FS[nf + 3], FE[nf + 3] = L_D, d1, fe
-                VTf[nv], VQf[nv], VDf[nv] = nf + 1, nf + 2, nf + 3
-            end
-            nf = nf + 3
-            pend_t = false
-            p = fe + 2
+    -- The header: last index of the content, the address bytes (nil when cut short), the index of
+    -- the first field (nil: none), and why the frame is malformed (nil: it is not).
+    local function parse_header(f, fl, terminated)
+        local malformed_msg = nil
+        if not terminated then malformed_msg = "Unterminated frame (no closing ])" end
+        local bodyend = terminated and fl - 1 or fl
+        local dstb, srcb = s_byte(f, 3), s_byte(f, 4)
+        if bodyend < 3 then dstb = nil end
+        if bodyend < 4 then srcb = nil end
+        local p
+        if bodyend < 5 then
+            p = nil
+            if not malformed_msg and not srcb then malformed_msg = "Frame too short for a header" end
+        elseif s_byte(f, 5) == B_PIPE then
+            p = 6
         else
-            _, fe, t1 = s_find(f, "^[^|%]]([^|%]]*)", p)
-            if fe and fe > bodyend then fe = nil end
-            if not fe then
-                -- empty field
-                nf = nf + 1
-                if rec_fields then FL[nf], FS[nf], FE[nf] = false, p, p - 1 end
-                p = p + 1
-            else
-                nf = nf + 1
-                if rec_fields then FL[nf], FS[nf], FE[nf] = c, p, fe end
-                if c == L_D then
-                    nd = nd + 1
-                    if not (has_e or has_m) then
-                        nv = nv + 1
-                        VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, t1, idx, pend_r
-                        VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, nf
-                        if not pend_q then
-                            n_pos = n_pos + 1
-                            if t1 == "" then n_empty_d = n_empty_d + 1 end
-                        end
-                        idx = idx + 1
-                        pend_t, pend_q, pend_r, pend_tf, pend_qf = false, false, false, 0, 0
-                    end
-                elseif c == L_Q or c == L_R then
-                    if pend_q then
-                        nv = nv + 1
-                        VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
-                        VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
-                        idx = idx + 1
-                        pend_t, pend_tf = false, 0
-                    end
-                    pend_q, pend_qf = t1, nf
-                    pend_r = (c == L_R)
-                    if pend_r then has_r = true else nq = nq + 1 end
-                elseif c == L_T then
-                    if pend_q then
-                        nv = nv + 1
-                        VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
-                        VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
-                        idx = idx + 1
-                        pend_q, pend_r, pend_qf = false, false, 0
-                    end
-                    pend_t, pend_tf = t1, nf
-                elseif c == L_N then
-                    if not n_ord then
-                        n_ord = to_ordinal(t1); idx = n_ord; n_text = t1
-                        if not tonumber(t1) then ord_text = true end
-                    end
-                elseif c == L_L then
-                    if not l_ord then
-                        l_ord = to_ordinal(t1); idx = l_ord
-                        if not tonumber(t1) then ord_text = true end
-                    end
-                elseif c == L_C and fe == bodyend then
-                    cpos, ctext = p, t1
-                elseif c == L_E or c == L_M then
-                    if c == L_E then has_e = true else has_m = true end
-                    if not cmd_start then cmd_start = p end
-                elseif c == L_P then has_p = true
-                elseif c == L_G then has_g = true
+            local q = s_find(f, "|", 5, true)
+            p = q and q + 1 or nil
+            if not malformed_msg then malformed_msg = "Expected | after the addresses" end
+        end
+        return bodyend, dstb, srcb, p, malformed_msg
+    end
+
+    -- A fast pattern's captures (the values, then the checksum text) into VV and pr_*; the
+    -- checksum as the layout's fixed sum plus the values' sums (speed trick, measured).  Returns
+    -- the number of values.
+    local function take_fast_values(layout, c1, c2, c3, c4, c5, c6, c7, c8, c9)
+        VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
+        local n = layout.n
+        pr_ctext = VV[n + 1]
+        local sum = layout.fixed
+        for k = 1, n do sum = sum + str_sum(VV[k]) end
+        pr_fast_sum = sum % 256
+        pr_n_ord = layout.ord
+        return n
+    end
+
+    -- Fast path (a tree nobody sees or none): a frame with the layout of one of the node pair's
+    -- recent plain named frames is matched by one anchored pattern.  mru: the pair's layouts,
+    -- most recently matched first (a compressed stream's deltas cycle through a few subsets of
+    -- the variables): a layout that does not fit fails within the first differing name, cheaply.
+    -- Returns true when it parsed the frame.
+    local function parse_fast_named(f, mru)
+        local _, sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
+        for k = 1, #mru do
+            sh = mru[k]
+            _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, sh.pat)
+            if c1 then
+                if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
+                break
+            end
+        end
+        if not c1 then return false end
+        local n = take_fast_values(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
+        local st, sn = sh.T, sh.N
+        local idx = sh.ord
+        for k = 1, n do
+            VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], idx, false
+            idx = idx + 1
+        end
+        nv, pr_nq, pr_nd = n, n, n
+        pr_fast_sh, pr_fast_hit = sh, true
+        return true
+    end
+
+    -- The same for the pair's last plain positional frame (N, D fields, C).
+    local function parse_fast_positional(f, ps)
+        local _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, ps.pat)
+        if not c1 then return false end
+        local n = take_fast_values(ps, c1, c2, c3, c4, c5, c6, c7, c8, c9)
+        local idx = ps.ord
+        local n_empty_d = 0
+        for k = 1, n do
+            VT[k], VN[k], VI[k], VR[k] = false, false, idx, false
+            idx = idx + 1
+            if VV[k] == "" then n_empty_d = n_empty_d + 1 end
+        end
+        nv, pr_nd, pr_n_pos, pr_n_empty_d = n, n, n, n_empty_d
+        pr_fast_hit = true
+        return true
+    end
+
+    -- The plain path: every field from p on, in one pass (fields recorded with their positions
+    -- when a tree is built), variables gathered as T/Q/R/D come; results in P.
+    local function parse_general(f, p, bodyend, rec_fields)
+        local n_ord, l_ord, n_text = nil, nil, nil
+        local has_e, has_m, has_p, has_g, has_r = false, false, false, false, false
+        local nq, nd, n_empty_d, n_pos = 0, 0, 0, 0
+        local pend_t, pend_q, pend_r = false, false, false   -- pending T text, Q/R name
+        local pend_tf, pend_qf = 0, 0
+        local idx = 0
+        local cpos, ctext = nil, nil  -- checksum field start and text
+        local cmd_start = nil         -- first E/M field
+        local ord_text = false        -- N or L with a non-numeric ordinal (N?, L?: a list request)
+        while p and p <= bodyend + 1 do
+            local c = s_byte(f, p)
+            local _, fe, t1, t2, t3
+            if c == L_T and not pend_q then
+                _, fe, t1, t2, t3 = s_find(f, "^T([^|%]]*)|Q([^|%]]*)|D([^|%]]*)", p)
+            end
+            if fe and fe <= bodyend then
+                -- fast path: a complete T/Q/D triplet
+                nv = nv + 1
+                VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = t1, t2, t3, idx, false
+                idx = idx + 1
+                nq, nd = nq + 1, nd + 1
+                if rec_fields then
+                    local q1 = p + #t1 + 2
+                    local d1 = q1 + #t2 + 2
+                    FL[nf + 1], FS[nf + 1], FE[nf + 1] = L_T, p, q1 - 2
+                    FL[nf + 2], FS[nf + 2], FE[nf + 2] = L_Q, q1, d1 - 2
+                    FL[nf + 3], FS[nf + 3], FE[nf + 3] = L_D, d1, fe
+                    VTf[nv], VQf[nv], VDf[nv] = nf + 1, nf + 2, nf + 3
                 end
+                nf = nf + 3
+                pend_t = false
                 p = fe + 2
+            else
+                _, fe, t1 = s_find(f, "^[^|%]]([^|%]]*)", p)
+                if fe and fe > bodyend then fe = nil end
+                if not fe then
+                    -- empty field
+                    nf = nf + 1
+                    if rec_fields then FL[nf], FS[nf], FE[nf] = false, p, p - 1 end
+                    p = p + 1
+                else
+                    nf = nf + 1
+                    if rec_fields then FL[nf], FS[nf], FE[nf] = c, p, fe end
+                    if c == L_D then
+                        nd = nd + 1
+                        if not (has_e or has_m) then
+                            nv = nv + 1
+                            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, t1, idx, pend_r
+                            VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, nf
+                            if not pend_q then
+                                n_pos = n_pos + 1
+                                if t1 == "" then n_empty_d = n_empty_d + 1 end
+                            end
+                            idx = idx + 1
+                            pend_t, pend_q, pend_r, pend_tf, pend_qf = false, false, false, 0, 0
+                        end
+                    elseif c == L_Q or c == L_R then
+                        if pend_q then
+                            nv = nv + 1
+                            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
+                            VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
+                            idx = idx + 1
+                            pend_t, pend_tf = false, 0
+                        end
+                        pend_q, pend_qf = t1, nf
+                        pend_r = (c == L_R)
+                        if pend_r then has_r = true else nq = nq + 1 end
+                    elseif c == L_T then
+                        if pend_q then
+                            nv = nv + 1
+                            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
+                            VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
+                            idx = idx + 1
+                            pend_q, pend_r, pend_qf = false, false, 0
+                        end
+                        pend_t, pend_tf = t1, nf
+                    elseif c == L_N then
+                        if not n_ord then
+                            n_ord = to_ordinal(t1); idx = n_ord; n_text = t1
+                            if not tonumber(t1) then ord_text = true end
+                        end
+                    elseif c == L_L then
+                        if not l_ord then
+                            l_ord = to_ordinal(t1); idx = l_ord
+                            if not tonumber(t1) then ord_text = true end
+                        end
+                    elseif c == L_C and fe == bodyend then
+                        cpos, ctext = p, t1
+                    elseif c == L_E or c == L_M then
+                        if c == L_E then has_e = true else has_m = true end
+                        if not cmd_start then cmd_start = p end
+                    elseif c == L_P then has_p = true
+                    elseif c == L_G then has_g = true
+                    end
+                    p = fe + 2
+                end
             end
         end
-    end
-    if pend_q then
-        nv = nv + 1
-        VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
-        VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
-    end
-    pr_n_ord, pr_l_ord, pr_n_text = n_ord, l_ord, n_text
-    pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r = has_e, has_m, has_p, has_g, has_r
-    pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = nq, nd, n_empty_d, n_pos
-    pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = cpos, ctext, cmd_start, ord_text
-end
-
--- Remember the layout of a plain named frame (N, T/Q/D triplets, C) for parse_fast_named.
-local function learn_named_shape(f, shape_key, dstb, srcb)
-    local n_text, cpos, n_pos, ord_text, n_ord = pr_n_text, pr_cpos, pr_n_pos, pr_ord_text, pr_n_ord
-    if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == 3 * nv + 2 and n_pos == 0
-        and s_byte(f, 6) == L_N and not ord_text then
-        local ok = true
-        for k = 1, nv do
-            if not (VT[k] and VN[k] and VV[k] and valid_type(VT[k])) or VR[k] then ok = false; break end
+        if pend_q then
+            nv = nv + 1
+            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
+            VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
         end
-        if ok then
-            local parts = { "^%[:", pat_escape(LETTER[dstb] .. LETTER[srcb]), "|N", pat_escape(n_text) }
-            local st, sn = {}, {}
-            local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
-            local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
-            local first = " " .. s_gsub(VN[1], CTRL, "?") .. "="
-            local pieces, ilen = { head .. first }, #head
-            local fixed = byte_sum(f, 2, cpos)
+        pr_n_ord, pr_l_ord, pr_n_text = n_ord, l_ord, n_text
+        pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r = has_e, has_m, has_p, has_g, has_r
+        pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = nq, nd, n_empty_d, n_pos
+        pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = cpos, ctext, cmd_start, ord_text
+    end
+
+    -- Remember the layout of a plain named frame (N, T/Q/D triplets, C) for parse_fast_named.
+    local function learn_named_shape(f, shape_key, dstb, srcb)
+        local n_text, cpos, n_pos, ord_text, n_ord = pr_n_text, pr_cpos, pr_n_pos, pr_ord_text, pr_n_ord
+        if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == 3 * nv + 2 and n_pos == 0
+            and s_byte(f, 6) == L_N and not ord_text then
+            local ok = true
             for k = 1, nv do
-                st[k], sn[k] = VT[k], VN[k]
-                parts[#parts + 1] = "|T" .. pat_escape(VT[k]) .. "|Q" .. pat_escape(VN[k]) .. "|D([^|%]\0-\31\127]*)"
-                if k > 1 then pieces[k] = " " .. s_gsub(VN[k], CTRL, "?") .. "=" end
-                ilen = ilen + #VN[k] + 2
-                fixed = fixed - str_sum(VV[k])
+                if not (VT[k] and VN[k] and VV[k] and valid_type(VT[k])) or VR[k] then ok = false; break end
             end
-            parts[#parts + 1] = "|C([^|%]]*)%]"
-            local mru = shapes[shape_key]
-            if not mru then mru = {}; shapes[shape_key] = mru end
-            local pat = t_concat(parts)
-            for k = #mru, 1, -1 do
-                if mru[k].pat == pat then table.remove(mru, k) end
-            end
-            if #mru >= MAX_SHAPES then mru[#mru] = nil end
-            local dpieces = { dhead .. first }
-            for k = 2, nv do dpieces[k] = pieces[k] end
-            table.insert(mru, 1, { pat = pat, n = nv, T = st, N = sn, ord = n_ord,
-                info = pieces, info_len = ilen, dinfo = dpieces, dinfo_len = ilen + #dhead - #head,
-                fixed = fixed % 256, build = INFO_BUILD[nv] })
-        end
-    end
-end
-
--- Remember the layout of a plain positional frame (N, D fields, C) for parse_fast_positional.
-local function learn_positional_shape(f, shape_key, dstb, srcb)
-    local n_text, cpos, n_pos, nq, has_r = pr_n_text, pr_cpos, pr_n_pos, pr_nq, pr_has_r
-    local ord_text, n_ord = pr_ord_text, pr_n_ord
-    if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == nv + 2 and n_pos == nv and nq == 0
-        and not has_r and s_byte(f, 6) == L_N and not ord_text then
-        local ok = true
-        for k = 1, nv do
-            if VT[k] or VN[k] or not VV[k] then ok = false; break end
-        end
-        if ok then
-            local pat = "^%[:" .. pat_escape(LETTER[dstb] .. LETTER[srcb]) .. "|N" .. pat_escape(n_text) ..
-                s_rep("|D([^|%]\0-\31\127]*)", nv) .. "|C([^|%]]*)%]"
-            local ps = pshapes[shape_key]
-            if not ps or ps.pat ~= pat then
+            if ok then
+                local parts = { "^%[:", pat_escape(LETTER[dstb] .. LETTER[srcb]), "|N", pat_escape(n_text) }
+                local st, sn = {}, {}
+                local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
+                local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
+                local first = " " .. s_gsub(VN[1], CTRL, "?") .. "="
+                local pieces, ilen = { head .. first }, #head
                 local fixed = byte_sum(f, 2, cpos)
-                for k = 1, nv do fixed = fixed - str_sum(VV[k]) end
-                pshapes[shape_key] = { pat = pat, n = nv, ord = n_ord, fixed = fixed % 256 }
+                for k = 1, nv do
+                    st[k], sn[k] = VT[k], VN[k]
+                    parts[#parts + 1] = "|T" .. pat_escape(VT[k]) .. "|Q" .. pat_escape(VN[k]) ..
+                        "|D([^|%]\0-\31\127]*)"
+                    if k > 1 then pieces[k] = " " .. s_gsub(VN[k], CTRL, "?") .. "=" end
+                    ilen = ilen + #VN[k] + 2
+                    fixed = fixed - str_sum(VV[k])
+                end
+                parts[#parts + 1] = "|C([^|%]]*)%]"
+                local mru = shapes[shape_key]
+                if not mru then mru = {}; shapes[shape_key] = mru end
+                local pat = t_concat(parts)
+                for k = #mru, 1, -1 do
+                    if mru[k].pat == pat then table.remove(mru, k) end
+                end
+                if #mru >= MAX_SHAPES then mru[#mru] = nil end
+                local dpieces = { dhead .. first }
+                for k = 2, nv do dpieces[k] = pieces[k] end
+                table.insert(mru, 1, { pat = pat, n = nv, T = st, N = sn, ord = n_ord,
+                    info = pieces, info_len = ilen, dinfo = dpieces, dinfo_len = ilen + #dhead - #head,
+                    fixed = fixed % 256, build = INFO_BUILD[nv] })
             end
         end
     end
-end
 
--- Parse a frame: header, then a fast path when one fits, else every field.  Returns the last
--- index of the content, the address bytes and why it is malformed (nil: it is not).
-local function parse_frame(f, fl, terminated, vis, rec_fields)
-    parse_reset()
-    local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)
-    local shape_key = nil
-    if p == 6 and not malformed_msg and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P then
-        shape_key = dstb * 256 + srcb
-        if not vis then
-            local mru = shapes[shape_key]
-            if mru and parse_fast_named(f, mru) then return bodyend, dstb, srcb, malformed_msg end
-            local ps = pshapes[shape_key]
-            if ps and parse_fast_positional(f, ps) then return bodyend, dstb, srcb, malformed_msg end
+    -- Remember the layout of a plain positional frame (N, D fields, C) for parse_fast_positional.
+    local function learn_positional_shape(f, shape_key, dstb, srcb)
+        local n_text, cpos, n_pos, nq, has_r = pr_n_text, pr_cpos, pr_n_pos, pr_nq, pr_has_r
+        local ord_text, n_ord = pr_ord_text, pr_n_ord
+        if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == nv + 2 and n_pos == nv and nq == 0
+            and not has_r and s_byte(f, 6) == L_N and not ord_text then
+            local ok = true
+            for k = 1, nv do
+                if VT[k] or VN[k] or not VV[k] then ok = false; break end
+            end
+            if ok then
+                local pat = "^%[:" .. pat_escape(LETTER[dstb] .. LETTER[srcb]) .. "|N" .. pat_escape(n_text) ..
+                    s_rep("|D([^|%]\0-\31\127]*)", nv) .. "|C([^|%]]*)%]"
+                local ps = pshapes[shape_key]
+                if not ps or ps.pat ~= pat then
+                    local fixed = byte_sum(f, 2, cpos)
+                    for k = 1, nv do fixed = fixed - str_sum(VV[k]) end
+                    pshapes[shape_key] = { pat = pat, n = nv, ord = n_ord, fixed = fixed % 256 }
+                end
+            end
         end
     end
-    if p then parse_general(f, p, bodyend, rec_fields) end
-    if shape_key then
-        learn_named_shape(f, shape_key, dstb, srcb)
-        learn_positional_shape(f, shape_key, dstb, srcb)
+
+    -- Parse a frame: header, then a fast path when one fits, else every field.  Returns the last
+    -- index of the content, the address bytes and why it is malformed (nil: it is not).
+    function parse_frame(f, fl, terminated, vis, rec_fields)
+        parse_reset()
+        local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)
+        local shape_key = nil
+        if p == 6 and not malformed_msg and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P then
+            shape_key = dstb * 256 + srcb
+            if not vis then
+                local mru = shapes[shape_key]
+                if mru and parse_fast_named(f, mru) then return bodyend, dstb, srcb, malformed_msg end
+                local ps = pshapes[shape_key]
+                if ps and parse_fast_positional(f, ps) then return bodyend, dstb, srcb, malformed_msg end
+            end
+        end
+        if p then parse_general(f, p, bodyend, rec_fields) end
+        if shape_key then
+            learn_named_shape(f, shape_key, dstb, srcb)
+            learn_positional_shape(f, shape_key, dstb, srcb)
+        end
+        return bodyend, dstb, srcb, malformed_msg
     end
-    return bodyend, dstb, srcb, malformed_msg
 end
 
 -- Checksum verdict, before the state (a frame with a bad checksum changes no state): the
@@ -1119,229 +1124,233 @@ local function kind_of_fields(malformed_msg)
     return "other", false
 end
 
--- State, first pass, a data frame: its values go into the direction's state (good checksum),
--- what it leaves out is gathered in CARRY (empty D fields: value, frame, ...; ne entries) and
--- MISS (named variables: name, value, frame, ...; nm entries).  Returns whether it is full,
--- ne, nm, the number of named variables carried, and full_local (the verdict without state).
-local function data_values(d, list, num, good, full_local)
-    local fast_sh, n_pos, nd, n_ord = pr_fast_sh, pr_n_pos, pr_nd, pr_n_ord
-    local ne, nm, miss_n = 0, 0, 0
-    local full
-    if good and fast_sh and d.names_is == fast_sh.N then
-        -- same layout as the known variable set: nothing can be missing
-        local vals, from = d.vals, d.from
+-- state_first_pass and its helpers (a block, as parse_frame)
+local state_first_pass
+do
+    -- State, first pass, a data frame: its values go into the direction's state (good checksum),
+    -- what it leaves out is gathered in CARRY (empty D fields: value, frame, ...; ne entries) and
+    -- MISS (named variables: name, value, frame, ...; nm entries).  Returns whether it is full,
+    -- ne, nm, the number of named variables carried, and full_local (the verdict without state).
+    local function data_values(d, list, num, good, full_local)
+        local fast_sh, n_pos, nd, n_ord = pr_fast_sh, pr_n_pos, pr_nd, pr_n_ord
+        local ne, nm, miss_n = 0, 0, 0
+        local full
+        if good and fast_sh and d.names_is == fast_sh.N then
+            -- same layout as the known variable set: nothing can be missing
+            local vals, from = d.vals, d.from
+            for v = 1, nv do
+                local name = VN[v]
+                vals[name] = VV[v]
+                from[name] = num
+            end
+            full = full_local
+        else
+            local vals, from, seen = d.vals, d.from, d.seen
+            local names = d.names
+            stamp_ctr = stamp_ctr + 1
+            local stamp = stamp_ctr
+            local required_missing = false   -- a slot that held a value is empty here
+            local maxslot = -1
+            ne = 0
+            for v = 1, nv do
+                local val = VV[v]
+                if val then
+                    local name = VN[v]
+                    if name then
+                        if good then
+                            vals[name] = val
+                            from[name] = num
+                            if not seen[name] then
+                                names[#names + 1] = name
+                                d.npos[name] = #names - 1
+                                d.nfirst[name] = num
+                                d.names_is = nil
+                            end
+                            seen[name] = stamp
+                        elseif seen[name] then
+                            seen[name] = stamp
+                        end
+                    else
+                        local slot = VI[v]
+                        name = list[slot + 1] or ("#" .. slot)
+                        if slot > maxslot then maxslot = slot end
+                        if val == "" then
+                            local cv = vals[name]
+                            if cv then required_missing = true end
+                            CARRY[ne + 1] = cv or false
+                            CARRY[ne + 2] = from[name] or false
+                            ne = ne + 2
+                        elseif good then
+                            vals[name] = val
+                            from[name] = num
+                            if slot > d.maxslot then d.maxslot = slot end
+                        end
+                    end
+                end
+            end
+            -- positional: required slots past the frame's last D
+            if n_pos > 0 then
+                for slot = maxslot + 1, d.maxslot do
+                    if vals[list[slot + 1] or ("#" .. slot)] then required_missing = true; break end
+                end
+            end
+            -- named: known variables missing from this frame
+            if n_pos == 0 and #names > 0 then
+                for k = 1, #names do
+                    local name = names[k]
+                    if seen[name] ~= stamp then
+                        MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
+                        nm = nm + 3
+                        miss_n = miss_n + 1
+                    end
+                end
+            end
+            if fast_sh and good and miss_n == 0 and #names == fast_sh.n then d.names_is = fast_sh.N end
+            full = nd > 0 and (n_ord == nil or n_ord == 0) and not required_missing and miss_n == 0
+            if n_pos == 0 then full_local = full_local and miss_n == 0 end
+        end
+        return full, ne, nm, miss_n, full_local
+    end
+
+    -- State, first pass, a data frame: the sync clock, and the record later passes read (late
+    -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
+    local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
+        local rec = nil
+        local kind
+        local now = pinfo.rel_ts
+        local first = d.first
+        if not first then first = now; d.first = now end
+        if full then
+            if good then d.lastfull = now end
+        else
+            local age = now - (d.lastfull or first)
+            if age > pref_sync then
+                rec = rec or get_rec(num, sk, true)
+                rec.late = age
+            end
+        end
+        local kch = full and "f" or "d"
+        -- carried values of empty D fields: a packed text record unless the
+        -- frame has a table record anyway
+        if ne > 0 or nm > 0 then
+            if rec or not carried_store(num, sk, ne, nm, kch) then
+                rec = rec or get_rec(num, sk, true)
+                for k = 1, ne do rec[k] = CARRY[k] end
+                if nm > 0 then
+                    local miss = {}
+                    for k = 1, nm do miss[k] = MISS[k] end
+                    rec.miss = miss
+                end
+            end
+        elseif full ~= full_local then
+            rec = rec or get_rec(num, sk, true)
+        end
+        if rec then rec.kind = kch end
+        kind = full and "full" or "delta"
+        return rec, kind
+    end
+
+    -- State, first pass, a declaration with a good checksum: the list it declares.
+    local function learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
+        local l_ord, n_ord = pr_l_ord, pr_n_ord
+        local dd, rl
+        if l_ord then
+            -- the sender's inbound list = the list used from dst to src
+            dd = get_rev_dir(pinfo, dstb, srcb)
+            rl = dst .. src
+        else
+            dd = get_dir(pinfo, num, dstb, srcb)
+            rl = letters
+        end
+        local base_list = dd.list or pair_lists[rl] or pref_list
+        local newlist = {}
+        local types = {}
+        newlist.t = types
+        local start = l_ord or n_ord or 0
+        for k = 1, math.min(start, #base_list) do
+            newlist[k] = base_list[k]
+            types[k] = base_list.t and base_list.t[k]
+        end
+        local maxi = #newlist
+        for v = 1, nv do
+            if VN[v] then
+                newlist[VI[v] + 1] = VN[v]
+                types[VI[v] + 1] = VT[v] and valid_type(VT[v]) or nil
+                if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
+            end
+        end
+        for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
+        dd.list = newlist
+        pair_lists[rl] = newlist
+    end
+
+    -- State, first pass: a query or declaration waits for its reply; a reply finds its query.
+    local function link_query_reply(pinfo, num, sk, kind, dst, src, rec)
+        local pa, pb = pinfo.src_port, pinfo.dst_port
+        if pa > pb then pa, pb = pb, pa end
+        local ports = ":" .. pa .. "-" .. pb
         for v = 1, nv do
             local name = VN[v]
-            vals[name] = VV[v]
-            from[name] = num
-        end
-        full = full_local
-    else
-        local vals, from, seen = d.vals, d.from, d.seen
-        local names = d.names
-        stamp_ctr = stamp_ctr + 1
-        local stamp = stamp_ctr
-        local required_missing = false   -- a slot that held a value is empty here
-        local maxslot = -1
-        ne = 0
-        for v = 1, nv do
-            local val = VV[v]
-            if val then
-                local name = VN[v]
-                if name then
-                    if good then
-                        vals[name] = val
-                        from[name] = num
-                        if not seen[name] then
-                            names[#names + 1] = name
-                            d.npos[name] = #names - 1
-                            d.nfirst[name] = num
-                            d.names_is = nil
-                        end
-                        seen[name] = stamp
-                    elseif seen[name] then
-                        seen[name] = stamp
+            if name then
+                if VR[v] then
+                    rec = rec or get_rec(num, sk, true)
+                    local qkey = dst .. ">" .. src .. ":" .. name .. ports
+                    local qrec = pending_q[qkey]
+                    if qrec then
+                        pending_q[qkey] = nil
+                        qrec.resp_in = qrec.resp_in or {}
+                        qrec.resp_in[name] = num
+                        rec.resp_to = rec.resp_to or {}
+                        rec.resp_to[name] = qrec.num
+                        rec.rt = rec.rt or {}
+                        rec.rt[name] = pinfo.rel_ts - qrec.t
+                    else
+                        rec.unmatched = rec.unmatched or {}
+                        rec.unmatched[name] = true
                     end
-                else
-                    local slot = VI[v]
-                    name = list[slot + 1] or ("#" .. slot)
-                    if slot > maxslot then maxslot = slot end
-                    if val == "" then
-                        local cv = vals[name]
-                        if cv then required_missing = true end
-                        CARRY[ne + 1] = cv or false
-                        CARRY[ne + 2] = from[name] or false
-                        ne = ne + 2
-                    elseif good then
-                        vals[name] = val
-                        from[name] = num
-                        if slot > d.maxslot then d.maxslot = slot end
-                    end
+                elseif kind ~= "reply" then
+                    rec = rec or get_rec(num, sk, true)
+                    rec.num = num
+                    rec.t = pinfo.rel_ts
+                    pending_q[src .. ">" .. dst .. ":" .. name .. ports] = rec
                 end
             end
         end
-        -- positional: required slots past the frame's last D
-        if n_pos > 0 then
-            for slot = maxslot + 1, d.maxslot do
-                if vals[list[slot + 1] or ("#" .. slot)] then required_missing = true; break end
-            end
-        end
-        -- named: known variables missing from this frame
-        if n_pos == 0 and #names > 0 then
-            for k = 1, #names do
-                local name = names[k]
-                if seen[name] ~= stamp then
-                    MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
-                    nm = nm + 3
-                    miss_n = miss_n + 1
-                end
-            end
-        end
-        if fast_sh and good and miss_n == 0 and #names == fast_sh.n then d.names_is = fast_sh.N end
-        full = nd > 0 and (n_ord == nil or n_ord == 0) and not required_missing and miss_n == 0
-        if n_pos == 0 then full_local = full_local and miss_n == 0 end
+        return rec
     end
-    return full, ne, nm, miss_n, full_local
-end
 
--- State, first pass, a data frame: the sync clock, and the record later passes read (late
--- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
-local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
-    local rec = nil
-    local kind
-    local now = pinfo.rel_ts
-    local first = d.first
-    if not first then first = now; d.first = now end
-    if full then
-        if good then d.lastfull = now end
-    else
-        local age = now - (d.lastfull or first)
-        if age > pref_sync then
-            rec = rec or get_rec(num, sk, true)
-            rec.late = age
-        end
-    end
-    local kch = full and "f" or "d"
-    -- carried values of empty D fields: a packed text record unless the
-    -- frame has a table record anyway
-    if ne > 0 or nm > 0 then
-        if rec or not carried_store(num, sk, ne, nm, kch) then
-            rec = rec or get_rec(num, sk, true)
-            for k = 1, ne do rec[k] = CARRY[k] end
-            if nm > 0 then
-                local miss = {}
-                for k = 1, nm do miss[k] = MISS[k] end
-                rec.miss = miss
+    -- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
+    -- direction state (data frames), the named variables carried, and ne/nm (see data_values).
+    function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, full_local)
+        local rec, list, d = nil, pref_list, nil
+        local miss_n, ne, nm = 0, 0, 0
+        local letters = src .. dst
+        local addrs_ok = dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P
+        if (is_data or kind == "malformed") and addrs_ok then
+            d = get_dir(pinfo, num, dstb, srcb)
+            list = d.list or pair_lists[letters] or pref_list
+            -- remember when the list in use changes (read back on later passes)
+            if list ~= (d.used_list or pref_list) then
+                local h = d.uhist
+                if not h then h = {}; d.uhist = h end
+                h[#h + 1] = num
+                h[#h + 1] = sk
+                h[#h + 1] = list
+                d.used_list = list
             end
-        end
-    elseif full ~= full_local then
-        rec = rec or get_rec(num, sk, true)
-    end
-    if rec then rec.kind = kch end
-    kind = full and "full" or "delta"
-    return rec, kind
-end
-
--- State, first pass, a declaration with a good checksum: the list it declares.
-local function learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
-    local l_ord, n_ord = pr_l_ord, pr_n_ord
-    local dd, rl
-    if l_ord then
-        -- the sender's inbound list = the list used from dst to src
-        dd = get_rev_dir(pinfo, dstb, srcb)
-        rl = dst .. src
-    else
-        dd = get_dir(pinfo, num, dstb, srcb)
-        rl = letters
-    end
-    local base_list = dd.list or pair_lists[rl] or pref_list
-    local newlist = {}
-    local types = {}
-    newlist.t = types
-    local start = l_ord or n_ord or 0
-    for k = 1, math.min(start, #base_list) do
-        newlist[k] = base_list[k]
-        types[k] = base_list.t and base_list.t[k]
-    end
-    local maxi = #newlist
-    for v = 1, nv do
-        if VN[v] then
-            newlist[VI[v] + 1] = VN[v]
-            types[VI[v] + 1] = VT[v] and valid_type(VT[v]) or nil
-            if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
-        end
-    end
-    for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
-    dd.list = newlist
-    pair_lists[rl] = newlist
-end
-
--- State, first pass: a query or declaration waits for its reply; a reply finds its query.
-local function link_query_reply(pinfo, num, sk, kind, dst, src, rec)
-    local pa, pb = pinfo.src_port, pinfo.dst_port
-    if pa > pb then pa, pb = pb, pa end
-    local ports = ":" .. pa .. "-" .. pb
-    for v = 1, nv do
-        local name = VN[v]
-        if name then
-            if VR[v] then
-                rec = rec or get_rec(num, sk, true)
-                local qkey = dst .. ">" .. src .. ":" .. name .. ports
-                local qrec = pending_q[qkey]
-                if qrec then
-                    pending_q[qkey] = nil
-                    qrec.resp_in = qrec.resp_in or {}
-                    qrec.resp_in[name] = num
-                    rec.resp_to = rec.resp_to or {}
-                    rec.resp_to[name] = qrec.num
-                    rec.rt = rec.rt or {}
-                    rec.rt[name] = pinfo.rel_ts - qrec.t
-                else
-                    rec.unmatched = rec.unmatched or {}
-                    rec.unmatched[name] = true
-                end
-            elseif kind ~= "reply" then
-                rec = rec or get_rec(num, sk, true)
-                rec.num = num
-                rec.t = pinfo.rel_ts
-                pending_q[src .. ">" .. dst .. ":" .. name .. ports] = rec
+            if is_data then
+                local full
+                full, ne, nm, miss_n, full_local = data_values(d, list, num, good, full_local)
+                rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
             end
+        elseif kind == "declaration" and addrs_ok and good then
+            learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
         end
-    end
-    return rec
-end
-
--- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
--- direction state (data frames), the named variables carried, and ne/nm (see data_values).
-local function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, full_local)
-    local rec, list, d = nil, pref_list, nil
-    local miss_n, ne, nm = 0, 0, 0
-    local letters = src .. dst
-    local addrs_ok = dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P
-    if (is_data or kind == "malformed") and addrs_ok then
-        d = get_dir(pinfo, num, dstb, srcb)
-        list = d.list or pair_lists[letters] or pref_list
-        -- remember when the list in use changes (read back on later passes)
-        if list ~= (d.used_list or pref_list) then
-            local h = d.uhist
-            if not h then h = {}; d.uhist = h end
-            h[#h + 1] = num
-            h[#h + 1] = sk
-            h[#h + 1] = list
-            d.used_list = list
+        if (kind == "query" or kind == "reply" or kind == "declaration") and addrs_ok and good then
+            rec = link_query_reply(pinfo, num, sk, kind, dst, src, rec)
         end
-        if is_data then
-            local full
-            full, ne, nm, miss_n, full_local = data_values(d, list, num, good, full_local)
-            rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
-        end
-    elseif kind == "declaration" and addrs_ok and good then
-        learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
+        return kind, rec, list, d, miss_n, ne, nm
     end
-    if (kind == "query" or kind == "reply" or kind == "declaration") and addrs_ok and good then
-        rec = link_query_reply(pinfo, num, sk, kind, dst, src, rec)
-    end
-    return kind, rec, list, d, miss_n, ne, nm
 end
 
 -- State on a later pass: the record, and the list in use at this frame on the first pass
@@ -1461,282 +1470,293 @@ end
 
 -- The full tree (shown: every range and label).  TC holds what its parts share (reused).
 local TC = {}
+local tree_full
 
--- Its first lines: the protocol line's summary, addresses, kind, malformed.
-local function tree_head(tc)
-    local ti, tvb, o, src, dst, kind = tc.ti, tc.tvb, tc.o, tc.src, tc.dst, tc.kind
-    local dstb, srcb, malformed_msg, cs_status = tc.dstb, tc.srcb, tc.malformed_msg, tc.cs_status
-    local dnode = dstb and dstb >= B_A and dstb <= B_P
-    local snode = srcb and srcb >= B_A and srcb <= B_P
-    local line = ", " .. src .. ARROW .. dst .. " " .. kind
-    if malformed_msg then line = line .. ", malformed" end
-    if cs_status == 0 then line = line .. ", bad checksum" end
-    ti:append_text(line)
+do
+    -- Its first lines: the protocol line's summary, addresses, kind, malformed.
+    local function tree_head(tc)
+        local ti, tvb, o, src, dst, kind = tc.ti, tc.tvb, tc.o, tc.src, tc.dst, tc.kind
+        local dstb, srcb, malformed_msg, cs_status = tc.dstb, tc.srcb, tc.malformed_msg, tc.cs_status
+        local dnode = dstb and dstb >= B_A and dstb <= B_P
+        local snode = srcb and srcb >= B_A and srcb <= B_P
+        local line = ", " .. src .. ARROW .. dst .. " " .. kind
+        if malformed_msg then line = line .. ", malformed" end
+        if cs_status == 0 then line = line .. ", bad checksum" end
+        ti:append_text(line)
 
-    -- "Destination: A (node 1)": the node number is folded into the letter's line, its
-    -- field kept for filters but hidden
-    local it
-    if dnode then
-        local r = tvb(o + 3, 1)
-        ti:add(hf.dst, r, dst, "Destination: " .. dst .. " (node " .. (dstb - B_A + 1) .. ")")
-        ti:add(hf.dst_node, r, dstb - B_A + 1):set_hidden()
-    elseif dstb then
-        it = ti:add(hf.dst, tvb(o + 3, 1), dst)
-        it:add_proto_expert_info(ei.address_invalid, "Destination " .. dst .. " is not a letter A-P")
-    end
-    if snode then
-        local r = tvb(o + 4, 1)
-        ti:add(hf.src, r, src, "Source: " .. src .. " (node " .. (srcb - B_A + 1) .. ")")
-        ti:add(hf.src_node, r, srcb - B_A + 1):set_hidden()
-    elseif srcb then
-        it = ti:add(hf.src, tvb(o + 4, 1), src)
-        it:add_proto_expert_info(ei.address_invalid, "Source " .. src .. " is not a letter A-P")
-    end
-    ti:add(hf.kind, kind):set_generated()
-    if malformed_msg then
-        ti:add_proto_expert_info(ei.malformed, malformed_msg)
-    end
-end
-
--- A variable's subtree, at its first field fs.
-local function tree_variable(tc, v, fs)
-    local ti, tvb, o, list, d, num, rec, ne = tc.ti, tc.tvb, tc.o, tc.list, tc.d, tc.num, tc.rec, tc.ne
-    local resp_in, resp_to, rts, unmatched = tc.resp_in, tc.resp_to, tc.rts, tc.unmatched
-    local ke = tc.ke
-    local tf, qf, df = VTf[v], VQf[v], VDf[v]
-    local vend = df ~= 0 and df or (qf ~= 0 and qf or tf)
-    local name = VN[v]
-    local named = name and true or false
-    local index = VI[v]
-    local vtype = nil
-    if not named then
-        name = list[index + 1]
-        vtype = list.t and list.t[index + 1]
-    elseif d then
-        -- a named variable's index: its place among the conversation's names
-        local first = d.nfirst[name]
-        index = (first and first <= num) and d.npos[name] or nil
-    end
-    local vt = ti:add(hf.var, tvb(o + fs, FE[vend] - fs + 1))
-    local label = name or ("#" .. VI[v])
-    if tf ~= 0 then
-        vtype = valid_type(VT[v])
-        if vtype then
-            vt:add(hf.ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
-        else
-            vt:add(tvb(o + FS[tf], FE[tf] - FS[tf] + 1), "Type (T): " .. tostring(VT[v] or ""))
-                :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
+        -- "Destination: A (node 1)": the node number is folded into the letter's line, its
+        -- field kept for filters but hidden
+        local it
+        if dnode then
+            local r = tvb(o + 3, 1)
+            ti:add(hf.dst, r, dst, "Destination: " .. dst .. " (node " .. (dstb - B_A + 1) .. ")")
+            ti:add(hf.dst_node, r, dstb - B_A + 1):set_hidden()
+        elseif dstb then
+            it = ti:add(hf.dst, tvb(o + 3, 1), dst)
+            it:add_proto_expert_info(ei.address_invalid, "Destination " .. dst .. " is not a letter A-P")
+        end
+        if snode then
+            local r = tvb(o + 4, 1)
+            ti:add(hf.src, r, src, "Source: " .. src .. " (node " .. (srcb - B_A + 1) .. ")")
+            ti:add(hf.src_node, r, srcb - B_A + 1):set_hidden()
+        elseif srcb then
+            it = ti:add(hf.src, tvb(o + 4, 1), src)
+            it:add_proto_expert_info(ei.address_invalid, "Source " .. src .. " is not a letter A-P")
+        end
+        ti:add(hf.kind, kind):set_generated()
+        if malformed_msg then
+            ti:add_proto_expert_info(ei.malformed, malformed_msg)
         end
     end
-    -- the name is the subtree's label: its field is kept for filters, hidden
-    if named then
-        local qr = tvb(o + FS[qf] + 1, FE[qf] - FS[qf])
-        if VR[v] then vt:add(hf.response, qr, name) end
-        vt:add(hf.var_name, qr, name):set_hidden()
-    elseif name then
-        vt:add(hf.var_name, tvb(o + FS[df], 1), name):set_hidden()
-    else
-        vt:add_proto_expert_info(ei.var_unknown,
-            "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
-    end
-    if not VR[v] and index then vt:add(hf.var_index, index):set_generated() end
-    local val = VV[v]
-    if val then
-        if val ~= "" or named then
-            local vr = tvb(o + FS[df] + 1, FE[df] - FS[df])
-            vt:add(hf.var_value, vr, val)
-            if vtype then add_typed_value(vt, vr, vtype, val) end
-            vt:set_text(label .. " = " .. val)
-        else
-            local cv, cf = false, false
-            local csrc = rec or (ne > 0 and CARRY)
-            if csrc then cv, cf = csrc[ke + 1], csrc[ke + 2] end
-            ke = ke + 2
-            local r0 = tvb(o + FS[df], 1)
-            if cv then vt:add(hf.var_value, r0, cv):set_generated() end
-            vt:add(hf.var_carried, r0, true):set_generated()
-            if cf then
-                vt:add(hf.var_carried_from, r0, cf):set_generated()
-                vt:set_text(label .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
+
+    -- A variable's subtree, at its first field fs.
+    local function tree_variable(tc, v, fs)
+        local ti, tvb, o, list, d, num, rec, ne = tc.ti, tc.tvb, tc.o, tc.list, tc.d, tc.num, tc.rec, tc.ne
+        local resp_in, resp_to, rts, unmatched = tc.resp_in, tc.resp_to, tc.rts, tc.unmatched
+        local ke = tc.ke
+        local tf, qf, df = VTf[v], VQf[v], VDf[v]
+        local vend = df ~= 0 and df or (qf ~= 0 and qf or tf)
+        local name = VN[v]
+        local named = name and true or false
+        local index = VI[v]
+        local vtype = nil
+        if not named then
+            name = list[index + 1]
+            vtype = list.t and list.t[index + 1]
+        elseif d then
+            -- a named variable's index: its place among the conversation's names
+            local first = d.nfirst[name]
+            index = (first and first <= num) and d.npos[name] or nil
+        end
+        local vt = ti:add(hf.var, tvb(o + fs, FE[vend] - fs + 1))
+        local label = name or ("#" .. VI[v])
+        if tf ~= 0 then
+            vtype = valid_type(VT[v])
+            if vtype then
+                vt:add(hf.ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
             else
-                vt:set_text(label .. " = ? (carried, no earlier value)")
+                vt:add(tvb(o + FS[tf], FE[tf] - FS[tf] + 1), "Type (T): " .. tostring(VT[v] or ""))
+                    :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
             end
         end
-        if VR[v] then
-            if resp_to and resp_to[name] then
-                vt:add(hf.response_to, resp_to[name]):set_generated()
-                vt:add(hf.response_time, nstime_of(rts[name])):set_generated()
-            elseif unmatched and unmatched[name] then
-                vt:add_proto_expert_info(ei.unanswered)
-            end
-        end
-    else
-        vt:set_text(label .. (VR[v] and " (reply without value)" or " (declared)"))
-        if resp_in and resp_in[name] then
-            vt:add(hf.response_in, resp_in[name]):set_generated()
-        end
-    end
-    tc.ke = ke
-end
-
--- A field that is not part of a variable (letter l, f[fs..fe]).
-local function tree_plain_field(tc, l, fs, fe)
-    local ti, tvb, o, f, resp_in = tc.ti, tc.tvb, tc.o, tc.f, tc.resp_in
-    local cmd_item = tc.cmd_item
-    local text = (l ~= false) and s_sub(f, fs + 1, fe) or ""
-    local vr = tvb(o + fs + 1, fe - fs)     -- the text after the letter
-    if l == false then
-        ti:add(zrange(tvb, o + fs), "Empty field"):add_proto_expert_info(ei.field_empty)
-    elseif l == L_N or l == L_L then
-        local n = tonumber(text)
-        if n and n >= 0 and n < 4294967296 and n == floor(n) then
-            ti:add(l == L_N and hf.ordinal or hf.inbound_ordinal, vr, floor(n))
+        -- the name is the subtree's label: its field is kept for filters, hidden
+        if named then
+            local qr = tvb(o + FS[qf] + 1, FE[qf] - FS[qf])
+            if VR[v] then vt:add(hf.response, qr, name) end
+            vt:add(hf.var_name, qr, name):set_hidden()
+        elseif name then
+            vt:add(hf.var_name, tvb(o + FS[df], 1), name):set_hidden()
         else
-            ti:add(tvb(o + fs, fe - fs + 1), (l == L_N and "Ordinal (N): " or "Inbound ordinal (L): ") ..
-                text):add_proto_expert_info(ei.var_badvalue, "Ordinal is not a number")
+            vt:add_proto_expert_info(ei.var_unknown,
+                "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
         end
-    elseif l == L_Q then
-        local qt = ti:add(hf.query, vr, text)
-        if resp_in and resp_in[text] then
-            qt:add(hf.response_in, resp_in[text]):set_generated()
-        end
-    elseif l == L_R then
-        ti:add(hf.response, vr, text)
-    elseif l == L_T then
-        local t = valid_type(text)
-        if t then
-            ti:add(hf.ftype, vr, t)
-        else
-            ti:add(tvb(o + fs, fe - fs + 1), "Type (T): " .. text)
-                :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
-        end
-    elseif l == L_E then
-        cmd_item = ti:add(hf.command, vr, text)
-    elseif l == L_M then
-        ti:add(hf.mode, vr, text)
-    elseif l == L_P then
-        ti:add(hf.ping, vr, text)
-    elseif l == L_G then
-        ti:add(hf.pong, vr, text)
-    elseif l == L_D then
-        (cmd_item or ti):add(hf.command_arg, vr, text)
-    else
-        local ft = ti:add(hf.field_letter, tvb(o + fs, 1), LETTER[l])
-        ft:add(hf.field_text, tvb(o + fs, fe - fs + 1), s_sub(f, fs, fe))
-        if l == L_C then
-            ft:add_proto_expert_info(ei.field_unknown, "Checksum field C that is not the last field")
-        else
-            ft:add_proto_expert_info(ei.field_unknown, "Unknown field letter " .. LETTER[l])
-        end
-    end
-    tc.cmd_item = cmd_item
-end
-
--- The fields in order; a variable is rendered at its first field.
-local function tree_fields(tc)
-    local kind, cpos = tc.kind, pr_cpos
-    for i = 1, nf do FV[i] = 0; FC[i] = false end
-    for v = 1, nv do
-        if VV[v] or kind == "declaration" or VR[v] then
-            local first = VTf[v] ~= 0 and VTf[v] or (VQf[v] ~= 0 and VQf[v] or VDf[v])
-            FV[first] = v
-            if VQf[v] ~= 0 and VQf[v] ~= first then FC[VQf[v]] = true end
-            if VDf[v] ~= 0 and VDf[v] ~= first then FC[VDf[v]] = true end
-        end
-    end
-    for i = 1, nf do
-        local fs = FS[i]
-        local v = FV[i]
-        if v ~= 0 then
-            tree_variable(tc, v, fs)
-        elseif not FC[i] and fs ~= cpos then
-            tree_plain_field(tc, FL[i], fs, FE[i])
-        end
-    end
-end
-
--- Named variables this frame left out (carried forward).
-local function tree_carried_names(tc)
-    local ti, tvb, o, rec, nm, d, bodyend = tc.ti, tc.tvb, tc.o, tc.rec, tc.nm, tc.d, tc.bodyend
-    -- carried named variables (left out of this frame)
-    local miss = rec and rec.miss
-    local miss_len = miss and #miss or 0
-    if not miss and nm > 0 then miss, miss_len = MISS, nm end    -- packed on this pass
-    if miss then
-        for k = 1, miss_len, 3 do
-            local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
-            local vt = ti:add(hf.var, zrange(tvb, o + bodyend))
-            vt:add(hf.var_name, name):set_hidden()
-            local index = d and d.npos[name]
-            if index then vt:add(hf.var_index, index):set_generated() end
-            if cv then vt:add(hf.var_value, cv):set_generated() end
-            vt:add(hf.var_carried, true):set_generated()
-            if cf then
-                vt:add(hf.var_carried_from, cf):set_generated()
-                vt:set_text(name .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
+        if not VR[v] and index then vt:add(hf.var_index, index):set_generated() end
+        local val = VV[v]
+        if val then
+            if val ~= "" or named then
+                local vr = tvb(o + FS[df] + 1, FE[df] - FS[df])
+                vt:add(hf.var_value, vr, val)
+                if vtype then add_typed_value(vt, vr, vtype, val) end
+                vt:set_text(label .. " = " .. val)
             else
-                vt:set_text(name .. " = ? (carried, no earlier value)")
+                local cv, cf = false, false
+                local csrc = rec or (ne > 0 and CARRY)
+                if csrc then cv, cf = csrc[ke + 1], csrc[ke + 2] end
+                ke = ke + 2
+                local r0 = tvb(o + FS[df], 1)
+                if cv then vt:add(hf.var_value, r0, cv):set_generated() end
+                vt:add(hf.var_carried, r0, true):set_generated()
+                if cf then
+                    vt:add(hf.var_carried_from, r0, cf):set_generated()
+                    vt:set_text(label .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
+                else
+                    vt:set_text(label .. " = ? (carried, no earlier value)")
+                end
             end
-            vt:set_generated()
-        end
-    end
-end
-
--- Its last lines: sync, checksum, line terminator.
-local function tree_trailer(tc)
-    local ti, tvb, o, rec, s, a, e, fl = tc.ti, tc.tvb, tc.o, tc.rec, tc.s, tc.a, tc.e, tc.fl
-    local cs_val, cs_calc, cs_status, terminated, malformed_msg = tc.cs_val, tc.cs_calc, tc.cs_status, tc.terminated,
-        tc.malformed_msg
-    local cpos, ctext = pr_cpos, pr_ctext
-    if rec and rec.late then
-        ti:add(hf.sync_is_late, true):set_generated()
-        ti:add_proto_expert_info(ei.sync_late,
-            s_format("No full frame for %.3f s (sync interval %.3f s + %.1f s slack)",
-                rec.late, pref_sync - SYNC_SLACK, SYNC_SLACK))
-    end
-
-    -- Checksum
-    if cpos then
-        local cr = tvb(o + cpos, #ctext + 1)
-        local val = cs_val
-        local ct
-        if val and val <= 255 then
-            ct = ti:add(hf.checksum, cr, val)
+            if VR[v] then
+                if resp_to and resp_to[name] then
+                    vt:add(hf.response_to, resp_to[name]):set_generated()
+                    vt:add(hf.response_time, nstime_of(rts[name])):set_generated()
+                elseif unmatched and unmatched[name] then
+                    vt:add_proto_expert_info(ei.unanswered)
+                end
+            end
         else
-            ct = ti:add(hf.checksum_text, cr, ctext)
+            vt:set_text(label .. (VR[v] and " (reply without value)" or " (declared)"))
+            if resp_in and resp_in[name] then
+                vt:add(hf.response_in, resp_in[name]):set_generated()
+            end
         end
-        if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then
-            ct:add_proto_expert_info(ei.checksum_format, "Checksum \"" .. ctext ..
-                "\" is not two upper-case hex digits")
-        end
-        if pref_validate then
-            local calc = cs_calc
-            ct:add(hf.checksum_calc, cr, calc):set_generated()
-            if cs_status == 1 then
-                ct:add(hf.checksum_status, cr, 1):set_generated()
-                ct:append_text(" [correct]")
+        tc.ke = ke
+    end
+
+    -- A field that is not part of a variable (letter l, f[fs..fe]).
+    local function tree_plain_field(tc, l, fs, fe)
+        local ti, tvb, o, f, resp_in = tc.ti, tc.tvb, tc.o, tc.f, tc.resp_in
+        local cmd_item = tc.cmd_item
+        local text = (l ~= false) and s_sub(f, fs + 1, fe) or ""
+        local vr = tvb(o + fs + 1, fe - fs)     -- the text after the letter
+        if l == false then
+            ti:add(zrange(tvb, o + fs), "Empty field"):add_proto_expert_info(ei.field_empty)
+        elseif l == L_N or l == L_L then
+            local n = tonumber(text)
+            if n and n >= 0 and n < 4294967296 and n == floor(n) then
+                ti:add(l == L_N and hf.ordinal or hf.inbound_ordinal, vr, floor(n))
             else
-                ct:add(hf.checksum_status, cr, 0):set_generated()
-                ct:append_text(s_format(" [incorrect, should be 0x%02x]", calc))
-                ct:add_proto_expert_info(ei.checksum_bad,
-                    s_format("Bad checksum: %s, calculated %02X", ctext, calc))
+                ti:add(tvb(o + fs, fe - fs + 1), (l == L_N and "Ordinal (N): " or "Inbound ordinal (L): ") ..
+                    text):add_proto_expert_info(ei.var_badvalue, "Ordinal is not a number")
             end
+        elseif l == L_Q then
+            local qt = ti:add(hf.query, vr, text)
+            if resp_in and resp_in[text] then
+                qt:add(hf.response_in, resp_in[text]):set_generated()
+            end
+        elseif l == L_R then
+            ti:add(hf.response, vr, text)
+        elseif l == L_T then
+            local t = valid_type(text)
+            if t then
+                ti:add(hf.ftype, vr, t)
+            else
+                ti:add(tvb(o + fs, fe - fs + 1), "Type (T): " .. text)
+                    :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
+            end
+        elseif l == L_E then
+            cmd_item = ti:add(hf.command, vr, text)
+        elseif l == L_M then
+            ti:add(hf.mode, vr, text)
+        elseif l == L_P then
+            ti:add(hf.ping, vr, text)
+        elseif l == L_G then
+            ti:add(hf.pong, vr, text)
+        elseif l == L_D then
+            (cmd_item or ti):add(hf.command_arg, vr, text)
         else
-            ct:add(hf.checksum_status, cr, 2):set_generated()
+            local ft = ti:add(hf.field_letter, tvb(o + fs, 1), LETTER[l])
+            ft:add(hf.field_text, tvb(o + fs, fe - fs + 1), s_sub(f, fs, fe))
+            if l == L_C then
+                ft:add_proto_expert_info(ei.field_unknown, "Checksum field C that is not the last field")
+            else
+                ft:add_proto_expert_info(ei.field_unknown, "Unknown field letter " .. LETTER[l])
+            end
         end
-    else
-        ti:add(hf.checksum_status, 2):set_generated()
-        if terminated and not malformed_msg then
-            ti:add_proto_expert_info(ei.checksum_missing)
+        tc.cmd_item = cmd_item
+    end
+
+    -- The fields in order; a variable is rendered at its first field.
+    local function tree_fields(tc)
+        local kind, cpos = tc.kind, pr_cpos
+        for i = 1, nf do FV[i] = 0; FC[i] = false end
+        for v = 1, nv do
+            if VV[v] or kind == "declaration" or VR[v] then
+                local first = VTf[v] ~= 0 and VTf[v] or (VQf[v] ~= 0 and VQf[v] or VDf[v])
+                FV[first] = v
+                if VQf[v] ~= 0 and VQf[v] ~= first then FC[VQf[v]] = true end
+                if VDf[v] ~= 0 and VDf[v] ~= first then FC[VDf[v]] = true end
+            end
+        end
+        for i = 1, nf do
+            local fs = FS[i]
+            local v = FV[i]
+            if v ~= 0 then
+                tree_variable(tc, v, fs)
+            elseif not FC[i] and fs ~= cpos then
+                tree_plain_field(tc, FL[i], fs, FE[i])
+            end
         end
     end
 
-    -- line terminator
-    if terminated then
-        local b = a + fl - 1
-        if not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
-            ti:add_proto_expert_info(ei.crlf_missing)
+    -- Named variables this frame left out (carried forward).
+    local function tree_carried_names(tc)
+        local ti, tvb, o, rec, nm, d, bodyend = tc.ti, tc.tvb, tc.o, tc.rec, tc.nm, tc.d, tc.bodyend
+        -- carried named variables (left out of this frame)
+        local miss = rec and rec.miss
+        local miss_len = miss and #miss or 0
+        if not miss and nm > 0 then miss, miss_len = MISS, nm end    -- packed on this pass
+        if miss then
+            for k = 1, miss_len, 3 do
+                local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
+                local vt = ti:add(hf.var, zrange(tvb, o + bodyend))
+                vt:add(hf.var_name, name):set_hidden()
+                local index = d and d.npos[name]
+                if index then vt:add(hf.var_index, index):set_generated() end
+                if cv then vt:add(hf.var_value, cv):set_generated() end
+                vt:add(hf.var_carried, true):set_generated()
+                if cf then
+                    vt:add(hf.var_carried_from, cf):set_generated()
+                    vt:set_text(name .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
+                else
+                    vt:set_text(name .. " = ? (carried, no earlier value)")
+                end
+                vt:set_generated()
+            end
         end
+    end
+
+    -- Its last lines: sync, checksum, line terminator.
+    local function tree_trailer(tc)
+        local ti, tvb, o, rec, s, a, e, fl = tc.ti, tc.tvb, tc.o, tc.rec, tc.s, tc.a, tc.e, tc.fl
+        local cs_val, cs_calc, cs_status = tc.cs_val, tc.cs_calc, tc.cs_status
+        local terminated, malformed_msg = tc.terminated, tc.malformed_msg
+        local cpos, ctext = pr_cpos, pr_ctext
+        if rec and rec.late then
+            ti:add(hf.sync_is_late, true):set_generated()
+            ti:add_proto_expert_info(ei.sync_late,
+                s_format("No full frame for %.3f s (sync interval %.3f s + %.1f s slack)",
+                    rec.late, pref_sync - SYNC_SLACK, SYNC_SLACK))
+        end
+
+        -- Checksum
+        if cpos then
+            local cr = tvb(o + cpos, #ctext + 1)
+            local val = cs_val
+            local ct
+            if val and val <= 255 then
+                ct = ti:add(hf.checksum, cr, val)
+            else
+                ct = ti:add(hf.checksum_text, cr, ctext)
+            end
+            if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then
+                ct:add_proto_expert_info(ei.checksum_format, "Checksum \"" .. ctext ..
+                    "\" is not two upper-case hex digits")
+            end
+            if pref_validate then
+                local calc = cs_calc
+                ct:add(hf.checksum_calc, cr, calc):set_generated()
+                if cs_status == 1 then
+                    ct:add(hf.checksum_status, cr, 1):set_generated()
+                    ct:append_text(" [correct]")
+                else
+                    ct:add(hf.checksum_status, cr, 0):set_generated()
+                    ct:append_text(s_format(" [incorrect, should be 0x%02x]", calc))
+                    ct:add_proto_expert_info(ei.checksum_bad,
+                        s_format("Bad checksum: %s, calculated %02X", ctext, calc))
+                end
+            else
+                ct:add(hf.checksum_status, cr, 2):set_generated()
+            end
+        else
+            ti:add(hf.checksum_status, 2):set_generated()
+            if terminated and not malformed_msg then
+                ti:add_proto_expert_info(ei.checksum_missing)
+            end
+        end
+
+        -- line terminator
+        if terminated then
+            local b = a + fl - 1
+            if not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
+                ti:add_proto_expert_info(ei.crlf_missing)
+            end
+        end
+    end
+
+    -- The whole of it, for the frame TC describes.
+    function tree_full(tc)
+        tree_head(tc)
+        tree_fields(tc)
+        tree_carried_names(tc)
+        tree_trailer(tc)
     end
 end
 
@@ -1792,10 +1812,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     tc.resp_in, tc.resp_to = rec and rec.resp_in, rec and rec.resp_to
     tc.rts, tc.unmatched = rec and rec.rt, rec and rec.unmatched
     tc.ke, tc.cmd_item = 0, nil   -- carried values of empty D fields used so far; the E field's item
-    tree_head(tc)
-    tree_fields(tc)
-    tree_carried_names(tc)
-    tree_trailer(tc)
+    tree_full(tc)
     return true
 end
 ------------------------------------------------------------------------------
