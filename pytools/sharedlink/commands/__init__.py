@@ -104,6 +104,17 @@ def variables_option(text: str | None) -> list[tuple[str, int | None]]:
         raise UsageError(f"--variables: {exc}") from None
 
 
+def name_list(text: str | None, option: str = "--vars") -> list[str] | None:
+    """A comma-separated list of variable names (``--vars``): None when the option was not
+    given; no name in it is a usage error."""
+    if text is None:
+        return None
+    names = [v.strip() for v in text.split(",") if v.strip()]
+    if not names:
+        raise UsageError(f"{option}: no variable named")
+    return names
+
+
 def add_decode_options(p: argparse.ArgumentParser) -> None:
     """Options every capture-reading command of this family shares."""
     add_variables_option(p)

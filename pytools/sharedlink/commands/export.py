@@ -19,7 +19,14 @@ from sharedlink.analysis.export import (
     export_file,
 )
 from sharedlink.capture.pcapio import is_stdout, refuse_overwrite
-from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options
+from sharedlink.commands import (
+    EXIT_OK,
+    EXIT_USAGE,
+    add_decode_options,
+    check_capture,
+    decode_options,
+    name_list,
+)
 from sharedlink.errors import UsageError
 
 _SUFFIXES = {".csv": "csv", ".jsonl": "jsonl", ".ndjson": "jsonl", ".geojson": "geojson", ".kml": "kml", ".mcap": "mcap"}
@@ -56,11 +63,7 @@ def run(args: argparse.Namespace) -> int:
     fmt = args.fmt
     if fmt is None:
         fmt = _SUFFIXES.get(args.output.suffix.lower(), "csv") if args.output is not None else "csv"
-    columns = None
-    if args.vars is not None:
-        columns = [v.strip() for v in args.vars.split(",") if v.strip()]
-        if not columns:
-            raise UsageError("--vars: no variable named")
+    columns = name_list(args.vars)
     if args.output is not None and args.output.is_dir():
         raise UsageError(f"{args.output}: is a directory")
     if fmt in BINARY_FORMATS:

@@ -9,7 +9,15 @@ from pathlib import Path
 
 from sharedlink.analysis.export import LAT, LON
 from sharedlink.capture.pcapio import open_output, refuse_overwrite
-from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options, number
+from sharedlink.commands import (
+    EXIT_OK,
+    EXIT_USAGE,
+    add_decode_options,
+    check_capture,
+    decode_options,
+    name_list,
+    number,
+)
 from sharedlink.errors import UsageError
 
 
@@ -40,11 +48,7 @@ def run(args: argparse.Namespace) -> int:
     refuse_overwrite(args.output, args.capture)
     if args.max_points < 10:
         raise UsageError("--max-points must be at least 10")
-    names = None
-    if args.vars is not None:
-        names = [v.strip() for v in args.vars.split(",") if v.strip()]
-        if not names:
-            raise UsageError("--vars: no variable named")
+    names = name_list(args.vars)
     import matplotlib
 
     matplotlib.use("Agg")  # headless, whatever the environment says
