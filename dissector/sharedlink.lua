@@ -87,6 +87,8 @@
 --    after a numeric N/L, no D), command, ping, pong, other (well formed, none of
 --    these), malformed (unterminated or bad header: no state update).
 
+-- luacheck: read globals gui_enabled
+
 if set_plugin_info then
     set_plugin_info({
         version = "1.2.0",
@@ -668,22 +670,56 @@ end
 -- checked on 4.0, 4.4 and 4.6), and an unreferenced field is not added again for the
 -- frame's other variables (about 18 fewer Lua-to-C calls in a beacon frame).  Decided
 -- again in every frame, as the referenced fields change when the user changes a filter.
-local REF = {}      -- per-variable field -> referenced in this frame (nil: not known yet)
+--
+-- tshark (no GUI) keeps what it learnt for the whole pass, every field included: its filters,
+-- taps and field extractors are all set before the first packet and a field Wireshark once
+-- saw referenced stays referenced.  (tshark -2 primes the display filter in its first pass
+-- too; the cache starts again with each pass all the same.)  The GUI learns again in
+-- every frame: its display filter and coloring rules change while it runs, and it dissects
+-- packet-list rows (coloring rules only) in the middle of a filter pass.  The environment
+-- variable SHAREDLINK_PROBE_EACH_FRAME makes tshark do as the GUI (for the tests).
+local REF = {}      -- field -> referenced (nil: not known yet)
 local VAR_FIELDS = { hf.var, hf.ftype, hf.var_name, hf.var_index, hf.var_value, hf.var_double,
     hf.var_long, hf.var_string, hf.var_carried, hf.var_carried_from }
+local CACHE_REFS = not (gui_enabled and gui_enabled()) and not os.getenv("SHAREDLINK_PROBE_EACH_FRAME")
+local ref_num, ref_visited = -1, nil   -- the frame and pass the cache was last used in
+local UNKNOWN = {}  -- "the parent's text is not read yet"
 
--- Add field = value under parent (whose text is ptext) unless the field is known to be
--- unreferenced in this frame; learn that on its first item.  Returns the item or nil.
+-- Add field = value under parent (whose text is ptext, or UNKNOWN) unless the field is known
+-- to be unreferenced; learn that on its first item.  Returns the item or nil.
 local function ref_add(parent, ptext, field, value)
     local r = REF[field]
     if r == false then return nil end
     local it
     if value == nil then it = parent:add(field) else it = parent:add(field, value) end
     if r == nil then
+        if ptext == UNKNOWN then ptext = parent.text end
         r = it.text ~= ptext
         REF[field] = r
     end
     return r and it or nil
+end
+
+-- Start a frame's compact tree: the learnt fields kept (tshark, the same pass) or forgotten.
+-- Returns the text ref_add compares ti's children with.
+local function ref_start(ti, num, visited)
+    if CACHE_REFS then
+        if visited ~= ref_visited or num < ref_num then
+            for k in pairs(REF) do REF[k] = nil end
+            ref_visited = visited
+        end
+        ref_num = num
+        return UNKNOWN
+    end
+    for k = 1, #VAR_FIELDS do REF[VAR_FIELDS[k]] = nil end
+    return ti.text
+end
+
+-- A field of the frame itself in the compact tree: learnt as the per-variable ones when the
+-- cache is on, else always added (once a frame, a probe would cost as much as it saves).
+local function frame_add(ti, ttext, field, value)
+    if CACHE_REFS then return ref_add(ti, ttext, field, value) end
+    return ti:add(field, value)
 end
 
 -- A variable's item in the compact tree: its subtree, or ti itself when nobody asked for
@@ -704,15 +740,13 @@ local function compact_carried(vt, ptext, cv, cf)
     if cf then ref_add(vt, ptext, hf.var_carried_from, cf) end
 end
 
-local function tree_compact(ti, dstb, srcb, kind, n_ord, nvars, list, d, num, carry, miss, nmiss)
-    ti:add(hf.dst, LETTER[dstb])
-    ti:add(hf.dst_node, dstb - B_A + 1)
-    ti:add(hf.src, LETTER[srcb])
-    ti:add(hf.src_node, srcb - B_A + 1)
-    ti:add(hf.kind, kind)
-    ti:add(hf.ordinal, n_ord)
-    for k = 1, #VAR_FIELDS do REF[VAR_FIELDS[k]] = nil end
-    local ttext = ti.text
+local function tree_compact(ti, ttext, dstb, srcb, kind, n_ord, nvars, list, d, num, carry, miss, nmiss)
+    frame_add(ti, ttext, hf.dst, LETTER[dstb])
+    frame_add(ti, ttext, hf.dst_node, dstb - B_A + 1)
+    frame_add(ti, ttext, hf.src, LETTER[srcb])
+    frame_add(ti, ttext, hf.src_node, srcb - B_A + 1)
+    frame_add(ti, ttext, hf.kind, kind)
+    frame_add(ti, ttext, hf.ordinal, n_ord)
     var_text = nil
     local ke = 0
     for v = 1, nvars do
@@ -1441,26 +1475,27 @@ end
 
 -- The compact tree of a fast-path frame nobody sees: its fields (tree_compact), the sync and
 -- checksum fields and experts, without ranges or labels.
-local function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, rec, ne, nm,
+local function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, visited, rec, ne, nm,
                                   cs_val, cs_calc, cs_status)
     local ctext = pr_ctext
     local carry = rec or (ne > 0 and CARRY)
     local miss = rec and rec.miss
     local nmiss = miss and #miss or 0
     if not miss and nm > 0 then miss, nmiss = MISS, nm end
-    tree_compact(ti, dstb, srcb, kind, pr_n_ord, nv, list, d, num, carry, miss, nmiss)
+    local ttext = ref_start(ti, num, visited)
+    tree_compact(ti, ttext, dstb, srcb, kind, pr_n_ord, nv, list, d, num, carry, miss, nmiss)
     if rec and rec.late then
-        ti:add(hf.sync_is_late, true)
+        frame_add(ti, ttext, hf.sync_is_late, true)
         ti:add_proto_expert_info(ei.sync_late)
     end
-    if cs_val then ti:add(hf.checksum, cs_val) else ti:add(hf.checksum_text, ctext) end
+    if cs_val then frame_add(ti, ttext, hf.checksum, cs_val) else frame_add(ti, ttext, hf.checksum_text, ctext) end
     if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then ti:add_proto_expert_info(ei.checksum_format) end
     if pref_validate then
-        ti:add(hf.checksum_calc, cs_calc)
-        ti:add(hf.checksum_status, cs_status)
+        frame_add(ti, ttext, hf.checksum_calc, cs_calc)
+        frame_add(ti, ttext, hf.checksum_status, cs_status)
         if cs_status == 0 then ti:add_proto_expert_info(ei.checksum_bad) end
     else
-        ti:add(hf.checksum_status, 2)
+        frame_add(ti, ttext, hf.checksum_status, 2)
     end
     local b = a + fl - 1
     if not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
@@ -1800,7 +1835,8 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     -- Tree (skipped entirely when there is none, e.g. tshark summary pass)
     if not ti then return tree == nil end
     if pr_fast_hit and not vis then
-        tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, rec, ne, nm, cs_val, cs_calc, cs_status)
+        tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, pinfo.visited, rec, ne, nm,
+            cs_val, cs_calc, cs_status)
         return true
     end
     local tc = TC
@@ -1838,6 +1874,14 @@ local function add_noise(s, i, j, tvb, tree)
     return true
 end
 
+-- Before Wireshark 4.6 a TreeItem's hidden flag tells "no tree" (see dissect); unknown: no.
+local HIDDEN_TELLS
+do
+    local major, minor = tostring(get_version and get_version() or ""):match("^(%d+)%.(%d+)")
+    major, minor = tonumber(major), tonumber(minor)
+    HIDDEN_TELLS = major ~= nil and (major < 4 or (major == 4 and minor < 6))
+end
+
 local function dissect(tvb, pinfo, tree)
     local s = tvb:raw()
     local n = #s
@@ -1854,11 +1898,17 @@ local function dissect(tvb, pinfo, tree)
     -- -T fields / -Y on 4.6, but its tostring() tells "has subtree=false" only when there
     -- is no tree (4.0 to 4.6).  Should that text ever change, we build the tree: slower,
     -- never wrong.
-    -- Speed trick (measured, 1.5 us a packet): on 4.0 and 4.4 a tree's root item is hidden
-    -- (wslua's fake item) and "no tree" is not, so hidden == false says "no tree" with one
-    -- attribute read; 4.6 says hidden in both cases and the text decides.
+    -- Speed trick (measured, 1.5 us a packet): before 4.6 a tree's root item is hidden
+    -- (wslua's fake item) and "no tree" is not, so one attribute read tells; 4.6 says hidden
+    -- in both cases and the text decides.
     local t = tree
-    if t ~= nil and (t.hidden == false or s_find(tostring(t), "has subtree=false", 1, true)) then t = nil end
+    if t ~= nil then
+        if HIDDEN_TELLS then
+            if not t.hidden then t = nil end
+        elseif s_find(tostring(t), "has subtree=false", 1, true) then
+            t = nil
+        end
+    end
     local pos = 1
     local open_at, close_at = 0, 0 -- cached search results (false = none left)
     local r

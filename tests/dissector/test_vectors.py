@@ -173,10 +173,17 @@ def _matched_shown(cap: Path, flt: str, prefs: dict | None) -> set[int]:
     return {int(r["frame.number"][0]) for r in rows}
 
 
+# tshark keeps the referenced fields it learnt for a whole pass; the GUI learns them again in
+# every frame (SHAREDLINK_PROBE_EACH_FRAME makes tshark do the same): both must match.
+@pytest.mark.parametrize("each_frame", [False, True], ids=["pass-cache", "each-frame"])
 @pytest.mark.parametrize("form", ["named", "positional"])
-def test_hidden_tree_matches_shown_tree(form: str, tmp_path: Path) -> None:
+def test_hidden_tree_matches_shown_tree(form: str, each_frame: bool, tmp_path: Path,
+                                        monkeypatch: pytest.MonkeyPatch) -> None:
     import subprocess
     import sys
+
+    if each_frame:
+        monkeypatch.setenv("SHAREDLINK_PROBE_EACH_FRAME", "1")
 
     cap = tmp_path / f"{form}.pcap"
     subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--frames", "60", "--compress", "--form", form,
@@ -184,3 +191,23 @@ def test_hidden_tree_matches_shown_tree(form: str, tmp_path: Path) -> None:
     prefs = {"sharedlink.variables": "AutoGpsLat:2,AutoGpsLon:2,AutoGpsHead:2,AutoGpsVel:2"}
     for flt in FILTERS:
         assert _matched_hidden(cap, flt, prefs) == _matched_shown(cap, flt, prefs), flt
+
+
+def test_hidden_tree_learns_again_in_the_second_pass(tmp_path: Path) -> None:
+    """tshark -2: the first pass primes the read filter's fields only, the second the display
+    filter's. What the first pass learnt must not hide a field the second pass asks for."""
+    import subprocess
+    import sys
+
+    cap = tmp_path / "two.pcap"
+    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--frames", "40", "--compress", str(cap)],
+                   check=True, capture_output=True)
+    read_filter, display = 'sharedlink.kind == "delta"', "count(sharedlink.var.name) == 4 && sharedlink.var.carried"
+    # -R drops frames and numbers the rest again: frames are compared by their time
+    lines = tu.summary(cap, two_pass=True, extra=["-R", read_filter, "-Y", display, "-t", "e",
+                                                  "-o", 'gui.column.format:"Time","%t"', *OTHERS])
+    hidden = {round(float(x.split()[0]), 6) for x in lines if x.strip()}
+    rows = tu.fields(cap, ["frame.time_epoch"], display_filter=f"({read_filter}) && ({display})", two_pass=False,
+                     extra=OTHERS)
+    shown = {round(float(r["frame.time_epoch"][0]), 6) for r in rows}
+    assert shown and hidden == shown
