@@ -1508,6 +1508,20 @@ local TC = {}
 local tree_full
 
 do
+    -- An address: "Destination: A (node 1)", the node number folded into the letter's line,
+    -- its field kept for filters but hidden; an expert when it is not a letter A-P.
+    local function tree_address(ti, tvb, off, b, letter, is_node, field, node_field, what)
+        if not b then return end   -- cut short: no byte to point at
+        local r = tvb(off, 1)
+        if is_node then
+            ti:add(field, r, letter, what .. ": " .. letter .. " (node " .. (b - B_A + 1) .. ")")
+            ti:add(node_field, r, b - B_A + 1):set_hidden()
+        else
+            ti:add(field, r, letter):add_proto_expert_info(ei.address_invalid,
+                what .. " " .. letter .. " is not a letter A-P")
+        end
+    end
+
     -- Its first lines: the protocol line's summary, addresses, kind, malformed.
     local function tree_head(tc)
         local ti, tvb, o, src, dst, kind = tc.ti, tc.tvb, tc.o, tc.src, tc.dst, tc.kind
@@ -1515,29 +1529,11 @@ do
         local dnode = dstb and dstb >= B_A and dstb <= B_P
         local snode = srcb and srcb >= B_A and srcb <= B_P
         local line = ", " .. src .. ARROW .. dst .. " " .. kind
-        if malformed_msg then line = line .. ", malformed" end
         if cs_status == 0 then line = line .. ", bad checksum" end
         ti:append_text(line)
 
-        -- "Destination: A (node 1)": the node number is folded into the letter's line, its
-        -- field kept for filters but hidden
-        local it
-        if dnode then
-            local r = tvb(o + 3, 1)
-            ti:add(hf.dst, r, dst, "Destination: " .. dst .. " (node " .. (dstb - B_A + 1) .. ")")
-            ti:add(hf.dst_node, r, dstb - B_A + 1):set_hidden()
-        elseif dstb then
-            it = ti:add(hf.dst, tvb(o + 3, 1), dst)
-            it:add_proto_expert_info(ei.address_invalid, "Destination " .. dst .. " is not a letter A-P")
-        end
-        if snode then
-            local r = tvb(o + 4, 1)
-            ti:add(hf.src, r, src, "Source: " .. src .. " (node " .. (srcb - B_A + 1) .. ")")
-            ti:add(hf.src_node, r, srcb - B_A + 1):set_hidden()
-        elseif srcb then
-            it = ti:add(hf.src, tvb(o + 4, 1), src)
-            it:add_proto_expert_info(ei.address_invalid, "Source " .. src .. " is not a letter A-P")
-        end
+        tree_address(ti, tvb, o + 3, dstb, dst, dnode, hf.dst, hf.dst_node, "Destination")
+        tree_address(ti, tvb, o + 4, srcb, src, snode, hf.src, hf.src_node, "Source")
         ti:add(hf.kind, kind):set_generated()
         if malformed_msg then
             ti:add_proto_expert_info(ei.malformed, malformed_msg)
