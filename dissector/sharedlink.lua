@@ -1355,11 +1355,10 @@ do
 
     -- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
     -- direction state (data frames), the named variables carried, and ne/nm (see data_values).
-    function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, full_local)
+    function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, addrs_ok, full_local)
         local rec, list, d = nil, pref_list, nil
         local miss_n, ne, nm = 0, 0, 0
         local letters = src .. dst
-        local addrs_ok = dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P
         if (is_data or kind == "malformed") and addrs_ok then
             d = get_dir(pinfo, num, dstb, srcb)
             list = d.list or pair_lists[letters] or pref_list
@@ -1389,11 +1388,10 @@ end
 
 -- State on a later pass: the record, and the list in use at this frame on the first pass
 -- (looked up only where it names something: positional values, or a tree to show indexes).
-local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, full_local, has_tree)
+local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local, has_tree)
     local rec = get_rec(num, sk, false)
     local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
     local list, d = pref_list, nil
-    local addrs_ok = dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P
     if (is_data or kind == "malformed") and addrs_ok and (has_tree or pr_n_pos > 0) then
         d = get_dir(pinfo, num, dstb, srcb)
         local h = d.uhist
@@ -1812,6 +1810,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     local good = cs_status ~= 0
     local kind, is_data = kind_of_fields(malformed_msg)
     local dst, src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
+    local addrs_ok = dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P
     -- without state: a data frame with N0 (or none), no empty positional D and no named
     -- variable left out is full; the state-based verdict is stored when it differs
     local full_local = pr_nd > 0 and (pr_n_ord == nil or pr_n_ord == 0) and pr_n_empty_d == 0
@@ -1820,9 +1819,10 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     local ne, nm = 0, 0
     if not pinfo.visited then
         kind, rec, list, d, miss_n, ne, nm = state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src,
-            full_local)
+            addrs_ok, full_local)
     else
-        kind, rec, list, d, miss_n = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, full_local, ti ~= nil)
+        kind, rec, list, d, miss_n = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local,
+            ti ~= nil)
     end
     if is_data and not kind then kind = full_local and "full" or "delta" end   -- addresses not A-P
 
