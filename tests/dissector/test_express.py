@@ -1,0 +1,85 @@
+"""The express lane of sharedlink.lua stands in for the phases of dissect_frame.
+
+In a pass with no tree (tshark's summary pass, either pass of -2 without -V), a packet that is
+one plain named frame of a layout seen before is decoded by one function (`express`).  It must
+leave exactly what the phases would: the same Info, and the same state and records, which the
+frames after it and a second pass (-2, -2 -V) read.  SHAREDLINK_NO_EXPRESS=1 turns the lane off;
+SHAREDLINK_EXPRESS_MARK=1 marks the Info of the packets it took, to show that it ran at all.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from sl_vectors import load_streams, stream_ids, write_stream
+
+import tshark_util as tu
+
+REPO = Path(__file__).resolve().parents[2]
+OTHERS = [a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua"
+          for a in ("-X", f"lua_script:{s}")]
+MARK = "[express] "
+
+# beacon streams the lane is for, and the ways out of it: bad checksums, dropped frames, late
+# sync (full frames every 3 s), positional values, serial records, TCP segments
+GEN = {
+    "full": ["--frames", "120"],
+    "compressed": ["--frames", "200", "--compress"],
+    "compressed-faults": ["--frames", "300", "--compress", "--bad-checksum", "0.1", "--drop", "0.1"],
+    "late-sync": ["--frames", "150", "--compress", "--sync-interval", "3"],
+    "positional": ["--frames", "100", "--compress", "--form", "positional"],
+    "serial": ["--frames", "80", "--compress", "--transport", "serial", "--noise", "0.05"],
+    "other-pair": ["--frames", "60", "--compress", "--src", "C", "--dst", "D"],
+}
+STREAMS = load_streams()
+
+
+def _outputs(cap: Path, monkeypatch: pytest.MonkeyPatch, *, express: bool, mark: bool = False) -> dict[str, str]:
+    with monkeypatch.context() as m:
+        if not express:
+            m.setenv("SHAREDLINK_NO_EXPRESS", "1")
+        if mark:
+            m.setenv("SHAREDLINK_EXPRESS_MARK", "1")
+        return {
+            "one pass": tu.tshark(cap, [*OTHERS], two_pass=False).stdout,
+            "two passes": tu.tshark(cap, [*OTHERS], two_pass=True).stdout,
+            "two passes, tree": tu.tshark(cap, ["-V", *OTHERS], two_pass=True).stdout,
+        }
+
+
+def _same_both_ways(cap: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    on, off = _outputs(cap, monkeypatch, express=True), _outputs(cap, monkeypatch, express=False)
+    for how in on:
+        assert on[how] and on[how] == off[how], how
+
+
+@pytest.mark.parametrize("name", sorted(GEN))
+def test_express_leaves_what_the_phases_leave(name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    cap = tmp_path / f"{name}.pcap"
+    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--seed", "7", *GEN[name], str(cap)],
+                   check=True, capture_output=True)
+    _same_both_ways(cap, monkeypatch)
+
+
+@pytest.mark.parametrize("stream", STREAMS, ids=stream_ids(STREAMS))
+def test_express_on_the_vector_streams(stream: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    _same_both_ways(write_stream(stream, tmp_path / "s.pcap"), monkeypatch)
+
+
+def test_express_takes_the_bulk_of_a_beacon_stream(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Full frames and compressed deltas (bare ones too) take the lane in both passes; the
+    frames it leaves (the first of each layout, bad checksums, late sync) go the long way."""
+    cap = tmp_path / "c.pcap"
+    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--frames", "300", "--compress",
+                    "--bad-checksum", "0.05", str(cap)], check=True, capture_output=True)
+    out = _outputs(cap, monkeypatch, express=True, mark=True)
+    for how in ("one pass", "two passes"):
+        lines = out[how].splitlines()
+        marked = [x for x in lines if MARK in x]
+        assert len(lines) == 300 and len(marked) > 240, (how, len(marked))
+        assert any(" full " in x for x in marked) and any("delta (+4 carried)" in x for x in marked)
+        assert any("delta AutoGpsLat" in x for x in marked)
+    assert all(MARK not in x for x in out["one pass"].splitlines() if "[sync late]" in x)
