@@ -795,7 +795,7 @@ local function compact_carried(vt, ptext, cv, cf)
     if cf then ref_add(vt, ptext, hf.var_carried_from, cf) end
 end
 
-local function tree_compact(ti, ttext, dstb, srcb, kind, n_ord, nvars, list, d, num, carry, miss, nmiss)
+local function tree_compact(ti, ttext, dstb, srcb, kind, n_ord, nvars, list, d, num, carry, miss, nmiss, fast_tv)
     frame_add(ti, ttext, hf.dst, LETTER[dstb])
     frame_add(ti, ttext, hf.dst_node, dstb - B_A + 1)
     frame_add(ti, ttext, hf.src, LETTER[srcb])
@@ -810,7 +810,7 @@ local function tree_compact(ti, ttext, dstb, srcb, kind, n_ord, nvars, list, d, 
         local vtype
         local index = VI[v]
         if name then
-            vtype = valid_type(VT[v])
+            vtype = fast_tv and fast_tv[v] or valid_type(VT[v])
             ref_add(vt, ptext, hf.ftype, vtype)
             if d then
                 local first = d.nfirst[name]
@@ -1108,14 +1108,14 @@ do
             if ok then
                 local parts = { "^%[:", pat_escape(LETTER[dstb] .. LETTER[srcb]), "|N", pat_escape(n_text) }
                 local xparts = { parts[1], parts[2], parts[3], parts[4] }
-                local st, sn = {}, {}
+                local st, sn, tv = {}, {}, {}
                 local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
                 local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
                 local first = " " .. s_gsub(VN[1], CTRL, "?") .. "="
                 local pieces, ilen = { head .. first }, #head
                 local fixed = byte_sum(f, 2, cpos)
                 for k = 1, nv do
-                    st[k], sn[k] = VT[k], VN[k]
+                    st[k], sn[k], tv[k] = VT[k], VN[k], valid_type(VT[k])
                     local tq = "|T" .. pat_escape(VT[k]) .. "|Q" .. pat_escape(VN[k])
                     parts[#parts + 1] = tq .. "|D([^|%]\0-\31\127]*)"
                     xparts[#xparts + 1] = tq .. "|D([^|%[%]\0-\31\127]*)"
@@ -1134,7 +1134,7 @@ do
                 if #mru >= MAX_SHAPES then mru[#mru] = nil end
                 local dpieces = { dhead .. first }
                 for k = 2, nv do dpieces[k] = pieces[k] end
-                table.insert(mru, 1, { pat = pat, n = nv, T = st, N = sn, ord = n_ord,
+                table.insert(mru, 1, { pat = pat, n = nv, T = st, N = sn, TV = tv, ord = n_ord,
                     info = pieces, info_len = ilen, dinfo = dpieces, dinfo_len = ilen + #dhead - #head,
                     fixed = fixed % 256, build = INFO_BUILD[nv], letters = LETTER[srcb] .. LETTER[dstb],
                     xpat = t_concat(xparts), sums = EXPRESS_SUMS[nv], store = EXPRESS_STORE[nv] })
@@ -1201,7 +1201,9 @@ do
             end
         end
         if p then parse_general(f, p, bodyend, rec_fields) end
-        if shape_key then
+        -- layouts are learnt for the passes that use them (a shown tree takes no fast path:
+        -- learning there cost -V 20 us a frame)
+        if shape_key and not vis then
             learn_named_shape(f, shape_key, dstb, srcb)
             learn_positional_shape(f, shape_key, dstb, srcb)
             learn_bare_shape(f, shape_key, dstb, srcb)
@@ -1561,7 +1563,9 @@ local function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, nu
     local nmiss = miss and #miss or 0
     if not miss and nm > 0 then miss, nmiss = MISS, nm end
     local ttext = ref_start(ti, num, visited)
-    tree_compact(ti, ttext, dstb, srcb, kind, pr_n_ord, nv, list, d, num, carry, miss, nmiss)
+    -- the last argument: the types of the named fast path's layout, made when it was learnt
+    tree_compact(ti, ttext, dstb, srcb, kind, pr_n_ord, nv, list, d, num, carry, miss, nmiss,
+        pr_fast_sh and pr_fast_sh.TV)
     if rec and rec.late then
         frame_add(ti, ttext, hf.sync_is_late, true)
         ti:add_proto_expert_info(ei.sync_late)
@@ -1994,7 +1998,7 @@ local function express_missing(d, sh)
     return xm
 end
 
-local function express(s, n, pinfo, cols)
+local function express(s, n, tvb, pinfo, tree, cols)
     local dstb, srcb = s_byte(s, 3, 4)
     local key = (dstb or 0) * 256 + (srcb or 0)
     local mru = shapes[key] or NO_SHAPES
@@ -2019,19 +2023,31 @@ local function express(s, n, pinfo, cols)
     if not total or total + sh.info_len > INFO_MAX then return false end
     if pref_validate and HEXV[ctext] ~= (sh.fixed + sum) % 256 then return false end
     local num = pinfo.number
+    local visited = pinfo.visited
     local tail = nil    -- a delta's " (+n carried)"
-    if pinfo.visited then
+    local d, list, rec, nm = nil, pref_list, nil, 0   -- for the tree: see state_first_pass
+    if visited then
         -- a later pass: no record means the first pass found it full; a carried-only record, a delta
-        local rec = get_rec(num, n * 1048576 + 1, false)
+        rec = get_rec(num, n * 1048576 + 1, false)
         if not rec and sh.bare then return false end   -- a bare frame with no record: the phases say why
         if rec then
             if rec.late or rec[1] or rec.kind ~= "d" or not rec.miss then return false end
             tail = CARRIED_TAIL[floor(#rec.miss / 3)]
-            if not tail then return false end
+            if not tail or total + sh.dinfo_len + #tail > INFO_MAX then return false end
+        end
+        if tree then
+            -- as state_later_pass: the list in use here on the first pass
+            d = get_dir(pinfo, num, dstb, srcb)
+            local h = d.uhist
+            if h then
+                for k = #h - 2, 1, -3 do
+                    if h[k] < num or (h[k] == num and h[k + 1] <= n * 1048576 + 1) then list = h[k + 2]; break end
+                end
+            end
         end
     else
-        local d = get_dir(pinfo, num, dstb, srcb)
-        local list = d.list or pair_lists[sh.letters] or pref_list
+        d = get_dir(pinfo, num, dstb, srcb)
+        list = d.list or pair_lists[sh.letters] or pref_list
         if list ~= (d.used_list or pref_list) then return false end
         local names, vals, from = sh.N, d.vals, d.from
         local now = pinfo.rel_ts
@@ -2053,6 +2069,14 @@ local function express(s, n, pinfo, cols)
             -- carried values stay the same (speed trick, measured: 4 us a delta)
             local miss, cf, cv = xm.names, xm.cfrom, xm.cval
             local same = cf ~= nil
+            if tree then
+                -- the tree shows the carried variables (MISS, as data_values gathers them)
+                for k = 1, #miss do
+                    local name = miss[k]
+                    MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
+                    nm = nm + 3
+                end
+            end
             if same then
                 for k = 1, #miss do
                     local name = miss[k]
@@ -2060,7 +2084,7 @@ local function express(s, n, pinfo, cols)
                 end
             end
             if not same then
-                local nm = 0
+                nm = 0
                 cf, cv = {}, {}
                 for k = 1, #miss do
                     local name = miss[k]
@@ -2082,10 +2106,24 @@ local function express(s, n, pinfo, cols)
         sh.store(vals, from, names, num, c1, c2, c3, c4, c5, c6, c7, c8)
     end
     if tail then
-        if total + sh.dinfo_len + #tail > INFO_MAX then return false end
         cols.info = EXPRESS_MARK .. sh.build(sh.dinfo, c1, c2, c3, c4, c5, c6, c7, c8) .. tail
     else
         cols.info = EXPRESS_MARK .. sh.build(sh.info, c1, c2, c3, c4, c5, c6, c7, c8)
+    end
+    if tree then
+        -- a tree nobody sees (-Y, coloring rules, taps): the compact one dissect_frame makes, from
+        -- what parse_fast_named would have left
+        local ti = tree:add(sl, tvb(0, n))
+        VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8] = c1, c2, c3, c4, c5, c6, c7, c8
+        local st, sn = sh.T, sh.N
+        local nvals = sh.n
+        for k = 1, nvals do VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], k - 1, false end
+        nv, pr_ctext, pr_n_ord, pr_fast_sh = nvals, ctext, 0, sh
+        local fl = s_byte(s, n) == B_LF and n - 2 or n
+        local cs_val, cs_calc, cs_status = checksum_value(ctext), nil, 2
+        if pref_validate then cs_calc, cs_status = (sh.fixed + sum) % 256, 1 end
+        tree_compact_frame(ti, 1, n, fl, s, dstb, srcb, tail and "delta" or "full", list, d, num, visited, rec,
+            0, nm, cs_val, cs_calc, cs_status)
     end
     return true
 end
@@ -2117,7 +2155,8 @@ local function dissect(tvb, pinfo, tree)
             t = nil
         end
     end
-    if t == nil and EXPRESS and express(s, n, pinfo, cols) then return n end
+    -- the express lane: no tree, or one nobody sees (the tree's visibility is the whole tree's)
+    if EXPRESS and (t == nil or not t.visible) and express(s, n, tvb, pinfo, t, cols) then return n end
     local pos = 1
     local open_at, close_at = 0, 0 -- cached search results (false = none left)
     local r
