@@ -285,24 +285,8 @@ local B_CR, B_LF = 13, 10
 local B_A, B_P = 65, 80
 local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = 78, 84, 81, 82, 68, 67, 76, 69, 77, 80, 71
 
--- Sum of the bytes s[i..j] (linear, 8 bytes per call), not reduced.
-local function byte_sum(s, i, j)
-    local sum = 0
-    while i + 7 <= j do
-        local b1, b2, b3, b4, b5, b6, b7, b8 = s_byte(s, i, i + 7)
-        sum = sum + b1 + b2 + b3 + b4 + b5 + b6 + b7 + b8
-        i = i + 8
-    end
-    while i <= j do
-        sum = sum + s_byte(s, i)
-        i = i + 1
-    end
-    return sum
-end
-
--- Sum of the bytes of a value.  Speed trick (measured): the fast paths check a checksum
--- as the shape's fixed sum plus the sums of the values, one s_byte call per value, its
--- bytes added by a function made for the value's length (SUM_OF[n]: n arguments, n - 1 adds).
+-- SUM_OF[n](b1, ..., bn): the sum of its n arguments (made for n = 0 to 40: n - 1 adds).
+-- Speed trick (measured): bytes are summed as s_byte returns them, up to 40 a call.
 local SUM_OF = {}
 for n = 0, 40 do
     local args = {}
@@ -310,6 +294,21 @@ for n = 0, 40 do
     SUM_OF[n] = assert(load("return function(" .. t_concat(args, ", ") .. ") return " ..
         (n > 0 and t_concat(args, " + ") or "0") .. " end", "=SUM_OF", "t", {}))()
 end
+local SUM_40 = SUM_OF[40]
+
+-- Sum of the bytes s[i..j], not reduced.
+local function byte_sum(s, i, j)
+    local sum = 0
+    while i + 39 <= j do
+        sum = sum + SUM_40(s_byte(s, i, i + 39))
+        i = i + 40
+    end
+    if i <= j then sum = sum + SUM_OF[j - i + 1](s_byte(s, i, j)) end
+    return sum
+end
+
+-- Sum of the bytes of a value.  Speed trick (measured): the fast paths check a checksum
+-- as the shape's fixed sum plus the sums of the values, one s_byte call per value.
 local function str_sum(v)
     local n = #v
     if n > 40 then return byte_sum(v, 1, n) end
