@@ -516,8 +516,8 @@ local function sk_text(sk)
     return sks
 end
 
--- Record lines wait in cr_pend as pieces, each line ending in "\n" (cr_npend lines,
--- cr_npieces pieces), and are packed 256 to a chunk "\n" .. lines.  Speed trick (measured):
+-- Record lines wait in cr_pend as pieces, three a line, each line ending in "\n" (cr_npend
+-- lines, cr_npieces pieces), and are packed 256 to a chunk "\n" .. lines.  Speed trick (measured):
 -- the express lane adds a line as three pieces, and no string is made for it until the chunk.
 local function carried_flush()
     if cr_npend == 0 then return end
@@ -526,21 +526,13 @@ local function carried_flush()
     cr_npend, cr_npieces = 0, 0
 end
 
--- Keep a record line (it starts "num|sk|").
-local function carried_push(num, line)
-    if cr_npend == 0 then cr_pend_first = num end
-    cr_npend = cr_npend + 1
-    cr_pend[cr_npieces + 1], cr_pend[cr_npieces + 2] = line, "\n"
-    cr_npieces = cr_npieces + 2
-    if cr_npend >= 256 then carried_flush() end
-end
-
--- The same for the express lane: num, "|sk|d|0|" (xsk) and the named part with its "\n".
-local function carried_push3(num, xsk, tail)
+-- Keep frame num's record line, given as three pieces that end in "\n" (carried_store: the
+-- line, "\n", ""; the express lane: num, "|sk|d|0|", the named part with its "\n").
+local function carried_push(num, p1, p2, p3)
     if cr_npend == 0 then cr_pend_first = num end
     cr_npend = cr_npend + 1
     local i = cr_npieces
-    cr_pend[i + 1], cr_pend[i + 2], cr_pend[i + 3] = num, xsk, tail
+    cr_pend[i + 1], cr_pend[i + 2], cr_pend[i + 3] = p1, p2, p3
     cr_npieces = i + 3
     if cr_npend >= 256 then carried_flush() end
 end
@@ -568,7 +560,7 @@ local function carried_store(num, sk, ne, nm, kind)
     n = carried_names_text(nm, n)
     local line = t_concat(CPARTS, "|", 1, n)
     if s_find(line, "\n", 1, true) then return false end   -- a line break in a value: a table record
-    carried_push(num, line)
+    carried_push(num, line, "\n", "")
     return true
 end
 
@@ -1467,6 +1459,18 @@ do
     end
 end
 
+-- The list in use at frame (num, sk) on the first pass, from the direction's history of changes.
+local function list_at(d, num, sk)
+    local h = d.uhist
+    if h then
+        for k = #h - 2, 1, -3 do
+            local hn = h[k]
+            if hn < num or (hn == num and h[k + 1] <= sk) then return h[k + 2] end
+        end
+    end
+    return pref_list
+end
+
 -- State on a later pass: the record, and the list in use at this frame on the first pass
 -- (looked up only where it names something: positional values, or a tree to show indexes).
 local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local, has_tree)
@@ -1475,16 +1479,7 @@ local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs
     local list, d = pref_list, nil
     if (is_data or kind == "malformed") and addrs_ok and (has_tree or pr_n_pos > 0) then
         d = get_dir(pinfo, num, dstb, srcb)
-        local h = d.uhist
-        if h then
-            for k = #h - 2, 1, -3 do
-                local hn = h[k]
-                if hn < num or (hn == num and h[k + 1] <= sk) then
-                    list = h[k + 2]
-                    break
-                end
-            end
-        end
+        list = list_at(d, num, sk)
     end
     if is_data then
         if rec and rec.kind then
@@ -2023,11 +2018,12 @@ local function express(s, n, tvb, pinfo, tree, cols)
     if pref_validate and HEXV[ctext] ~= (sh.fixed + sum) % 256 then return false end
     local num = pinfo.number
     local visited = pinfo.visited
+    local sk = n * 1048576 + 1   -- the frame's key in its packet, as dissect makes it (sk_base + 1)
     local tail = nil    -- a delta's " (+n carried)"
     local d, list, rec, nm = nil, pref_list, nil, 0   -- for the tree: see state_first_pass
     if visited then
         -- a later pass: no record means the first pass found it full; a carried-only record, a delta
-        rec = get_rec(num, n * 1048576 + 1, false)
+        rec = get_rec(num, sk, false)
         if not rec and sh.bare then return false end   -- a bare frame with no record: the phases say why
         if rec then
             if rec.late or rec[1] or rec.kind ~= "d" or not rec.miss then return false end
@@ -2037,12 +2033,7 @@ local function express(s, n, tvb, pinfo, tree, cols)
         if tree then
             -- as state_later_pass: the list in use here on the first pass
             d = get_dir(pinfo, num, dstb, srcb)
-            local h = d.uhist
-            if h then
-                for k = #h - 2, 1, -3 do
-                    if h[k] < num or (h[k] == num and h[k + 1] <= n * 1048576 + 1) then list = h[k + 2]; break end
-                end
-            end
+            list = list_at(d, num, sk)
         end
     else
         d = get_dir(pinfo, num, dstb, srcb)
@@ -2068,38 +2059,32 @@ local function express(s, n, tvb, pinfo, tree, cols)
             -- carried values stay the same (speed trick, measured: 4 us a delta)
             local miss, cf, cv = xm.names, xm.cfrom, xm.cval
             local same = cf ~= nil
-            if tree then
-                -- the tree shows the carried variables (MISS, as data_values gathers them)
-                for k = 1, #miss do
-                    local name = miss[k]
-                    MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
-                    nm = nm + 3
-                end
-            end
             if same then
                 for k = 1, #miss do
                     local name = miss[k]
                     if from[name] ~= cf[k] or vals[name] ~= cv[k] then same = false; break end
                 end
             end
-            if not same then
-                nm = 0
-                cf, cv = {}, {}
+            -- MISS, as data_values gathers it: for a new record text, and for the tree (carried
+            -- variables)
+            if tree or not same then
+                if not same then cf, cv = {}, {} end
                 for k = 1, #miss do
                     local name = miss[k]
                     local v, f = vals[name] or false, from[name] or false
                     MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, v, f
-                    cv[k], cf[k] = v, f
                     nm = nm + 3
+                    if not same then cv[k], cf[k] = v, f end
                 end
+            end
+            if not same then
                 local text = t_concat(CPARTS, "|", 1, carried_names_text(nm, 0))
                 if s_find(text, "\n", 1, true) then return false end   -- the phases make a table record
                 xm.cfrom, xm.cval, xm.ctext = cf, cv, text .. "\n"
             end
-            local sk = n * 1048576 + 1
             local xsk = XSK[sk]
             if not xsk then xsk = "|" .. sk_text(sk) .. "|d|0|"; XSK[sk] = xsk end
-            carried_push3(num, xsk, xm.ctext)
+            carried_push(num, num, xsk, xm.ctext)
         end
         d.first = first
         sh.store(vals, from, names, num, c1, c2, c3, c4, c5, c6, c7, c8)
@@ -2118,7 +2103,8 @@ local function express(s, n, tvb, pinfo, tree, cols)
         local nvals = sh.n
         for k = 1, nvals do VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], k - 1, false end
         nv, pr_ctext, pr_n_ord, pr_fast_sh = nvals, ctext, 0, sh
-        local fl = s_byte(s, n) == B_LF and n - 2 or n
+        local fl = n   -- the index of its ']': the pattern lets CR LF, CR or LF follow
+        while s_byte(s, fl) ~= B_RBRACK do fl = fl - 1 end
         local cs_val, cs_calc, cs_status = checksum_value(ctext), nil, 2
         if pref_validate then cs_calc, cs_status = (sh.fixed + sum) % 256, 1 end
         tree_compact_frame(ti, 1, n, fl, s, dstb, srcb, tail and "delta" or "full", list, d, num, visited, rec,

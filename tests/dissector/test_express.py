@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from sl_captures import write_capture
 from sl_vectors import load_streams, stream_ids, write_stream
 
 import tshark_util as tu
@@ -79,6 +80,24 @@ def test_express_leaves_what_the_phases_leave(name: str, tmp_path: Path, monkeyp
 @pytest.mark.parametrize("stream", STREAMS, ids=stream_ids(STREAMS))
 def test_express_on_the_vector_streams(stream: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     _same_both_ways(write_stream(stream, tmp_path / "s.pcap"), monkeypatch)
+
+
+def test_express_on_every_line_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The lane's pattern lets CR LF, CR, LF or nothing follow the frame (the CR LF expert and the
+    frame's length in the hidden tree must come out as the phases make them)."""
+
+    def frame(body: str, end: str) -> bytes:
+        return f"[{body}{sum(body.encode()) % 256:02X}]{end}".encode()
+
+    ends = ["\n", "\r", "\r\n", "", "\n", "\r"] * 4
+    bodies = [":AB|N0|T2|QLat|D1.5|T2|QLon|D2.5|C" if i % 3 == 0 else ":AB|N0|T2|QLat|D1.6|C" for i in range(len(ends))]
+    t0 = 1_767_268_800_000_000_000
+    cap = write_capture(tmp_path / "ends.pcap", [(t0 + i * 200_000_000, frame(b, e))
+                                                  for i, (b, e) in enumerate(zip(bodies, ends))])
+    _same_both_ways(cap, monkeypatch)
+    monkeypatch.setenv("SHAREDLINK_EXPRESS_MARK", "1")
+    marked = tu.tshark(cap, ["-Y", "sharedlink.crlf.missing", *OTHERS]).stdout.count(MARK)
+    assert marked > 10
 
 
 def test_express_takes_the_bulk_of_a_beacon_stream(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
