@@ -23,8 +23,10 @@ import ipaddress
 import os
 import platform
 import random
+import signal
 import socket
 import struct
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -552,6 +554,36 @@ class Pacer:
             pass
 
 
+class SigintGate:
+    """Ctrl-C without a frame half counted: while ``held`` is set (a frame is being handed to
+    the sink and counted), SIGINT only sets ``pending``, and the loop raises
+    :class:`KeyboardInterrupt` itself once the frame is counted; otherwise it raises at once
+    (a long pacing sleep ends at the key press). Installed only in the main thread and only
+    over Python's default handler: a program with a SIGINT handler of its own keeps it (and
+    the one-frame window in which a frame may be sent but not counted)."""
+
+    def __init__(self) -> None:
+        self.held = False
+        self.pending = False
+        self._old: Any = None
+
+    def _handler(self, signum: int, frame: object) -> None:
+        if self.held:
+            self.pending = True
+        else:
+            raise KeyboardInterrupt
+
+    def __enter__(self) -> SigintGate:
+        if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self._old = signal.signal(signal.SIGINT, self._handler)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+            self._old = None
+
+
 Progress = Callable[[ReplayStats], None]
 
 
@@ -580,6 +612,7 @@ class Replayer:
         self._rng = random.Random(0)
         self._next_progress = 0
         self._start = 0
+        self.gate = SigintGate()
 
     # -- bookkeeping
     def _lag(self, lag: int) -> None:
@@ -608,12 +641,13 @@ class Replayer:
         self._start = time.monotonic_ns()
         self._next_progress = self._start + self.progress_ns
         try:
-            if self.opts.topspeed:
-                _TopSpeed(self).run()
-            else:
-                with latency_hints(self.opts.realtime) as granted:
-                    st.realtime = granted
-                    self._run_timed()
+            with self.gate:
+                if self.opts.topspeed:
+                    _TopSpeed(self).run()
+                else:
+                    with latency_hints(self.opts.realtime) as granted:
+                        st.realtime = granted
+                        self._run_timed()
         except KeyboardInterrupt:
             st.interrupted = True
         except SinkStalled:
@@ -636,7 +670,7 @@ class Replayer:
 
     # -- the reference path (timed modes): one frame at a time, streaming, absolute deadlines
     def _run_timed(self) -> None:
-        opts, st, sink = self.opts, self.stats, self.sink
+        opts, st, sink, gate = self.opts, self.stats, self.sink, self.gate
         send, target_of = sink.send, sink.target
         clock, pace = time.monotonic_ns, Pacer().wait
         limit = opts.limit
@@ -673,6 +707,7 @@ class Replayer:
                     st.error("no-port", _NO_PORT % fr.number)
                     prev = deadline
                     continue
+                gate.held = True  # Ctrl-C waits until this frame is sent (or failed) and counted
                 try:
                     send(fr.payload, t)
                 except OSError as exc:
@@ -686,6 +721,10 @@ class Replayer:
                     st.attempted += 1
                     st.frames += 1
                     st.bytes += len(fr.payload)
+                finally:
+                    gate.held = False
+                if gate.pending:
+                    raise KeyboardInterrupt
                 prev = deadline
             if count == 0:
                 return  # nothing to send: looping would spin forever
@@ -783,18 +822,27 @@ class _TopSpeed:
             keep.append(chunk)
 
     def _send_chunk(self, numbers: list[int], payloads: list[bytes], targets: list[Target]) -> None:
+        """Send a chunk, counting exactly the frames handed to the sink: Ctrl-C (through the
+        replayer's :class:`SigintGate`) stops the chunk between two frames, never inside one."""
         st = self.stats
         send = self.sink.send
+        gate = self.replayer.gate
         n = len(payloads)
         failed = failed_bytes = 0
         start = i = 0
+        gate.held = True
         try:
             while start < n:
                 i = start
                 try:
                     for i in range(start, n):
+                        if gate.pending:
+                            break
                         send(payloads[i], targets[i])
-                    start = n
+                    else:
+                        i = n
+                    start = i
+                    break
                 except SinkStalled as exc:  # nobody reads: stop here, say so
                     st.error(_error_kind(exc), f"record {numbers[i]}: {exc}")
                     failed, failed_bytes, start = failed + 1, failed_bytes + len(payloads[i]), i + 1
@@ -804,13 +852,16 @@ class _TopSpeed:
                     failed_bytes += len(payloads[i])
                     st.error(_error_kind(exc), f"record {numbers[i]}: {exc.strerror or exc}")
                     start = i + 1
-        except BaseException:  # Ctrl-C or a stalled sink: count what really went (frame i did not)
+        except BaseException:  # a program's own SIGINT handler raised: the frames before i went
             start = max(start, i)
             raise
         finally:  # the frames really handed to the sink (all of them, unless interrupted)
+            gate.held = False
             st.attempted += start
             st.frames += start - failed
             st.bytes += sum(map(len, payloads[:start])) - failed_bytes
+        if gate.pending:
+            raise KeyboardInterrupt
 
 
 _Chunk = tuple[list[int], list[bytes], Optional[list[Target]]]

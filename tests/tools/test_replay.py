@@ -426,6 +426,45 @@ def test_ctrl_c_stops_cleanly(tmp_path, rx):
     assert summary["frames"] == len(rx.got)  # every frame counted was received, and no other
 
 
+class _SignallingSink:
+    """A sink that takes each payload, then (at frame ``at``) delivers SIGINT to this process
+    before its send returns: the moment at which a frame is sent but not yet counted."""
+
+    description = "signalling sink"
+
+    def __init__(self, at: int) -> None:
+        self.at, self.got = at, []
+
+    def target(self, frame):
+        return True
+
+    def send(self, payload: bytes, _t) -> int:
+        self.got.append(payload)
+        if len(self.got) == self.at:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.01)  # the handler runs here, inside the send
+        return len(payload)
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("mode", ["pps", "topspeed"])
+def test_ctrl_c_during_a_send_counts_that_frame(tmp_path, mode):
+    cap = tmp_path / "c.pcap"
+    generate_file(GenOptions(frames=20), cap)
+    sink = _SignallingSink(at=7)
+    opts = ReplayOptions(topspeed=True) if mode == "topspeed" else ReplayOptions(pps=5000)
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        st = Replayer(CaptureFrames(cap), sink, opts).run()
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
+    finally:
+        signal.signal(signal.SIGINT, old)
+    assert st.interrupted
+    assert (st.frames, st.attempted, st.bytes) == (7, 7, sum(map(len, sink.got)))
+
+
 # -- serial -------------------------------------------------------------------------------
 
 
