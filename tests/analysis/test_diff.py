@@ -22,7 +22,16 @@ from sharedlink.capture.packets import decode_packet
 from sharedlink.capture.pcapio import PcapWriter, read_records
 from sharedlink.capture.stream import Chunk, iter_frames, parse_variable_list, read_changes
 from sharedlink.generators.beacon import GenOptions, generate_file
-from sharedlink.protocols.codec import Field, Frame, build_frame, frame_kind, named_values, parse_frame
+from sharedlink.protocols.codec import (
+    Field,
+    Frame,
+    build_frame,
+    frame_kind,
+    named_fields,
+    named_values,
+    parse_frame,
+    positional_fields,
+)
 from sharedlink.protocols.state import LinkState
 
 CLI = [sys.executable, "-m", "sharedlink"]
@@ -256,6 +265,45 @@ def test_bulk_tier_and_reference_aligner_agree_on_varied_input(tmp_path_factory,
     for a, b in ((x, x), (x, y), (y, x)):
         for by in ("time", "sequence"):
             assert diff(a, b, by=by).to_dict() == diff(a, b, by=by, bulk=False).to_dict(), (a, b, by)
+
+
+def test_bulk_tier_drains_waiting_frames_as_the_reference_does(tmp_path):
+    """Frames of two directions at the same times, A holding extra frames. The unmatched frames
+    are listed by frame number, whatever order they were given up in. Then an extra C>A frame
+    waits while a run of equal B>A frames (which the bulk tier takes in one go) moves time past
+    it, and is given up at a different moment in each path: a C>A variable learnt later counts
+    its samples from its own frame's pair, not guessing that the waiting frame would pair."""
+    ca = [("Speed", 2, "1.5"), ("Label", 4, "on")]
+    ba = [("AutoGpsLat", 2, "1.5"), ("AutoGpsLon", 2, "2"), ("Mode", 4, "on"), ("Count", 0, "7")]
+    t0, t1, tick = 1_767_268_800_000_000_000, 1_767_268_810_000_000_000, 200_000_000
+
+    def frame(src, fields):
+        return build_frame(Frame("A", src, fields))
+
+    def b_run(t):  # two equal B>A frames a tick, for 8 s
+        return [(t + tick * (i // 2), frame("B", named_fields(ba))) for i in range(80)]
+
+    extra1 = [(t0, frame("C", named_fields([("Speed", 2, "2")]))), (t0, frame("B", named_fields(ba[:1])))]
+    extra2 = [(t1, frame("C", named_fields([("Speed", 2, "3")])))]
+    start = [(t0, frame("C", named_fields(ca)))]
+    middle = [(t1, frame("C", named_fields(ca)))] + b_run(t1 + tick)
+    end = [(t1 + 9_000_000_000, frame("C", positional_fields([None, "-0.25"]))),
+           (t1 + 9_200_000_000, frame("C", named_fields(ca))),
+           (t1 + 9_400_000_000, frame("C", positional_fields(["7", "-0.25"])))]
+    x = write_capture(tmp_path / "x.pcap", extra1[:1] + start + extra1[1:] + b_run(t0) + extra2 + middle + end)
+    y = write_capture(tmp_path / "y.pcap", start + b_run(t0) + middle + end)
+    for a, b in ((x, y), (y, x)):
+        for by in ("time", "sequence"):
+            bulk, ref = diff(a, b, by=by), diff(a, b, by=by, bulk=False)
+            assert bulk.to_dict() == ref.to_dict(), (a.name, by)
+            # A's extras: by time, the second frame of each direction at t0 and at t1 (the
+            # first pairs); by sequence, the last frames of each direction
+            extra_side = bulk.first_unmatched_a if a == x else bulk.first_unmatched_b
+            assert [u.frame for u in extra_side] == ([2, 5, 85] if by == "time" else [165, 167, 168]), by
+            assert bulk.pairs == 165
+            # AutoGpsLon of C>A is learnt at the first positional frame, after 2 of the 5 C>A pairs
+            lon = next(v for v in bulk.variables if (v.stream, v.name) == ("C>A", "AutoGpsLon"))
+            assert lon.samples == 3
 
 
 def test_bulk_tier_and_reference_aligner_agree_on_generated_beacons(beacon, tmp_path):

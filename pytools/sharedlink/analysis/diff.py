@@ -41,7 +41,7 @@ from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG
 from sharedlink.protocols.state import BEACON_VARIABLES
 
 DEFAULT_WINDOW_NS = 100_000_000  # when the frame period cannot be measured
-_FIRST_UNMATCHED = 5  # unmatched frames listed per side
+_FIRST_UNMATCHED = 5  # unmatched frames listed per side: the lowest frame numbers, in order
 #: --by sequence: frames of a direction waiting for the other side's; beyond this many the
 #: oldest are declared unmatched, so memory stays flat when a direction is on one side only
 MAX_WAITING = 100_000
@@ -395,6 +395,10 @@ def _frame_period(side: _Side) -> int | None:
     return int(median(gaps)) if gaps else None
 
 
+def _frame_of(u: UnmatchedFrame) -> int:
+    return u.frame
+
+
 class _Aligner:
     """The reference aligner: takes the two sides' frames one at a time (the earlier first),
     pairs them per direction (within the window, or by order) and compares the values each
@@ -413,6 +417,8 @@ class _Aligner:
         self.bad_keys: Counter = Counter()  # key -> variables currently disagreeing
         self.unmatched = [0, 0]
         self.first_unmatched: tuple[list, list] = ([], [])
+        #: per side, direction -> [frames still waiting before it starts, variable]
+        self.starting: tuple[dict, dict] = ({}, {})
         self.total_pairs = 0
         self.end_ts = 0
 
@@ -471,9 +477,14 @@ class _Aligner:
         key = rec[:2]
         while s.events and s.events[0][0] < s.pos:
             _, ek, ename, etype = s.events.popleft()
-            # the frame pairs after the ones of its direction still waiting on this side
             waiting = s.queues.get(ek)
-            v = self._var(ek, ename, self.pairs[ek] + (len(waiting) if waiting else 0))
+            if waiting and (ek, ename) not in self.vars:
+                # it starts with the pair of this frame: after the frames of its direction still
+                # waiting on this side, which may yet pair or be given up (see _started)
+                v = self._var(ek, ename, self.pairs[ek] + len(waiting))
+                self.starting[s.index].setdefault(ek, []).append([len(waiting), v])
+            else:
+                v = self._var(ek, ename, self.pairs[ek])
             if s.index == 0:
                 v.type_a = etype
             else:
@@ -551,12 +562,32 @@ class _Aligner:
     def _unmatched(self, s: _Side, key: bytes, f: tuple) -> None:
         self.unmatched[s.index] += 1
         lst = self.first_unmatched[s.index]
-        if len(lst) < _FIRST_UNMATCHED:
+        if len(lst) < _FIRST_UNMATCHED or f[1] < lst[-1].frame:
+            # frames are found unmatched in no fixed order (per direction, when the other side
+            # is past them): keep the lowest frame numbers, so the bulk tier lists the same
             lst.append(UnmatchedFrame(f[1], f[0], key_label(key)))
+            lst.sort(key=_frame_of)
+            del lst[_FIRST_UNMATCHED:]
         touched = self.dirty.setdefault(key, set())
         self._apply(s, f[2], touched, self.pairs[key])
         if not touched:
             del self.dirty[key]
+        if self.starting[s.index]:
+            self._started(s.index, key)
+
+    def _started(self, side: int, key: bytes) -> None:
+        """A frame of ``key`` left ``side``'s queue (paired or given up): a variable learnt
+        behind it starts with the next pair once no frame that was waiting is left."""
+        lst = self.starting[side].get(key)
+        if not lst:
+            return
+        for e in lst:
+            e[0] -= 1
+            if e[0] == 0:
+                e[1].first_pair = self.pairs[key]
+        lst[:] = [e for e in lst if e[0]]
+        if not lst:
+            del self.starting[side][key]
 
     def _pair(self, key: bytes, fa: tuple, fb: tuple) -> None:
         a, b = self.sides
@@ -566,6 +597,9 @@ class _Aligner:
         self._apply(b, fb[2], touched, p)
         self.pairs[key] = p + 1
         self.total_pairs += 1
+        if self.starting[0] or self.starting[1]:
+            self._started(0, key)
+            self._started(1, key)
         if not touched:
             return
         t = max(fa[0], fb[0])
