@@ -478,13 +478,13 @@ class _Aligner:
         while s.events and s.events[0][0] < s.pos:
             _, ek, ename, etype = s.events.popleft()
             waiting = s.queues.get(ek)
-            if waiting and (ek, ename) not in self.vars:
-                # it starts with the pair of this frame: after the frames of its direction still
-                # waiting on this side, which may yet pair or be given up (see _started)
-                v = self._var(ek, ename, self.pairs[ek] + len(waiting))
+            new = (ek, ename) not in self.vars
+            v = self._var(ek, ename, self.pairs[ek])
+            if new and waiting:
+                # it starts with the pair of this frame, after the frames of its direction still
+                # waiting on this side, which may yet pair or be given up: _started sets its
+                # first pair when the last of them leaves
                 self.starting[s.index].setdefault(ek, []).append([len(waiting), v])
-            else:
-                v = self._var(ek, ename, self.pairs[ek])
             if s.index == 0:
                 v.type_a = etype
             else:
