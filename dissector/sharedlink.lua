@@ -251,12 +251,13 @@ local MAX_SHAPES = 8
 local pshapes       -- node pair -> layout of the last plain positional frame (fast path)
 local bshapes       -- node pair -> layout of its last bare frame ([:AB|N0|Cxx], express lane)
 local stamp_ctr = 0
-local cr_pend, cr_npend, cr_npieces, cr_pend_first, cr_chunks, cr_first  -- packed carried records
+local cr_pend, cr_npend, cr_npieces, cr_pend_first, cr_store, cr_first  -- packed carried records
 local sk_str, sk_str_n       -- frame key -> its text, for them
 
 local function reset_state()
     dirs, pair_lists, recs, pending_q, shapes, pshapes, bshapes = {}, {}, {}, {}, {}, {}, {}
-    cr_pend, cr_npend, cr_npieces, cr_pend_first, cr_chunks, cr_first = {}, 0, 0, 0, {}, {}
+    cr_pend, cr_npend, cr_npieces, cr_pend_first, cr_first = {}, 0, 0, 0, {}
+    cr_store = { bytes = nil, size = 0, off = {}, len = {}, last = 0, last_text = nil }
     sk_str, sk_str_n = {}, 0
     dir_cache_key, dir_cache_num, dir_cache_ports = nil, nil, 0
     last_asrc, last_adst, last_pdir, last_akey = nil, nil, nil, nil
@@ -516,14 +517,30 @@ local function sk_text(sk)
     return sks
 end
 
--- Record lines wait in cr_pend as pieces, three a line, each line ending in "\n" (cr_npend
--- lines, cr_npieces pieces), and are packed 256 to a chunk "\n" .. lines.  Speed trick (measured):
--- the express lane adds a line as three pieces, and no string is made for it until the chunk.
+-- Record lines wait in cr_pend as pieces, each line ending in "\n" (cr_npend lines, cr_npieces
+-- pieces), and are packed 256 to a chunk "\n" .. lines.  Speed tricks (measured, compressed
+-- capture): the express lane adds a line as pieces, and no string is made for it until the
+-- chunk; the chunks are kept in one ByteArray (cr_store), outside the Lua heap, as the
+-- collector's pace follows the heap's live size: kept as Lua strings, they made every
+-- collection rarer and each one sweep more garbage, a cost to every allocation of the pass
+-- (-2.6 us a frame).  cr_store.off/len: chunk i's place in it; last/last_text: the chunk read last.
 local function carried_flush()
     if cr_npend == 0 then return end
-    cr_chunks[#cr_chunks + 1] = "\n" .. t_concat(cr_pend, "", 1, cr_npieces)
-    cr_first[#cr_first + 1] = cr_pend_first
+    local text = "\n" .. t_concat(cr_pend, "", 1, cr_npieces)
+    local st = cr_store
+    if not st.bytes then st.bytes = ByteArray.new() end
+    st.bytes:append(ByteArray.new(text, true))
+    local i = #st.off + 1
+    st.off[i], st.len[i], st.size = st.size, #text, st.size + #text
+    cr_first[i] = cr_pend_first
     cr_npend, cr_npieces = 0, 0
+end
+
+-- The text of chunk i.
+local function carried_chunk(i)
+    local st = cr_store
+    if st.last ~= i then st.last, st.last_text = i, st.bytes:raw(st.off[i], st.len[i]) end
+    return st.last_text
 end
 
 -- Keep frame num's record line, given as three pieces that end in "\n" (carried_store: the
@@ -608,7 +625,7 @@ local function carried_lookup(num, sk)
         if cr_first[mid] <= num then found = mid; lo = mid + 1 else hi = mid - 1 end
     end
     if not found then return nil end
-    local chunk = cr_chunks[found]
+    local chunk = carried_chunk(found)
     local a = s_find(chunk, "\n" .. num .. "|" .. sk .. "|", 1, true)
     if not a then return nil end
     local b = s_find(chunk, "\n", a + 1, true)
@@ -1988,7 +2005,11 @@ local function express_missing(d, sh)
     end
     local miss = {}
     for k = 1, #names do
-        if not in_layout[names[k]] then miss[#miss + 1] = names[k] end
+        if not in_layout[names[k]] then
+            -- a line break in a name: no record line (the phases make a table record)
+            if s_find(names[k], "\n", 1, true) then return nil end
+            miss[#miss + 1] = names[k]
+        end
     end
     if #miss == 0 or not CARRIED_TAIL[#miss] then return nil end
     local xm = { count = #names, names = miss, tail = CARRIED_TAIL[#miss] }
@@ -2061,36 +2082,54 @@ local function express(s, n, tvb, pinfo, tree, cols)
             -- no full frame for too long: the phases record the late sync
             if now - (d.lastfull or first) > pref_sync then return false end
             if total + sh.dinfo_len + #tail > INFO_MAX then return false end
-            -- the record line carried_store would write; its named part is kept while the
-            -- carried values stay the same (speed trick, measured: 4 us a delta)
+            -- the carried values (cv) and their frames (cf), as last checked: a value with a
+            -- line break cannot go in a record line (the phases make a table record)
             local miss, cf, cv = xm.names, xm.cfrom, xm.cval
             local same = cf ~= nil
             if same then
                 for k = 1, #miss do
                     local name = miss[k]
-                    if from[name] ~= cf[k] or vals[name] ~= cv[k] then same = false; break end
-                end
-            end
-            -- MISS, as data_values gathers it: for a new record text, and for the tree (carried
-            -- variables)
-            if tree or not same then
-                if not same then cf, cv = {}, {} end
-                for k = 1, #miss do
-                    local name = miss[k]
-                    local v, f = vals[name] or false, from[name] or false
-                    MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, v, f
-                    nm = nm + 3
-                    if not same then cv[k], cf[k] = v, f end
+                    if (from[name] or false) ~= cf[k] or (vals[name] or false) ~= cv[k] then
+                        same = false
+                        break
+                    end
                 end
             end
             if not same then
-                local text = t_concat(CPARTS, "|", 1, carried_names_text(nm, 0))
-                if s_find(text, "\n", 1, true) then return false end   -- the phases make a table record
-                xm.cfrom, xm.cval, xm.ctext = cf, cv, text .. "\n"
+                cf, cv = {}, {}
+                for k = 1, #miss do
+                    local name = miss[k]
+                    local v = vals[name] or false
+                    if v and s_find(v, "\n", 1, true) then return false end
+                    cv[k], cf[k] = v, from[name] or false
+                end
+                xm.cfrom, xm.cval = cf, cv
             end
+            -- MISS, as data_values gathers it, for the tree (carried variables)
+            if tree then
+                for k = 1, #miss do
+                    MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = miss[k], cv[k], cf[k]
+                    nm = nm + 3
+                end
+            end
+            -- the record line carried_store would write, as pieces (carried_names_text's
+            -- name|=value|frame|...; no string is made for it until its chunk)
             local xsk = XSK[sk]
             if not xsk then xsk = "|" .. sk_text(sk) .. "|d|0|"; XSK[sk] = xsk end
-            carried_push(num, num, xsk, xm.ctext)
+            if cr_npend == 0 then cr_pend_first = num end
+            local pend, i = cr_pend, cr_npieces
+            pend[i + 1], pend[i + 2], pend[i + 3] = num, xsk, miss[1]
+            i = i + 3
+            for k = 1, #miss do
+                if k > 1 then pend[i + 1], pend[i + 2] = "|", miss[k]; i = i + 2 end
+                local v, f = cv[k], cf[k]
+                if v then pend[i + 1], pend[i + 2] = "|=", v else pend[i + 1], pend[i + 2] = "|", "" end
+                pend[i + 3], pend[i + 4] = "|", f and from_text(f) or ""
+                i = i + 4
+            end
+            pend[i + 1] = "\n"
+            cr_npieces, cr_npend = i + 1, cr_npend + 1
+            if cr_npend >= 256 then carried_flush() end
         end
         d.first = first
         sh.store(vals, from, names, num, c1, c2, c3, c4, c5, c6, c7, c8)
