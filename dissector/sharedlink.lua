@@ -250,12 +250,15 @@ local shapes        -- node pair -> layouts of its recent plain named frames (fa
 local MAX_SHAPES = 8
 local pshapes       -- node pair -> layout of the last plain positional frame (fast path)
 local bshapes       -- node pair -> layout of its last bare frame ([:AB|N0|Cxx], express lane)
+-- node pair * 65536 + payload length -> the layout that matched last (express lane), xlen_n entries
+local xlen, xlen_n
 local stamp_ctr = 0
 local cr_pend, cr_npend, cr_npieces, cr_pend_first, cr_store, cr_first  -- packed carried records
 local sk_str, sk_str_n       -- frame key -> its text, for them
 
 local function reset_state()
     dirs, pair_lists, recs, pending_q, shapes, pshapes, bshapes = {}, {}, {}, {}, {}, {}, {}
+    xlen, xlen_n = {}, 0
     cr_pend, cr_npend, cr_npieces, cr_pend_first, cr_first = {}, 0, 0, 0, {}
     cr_store = { bytes = nil, size = 0, off = {}, len = {}, last = 0, last_text = nil }
     sk_str, sk_str_n = {}, 0
@@ -1141,6 +1144,7 @@ do
                 xparts[#xparts + 1] = "|C([^|%[%]]*)%]\r?\n?$"
                 local mru = shapes[shape_key]
                 if not mru then mru = {}; shapes[shape_key] = mru end
+                xlen, xlen_n = {}, 0
                 local pat = t_concat(parts)
                 for k = #mru, 1, -1 do
                     if mru[k].pat == pat then table.remove(mru, k) end
@@ -1191,6 +1195,7 @@ do
                 "|C([^|%[%]]*)%]\r?\n?$"
             local bs = bshapes[shape_key]
             if not bs or bs.xpat ~= xpat then
+                xlen, xlen_n = {}, 0
                 local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
                 bshapes[shape_key] = { xpat = xpat, n = 0, N = {}, ord = 0, fixed = byte_sum(f, 2, cpos) % 256,
                     letters = LETTER[srcb] .. LETTER[dstb], info_len = 0, dinfo = { dhead }, dinfo_len = #dhead,
@@ -2022,22 +2027,33 @@ end
 local function express(s, n, tvb, pinfo, tree, cols)
     local dstb, srcb = s_byte(s, 3, 4)
     local key = (dstb or 0) * 256 + (srcb or 0)
-    local mru = shapes[key] or NO_SHAPES
-    local sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
-    for k = 1, #mru do
-        sh = mru[k]
-        -- xpat: the layout's pattern, ending the payload after at most CR LF, no '[' in a value
-        -- (a "[:" there would make the phases split the frame)
-        c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_match(s, sh.xpat)
-        if c1 then
-            if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
-            break
-        end
-    end
+    -- the layout that matched a payload of this length last (a payload matches one layout at
+    -- most), else the node pair's recent layouts, newest first.  Speed trick (measured): a
+    -- compressed stream interleaves layouts of one prefix, and a pattern that fails late costs
+    -- most of a match
+    local lk = key * 65536 + n
+    local sh, c1, c2, c3, c4, c5, c6, c7, c8, c9 = xlen[lk]
+    if sh then c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_match(s, sh.xpat) end
     if not c1 then
-        sh = bshapes[key]
-        if not sh then return false end
-        c1 = s_match(s, sh.xpat)
+        local mru = shapes[key] or NO_SHAPES
+        for k = 1, #mru do
+            sh = mru[k]
+            -- xpat: the layout's pattern, ending the payload after at most CR LF, no '[' in a value
+            -- (a "[:" there would make the phases split the frame)
+            c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_match(s, sh.xpat)
+            if c1 then
+                if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
+                break
+            end
+        end
+        if not c1 then
+            sh = bshapes[key]
+            if not sh then return false end
+            c1 = s_match(s, sh.xpat)
+            if not c1 then return false end
+        end
+        if xlen_n >= 4096 then xlen, xlen_n = {}, 0 end
+        if n < 65536 then xlen[lk], xlen_n = sh, xlen_n + 1 end
     end
     if not c1 or sh.ord ~= 0 then return false end
     local total, sum, ctext = sh.sums(c1, c2, c3, c4, c5, c6, c7, c8, c9)
