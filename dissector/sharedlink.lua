@@ -1995,7 +1995,7 @@ end
 local EXPRESS = os.getenv("SHAREDLINK_NO_EXPRESS") ~= "1"
 local EXPRESS_MARK = os.getenv("SHAREDLINK_EXPRESS_MARK") == "1" and "[express] " or ""  -- tests: which took it
 local NO_SHAPES = {}
-local XSK = {}            -- frame key -> "|sk|d|0|" (a line's text after its frame number)
+local XSK = {}            -- frame key -> "|sk|d|0" (a line's text after its frame number)
 local CARRIED_TAIL = {}   -- n -> " (+n carried)"
 for k = 1, 64 do CARRIED_TAIL[k] = " (+" .. k .. " carried)" end
 
@@ -2095,56 +2095,39 @@ local function express(s, n, tvb, pinfo, tree, cols)
                 if not xm then return false end
             end
             tail = xm.tail
+            local miss_names = xm.names
             -- no full frame for too long: the phases record the late sync
             if now - (d.lastfull or first) > pref_sync then return false end
             if total + sh.dinfo_len + #tail > INFO_MAX then return false end
-            -- the carried values (cv) and their frames (cf), as last checked: a value with a
-            -- line break cannot go in a record line (the phases make a table record)
-            local miss, cf, cv = xm.names, xm.cfrom, xm.cval
-            local same = cf ~= nil
-            if same then
-                for k = 1, #miss do
-                    local name = miss[k]
-                    if (from[name] or false) ~= cf[k] or (vals[name] or false) ~= cv[k] then
-                        same = false
-                        break
-                    end
-                end
-            end
-            if not same then
-                cf, cv = {}, {}
-                for k = 1, #miss do
-                    local name = miss[k]
-                    local v = vals[name] or false
-                    if v and s_find(v, "\n", 1, true) then return false end
-                    cv[k], cf[k] = v, from[name] or false
-                end
-                xm.cfrom, xm.cval = cf, cv
-            end
-            -- MISS, as data_values gathers it, for the tree (carried variables)
-            if tree then
-                for k = 1, #miss do
-                    MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = miss[k], cv[k], cf[k]
-                    nm = nm + 3
-                end
-            end
-            -- the record line carried_store would write, as pieces (carried_names_text's
-            -- name|=value|frame|...; no string is made for it until its chunk)
+            -- the record line carried_store would write (num|sk|d|0|name|=value|frame|...), as
+            -- pieces: no string is made for it until its chunk, and each carried variable's
+            -- "|name|=value|frame" is kept in the direction (ctext) while its value and frame
+            -- stay the same.  A value with a line break cannot go in a line (the phases make a
+            -- table record).
+            local ct, cfrom, cval = d.ctext, d.cfrom, d.cval
+            if not ct then ct, cfrom, cval = {}, {}, {}; d.ctext, d.cfrom, d.cval = ct, cfrom, cval end
             local xsk = XSK[sk]
-            if not xsk then xsk = "|" .. sk_text(sk) .. "|d|0|"; XSK[sk] = xsk end
-            if cr_npend == 0 then cr_pend_first = num end
+            if not xsk then xsk = "|" .. sk_text(sk) .. "|d|0"; XSK[sk] = xsk end
             local pend, i = cr_pend, cr_npieces
-            pend[i + 1], pend[i + 2], pend[i + 3] = num, xsk, miss[1]
-            i = i + 3
-            for k = 1, #miss do
-                if k > 1 then pend[i + 1], pend[i + 2] = "|", miss[k]; i = i + 2 end
-                local v, f = cv[k], cf[k]
-                if v then pend[i + 1], pend[i + 2] = "|=", v else pend[i + 1], pend[i + 2] = "|", "" end
-                pend[i + 3], pend[i + 4] = "|", f and from_text(f) or ""
-                i = i + 4
+            pend[i + 1], pend[i + 2] = num, xsk
+            i = i + 2
+            for k = 1, #miss_names do
+                local name = miss_names[k]
+                local f, v = from[name] or false, vals[name] or false
+                local t = ct[name]
+                if cfrom[name] ~= f or cval[name] ~= v or not t then
+                    if v and s_find(v, "\n", 1, true) then return false end
+                    t = "|" .. name .. (v and ("|=" .. v) or "|") .. "|" .. from_text(f)
+                    ct[name], cfrom[name], cval[name] = t, f, v
+                end
+                pend[i + k] = t
+                -- MISS, as data_values gathers it, for the tree (carried variables)
+                if tree then MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, v, f; nm = nm + 3 end
             end
-            pend[i + 1] = "\n"
-            cr_npieces, cr_npend = i + 1, cr_npend + 1
+            i = i + #miss_names + 1
+            pend[i] = "\n"
+            if cr_npend == 0 then cr_pend_first = num end
+            cr_npieces, cr_npend = i, cr_npend + 1
             if cr_npend >= 256 then carried_flush() end
         end
         d.first = first
