@@ -416,6 +416,26 @@ end
 -- sent in a good frame, npos: name -> its index there, nfirst: name -> that frame;
 -- seen: name -> stamp of the last frame that had it; maxslot: highest positional slot that
 -- ever held a value; first/lastfull: times of the first frame and of the last good full one.
+-- Pinfo's and TreeItem's attributes read through their getters, the C functions wslua's
+-- __index finds in the class's metatable (__getters) and calls.  Speed trick (measured): a
+-- pinfo.number is a call into C that finds the getter (hashing "__getters") and calls it;
+-- PG.number(pinfo) is the second call alone.  Set from the first packet's objects; an
+-- attribute without a getter there is read the usual way.
+local PG = { ready = false }
+local function getters_init(pinfo, tree)
+    local function fill(obj, names)
+        local mt = getmetatable(obj)
+        local g = type(mt) == "table" and rawget(mt, "__getters")
+        for _, name in ipairs(names) do
+            local f = type(g) == "table" and rawget(g, name)
+            PG[name] = type(f) == "function" and f or function(o) return o[name] end
+        end
+    end
+    fill(pinfo, { "number", "visited", "rel_ts", "src_port", "dst_port", "src", "dst", "cols", "p2p_dir" })
+    fill(tree, { "hidden" })
+    PG.ready = true
+end
+
 local function new_dir()
     return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, seen = {}, maxslot = -1,
         first = nil, lastfull = nil, list = nil }
@@ -431,11 +451,12 @@ local function get_dir(pinfo, num, dstb, srcb)
         -- the capture direction keeps the two directions of a serial line apart.  Speed
         -- trick (measured): Address objects compare cheaper than they print, so the key
         -- text is rebuilt only when the addresses differ from the previous packet's.
-        local sport, dport = pinfo.src_port, pinfo.dst_port
+        local pg = PG
+        local sport, dport = pg.src_port(pinfo), pg.dst_port(pinfo)
         -- the capture direction only where no port tells the directions apart (a serial line);
         -- a UDP/TCP flow is one direction whatever direction flags its link layer had
-        local asrc, adst = pinfo.src, pinfo.dst
-        local pdir = (sport == 0 and dport == 0) and pinfo.p2p_dir or -1
+        local asrc, adst = pg.src(pinfo), pg.dst(pinfo)
+        local pdir = (sport == 0 and dport == 0) and pg.p2p_dir(pinfo) or -1
         local akey
         if pdir == last_pdir and asrc == last_asrc and adst == last_adst then
             akey = last_akey
@@ -2059,8 +2080,9 @@ local function express(s, n, tvb, pinfo, tree, cols)
     local total, sum, ctext = sh.sums(c1, c2, c3, c4, c5, c6, c7, c8, c9)
     if not total or total + sh.info_len > INFO_MAX then return false end
     if pref_validate and HEXV[ctext] ~= (sh.fixed + sum) % 256 then return false end
-    local num = pinfo.number
-    local visited = pinfo.visited
+    local pg = PG
+    local num = pg.number(pinfo)
+    local visited = pg.visited(pinfo)
     local sk = n * 1048576 + 1   -- the frame's key in its packet, as dissect makes it (sk_base + 1)
     local tail = nil    -- a delta's " (+n carried)"
     local d, list, rec, nm = nil, pref_list, nil, 0   -- for the tree: see state_first_pass
@@ -2083,7 +2105,7 @@ local function express(s, n, tvb, pinfo, tree, cols)
         list = d.list or pair_lists[sh.letters] or pref_list
         if list ~= (d.used_list or pref_list) then return false end
         local names, vals, from = sh.N, d.vals, d.from
-        local now = pinfo.rel_ts
+        local now = pg.rel_ts(pinfo)
         local first = d.first or now
         if d.names_is == names then
             d.lastfull = now
@@ -2162,7 +2184,8 @@ local function dissect(tvb, pinfo, tree)
     local n = #s
     if n <= 0 then return 0 end
     local sk_base = n * 1048576
-    local cols = pinfo.cols
+    if not PG.ready then getters_init(pinfo, tree) end
+    local cols = PG.cols(pinfo)
 
     cols.protocol = "SharedLink"
     ninfo, info_len, info_full, frames_in_info, frames_dropped = 0, 0, false, 0, 0
@@ -2179,7 +2202,7 @@ local function dissect(tvb, pinfo, tree)
     local t = tree
     if t ~= nil then
         if HIDDEN_TELLS then
-            if not t.hidden then t = nil end
+            if not PG.hidden(t) then t = nil end
         elseif s_find(tostring(t), "has subtree=false", 1, true) then
             t = nil
         end
