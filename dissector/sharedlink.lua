@@ -432,7 +432,7 @@ local function getters_init(pinfo, tree)
         end
     end
     fill(pinfo, { "number", "visited", "rel_ts", "src_port", "dst_port", "src", "dst", "cols", "p2p_dir" })
-    fill(tree, { "hidden" })
+    fill(tree, { "hidden", "visible" })
     PG.ready = true
 end
 
@@ -2179,17 +2179,16 @@ local function express(s, n, tvb, pinfo, tree, cols)
     return true
 end
 
+-- Tvb:raw from the class's method table (as TI): tvb:raw() looks it up through wslua's __index
+local TVB_RAW = rawget(Tvb, "raw") or function(tvb) return tvb:raw() end
 local function dissect(tvb, pinfo, tree)
-    local s = tvb:raw()
+    local s = TVB_RAW(tvb)
     local n = #s
     if n <= 0 then return 0 end
-    local sk_base = n * 1048576
     if not PG.ready then getters_init(pinfo, tree) end
     local cols = PG.cols(pinfo)
 
     cols.protocol = "SharedLink"
-    ninfo, info_len, info_full, frames_in_info, frames_dropped = 0, 0, false, 0, 0
-    info_clean = true
 
     -- With no tree at all (tshark's summary pass) skip all tree work.  A TreeItem does
     -- not say so directly: its text is nil both with no tree and with the sparse tree of
@@ -2208,7 +2207,11 @@ local function dissect(tvb, pinfo, tree)
         end
     end
     -- the express lane: no tree, or one nobody sees (the tree's visibility is the whole tree's)
-    if EXPRESS and (t == nil or not t.visible) and express(s, n, tvb, pinfo, t, cols) then return n end
+    if EXPRESS and (t == nil or not PG.visible(t)) and express(s, n, tvb, pinfo, t, cols) then return n end
+    -- the phases: the frames' keys, and the Info they build
+    local sk_base = n * 1048576
+    ninfo, info_len, info_full, frames_in_info, frames_dropped = 0, 0, false, 0, 0
+    info_clean = true
     local pos = 1
     local open_at, close_at = 0, 0 -- cached search results (false = none left)
     local r

@@ -114,3 +114,24 @@ def test_express_takes_the_bulk_of_a_beacon_stream(tmp_path: Path, monkeypatch: 
         assert any(" full " in x for x in marked) and any("delta (+4 carried)" in x for x in marked)
         assert any("delta AutoGpsLat" in x for x in marked)
     assert all(MARK not in x for x in out["one pass"].splitlines() if "[sync late]" in x)
+
+
+def test_records_of_a_long_compressed_stream(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A second pass reads the carried values the first pass kept for each delta, packed 256
+    records to a chunk in one ByteArray: a stream long enough for several chunks, read by the
+    second pass in order, shows the same carried values with the lane as without it."""
+    cap = tmp_path / "long.pcap"
+    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--seed", "11", "--frames", "1400", "--compress",
+                    str(cap)], check=True, capture_output=True)
+    outs = []
+    for express in (True, False):
+        with monkeypatch.context() as m:
+            if not express:
+                m.setenv("SHAREDLINK_NO_EXPRESS", "1")
+            outs.append(tu.tshark(cap, ["-V", *OTHERS], two_pass=True).stdout)
+    assert outs[0] == outs[1]
+    # most of the 1400 frames are deltas: well over 256 records, each showing its carried values
+    carried = [x for x in outs[0].splitlines() if "(carried from frame " in x]
+    assert len(carried) > 1000, len(carried)
+    last_frame = max(int(x.rsplit("(carried from frame ", 1)[1].split(")")[0]) for x in carried)
+    assert last_frame > 1200
