@@ -409,13 +409,6 @@ local function nstime_of(d)
     return NSTime.new(secs, ns)
 end
 
-------------------------------------------------------------------------------
--- Direction state
-------------------------------------------------------------------------------
--- vals/from: name -> last good value / its frame; names: named variables in the order first
--- sent in a good frame, npos: name -> its index there, nfirst: name -> that frame;
--- seen: name -> stamp of the last frame that had it; maxslot: highest positional slot that
--- ever held a value; first/lastfull: times of the first frame and of the last good full one.
 -- Pinfo's and TreeItem's attributes read through their getters, the C functions wslua's
 -- __index finds in the class's metatable (__getters) and calls.  Speed trick (measured): a
 -- pinfo.number is a call into C that finds the getter (hashing "__getters") and calls it;
@@ -436,6 +429,13 @@ local function getters_init(pinfo, tree)
     PG.ready = true
 end
 
+------------------------------------------------------------------------------
+-- Direction state
+------------------------------------------------------------------------------
+-- vals/from: name -> last good value / its frame; names: named variables in the order first
+-- sent in a good frame, npos: name -> its index there, nfirst: name -> that frame;
+-- seen: name -> stamp of the last frame that had it; maxslot: highest positional slot that
+-- ever held a value; first/lastfull: times of the first frame and of the last good full one.
 local function new_dir()
     return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, seen = {}, maxslot = -1,
         first = nil, lastfull = nil, list = nil }
@@ -567,14 +567,12 @@ local function carried_chunk(i)
     return st.last_text
 end
 
--- Keep frame num's record line, given as three pieces that end in "\n" (carried_store: the
--- line, "\n", ""; the express lane: num, "|sk|d|0|", the named part with its "\n").
-local function carried_push(num, p1, p2, p3)
+-- Frame num's record line has been put in cr_pend after the pieces already there, ending with
+-- its "\n" at index i (carried_store: the line and "\n"; the express lane: num, "|sk|d|0",
+-- a piece a carried variable and "\n").
+local function carried_line_end(num, i)
     if cr_npend == 0 then cr_pend_first = num end
-    cr_npend = cr_npend + 1
-    local i = cr_npieces
-    cr_pend[i + 1], cr_pend[i + 2], cr_pend[i + 3] = p1, p2, p3
-    cr_npieces = i + 3
+    cr_npieces, cr_npend = i, cr_npend + 1
     if cr_npend >= 256 then carried_flush() end
 end
 
@@ -601,7 +599,9 @@ local function carried_store(num, sk, ne, nm, kind)
     n = carried_names_text(nm, n)
     local line = t_concat(CPARTS, "|", 1, n)
     if s_find(line, "\n", 1, true) then return false end   -- a line break in a value: a table record
-    carried_push(num, line, "\n", "")
+    local i = cr_npieces
+    cr_pend[i + 1], cr_pend[i + 2] = line, "\n"
+    carried_line_end(num, i + 2)
     return true
 end
 
@@ -2076,7 +2076,7 @@ local function express(s, n, tvb, pinfo, tree, cols)
         if xlen_n >= 4096 then xlen, xlen_n = {}, 0 end
         if n < 65536 then xlen[lk], xlen_n = sh, xlen_n + 1 end
     end
-    if not c1 or sh.ord ~= 0 then return false end
+    if sh.ord ~= 0 then return false end
     local total, sum, ctext = sh.sums(c1, c2, c3, c4, c5, c6, c7, c8, c9)
     if not total or total + sh.info_len > INFO_MAX then return false end
     if pref_validate and HEXV[ctext] ~= (sh.fixed + sum) % 256 then return false end
@@ -2148,9 +2148,7 @@ local function express(s, n, tvb, pinfo, tree, cols)
             end
             i = i + #miss_names + 1
             pend[i] = "\n"
-            if cr_npend == 0 then cr_pend_first = num end
-            cr_npieces, cr_npend = i, cr_npend + 1
-            if cr_npend >= 256 then carried_flush() end
+            carried_line_end(num, i)
         end
         d.first = first
         sh.store(vals, from, names, num, c1, c2, c3, c4, c5, c6, c7, c8)
