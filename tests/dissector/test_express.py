@@ -135,3 +135,30 @@ def test_records_of_a_long_compressed_stream(tmp_path: Path, monkeypatch: pytest
     assert len(carried) > 1000, len(carried)
     last_frame = max(int(x.rsplit("(carried from frame ", 1)[1].split(")")[0]) for x in carried)
     assert last_frame > 1200
+
+
+def test_express_on_every_kind_of_value(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The lane's value pattern is a set of byte ranges (any byte but '|', '[', ']', the control
+    characters and DEL) and its checksum sums the values as one string: values long and short,
+    UTF-8, punctuation, and the bytes it must leave to the phases ('[', ']', control characters,
+    DEL) come out as the phases make them; the long and the UTF-8 ones take the lane."""
+    long_text = "x" * 50
+    values = ["1.5", long_text, "Ωμέγα", "%^{}~\\`'\"", "a[b", "a]b", "tab\there", "del\x7f", "", "-0.25",
+              "y" * 30]
+    bodies = []
+    for i in range(60):
+        v = values[i % len(values)]
+        w = values[(i * 7 + 3) % len(values)]
+        bodies.append(f":AB|N0|T4|QName|D{v}|T4|QNote|D{w}|T2|QLat|D{i}.5|C")
+    t0 = 1_767_268_800_000_000_000
+    frames = []
+    for i, body in enumerate(bodies):
+        raw = body.encode()
+        frames.append((t0 + i * 200_000_000, b"[" + raw + f"{sum(raw) % 256:02X}]\r\n".encode()))
+    cap = write_capture(tmp_path / "values.pcap", frames)
+    _same_both_ways(cap, monkeypatch)
+    monkeypatch.setenv("SHAREDLINK_EXPRESS_MARK", "1")
+    lines = tu.tshark(cap, [*OTHERS]).stdout.splitlines()
+    marked = [x for x in lines if MARK in x]
+    assert any(long_text in x for x in marked) and any("Ωμέγα" in x for x in marked)
+    assert not any("a[b" in x or "tab" in x for x in marked)
