@@ -355,24 +355,17 @@ end
 
 -- For the express lane (see express), one per value count n, made the same way:
 -- EXPRESS_SUMS[n](v1, ..., vn, ctext) -> the values' total length, the sum of their bytes and
--- ctext; EXPRESS_STORE[n](vals, from, names, num, v1, ..., vn) stores the values as the
--- direction's last ones.  Speed trick (measured): the values are summed as one string, one
--- string.byte and one SUM_OF call instead of one of each per value (-2.3 thousand instructions
--- a frame, summary pass; the joined string is short, interned and soon garbage).
-local EXPRESS_SUMS, EXPRESS_STORE = {}, {}
+-- ctext.  Speed trick (measured): the values are summed as one string, one string.byte and one
+-- SUM_OF call instead of one of each per value (-2.3 thousand instructions a frame, summary
+-- pass; the joined string is short, interned and soon garbage).
+local EXPRESS_SUMS = {}
 for n = 1, 8 do
-    local args, store = {}, {}
-    for k = 1, n do
-        args[k] = "v" .. k
-        store[k] = "vals[names[" .. k .. "]] = v" .. k .. "; from[names[" .. k .. "]] = num"
-    end
-    local vs = t_concat(args, ", ")
-    EXPRESS_SUMS[n] = assert(load("local SUM_OF, s_byte, byte_sum = ... return function(" .. vs .. ", ctext) " ..
-        "local all = " .. t_concat(args, " .. ") .. " local len = #all " ..
+    local args = {}
+    for k = 1, n do args[k] = "v" .. k end
+    EXPRESS_SUMS[n] = assert(load("local SUM_OF, s_byte, byte_sum = ... return function(" .. t_concat(args, ", ") ..
+        ", ctext) local all = " .. t_concat(args, " .. ") .. " local len = #all " ..
         "if len > 40 then return len, byte_sum(all, 1, len), ctext end " ..
         "return len, SUM_OF[len](s_byte(all, 1, len)), ctext end", "=EXPRESS_SUMS", "t", {}))(SUM_OF, s_byte, byte_sum)
-    EXPRESS_STORE[n] = assert(load("return function(vals, from, names, num, " .. vs .. ") " ..
-        t_concat(store, " ") .. " end", "=EXPRESS_STORE", "t", {}))()
 end
 
 local INT64_MAX = "9223372036854775807"
@@ -1144,6 +1137,33 @@ do
         pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = cpos, ctext, cmd_start, ord_text
     end
 
+    -- The express lane's code for a named layout, made once per pattern (kept for 256 patterns):
+    -- store(vals, from, num, v1, ..., vn) stores the values as the direction's last ones, and
+    -- info(v1, ..., vn) / dinfo(...) make the Info of a full frame / a delta.  Speed trick
+    -- (measured): the names and the Info's pieces are constants in the code, not looked up.
+    local LAYOUT_CODE, layout_code_n = {}, 0
+    local function layout_code(pat, sn, pieces, dpieces)
+        local code = LAYOUT_CODE[pat]
+        if not code then
+            local args, store, info, dinfo = {}, {}, {}, {}
+            for k = 1, #sn do
+                local q = string.format("%q", sn[k])
+                args[k] = "v" .. k
+                store[k] = "vals[" .. q .. "] = v" .. k .. " from[" .. q .. "] = num"
+                info[2 * k - 1], info[2 * k] = string.format("%q", pieces[k]), args[k]
+                dinfo[2 * k - 1], dinfo[2 * k] = string.format("%q", dpieces[k]), args[k]
+            end
+            local vs = t_concat(args, ", ")
+            code = { assert(load("return function(vals, from, num, " .. vs .. ") " .. t_concat(store, " ") ..
+                " end, function(" .. vs .. ") return " .. t_concat(info, " .. ") ..
+                " end, function(" .. vs .. ") return " .. t_concat(dinfo, " .. ") .. " end",
+                "=layout_code", "t", {}))() }
+            if layout_code_n >= 256 then LAYOUT_CODE, layout_code_n = {}, 0 end
+            LAYOUT_CODE[pat], layout_code_n = code, layout_code_n + 1
+        end
+        return code[1], code[2], code[3]
+    end
+
     -- Remember the layout of a plain named frame (N, T/Q/D triplets, C) for parse_fast_named.
     local function learn_named_shape(f, shape_key, dstb, srcb)
         local n_text, cpos, n_pos, ord_text, n_ord = pr_n_text, pr_cpos, pr_n_pos, pr_ord_text, pr_n_ord
@@ -1190,12 +1210,14 @@ do
                 if #mru >= MAX_SHAPES then mru[#mru] = nil end
                 local dpieces = { dhead .. first }
                 for k = 2, nv do dpieces[k] = pieces[k] end
+                local xstore, xinfo, xdinfo = layout_code(pat, sn, pieces, dpieces)
                 table.insert(mru, 1, { pat = pat, n = nv, T = st, N = sn, TV = tv, ord = n_ord,
+                    xstore = xstore, xinfo = xinfo, xdinfo = xdinfo,
                     info = pieces, info_len = ilen, dinfo = dpieces, dinfo_len = ilen + #dhead - #head,
                     fixed = fixed % 256, build = INFO_BUILD[nv], letters = LETTER[srcb] .. LETTER[dstb],
                     xhead = "[:" .. LETTER[dstb] .. LETTER[srcb] .. "|N" .. n_text .. "|T" .. VT[1] .. "|Q" .. VN[1]
                         .. "|D",
-                    xpat = t_concat(xparts), sums = EXPRESS_SUMS[nv], store = EXPRESS_STORE[nv] })
+                    xpat = t_concat(xparts), sums = EXPRESS_SUMS[nv] })
             end
         end
     end
@@ -1227,7 +1249,6 @@ do
     -- express lane alone (see express).
     local function bare_sums(ctext) return 0, 0, ctext end
     local function bare_store() end
-    local function bare_build(P) return P[1] end
     local function learn_bare_shape(f, shape_key, dstb, srcb)
         local n_text, cpos = pr_n_text, pr_cpos
         if nv == 0 and nf == 2 and n_text and cpos and pr_n_ord == 0 and not pr_ord_text and s_byte(f, 6) == L_N then
@@ -1239,7 +1260,7 @@ do
                 bshapes[shape_key] = { xhead = xhead, xpat = "^" .. XCHECKSUM, n = 0, N = {}, ord = 0,
                     fixed = byte_sum(f, 2, cpos) % 256,
                     letters = LETTER[srcb] .. LETTER[dstb], info_len = 0, dinfo = { dhead }, dinfo_len = #dhead,
-                    sums = bare_sums, store = bare_store, build = bare_build, bare = true }
+                    sums = bare_sums, xstore = bare_store, xdinfo = function() return dhead end, bare = true }
             end
         end
     end
@@ -2033,7 +2054,7 @@ end
 -- info_frame's one concatenation); anything else returns false before changing any state, and
 -- the phases take the packet.  SHAREDLINK_NO_EXPRESS=1 turns it off; the tests compare both ways.
 local EXPRESS = os.getenv("SHAREDLINK_NO_EXPRESS") ~= "1"
-local EXPRESS_MARK = os.getenv("SHAREDLINK_EXPRESS_MARK") == "1" and "[express] " or ""  -- tests: which took it
+local EXPRESS_MARK = os.getenv("SHAREDLINK_EXPRESS_MARK") == "1" and "[express] "  -- tests: which took it
 local NO_SHAPES = {}
 local XSK = {}            -- frame key -> "|sk|d|0" (a line's text after its frame number)
 local CARRIED_TAIL = {}   -- n -> " (+n carried)"
@@ -2174,13 +2195,16 @@ local function express(s, n, tvb, pinfo, tree, cols)
             pend[i] = "\n"
             carried_line_end(num, i)
         end
-        sh.store(vals, from, names, num, c1, c2, c3, c4, c5, c6, c7, c8)
+        sh.xstore(vals, from, num, c1, c2, c3, c4, c5, c6, c7, c8)
     end
+    local info
     if tail then
-        cols.info = EXPRESS_MARK .. sh.build(sh.dinfo, c1, c2, c3, c4, c5, c6, c7, c8) .. tail
+        info = sh.xdinfo(c1, c2, c3, c4, c5, c6, c7, c8) .. tail
     else
-        cols.info = EXPRESS_MARK .. sh.build(sh.info, c1, c2, c3, c4, c5, c6, c7, c8)
+        info = sh.xinfo(c1, c2, c3, c4, c5, c6, c7, c8)
     end
+    if EXPRESS_MARK then info = EXPRESS_MARK .. info end
+    cols.info = info
     if tree then
         -- a tree nobody sees (-Y, coloring rules, taps): the compact one dissect_frame makes, from
         -- what parse_fast_named would have left
