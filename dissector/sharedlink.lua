@@ -339,33 +339,18 @@ local function checksum_value(ctext)
     return nil
 end
 
--- Info text builders for the named fast path, one per value count: head .. v1 .. sep2 .. v2 ...
--- Speed trick (measured): one concatenation instead of string.format.
-local INFO_BUILD = {}
-for n = 1, 8 do
-    local args, body = {}, { "P[1]" }
-    for k = 1, n do
-        args[k] = "v" .. k
-        body[#body + 1] = "v" .. k
-        if k < n then body[#body + 1] = "P[" .. (k + 1) .. "]" end
-    end
-    INFO_BUILD[n] = assert(load("return function(P, " .. t_concat(args, ", ") .. ") return " ..
-        t_concat(body, " .. ") .. " end"))()
-end
-
 -- For the express lane (see express), one per value count n, made the same way:
 -- EXPRESS_SUMS[n](v1, ..., vn, ctext) -> the values' total length, the sum of their bytes and
--- ctext.  Speed trick (measured): the values are summed as one string, one string.byte and one
--- SUM_OF call instead of one of each per value (-2.3 thousand instructions a frame, summary
--- pass; the joined string is short, interned and soon garbage).
+-- ctext.  Speed trick (measured): the values are summed as one string, one str_sum instead of
+-- one a value (-2.3 thousand instructions a frame, summary pass; the joined string is short,
+-- interned and soon garbage).
 local EXPRESS_SUMS = {}
 for n = 1, 8 do
     local args = {}
     for k = 1, n do args[k] = "v" .. k end
-    EXPRESS_SUMS[n] = assert(load("local SUM_OF, s_byte, byte_sum = ... return function(" .. t_concat(args, ", ") ..
-        ", ctext) local all = " .. t_concat(args, " .. ") .. " local len = #all " ..
-        "if len > 40 then return len, byte_sum(all, 1, len), ctext end " ..
-        "return len, SUM_OF[len](s_byte(all, 1, len)), ctext end", "=EXPRESS_SUMS", "t", {}))(SUM_OF, s_byte, byte_sum)
+    EXPRESS_SUMS[n] = assert(load("local str_sum = ... return function(" .. t_concat(args, ", ") ..
+        ", ctext) local all = " .. t_concat(args, " .. ") .. " return #all, str_sum(all), ctext end",
+        "=EXPRESS_SUMS", "t", {}))(str_sum)
 end
 
 local INT64_MAX = "9223372036854775807"
@@ -1137,10 +1122,11 @@ do
         pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = cpos, ctext, cmd_start, ord_text
     end
 
-    -- The express lane's code for a named layout, made once per pattern (kept for 256 patterns):
-    -- store(vals, from, num, v1, ..., vn) stores the values as the direction's last ones, and
-    -- info(v1, ..., vn) / dinfo(...) make the Info of a full frame / a delta.  Speed trick
-    -- (measured): the names and the Info's pieces are constants in the code, not looked up.
+    -- A named layout's code, made once per pattern (kept for 256 patterns): store(vals, from,
+    -- num, v1, ..., vn) stores the values as the direction's last ones (the express lane), and
+    -- info(v1, ..., vn) / dinfo(...) make the Info of a full frame / a delta (the express lane
+    -- and info_frame).  Speed trick (measured): the names and the Info's pieces are constants in
+    -- the code, one concatenation, nothing looked up.
     local LAYOUT_CODE, layout_code_n = {}, 0
     local function layout_code(pat, sn, pieces, dpieces)
         local code = LAYOUT_CODE[pat]
@@ -1213,8 +1199,8 @@ do
                 local xstore, xinfo, xdinfo = layout_code(pat, sn, pieces, dpieces)
                 table.insert(mru, 1, { pat = pat, n = nv, T = st, N = sn, TV = tv, ord = n_ord,
                     xstore = xstore, xinfo = xinfo, xdinfo = xdinfo,
-                    info = pieces, info_len = ilen, dinfo = dpieces, dinfo_len = ilen + #dhead - #head,
-                    fixed = fixed % 256, build = INFO_BUILD[nv], letters = LETTER[srcb] .. LETTER[dstb],
+                    info_len = ilen, dinfo_len = ilen + #dhead - #head,
+                    fixed = fixed % 256, letters = LETTER[srcb] .. LETTER[dstb],
                     xhead = "[:" .. LETTER[dstb] .. LETTER[srcb] .. "|N" .. n_text .. "|T" .. VT[1] .. "|Q" .. VN[1]
                         .. "|D",
                     xpat = t_concat(xparts), sums = EXPRESS_SUMS[nv] })
@@ -1259,7 +1245,7 @@ do
                 local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
                 bshapes[shape_key] = { xhead = xhead, xpat = "^" .. XCHECKSUM, n = 0, N = {}, ord = 0,
                     fixed = byte_sum(f, 2, cpos) % 256,
-                    letters = LETTER[srcb] .. LETTER[dstb], info_len = 0, dinfo = { dhead }, dinfo_len = #dhead,
+                    letters = LETTER[srcb] .. LETTER[dstb], info_len = 0, dinfo_len = #dhead,
                     sums = bare_sums, xstore = bare_store, xdinfo = function() return dhead end, bare = true }
             end
         end
@@ -1598,8 +1584,8 @@ local function info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n
         if tail then total = total + #tail end
         if total <= INFO_MAX then
             ninfo, info_len = 1, total
-            INFO[1] = fast_sh.build(full and fast_sh.info or fast_sh.dinfo, VV[1], VV[2], VV[3], VV[4], VV[5], VV[6],
-                VV[7], VV[8])
+            INFO[1] = (full and fast_sh.xinfo or fast_sh.xdinfo)(VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7],
+                VV[8])
             if tail then INFO[1] = INFO[1] .. tail end
             info_done = true
         end
