@@ -1,6 +1,6 @@
 """Benchmark the dissectors the way users run them against tshark's built-in syslog dissector.
 
-    python bench/bench_dissector.py [--frames N] [--repeat N] [--no-gui] [--json]
+    python bench/bench_dissector.py [--frames N] [--repeat N] [--no-gui] [--no-count] [--json]
 
 "The way users run them": every ``dissector/*.lua`` copied into a temporary personal Lua plugin
 folder (``tshark -G folders``: "Personal Lua Plugins", under a temporary HOME), as
@@ -19,10 +19,14 @@ side by side in one run:
 * where Xvfb and the ``wireshark`` GUI exist: Wireshark opening the beacon capture until idle,
   with the plugins installed (and the coloring rules, as ``make install`` leaves them) against
   no plugins and port 7013 as syslog. Skipped with a note elsewhere.
+* where valgrind exists: the summary pass and the compressed capture counted in instructions a
+  frame (callgrind, 10,000 frames minus 1,000, so start-up drops out), ours against syslog's.
+  Counts repeat within about 0.5 % where times wander by several per cent: the line to read
+  when a time ratio sits near its target. Information, no target; skipped with a note elsewhere.
 
 Time ratios use CPU time (user + sys of tshark / Wireshark, via getrusage or /proc), which a busy
 machine disturbs much less than wall time (the GUI line shows the wall time until idle in
-brackets); the best of ``--repeat`` interleaved runs is kept.
+brackets); the best of ``--repeat`` interleaved runs is kept (``make bench``: 5).
 Targets (issue 13): summary <= 2.5x, -2 <= 3.0x, -Y <= 4.0x, -V <= 4.0x, compressed summary
 <= 3.0x, peak memory <= 1.3x, stats tap <= 1.1x. The GUI line has no target (information).
 """
@@ -48,6 +52,7 @@ COLORFILTERS = REPO / "dissector" / "sharedlink.colorfilters"
 TSHARK = shutil.which("tshark") or "/usr/bin/tshark"
 WIRESHARK = shutil.which("wireshark")
 XVFB = shutil.which("Xvfb")
+VALGRIND = shutil.which("valgrind")
 
 LUA_FILTER = "sharedlink.checksum.status == 0"
 SYSLOG_FILTER = 'syslog.msg contains "|C00]"'
@@ -236,6 +241,38 @@ def run_gui(beacon: Path, homes: dict[str, dict[str, str]]) -> dict[str, Measure
         xvfb.wait()
 
 
+# -- instructions (callgrind) ----------------------------------------------------------------
+
+
+def instructions(cmd: list[str], env: dict[str, str]) -> int:
+    """Instructions one command executes, counted by callgrind."""
+    r = subprocess.run([VALGRIND, "--tool=callgrind", "--callgrind-out-file=/dev/null", *cmd],
+                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    m = re.search(r"Collected : (\d+)", r.stderr)
+    if r.returncode != 0 or not m:
+        raise RuntimeError(f"callgrind failed ({r.returncode}): {' '.join(cmd)}\n{r.stderr[-2000:]}")
+    return int(m.group(1))
+
+
+def run_instructions(work: Path, homes: dict[str, dict[str, str]]) -> dict[str, float]:
+    """Instructions a frame: (count on 10,000 frames - count on 1,000) / 9,000, so that start-up
+    (loading the plugins, registering fields) drops out; two callgrind runs at a time."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    small, large = 1_000, 10_000
+    caps = {(kind, n): make_beacon_capture(work / f"instr-{kind}-{n}.pcap", n, compress=kind == "compressed")
+            for kind in ("beacon", "compressed") for n in (small, large)}
+    jobs = {(kind, who, n): ([TSHARK, "-n", "-r", str(caps[kind, n]), *([] if who == "lua" else SYSLOG)],
+                             homes["all" if who == "lua" else "none"])
+            for kind in ("beacon", "compressed") for who in ("lua", "syslog") for n in (small, large)}
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        counts = dict(zip(jobs, pool.map(lambda j: instructions(*j), jobs.values())))
+    for p in caps.values():
+        p.unlink()
+    return {f"{who} {kind}": (counts[kind, who, large] - counts[kind, who, small]) / (large - small)
+            for kind in ("beacon", "compressed") for who in ("lua", "syslog")}
+
+
 # -- rows ------------------------------------------------------------------------------------
 
 
@@ -247,7 +284,8 @@ def make_beacon_capture(path: Path, frames: int = 200_000, compress: bool = Fals
     return path
 
 
-def rows_for(m: dict[str, Measure], label: str) -> list[tuple[str, str, str, float, str, bool]]:
+def rows_for(m: dict[str, Measure], label: str, instr: dict[str, float] | None = None
+             ) -> list[tuple[str, str, str, float, str, bool]]:
     """(name, ours, reference, ratio, target, ok) for every line."""
     rows = []
 
@@ -266,6 +304,11 @@ def rows_for(m: dict[str, Measure], label: str) -> list[tuple[str, str, str, flo
                  f"{theirs.rss_kb / 1024:.0f} MiB", mem, f"<= {MEM_TARGET:g}x", mem <= MEM_TARGET))
     ratio_row(f"stats tap loaded, not asked: summary with vs without ({label})", m["lua summary"],
               m["lua summary without the stats tap"], STATS_TARGET)
+    if instr:
+        for kind, what in (("beacon", "summary"), ("compressed", "compressed summary")):
+            ours_i, theirs_i = instr[f"lua {kind}"], instr[f"syslog {kind}"]
+            rows.append((f"instructions a frame, {what} vs syslog (callgrind, start-up left out)",
+                         f"{ours_i:,.0f}", f"{theirs_i:,.0f}", ours_i / theirs_i, "(info)", True))
     if "gui with the plugins" in m:
         g, s = m["gui with the plugins"], m["gui syslog"]
         r = g.cpu / s.cpu
@@ -274,8 +317,9 @@ def rows_for(m: dict[str, Measure], label: str) -> list[tuple[str, str, str, flo
     return rows
 
 
-def run_all(work: Path, frames: int = 200_000, repeat: int = 1, gui: bool = True) -> tuple[list, str | None]:
-    """Make the captures and the HOMEs, measure; returns the rows and the GUI note (None: measured)."""
+def run_all(work: Path, frames: int = 200_000, repeat: int = 1, gui: bool = True,
+            count: bool = True) -> tuple[list, list[str]]:
+    """Make the captures and the HOMEs, measure; returns the rows and the notes on lines skipped."""
     beacon = make_beacon_capture(work / "dissector-beacon.pcap", frames)
     compressed = make_beacon_capture(work / "dissector-compressed.pcap", frames, compress=True)
     homes = {
@@ -286,25 +330,35 @@ def run_all(work: Path, frames: int = 200_000, repeat: int = 1, gui: bool = True
     }
     check_loaded(homes["all"], [s.name for s in DISSECTORS])
     m = run_tshark(beacon, compressed, homes, repeat)
+    notes = []
     note = gui_available() if gui else "not asked for (--no-gui)"
     if note is None:
         m.update(run_gui(beacon, homes))
+    else:
+        notes.append(f"GUI open until idle: skipped, {note}")
+    instr = None
+    if not count:
+        notes.append("instructions a frame: skipped, not asked for (--no-count)")
+    elif not VALGRIND:
+        notes.append("instructions a frame: skipped, no valgrind (Debian package valgrind)")
+    else:
+        instr = run_instructions(work, homes)
     label = f"{frames // 1000}k beacon frames"
-    rows = rows_for(m, label)
+    rows = rows_for(m, label, instr)
     for p in (beacon, compressed):
         p.unlink()
-    return rows, note
+    return rows, notes
 
 
 def run_bench(work: Path) -> list:
-    """`make bench`: every line above on 200,000 frames, the best of 3 interleaved runs (single
-    runs of the same code differ by up to 15 % on these shared machines)."""
+    """`make bench`: every line above on 200,000 frames, the best of 5 interleaved runs (single
+    runs of the same code differ by up to 15 % on these shared machines, and best of 3 still
+    moved the summary ratio by 0.25 between runs an hour apart)."""
     from bench import Result
 
-    rows, note = run_all(work, 200_000, repeat=3)
+    rows, notes = run_all(work, 200_000, repeat=5)
     out = [Result(*r) for r in rows]
-    if note:
-        out.append(Result(f"GUI open until idle: skipped, {note}", "-", "-", 0.0, "(info)", True))
+    out += [Result(note, "-", "-", 0.0, "(info)", True) for note in notes]
     return out
 
 
@@ -313,18 +367,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=200_000, help="beacon frames per capture (default 200000)")
     ap.add_argument("--repeat", type=int, default=1, help="runs per tshark configuration (best kept)")
     ap.add_argument("--no-gui", action="store_true", help="skip the Wireshark GUI line")
+    ap.add_argument("--no-count", action="store_true", help="skip the instruction-count lines (callgrind)")
     ap.add_argument("--json", action="store_true", help="print the rows as JSON")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="sharedlink-bench-") as tmp:
-        rows, note = run_all(Path(tmp), args.frames, args.repeat, gui=not args.no_gui)
+        rows, notes = run_all(Path(tmp), args.frames, args.repeat, gui=not args.no_gui, count=not args.no_count)
     if args.json:
-        print(json.dumps({"rows": rows, "gui_note": note}, indent=2))
+        print(json.dumps({"rows": rows, "skipped": notes}, indent=2))
     else:
         w = max(len(r[0]) for r in rows)
         for name, ours, theirs, ratio, target, ok in rows:
             print(f"{name:<{w}}  {ours:>22}  {theirs:>22}  {ratio:6.2f}x  {target:>8}  {'yes' if ok else 'NO'}")
-        if note:
-            print(f"GUI line skipped: {note}")
+        for note in notes:
+            print(note)
     return 0 if all(r[5] for r in rows) else 1
 
 
