@@ -184,10 +184,7 @@ def python_frames(cap: Path, n: int) -> list[list[dict[str, Any]]]:
 
 
 # no shrinking: each step would be a tshark run; the failing capture is reported as drawn
-# Derandomized: CI runs the same 12 streams every time. Random draws still find one open
-# disagreement (not settled by the rules yet): a positional slot whose type comes from one
-# conversation's declaration while another conversation with the same letters declared the same
-# name untyped (e.g. "N1|D|D|Dx": Python flags x as a bad double, the dissector does not).
+# Derandomized: CI runs the same 12 streams every time.
 @settings(
     max_examples=12,
     derandomize=True,  # CI sees the same 12 streams every run; see the note above the test
@@ -211,3 +208,23 @@ def test_carried_empty_named_value(tmp_path):
     assert python_frames(cap, 2)[1][0]["vars"] == [("Mode", "y", False, False), ("Note", "", True, False)]
     note = [v for v in lua_frames(cap)[1][0]["vars"] if v[0] == "Note"]
     assert note == [("Note", "", True, False)]
+
+
+def test_declared_untyped_slot_after_typed_list(tmp_path):
+    # conversation y (port 40002) declares P3 a double; x (same letters, port 40001) declares
+    # the same name untyped after it, so x starts from y's list and then replaces it: its own
+    # declaration types its slots, and an untyped name stays untyped (no bad double), while y's
+    # slot stays a double
+    x = (("A", "B"), "10.0.0.2", 40001, False)
+    y = (("A", "B"), "10.0.0.2", 40002, False)
+    packets = [
+        (y, "N0|T0|QP0|T2|QP1|T4|QP2|T2|QP3", "good"),
+        (x, "N0|T4|QP0|T4|QP1|T0|QP2|QP3", "good"),
+        (x, "N1|D|D|Dx", "good"),
+        (y, "N1|D|D|Dx", "good"),
+    ]
+    cap = write_capture(tmp_path / "d.pcap", packets)
+    carried = [("P1", None, True, False), ("P2", None, True, False)]
+    want = [carried + [("P3", "x", False, False)], carried + [("P3", "x", False, True)]]
+    assert [f[0]["vars"] for f in python_frames(cap, 4)[2:]] == want
+    assert [f[0]["vars"] for f in lua_frames(cap)[2:]] == want

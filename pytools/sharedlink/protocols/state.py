@@ -139,7 +139,9 @@ class VariableTable:
         return t
 
     def declare(self, ordinal: int, names: Sequence[tuple[str, int | None]]) -> None:
-        """Install a declared list (or part of one, from ``ordinal``)."""
+        """Install a declared list (or part of one, from ``ordinal``). Each declared name
+        takes the type declared with it: a name declared without ``T`` is untyped, whatever
+        an earlier list (this conversation's, the letter pair's or the a-priori one) said."""
         if ordinal > len(self.names):
             self.names.extend(f"var{i}" for i in range(len(self.names), ordinal))
         del self.names[ordinal:]
@@ -147,7 +149,9 @@ class VariableTable:
             self.names.append(name)
             if type_code is not None:
                 self.types[name] = type_code
-            self._var(name, type_code)
+            else:
+                self.types.pop(name, None)
+            self._var(name, type_code).type_code = type_code
 
     def _var(self, name: str, type_code: int | None = None) -> Variable:
         v = self.vars.get(name)
