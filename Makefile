@@ -30,14 +30,15 @@ help:
 # --- set-up ------------------------------------------------------------------------------
 deps: tshark venv
 
-# tshark, editcap and luacheck from Debian's packages, non-interactively (the setuid
-# question pre-answered "no")
+# tshark, editcap, luacheck and the Lua 5.2 and 5.4 compilers (the dissectors' syntax checked
+# by both) from Debian's packages, non-interactively (the setuid question pre-answered "no")
 tshark:
-	@if ! command -v tshark >/dev/null || ! command -v editcap >/dev/null || ! command -v luacheck >/dev/null; then \
-	  echo "installing tshark and luacheck from Debian's packages"; \
+	@if ! command -v tshark >/dev/null || ! command -v editcap >/dev/null || ! command -v luacheck >/dev/null \
+	    || ! command -v luac5.2 >/dev/null || ! command -v luac5.4 >/dev/null; then \
+	  echo "installing tshark, luacheck and luac from Debian's packages"; \
 	  echo "wireshark-common wireshark-common/install-setuid boolean false" | $(SUDO) debconf-set-selections; \
 	  $(SUDO) apt-get update -qq && \
-	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends tshark lua-check >/dev/null; \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends tshark lua-check lua5.2 lua5.4 >/dev/null; \
 	fi
 
 venv: $(STAMP)
