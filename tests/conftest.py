@@ -1,7 +1,8 @@
 """Shared test set-up. The test folders mirror the package (protocols/, capture/, generators/,
 analysis/, dissector/ for the Lua side, tools/, fuzz/); helpers live in ``tshark_util`` (tshark
-runs, each checked for Lua errors) and ``sl_captures`` (test data builders), both importable
-from every test file because this folder is on ``sys.path``."""
+runs, each checked for Lua errors), ``sl_captures`` (test data builders) and ``sl_pipes`` (a
+standard output whose reader lags, for Ctrl-C tests), importable from every test file because
+this folder is on ``sys.path``."""
 
 from __future__ import annotations
 

@@ -36,6 +36,7 @@ from sharedlink.capture.stream import FrameSplitter, StreamFrame, iter_frames
 from sharedlink.protocols.codec import Frame, parse_frame
 from sharedlink.protocols.state import BEACON_VARIABLES, Update, VariableTable, conversation_key
 from sharedlink.protocols.state import _update as _state_update  # the general path's Update builder, shared
+from sharedlink.replay import SigintGate
 
 DEFAULT_PORT = 7013
 #: how long a change (value, failure, late sync, gap) stays highlighted, seconds
@@ -597,36 +598,55 @@ def run_watch(
 ) -> WatchStats:
     """Decode ``source`` 's batches into ``outputs`` until it ends (a capture) or Ctrl-C
     (KeyboardInterrupt propagates: the caller cleans up). ``tick(now_ns)`` is called at most
-    every ``interval`` seconds, and after every batch when the source is idle."""
+    every ``interval`` seconds, after every batch when the source is idle, and once more at the
+    end (Ctrl-C too: the last view shows every frame counted).
+
+    Ctrl-C never stops a batch half done: a replay's :class:`~sharedlink.replay.SigintGate`
+    holds it while the batch is decoded, counted, handed to every output and flushed (a JSON
+    line longer than the pipe's buffer was cut in two when Ctrl-C came while the reader lagged),
+    and raises once that is done; waiting for the source still ends at the key press."""
     stats = stats if stats is not None else WatchStats()
     decode = decoder.decode
     next_tick = time.monotonic()
     datagram = getattr(decoder, "datagram", None)
-    for batch in source.batches(interval):
-        for item in batch:
-            if isinstance(item, RawDatagram):
-                for d in datagram(item):  # type: ignore[misc]
-                    if isinstance(d, Decoded):
+    gate = SigintGate()
+    try:
+        with gate:
+            for batch in source.batches(interval):
+                gate.held = True  # Ctrl-C waits until this batch is counted, written and flushed
+                try:
+                    for item in batch:
+                        if isinstance(item, RawDatagram):
+                            for d in datagram(item):  # type: ignore[misc]
+                                if isinstance(d, Decoded):
+                                    stats.frames += 1
+                                    for o in outputs:
+                                        o(d)
+                                else:
+                                    stats.noise += 1
+                            continue
+                        if item.frame is None:
+                            stats.noise += 1
+                            continue
+                        d = decode(item)
                         stats.frames += 1
                         for o in outputs:
                             o(d)
-                    else:
-                        stats.noise += 1
-                continue
-            if item.frame is None:
-                stats.noise += 1
-                continue
-            d = decode(item)
-            stats.frames += 1
-            for o in outputs:
-                o(d)
-        if out is not None and batch:
-            out.flush()
-        if tick is not None and time.monotonic() >= next_tick:
+                    if out is not None and batch:
+                        out.flush()
+                    if tick is not None and time.monotonic() >= next_tick:
+                        tick(source.now_ns())
+                        next_tick = time.monotonic() + interval
+                finally:
+                    gate.held = False
+                if gate.pending:
+                    raise KeyboardInterrupt
+                if getattr(source, "done", False):
+                    break
+    except KeyboardInterrupt:
+        if tick is not None:
             tick(source.now_ns())
-            next_tick = time.monotonic() + interval
-        if getattr(source, "done", False):
-            break
+        raise
     if tick is not None:
         tick(source.now_ns())
     return stats

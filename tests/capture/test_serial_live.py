@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -14,6 +15,7 @@ import tty
 from pathlib import Path
 
 import pytest
+from sl_pipes import drain, environment, one_page_pipe, wait_writing
 
 import tshark_util as tu
 from sharedlink.capture.pcapio import CaptureError, read_records
@@ -116,6 +118,45 @@ def test_capture_one_port_records_what_was_written(tmp_path):
     assert all(r.linktype == 147 and r.flags & 3 == DIR_IN for r in recs)
     assert all(b.ts_ns >= a.ts_ns for a, b in zip(recs, recs[1:]))
     assert abs(recs[0].ts_ns - time.time_ns()) < 120 * 10**9
+
+
+@pytest.mark.parametrize("unbuffered", ["", "1"])
+def test_ctrl_c_while_stdout_is_full_leaves_the_record_whole(tmp_path, unbuffered):
+    """Ctrl-C while the capture is blocked writing a record into a pipe that its reader has
+    not emptied (a one-page pipe, a record longer than the room left): the record is written
+    whole, and the summary counts what the stream holds. Under PYTHONUNBUFFERED=1 standard
+    output was the raw file, whose write returned the part that went before the signal and the
+    rest was dropped: a truncated block (44 of 4140 bytes) with exit 0 and "1 records"."""
+    m, path = pty_pair()
+    r, w = one_page_pipe()
+    proc = subprocess.Popen([*CLI, "serial", "capture", path, "--baud", "115200", "--out", "-"],
+                            stdout=w, stderr=subprocess.PIPE, text=True, env=environment(unbuffered))
+    os.close(w)
+    sent = bytes(range(256)) * 40
+    try:
+        wait_ready(proc)
+        os.write(m, sent)  # read 4095 bytes at once: a record longer than the pipe's room
+        wait_writing(proc.pid)
+        proc.send_signal(signal.SIGINT)  # Ctrl-C inside the write
+        time.sleep(0.3)
+    finally:
+        reader, got = drain(r)
+        try:
+            _, stderr = proc.communicate(timeout=30)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            reader.join(30)
+            os.close(m)
+    assert proc.returncode == 0, stderr
+    out = tmp_path / "stdout.pcapng"
+    out.write_bytes(got)
+    recs = list(read_records(out))  # CaptureError on a truncated block
+    summary = re.search(r"wrote -: (\d+) records, (\d+) bytes \(stopped: SIGINT\)", stderr)
+    assert summary, stderr
+    n = sum(len(rec.data) for rec in recs)
+    assert (int(summary[1]), int(summary[2])) == (len(recs), n) and recs
+    assert b"".join(rec.data for rec in recs) == sent[:n]
 
 
 def test_tap_relays_both_ways_and_records_both_directions(tmp_path):

@@ -108,6 +108,21 @@ def rx2():
     r.close()
 
 
+@pytest.fixture
+def udp():
+    """``udp(...)`` is ``UdpSink(...)``, closed after the test: a sink belongs to whoever made
+    it (replay() leaves it open; the command closes it)."""
+    made: list[UdpSink] = []
+
+    def make(*args, **kw) -> UdpSink:
+        made.append(UdpSink(*args, **kw))
+        return made[-1]
+
+    yield make
+    for sink in made:
+        sink.close()
+
+
 def payloads_of(path: Path) -> list[bytes]:
     return [fr.payload for fr in CaptureFrames(path)]
 
@@ -140,21 +155,21 @@ def mixed_capture(path: Path, ports: tuple[int, int]) -> list[tuple[int, str, by
 
 
 @pytest.mark.parametrize("fmt", ["pcap", "pcapng"])
-def test_every_frame_arrives_byte_identical_and_in_order(tmp_path, rx, fmt):
+def test_every_frame_arrives_byte_identical_and_in_order(tmp_path, rx, fmt, udp):
     cap = tmp_path / f"b.{fmt}"
     generate_file(GenOptions(frames=300, compress=True, seed=7, port=rx.port, fmt=fmt), cap)
     want = payloads_of(cap)
     assert len(want) == 300
-    st = replay(cap, UdpSink(), ReplayOptions(pps=5000))  # default: 127.0.0.1, captured port
+    st = replay(cap, udp(), ReplayOptions(pps=5000))  # default: 127.0.0.1, captured port
     assert rx.wait(300) == want
     assert (st.frames, st.bytes, st.send_errors, st.passes) == (300, sum(map(len, want)), 0, 1)
     assert {g[2][0] for g in rx.got} == {"127.0.0.1"}
 
 
-def test_topspeed_sends_everything(tmp_path, rx):
+def test_topspeed_sends_everything(tmp_path, rx, udp):
     cap = tmp_path / "b.pcap"
     generate_file(GenOptions(frames=1000, seed=2, port=rx.port), cap)
-    st = replay(cap, UdpSink(), ReplayOptions(topspeed=True))
+    st = replay(cap, udp(), ReplayOptions(topspeed=True))
     assert st.frames == 1000 and st.send_errors == 0 and st.lag_median_ns is None
     got = rx.wait(1000)
     # UDP may drop on a loaded machine if the receiver falls behind; what arrives is in order and intact
@@ -193,10 +208,10 @@ def test_ipv6_destination(tmp_path):
         r6.close()
 
 
-def test_captured_ports_and_filters(tmp_path, rx, rx2):
+def test_captured_ports_and_filters(tmp_path, rx, rx2, udp):
     cap = tmp_path / "m.pcap"
     frames = mixed_capture(cap, (rx.port, rx2.port))
-    st = replay(cap, UdpSink(), ReplayOptions(pps=2000))
+    st = replay(cap, udp(), ReplayOptions(pps=2000))
     rx.wait(20), rx2.wait(10)
     assert rx.payloads == [p for port, _, p in frames if port == rx.port]
     assert rx2.payloads == [p for port, _, p in frames if port == rx2.port]
@@ -283,10 +298,10 @@ def test_send_errors_are_counted_not_raised(tmp_path, rx):
 # -- timing -------------------------------------------------------------------------------
 
 
-def test_capture_timing_is_followed_loosely(tmp_path, rx):
+def test_capture_timing_is_followed_loosely(tmp_path, rx, udp):
     cap = tmp_path / "t.pcap"
     generate_file(GenOptions(frames=8, port=rx.port), cap)  # 200 ms apart
-    st = replay(cap, UdpSink(), ReplayOptions(speed=4))  # 50 ms apart
+    st = replay(cap, udp(), ReplayOptions(speed=4))  # 50 ms apart
     rx.wait(8)
     arrivals = [g[0] for g in rx.got]
     assert len(arrivals) == 8
@@ -314,7 +329,7 @@ def median_spacing_ratio(arrivals: list[int], scheduled: list[int]) -> float:
 
 
 @pytest.mark.parametrize("mode", ["speed=1", "speed=2.5", "pps=40"])
-def test_frames_keep_the_capture_spacing(tmp_path, rx, mode):
+def test_frames_keep_the_capture_spacing(tmp_path, rx, mode, udp):
     """Irregular capture spacing (8 to 40 ms) replayed to a loopback socket: the spacing at
     the receiver (kernel timestamps) over many frames is the capture's divided by the speed
     (or 1/pps per frame) within 2.5%. A schedule 5% off fails."""
@@ -338,34 +353,34 @@ def test_frames_keep_the_capture_spacing(tmp_path, rx, mode):
         w = PcapWriter(fh)
         for i, t in enumerate(capture_ts):
             w.write(t, b.frame(b"frame %d" % i, i))
-    st = replay(cap, UdpSink(), opts)
+    st = replay(cap, udp(), opts)
     assert rx.wait(n) == [b"frame %d" % i for i in range(n)]
     assert st.frames == n
     ratio = median_spacing_ratio([g[0] for g in rx.got], scheduled)
     assert 0.975 < ratio < 1.025, ratio
 
 
-def test_pps_and_out_of_order_timestamps(tmp_path, rx):
+def test_pps_and_out_of_order_timestamps(tmp_path, rx, udp):
     cap = tmp_path / "o.pcap"
     b = UdpBuilder("10.0.0.1", "10.0.0.2", 1, rx.port)
     with open(cap, "wb") as fh:
         w = PcapWriter(fh)
         for i, ts in enumerate([0, 100, 50, 150]):  # the third goes back in time
             w.write(T0 + ts * MS, b.frame(b"%d" % i, i))
-    st = replay(cap, UdpSink(), ReplayOptions())
+    st = replay(cap, udp(), ReplayOptions())
     assert rx.wait(4) == [b"0", b"1", b"2", b"3"]
     assert 0.14 < st.elapsed_s < 0.5
     rx.got.clear()
-    st = replay(cap, UdpSink(), ReplayOptions(pps=20))  # 50 ms apart whatever the capture says
+    st = replay(cap, udp(), ReplayOptions(pps=20))  # 50 ms apart whatever the capture says
     assert rx.wait(4) == [b"0", b"1", b"2", b"3"]
     assert 0.14 < st.elapsed_s < 0.5
 
 
-def test_progress_is_reported_while_sending(tmp_path, rx):
+def test_progress_is_reported_while_sending(tmp_path, rx, udp):
     cap = tmp_path / "p.pcap"
     generate_file(GenOptions(frames=60, port=rx.port), cap)
     seen: list[int] = []
-    Replayer(CaptureFrames(cap), UdpSink(), ReplayOptions(pps=200),
+    Replayer(CaptureFrames(cap), udp(), ReplayOptions(pps=200),
              progress=lambda st: seen.append(st.frames), progress_interval=0.05).run()
     assert len(seen) >= 3 and seen == sorted(seen) and 0 < seen[-1] <= 60
 
@@ -373,23 +388,23 @@ def test_progress_is_reported_while_sending(tmp_path, rx):
 # -- loops and limits ---------------------------------------------------------------------
 
 
-def test_loops_and_limits_count_right(tmp_path, rx):
+def test_loops_and_limits_count_right(tmp_path, rx, udp):
     cap = tmp_path / "l.pcap"
     generate_file(GenOptions(frames=10, seed=4, port=rx.port), cap)
     want = payloads_of(cap)
-    st = replay(cap, UdpSink(), ReplayOptions(pps=2000, loop=3))
+    st = replay(cap, udp(), ReplayOptions(pps=2000, loop=3))
     assert (st.frames, st.passes) == (30, 3)
     assert rx.wait(30) == want * 3
     rx.got.clear()
-    st = replay(cap, UdpSink(), ReplayOptions(pps=2000, loop=3, limit=14))
+    st = replay(cap, udp(), ReplayOptions(pps=2000, loop=3, limit=14))
     assert (st.frames, st.passes) == (14, 1)
     assert rx.wait(14) == (want * 2)[:14]
     rx.got.clear()
-    st = replay(cap, UdpSink(), ReplayOptions(topspeed=True, loop=0, limit=25))  # "until stopped", stopped by the limit
+    st = replay(cap, udp(), ReplayOptions(topspeed=True, loop=0, limit=25))  # "until stopped", stopped by the limit
     assert (st.frames, st.passes) == (25, 2)
     rx.wait(25)
     rx.got.clear()
-    st = replay(cap, UdpSink(), ReplayOptions(topspeed=True, loop=4))  # later passes from the cache
+    st = replay(cap, udp(), ReplayOptions(topspeed=True, loop=4))  # later passes from the cache
     assert (st.frames, st.passes, st.counts.records) == (40, 4, 10)
     rx.wait(40)
     rx.got.clear()
@@ -398,10 +413,10 @@ def test_loops_and_limits_count_right(tmp_path, rx):
     assert rx.wait(15) == (want * 2)[:15]
 
 
-def test_loop_keeps_the_beacon_rate_and_adds_the_delay(tmp_path, rx):
+def test_loop_keeps_the_beacon_rate_and_adds_the_delay(tmp_path, rx, udp):
     cap = tmp_path / "l.pcap"
     generate_file(GenOptions(frames=3, port=rx.port), cap)  # 0, 200, 400 ms
-    st = replay(cap, UdpSink(), ReplayOptions(speed=10, loop=2, loop_delay=0.1))
+    st = replay(cap, udp(), ReplayOptions(speed=10, loop=2, loop_delay=0.1))
     rx.wait(6)
     arrivals = [g[0] / MS for g in rx.got]
     assert len(arrivals) == 6 and st.passes == 2

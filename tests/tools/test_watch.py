@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import signal
 import socket
 import struct
@@ -17,8 +18,10 @@ from pathlib import Path
 
 import pytest
 from sl_captures import BEACON, reference
+from sl_pipes import drain, environment, one_page_pipe, wait_writing
 
 from sharedlink.generators.beacon import GenOptions, generate_file
+from sharedlink.protocols.codec import encode_named
 
 CLI = [sys.executable, "-m", "sharedlink"]
 
@@ -142,6 +145,87 @@ def test_live_view_shows_counts_and_exits_130(capture):
     wait_line(w, "udp port")
     time.sleep(0.5)
     interrupt(w)
+
+
+@pytest.mark.parametrize("unbuffered", ["", "1"])
+def test_ctrl_c_while_the_json_reader_lags_leaves_every_line_whole(unbuffered):
+    """Ctrl-C while --json is blocked writing a line longer than the pipe's free room (its
+    reader lagging): the line, and the rest of its batch, are written whole, then exit 130.
+    Before, the interrupt came inside the write and the output ended with half a line. With
+    Ctrl-C held but standard output unbuffered (PYTHONUNBUFFERED=1), the rest of the line the
+    signal cut was dropped and the next line followed: --json writes through a buffered stream
+    of its own."""
+    port = free_port()
+    r, w = one_page_pipe()
+    p = subprocess.Popen([*CLI, "watch", "--port", str(port), "--json"], stdout=w, stderr=subprocess.PIPE, text=True,
+                         env=environment(unbuffered))
+    os.close(w)
+    names = [f"Var{k:03d}" for k in range(300)]  # a JSON line of about 8 kB
+    try:
+        wait_line(p, "udp port")
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for i in range(6):
+                tx.sendto(encode_named("A", "B", [(n, 2, f"{i}.{k}") for k, n in enumerate(names)]), ("127.0.0.1", port))
+        wait_writing(p.pid)
+        p.send_signal(signal.SIGINT)  # Ctrl-C inside the write
+        time.sleep(0.3)
+    finally:
+        t, got = drain(r)
+        try:
+            _out, err = p.communicate(timeout=60)
+        finally:
+            if p.poll() is None:
+                p.kill()
+            t.join(60)
+    assert p.returncode == 130, err
+    assert got.endswith(b"\n"), got[-80:]
+    rows = [json.loads(line) for line in got.splitlines()]
+    assert [row["number"] for row in rows] == list(range(1, len(rows) + 1)) and rows
+    for i, row in enumerate(rows):
+        assert row["values"] == {n: float(f"{i}.{k}") for k, n in enumerate(names)}
+
+
+class _SignallingOutput:
+    """A watch output that, at its ``at``-th frame, delivers SIGINT to this process before it
+    returns: Ctrl-C while a batch is being handed out."""
+
+    def __init__(self, at: int) -> None:
+        self.at, self.seen = at, 0
+
+    def __call__(self, d) -> None:
+        self.seen += 1
+        if self.seen == self.at:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.01)  # the handler runs here, inside the output
+
+
+def test_ctrl_c_during_a_batch_finishes_it_and_draws_it():
+    """Ctrl-C while a batch's frames go to the outputs: every frame of the batch still reaches
+    every output and the counts, the view is drawn once more with all of them, then
+    KeyboardInterrupt (before, the batch stopped at that frame and the last view drawn was the
+    one before the batch)."""
+    from sharedlink.watch import FastDecoder, LiveView, UdpSource, WatchStats, run_watch
+
+    port = free_port()
+    source = UdpSource(port, "127.0.0.1")
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:  # all waiting: one batch
+        for i in range(20):
+            tx.sendto(encode_named("A", "B", [("AutoGpsLat", 2, f"38.{i:04d}")]), ("127.0.0.1", port))
+    view, stats, out = LiveView(1.0), WatchStats(), _SignallingOutput(at=7)
+    drawn: list[tuple[int, int, int]] = []
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_watch(source, FastDecoder(), [view.update, out], tick=lambda now: drawn.append((view.frames, stats.frames, out.seen)),
+                      interval=60, stats=stats)
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
+    finally:
+        signal.signal(signal.SIGINT, old)
+        source.close()
+    assert (view.frames, stats.frames, out.seen) == (20, 20, 20)
+    assert drawn and drawn[-1] == (20, 20, 20)
+    (st,) = view.dirs.values()
+    assert st.frames == 20 and st.vars["AutoGpsLat"].text == "38.0019"
 
 
 def test_view_counts_late_syncs_and_gaps(tmp_path):

@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from contextlib import ExitStack
 from pathlib import Path
 from typing import BinaryIO
 
-from sharedlink.capture.pcapio import open_output, refuse_overwrite
+from sharedlink.capture.pcapio import buffered_stdout, open_output, refuse_overwrite
 from sharedlink.capture.serial_format import (
     DIR_IN,
     DIR_OUT,
@@ -97,11 +98,11 @@ def run_capture(args: argparse.Namespace) -> int:
     if to_stdout and args.json:
         raise UsageError("--json needs --out FILE (the capture goes to standard output)")
     name = f"{args.tap[0]}<->{args.tap[1]}" if args.tap else args.device
-    try:
-        fh: BinaryIO = sys.stdout.buffer if to_stdout else open(args.out, "wb")
-    except OSError as exc:
-        raise UsageError(f"{args.out}: {exc.strerror or exc}") from None
-    try:
+    with ExitStack() as files:
+        try:  # standard output buffered even under python -u: a record cut by SIGINT is written whole
+            fh: BinaryIO = files.enter_context(buffered_stdout() if to_stdout else open(args.out, "wb"))
+        except OSError as exc:
+            raise UsageError(f"{args.out}: {exc.strerror or exc}") from None
         w = SerialCaptureWriter(fh, args.linktype, if_name=name, if_description=f"serial {'tap ' if args.tap else ''}at {args.baud} baud")
         try:
             stats = capture(
@@ -112,9 +113,6 @@ def run_capture(args: argparse.Namespace) -> int:
             if isinstance(exc, (KeyboardInterrupt, BrokenPipeError)):
                 raise
             raise UsageError(f"{name}: {exc}") from None
-    finally:
-        if not to_stdout:
-            fh.close()
     summary = {
         "file": args.out,
         "records": stats.records,

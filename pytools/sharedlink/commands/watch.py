@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from sharedlink.analysis.decode import Decoded
+from sharedlink.capture.pcapio import buffered_stdout
 from sharedlink.commands import EXIT_OK, add_decode_options, check_capture, decode_options
 from sharedlink.errors import UsageError
 from sharedlink.watch import (
@@ -106,14 +107,15 @@ def run(args: argparse.Namespace) -> int:
             server, channels = _foxglove(args)
             outputs.append(channels.frame)
         print(f"sharedlink watch: {source.description}", file=sys.stderr, flush=True)
-        if args.json:
-            write = sys.stdout.write
+        if args.json:  # Ctrl-C waits until a batch's lines are written whole (see run_watch)
+            with buffered_stdout(binary=False) as out:
+                write = out.write
 
-            def emit(d: Decoded) -> None:
-                write(json_line(d) + "\n")
+                def emit(d: Decoded) -> None:
+                    write(json_line(d) + "\n")
 
-            outputs.append(emit)
-            run_watch(source, decoder, outputs, out=sys.stdout)
+                outputs.append(emit)
+                run_watch(source, decoder, outputs, out=out)
             return EXIT_OK
         return _live(source, decoder, outputs, sync)
     finally:

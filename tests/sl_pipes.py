@@ -1,0 +1,67 @@
+"""A standard output whose reader lags, for Ctrl-C tests of commands that stream to it: a pipe
+that holds one page, the moment the command waits inside a write to it, and reading it all
+afterwards (Linux: F_SETPIPE_SZ and /proc/PID/wchan)."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import pytest
+
+
+def one_page_pipe() -> tuple[int, int]:
+    """(read end, write end) of a pipe that holds one page: a longer write blocks part-way."""
+    fcntl = pytest.importorskip("fcntl")
+    if not hasattr(fcntl, "F_SETPIPE_SZ"):
+        pytest.skip("needs F_SETPIPE_SZ (Linux)")
+    r, w = os.pipe()
+    fcntl.fcntl(w, fcntl.F_SETPIPE_SZ, 4096)
+    return r, w
+
+
+def _wchan(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/wchan") as fh:
+            return fh.read()
+    except OSError:
+        return ""
+
+
+def wait_writing(pid: int, timeout: float = 30) -> None:
+    """Until process ``pid`` waits inside a write to a pipe (the kernel's ``pipe_write``, or
+    ``anon_pipe_write``). Skips where /proc does not tell (no wchan, or only "0")."""
+    end = time.monotonic() + timeout
+    seen = ""
+    while time.monotonic() < end:
+        seen = _wchan(pid)
+        if "pipe_write" in seen:
+            time.sleep(0.1)
+            return
+        time.sleep(0.01)
+    if seen in ("", "0"):
+        pytest.skip("/proc/PID/wchan does not show where a process waits")
+    raise AssertionError(f"process {pid} never waited in a pipe write (last seen in {seen!r})")
+
+
+def drain(r: int) -> tuple[threading.Thread, bytearray]:
+    """Read ``r`` to its end in a thread (closing it then); the bytes gather in the bytearray."""
+    got = bytearray()
+
+    def run() -> None:
+        while chunk := os.read(r, 65536):
+            got.extend(chunk)
+        os.close(r)
+
+    t = threading.Thread(target=run)
+    t.start()
+    return t, got
+
+
+def environment(unbuffered: str) -> dict[str, str]:
+    """This environment with PYTHONUNBUFFERED set to ``unbuffered``, or removed when empty."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    if unbuffered:
+        env["PYTHONUNBUFFERED"] = unbuffered
+    return env
