@@ -165,46 +165,32 @@ def decode(
 
     ``prefs`` are SharedLink (or other) preferences, e.g. ``{"sharedlink.variables": "A,B"}``.
     """
-    import asyncio
-
     import pyshark  # imported here: optional dependency, slow import
 
     script = Path(dissector) if dissector is not None else DEFAULT_DISSECTOR
     if not script.is_file():
         raise FileNotFoundError(f"SharedLink dissector not found: {script}")
     override = {k: ("TRUE" if v is True else "FALSE" if v is False else str(v)) for k, v in (prefs or {}).items()}
-    # A private event loop, closed when done. Without one, pyshark makes the thread's current
-    # loop (creating it) and installs asyncio's SafeChildWatcher on it, which never goes away: a
-    # SIGCHLD handler and signal.set_wakeup_fd() on that loop's self-pipe. As nothing reads the
-    # pipe afterwards, every later signal of the caller's process writes a byte into it until it
-    # is full, and from then on each signal reports a BlockingIOError ("Exception ignored in ...
-    # _sighandler_noop"). Given a loop, pyshark leaves signals, the child watcher and the current
-    # loop alone; asyncio's default child watcher (a thread waiting for the child) reaps tshark.
-    loop = asyncio.new_event_loop()
+    cap = pyshark.FileCapture(
+        str(capture),
+        use_json=True,
+        keep_packets=False,
+        display_filter=display_filter,
+        override_prefs=override or None,
+        custom_parameters=["-X", f"lua_script:{script.resolve()}", *extra_args],
+        tshark_path=tshark_path,
+    )
     try:
-        cap = pyshark.FileCapture(
-            str(capture),
-            use_json=True,
-            keep_packets=False,
-            display_filter=display_filter,
-            override_prefs=override or None,
-            custom_parameters=["-X", f"lua_script:{script.resolve()}", *extra_args],
-            tshark_path=tshark_path,
-            eventloop=loop,
-        )
-        try:
-            for pkt in cap:
-                number = int(pkt.number)
-                t = float(pkt.sniff_timestamp)
-                for layer in pkt.layers:
-                    if layer.layer_name != "sharedlink":
-                        continue
-                    dicts = [layer._all_fields] + [d._all_fields for d in getattr(layer, "duplicate_layers", [])]
-                    for d in dicts:
-                        if d.get("sharedlink.noise") is not None and d.get("sharedlink.src") is None:
-                            continue      # a noise item, not a frame
-                        yield frame_from_layer(d, number, t)
-        finally:
-            cap.close()
+        for pkt in cap:
+            number = int(pkt.number)
+            t = float(pkt.sniff_timestamp)
+            for layer in pkt.layers:
+                if layer.layer_name != "sharedlink":
+                    continue
+                dicts = [layer._all_fields] + [d._all_fields for d in getattr(layer, "duplicate_layers", [])]
+                for d in dicts:
+                    if d.get("sharedlink.noise") is not None and d.get("sharedlink.src") is None:
+                        continue      # a noise item, not a frame
+                    yield frame_from_layer(d, number, t)
     finally:
-        loop.close()
+        cap.close()
