@@ -59,6 +59,19 @@ def drain(r: int) -> tuple[threading.Thread, bytearray]:
     return t, got
 
 
+def read_to_end(proc, r: int, timeout: float) -> tuple[bytearray, str]:
+    """Read pipe ``r`` to its end while waiting for ``proc`` (killed if it still runs after
+    ``timeout`` seconds, then the TimeoutExpired raised); (the bytes read, its standard error)."""
+    reader, got = drain(r)
+    try:
+        _out, err = proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        reader.join(timeout)
+    return got, err
+
+
 def environment(unbuffered: str) -> dict[str, str]:
     """This environment with PYTHONUNBUFFERED set to ``unbuffered``, or removed when empty."""
     env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}

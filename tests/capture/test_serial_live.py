@@ -15,7 +15,7 @@ import tty
 from pathlib import Path
 
 import pytest
-from sl_pipes import drain, environment, one_page_pipe, wait_writing
+from sl_pipes import environment, one_page_pipe, read_to_end, wait_writing
 
 import tshark_util as tu
 from sharedlink.capture.pcapio import CaptureError, read_records
@@ -140,13 +140,9 @@ def test_ctrl_c_while_stdout_is_full_leaves_the_record_whole(tmp_path, unbuffere
         proc.send_signal(signal.SIGINT)  # Ctrl-C inside the write
         time.sleep(0.3)
     finally:
-        reader, got = drain(r)
         try:
-            _, stderr = proc.communicate(timeout=30)
+            got, stderr = read_to_end(proc, r, 30)
         finally:
-            if proc.poll() is None:
-                proc.kill()
-            reader.join(30)
             os.close(m)
     assert proc.returncode == 0, stderr
     out = tmp_path / "stdout.pcapng"

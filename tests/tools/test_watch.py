@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 from sl_captures import BEACON, reference
-from sl_pipes import drain, environment, one_page_pipe, wait_writing
+from sl_pipes import environment, one_page_pipe, read_to_end, wait_writing
 
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.codec import encode_named
@@ -170,13 +170,7 @@ def test_ctrl_c_while_the_json_reader_lags_leaves_every_line_whole(unbuffered):
         p.send_signal(signal.SIGINT)  # Ctrl-C inside the write
         time.sleep(0.3)
     finally:
-        t, got = drain(r)
-        try:
-            _out, err = p.communicate(timeout=60)
-        finally:
-            if p.poll() is None:
-                p.kill()
-            t.join(60)
+        got, err = read_to_end(p, r, 60)
     assert p.returncode == 130, err
     assert got.endswith(b"\n"), got[-80:]
     rows = [json.loads(line) for line in got.splitlines()]
