@@ -692,8 +692,11 @@ def test_lua_syntax(luac):
         pytest.skip(f"{luac} not installed")
     plugins = sorted(DISSECTOR.parent.glob("*.lua"))
     assert DISSECTOR in plugins and len(plugins) >= 5
-    res = subprocess.run([luac, "-p", *map(str, plugins)], capture_output=True, text=True)
-    assert res.returncode == 0, res.stderr
+    # one file a call: Debian 12's luac5.4 (5.4.4) given several files aborts with a double free
+    # for some paths (its code that joins them), whatever the files hold
+    for plugin in plugins:
+        res = subprocess.run([luac, "-p", str(plugin)], capture_output=True, text=True)
+        assert res.returncode == 0, f"{plugin.name}: {res.stderr}"
 
 
 def test_lua_portability_rules():
