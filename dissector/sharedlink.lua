@@ -44,7 +44,10 @@
 -- frame, not once a variable (tree_compact); the fast paths check the checksum as a fixed
 -- sum plus the values' sums; a frame with the layout of one of the node pair's recent
 -- plain named frames (up to 8: a compressed stream's deltas) is parsed by one anchored
--- pattern.  Per-frame state is stored only for frames that
+-- pattern, in a shown tree too (the fields' places follow from the layout and the values'
+-- lengths); the shown tree's labels are made once (addresses, protocol line, a correct
+-- checksum), and the Lua collector runs at twice its default pace (see the note where it is
+-- set).  Per-frame state is stored only for frames that
 -- need it (carried values, late sync, queries/replies); carried-only records are
 -- packed as text lines, 256 per Lua string, and the list in use is kept as a
 -- per-direction history of changes, so that long compressed captures add few Lua
@@ -266,6 +269,17 @@ local function reset_state()
     last_asrc, last_adst, last_pdir, last_akey = nil, nil, nil, nil
 end
 reset_state()
+
+-- The Lua collector's pace, twice the default (Lua 5.2 and 5.4 alike: the multiplier read back
+-- and doubled).  Every packet leaves a few dozen finalizable objects behind (wslua's Tvb, Pinfo,
+-- TreeItem, TvbRange; a shown tree one pair a field), and a collector twice as eager did every
+-- pass 3 to 10 % faster with the same peak memory (measured, Wireshark 4.0: -V most, -Y and the
+-- compressed summary 4 to 5 %).  It is the whole Lua state's (all plugins share one); set once,
+-- when this file loads.
+do
+    local stepmul = collectgarbage("setstepmul", 0)
+    collectgarbage("setstepmul", (tonumber(stepmul) or 0) > 0 and stepmul * 2 or 400)
+end
 
 function sl.init()
     reset_state()
@@ -695,11 +709,18 @@ for b = 0, 255 do
     if b >= 32 and b <= 126 then LETTER[b] = string.char(b) else LETTER[b] = s_format("\\x%02x", b) end
 end
 
--- Add a typed value below a variable item.
+-- A T field's text as its type number (0-255), nil when it is not one.  Speed trick
+-- (measured, -V): the texts seen are remembered (a few distinct ones a capture, up to 256).
+local VALID_TYPE, valid_type_n = {}, 0
 local function valid_type(t)
+    local v = VALID_TYPE[t]
+    if v ~= nil then return v or nil end
     local n = tonumber(t)
-    if n and n >= 0 and n <= 255 and n == floor(n) then return floor(n) end
-    return nil
+    v = (n and n >= 0 and n <= 255 and n == floor(n)) and floor(n) or false
+    if valid_type_n < 256 and type(t) == "string" then
+        VALID_TYPE[t], valid_type_n = v, valid_type_n + 1
+    end
+    return v or nil
 end
 
 -- The typed field is hidden: the Value line above it shows the same fact.  With no range
@@ -906,9 +927,18 @@ local pr_nq, pr_nd, pr_n_empty_d, pr_n_pos
 local pr_cpos, pr_ctext, pr_cmd_start
 local pr_fast_sh, pr_fast_hit, pr_fast_sum
 
+-- For tests, marks on the Info of the packets a speed trick took: SHAREDLINK_EXPRESS_MARK=1 the
+-- express lane's ("[express] "), SHAREDLINK_FAST_MARK=1 parse_frame's fast paths' ("[fast] ";
+-- fast_hit: one of the packet's frames took one).
+local MARKS = { express = os.getenv("SHAREDLINK_EXPRESS_MARK") == "1" and "[express] ",
+    fast = os.getenv("SHAREDLINK_FAST_MARK") == "1", fast_hit = false }
+
 -- parse_frame and the helpers only it uses (a block: the main chunk may hold 200 locals)
 local parse_frame
 do
+    -- SHAREDLINK_NO_FAST=1 turns the fast paths off (tests: every frame parsed field by field)
+    local FAST = os.getenv("SHAREDLINK_NO_FAST") ~= "1"
+
     -- The layouts' value classes, written as ranges: a value is any byte but '|', ']', the
     -- control characters and DEL (VALUE, the phases' fast paths) and also not '[' (XVALUE, the
     -- express lane: a "[:" there would make the phases split the frame).  Speed trick
@@ -965,12 +995,39 @@ do
         return n
     end
 
-    -- Fast path (a tree nobody sees or none): a frame with the layout of one of the node pair's
+    -- The fields' places in a frame a fast path parsed (N, T/Q/D triplets or D fields, C), for
+    -- a shown tree: the layout fixes every field but the values, whose lengths place the rest.
+    local function fast_positions(ntext, n, named)
+        FL[1], FS[1], FE[1] = L_N, 6, 6 + #ntext
+        local p, i = 8 + #ntext, 1
+        for k = 1, n do
+            if named then
+                local t, q = VT[k], VN[k]
+                FL[i + 1], FS[i + 1], FE[i + 1] = L_T, p, p + #t
+                p = p + #t + 2
+                FL[i + 2], FS[i + 2], FE[i + 2] = L_Q, p, p + #q
+                p = p + #q + 2
+                VTf[k], VQf[k] = i + 1, i + 2
+                i = i + 2
+            else
+                VTf[k], VQf[k] = 0, 0
+            end
+            local v = VV[k]
+            FL[i + 1], FS[i + 1], FE[i + 1] = L_D, p, p + #v
+            VDf[k] = i + 1
+            p = p + #v + 2
+            i = i + 1
+        end
+        FL[i + 1], FS[i + 1], FE[i + 1] = L_C, p, p + #pr_ctext
+        nf = i + 1
+    end
+
+    -- Fast path: a frame with the layout of one of the node pair's
     -- recent plain named frames is matched by one anchored pattern.  mru: the pair's layouts,
     -- most recently matched first (a compressed stream's deltas cycle through a few subsets of
     -- the variables): a layout that does not fit fails within the first differing name, cheaply.
     -- Returns true when it parsed the frame.
-    local function parse_fast_named(f, mru)
+    local function parse_fast_named(f, mru, rec_fields)
         local _, sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
         for k = 1, #mru do
             sh = mru[k]
@@ -990,11 +1047,12 @@ do
         end
         nv, pr_nq, pr_nd = n, n, n
         pr_fast_sh, pr_fast_hit = sh, true
+        if rec_fields then fast_positions(sh.ntext, n, true) end
         return true
     end
 
     -- The same for the pair's last plain positional frame (N, D fields, C).
-    local function parse_fast_positional(f, ps)
+    local function parse_fast_positional(f, ps, rec_fields)
         local _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, ps.pat)
         if not c1 then return false end
         local n = take_fast_values(ps, c1, c2, c3, c4, c5, c6, c7, c8, c9)
@@ -1007,6 +1065,7 @@ do
         end
         nv, pr_nd, pr_n_pos, pr_n_empty_d = n, n, n, n_empty_d
         pr_fast_hit = true
+        if rec_fields then fast_positions(ps.ntext, n, false) end
         return true
     end
 
@@ -1197,7 +1256,7 @@ do
                 local dpieces = { dhead .. first }
                 for k = 2, nv do dpieces[k] = pieces[k] end
                 local xstore, xinfo, xdinfo = layout_code(pat, sn, pieces, dpieces)
-                table.insert(mru, 1, { pat = pat, n = nv, T = st, N = sn, TV = tv, ord = n_ord,
+                table.insert(mru, 1, { pat = pat, n = nv, T = st, N = sn, TV = tv, ord = n_ord, ntext = n_text,
                     xstore = xstore, xinfo = xinfo, xdinfo = xdinfo,
                     info_len = ilen, dinfo_len = ilen + #dhead - #head,
                     fixed = fixed % 256, letters = LETTER[srcb] .. LETTER[dstb],
@@ -1225,7 +1284,7 @@ do
                 if not ps or ps.pat ~= pat then
                     local fixed = byte_sum(f, 2, cpos)
                     for k = 1, nv do fixed = fixed - str_sum(VV[k]) end
-                    pshapes[shape_key] = { pat = pat, n = nv, ord = n_ord, fixed = fixed % 256 }
+                    pshapes[shape_key] = { pat = pat, n = nv, ord = n_ord, ntext = n_text, fixed = fixed % 256 }
                 end
             end
         end
@@ -1259,17 +1318,16 @@ do
         local shape_key = nil
         if p == 6 and not malformed_msg and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P then
             shape_key = dstb * 256 + srcb
-            if not vis then
-                local mru = shapes[shape_key]
-                if mru and parse_fast_named(f, mru) then return bodyend, dstb, srcb, malformed_msg end
-                local ps = pshapes[shape_key]
-                if ps and parse_fast_positional(f, ps) then return bodyend, dstb, srcb, malformed_msg end
+            -- a shown tree (vis) needs the fields' places too
+            local mru, ps = FAST and shapes[shape_key], FAST and pshapes[shape_key]
+            if (mru and parse_fast_named(f, mru, vis)) or (ps and parse_fast_positional(f, ps, vis)) then
+                if MARKS.fast then MARKS.fast_hit = true end
+                return bodyend, dstb, srcb, malformed_msg
             end
         end
         if p then parse_general(f, p, bodyend, rec_fields) end
-        -- layouts are learnt for the passes that use them (a shown tree takes no fast path:
-        -- learning there cost -V 20 us a frame)
-        if shape_key and not vis then
+        -- layouts are learnt on a miss (a frame the fast paths did not take)
+        if shape_key then
             learn_named_shape(f, shape_key, dstb, srcb)
             learn_positional_shape(f, shape_key, dstb, srcb)
             learn_bare_shape(f, shape_key, dstb, srcb)
@@ -1661,11 +1719,19 @@ local tree_full
 do
     -- An address: "Destination: A (node 1)", the node number folded into the letter's line,
     -- its field kept for filters but hidden; an expert when it is not a letter A-P.
+    -- Speed trick (measured, -V): the labels are made once a letter (ADDR_LABEL[what][b]).
+    local ADDR_LABEL = { Destination = {}, Source = {} }
     local function tree_address(ti, tvb, off, b, letter, is_node, field, node_field, what)
         if not b then return end   -- cut short: no byte to point at
         local r = tvb(off, 1)
         if is_node then
-            TI.add(ti, field, r, letter, what .. ": " .. letter .. " (node " .. (b - B_A + 1) .. ")")
+            local labels = ADDR_LABEL[what]
+            local label = labels[b]
+            if not label then
+                label = what .. ": " .. letter .. " (node " .. (b - B_A + 1) .. ")"
+                labels[b] = label
+            end
+            TI.add(ti, field, r, letter, label)
             TI.set_hidden(TI.add(ti, node_field, r, b - B_A + 1))
         else
             TI.add_proto_expert_info(TI.add(ti, field, r, letter), ei.address_invalid,
@@ -1673,15 +1739,36 @@ do
         end
     end
 
-    -- Its first lines: the protocol line's summary, addresses, kind, malformed.
+    -- The protocol line: "SharedLink Protocol, B→A full" (", bad checksum").  Speed trick
+    -- (measured, -V): the item is added with its text, one call, and the texts of letter pairs
+    -- are kept (HEAD_TEXT[kind][pair key]).
+    local HEAD_TEXT = {}
+    local function tree_proto_item(tree, range, kind, dstb, srcb, dst, src, cs_status)
+        local bad = cs_status == 0
+        local byk, hk = HEAD_TEXT[kind], nil
+        if dstb and srcb then
+            hk = (dstb * 256 + srcb) * 2 + (bad and 1 or 0)
+            if byk then
+                local text = byk[hk]
+                if text then return TI.add(tree, sl, range, text) end
+            end
+        end
+        local text = "SharedLink Protocol, " .. src .. ARROW .. dst .. " " .. kind .. (bad and ", bad checksum" or "")
+        if hk and not s_find(text, "\\", 1, true) then   -- letters, not escapes: a handful of pairs
+            if not byk then byk = {}; HEAD_TEXT[kind] = byk end
+            byk[hk] = text
+        end
+        return TI.add(tree, sl, range, text)
+    end
+
+    -- Its first lines: the protocol item, addresses, kind, malformed.
     local function tree_head(tc)
-        local ti, tvb, o, src, dst, kind = tc.ti, tc.tvb, tc.o, tc.src, tc.dst, tc.kind
+        local tvb, o, src, dst, kind = tc.tvb, tc.o, tc.src, tc.dst, tc.kind
         local dstb, srcb, malformed_msg, cs_status = tc.dstb, tc.srcb, tc.malformed_msg, tc.cs_status
         local dnode = dstb and dstb >= B_A and dstb <= B_P
         local snode = srcb and srcb >= B_A and srcb <= B_P
-        local line = ", " .. src .. ARROW .. dst .. " " .. kind
-        if cs_status == 0 then line = line .. ", bad checksum" end
-        TI.append_text(ti, line)
+        local ti = tree_proto_item(tc.tree, tvb(tc.a - 1, tc.e - tc.a + 1), kind, dstb, srcb, dst, src, cs_status)
+        tc.ti = ti
 
         tree_address(ti, tvb, o + 3, dstb, dst, dnode, hf.dst, hf.dst_node, "Destination")
         tree_address(ti, tvb, o + 4, srcb, src, snode, hf.src, hf.src_node, "Source")
@@ -1876,6 +1963,7 @@ do
     end
 
     -- Its last lines: sync, checksum, line terminator.
+    local CHECKSUM_OK = {}   -- value -> "Checksum: 0x.. [correct]"
     local function tree_trailer(tc)
         local ti, tvb, o, rec, s, a, e, fl = tc.ti, tc.tvb, tc.o, tc.rec, tc.s, tc.a, tc.e, tc.fl
         local cs_val, cs_calc, cs_status = tc.cs_val, tc.cs_calc, tc.cs_status
@@ -1893,7 +1981,16 @@ do
             local cr = tvb(o + cpos, #ctext + 1)
             local val = cs_val
             local ct
-            if val and val <= 255 then
+            local correct = pref_validate and cs_status == 1
+            if val and val <= 255 and correct then
+                -- the label with " [correct]", one call (speed trick, measured: -V)
+                local label = CHECKSUM_OK[val]
+                if not label then
+                    label = s_format("Checksum: 0x%02x [correct]", val)
+                    CHECKSUM_OK[val] = label
+                end
+                ct = TI.add(ti, hf.checksum, cr, val, label)
+            elseif val and val <= 255 then
                 ct = TI.add(ti, hf.checksum, cr, val)
             else
                 ct = TI.add(ti, hf.checksum_text, cr, ctext)
@@ -1907,7 +2004,7 @@ do
                 TI.set_generated(TI.add(ct, hf.checksum_calc, cr, calc))
                 if cs_status == 1 then
                     TI.set_generated(TI.add(ct, hf.checksum_status, cr, 1))
-                    TI.append_text(ct, " [correct]")
+                    if not (val and val <= 255) then TI.append_text(ct, " [correct]") end
                 else
                     TI.set_generated(TI.add(ct, hf.checksum_status, cr, 0))
                     TI.append_text(ct, s_format(" [incorrect, should be 0x%02x]", calc))
@@ -1949,16 +2046,12 @@ end
 local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     local num = pinfo.number
 
-    -- protocol item first: tells whether there is a real tree
-    local ti = nil
-    if tree then
-        ti = TI.add(tree, sl, tvb(a - 1, e - a + 1))
-    end
     -- a tree that is shown (-V, -T fields/json, the GUI's details) gets every range and
-    -- label; one nobody sees (-Y, coloring rules, taps) takes the fast paths too
-    local vis = ti ~= nil and ti.visible
+    -- label; one nobody sees (-Y, coloring rules, taps) takes the fast paths too.  The
+    -- protocol item is added once the frame is known (the full tree: with its text)
+    local vis = tree ~= nil and PG.visible(tree)
 
-    local bodyend, dstb, srcb, malformed_msg = parse_frame(f, fl, terminated, vis, ti ~= nil)
+    local bodyend, dstb, srcb, malformed_msg = parse_frame(f, fl, terminated, vis, tree ~= nil)
     local cs_val, cs_calc, cs_status = checksum_verdict(f, bodyend)
     local good = cs_status ~= 0
     local kind, is_data = kind_of_fields(malformed_msg)
@@ -1975,21 +2068,23 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
             addrs_ok, full_local)
     else
         kind, rec, list, d, miss_n = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local,
-            ti ~= nil)
+            tree ~= nil)
     end
     if is_data and not kind then kind = full_local and "full" or "delta" end   -- addresses not A-P
 
     info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
 
     -- Tree (skipped entirely when there is none, e.g. tshark summary pass)
-    if not ti then return tree == nil end
+    if not tree then return true end
     if pr_fast_hit and not vis then
+        local ti = TI.add(tree, sl, tvb(a - 1, e - a + 1))
         tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, pinfo.visited, rec, ne, nm,
             cs_val, cs_calc, cs_status)
         return true
     end
     local tc = TC
-    tc.ti, tc.tvb, tc.o, tc.f, tc.s, tc.a, tc.e, tc.fl = ti, tvb, a - 2, f, s, a, e, fl   -- tvb offset of f[i] is o + i
+    -- tvb offset of f[i] is o + i
+    tc.tree, tc.tvb, tc.o, tc.f, tc.s, tc.a, tc.e, tc.fl = tree, tvb, a - 2, f, s, a, e, fl
     tc.num, tc.kind, tc.dst, tc.src, tc.dstb, tc.srcb = num, kind, dst, src, dstb, srcb
     tc.malformed_msg, tc.terminated, tc.bodyend = malformed_msg, terminated, bodyend
     tc.list, tc.d, tc.rec, tc.ne, tc.nm = list, d, rec, ne, nm
@@ -2040,7 +2135,6 @@ end
 -- info_frame's one concatenation); anything else returns false before changing any state, and
 -- the phases take the packet.  SHAREDLINK_NO_EXPRESS=1 turns it off; the tests compare both ways.
 local EXPRESS = os.getenv("SHAREDLINK_NO_EXPRESS") ~= "1"
-local EXPRESS_MARK = os.getenv("SHAREDLINK_EXPRESS_MARK") == "1" and "[express] "  -- tests: which took it
 local NO_SHAPES = {}
 local XSK = {}            -- frame key -> "|sk|d|0" (a line's text after its frame number)
 local CARRIED_TAIL = {}   -- n -> " (+n carried)"
@@ -2189,7 +2283,7 @@ local function express(s, n, tvb, pinfo, tree, cols)
     else
         info = sh.xinfo(c1, c2, c3, c4, c5, c6, c7, c8)
     end
-    if EXPRESS_MARK then info = EXPRESS_MARK .. info end
+    if MARKS.express then info = MARKS.express .. info end
     cols.info = info
     if tree then
         -- a tree nobody sees (-Y, coloring rules, taps): the compact one dissect_frame makes, from
@@ -2304,6 +2398,7 @@ local function dissect(tvb, pinfo, tree)
     end
     if ninfo > 0 then
         local info = (ninfo == 1) and INFO[1] or t_concat(INFO, "", 1, ninfo)
+        if MARKS.fast_hit then info = "[fast] " .. info; MARKS.fast_hit = false end
         -- control characters from a damaged frame must not break the column (the
         -- fast path's text cannot hold any: its patterns exclude them)
         if not info_clean and s_find(info, CTRL) then info = s_gsub(info, CTRL, "?") end

@@ -162,3 +162,55 @@ def test_express_on_every_kind_of_value(tmp_path: Path, monkeypatch: pytest.Monk
     marked = [x for x in lines if MARK in x]
     assert any(long_text in x for x in marked) and any("Ωμέγα" in x for x in marked)
     assert not any("a[b" in x or "tab" in x for x in marked)
+
+
+# The phases' own fast paths (parse_frame: a frame of a layout its node pair sent before, parsed by
+# one pattern) serve a shown tree too, where the fields' places follow from the layout and the
+# values' lengths.  SHAREDLINK_NO_FAST=1 parses every frame field by field: the trees, ranges and
+# all, must come out the same.
+def _shown_trees(cap: Path, monkeypatch: pytest.MonkeyPatch, *, fast: bool) -> dict[str, str]:
+    with monkeypatch.context() as m:
+        if not fast:
+            m.setenv("SHAREDLINK_NO_FAST", "1")
+        return {
+            "one pass, tree": tu.tshark(cap, ["-V", *OTHERS], two_pass=False).stdout,
+            "two passes, tree": tu.tshark(cap, ["-V", *OTHERS], two_pass=True).stdout,
+            # byte ranges of every item, hidden ones too
+            "pdml": "\n".join(x for x in tu.tshark(cap, ["-T", "pdml", *OTHERS], two_pass=False).stdout.splitlines()
+                              if not x.startswith("<pdml ")),   # its line holds the time it ran
+            "filter, tree": tu.tshark(cap, ["-V", "-Y", FILTERS[2], *OTHERS], two_pass=False).stdout,
+        }
+
+
+@pytest.mark.parametrize("name", ["full", "compressed-faults", "positional", "serial", "other-pair"])
+def test_fast_paths_in_a_shown_tree(name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    cap = tmp_path / f"{name}.pcap"
+    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--seed", "5", *GEN[name], str(cap)],
+                   check=True, capture_output=True)
+    on, off = _shown_trees(cap, monkeypatch, fast=True), _shown_trees(cap, monkeypatch, fast=False)
+    for how in on:
+        assert on[how] == off[how], how
+    # and they ran: dozens of the packets of a shown tree took them
+    monkeypatch.setenv("SHAREDLINK_FAST_MARK", "1")
+    lines = tu.tshark(cap, ["-V", "-P", *OTHERS]).stdout.splitlines()
+    assert sum(" SharedLink " in x and "[fast] " in x for x in lines) >= 20, name
+
+
+def test_fast_paths_on_every_kind_of_value(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Values of every length and byte class, in named and positional layouts: the places the
+    fast paths give each field are those parsing field by field finds."""
+    values = ["1.5", "x" * 50, "Ωμέγα", "%^{}~\\`'\"", "", "-0.25", "7", "a[b"]
+    bodies = []
+    for i in range(40):
+        v, w = values[i % len(values)], values[(i * 3 + 1) % len(values)]
+        bodies.append(f":AB|N0|T4|QName|D{v}|T4|QNote|D{w}|T2|QLat|D{i}.5|C" if i % 2 else f":CD|N0|D{v}|D{w}|D{i}|C")
+    t0 = 1_767_268_800_000_000_000
+    frames = [(t0 + i * 200_000_000, b"[" + b.encode() + f"{sum(b.encode()) % 256:02X}]\r\n".encode())
+              for i, b in enumerate(bodies)]
+    cap = write_capture(tmp_path / "values.pcap", frames)
+    on, off = _shown_trees(cap, monkeypatch, fast=True), _shown_trees(cap, monkeypatch, fast=False)
+    for how in on:
+        assert on[how] == off[how], how
+    monkeypatch.setenv("SHAREDLINK_FAST_MARK", "1")
+    out = tu.tshark(cap, ["-V", "-P", *OTHERS]).stdout
+    assert out.count("[fast] ") > 20
