@@ -12,6 +12,10 @@ the same ``number``.
 
 from __future__ import annotations
 
+import asyncio
+import signal
+import threading
+import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -171,15 +175,20 @@ def decode(
     if not script.is_file():
         raise FileNotFoundError(f"SharedLink dissector not found: {script}")
     override = {k: ("TRUE" if v is True else "FALSE" if v is False else str(v)) for k, v in (prefs or {}).items()}
-    cap = pyshark.FileCapture(
-        str(capture),
-        use_json=True,
-        keep_packets=False,
-        display_filter=display_filter,
-        override_prefs=override or None,
-        custom_parameters=["-X", f"lua_script:{script.resolve()}", *extra_args],
-        tshark_path=tshark_path,
-    )
+    signals = _SignalState.save()   # before pyshark sets up its loop and child watcher
+    try:
+        cap = pyshark.FileCapture(
+            str(capture),
+            use_json=True,
+            keep_packets=False,
+            display_filter=display_filter,
+            override_prefs=override or None,
+            custom_parameters=["-X", f"lua_script:{script.resolve()}", *extra_args],
+            tshark_path=tshark_path,
+        )
+    except BaseException:
+        signals.restore()
+        raise
     try:
         for pkt in cap:
             number = int(pkt.number)
@@ -193,4 +202,43 @@ def decode(
                         continue      # a noise item, not a frame
                     yield frame_from_layer(d, number, t)
     finally:
-        cap.close()
+        try:
+            cap.close()
+        finally:
+            signals.restore()
+
+
+@dataclass
+class _SignalState:
+    """The process's SIGCHLD handler and signal wakeup fd, put back after pyshark.
+
+    pyshark (0.6) attaches a SafeChildWatcher to its event loop for tshark: a SIGCHLD handler
+    and the loop's self-pipe as the wakeup fd, left in place after the capture closes.  Nobody
+    reads that pipe again, so once it filled every later signal in the caller's process (Ctrl-C
+    held by a command, a test's SIGINT) reported BlockingIOError.  Only the main thread owns
+    signals; elsewhere there is nothing to save.
+    """
+
+    chld: Any = None
+    wakeup_fd: int = -1
+    main: bool = False
+
+    @classmethod
+    def save(cls) -> _SignalState:
+        if threading.current_thread() is not threading.main_thread():
+            return cls()
+        fd = signal.set_wakeup_fd(-1)
+        signal.set_wakeup_fd(fd)
+        return cls(signal.getsignal(signal.SIGCHLD), fd, True)
+
+    def restore(self) -> None:
+        if not self.main:
+            return
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)   # child watchers (Python 3.12)
+            try:
+                asyncio.get_child_watcher().close()   # removes its SIGCHLD handler from the loop
+            except (NotImplementedError, RuntimeError):
+                pass
+        signal.signal(signal.SIGCHLD, self.chld if self.chld is not None else signal.SIG_DFL)
+        signal.set_wakeup_fd(self.wakeup_fd)

@@ -657,9 +657,18 @@ def test_hostile_payload_linear(tmp_path):
 # ---------------------------------------------------------------------------
 
 def test_pyshark_module(mixed_pcap):
+    import signal
+
     from sharedlink.wireshark import decode
 
+    chld = signal.getsignal(signal.SIGCHLD)
     frames = list(decode(mixed_pcap))
+    # decode leaves the process's signals as they were (pyshark left a SIGCHLD handler and a
+    # wakeup fd nobody read: every later signal then reported BlockingIOError)
+    fd = signal.set_wakeup_fd(-1)
+    signal.set_wakeup_fd(fd)
+    assert fd == -1 and signal.getsignal(signal.SIGCHLD) == chld
+    assert len(list(decode(mixed_pcap))) == len(frames)   # and a second call works as the first
     by_num: dict[int, list] = {}
     for f in frames:
         by_num.setdefault(f.number, []).append(f)
