@@ -241,3 +241,28 @@ def test_hot_path_messages_equal_the_reference_builders(tmp_path, form):
     assert [f for _t, f in m.msgs["/sharedlink/B_to_A/frames"]] == want_frames
     assert [v for _t, v in m.msgs["/sharedlink/B_to_A/values"]] == want_values
     assert channels.counts == m.counts()
+
+
+@pytest.mark.parametrize("type_code", [None, 0, 2, 4])
+def test_value_fragment_is_the_typed_value_as_json(type_code):
+    """A values message member (FoxgloveChannels' hot path, _fragment) reads back as the typed
+    value the reference gives (Variable.value; text where a double is not finite), of the same
+    type, for texts of every kind: JSON numbers or not, integers for a double, fractions for a
+    long, overflowing exponents, leading zeros, signs, empty."""
+    import json
+    import math
+
+    from sharedlink.analysis.foxglove_channels import _fragment
+    from sharedlink.protocols.state import Variable
+
+    texts = ["7", "-0", "0", "12345678901234567890", "1.5", "-0.25", "1e5", "1E-3", "1e999", "-1e999", "007",
+             "1.", ".5", "+3", "abc", "", "0x10", "1_000", "NaN", " 1", "2.50"]
+    for t in texts:
+        v = Variable("Speed", type_code, t)
+        want = v.value
+        if isinstance(want, float) and not math.isfinite(want):
+            want = t
+        x, member = _fragment("Speed", v)
+        got = json.loads("{" + member + "}")["Speed"]
+        assert (type(x), x) == (type(want), want), t
+        assert (type(got), got) == (type(want), want), t

@@ -40,7 +40,7 @@ from sharedlink.analysis.decode import VALUE_KINDS, Decoded
 from sharedlink.analysis.sessions import Ack, SessionMessage
 from sharedlink.capture.pcapio import NS
 from sharedlink.protocols import blackboard, p2os
-from sharedlink.protocols.codec import ADDRESS_LETTERS
+from sharedlink.protocols.codec import ADDRESS_LETTERS, TYPE_DOUBLE, TYPE_LONG
 
 # -- default variable names (the beacon's, BUL-009)
 LAT, LON, HEADING, SPEED = "AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"
@@ -83,27 +83,46 @@ def _typed(v: Any) -> Any:
 _JSON_NUMBER = re.compile(r"-?(?:0|[1-9][0-9]*)(?:\.[0-9]+)?(?:[eE][+-]?[0-9]+)?\Z")
 
 
+#: a variable name's JSON string (a few names a capture)
+_NAME_JSON: dict[str, str] = {}
+
+
 def _fragment(name: str, v: Any) -> tuple[Any, str]:
     """A variable's typed value and its ``"name": value`` JSON member. A number whose text is
     already a JSON number of the same kind (integer text for a long, a fraction or exponent
     for a double) is written as sent: JSON reads it back as the same value, and the float is
-    not formatted again."""
-    x = _typed(v)
+    not formatted again.
+
+    Hot path (each changed variable of each frame): a JSON-number text of an untyped, long or
+    double variable is converted here, once (``Variable.value`` would match it against its
+    type's pattern first); anything else takes the general way below."""
     t = v.text
+    key = _NAME_JSON.get(name)
+    if key is None:
+        key = _jstr(name) + ": "
+        if len(_NAME_JSON) < _NAMES_MAX:
+            _NAME_JSON[name] = key
+    tc = v.type_code
+    if (tc is None or tc == TYPE_LONG or tc == TYPE_DOUBLE) and _JSON_NUMBER.match(t) is not None:
+        if t.lstrip("-").isdigit():
+            if tc != TYPE_DOUBLE:
+                return int(t), key + t
+        elif tc != TYPE_LONG:
+            x = float(t)
+            if math.isfinite(x):
+                return x, key + t
+    x = _typed(v)
     if type(x) is float:
         plain = _JSON_NUMBER.match(t) is not None and ("." in t or "e" in t or "E" in t)
     elif type(x) is int:
         plain = _JSON_NUMBER.match(t) is not None and t.lstrip("-").isdigit()
     else:
         plain = False
-    return x, _jstr(name) + ": " + (t if plain else _dumps(x))
+    return x, key + (t if plain else _dumps(x))
 
 
-def _number(x: Any) -> float | None:
-    """A typed value as a number (None: absent or text)."""
-    if isinstance(x, (int, float)) and not isinstance(x, bool):
-        return float(x)
-    return None
+#: the types of a number among typed values (compared by type(): a bool is not one)
+_NUMERIC = (int, float)
 
 
 _dumps = json.dumps
@@ -203,7 +222,9 @@ class FoxgloveChannels:
         the variables the frame changed (all of them when the table grew or a list was
         declared), the values message is re-encoded only then, and the frame row is formatted
         by hand; :func:`frame_json` and :func:`values_json` are the plain references."""
-        dr = self._dirs.get((d.conv, d.src, d.dst)) or self._direction(d)
+        fr = d.frame
+        src, dst = fr.src, fr.dst
+        dr = self._dirs.get((d.conv, src, dst)) or self._direction(d)
         ts = d.ts_ns
         vars_ = d.table.vars
         changed = [u.name for u in d.updates if u.changed and not u.carried and u.text is not None]
@@ -228,14 +249,14 @@ class FoxgloveChannels:
             if len(_NAMES) < _NAMES_MAX:
                 _NAMES[tuple(changed)] = names
         row = _ROW % (
-            d.number, _QUOTED.get(d.src) or _jstr(d.src), _QUOTED.get(d.dst) or _jstr(d.dst), d.kind,
+            d.number, _QUOTED.get(src) or _jstr(src), _QUOTED.get(dst) or _jstr(dst), d.kind,
             "none" if ok is None else ("good" if ok else "bad"), "true" if d.late else "false", names,
             _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
         dr.log_frames(row.encode(), ts)
         dr.log_values(dr.values_json, ts)
         dr.nframes += 1
         if ok is not False and d.kind in VALUE_KINDS:
-            fix = self._location(typed, d.ts_ns, d.pair)
+            fix = self._location(typed, ts, src + ">" + dst)   # d.pair
             if fix is not None:
                 dr.location.log(fix, log_time=ts)
                 dr.nlocations += 1
@@ -247,10 +268,16 @@ class FoxgloveChannels:
 
     def _location(self, typed: dict[str, Any], ts_ns: int, frame_id: str) -> LocationFix | None:
         o = self.opts
-        lat, lon = _number(typed.get(o.lat)), _number(typed.get(o.lon))
-        if lat is None or lon is None or not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+        # hot path (every frame): a number is an int or a float (not a bool), as a float
+        lat, lon = typed.get(o.lat), typed.get(o.lon)
+        if type(lat) not in _NUMERIC or type(lon) not in _NUMERIC:
             return None
-        head, speed = _number(typed.get(o.heading)), _number(typed.get(o.speed))
+        lat, lon = float(lat), float(lon)
+        if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+            return None
+        head, speed = typed.get(o.heading), typed.get(o.speed)
+        head = float(head) if type(head) in _NUMERIC else None
+        speed = float(speed) if type(speed) in _NUMERIC else None
         velocity = None
         if speed is not None and head is not None:
             rad = math.radians(head)
