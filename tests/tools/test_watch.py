@@ -370,3 +370,35 @@ def test_fast_decoder_equals_the_general_one_on_varied_captures(tmp_path):
         fast.append(_compare(write_capture(tmp_path / "v.pcap", datagrams))[0])
 
     check()  # (the drives above are where the fast path is taken most; here every frame must agree)
+
+
+def test_foxglove_channels_leave_a_fast_frame_unparsed(tmp_path):
+    """watch --foxglove feeds FastDecoder's frames to FoxgloveChannels: the messages come from
+    the letters, kind and values the fast path gives, without parsing the frame after all."""
+    import io
+
+    import foxglove
+
+    from sharedlink.analysis.decode import Decoded
+    from sharedlink.analysis.foxglove_channels import FoxgloveChannels
+    from sharedlink.capture.packets import decode_packet
+    from sharedlink.capture.pcapio import read_records
+    from sharedlink.watch import FastDecoder, RawDatagram
+
+    cap = tmp_path / "d.pcap"
+    generate_file(GenOptions(duration=20, seed=4, compress=True), cap)
+    ctx = foxglove.Context()
+    writer = foxglove.open_mcap(io.BytesIO(), context=ctx)
+    channels, fast = FoxgloveChannels(ctx), FastDecoder()
+    taken = []
+    for rec in read_records(cap):
+        dg = decode_packet(rec.linktype, rec.data)
+        for d in fast.datagram(RawDatagram(rec.number, rec.ts_ns, (dg.proto, dg.src, dg.sport, dg.dst, dg.dport),
+                                           dg.payload)):
+            if not isinstance(d, Decoded):
+                continue
+            channels.frame(d)
+            if "_frame" in d.__dict__:
+                taken.append(d)
+    writer.close()
+    assert len(taken) > 50 and all(d.__dict__["_frame"] is None for d in taken)

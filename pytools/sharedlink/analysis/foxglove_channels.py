@@ -222,8 +222,7 @@ class FoxgloveChannels:
         the variables the frame changed (all of them when the table grew or a list was
         declared), the values message is re-encoded only then, and the frame row is formatted
         by hand; :func:`frame_json` and :func:`values_json` are the plain references."""
-        fr = d.frame
-        src, dst = fr.src, fr.dst
+        src, dst = d.src, d.dst   # (not d.frame: watch's fast path parses it only when asked)
         dr = self._dirs.get((d.conv, src, dst)) or self._direction(d)
         ts = d.ts_ns
         vars_ = d.table.vars
