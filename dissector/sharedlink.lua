@@ -45,7 +45,8 @@
 -- sum plus the values' sums; a frame with the layout of one of the node pair's recent
 -- plain named frames (up to 8: a compressed stream's deltas) is parsed by one anchored
 -- pattern, in a shown tree too (the fields' places follow from the layout and the values'
--- lengths); the shown tree's labels are made once (addresses, protocol line, a correct
+-- lengths), and the express lane (see express) takes such frames in every pass; the shown
+-- tree's labels are made once (addresses, protocol line, a correct
 -- checksum), and the Lua collector runs at twice its default pace (see the note where it is
 -- set).  Per-frame state is stored only for frames that
 -- need it (carried values, late sync, queries/replies); carried-only records are
@@ -933,8 +934,9 @@ local pr_fast_sh, pr_fast_hit, pr_fast_sum
 local MARKS = { express = os.getenv("SHAREDLINK_EXPRESS_MARK") == "1" and "[express] ",
     fast = os.getenv("SHAREDLINK_FAST_MARK") == "1", fast_hit = false }
 
--- parse_frame and the helpers only it uses (a block: the main chunk may hold 200 locals)
-local parse_frame
+-- parse_frame and the helpers only it uses (a block: the main chunk may hold 200 locals);
+-- fast_positions serves the express lane too
+local parse_frame, fast_positions
 do
     -- SHAREDLINK_NO_FAST=1 turns the fast paths off (tests: every frame parsed field by field)
     local FAST = os.getenv("SHAREDLINK_NO_FAST") ~= "1"
@@ -997,7 +999,7 @@ do
 
     -- The fields' places in a frame a fast path parsed (N, T/Q/D triplets or D fields, C), for
     -- a shown tree: the layout fixes every field but the values, whose lengths place the rest.
-    local function fast_positions(ntext, n, named)
+    function fast_positions(ntext, n, named)
         FL[1], FS[1], FE[1] = L_N, 6, 6 + #ntext
         local p, i = 8 + #ntext, 1
         for k = 1, n do
@@ -1302,7 +1304,7 @@ do
             if not bs or bs.xhead ~= xhead then
                 xlen, xlen_n = {}, 0
                 local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
-                bshapes[shape_key] = { xhead = xhead, xpat = "^" .. XCHECKSUM, n = 0, N = {}, ord = 0,
+                bshapes[shape_key] = { xhead = xhead, xpat = "^" .. XCHECKSUM, n = 0, N = {}, ord = 0, ntext = n_text,
                     fixed = byte_sum(f, 2, cpos) % 256,
                     letters = LETTER[srcb] .. LETTER[dstb], info_len = 0, dinfo_len = #dhead,
                     sums = bare_sums, xstore = bare_store, xdinfo = function() return dhead end, bare = true }
@@ -2127,13 +2129,14 @@ do
 end
 
 -- Express lane (speed trick, measured: the summary pass 10 us a frame faster, a compressed
--- stream's 20): in a pass with no tree, a packet that is one plain named frame of a layout its
--- node pair sent before, with a good checksum and N0, whose variables the direction knows
--- already -- the bulk of a beacon stream, full or compressed -- is decoded here in one go.  It
--- leaves the same state, records and Info as the phases of dissect_frame (parse_fast_named;
--- data_values' known-set case, or its general case with carried variables; data_record;
--- info_frame's one concatenation); anything else returns false before changing any state, and
--- the phases take the packet.  SHAREDLINK_NO_EXPRESS=1 turns it off; the tests compare both ways.
+-- stream's 20): in any pass (no tree, one nobody sees, a shown one), a packet that is one plain
+-- named frame of a layout its node pair sent before, with a good checksum and N0, whose
+-- variables the direction knows already -- the bulk of a beacon stream, full or compressed -- is
+-- decoded here in one go.  It leaves the same state, records, Info and tree as the phases of
+-- dissect_frame (parse_fast_named; data_values' known-set case, or its general case with
+-- carried variables; data_record; info_frame's one concatenation; tree_compact_frame or
+-- tree_full); anything else returns false before changing any state, and the phases take the
+-- packet.  SHAREDLINK_NO_EXPRESS=1 turns it off; the tests compare both ways.
 local EXPRESS = os.getenv("SHAREDLINK_NO_EXPRESS") ~= "1"
 local NO_SHAPES = {}
 local XSK = {}            -- frame key -> "|sk|d|0" (a line's text after its frame number)
@@ -2165,7 +2168,7 @@ local function express_missing(d, sh)
     return xm
 end
 
-local function express(s, n, tvb, pinfo, tree, cols)
+local function express(s, n, tvb, pinfo, tree, cols, vis)
     local dstb, srcb = s_byte(s, 3, 4)
     local key = (dstb or 0) * 256 + (srcb or 0)
     -- the layout that matched a payload of this length last (a payload matches one layout at
@@ -2286,9 +2289,8 @@ local function express(s, n, tvb, pinfo, tree, cols)
     if MARKS.express then info = MARKS.express .. info end
     cols.info = info
     if tree then
-        -- a tree nobody sees (-Y, coloring rules, taps): the compact one dissect_frame makes, from
-        -- what parse_fast_named would have left
-        local ti = TI.add(tree, sl, tvb(0, n))
+        -- the tree dissect_frame makes, from what parse_fast_named would have left: the compact
+        -- one for a tree nobody sees (-Y, coloring rules, taps), else the full one
         VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8] = c1, c2, c3, c4, c5, c6, c7, c8
         local st, sn = sh.T, sh.N
         local nvals = sh.n
@@ -2298,8 +2300,26 @@ local function express(s, n, tvb, pinfo, tree, cols)
         while s_byte(s, fl) ~= B_RBRACK do fl = fl - 1 end
         local cs_val, cs_calc, cs_status = checksum_value(ctext), nil, 2
         if pref_validate then cs_calc, cs_status = (sh.fixed + sum) % 256, 1 end
-        tree_compact_frame(ti, 1, n, fl, s, dstb, srcb, tail and "delta" or "full", list, d, num, visited, rec,
-            0, nm, cs_val, cs_calc, cs_status)
+        local kind = tail and "delta" or "full"
+        if not vis then
+            tree_compact_frame(TI.add(tree, sl, tvb(0, n)), 1, n, fl, s, dstb, srcb, kind, list, d, num, visited,
+                rec, 0, nm, cs_val, cs_calc, cs_status)
+            return true
+        end
+        -- a shown tree (-V, the GUI's details; speed trick, measured: -V 5 %, a compressed
+        -- stream's 8 %): the fields' places, then as dissect_frame (its frame is s[1..fl])
+        pr_cpos = fl - 1 - #ctext
+        fast_positions(sh.ntext, nvals, true)
+        local tc = TC
+        tc.tree, tc.tvb, tc.o, tc.f, tc.s, tc.a, tc.e, tc.fl = tree, tvb, -1, s, s, 1, n, fl
+        tc.num, tc.kind, tc.dst, tc.src, tc.dstb, tc.srcb = num, kind, LETTER[dstb], LETTER[srcb], dstb, srcb
+        tc.malformed_msg, tc.terminated, tc.bodyend = nil, true, fl - 1
+        tc.list, tc.d, tc.rec, tc.ne, tc.nm = list, d, rec, 0, nm
+        tc.cs_val, tc.cs_calc, tc.cs_status = cs_val, cs_calc, cs_status
+        tc.resp_in, tc.resp_to = rec and rec.resp_in, rec and rec.resp_to
+        tc.rts, tc.unmatched = rec and rec.rt, rec and rec.unmatched
+        tc.ke, tc.cmd_item = 0, nil
+        tree_full(tc)
     end
     return true
 end
@@ -2331,8 +2351,8 @@ local function dissect(tvb, pinfo, tree)
             t = nil
         end
     end
-    -- the express lane: no tree, or one nobody sees (the tree's visibility is the whole tree's)
-    if EXPRESS and (t == nil or not PG.visible(t)) and express(s, n, tvb, pinfo, t, cols) then return n end
+    -- the express lane (the tree's visibility is the whole tree's)
+    if EXPRESS and express(s, n, tvb, pinfo, t, cols, t ~= nil and PG.visible(t)) then return n end
     -- the phases: the frames' keys, and the Info they build
     local sk_base = n * 1048576
     ninfo, info_len, info_full, frames_in_info, frames_dropped = 0, 0, false, 0, 0

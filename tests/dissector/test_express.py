@@ -1,9 +1,9 @@
 """The express lane of sharedlink.lua stands in for the phases of dissect_frame.
 
-In a pass with no tree (tshark's summary pass, either pass of -2 without -V) or with one nobody
-sees (-Y, coloring rules), a packet that is one plain named frame of a layout seen before is
-decoded by one function (`express`).  It must
-leave exactly what the phases would: the same Info, and the same state and records, which the
+In any pass (no tree: tshark's summary pass; a tree nobody sees: -Y, coloring rules; a shown
+tree: -V, -T pdml, the GUI's details), a packet that is one plain named frame of a layout seen
+before is decoded by one function (`express`).  It must
+leave exactly what the phases would: the same Info, tree, state and records, which the
 frames after it and a second pass (-2, -2 -V) read.  SHAREDLINK_NO_EXPRESS=1 turns the lane off;
 SHAREDLINK_EXPRESS_MARK=1 marks the Info of the packets it took, to show that it ran at all.
 """
@@ -37,8 +37,7 @@ GEN = {
     "other-pair": ["--frames", "60", "--compress", "--src", "C", "--dst", "D"],
 }
 STREAMS = load_streams()
-# filters on fields of the frame, of its variables and of its carried variables (-T fields shows
-# the tree: it does not take the lane)
+# filters on fields of the frame, of its variables and of its carried variables
 FILTERS = ['sharedlink.kind == "delta" && sharedlink.checksum.status == 1',
            "sharedlink.crlf.missing || sharedlink.sync.is_late",
            "sharedlink.var.double > 40 && sharedlink.var.index == 1",
@@ -56,6 +55,10 @@ def _outputs(cap: Path, monkeypatch: pytest.MonkeyPatch, *, express: bool, mark:
             "one pass": tu.tshark(cap, [*OTHERS], two_pass=False).stdout,
             "two passes": tu.tshark(cap, [*OTHERS], two_pass=True).stdout,
             "two passes, tree": tu.tshark(cap, ["-V", *OTHERS], two_pass=True).stdout,
+            # a shown tree, every item's place and size (hidden ones too)
+            "one pass, tree": tu.tshark(cap, ["-V", *OTHERS], two_pass=False).stdout,
+            "pdml": "\n".join(x for x in tu.tshark(cap, ["-T", "pdml", *OTHERS], two_pass=False).stdout.splitlines()
+                              if not x.startswith("<pdml ")),   # its line holds the time it ran
             # a tree nobody sees: the lane makes its compact form
             **{f"filter {f}": tu.tshark(cap, ["-Y", f, *OTHERS], two_pass=False).stdout for f in FILTERS},
             "two passes, filter": tu.tshark(cap, ["-Y", FILTERS[0], *OTHERS], two_pass=True).stdout,
@@ -166,10 +169,12 @@ def test_express_on_every_kind_of_value(tmp_path: Path, monkeypatch: pytest.Monk
 
 # The phases' own fast paths (parse_frame: a frame of a layout its node pair sent before, parsed by
 # one pattern) serve a shown tree too, where the fields' places follow from the layout and the
-# values' lengths.  SHAREDLINK_NO_FAST=1 parses every frame field by field: the trees, ranges and
-# all, must come out the same.
+# values' lengths (fast_positions, which the express lane uses as well).  With the express lane
+# off (it takes most of these frames first), SHAREDLINK_NO_FAST=1 parses every frame field by
+# field: the trees, ranges and all, must come out the same.
 def _shown_trees(cap: Path, monkeypatch: pytest.MonkeyPatch, *, fast: bool) -> dict[str, str]:
     with monkeypatch.context() as m:
+        m.setenv("SHAREDLINK_NO_EXPRESS", "1")
         if not fast:
             m.setenv("SHAREDLINK_NO_FAST", "1")
         return {
@@ -191,6 +196,7 @@ def test_fast_paths_in_a_shown_tree(name: str, tmp_path: Path, monkeypatch: pyte
     for how in on:
         assert on[how] == off[how], how
     # and they ran: dozens of the packets of a shown tree took them
+    monkeypatch.setenv("SHAREDLINK_NO_EXPRESS", "1")
     monkeypatch.setenv("SHAREDLINK_FAST_MARK", "1")
     lines = tu.tshark(cap, ["-V", "-P", *OTHERS]).stdout.splitlines()
     assert sum(" SharedLink " in x and "[fast] " in x for x in lines) >= 20, name
@@ -211,6 +217,22 @@ def test_fast_paths_on_every_kind_of_value(tmp_path: Path, monkeypatch: pytest.M
     on, off = _shown_trees(cap, monkeypatch, fast=True), _shown_trees(cap, monkeypatch, fast=False)
     for how in on:
         assert on[how] == off[how], how
+    monkeypatch.setenv("SHAREDLINK_NO_EXPRESS", "1")
     monkeypatch.setenv("SHAREDLINK_FAST_MARK", "1")
     out = tu.tshark(cap, ["-V", "-P", *OTHERS]).stdout
     assert out.count("[fast] ") > 20
+
+
+def test_express_takes_a_shown_tree(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """-V (one pass and the second of -2) and the GUI's details go the express lane too: most
+    packets of a beacon stream, full frames and deltas, carried values shown in the tree."""
+    cap = tmp_path / "c.pcap"
+    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--frames", "300", "--compress", str(cap)],
+                   check=True, capture_output=True)
+    monkeypatch.setenv("SHAREDLINK_EXPRESS_MARK", "1")
+    for two_pass in (False, True):
+        out = tu.tshark(cap, ["-V", "-P", *OTHERS], two_pass=two_pass).stdout
+        marked = [x for x in out.splitlines() if MARK in x]
+        assert len(marked) > 240, (two_pass, len(marked))
+        assert any(" full " in x for x in marked) and any("delta (+4 carried)" in x for x in marked)
+        assert "(carried from frame " in out
