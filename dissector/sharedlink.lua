@@ -46,12 +46,11 @@
 -- plain named frames (up to 8: a compressed stream's deltas) is parsed by one anchored
 -- pattern, in a shown tree too (the fields' places follow from the layout and the values'
 -- lengths), and the express lane (see express) takes such frames in every pass; the shown
--- tree's labels are made once (addresses, protocol line, a correct
--- checksum), and the Lua collector runs at twice its default pace (see the note where it is
--- set).  Per-frame state is stored only for frames that
--- need it (carried values, late sync, queries/replies); carried-only records are
--- packed as text lines, 256 per Lua string, and the list in use is kept as a
--- per-direction history of changes, so that long compressed captures add few Lua
+-- tree's labels are made once (addresses, protocol line, a correct checksum), and the Lua
+-- collector runs at twice its default pace (see the note where it is set).  Per-frame state
+-- is stored only for frames that need it (carried values, late sync, queries/replies);
+-- carried-only records are packed as text lines, 256 per Lua string, and the list in use is
+-- kept as a per-direction history of changes, so that long compressed captures add few Lua
 -- objects (Wireshark runs full Lua garbage collections during a capture).
 --
 -- Decoding choices (where the bulletins are silent); the full set of rules, shared with
@@ -1714,11 +1713,11 @@ local function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, nu
     end
 end
 
--- The full tree (shown: every range and label).  TC holds what its parts share (reused).
-local TC = {}
+-- The full tree (shown: every range and label).
 local tree_full
-
 do
+    local TC = {}   -- what the parts share, for the frame tree_full was given (reused)
+
     -- An address: "Destination: A (node 1)", the node number folded into the letter's line,
     -- its field kept for filters but hidden; an expert when it is not a letter A-P.
     -- Speed trick (measured, -V): the labels are made once a letter (ADDR_LABEL[what][b]).
@@ -1742,13 +1741,13 @@ do
     end
 
     -- The protocol line: "SharedLink Protocol, B→A full" (", bad checksum").  Speed trick
-    -- (measured, -V): the item is added with its text, one call, and the texts of letter pairs
-    -- are kept (HEAD_TEXT[kind][pair key]).
+    -- (measured, -V): the item is added with its text, one call, and the texts of node pairs
+    -- (both addresses A-P: nodes) are kept (HEAD_TEXT[kind][pair key]).
     local HEAD_TEXT = {}
-    local function tree_proto_item(tree, range, kind, dstb, srcb, dst, src, cs_status)
+    local function tree_proto_item(tree, range, kind, dstb, srcb, dst, src, cs_status, nodes)
         local bad = cs_status == 0
         local byk, hk = HEAD_TEXT[kind], nil
-        if dstb and srcb then
+        if nodes then
             hk = (dstb * 256 + srcb) * 2 + (bad and 1 or 0)
             if byk then
                 local text = byk[hk]
@@ -1756,7 +1755,7 @@ do
             end
         end
         local text = "SharedLink Protocol, " .. src .. ARROW .. dst .. " " .. kind .. (bad and ", bad checksum" or "")
-        if hk and not s_find(text, "\\", 1, true) then   -- letters, not escapes: a handful of pairs
+        if hk then
             if not byk then byk = {}; HEAD_TEXT[kind] = byk end
             byk[hk] = text
         end
@@ -1769,7 +1768,8 @@ do
         local dstb, srcb, malformed_msg, cs_status = tc.dstb, tc.srcb, tc.malformed_msg, tc.cs_status
         local dnode = dstb and dstb >= B_A and dstb <= B_P
         local snode = srcb and srcb >= B_A and srcb <= B_P
-        local ti = tree_proto_item(tc.tree, tvb(tc.a - 1, tc.e - tc.a + 1), kind, dstb, srcb, dst, src, cs_status)
+        local ti = tree_proto_item(tc.tree, tvb(tc.a - 1, tc.e - tc.a + 1), kind, dstb, srcb, dst, src, cs_status,
+            dnode and snode)
         tc.ti = ti
 
         tree_address(ti, tvb, o + 3, dstb, dst, dnode, hf.dst, hf.dst_node, "Destination")
@@ -2032,8 +2032,23 @@ do
         end
     end
 
-    -- The whole of it, for the frame TC describes.
-    function tree_full(tc)
+    -- The whole of it, for a frame at f[1..fl] (bodyend: its content's last index) that starts at
+    -- s[a] and ends with its line end at s[e] (as dissect_frame's arguments), as parsed (the
+    -- field and variable arrays, pr_cpos, pr_ctext), with its kind, state and checksum verdict.
+    -- Called by dissect_frame and by the express lane; what the parts share goes in TC.
+    function tree_full(tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, kind, dstb, srcb,
+                       list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
+        local tc = TC
+        -- tvb offset of f[i] is o + i
+        tc.tree, tc.tvb, tc.o, tc.f, tc.s, tc.a, tc.e, tc.fl = tree, tvb, a - 2, f, s, a, e, fl
+        tc.num, tc.kind, tc.dstb, tc.srcb = num, kind, dstb, srcb
+        tc.dst, tc.src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
+        tc.malformed_msg, tc.terminated, tc.bodyend = malformed_msg, terminated, bodyend
+        tc.list, tc.d, tc.rec, tc.ne, tc.nm = list, d, rec, ne, nm
+        tc.cs_val, tc.cs_calc, tc.cs_status = cs_val, cs_calc, cs_status
+        tc.resp_in, tc.resp_to = rec and rec.resp_in, rec and rec.resp_to
+        tc.rts, tc.unmatched = rec and rec.rt, rec and rec.unmatched
+        tc.ke, tc.cmd_item = 0, nil   -- carried values of empty D fields used so far; the E field's item
         tree_head(tc)
         tree_fields(tc)
         tree_carried_names(tc)
@@ -2043,8 +2058,7 @@ end
 
 -- f: a string holding the frame at f[1..fl] ('[' .. ']' when terminated, else up to
 -- where it stops; bytes after fl may follow when terminated); a: index of f[1] in the
--- payload s; e: index in s of the last byte including the line end.  Returns false when
--- there turned out to be no real tree.
+-- payload s; e: index in s of the last byte including the line end.
 local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     local num = pinfo.number
 
@@ -2077,34 +2091,23 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
 
     -- Tree (skipped entirely when there is none, e.g. tshark summary pass)
-    if not tree then return true end
+    if not tree then return end
     if pr_fast_hit and not vis then
         local ti = TI.add(tree, sl, tvb(a - 1, e - a + 1))
         tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, pinfo.visited, rec, ne, nm,
             cs_val, cs_calc, cs_status)
-        return true
+        return
     end
-    local tc = TC
-    -- tvb offset of f[i] is o + i
-    tc.tree, tc.tvb, tc.o, tc.f, tc.s, tc.a, tc.e, tc.fl = tree, tvb, a - 2, f, s, a, e, fl
-    tc.num, tc.kind, tc.dst, tc.src, tc.dstb, tc.srcb = num, kind, dst, src, dstb, srcb
-    tc.malformed_msg, tc.terminated, tc.bodyend = malformed_msg, terminated, bodyend
-    tc.list, tc.d, tc.rec, tc.ne, tc.nm = list, d, rec, ne, nm
-    tc.cs_val, tc.cs_calc, tc.cs_status = cs_val, cs_calc, cs_status
-    tc.resp_in, tc.resp_to = rec and rec.resp_in, rec and rec.resp_to
-    tc.rts, tc.unmatched = rec and rec.rt, rec and rec.unmatched
-    tc.ke, tc.cmd_item = 0, nil   -- carried values of empty D fields used so far; the E field's item
-    tree_full(tc)
-    return true
+    tree_full(tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, kind, dstb, srcb, list, d, rec,
+        ne, nm, cs_val, cs_calc, cs_status)
 end
 ------------------------------------------------------------------------------
 -- Payload scanning
 ------------------------------------------------------------------------------
--- Noise s[i..j] between frames (CR/LF alone is not noise).  Returns false when
--- there turned out to be no real tree.
+-- Noise s[i..j] between frames (CR/LF alone is not noise).
 local function add_noise(s, i, j, tvb, tree)
     local k = s_find(s, "[^\r\n]", i)
-    if not k or k > j then return nil end
+    if not k or k > j then return end
     if info_full then
         frames_dropped = frames_dropped + 1
     else
@@ -2112,12 +2115,11 @@ local function add_noise(s, i, j, tvb, tree)
         info_add("noise (" .. (j - i + 1) .. " bytes)")
         frames_in_info = frames_in_info + 1
     end
-    if not tree then return nil end
+    if not tree then return end
     local r = tvb(i - 1, j - i + 1)
     local ti = tree:add(sl, r)
     ti:append_text(", noise")
     ti:add(hf.noise, r):add_proto_expert_info(ei.noise, (j - i + 1) .. " bytes outside any frame")
-    return true
 end
 
 -- Before Wireshark 4.6 a TreeItem's hidden flag tells "no tree" (see dissect); unknown: no.
@@ -2310,16 +2312,8 @@ local function express(s, n, tvb, pinfo, tree, cols, vis)
         -- stream's 8 %): the fields' places, then as dissect_frame (its frame is s[1..fl])
         pr_cpos = fl - 1 - #ctext
         fast_positions(sh.ntext, nvals, true)
-        local tc = TC
-        tc.tree, tc.tvb, tc.o, tc.f, tc.s, tc.a, tc.e, tc.fl = tree, tvb, -1, s, s, 1, n, fl
-        tc.num, tc.kind, tc.dst, tc.src, tc.dstb, tc.srcb = num, kind, LETTER[dstb], LETTER[srcb], dstb, srcb
-        tc.malformed_msg, tc.terminated, tc.bodyend = nil, true, fl - 1
-        tc.list, tc.d, tc.rec, tc.ne, tc.nm = list, d, rec, 0, nm
-        tc.cs_val, tc.cs_calc, tc.cs_status = cs_val, cs_calc, cs_status
-        tc.resp_in, tc.resp_to = rec and rec.resp_in, rec and rec.resp_to
-        tc.rts, tc.unmatched = rec and rec.rt, rec and rec.unmatched
-        tc.ke, tc.cmd_item = 0, nil
-        tree_full(tc)
+        tree_full(tree, tvb, s, s, 1, n, fl, true, fl - 1, nil, num, kind, dstb, srcb, list, d, rec, 0, nm,
+            cs_val, cs_calc, cs_status)
     end
     return true
 end
@@ -2359,7 +2353,6 @@ local function dissect(tvb, pinfo, tree)
     info_clean = true
     local pos = 1
     local open_at, close_at = 0, 0 -- cached search results (false = none left)
-    local r
     while pos <= n do
         if open_at ~= false and open_at < pos then open_at = s_find(s, "[:", pos, true) or false end
         local a = open_at
@@ -2374,10 +2367,7 @@ local function dissect(tvb, pinfo, tree)
             end
             break
         end
-        if a > pos then
-            r = add_noise(s, pos, a - 1, tvb, t)
-            if r == false then t = nil end
-        end
+        if a > pos then add_noise(s, pos, a - 1, tvb, t) end
         if close_at ~= false and close_at < a + 2 then close_at = s_find(s, "]", a + 2, true) or false end
         local b = close_at
         open_at = s_find(s, "[:", a + 2, true) or false
@@ -2392,13 +2382,13 @@ local function dissect(tvb, pinfo, tree)
                 e = b + 1
             end
             if a == 1 then
-                r = dissect_frame(s, b, a, e, true, tvb, pinfo, t, sk, s)
+                dissect_frame(s, b, a, e, true, tvb, pinfo, t, sk, s)
             else
-                r = dissect_frame(s_sub(s, a, b), b - a + 1, a, e, true, tvb, pinfo, t, sk, s)
+                dissect_frame(s_sub(s, a, b), b - a + 1, a, e, true, tvb, pinfo, t, sk, s)
             end
             pos = e + 1
         elseif na then
-            r = dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, tvb, pinfo, t, sk, s)
+            dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, tvb, pinfo, t, sk, s)
             pos = na
         else
             if (n - a) < MAX_PENDING and pinfo.can_desegment > 0 then
@@ -2406,10 +2396,9 @@ local function dissect(tvb, pinfo, tree)
                 pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
                 break
             end
-            r = dissect_frame(s_sub(s, a, n), n - a + 1, a, n, false, tvb, pinfo, t, sk, s)
+            dissect_frame(s_sub(s, a, n), n - a + 1, a, n, false, tvb, pinfo, t, sk, s)
             pos = n + 1
         end
-        if r == false then t = nil end
     end
 
     if frames_dropped > 0 then
