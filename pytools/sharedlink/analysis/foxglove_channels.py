@@ -255,7 +255,7 @@ class FoxgloveChannels:
         dr.log_values(dr.values_json, ts)
         dr.nframes += 1
         if ok is not False and d.kind in VALUE_KINDS:
-            fix = self._location(typed, ts, src + ">" + dst)   # d.pair
+            fix = self._location(typed, ts, d.pair)
             if fix is not None:
                 dr.location.log(fix, log_time=ts)
                 dr.nlocations += 1
