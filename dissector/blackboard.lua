@@ -14,6 +14,9 @@
 -- and TCP port preferences (off by default: 0); heuristics on UDP and TCP (a well-formed
 -- message with a good checksum, or the answer a pending request expects).
 --
+-- Limits (preferences): max_pending messages waiting for an answer at once, max_held_bytes of a
+-- message without its CR held for more TCP segments; past either a "Limit exceeded" warning.
+--
 -- A message's tree reads in wire order: type, hex text, count, address, node, data, checksum,
 -- then its terminator (CR, LF) last.
 --
@@ -91,6 +94,7 @@ local ex = {
         expert.group.SEQUENCE, expert.severity.NOTE),
     unanswered = ProtoExpert.new("blackboard.unanswered", "Request superseded before an answer",
         expert.group.SEQUENCE, expert.severity.NOTE),
+    limit = ProtoExpert.new("blackboard.limit", "Limit exceeded", expert.group.PROTOCOL, expert.severity.WARN),
 }
 local expert_list = {}
 for _, e in pairs(ex) do
@@ -103,22 +107,32 @@ bb.experts = expert_list
 
 bb.prefs.udp_port = Pref.uint("UDP port", 0, "UDP port carrying blackboard messages (0: none, heuristic only)")
 bb.prefs.tcp_port = Pref.uint("TCP port", 0, "TCP port carrying blackboard messages (0: none, heuristic only)")
+bb.prefs.max_pending = Pref.uint("Max pending messages", 1024,
+    "Messages waiting for an answer at once, all conversations together (each direction holds one); "
+    .. "past it a message's answer is not looked for")
+bb.prefs.max_held_bytes = Pref.uint("Max held bytes", 65536,
+    "Bytes of one message without its CR held for more TCP segments; past it the message is shown unended")
 
 -- conversation state: the request each side waits an answer to
 --
 -- pending[key] = { kind = "set" | "request", frame = n, checksum = c, count = n, sum = s,
 --                  text = "..." } where key names the direction the answer travels. On the
--- first pass the live table is used and a copy is kept per frame, so later passes (and the
--- GUI re-dissecting one frame) see the same state.
+-- first pass the live table is used, and each frame keeps a note of the two entries it can
+-- read (its own direction's and the opposite one's), so later passes (and the GUI
+-- re-dissecting one frame) see the same state: one small table a frame, never a copy of all.
 
 local pending = {}
+local pending_count = 0 -- entries in pending (bounded by the max_pending preference)
 local frame_state = {}
 local messages = {} -- "frame:offset" -> the record of a message, to show where it was answered
+local not_held = {} -- "frame:offset" -> true: a message left out of pending (max_pending)
 
 function bb.init()
     pending = {}
+    pending_count = 0
     frame_state = {}
     messages = {}
+    not_held = {}
 end
 
 -- ---------------------------------------------------------------------------------------------
@@ -152,24 +166,6 @@ end
 -- ---------------------------------------------------------------------------------------------
 -- conversation state: helpers
 
-local function copy(t)
-    local c = {}
-    for k, v in pairs(t) do
-        c[k] = v
-    end
-    return c
-end
-
-local function state_for(pinfo)
-    if not pinfo.visited then
-        if frame_state[pinfo.number] == nil then
-            frame_state[pinfo.number] = copy(pending)
-        end
-        return pending
-    end
-    return copy(frame_state[pinfo.number] or {})
-end
-
 local function endpoint(addr, port)
     return tostring(addr) .. ":" .. istr(port)
 end
@@ -188,22 +184,53 @@ local function keys(pinfo)
     return src .. ">" .. dst .. "/" .. here, dst .. ">" .. src .. "/" .. back
 end
 
+-- the pending table this frame reads and writes: the live one on the first pass (noting the
+-- frame's two entries as they are at its start), a table of the noted entries later
+local function state_for(pinfo)
+    local here, back = keys(pinfo)
+    if not pinfo.visited then
+        if frame_state[pinfo.number] == nil then
+            frame_state[pinfo.number] = { [here] = pending[here], [back] = pending[back] }
+        end
+        return pending
+    end
+    local noted = frame_state[pinfo.number] or {}
+    return { [here] = noted[here], [back] = noted[back] }
+end
+
+-- an answered message leaves the table (the live one keeps its count)
+local function clear_pending(state, key)
+    if state[key] ~= nil and state == pending then
+        pending_count = pending_count - 1
+    end
+    state[key] = nil
+end
+
+-- a message waits for its answer; false when max_pending messages already wait
+local function set_pending(key, rec)
+    if pending[key] == nil then
+        if pending_count >= bb.prefs.max_pending then
+            return false
+        end
+        pending_count = pending_count + 1
+    end
+    pending[key] = rec
+    return true
+end
+
 -- ---------------------------------------------------------------------------------------------
 -- a text message at off (type character there); stop is the end of the buffer.
 -- Returns: bytes used, or nil and the bytes needed when the CR is not there yet
 
 local function find_cr(tvb, off, stop)
-    local i = off
-    while i < stop do
-        if u8(tvb, i) == CR then
-            return i
-        end
-        i = i + 1
+    if stop <= off then
+        return nil
     end
-    return nil
+    local i = string.find(tvb:raw(off, stop - off), "\r", 1, true)
+    return i and off + i - 1 or nil
 end
 
-local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more)
+local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_limit)
     local cr = find_cr(tvb, off + 1, stop)
     if cr == nil and can_more then
         return nil
@@ -260,6 +287,10 @@ local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more)
     local function add_terminator()
         if cr == nil then
             t:add_proto_expert_info(ex.no_cr)
+            if over_limit then
+                t:add_proto_expert_info(ex.limit, "Limit exceeded: over " .. istr(bb.prefs.max_held_bytes)
+                    .. " bytes without a CR (blackboard.max_held_bytes): not held for more segments")
+            end
         else
             t:add(pf.terminator, tvb:range(cr, used - (cr - off)))
         end
@@ -351,9 +382,17 @@ local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more)
         if not pinfo.visited then
             local rec = { kind = name, frame = pinfo.number, checksum = written, count = count,
                 sum = (bytes[1] + bytes[2] + bytes[3] + bytes[4]) % 256, text = hextext }
-            pending[back] = rec
-            messages[mkey] = rec
-        else
+            if set_pending(back, rec) then
+                messages[mkey] = rec
+            else
+                not_held[mkey] = true
+            end
+        end
+        if not_held[mkey] then
+            t:add_proto_expert_info(ex.limit, "Limit exceeded: " .. istr(bb.prefs.max_pending)
+                .. " messages already wait for an answer (blackboard.max_pending); this one's answer is not looked for")
+        end
+        if pinfo.visited then
             local rec = messages[mkey]
             if rec ~= nil and rec.answered then
                 t:add(pf.response_in, tvb:range(off, 1), rec.answered):set_generated()
@@ -502,11 +541,13 @@ local function dissect_buffer(tvb, pinfo, tree)
                 pinfo.desegment_len = summary
                 break
             end
-            state[here] = nil
+            clear_pending(state, here)
             infos[#infos + 1] = summary
             off = off + used
         elseif c == SET or c == REQUEST then
-            local used, summary = dissect_text(tvb, pinfo, tree, off, n, state, can_more)
+            -- a message without its CR is held for more segments up to max_held_bytes
+            local more = can_more and n - off <= bb.prefs.max_held_bytes
+            local used, summary = dissect_text(tvb, pinfo, tree, off, n, state, more, can_more and not more)
             if used == nil then
                 pinfo.desegment_offset = off
                 pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT

@@ -32,7 +32,9 @@
 --    right answer (ack = the set's checksum; a read response with a good checksum) is
 --    locked to blackboard at once. An answer is matched only when the record ending its
 --    message comes first in the capture.
--- An unfinished frame longer than 65536 bytes is given up as noise.
+-- An unfinished frame longer than the max_held_bytes preference (65536) is given up as noise,
+-- with a "Limit exceeded" warning. A record that only lengthens an unfinished frame is appended
+-- to the held bytes without scanning them again (linear time for a frame sent byte by byte).
 --
 -- What the GUI shows: the Source and Destination columns name the direction ("device" ->
 -- "host" for inbound bytes, "host" -> "device" for outbound ones); a record that only holds
@@ -64,7 +66,8 @@ local slserial = Proto("slserial", "Serial link")
 local s_byte, s_sub, s_find = string.byte, string.sub, string.find
 local tonumber, pcall, ipairs = tonumber, pcall, ipairs
 
-local MAX_PENDING = 65536
+local MAX_HELD_DEFAULT = 65536
+local max_held = MAX_HELD_DEFAULT -- the max_held_bytes preference, read at each capture's start
 local MAX_UNDETECTED = 4096
 local UNDETECTED_KEEP = 512
 local ADOPT_AFTER = 64
@@ -109,6 +112,7 @@ local ei = {
         expert.group.UNDECODED, expert.severity.NOTE),
     missing = ProtoExpert.new("slserial.dissector.missing", "Protocol dissector not loaded",
         expert.group.UNDECODED, expert.severity.WARN),
+    limit = ProtoExpert.new("slserial.limit", "Limit exceeded", expert.group.PROTOCOL, expert.severity.WARN),
 }
 local expert_list = {}
 for _, e in pairs(ei) do
@@ -126,15 +130,21 @@ slserial.prefs.user_linktype = Pref.enum("USER link type", 0,
     "LINKTYPE_USERn of serial captures (user0 = 147 ... user15 = 162)", linktype_enum, false)
 slserial.prefs.protocol = Pref.enum("Protocol", 0,
     "Protocol on the line; auto: recognised from the first frame with a good checksum", protocol_enum, false)
+slserial.prefs.max_held_bytes = Pref.uint("Max held bytes", MAX_HELD_DEFAULT,
+    "Bytes of one unfinished frame held back for the next records; past it they are given up as noise")
 
 ------------------------------------------------------------------------------
 -- State (first pass): per direction stream buffer; per record the result
 ------------------------------------------------------------------------------
-local dirs = {}     -- [p2p_dir] = { buf = string, recs = { {num, s, e}... } (buf coords), proto = name|nil }
+-- [p2p_dir] = { held = { strings }, hlen = their length, recs = { {num, s, e}... } (positions in
+-- the held bytes), proto = name|nil, expect = see bb_expectation, append = whether the next
+-- bytes can be appended to the held ones without a scan (see can_append) }
+local dirs = {}
 local results = {}  -- [record number] = result table (see first_pass)
 
 function slserial.init()
     dirs, results = {}, {}
+    max_held = tonumber(slserial.prefs.max_held_bytes) or MAX_HELD_DEFAULT
 end
 
 ------------------------------------------------------------------------------
@@ -215,9 +225,10 @@ local function scan_sharedlink(s, final)
         end
         if last and not s_find(s, "]", last, true) then hold = last end
     end
-    if n + 1 - hold > MAX_PENDING then hold = n + 1 end
+    local over = n + 1 - hold > max_held
+    if over then hold = n + 1 end
     add_piece(pieces, noise, hold - noise, false)
-    return pieces, hold
+    return pieces, hold, over
 end
 
 local function xor8(a, b)
@@ -248,7 +259,7 @@ end
 local function scan_p2os(s, final)
     local n = #s
     local pieces = {}
-    local pos, noise, hold = 1, 1, n + 1
+    local pos, noise, hold, over = 1, 1, n + 1, false
     while pos <= n do
         local h = s_find(s, "\250\251", pos, true)
         if not h then break end
@@ -262,7 +273,8 @@ local function scan_p2os(s, final)
         else
             local e = h + 2 + count
             if e > n then
-                if not final and n - h + 1 <= MAX_PENDING then hold = h end
+                over = not final and n - h + 1 > max_held
+                if not final and not over then hold = h end
                 break
             end
             add_piece(pieces, noise, h - noise, false)
@@ -274,7 +286,7 @@ local function scan_p2os(s, final)
         hold = n -- may start a header
     end
     add_piece(pieces, noise, hold - noise, false)
-    return pieces, hold
+    return pieces, hold, over
 end
 
 local function is_hex(b)
@@ -315,13 +327,14 @@ end
 local function scan_blackboard(s, final)
     local n = #s
     local pieces = {}
-    local pos, noise, hold = 1, 1, n + 1
+    local pos, noise, hold, over = 1, 1, n + 1, false
     while pos <= n do
         local o = s_find(s, "[:;]", pos)
         if not o then break end
         local cr = s_find(s, "\r", o + 1, true)
         if not cr then
-            if not final and n - o + 1 <= MAX_PENDING then hold = o end
+            over = not final and n - o + 1 > max_held
+            if not final and not over then hold = o end
             break
         end
         local o2 = last_start(s, o, cr)
@@ -336,7 +349,7 @@ local function scan_blackboard(s, final)
         end
     end
     add_piece(pieces, noise, hold - noise, false)
-    return pieces, hold
+    return pieces, hold, over
 end
 
 local SCANNERS = { sharedlink = scan_sharedlink, p2os = scan_p2os, blackboard = scan_blackboard }
@@ -397,11 +410,11 @@ local function scan_bb_stream(st, s)
     pieces[#pieces][4] = true -- an answer, not a message
     st.expect = nil
     local base = at + e.len - 1
-    local rest, hold = scan_blackboard(s_sub(s, base + 1), false)
+    local rest, hold, over = scan_blackboard(s_sub(s, base + 1), false)
     for _, p in ipairs(rest) do
         pieces[#pieces + 1] = { p[1] + base, p[2], p[3] }
     end
-    return pieces, hold + base
+    return pieces, hold + base, over
 end
 
 local function piece_good(name, s, a, len)
@@ -446,62 +459,96 @@ end
 local function dir_state(dir)
     local st = dirs[dir]
     if not st then
-        st = { buf = "", recs = {}, proto = fixed_protocol() }
+        st = { held = {}, hlen = 0, recs = {}, proto = fixed_protocol() }
         dirs[dir] = st
     end
     return st
 end
 
-local function first_pass(raw, dir, num)
-    local st = dir_state(dir)
-    local prefix_len = #st.buf
-    local s = st.buf .. raw
-    local n = #s
-    st.recs[#st.recs + 1] = { num, prefix_len + 1, n }
-    if not st.proto then
-        st.proto = detect(s)
-        if not st.proto and st.expect and bb_answer_good(s, st.expect, st.expect.at) then
-            -- a blackboard slave: its first answer is right (the master's direction is blackboard)
-            st.proto = "blackboard"
-        end
-        if not st.proto and n >= ADOPT_AFTER then
-            -- nothing recognisable of its own (e.g. a blackboard slave's binary answers):
-            -- the protocol of another direction (lowest direction number first)
-            for _, d in ipairs({ -1, 0, 1 }) do
-                if dirs[d] and dirs[d].proto then
-                    st.proto = dirs[d].proto
-                    break
-                end
+-- whether the next bytes may simply be appended to the held ones: the held bytes are one
+-- unfinished frame that only a byte of finish[proto] in the new bytes can end or move (a
+-- SharedLink frame waits for its "]", a new "[" starts another; a blackboard message for its
+-- CR); a frame held for anything else is scanned again with every record
+local FINISH = { sharedlink = "[%[%]]", blackboard = "\r" }
+
+local function can_append(st, s)
+    if st.hlen == 0 then return false end
+    if st.proto == "sharedlink" then
+        return s_byte(s, 1) == 91 and not s_find(s, "[%[%]]", 2)
+    elseif st.proto == "blackboard" then
+        return (s_byte(s, 1) == B_COLON or s_byte(s, 1) == B_SEMI) and not s_find(s, "\r", 1, true)
+    end
+    return false
+end
+
+-- a record that only lengthens the held frame: kept as it is, nothing scanned again
+local function append_held(st, raw, dir, num)
+    local finish = FINISH[st.proto]
+    if not st.append or st.expect or not finish or st.hlen + #raw > max_held or s_find(raw, finish) then
+        return nil
+    end
+    local prefix_len = st.hlen
+    st.held[#st.held + 1] = raw
+    st.hlen = prefix_len + #raw
+    st.recs[#st.recs + 1] = { num, prefix_len + 1, st.hlen }
+    return { dir = dir, proto = st.proto, pieces = {}, region_len = 0, prefix_len = prefix_len, held_from = 0 }
+end
+
+local function detect_protocol(st, s, n)
+    st.proto = detect(s)
+    if not st.proto and st.expect and bb_answer_good(s, st.expect, st.expect.at) then
+        -- a blackboard slave: its first answer is right (the master's direction is blackboard)
+        st.proto = "blackboard"
+    end
+    if not st.proto and n >= ADOPT_AFTER then
+        -- nothing recognisable of its own (e.g. a blackboard slave's binary answers):
+        -- the protocol of another direction (lowest direction number first)
+        for _, d in ipairs({ -1, 0, 1 }) do
+            if dirs[d] and dirs[d].proto then
+                st.proto = dirs[d].proto
+                break
             end
         end
     end
-    local pieces, hold
+end
+
+-- good messages make the other direction expect their answers (the master's; a direction
+-- that answers never gives the other one answers to expect)
+local function expect_answers(st, s, dir, pieces)
+    local other = (dir == 0 or dir == 1) and not st.slave and dir_state(1 - dir) or nil
+    if not other or other.master or (other.proto ~= nil and other.proto ~= "blackboard") then return end
+    for _, p in ipairs(pieces) do
+        local c = s_byte(s, p[1])
+        if p[3] and not p[4] and (c == B_COLON or c == B_SEMI) then
+            local e = bb_expectation(s, p[1])
+            if e then
+                e.at = other.hlen + 1
+                other.expect = e
+                st.master, other.slave = true, true
+            end
+        end
+    end
+end
+
+-- the pieces of the direction's bytes s and where the held tail starts (and whether an
+-- unfinished frame was given up at max_held)
+local function scan_direction(st, s, n, dir)
     if st.proto == "blackboard" then
-        pieces, hold = scan_bb_stream(st, s)
-        -- good messages make the other direction expect their answers
-        -- (the master's; a direction that answers never gives the other one answers to expect)
-        local other = (dir == 0 or dir == 1) and not st.slave and dir_state(1 - dir) or nil
-        if other and not other.master and (other.proto == nil or other.proto == "blackboard") then
-            for _, p in ipairs(pieces) do
-                local c = s_byte(s, p[1])
-                if p[3] and not p[4] and (c == B_COLON or c == B_SEMI) then
-                    local e = bb_expectation(s, p[1])
-                    if e then
-                        e.at = #other.buf + 1
-                        other.expect = e
-                        st.master, other.slave = true, true
-                    end
-                end
-            end
-        end
+        local pieces, hold, over = scan_bb_stream(st, s)
+        expect_answers(st, s, dir, pieces)
+        return pieces, hold, over
     elseif st.proto then
-        pieces, hold = SCANNERS[st.proto](s, false)
+        return SCANNERS[st.proto](s, false)
     elseif n > MAX_UNDETECTED then
-        hold = n - UNDETECTED_KEEP + 1
-        pieces = { { 1, hold - 1, false } }
-    else
-        pieces, hold = {}, 1
+        local hold = n - UNDETECTED_KEEP + 1
+        return { { 1, hold - 1, false } }, hold, false
     end
+    return {}, 1, false
+end
+
+-- the record's result: the region its bytes complete (from the held bytes on), its pieces,
+-- and each earlier record's share of the region
+local function region_result(st, s, dir, num, pieces, hold, prefix_len)
     local region_len = hold - 1
     local res = {
         dir = dir, proto = st.proto, pieces = pieces, region_len = region_len,
@@ -528,12 +575,19 @@ local function first_pass(raw, dir, num)
             end
         end
     end
-    -- keep the held tail
-    st.buf = s_sub(s, hold)
+    return res
+end
+
+-- keep the held tail (from hold on) and the records it holds bytes of
+local function keep_tail(st, s, hold)
+    local tail = s_sub(s, hold)
+    st.held, st.hlen = { tail }, #tail
+    st.append = can_append(st, tail)
     if st.expect then
         st.expect.at = st.expect.at - (hold - 1)
         if st.expect.at < 1 then st.expect = nil end
     end
+    local region_len = hold - 1
     local recs = {}
     for _, r in ipairs(st.recs) do
         if r[3] >= hold then
@@ -541,6 +595,22 @@ local function first_pass(raw, dir, num)
         end
     end
     st.recs = recs
+end
+
+local function first_pass(raw, dir, num)
+    local st = dir_state(dir)
+    local res = append_held(st, raw, dir, num)
+    if res then return res end
+    local prefix_len = st.hlen
+    st.held[#st.held + 1] = raw
+    local s = table.concat(st.held)
+    local n = #s
+    st.recs[#st.recs + 1] = { num, prefix_len + 1, n }
+    if not st.proto then detect_protocol(st, s, n) end
+    local pieces, hold, over = scan_direction(st, s, n, dir)
+    res = region_result(st, s, dir, num, pieces, hold, prefix_len)
+    res.over = over
+    keep_tail(st, s, hold)
     return res
 end
 
@@ -651,6 +721,10 @@ local function dissect(tvb, pinfo, tree)
     pi:set_generated()
     -- bytes merely held until the protocol is known are not (yet) a finding
     if not res.proto and res.region_len > 0 then pi:add_proto_expert_info(ei.undetected) end
+    if res.over then
+        t:add_proto_expert_info(ei.limit, "Limit exceeded: an unfinished frame of over " .. max_held
+            .. " bytes given up as noise (slserial.max_held_bytes)")
+    end
 
     local nframes = 0
     local rtvb

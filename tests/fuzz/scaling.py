@@ -23,10 +23,12 @@ API (small on purpose; tshark and Python commands alike)::
 wrapper process, so earlier commands do not count), return code and output. A command that
 exits non-zero raises ``ScalingError`` unless ``check=False``.
 
-Noise: the machine may be busy. Each size is run ``repeat`` times and the fastest run counts
-(peak memory is taken from that run too; it hardly varies). Growth below ``min_seconds`` /
-``min_kb`` beyond the baseline is treated as that floor, so a fast linear command is never
-failed for a start-up jitter. When a check fails it is measured once more before it raises.
+Noise: the machine may be busy (other jobs share its cores), so the time compared is the
+command's CPU time (user + system, its children included) by default; ``metric="wall"``
+compares wall time instead. Each size is run ``repeat`` times and the fastest run counts (peak
+memory is taken from that run too; it hardly varies). Growth below ``min_seconds`` / ``min_kb``
+beyond the baseline is treated as that floor, so a fast linear command is never failed for a
+start-up jitter. When a check fails it is measured once more before it raises.
 """
 
 from __future__ import annotations
@@ -78,6 +80,7 @@ class Run:
 class Report:
     """The three runs of a check and the growth from N to 4N beyond the baseline."""
 
+    metric: str
     n: int
     factor: int
     base: Run
@@ -90,11 +93,12 @@ class Report:
         def mb(kb: int) -> str:
             return "%.1f MB" % (kb / 1024)
 
+        def run(r: Run) -> str:
+            return f"{r.cpu_seconds:.2f} s CPU ({r.seconds:.2f} s wall) {mb(r.peak_kb)}"
+
         return (
-            f"N={self.n}: {self.small.seconds:.2f} s {mb(self.small.peak_kb)}; "
-            f"{self.factor}N: {self.big.seconds:.2f} s {mb(self.big.peak_kb)}; "
-            f"baseline {self.base.seconds:.2f} s {mb(self.base.peak_kb)}; "
-            f"growth beyond the baseline: time {self.time_growth:.1f}x, memory {self.memory_growth:.1f}x"
+            f"N={self.n}: {run(self.small)}; {self.factor}N: {run(self.big)}; baseline {run(self.base)}; "
+            f"growth beyond the baseline: {self.metric} time {self.time_growth:.1f}x, memory {self.memory_growth:.1f}x"
         )
 
 
@@ -125,9 +129,13 @@ def measure(cmd: Sequence[str], env: Mapping[str, str] | None = None, timeout: f
     return run
 
 
-def _best(cmd: Sequence[str], repeat: int, env: Mapping[str, str] | None, timeout: float) -> Run:
+def _seconds(run: Run, metric: str) -> float:
+    return run.cpu_seconds if metric == "cpu" else run.seconds
+
+
+def _best(cmd: Sequence[str], repeat: int, env: Mapping[str, str] | None, timeout: float, metric: str) -> Run:
     runs = [measure(cmd, env=env, timeout=timeout) for _ in range(max(1, repeat))]
-    return min(runs, key=lambda r: r.seconds)
+    return min(runs, key=lambda r: _seconds(r, metric))
 
 
 def check_scaling(
@@ -141,13 +149,17 @@ def check_scaling(
     repeat: int = 1,
     min_seconds: float = 0.25,
     min_kb: int = 16 * 1024,
+    metric: str = "cpu",
     env: Mapping[str, str] | None = None,
     timeout: float = 600,
 ) -> Report:
     """Run ``make(size, tmp)``'s command at ``base_n``, ``n`` and ``factor * n``; raise
     ``ScalingError`` when time or peak memory beyond the baseline grows more than ``limit``
     times from ``n`` to ``factor * n``. ``make`` writes the input of that size into ``tmp``
-    (a fresh temporary folder when None) and returns the command line to measure."""
+    (a fresh temporary folder when None) and returns the command line to measure. ``metric``:
+    "cpu" (CPU seconds, the default) or "wall" (wall seconds)."""
+    if metric not in ("cpu", "wall"):
+        raise ValueError(f"metric must be 'cpu' or 'wall', not {metric!r}")
     own_tmp = None
     if tmp is None:
         own_tmp = tempfile.TemporaryDirectory(prefix="scaling-")
@@ -157,12 +169,11 @@ def check_scaling(
         cmds = {size: list(make(size, tmp)) for size in (base_n, n, factor * n)}
         report = None
         for attempt in range(2):  # a failure is measured once more: the machine may be busy
-            base = _best(cmds[base_n], repeat, env, timeout)
-            small = _best(cmds[n], repeat, env, timeout)
-            big = _best(cmds[factor * n], repeat, env, timeout)
-            dt = max(small.seconds - base.seconds, min_seconds)
+            base, small, big = (_best(cmds[k], repeat, env, timeout, metric) for k in (base_n, n, factor * n))
+            t0 = _seconds(base, metric)
+            dt = max(_seconds(small, metric) - t0, min_seconds)
             dm = max(small.peak_kb - base.peak_kb, min_kb)
-            report = Report(n, factor, base, small, big, (big.seconds - base.seconds) / dt,
+            report = Report(metric, n, factor, base, small, big, (_seconds(big, metric) - t0) / dt,
                             (big.peak_kb - base.peak_kb) / dm)
             if report.time_growth <= limit and report.memory_growth <= limit:
                 return report
