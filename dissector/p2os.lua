@@ -84,6 +84,7 @@ local pf = {
     arg_int = ProtoField.int32("p2os.arg.int", "Argument", base.DEC),
     arg_length = ProtoField.uint8("p2os.arg.length", "String length", base.DEC),
     arg_string = ProtoField.string("p2os.arg.string", "Argument string"),
+    arg_terminator = ProtoField.uint8("p2os.arg.terminator", "String terminator (NUL)", base.HEX),
     arg_data = ProtoField.bytes("p2os.arg.data", "Argument data"),
     extra = ProtoField.bytes("p2os.extra", "Extra bytes"),
     type = ProtoField.uint8("p2os.type", "Packet type", base.HEX, SERVER_TYPES),
@@ -349,6 +350,12 @@ local function dissect_command(tvb, tree, off, plen, in_handshake)
             summary = name .. ' ""'
         end
         used = 3 + slen
+        -- ARIA (ArRobotPacketSender::comStr: strToBuf) sends the NUL that ends the string after
+        -- the counted characters: its terminator, not extra bytes
+        if plen > used and u8(tvb, off + used) == 0 then
+            tree:add(pf.arg_terminator, tvb:range(off + used, 1))
+            used = used + 1
+        end
     else
         ti:add_proto_expert_info(ex.arg_unknown)
         if plen > 2 then

@@ -464,3 +464,51 @@ def test_serial_session_decoded_through_the_dispatcher(tmp_path):
     names = [n for r in rows for n in r["p2os.command.name"]]
     assert names[:3] == ["SYNC0", "SYNC1", "SYNC2"] and names[-1] == "CLOSE"
     assert not [s for r in rows for s in r["_ws.expert.severity"] if int(s) >= 0x00800000]  # no error
+
+
+def _aria_com_str(command: int, argument: bytes) -> bytes:
+    """A string command as ARIA builds it (ArRobotPacketSender::comStr): setID(command),
+    uByteToBuf(STRARG = 0x2B), uByteToBuf(strlen(argument)), strToBuf(argument), which copies
+    strlen + 1 bytes (the NUL too); finalizePacket: FA FB, the count of the bytes after it
+    (checksum included), then ArRobotPacket::calcCheckSum high byte first (big-endian pairs
+    added, 16 bits kept, an odd last byte XORed in)."""
+    body = bytes([command, 0x2B, len(argument)]) + argument + b"\x00"
+    c, i, n = 0, 0, len(body)
+    while n > 1:
+        c = (c + ((body[i] << 8) | body[i + 1])) & 0xFFFF
+        n, i = n - 2, i + 2
+    if n > 0:
+        c ^= body[i]
+    return b"\xfa\xfb" + bytes([len(body) + 2]) + body + bytes([c >> 8, c & 0xFF])
+
+
+def test_aria_string_argument_ends_with_its_nul(tmp_path):
+    """Issue 29 item 6: comStr(SAY, "\\x01\\x02") sends 0f 2b 02 01 02 00; the NUL after the
+    counted characters is the string's terminator (p2os.arg.terminator), not "Bytes after the
+    expected end". A byte after the NUL is still extra."""
+    say = _aria_com_str(15, b"\x01\x02")
+    assert say[3:9] == bytes.fromhex("0f2b02010200")
+    tty = _aria_com_str(42, b"hello")
+    extra = bytearray(say[:-2] + b"\x07")
+    extra[2] += 1
+    body = bytes(extra[3:])
+    c, i, n = 0, 0, len(body)
+    while n > 1:
+        c = (c + ((body[i] << 8) | body[i + 1])) & 0xFFFF
+        n, i = n - 2, i + 2
+    if n > 0:
+        c ^= body[i]
+    extra += bytes([c >> 8, c & 0xFF])
+    path = tmp_path / "aria.pcap"
+    _write_tcp(path, [(True, say), (True, tty), (True, bytes(extra))], 8101)
+    rows = p2os_fields(path, ["p2os.command.name", "p2os.arg.string", "p2os.arg.terminator", "p2os.extra",
+                              "p2os.checksum.status", "_ws.expert.message"])
+    rows = [r for r in rows if r["p2os.command.name"]]
+    assert [r["p2os.command.name"] for r in rows] == [["SAY"], ["TTY2"], ["SAY"]]
+    assert [r["p2os.arg.string"] for r in rows] == [["\\x01\\x02"], ["hello"], ["\\x01\\x02"]]
+    assert [r["p2os.arg.terminator"] for r in rows] == [["0x00"]] * 3
+    assert [r["p2os.checksum.status"] for r in rows] == [["1"]] * 3
+    assert not rows[0]["p2os.extra"] and not rows[1]["p2os.extra"]
+    assert not any("after the expected end" in m for r in rows[:2] for m in r["_ws.expert.message"])
+    assert rows[2]["p2os.extra"] == ["07"]
+    assert any("after the expected end" in m for m in rows[2]["_ws.expert.message"])
