@@ -40,7 +40,7 @@ end
 
 local bb = Proto("blackboard", "Blackboard message (Holland)")
 
-local SET, REQUEST, CR, LF = 0x3A, 0x3B, 0x0D, 0x0A
+local SET, REQUEST, LF = 0x3A, 0x3B, 0x0A
 
 local pf = {
     type = ProtoField.string("blackboard.type", "Message type"),
@@ -219,9 +219,9 @@ local function set_pending(key, rec)
 end
 
 -- ---------------------------------------------------------------------------------------------
--- a text message at off (type character there); stop is the end of the buffer.
--- Returns: bytes used, or nil and the bytes needed when the CR is not there yet
+-- text messages
 
+-- the first CR in [off, stop), or nil
 local function find_cr(tvb, off, stop)
     if stop <= off then
         return nil
@@ -230,29 +230,9 @@ local function find_cr(tvb, off, stop)
     return i and off + i - 1 or nil
 end
 
-local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_limit)
-    local cr = find_cr(tvb, off + 1, stop)
-    if cr == nil and can_more then
-        return nil
-    end
-    local kind = u8(tvb, off)
-    local text_end = cr or stop
-    local used = text_end - off
-    if cr then
-        used = used + 1
-        if cr + 1 < stop and u8(tvb, cr + 1) == LF then
-            used = used + 1
-        end
-    end
-    local t = tree:add(bb, tvb:range(off, used))
-    local name = (kind == SET) and "set" or "request"
-    t:add(pf.type, tvb:range(off, 1), name)
-    t:add(pf.type_char, tvb:range(off, 1))
-    local ndig = text_end - off - 1
-    if ndig > 0 then
-        t:add(pf.hex, tvb:range(off + 1, ndig))
-    end
-    -- decode the hex digits; every bad character flagged
+-- the hex digits between off + 1 and text_end decoded; every bad character flagged (the first
+-- few, then the count). Returns the bytes and the number of bad characters
+local function decode_hex(tvb, t, off, text_end, ndig)
     local bytes = {}
     local bad = 0
     local function flag(pos)
@@ -283,27 +263,49 @@ local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_l
     if bad > 8 then
         t:add_proto_expert_info(ex.non_hex, istr(bad) .. " non-hex characters in all")
     end
-    -- the terminator (CR and an LF with it) is added last, after the fields it ends
-    local function add_terminator()
-        if cr == nil then
-            t:add_proto_expert_info(ex.no_cr)
-            if over_limit then
-                t:add_proto_expert_info(ex.limit, "Limit exceeded: over " .. istr(bb.prefs.max_held_bytes)
-                    .. " bytes without a CR (blackboard.max_held_bytes): not held for more segments")
-            end
-        else
-            t:add(pf.terminator, tvb:range(cr, used - (cr - off)))
+    return bytes, bad
+end
+
+-- the terminator (CR and an LF with it), added last, after the fields it ends
+local function add_terminator(tvb, t, m, over_limit)
+    if m.cr == nil then
+        t:add_proto_expert_info(ex.no_cr)
+        if over_limit then
+            t:add_proto_expert_info(ex.limit, "Limit exceeded: over " .. istr(bb.prefs.max_held_bytes)
+                .. " bytes without a CR (blackboard.max_held_bytes): not held for more segments")
         end
+    else
+        t:add(pf.terminator, tvb:range(m.cr, m.used - (m.cr - m.off)))
     end
-    local summary
-    if bad > 0 or ndig % 2 == 1 or #bytes < 5 then
-        if #bytes < 5 and bad == 0 and ndig % 2 == 0 then
-            t:add_proto_expert_info(ex.short, "Message too short: " .. istr(#bytes) .. " bytes, at least 5")
-        end
-        add_terminator()
-        t:append_text(", " .. name .. " (malformed)")
-        return used, name .. " (malformed)"
+end
+
+-- the checksum (last byte) of a message at r; returns the status (1 good, 0 bad) and the byte
+local function add_checksum(t, r, bytes)
+    local sum = 0
+    for k = 1, #bytes - 1 do
+        sum = sum + bytes[k]
     end
+    local calc = (256 - sum % 256) % 256
+    local written = bytes[#bytes]
+    local cki = t:add(pf.checksum, r, written)
+    t:add(pf.checksum_calc, r, calc):set_generated()
+    local status = 1
+    if written ~= calc then
+        status = 0
+        cki:append_text(" [incorrect, should be 0x" .. hex2(calc) .. "]")
+        cki:add_proto_expert_info(ex.checksum_bad, "Bad checksum: 0x" .. hex2(written) .. ", should be 0x"
+            .. hex2(calc))
+    else
+        cki:append_text(" [correct]")
+    end
+    t:add(pf.checksum_status, r, status):set_generated()
+    return status, written
+end
+
+-- count, address, node, data and checksum of a message whose hex decoded well; returns its
+-- summary and whether it is good (checksum right, count matching its length)
+local function add_fields(tvb, t, m)
+    local bytes, off = m.bytes, m.off
     -- byte k of the message is at hex offset off + 1 + 2 (k - 1)
     local function brange(k, n)
         return tvb:range(off + 1 + 2 * (k - 1), 2 * n)
@@ -314,20 +316,13 @@ local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_l
     local ci = t:add(pf.count, brange(1, 1), count)
     t:add(pf.address, brange(2, 2), address)
     t:add(pf.node, brange(4, 1), node)
-    local need = 5
-    if kind == SET then
-        need = 5 + count
-    end
+    local need = (m.kind == SET) and 5 + count or 5
     if #bytes ~= need then
         ci:add_proto_expert_info(ex.count_bad, "Count " .. istr(count) .. " means " .. istr(need)
             .. " bytes, " .. istr(#bytes) .. " present")
     end
     local ndata = #bytes - 5
-    local sum = 0
-    for k = 1, #bytes - 1 do
-        sum = sum + bytes[k]
-    end
-    if kind == SET and ndata > 0 then
+    if m.kind == SET and ndata > 0 then
         -- the decoded data as a tvb of its own (a "Decoded data" tab), so the field holds bytes
         local parts = {}
         for k = 5, 4 + ndata do
@@ -336,72 +331,101 @@ local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_l
         local dtvb = ByteArray.new(table.concat(parts, "")):tvb("Decoded data")
         t:add(pf.data, dtvb:range(0, ndata))
     end
-    local calc = (256 - sum % 256) % 256
-    local written = bytes[#bytes]
-    local cki = t:add(pf.checksum, brange(#bytes, 1), written)
-    t:add(pf.checksum_calc, brange(#bytes, 1), calc):set_generated()
-    local status = 1
-    if written ~= calc then
-        status = 0
-        cki:append_text(" [incorrect, should be 0x" .. hex2(calc) .. "]")
-        cki:add_proto_expert_info(ex.checksum_bad, "Bad checksum: 0x" .. hex2(written) .. ", should be 0x"
-            .. hex2(calc))
-    else
-        cki:append_text(" [correct]")
-    end
-    t:add(pf.checksum_status, brange(#bytes, 1), status):set_generated()
-    if kind == SET then
-        summary = "set " .. istr(ndata) .. " bytes at 0x" .. string.format("%04X", address) .. " node " .. istr(node)
-    else
-        summary = "request " .. istr(count) .. " bytes at 0x" .. string.format("%04X", address) .. " node "
-            .. istr(node)
-    end
+    local status, written = add_checksum(t, brange(#bytes, 1), bytes)
+    m.written, m.count = written, count
+    local what = (m.kind == SET) and ("set " .. istr(ndata)) or ("request " .. istr(count))
+    local summary = what .. " bytes at 0x" .. string.format("%04X", address) .. " node " .. istr(node)
     if status == 0 then
         summary = summary .. " [bad checksum]"
     end
+    return summary, status == 1 and #bytes == need
+end
+
+-- the previous message the same way still waiting: repeated (the same text) or left unanswered
+local function note_previous(tvb, t, m, prev, summary)
+    if prev == nil then
+        return summary
+    end
+    if prev.text == m.hextext then
+        t:add(pf.repeat_of, tvb:range(m.off, 1), prev.frame):set_generated()
+        t:add_proto_expert_info(ex.repeat_msg, "Repeat of frame " .. istr(prev.frame)
+            .. ": no acknowledgement seen")
+        return summary .. " [repeat]"
+    end
+    t:add_proto_expert_info(ex.unanswered, "Frame " .. istr(prev.frame) .. " got no answer before this message")
+    return summary
+end
+
+-- a good message waits for its answer from the other side (back); on a later pass, where it
+-- was answered
+local function remember(tvb, pinfo, t, m, back)
+    local bytes = m.bytes
+    local mkey = istr(pinfo.number) .. ":" .. istr(m.off)
+    if not pinfo.visited then
+        -- a read response's checksum covers the request's count, address and node bytes
+        local rec = { kind = m.name, frame = pinfo.number, checksum = m.written, count = m.count,
+            sum = (bytes[1] + bytes[2] + bytes[3] + bytes[4]) % 256, text = m.hextext }
+        if set_pending(back, rec) then
+            messages[mkey] = rec
+        else
+            not_held[mkey] = true
+        end
+    end
+    if not_held[mkey] then
+        t:add_proto_expert_info(ex.limit, "Limit exceeded: " .. istr(bb.prefs.max_pending)
+            .. " messages already wait for an answer (blackboard.max_pending); this one's answer is not looked for")
+    end
+    if pinfo.visited then
+        local rec = messages[mkey]
+        if rec ~= nil and rec.answered then
+            t:add(pf.response_in, tvb:range(m.off, 1), rec.answered):set_generated()
+        end
+    end
+end
+
+-- a text message at off (type character there); stop is the end of the buffer.
+-- Returns: bytes used and the summary, or nil when the CR is not there yet and more may come
+local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_limit)
+    local cr = find_cr(tvb, off + 1, stop)
+    if cr == nil and can_more then
+        return nil
+    end
+    local text_end = cr or stop
+    local m = { off = off, cr = cr, kind = u8(tvb, off), used = text_end - off, ndig = text_end - off - 1 }
+    if cr then
+        m.used = m.used + 1
+        if cr + 1 < stop and u8(tvb, cr + 1) == LF then
+            m.used = m.used + 1
+        end
+    end
+    local t = tree:add(bb, tvb:range(off, m.used))
+    m.name = (m.kind == SET) and "set" or "request"
+    t:add(pf.type, tvb:range(off, 1), m.name)
+    t:add(pf.type_char, tvb:range(off, 1))
+    if m.ndig > 0 then
+        t:add(pf.hex, tvb:range(off + 1, m.ndig))
+    end
+    local bad
+    m.bytes, bad = decode_hex(tvb, t, off, text_end, m.ndig)
+    if bad > 0 or m.ndig % 2 == 1 or #m.bytes < 5 then
+        if #m.bytes < 5 and bad == 0 and m.ndig % 2 == 0 then
+            t:add_proto_expert_info(ex.short, "Message too short: " .. istr(#m.bytes) .. " bytes, at least 5")
+        end
+        add_terminator(tvb, t, m, over_limit)
+        t:append_text(", " .. m.name .. " (malformed)")
+        return m.used, m.name .. " (malformed)"
+    end
+    local summary, good = add_fields(tvb, t, m)
     -- conversation: a good message waits for its answer from the other side
     local _, back = keys(pinfo)
-    local prev = state[back]
-    local hextext = ""
-    if ndig > 0 then
-        hextext = tvb:range(off, 1 + ndig):string()
+    m.hextext = m.ndig > 0 and tvb:range(off, 1 + m.ndig):string() or ""
+    summary = note_previous(tvb, t, m, state[back], summary)
+    if good then
+        remember(tvb, pinfo, t, m, back)
     end
-    if prev ~= nil then
-        if prev.text == hextext then
-            t:add(pf.repeat_of, tvb:range(off, 1), prev.frame):set_generated()
-            t:add_proto_expert_info(ex.repeat_msg, "Repeat of frame " .. istr(prev.frame)
-                .. ": no acknowledgement seen")
-            summary = summary .. " [repeat]"
-        else
-            t:add_proto_expert_info(ex.unanswered, "Frame " .. istr(prev.frame) .. " got no answer before this message")
-        end
-    end
-    if status == 1 and #bytes == need then
-        -- a read response's checksum covers the request's count, address and node bytes
-        local mkey = istr(pinfo.number) .. ":" .. istr(off)
-        if not pinfo.visited then
-            local rec = { kind = name, frame = pinfo.number, checksum = written, count = count,
-                sum = (bytes[1] + bytes[2] + bytes[3] + bytes[4]) % 256, text = hextext }
-            if set_pending(back, rec) then
-                messages[mkey] = rec
-            else
-                not_held[mkey] = true
-            end
-        end
-        if not_held[mkey] then
-            t:add_proto_expert_info(ex.limit, "Limit exceeded: " .. istr(bb.prefs.max_pending)
-                .. " messages already wait for an answer (blackboard.max_pending); this one's answer is not looked for")
-        end
-        if pinfo.visited then
-            local rec = messages[mkey]
-            if rec ~= nil and rec.answered then
-                t:add(pf.response_in, tvb:range(off, 1), rec.answered):set_generated()
-            end
-        end
-    end
-    add_terminator()
+    add_terminator(tvb, t, m, over_limit)
     t:append_text(", " .. summary)
-    return used, summary
+    return m.used, summary
 end
 
 -- a binary answer to rec at off; returns bytes used, summary (nil, need when more is needed)
@@ -518,6 +542,20 @@ local function valid_text_at(tvb, off, stop)
     return sum % 256 == 0
 end
 
+-- bytes outside any message, up to the next type character (or the end); returns where it is
+local function dissect_junk(tvb, tree, off, n, infos)
+    local text = tvb:raw(off, n - off)
+    local j = off + (string.find(text, "[:;]", 2) or (n - off + 1)) - 1
+    local item = tree:add(pf.junk, tvb:range(off, j - off))
+    if not string.find(string.sub(text, 1, j - off), "[^\r\n]") then
+        item:append_text(" (line ends)")
+    else
+        item:add_proto_expert_info(ex.unexpected)
+        infos[#infos + 1] = "bytes outside any message"
+    end
+    return j
+end
+
 local function dissect_buffer(tvb, pinfo, tree)
     local n = tvb:len()
     if n == 0 then
@@ -556,31 +594,7 @@ local function dissect_buffer(tvb, pinfo, tree)
             infos[#infos + 1] = summary
             off = off + used
         else
-            -- bytes up to the next type character
-            local j = off + 1
-            while j < n do
-                local d = u8(tvb, j)
-                if d == SET or d == REQUEST then
-                    break
-                end
-                j = j + 1
-            end
-            local item = tree:add(pf.junk, tvb:range(off, j - off))
-            local line_ends = true
-            for k = off, j - 1 do
-                local d = u8(tvb, k)
-                if d ~= CR and d ~= LF then
-                    line_ends = false
-                    break
-                end
-            end
-            if line_ends then
-                item:append_text(" (line ends)")
-            else
-                item:add_proto_expert_info(ex.unexpected)
-                infos[#infos + 1] = "bytes outside any message"
-            end
-            off = j
+            off = dissect_junk(tvb, tree, off, n, infos)
         end
     end
     if #infos > 0 then

@@ -186,6 +186,29 @@ local function sl_good(s, a, len)
     return v == sum % 256 and len > 0
 end
 
+-- the last "[" in s[o .. c - 1] (o holds one)
+local function last_open(s, o, c)
+    local o2 = o
+    local k = s_find(s, "[", o + 1, true)
+    while k and k < c do
+        o2 = k
+        k = s_find(s, "[", k + 1, true)
+    end
+    return o2
+end
+
+-- the last "[" at or after from with no "]" after it (it may start a frame), or nil
+local function unclosed_open(s, from)
+    local last
+    local k = s_find(s, "[", from, true)
+    while k do
+        last = k
+        k = s_find(s, "[", k + 1, true)
+    end
+    if last and not s_find(s, "]", last, true) then return last end
+    return nil
+end
+
 local function scan_sharedlink(s, final)
     local n = #s
     local pieces = {}
@@ -195,12 +218,7 @@ local function scan_sharedlink(s, final)
         if not o then break end
         local c = s_find(s, "]", o + 1, true)
         if not c then break end
-        local o2 = o
-        local k = s_find(s, "[", o + 1, true)
-        while k and k < c do
-            o2 = k
-            k = s_find(s, "[", k + 1, true)
-        end
+        local o2 = last_open(s, o, c)
         if sl_valid(s, o2, c) then
             local crlf = s_byte(s, c + 1) == B_CR and s_byte(s, c + 2) == B_LF
             if not final and not crlf and (c == n or (c + 1 == n and s_byte(s, n) == B_CR)) then
@@ -216,14 +234,7 @@ local function scan_sharedlink(s, final)
         end
     end
     if hold == n + 1 and not final then
-        -- the last '[' with no ']' after it may start a frame
-        local last
-        local k = s_find(s, "[", noise, true)
-        while k do
-            last = k
-            k = s_find(s, "[", k + 1, true)
-        end
-        if last and not s_find(s, "]", last, true) then hold = last end
+        hold = unclosed_open(s, noise) or hold
     end
     local over = n + 1 - hold > max_held
     if over then hold = n + 1 end
@@ -699,6 +710,48 @@ local function first_pass_result(tvb, pinfo, n, dir)
     return res
 end
 
+-- the record's own tree: direction, protocol (with its warnings)
+local function add_record(tvb, tree, n, dir, res)
+    local t = tree:add(slserial, tvb:range(0, n))
+    t:append_text(", " .. (DIR_NAMES[dir] or "direction unknown") .. ", " .. plural(n, "byte"))
+    t:add(hf.direction, dir):set_generated()
+    local pi = t:add(hf.protocol, res.proto or "")
+    pi:set_generated()
+    -- bytes merely held until the protocol is known are not (yet) a finding
+    if not res.proto and res.region_len > 0 then pi:add_proto_expert_info(ei.undetected) end
+    if res.over then
+        t:add_proto_expert_info(ei.limit, "Limit exceeded: an unfinished frame of over " .. max_held
+            .. " bytes given up as noise (slserial.max_held_bytes)")
+    end
+    return t
+end
+
+-- the region the record completes (a tvb of its own when earlier records' bytes are in it),
+-- its fragments and pieces; returns the tvb (nil: none) and the number of frames
+local function add_region(tvb, t, res, sub, label)
+    if res.region_len <= 0 then return nil, 0 end
+    local rtvb
+    if res.region then
+        rtvb = ByteArray.new(res.region, true):tvb("Reassembled " .. label)
+        add_fragments(t, rtvb, res)
+    else
+        rtvb = tvb:range(0, res.region_len):tvb()
+    end
+    return rtvb, add_pieces(t, rtvb, res, sub, label)
+end
+
+-- the completed bytes to the protocol's dissector, or as data with a warning
+local function hand_over(rtvb, pinfo, tree, t, res, sub)
+    if sub then
+        sub:call(rtvb, pinfo, tree)
+        return
+    end
+    if res.proto then
+        t:add_proto_expert_info(ei.missing, "No dissector named \"" .. res.proto .. "\" is loaded; shown as data")
+    end
+    show_as_data(rtvb, pinfo, tree)
+end
+
 local function dissect(tvb, pinfo, tree)
     local n = tvb:len()
     if n <= 0 then return 0 end
@@ -714,30 +767,9 @@ local function dissect(tvb, pinfo, tree)
     end
     local label = PROTO_LABELS[res.proto or ""] or "not recognised"
     local held = n - res.held_from
-    local t = tree:add(slserial, tvb:range(0, n))
-    t:append_text(", " .. (DIR_NAMES[dir] or "direction unknown") .. ", " .. plural(n, "byte"))
-    t:add(hf.direction, dir):set_generated()
-    local pi = t:add(hf.protocol, res.proto or "")
-    pi:set_generated()
-    -- bytes merely held until the protocol is known are not (yet) a finding
-    if not res.proto and res.region_len > 0 then pi:add_proto_expert_info(ei.undetected) end
-    if res.over then
-        t:add_proto_expert_info(ei.limit, "Limit exceeded: an unfinished frame of over " .. max_held
-            .. " bytes given up as noise (slserial.max_held_bytes)")
-    end
-
-    local nframes = 0
-    local rtvb
+    local t = add_record(tvb, tree, n, dir, res)
     local sub = lookup(res.proto)
-    if res.region_len > 0 then
-        if res.region then
-            rtvb = ByteArray.new(res.region, true):tvb("Reassembled " .. label)
-            add_fragments(t, rtvb, res)
-        else
-            rtvb = tvb:range(0, res.region_len):tvb()
-        end
-        nframes = add_pieces(t, rtvb, res, sub, label)
-    end
+    local rtvb, nframes = add_region(tvb, t, res, sub, label)
     t:add(hf.frames, nframes):set_generated()
     if nframes > 0 then
         t:append_text(", completes " .. plural(nframes, label .. " frame") ..
@@ -755,17 +787,8 @@ local function dissect(tvb, pinfo, tree)
         end
     end
     if rtvb then
-        if sub then
-            sub:call(rtvb, pinfo, tree)
-        else
-            if res.proto then
-                t:add_proto_expert_info(ei.missing,
-                    "No dissector named \"" .. res.proto .. "\" is loaded; shown as data")
-            end
-            show_as_data(rtvb, pinfo, tree)
-        end
-    end
-    if not rtvb then
+        hand_over(rtvb, pinfo, tree, t, res, sub)
+    else
         pinfo.cols.info = held > 0 and ("[" .. held_text(held, res, label) .. "]")
             or ((DIR_NAMES[dir] or "unknown direction") .. ": " .. plural(n, "byte"))
     end
