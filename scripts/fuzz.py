@@ -6,7 +6,9 @@ tshark ($SHAREDLINK_TSHARK, default tshark), Wireshark's method (tests/fuzz/fuzz
   2. every prefix of every frame of every sample capture (shorter datagram and snaplen cut);
   3. random, protocol-alphabet and mutated-frame payloads on every port of ours (UDP and TCP)
      and on a port where only the heuristics can claim them;
-  4. 64 KB adversarial payloads, each pattern timed against the same bytes in 4 KB payloads.
+  4. 64 KB adversarial payloads, each pattern timed against the same bytes in 4 KB payloads;
+  5. issue 31's scaling patterns (every tests/fuzz/scaling_*.py with a PATTERNS table), each at
+     its make-fuzz size N and 4N: time and peak memory may grow at most its limit (about 5x).
 Python parsers (tests/fuzz/fuzz_codecs.py): atheris, --codec-runs inputs per target (hypothesis
 when atheris is not installed).
 
@@ -197,6 +199,47 @@ def stage_adversarial(work: Path, args: argparse.Namespace) -> Stage:
     return st
 
 
+def scaling_patterns() -> dict[str, tuple]:
+    """name -> (make, n in make test, n in make fuzz, growth limit, environment), from every
+    tests/fuzz/scaling_*.py that has a PATTERNS table (and, optionally, an env() function giving
+    the commands' environment; see tests/fuzz/scaling.py)."""
+    import importlib
+
+    out: dict[str, tuple] = {}
+    for f in sorted((REPO / "tests" / "fuzz").glob("scaling_*.py")):
+        mod = importlib.import_module(f.stem)
+        env = mod.env() if hasattr(mod, "env") else None
+        for name, pattern in getattr(mod, "PATTERNS", {}).items():
+            out[f"{f.stem[8:]}:{name}"] = (*pattern[:4], env)
+    return out
+
+
+def stage_scaling(work: Path, args: argparse.Namespace) -> Stage:
+    from scaling import ScalingError, check_scaling
+
+    st = Stage("scaling patterns at N and 4N (issue 31)")
+    worst, worst_name = 0.0, ""
+    for name, (make, _n_test, n, limit, env) in scaling_patterns().items():
+        folder = work / f"scaling-{name.replace(':', '-')}"
+        folder.mkdir()
+        st.cases += 1
+        st.runs += 3
+        try:
+            rep = check_scaling(make, n, folder, limit=limit, env=env)
+        except ScalingError as exc:
+            st.failures.append(f"{name}: {exc}")
+            say(f"  FAIL {name}: {str(exc)[:400]}")
+            continue
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+        say(f"  {name}: {rep}")
+        growth = max(rep.time_growth, rep.memory_growth)
+        if growth > worst:
+            worst, worst_name = growth, name
+    st.note = f"worst growth {worst:.1f}x ({worst_name}; linear ~4, quadratic ~16)"
+    return st
+
+
 def stage_codecs(work: Path, args: argparse.Namespace) -> Stage:
     import fuzz_codecs
 
@@ -297,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
                 say(f"== {fn.__name__[6:]}")
                 stages.append(fn(samples, work, args))
                 stages[-1].seconds = time.perf_counter() - t0
-            for fn2 in (stage_random, stage_adversarial):
+            for fn2 in (stage_random, stage_adversarial, stage_scaling):
                 t0 = time.perf_counter()
                 say(f"== {fn2.__name__[6:]}")
                 stages.append(fn2(work, args))

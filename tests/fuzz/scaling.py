@@ -18,6 +18,11 @@ API (small on purpose; tshark and Python commands alike)::
     report = check_scaling(make, n=2000, tmp=tmp_path)   # raises ScalingError when it does not scale
     print(report)                                        # the figures, for a log
 
+Patterns for ``make fuzz``: a module ``tests/fuzz/scaling_<area>.py`` with a table
+``PATTERNS = {name: (make, n_in_make_test, n_in_make_fuzz, limit)}`` (and optionally ``env()``,
+the environment its commands run in) is found by scripts/fuzz.py, which checks every pattern at
+its bigger size; the module's own test (e.g. test_scaling_small.py) checks the smaller one.
+
 ``measure(cmd)`` runs one command and returns a ``Run``: wall seconds, peak resident memory
 (KB, of the command and its children: ``getrusage(RUSAGE_CHILDREN)`` read in a fresh
 wrapper process, so earlier commands do not count), return code and output. A command that

@@ -16,8 +16,8 @@ import tshark_util as tu
 
 @pytest.mark.parametrize("name", sorted(ss.PATTERNS))
 def test_linear(name: str, tmp_path: Path):
-    make, n, _big = ss.PATTERNS[name]
-    report = check_scaling(make, n, tmp_path, env=ss.env())
+    make, n, _big, limit = ss.PATTERNS[name]
+    report = check_scaling(make, n, tmp_path, limit=limit, env=ss.env())
     print(name, report)
 
 
