@@ -561,7 +561,7 @@ def _read_pcap(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
 
 def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
     endian = "<"
-    interfaces: list[tuple[int, int, int]] = []  # (linktype, units per second, offset)
+    interfaces: list[tuple[int, int, int]] = []  # (linktype, units per second, offset in ns)
     number = 0
     first = True
     buf = head
@@ -606,13 +606,17 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
         if btype == BT_IDB:
             if len(body) < 8:
                 raise CaptureError(p, number + 1, "truncated interface description")
+            # each interface has its own link type, time resolution (if_tsresol, default
+            # microseconds) and time offset (if_tsoffset, seconds added to every time on it)
             linktype = struct.unpack(endian + "H", body[:2])[0]
-            units = 1_000_000
+            units, offset = 1_000_000, 0
             for code, val in _options(body[8:], endian):
                 if code == 9 and val:
                     r = val[0]
                     units = 2 ** (r & 0x7F) if r & 0x80 else 10 ** (r & 0x7F)
-            interfaces.append((linktype, units, 0))
+                elif code == 14 and len(val) == 8:
+                    offset = struct.unpack(endian + "q", val)[0] * 1_000_000_000
+            interfaces.append((linktype, units, offset))
         elif btype == BT_EPB:
             number += 1
             if len(body) < 20:
@@ -629,9 +633,9 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
                 for code, val in _options(body[optstart:], endian):
                     if code == 2 and len(val) == 4:
                         flags = struct.unpack(endian + "I", val)[0]
-            linktype, units, _ = interfaces[iface]
+            linktype, units, offset = interfaces[iface]
             ts = (hi << 32) | lo
-            ts_ns = ts * 1_000_000_000 // units if units != 1_000_000_000 else ts
+            ts_ns = (ts * 1_000_000_000 // units if units != 1_000_000_000 else ts) + offset
             yield Record(number, ts_ns, linktype, data, orig, flags, iface)
         elif btype == BT_SPB:
             number += 1
