@@ -263,3 +263,31 @@ def test_dev_null_is_named_in_the_message(command):
     r = cli(*command)
     assert r.returncode == 2, r.stderr
     assert b"/dev/null: file header: empty file" in r.stderr and b"spool" not in r.stderr, r.stderr
+
+
+def _children(pid: int) -> list[str]:
+    try:
+        return Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return []
+
+
+def test_ctrl_c_to_diffs_process_group_is_one_line(tmp_path):
+    """Ctrl-C at a terminal goes to the whole process group, diff's reader processes too: exit
+    130 and one line (before, a reader printed a traceback: the parent's SIGTERM, meant to stop
+    it, ran the command's own handler inside it)."""
+    a, b = tmp_path / "a.pcap", tmp_path / "b.pcap"
+    generate_file(GenOptions(frames=150_000, compress=True), a)
+    generate_file(GenOptions(frames=150_000), b)
+    for delay in (0.0, 0.02, 0.3):
+        proc = subprocess.Popen([*CLI, "diff", str(a), str(b)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                start_new_session=True)
+        deadline = time.monotonic() + 60
+        while len(_children(proc.pid)) < 2:  # both readers running
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.01)
+        time.sleep(delay)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130, err
+        assert err == b"sharedlink: interrupted\n", err
