@@ -141,11 +141,13 @@ def test_pcap_writer_round_trip(tmp_path):
 # -- several interfaces, each with its own link type, time resolution and offset ------------------
 
 
-def _multi_interface(src: list, path, endian: str = "<") -> None:
+def _multi_interface(src: list, path, endian: str = "<", old_blocks: bool = False) -> None:
     """``src`` records (Ethernet) rewritten onto three interfaces in one pcapng section:
     Ethernet in nanoseconds; Linux cooked (SLL) in microseconds (no if_tsresol: the default) with
     if_tsoffset 100 s; raw IP in 2^-20 s units, its description block written after the first
-    record. Records alternate between the interfaces, in time order."""
+    record. Records alternate between the interfaces, in time order. ``old_blocks``: the SLL
+    interface's records in obsolete Packet Blocks (type 2, a 16-bit interface id), as old
+    tools wrote them."""
 
     def opt(code: int, val: bytes) -> bytes:
         return struct.pack(endian + "HH", code, len(val)) + val + b"\0" * ((-len(val)) & 3)
@@ -172,21 +174,25 @@ def _multi_interface(src: list, path, endian: str = "<") -> None:
                 raw_declared = True
             data, ts = ip, r.ts_ns * (1 << 20) // 10**9
         n = len(data)
-        body = struct.pack(endian + "IIIII", iface, ts >> 32, ts & 0xFFFFFFFF, n, n) + data + b"\0" * ((-n) & 3)
-        out += block(6, body)
+        pad = b"\0" * ((-n) & 3)
+        if old_blocks and iface == 1:
+            out += block(2, struct.pack(endian + "HHIIII", iface, 0, ts >> 32, ts & 0xFFFFFFFF, n, n) + data + pad)
+        else:
+            out += block(6, struct.pack(endian + "IIIII", iface, ts >> 32, ts & 0xFFFFFFFF, n, n) + data + pad)
     path.write_bytes(out)
 
 
-@pytest.mark.parametrize("endian", ["<", ">"])
-def test_multi_interface_pcapng_reads_as_tshark_does(sample, tmp_path, endian):
+@pytest.mark.parametrize("endian, old_blocks", [("<", False), (">", False), ("<", True), (">", True)])
+def test_multi_interface_pcapng_reads_as_tshark_does(sample, tmp_path, endian, old_blocks):
     """Every frame of a pcapng with three interfaces (three link types, three time resolutions,
-    a time offset) is read with tshark's time, and compress keeps them all: `diff IN OUT`
-    agrees (before, the interface's if_tsoffset was dropped: times 100 s early)."""
+    a time offset, obsolete Packet Blocks) is read with tshark's time, and compress keeps them
+    all: `diff IN OUT` agrees (before, the interface's if_tsoffset was dropped: times 100 s
+    early; Packet Blocks were skipped: compress saw and wrote a third fewer records)."""
     from tshark_util import fields
 
     src = list(read_records(sample))
     multi = tmp_path / "multi.pcapng"
-    _multi_interface(src, multi, endian)
+    _multi_interface(src, multi, endian, old_blocks)
     rows = fields(multi, ["frame.time_epoch", "frame.interface_id", "sharedlink.src"], display_filter="sharedlink")
     assert len(rows) == len(src) and {r["frame.interface_id"][0] for r in rows} == {"0", "1", "2"}
     recs = list(read_records(multi))
@@ -198,6 +204,6 @@ def test_multi_interface_pcapng_reads_as_tshark_does(sample, tmp_path, endian):
     cmd = [sys.executable, "-m", "sharedlink"]
     r = subprocess.run([*cmd, "compress", str(multi), str(out), "--json"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    assert json.loads(r.stdout)["value_frames"] == len(rows)
+    assert json.loads(r.stdout)["value_frames"] == len(rows) and json.loads(r.stdout)["records"] == len(src)
     r = subprocess.run([*cmd, "diff", str(multi), str(out)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "AGREE" in r.stdout, r.stdout + r.stderr

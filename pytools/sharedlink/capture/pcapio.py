@@ -54,6 +54,9 @@ DIR_UNKNOWN, DIR_INBOUND, DIR_OUTBOUND = 0, 1, 2
 
 # -- pcapng block types --
 BT_IDB, BT_SPB, BT_EPB, BT_JOURNAL = 1, 3, 6, 9
+#: the obsolete Packet Block (a 16-bit interface id, then the EPB's fields): still read by
+#: Wireshark, and written by old tools
+BT_PB = 2
 #: blocks that are no packet but that Wireshark shows as frames (custom blocks, copied and not,
 #: systemd journal exports, sysdig events): they take a frame number
 FRAME_BLOCKS = frozenset({0x00000BAD, 0x40000BAD, BT_JOURNAL, 0x204, 0x208, 0x216, 0x217, 0x221, 0x222})
@@ -617,11 +620,14 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
                 elif code == 14 and len(val) == 8:
                     offset = struct.unpack(endian + "q", val)[0] * 1_000_000_000
             interfaces.append((linktype, units, offset))
-        elif btype == BT_EPB:
+        elif btype == BT_EPB or btype == BT_PB:
             number += 1
             if len(body) < 20:
-                raise CaptureError(p, number, "truncated enhanced packet block")
-            iface, hi, lo, incl, orig = struct.unpack(endian + "IIIII", body[:20])
+                raise CaptureError(p, number, "truncated enhanced packet block" if btype == BT_EPB else "truncated packet block")
+            if btype == BT_EPB:
+                iface, hi, lo, incl, orig = struct.unpack(endian + "IIIII", body[:20])
+            else:  # interface id and drops count are 16 bits each
+                iface, _drops, hi, lo, incl, orig = struct.unpack(endian + "HHIIII", body[:20])
             if iface >= len(interfaces):
                 raise CaptureError(p, number, f"packet on undeclared interface {iface}")
             if 20 + incl > len(body):
