@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import unicodedata
 from collections.abc import Sequence
 
 from sharedlink.capture.serial_format import SerialCaptureWriter, parse_linktype
@@ -32,6 +33,25 @@ from . import __version__
 PREFIX = "sharedlink-serial"
 BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 DEFAULT_BAUD = 9600
+
+
+def extcap_text(text: str) -> str:
+    """``text`` made safe inside an extcap field ``{name=TEXT}``. The protocol has no escape:
+    Wireshark reads one sentence per line and a field's text up to the first ``}`` followed by
+    ``{``, a space or the end (wiretap's extcap_parser.c). So a line break would start a
+    sentence of its own (a USB product string could add ``interface {...}`` lines) and a brace
+    could end the field or add one: control characters (line breaks, tabs, NUL, DEL and the
+    C1 set) become spaces, braces become parentheses."""
+    out = []
+    for c in text:
+        if c == "{":
+            c = "("
+        elif c == "}":
+            c = ")"
+        elif unicodedata.category(c) in ("Cc", "Zl", "Zp"):
+            c = " "
+        out.append(c)
+    return "".join(out)
 
 
 def interfaces() -> list[tuple[str, str, str]]:
@@ -65,7 +85,7 @@ def device_of(interface: str) -> str:
 def print_interfaces(out=sys.stdout) -> None:
     print(f"extcap {{version={__version__}}}{{display=SharedLink serial capture}}", file=out)
     for value, display, _dev in interfaces():
-        print(f"interface {{value={value}}}{{display={display}}}", file=out)
+        print(f"interface {{value={extcap_text(value)}}}{{display={extcap_text(display)}}}", file=out)
 
 
 def print_dlts(linktype: int, out=sys.stdout) -> None:
@@ -76,7 +96,7 @@ def print_config(interface: str, out=sys.stdout) -> None:
     dev = device_of(interface) if interface else ""
     lines = [
         "arg {number=0}{call=--device}{display=Serial device}{type=string}"
-        + (f"{{default={dev}}}" if dev else "")
+        + (f"{{default={extcap_text(dev)}}}" if dev else "")
         + "{tooltip=The port to read, e.g. /dev/ttyUSB0}{required=true}{group=Port}",
         # an integer, not an editselector: Wireshark 4.0 knows no editselector
         f"arg {{number=1}}{{call=--baud}}{{display=Baud rate}}{{type=integer}}{{range=50,4000000}}{{default={DEFAULT_BAUD}}}"

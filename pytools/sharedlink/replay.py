@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import errno
 import ipaddress
+import math
 import os
 import platform
 import random
@@ -238,6 +239,14 @@ def is_broadcast(host: str, family: int = socket.AF_INET) -> bool:
     return False
 
 
+def is_multicast(host: str) -> bool:
+    """Whether ``host`` (an address) is a multicast group (224.0.0.0/4, ff00::/8)."""
+    try:
+        return ipaddress.ip_address(host.split("%")[0]).is_multicast
+    except ValueError:
+        return False
+
+
 def _interface_ipv4(name: str) -> str | None:
     """The IPv4 address of a network interface (Linux SIOCGIFADDR), or None."""
     try:
@@ -253,12 +262,13 @@ def _interface_ipv4(name: str) -> str | None:
 class UdpSink:
     """Sends payloads to ``host`` on the given port, or on each frame's captured port.
 
-    ``broadcast`` must be set for a broadcast destination (SO_BROADCAST); without it a
-    :class:`ReplayError` is raised before anything is sent. ``bind`` is a source address,
+    ``broadcast`` must be set for a broadcast destination (SO_BROADCAST), ``multicast`` for a
+    multicast group; without it a :class:`ReplayError` is raised before anything is sent. ``bind`` is a source address,
     ``ADDR:PORT``, or an interface name.
     """
 
-    def __init__(self, host: str = "127.0.0.1", port: int | None = None, bind: str | None = None, broadcast: bool = False) -> None:
+    def __init__(self, host: str = "127.0.0.1", port: int | None = None, bind: str | None = None, broadcast: bool = False,
+                 multicast: bool = False) -> None:
         self.host, self.port = host, port
         fam, addr = _resolve(host, port or 9, "destination")
         self.family, self.address = fam, addr[0]
@@ -266,6 +276,11 @@ class UdpSink:
             raise ReplayError(
                 f"{host} is a broadcast address: replaying there reaches every host on that network; "
                 "add --broadcast if that is what you want"
+            )
+        if not multicast and is_multicast(self.address):
+            raise ReplayError(
+                f"{host} is a multicast group: replaying there reaches every member of it, on the network too; "
+                "add --multicast if that is what you want"
             )
         self.sock = socket.socket(fam, socket.SOCK_DGRAM)
         try:
@@ -369,6 +384,11 @@ Sink = Union[UdpSink, SerialSink]
 # -- the replay ---------------------------------------------------------------------------
 
 
+#: the steady rates ``--pps`` takes: a period of at most 1e7 s (about 115 days; a rate like
+#: 1e-300 made the period infinite and the schedule NaN) and, on the command line, at least 1 ns
+MIN_PPS, MAX_PPS = 1e-7, 1e9
+
+
 @dataclass
 class ReplayOptions:
     speed: float = 1.0  # capture timing times this multiplier (2 = twice as fast)
@@ -382,8 +402,8 @@ class ReplayOptions:
     def validate(self) -> None:
         if not self.speed > 0:
             raise ReplayError("--speed must be positive")
-        if self.pps is not None and not self.pps > 0:
-            raise ReplayError("--pps must be positive")
+        if self.pps is not None and not (self.pps >= MIN_PPS and math.isfinite(self.pps)):
+            raise ReplayError(f"--pps must be at least {MIN_PPS:g} frames per second (a period of at most 1e7 s)")
         if self.loop < 0:
             raise ReplayError("--loop must be 0 (until stopped) or more")
         if self.loop_delay < 0:
@@ -417,6 +437,9 @@ class ReplayStats:
     interrupted: bool = False
     realtime: bool = False  # real-time scheduling was asked for and granted
     capture_error: str | None = None
+    #: capture timing: the frames of the first pass whose time did not advance past the first
+    #: frame's, when none did (all of them at one time: sent back to back); else 0
+    flat_times: int = 0
     counts: SourceCounts = field(default_factory=SourceCounts)
     _lags: list[int] = field(default_factory=list, repr=False)
 
@@ -454,6 +477,7 @@ class ReplayStats:
             "interrupted": self.interrupted,
             "realtime": self.realtime,
             "capture_error": self.capture_error,
+            "flat_times": self.flat_times,
         }
 
 
@@ -668,6 +692,11 @@ class Replayer:
             yield n
             n += 1
 
+    def _flat(self, npass: int, interval: float | None, count: int, first_ts: int | None, last_ts: int) -> None:
+        """Note a first pass in capture timing whose times never advanced (``flat_times``)."""
+        if npass == 0 and interval is None and count > 1 and last_ts == first_ts:
+            self.stats.flat_times = count
+
     # -- the reference path (timed modes): one frame at a time, streaming, absolute deadlines
     def _run_timed(self) -> None:
         opts, st, sink, gate = self.opts, self.stats, self.sink, self.gate
@@ -681,14 +710,18 @@ class Replayer:
         mean_gap = 0
         for npass in self._passes():
             first_ts = None
+            last_ts = -(1 << 63)  # the latest time of the pass
             count = 0
             for fr in self.source:
                 if limit is not None and st.attempted >= limit:
+                    self._flat(npass, interval, count, first_ts, last_ts)
                     return
                 if first_ts is None:
                     first_ts = fr.ts_ns
                     if base < 0:  # the schedule starts when the first frame is ready
                         base = prev = clock()
+                if fr.ts_ns > last_ts:
+                    last_ts = fr.ts_ns
                 if interval is not None:
                     deadline = base + round(count * interval)
                 else:
@@ -728,6 +761,7 @@ class Replayer:
                 prev = deadline
             if count == 0:
                 return  # nothing to send: looping would spin forever
+            self._flat(npass, interval, count, first_ts, last_ts)
             st.passes += 1
             if npass == 0:
                 mean_gap = round(interval) if interval is not None else (prev - base) // (count - 1) if count > 1 else 0

@@ -325,3 +325,28 @@ def test_capture_ends_cleanly_when_the_line_goes_away(tmp_path):
     assert proc.returncode == 0, stderr
     assert json.loads(stdout)["stopped_by"] in ("end of file", "read error: Input/output error")
     assert b"".join(r.data for r in read_records(out)) == f
+
+
+#: a USB product string as a crafted device could give it: a line break and braces
+CRAFTED = "Evil}{display=spoofed}\ninterface {value=sharedlink-serial-pwned}{display=pwned}\r\x00\x85tail"
+
+
+def test_extcap_escapes_a_port_description(tmp_path):
+    """Wireshark reads the extcap's answer one sentence per line, a field up to `}` before `{`:
+    a port's description with a line break added an interface of its own. Listed by the real
+    tshark (-D), the port is one interface and its description one display text."""
+    conf = tmp_path / "conf"
+    env = _install_extcap(conf)
+    launcher = conf / "wireshark" / "extcap" / "sharedlink-serial"
+    launcher.write_text(  # the installed extcap, with pyserial's listing replaced by a crafted port
+        f"#!{sys.executable}\nimport sys\nsys.path.insert(0, {str(REPO / 'pytools')!r})\nimport sharedlink.extcap as e\n"
+        f"e.list_ports = lambda: [('/dev/ttyFAKE0', {CRAFTED!r})]\nsys.exit(e.main())\n")
+    r = subprocess.run([str(launcher), "--extcap-interfaces"], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert len(lines) == 3 and lines[2].startswith("interface {value=sharedlink-serial-ttyFAKE0}{display=")
+    assert "{" not in lines[2].split("{display=", 1)[1].rstrip("}")
+    listed = subprocess.run([tu.TSHARK, "-D"], env=env, capture_output=True, text=True, timeout=60).stdout
+    assert "sharedlink-serial-ttyFAKE0 (SharedLink serial: /dev/ttyFAKE0 (Evil)(display=spoofed)" in listed, listed
+    assert "pwned" not in listed.replace("(value=sharedlink-serial-pwned)(display=pwned)", "")
+    assert [ln for ln in listed.splitlines() if "sharedlink-serial" in ln and "pwned" in ln.split(" (", 1)[0]] == []

@@ -334,3 +334,34 @@ def test_docs_questions(fleet, dataset):
     # ... and its silences: the 280 s between the two captures of v2 on 2026-03-02
     rows = q(dataset, c_silences)
     assert len(rows) == 1 and rows[0][0] == "v2" and 270 < rows[0][3].total_seconds() < 290
+
+
+def test_reingest_whose_manifest_save_fails_keeps_the_old_rows(fleet, tmp_path, monkeypatch):
+    """A crash leaves at worst unlisted files: a re-ingest of a changed capture whose manifest
+    save fails (a full disk, a kill) leaves every file the manifest lists in place, and the
+    capture's old rows still answer; the next ingest sweeps what the failed one left."""
+    import sharedlink.fleet.ingest as ingest_mod
+
+    ds = tmp_path / "ds"
+    work = tmp_path / "caps"
+    shutil.copytree(fleet / "v1", work / "v1")
+    assert ingest([work], ds).ok
+    day1 = (work / "v1" / "day1.pcap").resolve()
+    old_rows = q(ds, f"SELECT count(*), sum(hash(raw)) FROM frames WHERE capture = '{day1}'")
+    assert old_rows[0][0] > 0
+    assert cli_main(["gen", str(day1), "--duration", "12", "--seed", "9", "--start", "2026-03-02T08:00:00Z"]) == 0
+
+    def failing_save(root, manifest):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(ingest_mod, "save_manifest", failing_save)
+    with pytest.raises(OSError):
+        ingest([work], ds)
+    monkeypatch.undo()
+    listed = {f for e in load_manifest(ds).captures.values() for f in e.files}
+    assert listed and all((ds / f).exists() for f in listed), sorted(f for f in listed if not (ds / f).exists())
+    assert q(ds, f"SELECT count(*), sum(hash(raw)) FROM frames WHERE capture = '{day1}'") == old_rows
+    # the next ingest takes the change and sweeps the unlisted files the failed one wrote
+    report = ingest([work], ds)
+    assert report.swept > 0 and report.count("ingested") == 1
+    assert len(list(ds.rglob("*.parquet"))) == len({f for e in load_manifest(ds).captures.values() for f in e.files})

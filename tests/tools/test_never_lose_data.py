@@ -193,3 +193,101 @@ def test_ctrl_c_while_the_command_loads(capture, module):
                        capture_output=True, timeout=120)
     assert r.returncode == 130, r.stderr
     assert r.stderr == b"sharedlink: interrupted\n"
+
+
+# -- symbolic links, failures before writing, special inputs ------------------------------------
+
+
+def _writer_args(command: str, inp: Path, out: Path) -> list[object]:
+    return _writers(inp, out).get(command) or ["gen", "--frames", "50", out]
+
+
+@pytest.mark.parametrize("command", ["export", "compress", "expand", "plot", "gen", "serial import"])
+@pytest.mark.parametrize("dangling", [False, True])
+def test_output_through_a_symbolic_link_is_refused(capture, tmp_path, command, dangling):
+    """An output that is a symbolic link onto another file (or onto nothing) is refused with one
+    line and exit 2: the link's target is neither written nor created (before, it was replaced,
+    or created through a dangling link)."""
+    suffix = {"export": ".csv", "plot": ".png"}.get(command, ".pcap")
+    target = tmp_path / f"precious{suffix}"
+    if not dangling:
+        target.write_bytes(b"someone else's file")
+    out = tmp_path / f"out{suffix}"
+    out.symlink_to(target)
+    r = cli(*_writer_args(command, capture, out))
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count(b"\n") == 1 and b"symbolic link" in r.stderr and b"--force" in r.stderr, r.stderr
+    assert out.is_symlink()
+    if dangling:
+        assert not target.exists()
+    else:
+        assert target.read_bytes() == b"someone else's file"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({out.name} | ({target.name} if not dangling else set()))
+
+
+@pytest.mark.parametrize("command", ["export", "compress", "gen", "serial import"])
+def test_force_replaces_the_link_itself(capture, tmp_path, command):
+    suffix = ".csv" if command == "export" else ".pcap"
+    target = tmp_path / f"precious{suffix}"
+    target.write_bytes(b"someone else's file")
+    out = tmp_path / f"out{suffix}"
+    out.symlink_to(target)
+    r = cli(*_writer_args(command, capture, out), "--force")
+    assert r.returncode == 0, r.stderr
+    assert not out.is_symlink() and out.stat().st_size > 100
+    assert target.read_bytes() == b"someone else's file"
+
+
+def test_serial_capture_that_cannot_open_its_device_leaves_the_old_file(tmp_path):
+    """`serial capture` opens its output once its port is open: a missing device is one line and
+    exit 2, and the existing --out file stays as it was (before, it was emptied into a pcapng
+    header)."""
+    out = tmp_path / "old.pcapng"
+    out.write_bytes(b"yesterday's capture")
+    r = cli("serial", "capture", tmp_path / "no-such-tty", "--baud", "9600", "--out", out)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count(b"\n") == 1 and b"no-such-tty" in r.stderr and b"Traceback" not in r.stderr
+    assert out.read_bytes() == b"yesterday's capture"
+    link = tmp_path / "link.pcapng"
+    link.symlink_to(out)
+    r = cli("serial", "capture", tmp_path / "no-such-tty", "--baud", "9600", "--out", link)
+    assert r.returncode == 2 and b"symbolic link" in r.stderr, r.stderr
+    assert out.read_bytes() == b"yesterday's capture"
+
+
+@pytest.mark.parametrize("command", [["export", "/dev/null", "-o", "-"], ["export", "/dev/null", "-o", "-", "--format", "jsonl"],
+                                     ["replay", "/dev/null", "-q"]])
+def test_dev_null_is_named_in_the_message(command):
+    """Inputs that are not regular files are read once into a spool copy: messages still name
+    the user's file, never the spool (before: /tmp/sharedlink-XXXX.spool)."""
+    r = cli(*command)
+    assert r.returncode == 2, r.stderr
+    assert b"/dev/null: file header: empty file" in r.stderr and b"spool" not in r.stderr, r.stderr
+
+
+def _children(pid: int) -> list[str]:
+    try:
+        return Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return []
+
+
+def test_ctrl_c_to_diffs_process_group_is_one_line(tmp_path):
+    """Ctrl-C at a terminal goes to the whole process group, diff's reader processes too: exit
+    130 and one line (before, a reader printed a traceback: the parent's SIGTERM, meant to stop
+    it, ran the command's own handler inside it)."""
+    a, b = tmp_path / "a.pcap", tmp_path / "b.pcap"
+    generate_file(GenOptions(frames=150_000, compress=True), a)
+    generate_file(GenOptions(frames=150_000), b)
+    for delay in (0.0, 0.02, 0.3):
+        proc = subprocess.Popen([*CLI, "diff", str(a), str(b)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                start_new_session=True)
+        deadline = time.monotonic() + 60
+        while len(_children(proc.pid)) < 2:  # both readers running
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.01)
+        time.sleep(delay)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130, err
+        assert err == b"sharedlink: interrupted\n", err

@@ -159,3 +159,35 @@ def test_interrupted_topspeed_replay_counts_the_frames_really_sent(tmp_path, n):
     st = Replayer(CaptureFrames(cap), sink, ReplayOptions(topspeed=True)).run()
     assert st.interrupted
     assert st.frames == st.attempted == sink.sent == n
+
+
+# -- frames near 64 KB ------------------------------------------------------------------------------
+
+
+def test_expand_past_one_datagram_is_one_line_and_leaves_the_old_file(tmp_path):
+    """A 64 KB frame, then new names: expanding the second frame would take more than one UDP
+    datagram holds (IPv4 total length 65,535). One line naming the record, exit 2, the old
+    output as it was (before: struct.error traceback). The 64 KB frame alone round-trips."""
+    from sharedlink.capture.packets import UdpBuilder
+    from sharedlink.capture.pcapio import PcapWriter
+    from sharedlink.protocols.codec import encode_named
+
+    b = UdpBuilder("10.0.0.2", "10.0.0.1", 7013, 7013)
+    big = encode_named("A", "B", [(f"V{k:05d}", 2, f"{k}.5") for k in range(3480)])
+    assert 65_000 < len(big) <= 65_507
+    cap = tmp_path / "big.pcap"
+    with open(cap, "wb") as fh:
+        w = PcapWriter(fh)
+        w.write(1_767_268_800_000_000_000, b.frame(big, 1))
+        w.write(1_767_268_800_100_000_000, b.frame(big, 2))
+        w.write(1_767_268_800_200_000_000, b.frame(encode_named("A", "B", [(f"W{k:03d}", 2, "1.5") for k in range(200)]), 3))
+    out = tmp_path / "out.pcap"
+    out.write_bytes(b"the previous version")
+    for command in ("expand", "compress"):
+        r = subprocess.run([*CLI, command, str(cap), str(out)], capture_output=True, text=True, timeout=120)
+        if command == "compress":  # leaves out what the receiver has: it fits
+            assert r.returncode == 0, r.stderr
+            continue
+        assert r.returncode == 2, r.stderr
+        assert r.stderr.count("\n") == 1 and "record 3" in r.stderr and "65,507" in r.stderr and "Traceback" not in r.stderr
+        assert out.read_bytes() == b"the previous version"

@@ -32,6 +32,7 @@ from sharedlink.replay import (
     SerialSink,
     UdpSink,
     is_broadcast,
+    is_multicast,
     latency_hints,
     replay,
     split_host_port,
@@ -718,3 +719,56 @@ def test_topspeed_tier_and_reference_path_agree(tmp_path, monkeypatch, loop, lim
     assert runs["fast"] == runs["reference"]
     sent, summary = runs["fast"]
     assert summary["errors"] and summary["errors"]["no-port"] and sent
+
+
+# -- odd rates, groups and times -----------------------------------------------------------------
+
+
+def test_a_vanishing_pps_is_refused(tmp_path):
+    """--pps 1e-300 made the period infinite and the schedule NaN: a traceback ("cannot convert
+    float NaN to integer"). The rates are 1e-7 (a period of 1e7 s) to 1e9 per second."""
+    cap = tmp_path / "b.pcap"
+    generate_file(GenOptions(frames=2), cap)
+    for pps in ("1e-300", "5e-324", "1e-8"):
+        r = run_cli(cap, "--pps", pps, "--limit", "2")
+        assert r.returncode == 2 and "--pps" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    with pytest.raises(ReplayError):
+        ReplayOptions(pps=1e-300).validate()
+    ReplayOptions(pps=1e-7).validate()
+
+
+def test_multicast_refused_without_flag(tmp_path):
+    """A multicast group is a destination for many, as a broadcast is: it takes --multicast.
+    (Nothing is sent: a group would leave this machine.)"""
+    cap = tmp_path / "b.pcap"
+    generate_file(GenOptions(frames=2), cap)
+    for dest in ("239.255.0.1:7013", "224.0.0.251", "[ff02::1]:7013"):
+        r = run_cli(cap, "--to", dest, "--topspeed")
+        assert r.returncode == 2 and "multicast group" in r.stderr and "--multicast" in r.stderr, r.stderr
+        assert "sent:" not in r.stderr
+    with pytest.raises(ReplayError):
+        UdpSink("239.255.0.1", 7013)
+    UdpSink("239.255.0.1", 7013, multicast=True).close()  # allowed, nothing sent
+    assert not is_multicast("127.0.0.1") and is_multicast("239.1.2.3") and is_multicast("ff02::1")
+
+
+def test_times_that_do_not_advance_are_warned_about(tmp_path, rx):
+    """Every record at one time: capture timing sends them back to back, and says so."""
+    flat = tmp_path / "flat.pcap"
+    b = UdpBuilder("10.0.0.2", "10.0.0.1", rx.port, rx.port)
+    payloads = [p for _, p, _ in beacon_payloads(GenOptions(frames=6))]
+    with open(flat, "wb") as fh:
+        w = PcapWriter(fh)
+        for i, p in enumerate(payloads):
+            w.write(T0, b.frame(p, i + 1))
+    r = run_cli(flat, "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["flat_times"] == 6
+    assert r.stderr.count("\n") == 1 and "times do not advance (6 frames at one time)" in r.stderr and "--pps" in r.stderr
+    assert rx.wait(6) == payloads
+    r = run_cli(flat, "--limit", "3", "-q")
+    assert r.returncode == 0 and "do not advance (3 frames" in r.stderr, r.stderr
+    normal = tmp_path / "normal.pcap"
+    generate_file(GenOptions(frames=3, rate=100, port=rx.port), normal)
+    r = run_cli(normal, "--json")
+    assert r.returncode == 0 and "warning" not in r.stderr and json.loads(r.stdout)["flat_times"] == 0, r.stderr

@@ -8,6 +8,7 @@ from __future__ import annotations
 import base64
 import json
 import os
+import shutil
 import signal
 import socket
 import struct
@@ -32,8 +33,25 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
         return s.getsockname()[1]
 
 
+def _can_sniff() -> bool:
+    """Whether this process may open a packet socket (root or CAP_NET_RAW), as the watch's
+    default UDP source does."""
+    try:
+        socket.socket(socket.AF_PACKET, socket.SOCK_DGRAM, 0).close()
+    except (OSError, AttributeError):
+        return False
+    return True
+
+
+SNIFF = _can_sniff()
+needs_sniffing = pytest.mark.skipif(not SNIFF, reason="sniffing needs root or CAP_NET_RAW")
+
+
 def start_watch(*args: object) -> subprocess.Popen:
-    p = subprocess.Popen([*CLI, "watch", *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    """The watch with ``args``; on a UDP port it sniffs, or binds the port (``--bind``) where
+    this process may not sniff (tests of what the watch shows, not of how it listens)."""
+    extra = ["--bind"] if not SNIFF and "--port" in args and "--bind" not in args and "--interface" not in args else []
+    p = subprocess.Popen([*CLI, "watch", *map(str, args), *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     return p
 
 
@@ -98,13 +116,48 @@ def test_json_sees_every_replayed_frame(capture):
     assert all(a["ts_ns"] <= b["ts_ns"] for a, b in zip(rows, rows[1:]))
 
 
-def test_runs_beside_another_listener_on_the_same_port(capture):
-    """The vehicle software holds the port (with SO_REUSEADDR/SO_REUSEPORT, as the beacon's
-    listeners do): the watch binds it too, and both get every broadcast frame."""
+def _vehicle_socket(port: int, reuse: bool) -> socket.socket:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    if reuse:  # as the beacon's listeners do
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+    s.bind(("127.0.0.1", port))
+    s.settimeout(5)
+    return s
+
+
+@needs_sniffing
+@pytest.mark.parametrize("reuse", [False, True])
+def test_watch_takes_no_datagram_from_the_program_on_the_port(reuse):
+    """The vehicle's own program holds the port: sniffing the interface (the default), the watch
+    sees all 200 unicast datagrams and the program still gets all 200 (before, the watch bound
+    the port with SO_REUSEADDR/SO_REUSEPORT and the program got 0 or 93 of them)."""
+    port = free_port()
+    vehicle = _vehicle_socket(port, reuse)
+    w = start_watch("--port", port, "--interface", "lo", "--json")
+    try:
+        wait_line(w, "(sniffed)")
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for i in range(200):
+                tx.sendto(encode_named("A", "B", [("AutoGpsLat", 2, f"38.{i:04d}")]), ("127.0.0.1", port))
+                if i % 20 == 19:
+                    time.sleep(0.01)  # the vehicle program reads at its pace, not at once
+        theirs = [vehicle.recv(65535) for _ in range(200)]
+        time.sleep(0.5)
+    finally:
+        out, _err = interrupt(w)
+        vehicle.close()
+    ours = [json.loads(line) for line in out.splitlines()]
+    assert len(theirs) == len(ours) == 200
+    assert [r["values"]["AutoGpsLat"] for r in ours] == [float(f"38.{i:04d}") for i in range(200)]
+    assert [r["number"] for r in ours] == list(range(1, 201))
+
+
+@needs_sniffing
+def test_watch_sees_broadcasts_beside_another_listener(capture):
     port = free_port()
     other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     other.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    other.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
     other.bind(("", port))
     other.settimeout(5)
     w = start_watch("--port", port, "--json")
@@ -121,6 +174,67 @@ def test_runs_beside_another_listener_on_the_same_port(capture):
     ours = [json.loads(line) for line in out.splitlines()]
     assert len(ours) == len(theirs) == 10
     assert [r["changed"] for r in ours][:1] == [BEACON]
+
+
+@pytest.mark.parametrize("reuse", [False, True])
+def test_bind_refuses_a_port_another_program_holds(reuse):
+    port = free_port()
+    vehicle = _vehicle_socket(port, reuse)
+    try:
+        r = subprocess.run([*CLI, "watch", "--port", str(port), "--bind", "--json"], capture_output=True, text=True, timeout=60)
+    finally:
+        vehicle.close()
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count("\n") == 1 and "another program holds it" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_bind_takes_a_free_port():
+    port = free_port()
+    w = start_watch("--port", port, "--bind", "--listen", "127.0.0.1", "--json")
+    try:
+        wait_line(w, "(bound by the watch)")
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for i in range(5):
+                tx.sendto(encode_named("A", "B", [("AutoGpsLat", 2, f"1.{i}")]), ("127.0.0.1", port))
+        time.sleep(0.5)
+    finally:
+        out, _err = interrupt(w)
+    assert [json.loads(line)["values"]["AutoGpsLat"] for line in out.splitlines()] == [1.0, 1.1, 1.2, 1.3, 1.4]
+
+
+@pytest.mark.skipif(not shutil.which("setpriv"), reason="needs setpriv (util-linux)")
+def test_sniffing_without_privileges_is_a_clear_error():
+    """Without CAP_NET_RAW (all capabilities dropped, as a user's shell has): one line, exit 2."""
+    r = subprocess.run(["setpriv", "--inh-caps=-all", "--bounding-set=-all", *CLI, "watch", "--port", str(free_port())],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count("\n") == 1 and "CAP_NET_RAW" in r.stderr and "--bind" in r.stderr, r.stderr
+
+
+def test_from_a_truncated_capture_shows_the_same_frames_every_run(capture, tmp_path):
+    """--from a capture cut short, --json: every frame before the damage, the same ones every
+    run (before: 1, 24, 3, 28, 20 of 29 in five runs, the last batch lost), then the damage
+    reported with exit 2."""
+    from sharedlink.capture.pcapio import CaptureError, read_records
+
+    data = capture.read_bytes()
+    cut = tmp_path / "cut.pcap"
+    cut.write_bytes(data[: len(data) // 2 + 7])
+    good = 0
+    with pytest.raises(CaptureError):
+        for rec in read_records(cut):
+            good = rec.number
+    whole = subprocess.run([*CLI, "watch", "--from", str(capture), "--speed", "1000", "--json"],
+                           capture_output=True, text=True, timeout=120)
+    assert whole.returncode == 0, whole.stderr
+    expected = [line for line in whole.stdout.splitlines() if json.loads(line)["number"] <= good]
+    assert len(expected) > 10
+    for _ in range(4):
+        r = subprocess.run([*CLI, "watch", "--from", str(cut), "--speed", "1000", "--json"],
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 2, r.stderr
+        assert r.stdout.splitlines() == expected
+        assert "Traceback" not in r.stderr and f"record {good + 1}" in r.stderr and "before it were shown" in r.stderr
 
 
 def test_from_capture_keeps_capture_times(capture):
@@ -157,7 +271,8 @@ def test_ctrl_c_while_the_json_reader_lags_leaves_every_line_whole(unbuffered):
     of its own."""
     port = free_port()
     r, w = one_page_pipe()
-    p = subprocess.Popen([*CLI, "watch", "--port", str(port), "--json"], stdout=w, stderr=subprocess.PIPE, text=True,
+    p = subprocess.Popen([*CLI, "watch", "--port", str(port), "--json", *([] if SNIFF else ["--bind"])], stdout=w,
+                         stderr=subprocess.PIPE, text=True,
                          env=environment(unbuffered))
     os.close(w)
     names = [f"Var{k:03d}" for k in range(300)]  # a JSON line of about 8 kB

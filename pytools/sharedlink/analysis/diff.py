@@ -20,6 +20,7 @@ import marshal
 import math
 import multiprocessing
 import queue
+import signal
 import threading
 from array import array
 from collections import Counter, deque
@@ -176,8 +177,31 @@ class DiffReport:
 # -- reading the two sides ------------------------------------------------------------------
 
 
+def _start_quietly(proc: multiprocessing.process.BaseProcess) -> None:
+    """``proc.start()`` with Ctrl-C and SIGTERM held until it returns, then delivered: raised
+    inside the fork's own hooks (logging's lock release), they were printed as "Exception
+    ignored" and lost, and the command ran on."""
+    if threading.current_thread() is not threading.main_thread():
+        proc.start()
+        return
+    held: list[int] = []
+    old = {sig: signal.signal(sig, lambda signum, _frame: held.append(signum)) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        proc.start()
+    finally:
+        for sig, handler in old.items():
+            if handler is not None:  # None: set outside Python, left as the fork found it
+                signal.signal(sig, handler)
+    for sig in dict.fromkeys(held):
+        signal.raise_signal(sig)
+
+
 def _worker(conn, path: str, variables: list, sync_interval: float, fast: bool) -> None:  # pragma: no cover - child
-    """Child process: send one capture's chunks, then its stats, through ``conn``."""
+    """Child process: send one capture's chunks, then its stats, through ``conn``. Ctrl-C to the
+    process group is the parent's to handle (it stops the child), and the parent's SIGTERM ends
+    the child quietly: the handlers inherited from the command would print a traceback here."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     gc.disable()  # no reference cycles are made here; the collector would only cost time
     try:
         for item in read_changes(path, variables, sync_interval, fast):
@@ -205,7 +229,7 @@ def _remote(path: str, opts: DiffOptions) -> Iterator[Chunk | SideStats]:
     proc = ctx.Process(
         target=_worker, args=(send, path, list(opts.variables), opts.sync_interval, opts.fast), daemon=True
     )
-    proc.start()
+    _start_quietly(proc)
     send.close()
     inbox: queue.Queue = queue.Queue(maxsize=4)
     stop = threading.Event()

@@ -217,15 +217,23 @@ def _udp_header(linktype: int, data: bytes) -> tuple[int, int, int] | None:
     return None
 
 
+class PayloadTooLarge(ValueError):
+    """A rewritten UDP payload longer than its IP packet's length field can say."""
+
+
 def replace_udp_payload(linktype: int, data: bytes, payload: bytes) -> bytes | None:
     """``data`` (one captured packet) with its UDP payload replaced, IP and UDP lengths and
     checksums made right. None when the packet is not plain IPv4/IPv6 UDP (options are kept;
-    IPv6 extension headers, fragments and anything else give None)."""
+    IPv6 extension headers, fragments and anything else give None); :class:`PayloadTooLarge`
+    when ``payload`` does not fit in one datagram (65,507 bytes over IPv4 without options)."""
     loc = _udp_header(linktype, data)
     if loc is None:
         return None
     off, ver, u = loc
     ulen = 8 + len(payload)
+    room = 0xFFFF - (u - off if ver == 4 else 0)  # the IPv4 total length; the IPv6 payload length
+    if ulen > room:
+        raise PayloadTooLarge(f"{len(payload):,} bytes of UDP payload, more than the packet can hold ({room - 8:,})")
     if ver == 4:
         old_ck = struct.unpack_from("!H", data, u + 6)[0]
         ip = bytearray(data[off:u])
@@ -313,7 +321,11 @@ def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record]
                     parts.append(raw if seg.frame is None else rw.frame(seg.frame, raw, rec.ts_ns, conv=conv))
                 payload = b"".join(parts)
                 if payload != dg.payload:
-                    new = replace_udp_payload(rec.linktype, data, payload)
+                    try:
+                        new = replace_udp_payload(rec.linktype, data, payload)
+                    except PayloadTooLarge as exc:  # an expanded (or full) set past 64 KB
+                        raise TransformError(f"{s}: record {rec.number}: the rewritten frames take {exc}: nothing "
+                                             "written") from None
                     if new is None:
                         raise TransformError(f"{s}: record {rec.number}: cannot rewrite this UDP packet's headers")
                     data = new

@@ -15,6 +15,7 @@ import sys
 import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, BinaryIO
@@ -53,6 +54,9 @@ DIR_UNKNOWN, DIR_INBOUND, DIR_OUTBOUND = 0, 1, 2
 
 # -- pcapng block types --
 BT_IDB, BT_SPB, BT_EPB, BT_JOURNAL = 1, 3, 6, 9
+#: the obsolete Packet Block (a 16-bit interface id, then the EPB's fields): still read by
+#: Wireshark, and written by old tools
+BT_PB = 2
 #: blocks that are no packet but that Wireshark shows as frames (custom blocks, copied and not,
 #: systemd journal exports, sysdig events): they take a frame number
 FRAME_BLOCKS = frozenset({0x00000BAD, 0x40000BAD, BT_JOURNAL, 0x204, 0x208, 0x216, 0x217, 0x221, 0x222})
@@ -170,17 +174,59 @@ def is_stdout(path: str | Path | None) -> bool:
     return path is not None and str(path) == STDOUT_PATH
 
 
+def _descriptor_name(path: Path) -> bool:
+    """Whether ``path`` names a file descriptor (``/dev/stdout``, ``/dev/fd/N``, ``/proc/...``:
+    links to whatever the descriptor is, a redirected regular file included)."""
+    text = str(path)
+    return text.startswith(("/proc/", "/dev/fd/", "/dev/std")) or os.path.realpath(text).startswith("/proc/")
+
+
 def _in_place(path: Path) -> bool:
     """Whether ``path`` must be written where it is: anything but a regular file (a FIFO, a
-    terminal, a device, a socket) and a file descriptor's name (``/dev/stdout``, ``/dev/fd/N``,
-    ``/proc/...``: links to whatever the descriptor is, a redirected regular file included)."""
-    text = str(path)
-    if text.startswith(("/proc/", "/dev/fd/", "/dev/std")) or os.path.realpath(text).startswith("/proc/"):
+    terminal, a device, a socket) and a file descriptor's name."""
+    if _descriptor_name(path):
         return True
     try:
         return not stat.S_ISREG(os.stat(path).st_mode)
     except OSError:
         return False  # does not exist (yet): a new regular file
+
+
+#: ``--force``: an output that is a symbolic link is replaced (the link itself, never its target)
+#: instead of refused; set by :func:`replacing_links` around a command
+_REPLACE_LINKS: ContextVar[bool] = ContextVar("replace_links", default=False)
+
+
+@contextmanager
+def replacing_links(force: bool = True) -> Iterator[None]:
+    """Within the block, :func:`open_output` (and :class:`DeferredOutput`) replace an output
+    that is a symbolic link by the new file when ``force`` (a command's ``--force``)."""
+    token = _REPLACE_LINKS.set(force)
+    try:
+        yield
+    finally:
+        _REPLACE_LINKS.reset(token)
+
+
+def check_link(path: str | Path) -> bool:
+    """An output never follows a symbolic link onto another file: ``path`` being a link to a
+    regular file, or to nothing (a dangling link: never created through), raises
+    :class:`~sharedlink.errors.OutputError`; under ``--force`` (:func:`replacing_links`) the
+    answer is True: the link itself is to be replaced. False: not a link, a file descriptor's
+    name (``/dev/stdout``), or a link to a special file (a FIFO, a device), written in place."""
+    p = Path(path)
+    if not os.path.islink(p) or _descriptor_name(p):
+        return False
+    try:
+        if not stat.S_ISREG(os.stat(p).st_mode):
+            return False
+        what = "a symbolic link to"
+    except OSError:
+        what = "a dangling symbolic link to"
+    if _REPLACE_LINKS.get():
+        return True
+    raise OutputError(f"{display_name(p)}: is {what} {display_name(os.readlink(p))}: refusing to write through it "
+                      "(--force replaces the link itself)")
 
 
 def display_name(name: str | Path) -> str:
@@ -216,8 +262,9 @@ def open_output(path: str | Path, mode: str = "wb", inputs: Iterable[str | Path 
     * Special files (FIFO, terminal, ``/dev/stdout`` and the rest of ``/dev`` and ``/proc``):
       opened and written in place, never replaced.
     * A regular file: written to a hidden sibling ``.<name>.<random>.part`` that is renamed over
-      it (through a symbolic link, to its target) only when the block ends without an
-      exception. On any exception (a full disk, Ctrl-C, SIGTERM) the sibling is removed: the
+      it only when the block ends without an exception.
+    * A symbolic link to a regular file or to nothing: refused (:func:`check_link`), or under
+      ``--force`` replaced itself by the new file; its target is never written. On any exception (a full disk, Ctrl-C, SIGTERM) the sibling is removed: the
       old file, if any, stays as it was, and nothing is left behind.
 
     ``inputs``: files being read; writing over one of them is refused (:func:`refuse_overwrite`).
@@ -230,8 +277,9 @@ def open_output(path: str | Path, mode: str = "wb", inputs: Iterable[str | Path 
         (sys.stdout.buffer if "b" in mode else sys.stdout).flush()
         return
     p = Path(path)
+    replace_link = check_link(p)
     try:
-        if _in_place(p):
+        if not replace_link and _in_place(p):
             with open(p, mode, **kw) as fh:
                 yield fh
             return
@@ -240,7 +288,7 @@ def open_output(path: str | Path, mode: str = "wb", inputs: Iterable[str | Path 
     except OSError as exc:
         raise OutputError(f"{path}: {exc.strerror or exc}") from None
     try:
-        target = Path(os.path.realpath(p))
+        target = Path(os.path.realpath(p.parent)) / p.name if replace_link else Path(os.path.realpath(p))
         fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
     except OSError as exc:
         raise OutputError(f"{path}: {exc.strerror or exc}") from None
@@ -258,6 +306,52 @@ def open_output(path: str | Path, mode: str = "wb", inputs: Iterable[str | Path 
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+class DeferredOutput:
+    """A binary output file opened only by :meth:`open`, for a live capture: its file is opened
+    once the device is, so a capture that cannot start leaves an existing file untouched; what
+    is written before is held until then. Written in place and flushed as written (not replaced
+    at the end: the file can be read while it grows and survives a kill). A symbolic link is
+    refused, or replaced under ``--force`` (:func:`check_link`), when the object is made."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._replace_link = check_link(self.path)
+        self._fh: BinaryIO | None = None
+        self._held = bytearray()
+
+    def open(self) -> None:
+        """Open (create or truncate) the file and write what was held; OutputError naming it."""
+        try:
+            if self._replace_link:
+                self.path.unlink()
+            fh = open(self.path, "wb")  # noqa: SIM115 - closed by close()
+            fh.write(self._held)
+            fh.flush()
+        except OSError as exc:
+            raise OutputError(f"{display_name(self.path)}: {exc.strerror or exc}") from None
+        self._fh, self._held = fh, bytearray()
+
+    def write(self, data: bytes) -> int:
+        if self._fh is None:
+            self._held += data
+            return len(data)
+        return self._fh.write(data)
+
+    def flush(self) -> None:
+        if self._fh is not None:
+            self._fh.flush()
+
+    def close(self) -> None:
+        if self._fh is not None:
+            self._fh.close()
+
+    def __enter__(self) -> DeferredOutput:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 @contextmanager
@@ -319,12 +413,24 @@ def rereadable(path: str | Path) -> Iterator[Path]:
         return
     src = _open_input(str(p))
     fd, name = tempfile.mkstemp(prefix="sharedlink-", suffix=".spool")
+    _SPOOLS[name] = str(p)
     try:
         with src, open(fd, "wb") as dst:
             shutil.copyfileobj(src, dst, 1 << 20)
         yield Path(name)
     finally:
+        del _SPOOLS[name]
         os.unlink(name)
+
+
+#: the copies :func:`rereadable` made -> the name the user gave (``/dev/null``, ``/dev/fd/63``):
+#: what the readers name in their errors
+_SPOOLS: dict[str, str] = {}
+
+
+def shown_name(path: str | Path) -> str:
+    """The name messages give ``path``: the user's name for a copy :func:`rereadable` made."""
+    return _SPOOLS.get(str(path), str(path))
 
 
 #: the old name of :func:`open_output`
@@ -340,10 +446,9 @@ def read_records(path: str | Path, chunk: int = 1 << 20) -> Iterator[Record]:
     On damage it yields every good record before it, then raises :class:`CaptureError`
     naming the file and the record. The file is read once, front to back: a pipe will do.
     """
-    p = str(path)
-    fh = _open_input(p)
+    fh = _open_input(str(path))
     try:
-        yield from records_from(fh, p)
+        yield from records_from(fh, shown_name(path))
     finally:
         fh.close()
 
@@ -351,8 +456,8 @@ def read_records(path: str | Path, chunk: int = 1 << 20) -> Iterator[Record]:
 def open_records(path: str | Path) -> tuple[str, Iterator[Record]]:
     """``("pcap" or "pcapng", the records)`` of a capture, the file opened once (a pipe will
     do). A missing, empty or foreign file raises :class:`CaptureError` here."""
-    p = str(path)
-    fh = _open_input(p)
+    fh = _open_input(str(path))
+    p = shown_name(path)
     try:
         head = fh.read(4)
         fmt = capture_format(p, head)
@@ -391,7 +496,7 @@ def _open_input(p: str) -> BinaryIO:
     try:
         return open(p, "rb")
     except OSError as exc:
-        raise CaptureError(p, None, exc.strerror or str(exc)) from None
+        raise CaptureError(shown_name(p), None, exc.strerror or str(exc)) from None
 
 
 class _Prefixed:
@@ -459,7 +564,7 @@ def _read_pcap(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
 
 def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
     endian = "<"
-    interfaces: list[tuple[int, int, int]] = []  # (linktype, units per second, offset)
+    interfaces: list[tuple[int, int, int]] = []  # (linktype, units per second, offset in ns)
     number = 0
     first = True
     buf = head
@@ -504,18 +609,25 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
         if btype == BT_IDB:
             if len(body) < 8:
                 raise CaptureError(p, number + 1, "truncated interface description")
+            # each interface has its own link type, time resolution (if_tsresol, default
+            # microseconds) and time offset (if_tsoffset, seconds added to every time on it)
             linktype = struct.unpack(endian + "H", body[:2])[0]
-            units = 1_000_000
+            units, offset = 1_000_000, 0
             for code, val in _options(body[8:], endian):
                 if code == 9 and val:
                     r = val[0]
                     units = 2 ** (r & 0x7F) if r & 0x80 else 10 ** (r & 0x7F)
-            interfaces.append((linktype, units, 0))
-        elif btype == BT_EPB:
+                elif code == 14 and len(val) == 8:
+                    offset = struct.unpack(endian + "q", val)[0] * 1_000_000_000
+            interfaces.append((linktype, units, offset))
+        elif btype == BT_EPB or btype == BT_PB:
             number += 1
             if len(body) < 20:
-                raise CaptureError(p, number, "truncated enhanced packet block")
-            iface, hi, lo, incl, orig = struct.unpack(endian + "IIIII", body[:20])
+                raise CaptureError(p, number, "truncated enhanced packet block" if btype == BT_EPB else "truncated packet block")
+            if btype == BT_EPB:
+                iface, hi, lo, incl, orig = struct.unpack(endian + "IIIII", body[:20])
+            else:  # interface id and drops count are 16 bits each
+                iface, _drops, hi, lo, incl, orig = struct.unpack(endian + "HHIIII", body[:20])
             if iface >= len(interfaces):
                 raise CaptureError(p, number, f"packet on undeclared interface {iface}")
             if 20 + incl > len(body):
@@ -527,9 +639,9 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
                 for code, val in _options(body[optstart:], endian):
                     if code == 2 and len(val) == 4:
                         flags = struct.unpack(endian + "I", val)[0]
-            linktype, units, _ = interfaces[iface]
+            linktype, units, offset = interfaces[iface]
             ts = (hi << 32) | lo
-            ts_ns = ts * 1_000_000_000 // units if units != 1_000_000_000 else ts
+            ts_ns = (ts * 1_000_000_000 // units if units != 1_000_000_000 else ts) + offset
             yield Record(number, ts_ns, linktype, data, orig, flags, iface)
         elif btype == BT_SPB:
             number += 1

@@ -9,6 +9,7 @@ command imports another. Errors are raised (``sharedlink.errors``), never printe
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import shutil
@@ -19,7 +20,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from sharedlink.analysis.transform import transform_capture
-from sharedlink.capture.pcapio import is_stdout
+from sharedlink.capture.pcapio import is_stdout, replacing_links
 from sharedlink.errors import UsageError
 from sharedlink.protocols.state import BEACON_VARIABLES, parse_variables
 
@@ -142,6 +143,27 @@ def check_capture(path: Path) -> None:
 
 # -- commands that write a file (gen, serial) ----------------------------------------------------
 
+FORCE_HELP = ("an output that is a symbolic link: replace the link itself by the new file (its target is never "
+              "written; without --force such an output is refused)")
+
+
+def add_force_option(p: argparse.ArgumentParser) -> None:
+    """``--force``, honoured by a ``run`` wrapped in :func:`honours_force`."""
+    p.add_argument("--force", action="store_true", help=FORCE_HELP)
+
+
+def honours_force(run: Callable[..., int]) -> Callable[..., int]:
+    """A command's ``run(args, ...)`` whose outputs replace a symbolic link under ``--force``
+    (outputs never write through one: see :func:`sharedlink.capture.pcapio.check_link`)."""
+
+    @functools.wraps(run)
+    def wrapped(args: argparse.Namespace, *rest: Any) -> int:
+        with replacing_links(bool(getattr(args, "force", False))):
+            return run(args, *rest)
+
+    return wrapped
+
+
 
 #: about what one beacon record takes in a capture file (record header, headers, frame)
 BEACON_RECORD_BYTES = 175
@@ -208,8 +230,10 @@ def add_transform_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("output", type=Path, help="capture to write (same format as the input)")
     add_variables_option(p)
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_force_option(p)
 
 
+@honours_force
 def run_transform(args: argparse.Namespace, mode: str) -> int:
     """``compress`` / ``expand``: rewrite the capture, then the summary."""
     if not (args.sync_interval > 0 and math.isfinite(args.sync_interval)):

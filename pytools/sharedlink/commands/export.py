@@ -23,8 +23,10 @@ from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
     add_decode_options,
+    add_force_option,
     check_capture,
     decode_options,
+    honours_force,
     name_list,
 )
 from sharedlink.errors import UsageError
@@ -46,6 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--format", dest="fmt", choices=FORMATS, default=None,
                    help="output format (default: from the -o file name, else csv)")
     p.add_argument("-o", "--output", type=Path, default=None, help="file to write (default, or -: standard output)")
+    add_force_option(p)
     p.add_argument("--changes", action="store_true", help="one row per variable change instead of one per frame")
     p.add_argument("--vars", default=None, metavar="NAME,...", help="variables to export (default: all)")
     p.add_argument("--lat", default=LAT, help=f"latitude variable for geojson/kml/mcap (default {LAT})")
@@ -57,6 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+@honours_force
 def run(args: argparse.Namespace) -> int:
     variables, sync = decode_options(args)
     check_capture(args.capture)

@@ -14,8 +14,10 @@ from sharedlink.commands import (
     PORT,
     RATE,
     SECONDS,
+    add_force_option,
     check_room,
     generate_to,
+    honours_force,
     number,
     report,
 )
@@ -31,6 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "broadcast over UDP at --rate Hz, with optional compression and faults.",
     )
     p.add_argument("out", type=Path, help="capture file to write")
+    add_force_option(p)
     p.add_argument("--duration", type=SECONDS, default=60.0, help="seconds of traffic (default 60)")
     p.add_argument("--frames", type=COUNT, default=None, help="number of beacon frames (overrides --duration)")
     p.add_argument("--rate", type=RATE, default=5.0, help="frames per second (default 5: every 200 ms)")
@@ -71,6 +74,7 @@ def _start_time(text: str) -> int:
     return int(t.timestamp()) * NS + t.microsecond * 1000
 
 
+@honours_force
 def run(args: argparse.Namespace) -> int:
     if args.transport == "serial" and args.protocol == "sharedlink":
         return run_gen_serial(args)

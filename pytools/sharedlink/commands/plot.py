@@ -13,8 +13,10 @@ from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
     add_decode_options,
+    add_force_option,
     check_capture,
     decode_options,
+    honours_force,
     name_list,
     number,
 )
@@ -30,6 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("capture", type=Path, help="pcap or pcapng file")
     p.add_argument("-o", "--output", type=Path, required=True, help="image to write (.png, .svg or .pdf)")
+    add_force_option(p)
     p.add_argument("--vars", default=None, metavar="NAME,...", help="variables to plot below the track (default: all numeric)")
     p.add_argument("--lat", default=LAT, help=f"latitude variable (default {LAT})")
     p.add_argument("--lon", default=LON, help=f"longitude variable (default {LON})")
@@ -40,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+@honours_force
 def run(args: argparse.Namespace) -> int:
     variables, sync = decode_options(args)
     check_capture(args.capture)

@@ -17,12 +17,13 @@ from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
     PORT,
-    RATE,
     SECONDS_OR_ZERO,
     number,
 )
 from sharedlink.errors import UsageError
 from sharedlink.replay import (
+    MAX_PPS,
+    MIN_PPS,
     USER_LINKTYPES,
     CaptureFrames,
     FrameFilter,
@@ -52,13 +53,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     dest.add_argument("--to", metavar="HOST[:PORT]", default=None,
                       help="destination (default 127.0.0.1, on the port each frame had in the capture)")
     dest.add_argument("--broadcast", action="store_true", help="allow a broadcast destination (sets SO_BROADCAST)")
+    dest.add_argument("--multicast", action="store_true", help="allow a multicast group as the destination")
     dest.add_argument("--bind", metavar="ADDR", default=None, help="source address (ADDR or ADDR:PORT) or interface name")
     dest.add_argument("--serial", metavar="DEVICE", default=None, help="write the bytes to this serial port or pty instead")
     dest.add_argument("--baud", type=BAUD, default=9600, help="with --serial: baud rate (default 9600)")
     timing = p.add_argument_group("timing")
     pace = timing.add_mutually_exclusive_group()
     pace.add_argument("--speed", type=number(1e-3, 1e6, unit="(1e-3: a thousand times slower)"), default=1.0, metavar="X", help="capture timing times X (2 = twice as fast)")
-    pace.add_argument("--pps", type=RATE, default=None, metavar="N", help="a steady N frames per second instead")
+    pace.add_argument("--pps", type=number(MIN_PPS, MAX_PPS, unit="frames per second (a period of 1 ns to 1e7 s)"),
+                      default=None, metavar="N", help="a steady N frames per second instead")
     pace.add_argument("--topspeed", action="store_true", help="as fast as possible")
     timing.add_argument("--loop", type=number(0, 1e12, integer=True), default=1, metavar="N", help="passes over the capture (0 = until stopped; default 1)")
     timing.add_argument("--loop-delay", type=SECONDS_OR_ZERO, default=0.0, metavar="S",
@@ -80,8 +83,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _sink(args: argparse.Namespace) -> UdpSink | SerialSink:
     if args.serial:
-        if args.to or args.bind or args.broadcast:
-            raise UsageError("--serial writes to a serial port: --to, --bind and --broadcast do not apply")
+        if args.to or args.bind or args.broadcast or args.multicast:
+            raise UsageError("--serial writes to a serial port: --to, --bind, --broadcast and --multicast do not apply")
         if args.baud <= 0:
             raise UsageError("--baud must be positive")
         return SerialSink(args.serial, args.baud)
@@ -96,7 +99,7 @@ def _sink(args: argparse.Namespace) -> UdpSink | SerialSink:
                 f"{args.source} holds serial records (link type {lt}), which have no UDP port: "
                 "give one with --to HOST:PORT, or write them to a serial port with --serial"
             )
-    return UdpSink(host, port, bind=args.bind, broadcast=args.broadcast)
+    return UdpSink(host, port, bind=args.bind, broadcast=args.broadcast, multicast=args.multicast)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -140,6 +143,9 @@ def _run(args: argparse.Namespace) -> int:
         c = stats.counts
         print(f"sharedlink: warning: nothing to replay in {args.source}: {c.records} records, {c.skipped} without a "
               f"UDP payload, {c.filtered} left out by the filter", file=sys.stderr)
+    if stats.flat_times:
+        print(f"sharedlink: warning: {args.source}: the capture's times do not advance ({stats.flat_times} frames at one "
+              "time): they were sent back to back, at full speed; give --pps N for a steady rate", file=sys.stderr)
     if args.realtime and not stats.realtime and not args.topspeed:
         print("sharedlink: warning: --realtime: real-time scheduling not permitted (needs root, CAP_SYS_NICE or "
               "an RLIMIT_RTPRIO); paced with ordinary scheduling", file=sys.stderr)

@@ -9,7 +9,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import BinaryIO
 
-from sharedlink.capture.pcapio import buffered_stdout, open_output, refuse_overwrite
+from sharedlink.capture.pcapio import DeferredOutput, buffered_stdout, open_output, refuse_overwrite
 from sharedlink.capture.serial_format import (
     DIR_IN,
     DIR_OUT,
@@ -21,8 +21,17 @@ from sharedlink.capture.serial_format import (
 )
 from sharedlink.capture.serial_import import FORMATS, MAX_LOG_NS, SerialImportError, read_log
 from sharedlink.capture.serial_port import capture, list_ports
-from sharedlink.commands import BAUD, COUNT, EXIT_USAGE, SECONDS, number, report
-from sharedlink.errors import UsageError
+from sharedlink.commands import (
+    BAUD,
+    COUNT,
+    EXIT_USAGE,
+    SECONDS,
+    add_force_option,
+    honours_force,
+    number,
+    report,
+)
+from sharedlink.errors import Error, UsageError
 
 _DIRECTIONS = {"in": DIR_IN, "inbound": DIR_IN, "out": DIR_OUT, "outbound": DIR_OUT, "unknown": DIR_UNKNOWN}
 
@@ -54,6 +63,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("device", nargs="?", help="serial port, e.g. /dev/ttyUSB0 (not with --tap)")
     c.add_argument("--baud", type=BAUD, required=True, help="line speed, bits per second")
     c.add_argument("--out", default="-", help="capture file (default: standard output)")
+    add_force_option(c)
     c.add_argument("--tap", nargs=2, metavar=("DEV_A", "DEV_B"), help="relay between two ports, recording both directions")
     c.add_argument("--linktype", type=_linktype, default=147, help="USER link type: 147..162 or user0..user15 (default user0)")
     c.add_argument("--duration", type=SECONDS, default=None, help="stop after S seconds")
@@ -69,6 +79,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     i.add_argument("log", type=Path, help="the log file")
     i.add_argument("--out", type=Path, required=True, help="capture file to write (pcapng)")
+    add_force_option(i)
     i.add_argument("--format", dest="fmt", choices=FORMATS, default="auto", help="log format (default: detected)")
     i.add_argument("--frame", action="store_true", help="one record per decoded frame (and per noise run) instead of per chunk")
     i.add_argument("--protocol", choices=("auto",) + PROTOCOLS, default="auto", help="with --frame: the protocol (default: detected)")
@@ -85,6 +96,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     ls.set_defaults(func=run_ports)
 
 
+@honours_force
 def run_capture(args: argparse.Namespace) -> int:
     if args.tap and args.device:
         raise UsageError("give either DEVICE or --tap DEV_A DEV_B, not both")
@@ -99,18 +111,22 @@ def run_capture(args: argparse.Namespace) -> int:
         raise UsageError("--json needs --out FILE (the capture goes to standard output)")
     name = f"{args.tap[0]}<->{args.tap[1]}" if args.tap else args.device
     with ExitStack() as files:
-        try:  # standard output buffered even under python -u: a record cut by SIGINT is written whole
-            fh: BinaryIO = files.enter_context(buffered_stdout() if to_stdout else open(args.out, "wb"))
-        except OSError as exc:
-            raise UsageError(f"{args.out}: {exc.strerror or exc}") from None
+        # standard output buffered even under python -u: a record cut by SIGINT is written whole;
+        # a file is opened only once the ports are: a capture that cannot start leaves it as it was
+        deferred = None if to_stdout else files.enter_context(DeferredOutput(args.out))
+        fh: BinaryIO = files.enter_context(buffered_stdout()) if deferred is None else deferred  # type: ignore[assignment]
         w = SerialCaptureWriter(fh, args.linktype, if_name=name, if_description=f"serial {'tap ' if args.tap else ''}at {args.baud} baud")
+
+        def ready() -> None:
+            if deferred is not None:
+                deferred.open()
+            print(f"capturing {name} at {args.baud} baud into {args.out} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+
         try:
-            stats = capture(
-                w, args.device, args.baud, tuple(args.tap) if args.tap else None, args.duration, args.count,
-                on_ready=lambda: print(f"capturing {name} at {args.baud} baud into {args.out} (Ctrl-C to stop)", file=sys.stderr, flush=True),
-            )
+            stats = capture(w, args.device, args.baud, tuple(args.tap) if args.tap else None, args.duration, args.count,
+                            on_ready=ready)
         except Exception as exc:  # serial.SerialException / OSError opening or configuring a port
-            if isinstance(exc, (KeyboardInterrupt, BrokenPipeError)):
+            if isinstance(exc, (KeyboardInterrupt, BrokenPipeError, Error)):
                 raise
             raise UsageError(f"{name}: {exc}") from None
     summary = {
@@ -124,6 +140,7 @@ def run_capture(args: argparse.Namespace) -> int:
     return 0
 
 
+@honours_force
 def run_import(args: argparse.Namespace) -> int:
     start_ns = None if args.start is None else int(round(args.start * 1e9))
     if args.baud <= 0:

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import sys
 from pathlib import Path
 from typing import Any
 
 from sharedlink.analysis.decode import Decoded
 from sharedlink.capture.pcapio import buffered_stdout
-from sharedlink.commands import EXIT_OK, add_decode_options, check_capture, decode_options
+from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options
 from sharedlink.errors import UsageError
 from sharedlink.watch import (
     DEFAULT_PORT,
@@ -17,6 +18,7 @@ from sharedlink.watch import (
     FastDecoder,
     LiveView,
     SerialSource,
+    UdpSniffer,
     UdpSource,
     json_line,
     run_watch,
@@ -33,13 +35,20 @@ def register(sub: argparse._SubParsersAction) -> None:
         "its age and update rate, and the link's frames/s, checksum failures, late syncs and gaps (highlighted "
         "when they happen). --json prints one JSON line per frame instead; --foxglove also serves the decoded "
         "stream to Foxglove over its WebSocket protocol.",
-        epilog="Exit codes: 0 the capture (--from) ended, 2 bad usage, 130 stopped with Ctrl-C.",
+        epilog="Exit codes: 0 the capture (--from) ended, 2 bad usage, no permission to sniff, a port --bind finds taken "
+        "or a damaged capture (after the frames before the damage), 130 stopped with Ctrl-C.",
     )
     src = p.add_argument_group("source (default: UDP port 7013)")
     src.add_argument("--port", type=int, default=DEFAULT_PORT,
-                     help=f"UDP port to listen on, every address, broadcasts included, shared with other "
-                     f"listeners (default {DEFAULT_PORT})")
-    src.add_argument("--listen", default="", metavar="ADDR", help="listen on this address only (default: all)")
+                     help=f"UDP port to watch (default {DEFAULT_PORT}): its datagrams, from or to it, are sniffed on the "
+                     "interface as Wireshark does (root or CAP_NET_RAW), so every program on the port still gets them all")
+    src.add_argument("--interface", default=None, metavar="IFACE",
+                     help="sniff this interface only (default: every interface)")
+    src.add_argument("--bind", action="store_true",
+                     help="bind the port instead of sniffing (no privileges needed): the watch then takes the datagrams, "
+                     "so it refuses a port another program holds")
+    src.add_argument("--listen", default="", metavar="ADDR",
+                     help="only datagrams to this address (with --bind: bind this address; default: all)")
     src.add_argument("--serial", metavar="DEVICE", default=None, help="read a serial port or pty instead")
     src.add_argument("--baud", type=int, default=9600, help="with --serial: baud rate (default 9600)")
     src.add_argument("--from", dest="capture", type=Path, default=None, metavar="CAPTURE",
@@ -75,8 +84,18 @@ def _source(args: argparse.Namespace) -> Any:
             raise UsageError(f"{args.serial}: {exc}") from None
     if not 0 < args.port < 65536:
         raise UsageError("--port must be 1..65535")
+    if args.bind:
+        if args.interface:
+            raise UsageError("--bind binds an address, not an interface: give --listen ADDR, or sniff with --interface")
+        try:
+            return UdpSource(args.port, args.listen)
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                raise UsageError(f"udp port {args.port}: another program holds it; --bind never shares a port (it "
+                                 "would take datagrams away from that program): leave out --bind to sniff it") from None
+            raise UsageError(f"udp port {args.port}: {exc.strerror or exc}") from None
     try:
-        return UdpSource(args.port, args.listen)
+        return UdpSniffer(args.port, args.interface, args.listen)
     except OSError as exc:
         raise UsageError(f"udp port {args.port}: {exc.strerror or exc}") from None
 
@@ -116,12 +135,22 @@ def run(args: argparse.Namespace) -> int:
 
                 outputs.append(emit)
                 run_watch(source, decoder, outputs, out=out)
-            return EXIT_OK
-        return _live(source, decoder, outputs, sync)
+            return _damage(source)
+        _live(source, decoder, outputs, sync)
+        return _damage(source)
     finally:
         if server is not None:
             server.stop()
         source.close()
+
+
+def _damage(source: Any) -> int:
+    """A damaged capture (--from) is reported after the frames before the damage."""
+    error = getattr(source, "error", None)
+    if error is None:
+        return EXIT_OK
+    print(f"sharedlink: error: {error} (the frames before it were shown)", file=sys.stderr)
+    return EXIT_USAGE
 
 
 def _live(source: Any, decoder: FastDecoder, outputs: list, sync: float) -> int:
