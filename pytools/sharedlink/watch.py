@@ -19,6 +19,7 @@ WebSocket server.
 
 from __future__ import annotations
 
+import heapq
 import json
 import math
 import re
@@ -31,6 +32,7 @@ from pathlib import Path
 from typing import IO, Any, NamedTuple
 
 from sharedlink.analysis.decode import DATA_KINDS, NS, VALUE_KINDS, Decoded, Decoder, format_time
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.packets import Datagram
 from sharedlink.capture.stream import FrameSplitter, StreamFrame, iter_frames
 from sharedlink.protocols.codec import Frame, parse_frame
@@ -161,10 +163,13 @@ class SerialSource:
 
 
 class CaptureSource:
-    """A capture's frames at its recorded pace times ``speed``; the clock is the capture's."""
+    """A capture's frames at its recorded pace times ``speed``; the clock is the capture's.
+    With ``sessions`` (``--foxglove``), its P2OS and blackboard messages
+    (:class:`~sharedlink.analysis.sessions.SessionMessage`, what ``export --format mcap`` adds)
+    come in the same batches, in time order with the frames."""
 
-    def __init__(self, path: str | Path, speed: float = 1.0) -> None:
-        self.path, self.speed = path, speed
+    def __init__(self, path: str | Path, speed: float = 1.0, sessions: bool = False) -> None:
+        self.path, self.speed, self.sessions = path, speed, sessions
         self.description = f"{path} at {speed:g}x"
         self._t0: int | None = None  # capture time of the first frame
         self._m0 = 0.0  # monotonic time it was shown
@@ -178,8 +183,14 @@ class CaptureSource:
     def batches(self, timeout: float) -> Iterator[Batch]:
         out: Batch = []
         due = time.monotonic() + timeout
-        for item in iter_frames(self.path):
-            if not isinstance(item, StreamFrame):
+        items: Iterator[Any] = iter_frames(self.path)
+        if self.sessions:  # the second reading, merged by time (each is in record order)
+            from sharedlink.analysis.sessions import iter_sessions
+
+            frames = (i for i in items if isinstance(i, StreamFrame))
+            items = heapq.merge(frames, iter_sessions(self.path), key=_ts_ns)
+        for item in items:
+            if not isinstance(item, (StreamFrame, SessionMessage)):
                 continue
             if self._t0 is None:
                 self._t0, self._m0 = item.ts_ns, time.monotonic()
@@ -204,6 +215,10 @@ class CaptureSource:
 
     def close(self) -> None:
         pass
+
+
+def _ts_ns(item: Any) -> int:
+    return item.ts_ns
 
 
 # -- decoding, with a fast path for the beacon's steady state ---------------------------------
@@ -595,6 +610,7 @@ def run_watch(
     interval: float = 0.25,
     stats: WatchStats | None = None,
     out: IO[str] | None = None,
+    session_outputs: Sequence[Callable[[SessionMessage], None]] = (),
 ) -> WatchStats:
     """Decode ``source`` 's batches into ``outputs`` until it ends (a capture) or Ctrl-C
     (KeyboardInterrupt propagates: the caller cleans up). ``tick(now_ns)`` is called at most
@@ -604,7 +620,10 @@ def run_watch(
     Ctrl-C never stops a batch half done: a replay's :class:`~sharedlink.replay.SigintGate`
     holds it while the batch is decoded, counted, handed to every output and flushed (a JSON
     line longer than the pipe's buffer was cut in two when Ctrl-C came while the reader lagged),
-    and raises once that is done; waiting for the source still ends at the key press."""
+    and raises once that is done; waiting for the source still ends at the key press.
+
+    A source's P2OS and blackboard messages (:class:`SessionMessage`) go to ``session_outputs``
+    (not counted as frames)."""
     stats = stats if stats is not None else WatchStats()
     decode = decoder.decode
     next_tick = time.monotonic()
@@ -624,6 +643,10 @@ def run_watch(
                                         o(d)
                                 else:
                                     stats.noise += 1
+                            continue
+                        if item.__class__ is SessionMessage:
+                            for so in session_outputs:
+                                so(item)  # type: ignore[arg-type]
                             continue
                         if item.frame is None:
                             stats.noise += 1
