@@ -2,7 +2,8 @@
 `sharedlink plugins install|uninstall|path` (what `make install` does) against a temporary HOME
 with the real tshark.
 
-The wheel test builds the wheel from a copy of the package's sources, installs it with
+The wheel test builds the sdist from a copy of the package's sources, the wheel from the sdist,
+installs it with
 ``--no-deps`` into a fresh virtualenv (no system site-packages), and gives that venv the
 dependencies by a ``.pth`` line naming the test venv's site-packages *after* its own (the
 project's editable install there is a ``.pth`` hook that a path added this way does not run):
@@ -19,6 +20,8 @@ import shutil
 import subprocess
 import sys
 import sysconfig
+import tarfile
+import zipfile
 from importlib import metadata
 from pathlib import Path
 
@@ -155,9 +158,21 @@ def build_wheel(tmp_path: Path) -> Path:
     for name in ("pytools", "dissector", "extcap"):
         shutil.copytree(REPO / name, src / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
     out = tmp_path / "dist"
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(out), str(src)],
+    # the sdist (setuptools' build backend, as `python -m build --sdist` calls it) carries them...
+    subprocess.run([sys.executable, "-c", f"from setuptools import build_meta; build_meta.build_sdist({str(out)!r})"],
+                   cwd=src, check=True, capture_output=True, timeout=300)
+    (sdist,) = out.glob("sharedlink-*.tar.gz")
+    with tarfile.open(sdist) as tar:
+        names = {n.split("/", 1)[1] for n in tar.getnames() if "/" in n}
+    assert {f"dissector/{n}" for n in LUA} | {"dissector/sharedlink.colorfilters", "extcap/sharedlink-serial"} <= names
+    # ...and the wheel built from the sdist
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(out), str(sdist)],
                    check=True, capture_output=True, timeout=300)
     (wheel,) = out.glob("sharedlink-*.whl")
+    with zipfile.ZipFile(wheel) as z:
+        names = set(z.namelist())
+    assert {f"sharedlink/dissector/{n}" for n in LUA} | {"sharedlink/dissector/sharedlink.colorfilters",
+                                                        "sharedlink/extcap_launcher/sharedlink-serial"} <= names
     return wheel
 
 
