@@ -19,6 +19,9 @@ from pathlib import Path
 
 import jsonschema
 import pytest
+
+if sys.version_info < (3, 10):  # foxglove-schemas-protobuf (the official classes) needs Python 3.10
+    pytest.skip("foxglove-schemas-protobuf needs Python 3.10+", allow_module_level=True)
 from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from google.protobuf.descriptor import FieldDescriptor

@@ -14,6 +14,9 @@ import time
 from pathlib import Path
 
 import pytest
+
+if sys.version_info < (3, 10):  # foxglove-schemas-protobuf (the official classes) needs Python 3.10
+    pytest.skip("foxglove-schemas-protobuf needs Python 3.10+", allow_module_level=True)
 from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
 from mcap.reader import make_reader
 from sl_captures import reference
