@@ -8,6 +8,7 @@ BIN := $(VENV)/bin
 PY := $(BIN)/python
 CLI := $(BIN)/sharedlink
 STAMP := $(VENV)/.installed
+RUNTIME := $(VENV)/.runtime
 DISSECTORS := $(wildcard dissector/*.lua)
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export PYTHONDONTWRITEBYTECODE := 1
@@ -43,15 +44,25 @@ tshark:
 
 venv: $(STAMP)
 
-$(STAMP): pyproject.toml
+# the virtualenv with the package alone (make install: no test extras), and with them (tests)
+define MAKE_VENV
 	@if ! $(PYTHON) -m venv --help >/dev/null 2>&1 || ! $(PYTHON) -c 'import ensurepip' 2>/dev/null; then \
 	  echo "installing python3-venv from Debian's packages"; \
 	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq python3-venv python3-pip >/dev/null; \
 	fi
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
+endef
+
+$(RUNTIME): pyproject.toml setup.py
+	$(MAKE_VENV)
+	$(BIN)/pip install -q -e .
+	@touch $(RUNTIME)
+
+$(STAMP): pyproject.toml setup.py
+	$(MAKE_VENV)
 	$(BIN)/pip install -q -e '.[test]'
-	@touch $(STAMP)
+	@touch $(STAMP) $(RUNTIME)
 
 # --- the main job ----------------------------------------------------------------------------
 demo: deps
@@ -88,47 +99,19 @@ captures: deps
 	$(CLI) gen captures/beacon-full.pcap --duration 60 --seed 1
 	$(CLI) gen captures/beacon-compressed.pcap --duration 60 --seed 1 --compress --sync-interval 1
 
-# a folder as `tshark -G folders` names it: $(call folder,Personal Lua Plugins)
-folder = $$(tshark -G folders 2>/dev/null | sed -n 's/^$(1):[[:space:]]*//p' | head -1)
-# the personal Lua plugin folder (else the personal plugin folder); the personal extcap folder
-# ("Personal Extcap path", Wireshark 4.2+, else <Personal configuration>/extcap, where 3.x/4.0
-# look); the personal configuration folder (the colorfilters file)
-PLUGIN_DIR_SH = dir=$(call folder,Personal Lua Plugins); [ -n "$$dir" ] || dir=$(call folder,Personal Plugins); \
-	[ -n "$$dir" ] || { echo "tshark -G folders names no personal plugin folder" >&2; exit 2; }
-EXTCAP_DIR_SH = ext=$(call folder,Personal Extcap path); \
-	[ -n "$$ext" ] || { c=$(call folder,Personal configuration); [ -n "$$c" ] && ext="$$c/extcap"; }; \
-	[ -n "$$ext" ] || { echo "tshark -G folders names no personal extcap folder" >&2; exit 2; }
-CONF_DIR_SH = conf=$(call folder,Personal configuration); glob=$(call folder,Global configuration); \
-	[ -n "$$conf" ] || { echo "tshark -G folders names no personal configuration folder" >&2; exit 2; }
+# every dissector/**/*.lua into the personal plugin folder, the serial extcap (its first line
+# pointed at the venv's Python) into the personal extcap folder and the coloring rules at the top
+# of the personal colorfilters, as `tshark -G folders` names them: `sharedlink plugins install`
+# (sharedlink/plugins.py), from the package alone (no test extras)
+install: tshark $(RUNTIME)
+	@$(CLI) plugins install
 
-# every dissector/*.lua, the serial extcap (its first line pointed at the venv's Python, which
-# `venv` makes sure exists and imports sharedlink.extcap) and the coloring rules
-install: tshark venv
-	@$(PLUGIN_DIR_SH); mkdir -p "$$dir" && cp $(DISSECTORS) "$$dir"/ && echo "installed $(notdir $(DISSECTORS)) into $$dir"
-	@$(PY) -c 'import sharedlink.extcap' || { echo "$(abspath $(PY)) cannot import sharedlink.extcap: run make venv" >&2; exit 2; }
-	@$(EXTCAP_DIR_SH); mkdir -p "$$ext" && sed '1s|.*|#!$(abspath $(PY))|' extcap/sharedlink-serial > "$$ext/sharedlink-serial" && \
-	chmod 755 "$$ext/sharedlink-serial" && echo "installed the sharedlink-serial extcap into $$ext (interpreter $(abspath $(PY)))"
-	@# the coloring rules, once, at the top of the personal colorfilters (theirs kept below; with no
-	@# personal file, the global default's rules are kept below ours)
-	@$(CONF_DIR_SH); cf="$$conf/colorfilters"; \
-	if [ -f "$$cf" ] && grep -q '^@SharedLink ' "$$cf"; then echo "SharedLink coloring rules already in $$cf"; \
-	else mkdir -p "$$conf" && { [ -f "$$cf" ] && base="$$cf" || base="$$glob/colorfilters"; \
-	  { cat dissector/sharedlink.colorfilters; [ -f "$$base" ] && cat "$$base"; true; } > "$$cf.new" && \
-	  cat "$$cf.new" > "$$cf" && rm -f "$$cf.new" && echo "added the SharedLink coloring rules to $$cf"; }; fi
-
-# removes what install put there: the plugins, the extcap, and the lines of
-# dissector/sharedlink.colorfilters from the personal colorfilters (rules left behind would name
-# fields no dissector registers: "Could not compile" at every start). A colorfilters file that is
-# then the global default again (install made it from that) is removed.
-uninstall: tshark
-	@$(PLUGIN_DIR_SH); for f in $(notdir $(DISSECTORS)); do rm -f "$$dir/$$f"; done; echo "removed $(notdir $(DISSECTORS)) from $$dir"
-	@$(EXTCAP_DIR_SH); rm -f "$$ext/sharedlink-serial"; echo "removed the sharedlink-serial extcap from $$ext"
-	@$(CONF_DIR_SH); cf="$$conf/colorfilters"; \
-	if [ -f "$$cf" ] && grep -qxF -f dissector/sharedlink.colorfilters "$$cf"; then \
-	  { grep -vxF -f dissector/sharedlink.colorfilters "$$cf" || true; } > "$$cf.new" && cat "$$cf.new" > "$$cf" && rm -f "$$cf.new"; \
-	  if [ -f "$$glob/colorfilters" ] && cmp -s "$$cf" "$$glob/colorfilters"; then rm -f "$$cf"; fi; \
-	  echo "removed the SharedLink coloring rules from $$cf"; \
-	else echo "no SharedLink coloring rules in $$cf"; fi
+# removes what install put there: the plugins, the extcap, and the coloring rules from the personal
+# colorfilters, also those disabled ("!@SharedLink ...") or edited in the GUI (rules left behind
+# would name fields no dissector registers: "Could not compile" at every start); a colorfilters
+# file that is then the global default again (install made it from that) is removed
+uninstall: tshark $(RUNTIME)
+	@$(CLI) plugins uninstall
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

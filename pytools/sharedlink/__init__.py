@@ -50,7 +50,7 @@ __all__ = [
     "parse_frame",
     "split_frames",
 ]
-__version__ = "0.1.0"
+__version__ = "1.3.0"
 
 # -- old flat module names ------------------------------------------------------------------
 

@@ -28,6 +28,7 @@ with quiet_interrupt():  # Ctrl-C while the command loads: exit 130, no tracebac
 
 #: sub-command modules, in the order ``--help`` lists them
 COMMANDS = ["gen", "replay", "serial", "compress", "expand", "diff", "stats", "export", "plot", "watch", "ingest", "query"]
+COMMANDS.append("plugins")  # the Wireshark files into the personal folders (what make install does)
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_OK", "EXIT_USAGE", "Error", "UsageError", "main", "build_parser"]
 

@@ -24,6 +24,7 @@ WebSocket server.
 
 from __future__ import annotations
 
+import heapq
 import json
 import math
 import re
@@ -37,6 +38,7 @@ from pathlib import Path
 from typing import IO, Any, NamedTuple
 
 from sharedlink.analysis.decode import DATA_KINDS, NS, VALUE_KINDS, Decoded, Decoder, format_time
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.packets import Datagram, PacketDecoder
 from sharedlink.capture.pcapio import LINKTYPE_RAW, CaptureError
 from sharedlink.capture.stream import FrameSplitter, StreamFrame, iter_frames
@@ -348,10 +350,13 @@ class CaptureSource:
 
     A damaged capture: every frame before the damage is handed out (the same ones every run,
     whatever the pace), then the source ends with ``error`` set to the
-    :class:`~sharedlink.capture.pcapio.CaptureError` for the caller to report."""
+    :class:`~sharedlink.capture.pcapio.CaptureError` for the caller to report.
+    With ``sessions`` (``--foxglove``), its P2OS and blackboard messages
+    (:class:`~sharedlink.analysis.sessions.SessionMessage`, what ``export --format mcap`` adds)
+    come in the same batches, in time order with the frames."""
 
-    def __init__(self, path: str | Path, speed: float = 1.0) -> None:
-        self.path, self.speed = path, speed
+    def __init__(self, path: str | Path, speed: float = 1.0, sessions: bool = False) -> None:
+        self.path, self.speed, self.sessions = path, speed, sessions
         self.description = f"{path} at {speed:g}x"
         self._t0: int | None = None  # capture time of the first frame
         self._m0 = 0.0  # monotonic time it was shown
@@ -366,16 +371,21 @@ class CaptureSource:
     def batches(self, timeout: float) -> Iterator[Batch]:
         out: Batch = []
         due = time.monotonic() + timeout
-        frames = iter_frames(self.path)
+        items: Iterator[Any] = iter_frames(self.path)
+        if self.sessions:  # the second reading, merged by time (each is in record order)
+            from sharedlink.analysis.sessions import iter_sessions
+
+            frames = (i for i in items if isinstance(i, StreamFrame))
+            items = heapq.merge(frames, iter_sessions(self.path), key=_ts_ns)
         while True:
             try:
-                item = next(frames)
+                item = next(items)
             except StopIteration:
                 break
             except CaptureError as exc:  # the frames gathered so far go out first
                 self.error = exc
                 break
-            if not isinstance(item, StreamFrame):
+            if not isinstance(item, (StreamFrame, SessionMessage)):
                 continue
             if self._t0 is None:
                 self._t0, self._m0 = item.ts_ns, time.monotonic()
@@ -400,6 +410,10 @@ class CaptureSource:
 
     def close(self) -> None:
         pass
+
+
+def _ts_ns(item: Any) -> int:
+    return item.ts_ns
 
 
 # -- decoding, with a fast path for the beacon's steady state ---------------------------------
@@ -791,6 +805,7 @@ def run_watch(
     interval: float = 0.25,
     stats: WatchStats | None = None,
     out: IO[str] | None = None,
+    session_outputs: Sequence[Callable[[SessionMessage], None]] = (),
 ) -> WatchStats:
     """Decode ``source`` 's batches into ``outputs`` until it ends (a capture) or Ctrl-C
     (KeyboardInterrupt propagates: the caller cleans up). ``tick(now_ns)`` is called at most
@@ -800,7 +815,10 @@ def run_watch(
     Ctrl-C never stops a batch half done: a replay's :class:`~sharedlink.replay.SigintGate`
     holds it while the batch is decoded, counted, handed to every output and flushed (a JSON
     line longer than the pipe's buffer was cut in two when Ctrl-C came while the reader lagged),
-    and raises once that is done; waiting for the source still ends at the key press."""
+    and raises once that is done; waiting for the source still ends at the key press.
+
+    A source's P2OS and blackboard messages (:class:`SessionMessage`) go to ``session_outputs``
+    (not counted as frames)."""
     stats = stats if stats is not None else WatchStats()
     decode = decoder.decode
     next_tick = time.monotonic()
@@ -820,6 +838,10 @@ def run_watch(
                                         o(d)
                                 else:
                                     stats.noise += 1
+                            continue
+                        if item.__class__ is SessionMessage:
+                            for so in session_outputs:
+                                so(item)  # type: ignore[arg-type]
                             continue
                         if item.frame is None:
                             stats.noise += 1

@@ -4,10 +4,15 @@
     for f in decode("beacon.pcapng"):
         print(f.number, f.src, f.dst, f.kind, {v.name: v.value for v in f.variables})
 
-tshark runs with ``-X lua_script:<repo>/dissector/sharedlink.lua`` (or the path given)
+tshark runs with ``-X lua_script:<dissectors>/sharedlink.lua`` (or the path given)
 in JSON mode (pyshark's EK mode cannot type Lua fields).  Each SharedLink frame becomes
 one :class:`SharedLinkFrame`; a packet holding several frames yields several, with
 the same ``number``.
+
+The dissectors, the coloring rules and the extcap launcher travel with the package (package
+data ``sharedlink/dissector`` and ``sharedlink/extcap_launcher``, from the repository's
+``dissector/`` and ``extcap/``): :func:`dissector_dir` and :func:`extcap_launcher` find them in
+the installed package, else in the source checkout the module runs from.
 """
 
 from __future__ import annotations
@@ -21,11 +26,47 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-DEFAULT_DISSECTOR = Path(__file__).resolve().parents[2] / "dissector" / "sharedlink.lua"
+_PACKAGE = Path(__file__).resolve().parent
+_CHECKOUT = _PACKAGE.parents[1]  # <repo>/pytools/sharedlink -> <repo>
+
+
+def _data(installed: str, checkout: str, name: str) -> Path:
+    """``name`` in the installed package's data folder ``installed``, else in the checkout's
+    ``checkout`` folder (an editable install, or run from the source tree); the installed
+    path when neither has it (the error then names where it was looked for)."""
+    for folder in (_PACKAGE / installed, _CHECKOUT / checkout):
+        if (folder / name).exists():
+            return folder
+    return _PACKAGE / installed
+
+
+def dissector_dir() -> Path:
+    """The folder of the Lua dissectors (``sharedlink.lua``, the other plugins, modules in
+    subfolders) and ``sharedlink.colorfilters``."""
+    return _data("dissector", "dissector", "sharedlink.lua")
+
+
+def dissector_files() -> list[Path]:
+    """Every Lua file of the dissectors, subfolders included, sorted."""
+    return sorted(dissector_dir().rglob("*.lua"))
+
+
+def colorfilters_file() -> Path:
+    """The coloring rules (``sharedlink.colorfilters``)."""
+    return dissector_dir() / "sharedlink.colorfilters"
+
+
+def extcap_launcher() -> Path:
+    """The serial extcap's launcher script (``sharedlink-serial``)."""
+    return _data("extcap_launcher", "extcap", "sharedlink-serial") / "sharedlink-serial"
+
+
+DEFAULT_DISSECTOR = dissector_dir() / "sharedlink.lua"
 
 CHECKSUM_STATUS = {"0": "Bad", "1": "Good", "2": "Unverified"}
 
-__all__ = ["DEFAULT_DISSECTOR", "SharedLinkFrame", "Variable", "decode", "frame_from_layer"]
+__all__ = ["DEFAULT_DISSECTOR", "SharedLinkFrame", "Variable", "colorfilters_file", "decode", "dissector_dir",
+           "dissector_files", "extcap_launcher", "frame_from_layer"]
 
 
 @dataclass

@@ -128,9 +128,14 @@ def test_beacon_log_times_values_and_positions_match_the_capture(beacon):
     for (t, fix), fr in zip(locs, good):
         assert t == fr.ts_ns == fix.timestamp.seconds * 10**9 + fix.timestamp.nanos
         assert fix.latitude == float(fr.values["AutoGpsLat"]) and fix.longitude == float(fr.values["AutoGpsLon"])
-        assert fix.heading == float(fr.values["AutoGpsHead"])
-        speed = float(fr.values["AutoGpsVel"])
+        # the schema's units: radians (the variable is in degrees), m/s (the variable in mph)
+        assert fix.heading == pytest.approx(float(fr.values["AutoGpsHead"]) * math.pi / 180, abs=1e-12)
+        speed = float(fr.values["AutoGpsVel"]) * 0.44704
         assert math.hypot(fix.velocity.x, fix.velocity.y) == pytest.approx(speed, abs=1e-9)
+        if speed > 0:  # east = sin(heading), north = cos(heading)
+            assert math.atan2(fix.velocity.x, fix.velocity.y) == pytest.approx(
+                math.remainder(fix.heading, 2 * math.pi), abs=1e-9)
+        assert list(fix.position_covariance) == [0.0] * 9 and fix.position_covariance_type == 0
         assert fix.frame_id == "B>A"
     # first and last, spelled out
     assert locs[0][0] == good[0].ts_ns and locs[-1][0] == good[-1].ts_ns

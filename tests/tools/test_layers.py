@@ -17,7 +17,7 @@ LAYERS = [
     {"capture"},
     {"generators"},
     {"analysis"},
-    {"replay", "extcap", "wireshark", "scapy_layer", "fleet", "watch"},
+    {"replay", "extcap", "wireshark", "plugins", "scapy_layer", "fleet", "watch", "foxglove_server"},
     {"commands"},
     {"cli", "__main__"},
 ]

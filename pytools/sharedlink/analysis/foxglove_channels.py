@@ -9,9 +9,12 @@ Topics (``B_to_A`` is the direction from node B to node A; a second conversation
 same pair gets ``B_to_A_2``, the conversation is in the channel metadata):
 
 * ``/sharedlink/B_to_A/location`` ``foxglove.LocationFix`` after each good value frame once the
-  direction has a valid latitude and longitude (``lat``/``lon`` variables); ``heading`` from
-  the heading variable (degrees, clockwise from north), ``velocity`` east/north from the speed
-  variable and the heading (in the speed variable's unit).
+  direction has a valid latitude and longitude (``lat``/``lon`` variables), in the units the
+  official schema gives: ``heading`` in radians clockwise from north (the heading variable is in
+  degrees), ``velocity`` east/north in m/s from the speed variable (in ``speed_unit``, mph for
+  the beacon's AutoGpsVel, BUL-049) and the heading; no covariance is known: nine zeros,
+  ``position_covariance_type`` UNKNOWN. The channel is made with its first message (a direction
+  without a position has no location channel). The values channel keeps the variables as sent.
 * ``/sharedlink/B_to_A/values`` JSON, after every frame: each variable's typed value
   (numbers for long and double, text for strings and for numbers JSON cannot hold).
 * ``/sharedlink/B_to_A/frames`` JSON, every frame: number, src, dst, kind, checksum
@@ -34,7 +37,15 @@ from typing import Any
 
 import foxglove
 from foxglove.channels import LocationFixChannel, PoseInFrameChannel
-from foxglove.messages import LocationFix, Pose, PoseInFrame, Quaternion, Timestamp, Vector3
+from foxglove.messages import (
+    LocationFix,
+    LocationFixPositionCovarianceType,
+    Pose,
+    PoseInFrame,
+    Quaternion,
+    Timestamp,
+    Vector3,
+)
 
 from sharedlink.analysis.decode import VALUE_KINDS, Decoded
 from sharedlink.analysis.sessions import Ack, SessionMessage
@@ -64,12 +75,24 @@ SERVER_SCHEMA = {"type": "object", "title": "p2os.ServerPacket", "additionalProp
 BLACKBOARD_SCHEMA = {"type": "object", "title": "blackboard.Message", "additionalProperties": True}
 
 
+#: metres per second in one unit of speed (``ChannelOptions.speed_unit``)
+SPEED_UNITS = {"mph": 0.44704, "m/s": 1.0, "km/h": 1 / 3.6, "kn": 1852 / 3600}
+#: LocationFix.position_covariance when none is known (the schema wants 9 items, type UNKNOWN)
+_NO_COVARIANCE = [0.0] * 9
+_UNKNOWN_COVARIANCE = LocationFixPositionCovarianceType.Unknown
+
+
 @dataclass
 class ChannelOptions:
     lat: str = LAT
     lon: str = LON
-    heading: str = HEADING
+    heading: str = HEADING  # degrees clockwise from north
     speed: str = SPEED
+    speed_unit: str = "mph"  # the speed variable's unit, a key of SPEED_UNITS (BUL-049: AutoGpsVel in mph)
+
+    def __post_init__(self) -> None:
+        if self.speed_unit not in SPEED_UNITS:
+            raise ValueError(f"speed unit {self.speed_unit!r}: one of {', '.join(SPEED_UNITS)}")
 
 
 def _typed(v: Any) -> Any:
@@ -160,9 +183,10 @@ def _checksum(ok: bool | None) -> str:
 class _Direction:
     """The channels of one direction, and its last values message (reused while unchanged)."""
 
-    location: Any
+    location: Any  # made with the first location message (None until then)
     values: Any
     frames: Any
+    meta: dict[str, str] = field(default_factory=dict)
     log_frames: Any = None  # the channels' log methods (bytes, log time)
     log_values: Any = None
     nvars: int = -1
@@ -189,6 +213,7 @@ class FoxgloveChannels:
     def __init__(self, context: foxglove.Context, opts: ChannelOptions | None = None) -> None:
         self.ctx = context
         self.opts = opts or ChannelOptions()
+        self._speed_scale = SPEED_UNITS[self.opts.speed_unit]
         self._counts: dict[str, int] = {}  # session topic -> messages logged (directions count their own)
         self._dirs: dict[tuple[object, str, str], _Direction] = {}
         self._pair_convs: dict[str, int] = {}
@@ -205,9 +230,10 @@ class FoxgloveChannels:
             base = f"/sharedlink/{name}" + (f"_{n}" if n > 1 else "")
             meta = {"src": d.src, "dst": d.dst, "conversation": " ".join(map(str, d.conv))}
             dr = self._dirs[key] = _Direction(
-                LocationFixChannel(base + "/location", metadata=meta, context=self.ctx),
+                None,
                 foxglove.Channel(base + "/values", schema=VALUES_SCHEMA, metadata=meta, context=self.ctx),
                 foxglove.Channel(base + "/frames", schema=FRAME_SCHEMA, metadata=meta, context=self.ctx),
+                meta,
             )
             dr.location_topic, dr.values_topic, dr.frames_topic = base + "/location", base + "/values", base + "/frames"
             # the base channels' log, called with encoded bytes (foxglove.Channel.log's own path
@@ -257,6 +283,8 @@ class FoxgloveChannels:
         if ok is not False and d.kind in VALUE_KINDS:
             fix = self._location(typed, ts, d.pair)
             if fix is not None:
+                if dr.location is None:
+                    dr.location = LocationFixChannel(dr.location_topic, metadata=dr.meta, context=self.ctx)
                 dr.location.log(fix, log_time=ts)
                 dr.nlocations += 1
 
@@ -278,11 +306,13 @@ class FoxgloveChannels:
         head = float(head) if type(head) in _NUMERIC else None
         speed = float(speed) if type(speed) in _NUMERIC else None
         velocity = None
-        if speed is not None and head is not None:
-            rad = math.radians(head)
-            velocity = Vector3(x=speed * math.sin(rad), y=speed * math.cos(rad), z=0.0)
+        rad = math.radians(head) if head is not None else None
+        if speed is not None and rad is not None:
+            ms = speed * self._speed_scale
+            velocity = Vector3(x=ms * math.sin(rad), y=ms * math.cos(rad), z=0.0)
         return LocationFix(timestamp=_stamp(ts_ns), frame_id=frame_id, latitude=lat, longitude=lon,
-                           heading=head, velocity=velocity)
+                           position_covariance=_NO_COVARIANCE, position_covariance_type=_UNKNOWN_COVARIANCE,
+                           heading=rad, velocity=velocity)
 
     @property
     def counts(self) -> dict[str, int]:
@@ -290,7 +320,8 @@ class FoxgloveChannels:
         out = dict(self._counts)
         for dr in self._dirs.values():
             out[dr.frames_topic] = out[dr.values_topic] = dr.nframes
-            out[dr.location_topic] = dr.nlocations
+            if dr.location is not None:
+                out[dr.location_topic] = dr.nlocations
         return out
 
     # -- P2OS and blackboard -----------------------------------------------------------------

@@ -74,7 +74,7 @@ def _source(args: argparse.Namespace) -> Any:
         check_capture(args.capture)
         if not args.speed > 0:
             raise UsageError("--speed must be positive")
-        return CaptureSource(args.capture, args.speed)
+        return CaptureSource(args.capture, args.speed, sessions=args.foxglove)  # P2OS, blackboard as export
     if args.serial:
         if args.baud <= 0:
             raise UsageError("--baud must be positive")
@@ -104,11 +104,12 @@ def _foxglove(args: argparse.Namespace) -> tuple[Any, Any]:
     import foxglove
 
     from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
+    from sharedlink.foxglove_server import LiveServer
 
     ctx = foxglove.Context()
-    try:
-        server = foxglove.start_server(name="sharedlink watch", host=args.foxglove_host, port=args.foxglove_port, context=ctx)
-    except Exception as exc:  # foxglove raises its own error type when the port is taken
+    try:  # both subprotocol names (foxglove.sdk.v1, foxglove.websocket.v1): see foxglove_server
+        server = LiveServer(ctx, args.foxglove_host, args.foxglove_port)
+    except Exception as exc:  # OSError, or foxglove's own error type
         raise UsageError(f"--foxglove-port {args.foxglove_port}: {exc}") from None
     print(f"sharedlink watch: Foxglove WebSocket server on ws://{args.foxglove_host}:{server.port}", file=sys.stderr, flush=True)
     opts = ChannelOptions(lat=args.lat, lon=args.lon, heading=args.heading, speed=args.velocity)
@@ -122,9 +123,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         decoder = FastDecoder(variables, sync)
         outputs: list = []
+        sessions: list = []
         if args.foxglove:
             server, channels = _foxglove(args)
             outputs.append(channels.frame)
+            sessions.append(channels.session)
         print(f"sharedlink watch: {source.description}", file=sys.stderr, flush=True)
         if args.json:  # Ctrl-C waits until a batch's lines are written whole (see run_watch)
             with buffered_stdout(binary=False) as out:
@@ -134,9 +137,9 @@ def run(args: argparse.Namespace) -> int:
                     write(json_line(d) + "\n")
 
                 outputs.append(emit)
-                run_watch(source, decoder, outputs, out=out)
+                run_watch(source, decoder, outputs, out=out, session_outputs=sessions)
             return _damage(source)
-        _live(source, decoder, outputs, sync)
+        _live(source, decoder, outputs, sync, sessions)
         return _damage(source)
     finally:
         if server is not None:
@@ -153,7 +156,7 @@ def _damage(source: Any) -> int:
     return EXIT_USAGE
 
 
-def _live(source: Any, decoder: FastDecoder, outputs: list, sync: float) -> int:
+def _live(source: Any, decoder: FastDecoder, outputs: list, sync: float, sessions: list) -> int:
     from rich.console import Console
     from rich.live import Live
 
@@ -164,5 +167,5 @@ def _live(source: Any, decoder: FastDecoder, outputs: list, sync: float) -> int:
         def tick(now_ns: int) -> None:
             live.update(view.render(now_ns), refresh=True)
 
-        run_watch(source, decoder, outputs, tick=tick, stats=view.stats)
+        run_watch(source, decoder, outputs, tick=tick, stats=view.stats, session_outputs=sessions)
     return EXIT_OK

@@ -1,0 +1,178 @@
+"""`watch --foxglove` with clients this project did not write: a WebSocket client (the
+`websockets` package) that offers only `foxglove.websocket.v1`, as Foxglove's own FoxgloveClient
+and Lichtblick do; the channels `watch --from` serves against those `export --format mcap`
+writes for the same capture; the server's log under a flood of bad subscriptions."""
+
+from __future__ import annotations
+
+import json
+import signal
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+if sys.version_info < (3, 10):  # foxglove-schemas-protobuf (the official classes) needs Python 3.10
+    pytest.skip("foxglove-schemas-protobuf needs Python 3.10+", allow_module_level=True)
+from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
+from mcap.reader import make_reader
+from sl_captures import reference
+from websockets.exceptions import ConnectionClosed, InvalidStatus
+from websockets.sync.client import connect
+
+from sharedlink.foxglove_server import offered, rewrite_answer, rewrite_request
+from sharedlink.generators.beacon import GenOptions, generate_file
+
+CLI = [sys.executable, "-m", "sharedlink"]
+
+
+class Watch:
+    """``sharedlink watch ARGS --foxglove --foxglove-port 0`` with its server's port."""
+
+    def __init__(self, *args: object) -> None:
+        self.p = subprocess.Popen([*CLI, "watch", *map(str, args), "--json", "--foxglove", "--foxglove-port", "0"],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        while True:
+            line = self.p.stderr.readline()  # type: ignore[union-attr]
+            assert line, f"watch ended early: rc={self.p.poll()}"
+            if "Foxglove WebSocket server on ws://" in line:
+                self.port = int(line.strip().rsplit(":", 1)[1])
+                return
+
+    def stop(self, ends: bool = False) -> str:
+        """Ctrl-C, or (``ends``) the capture's end; its stderr after the server line."""
+        if ends:
+            _out, err = self.p.communicate(timeout=60)
+            assert self.p.returncode == 0, err
+        else:
+            self.p.send_signal(signal.SIGINT)
+            _out, err = self.p.communicate(timeout=60)
+            assert self.p.returncode == 130, err
+        assert "Traceback" not in err, err
+        return err
+
+
+def advertised(ws, until: set[str] | None = None, seconds: float = 10.0) -> dict[str, dict]:
+    """Channels advertised within ``seconds`` (sooner once every topic of ``until`` is there)."""
+    chans: dict[str, dict] = {}
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and not (until is not None and until <= set(chans)):
+        try:
+            m = ws.recv(timeout=max(0.05, deadline - time.monotonic()))
+        except TimeoutError:
+            break
+        if isinstance(m, str):
+            j = json.loads(m)
+            if j["op"] == "advertise":
+                chans.update({c["topic"]: c for c in j["channels"]})
+            elif j["op"] == "unadvertise":
+                for topic in [t for t, c in chans.items() if c["id"] in j["channelIds"]]:
+                    del chans[topic]
+    return chans
+
+
+def exported(tmp_path: Path, cap: Path) -> dict[str, str]:
+    """Topic -> schema name of `export --format mcap` (the `mcap` reader)."""
+    out = tmp_path / "x.mcap"
+    r = subprocess.run([*CLI, "export", str(cap), "-o", str(out)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    with open(out, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    return {ch.topic: summary.schemas[ch.schema_id].name for ch in summary.channels.values()}
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("fox") / "drive.pcap"
+    generate_file(GenOptions(duration=12, seed=4), path)
+    return path
+
+
+def test_a_client_offering_only_foxglove_websocket_v1_gets_the_positions(drive):
+    w = Watch("--from", drive, "--speed", 4)
+    try:
+        # the client that offers the new name too still gets it
+        with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"]) as ws2:
+            assert ws2.subprotocol == "foxglove.sdk.v1"
+        with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.websocket.v1"]) as ws:
+            assert ws.subprotocol == "foxglove.websocket.v1"
+            loc = advertised(ws, {"/sharedlink/B_to_A/location"})["/sharedlink/B_to_A/location"]
+            assert loc["schemaName"] == "foxglove.LocationFix"
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 3, "channelId": loc["id"]}]}))
+            got = []
+            while True:
+                try:
+                    m = ws.recv(timeout=30)
+                except ConnectionClosed as exc:  # the capture ended: the server closed, properly
+                    assert exc.rcvd is not None, exc
+                    break
+                if isinstance(m, bytes):
+                    op, sub, log_time = struct.unpack_from("<BIQ", m)
+                    assert (op, sub) == (1, 3)
+                    got.append((log_time, LocationFix.FromString(m[13:])))
+    except InvalidStatus as exc:  # pragma: no cover - what the SDK's server alone answers
+        pytest.fail(f"handshake refused: {exc}")
+    finally:
+        err = w.stop(ends=True)
+    assert "foxglove:" not in err, err
+    want = {fr.ts_ns: fr for fr in reference(drive) if fr.ok}
+    assert len(got) > 10
+    for t, fix in got:  # every message a valid fix of the capture at its capture time
+        assert fix.latitude == float(want[t].values["AutoGpsLat"]) and len(fix.position_covariance) == 9
+
+
+def test_a_client_offering_neither_name_is_refused(drive):
+    w = Watch("--from", drive, "--speed", 1)
+    try:
+        with pytest.raises(InvalidStatus):
+            with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["something.else"]):
+                pass
+    finally:
+        w.stop()
+
+
+@pytest.mark.parametrize("protocol, transport", [("p2os", "tcp"), ("blackboard", "udp"), ("sharedlink", "serial")])
+def test_watch_from_serves_the_channels_export_writes_and_none_without_data(tmp_path, protocol, transport):
+    cap = tmp_path / f"{protocol}.pcapng"
+    r = subprocess.run([*CLI, "gen", str(cap), "--protocol", protocol, "--transport", transport, "--duration", "6"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    want = exported(tmp_path, cap)
+    assert want
+    w = Watch("--from", cap, "--speed", 1)
+    try:
+        with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.websocket.v1"]) as ws:
+            chans = advertised(ws, set(want), seconds=4.5)
+    finally:
+        w.stop()
+    assert {t: c["schemaName"] for t, c in chans.items()} == want
+
+
+def test_a_flood_of_bad_subscriptions_logs_one_line(drive):
+    w = Watch("--from", drive, "--speed", 1)
+    try:
+        with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.sdk.v1"]) as ws:
+            advertised(ws, {"/sharedlink/B_to_A/frames"})
+            for i in range(10_000):
+                ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": 999_999}]}))
+            time.sleep(1.0)
+    finally:
+        err = w.stop()
+    lines = [ln for ln in err.splitlines() if "unknown channel" in ln]
+    assert 1 <= len(lines) <= 2, err[-2000:]
+
+
+def test_handshake_rewriting():
+    req = (b"GET / HTTP/1.1\r\nHost: h\r\nSec-WebSocket-Key: k\r\n"
+           b"sec-websocket-protocol: foxglove.websocket.v1, other\r\n\r\n")
+    head, name = rewrite_request(req)
+    assert name == "foxglove.websocket.v1" and offered(head) == ["foxglove.sdk.v1"]
+    assert head.startswith(b"GET / HTTP/1.1\r\nHost: h\r\nSec-WebSocket-Key: k\r\n") and head.endswith(b"\r\n\r\n")
+    both = req.replace(b"foxglove.websocket.v1, other", b"foxglove.websocket.v1\r\nSec-WebSocket-Protocol: foxglove.sdk.v1")
+    assert rewrite_request(both) == (both, None)
+    answer = b"HTTP/1.1 101 Switching Protocols\r\nsec-websocket-protocol: foxglove.sdk.v1\r\nx: y\r\n\r\n"
+    assert rewrite_answer(answer, name) == answer.replace(b"sec-websocket-protocol: foxglove.sdk.v1",
+                                                          b"Sec-WebSocket-Protocol: foxglove.websocket.v1")
