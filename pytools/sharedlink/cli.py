@@ -28,6 +28,7 @@ with quiet_interrupt():  # Ctrl-C while the command loads: exit 130, no tracebac
 
 #: sub-command modules, in the order ``--help`` lists them
 COMMANDS = ["gen", "replay", "serial", "compress", "expand", "diff", "stats", "export", "plot", "watch", "ingest", "query"]
+COMMANDS.append("lists")  # issue 29: vehicle profiles
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_OK", "EXIT_USAGE", "Error", "UsageError", "main", "build_parser"]
 
