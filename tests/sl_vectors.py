@@ -10,8 +10,9 @@ Shape (a key left out means "not checked")::
     {"streams": [
       {"name": ..., "rules": [1, 2], "doc": "why the expectations are what they are",
        "variables": "Lat:2,Lon:2,Note",       # optional a-priori list (sharedlink.variables / --variables)
-       "pending": {"tshark": "issue 29: <rule>", "python": "..."},  # optional: the rule that side does
-                                               # not follow yet; its test runs as a strict xfail
+       "pending": {"tshark": "issue 29: <rule>", "python": "...", "agreement": "..."},  # optional: the
+                                               # rule that side does not follow yet (agreement: why the
+                                               # two sides differ today); its test runs as a strict xfail
        "transport": "udp" | "tcp" | "serial",
        "packets": [
          {"t": 0.0,                            # seconds from the stream's start
@@ -49,8 +50,9 @@ from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWrite
 VECTORS = Path(__file__).resolve().parent / "vectors" / "sharedlink.json"
 #: every vector table, read in name order (sharedlink.json first)
 VECTOR_FILES = sorted(VECTORS.parent.glob("sharedlink*.json"))
-#: the sides a stream can be pending on
-SIDES = ("tshark", "python")
+#: the sides a stream can be pending on ("agreement": tests/dissector/test_agreement.py, the two
+#: decoders compared with each other, pending where they differ today)
+SIDES = ("tshark", "python", "agreement")
 #: capture time of a stream's t = 0 (2026-01-01 12:00 UTC, as the generators use)
 START_NS = 1_767_268_800 * 1_000_000_000
 SERIAL_DIRS = {"in": DIR_IN, "out": DIR_OUT}
@@ -77,7 +79,7 @@ def stream_ids(streams: list[Stream]) -> list[str]:
 
 
 def pending(stream: Stream, side: str) -> str | None:
-    """The reason ``side`` ("tshark" or "python") does not follow the stream's rules yet."""
+    """The reason ``side`` (one of :data:`SIDES`) does not follow the stream's rules yet."""
     if side not in SIDES:
         raise ValueError(f"unknown side {side!r}")
     marks = stream.get("pending") or {}
