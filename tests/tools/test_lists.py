@@ -205,3 +205,15 @@ def test_a_profile_from_one_capture_names_another(tmp_path, capsys):
     assert rc == 0
     names = {(v["pair"], v["name"]) for v in json.loads(out)["variables"]}
     assert {("B>A", n) for n, _ in VEHICLE} | {("A>B", n) for n, _ in OCU} <= names
+
+
+def test_the_vehicle_answering_list_requests(tmp_path, capsys):
+    """A ProntoAdapter-style client asks L? and N?; the vehicle answers from 1033 with its own N0
+    list (its outbound list: B>A) and its L0 list (its inbound list, the OCU's: A>B)."""
+    cap = _capture(tmp_path, "real-list-requests-answered-by-declarations")
+    rc, out, _ = _run(capsys, "--json", cap)
+    assert rc == 0
+    (res,) = json.loads(out)["captures"]
+    assert [(d["frame"], d["field"], d["pair"], d["src"], d["dst"]) for d in res["declarations"]] == [
+        (2, "N", "B>A", "10.0.0.2:1033", OCU_ADDR), (4, "L", "A>B", "10.0.0.2:1033", OCU_ADDR)]
+    assert parse_varlists(res["variables"]) == {"B>A": VEHICLE, "A>B": OCU}
