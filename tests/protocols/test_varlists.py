@@ -57,7 +57,7 @@ def test_every_pair_and_per_pair_entries_mix_and_a_later_entry_replaces():
 
 
 def test_new_lines_spaces_and_comments():
-    text = f"# profile of VEH_NorthEastern1\n  B > A :  {VEHICLE_TEXT.replace(',', ' , ')}\n#\n\nA>B: {OCU_TEXT}\n"
+    text = f"# profile of VEH_NorthEastern1\n  B > A :  {VEHICLE_TEXT.replace(',', ' , ')}\n#\n\n#C>A: x\nA>B: {OCU_TEXT}\n"
     assert parse_varlists(text) == {"B>A": VEHICLE, "A>B": OCU}
     # '#3' is a name (a slot nothing named), not a comment
     assert parse_varlists("B>A: #0,#1,Vel:2") == {"B>A": [("#0", None), ("#1", None), ("Vel", 2)]}

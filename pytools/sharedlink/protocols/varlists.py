@@ -2,7 +2,8 @@
 
 ``B>A: AutoGpsHead:2,AutoGpsLat:2,...; A>B: video_mux1:0,...`` gives a list of variables for
 each direction (``SRC>DST``, letters A-P, from SRC to DST as the ``pair`` column reads). Entries
-are separated by ``;`` or new lines; a line starting with ``# `` is a comment. An entry with no
+are separated by ``;`` or new lines; a line starting with ``#`` is a comment (``#3`` as a
+name, a slot nothing named, only after a pair or a comma). An entry with no
 pair is the list for every pair (:data:`ANY_PAIR`): the plain old syntax ``Lat:2,Lon:2,Note`` is
 that one entry. A later entry for a pair replaces the earlier one. Each item is ``NAME`` or
 ``NAME:TYPE`` with TYPE 0 (long), 2 (double) or 4 (string); anything else is an error.
@@ -77,8 +78,7 @@ def parse_list(text: str, where: str = "") -> VarList:
 
 def _entries(text: str) -> Iterable[str]:
     for line in text.splitlines():
-        stripped = line.strip()
-        if stripped == "#" or stripped.startswith("# "):
+        if line.lstrip().startswith("#"):
             continue
         yield from line.split(";")
 
