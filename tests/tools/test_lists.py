@@ -217,3 +217,20 @@ def test_the_vehicle_answering_list_requests(tmp_path, capsys):
     assert [(d["frame"], d["field"], d["pair"], d["src"], d["dst"]) for d in res["declarations"]] == [
         (2, "N", "B>A", "10.0.0.2:1033", OCU_ADDR), (4, "L", "A>B", "10.0.0.2:1033", OCU_ADDR)]
     assert parse_varlists(res["variables"]) == {"B>A": VEHICLE, "A>B": OCU}
+
+
+def test_declarations_past_the_listed_limit_are_counted_and_applied(tmp_path, capsys, monkeypatch):
+    from sharedlink.analysis import lists
+
+    monkeypatch.setattr(lists, "MAX_LISTED", 2)
+    cap = _made(tmp_path, "many", [f"[:BA|N0|T0|Qv{i}|C??]" for i in range(5)])
+    rc, out, _ = _run(capsys, cap)
+    assert rc == 0
+    lines = out.splitlines()
+    assert lines[0] == f"# {cap}: 5 declarations, 1 node pair"
+    assert lines[1] == "# Limit exceeded: only the first 2 are listed; the 3 after them are in the lists at the end"
+    assert len([x for x in lines if x.startswith("# frame ")]) == 2
+    assert parse_varlists(out) == {"A>B": [("v4", 0)]}
+    rc, out, _ = _run(capsys, "--json", cap)
+    (res,) = json.loads(out)["captures"]
+    assert res["omitted"] == 3 and len(res["declarations"]) == 2

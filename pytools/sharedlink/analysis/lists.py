@@ -25,6 +25,9 @@ from sharedlink.protocols.varlists import MAX_SLOTS, TYPES, format_list, format_
 
 #: digits an ordinal may have (issue 31: longer is malformed)
 MAX_NUMBER_DIGITS = 9
+#: declarations kept for the report per capture; past it they still change the lists, and are
+#: counted (``omitted``), not kept (a capture of nothing but declarations stays bounded)
+MAX_LISTED = 65536
 #: field letters that make a frame something else than a declaration
 _NOT_DECLARATION = set("DERPGM")
 #: characters the list syntax cannot carry in a name (its separators, line ends)
@@ -75,6 +78,7 @@ class CaptureLists:
     declarations: list[Declaration] = field(default_factory=list)
     lists: dict[str, Names] = field(default_factory=dict)
     error: str | None = None  # the capture is damaged: what was found before it is above
+    omitted: int = 0  # declarations past MAX_LISTED: applied, not kept
 
     def by_pair(self) -> dict[str, list[Declaration]]:
         out: dict[str, list[Declaration]] = {}
@@ -92,6 +96,7 @@ class CaptureLists:
             "declarations": [d.to_dict() for d in self.declarations],
             "lists": {p: [{"name": n, "type": t} for n, t in names] for p, names in self.lists.items()},
             "variables": self.variables(),
+            "omitted": self.omitted,
             "error": self.error,
         }
 
@@ -182,6 +187,9 @@ def _take(out: CaptureLists, sf: StreamFrame, frame: Frame) -> None:
     result = _apply(before, ordinal, names) if applied else before
     if applied:
         out.lists[pair] = result
+    if len(out.declarations) >= MAX_LISTED:
+        out.omitted += 1
+        return
     out.declarations.append(Declaration(
         sf.number, sf.ts_ns, pair, letter, ordinal, tuple(names), _endpoint(sf, "src"), _endpoint(sf, "dst"),
         checksum, applied, result, tuple(notes),
@@ -195,12 +203,15 @@ def render_text(results: Iterable[CaptureLists]) -> str:
     comments) and reads as the lists at the end of the last capture."""
     lines: list[str] = []
     for res in results:
-        n = len(res.declarations)
+        n = len(res.declarations) + res.omitted
         pairs = res.by_pair()
         if not n:
             lines.append(f"# {res.path}: no declarations")
             continue
         lines.append(f"# {res.path}: {n} declaration{'s' if n != 1 else ''}, {len(pairs)} node pair{'s' if len(pairs) != 1 else ''}")
+        if res.omitted:
+            lines.append(f"# Limit exceeded: only the first {len(res.declarations)} are listed; the "
+                         f"{res.omitted} after them are in the lists at the end")
         for pair, decls in pairs.items():
             for d in decls:
                 lines.append(
