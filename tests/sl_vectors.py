@@ -1,4 +1,5 @@
-"""Loader of the shared SharedLink vector table ``tests/vectors/sharedlink.json`` (issue 12).
+"""Loader of the shared SharedLink vector tables ``tests/vectors/sharedlink*.json`` (issue 12;
+``sharedlink-real-sessions.json``: streams shaped like real sessions, issue 29).
 
 The table holds streams of packets, each with the frames the decoding rules of
 docs/fields-sharedlink.md ("Decoding rules") expect in it. Both the tshark tests
@@ -9,6 +10,9 @@ Shape (a key left out means "not checked")::
     {"streams": [
       {"name": ..., "rules": [1, 2], "doc": "why the expectations are what they are",
        "variables": "Lat:2,Lon:2,Note",       # optional a-priori list (sharedlink.variables / --variables)
+       "pending": {"tshark": "issue 29: <rule>", "python": "...", "agreement": "..."},  # optional: the
+                                               # rule that side does not follow yet (agreement: why the
+                                               # two sides differ today); its test runs as a strict xfail
        "transport": "udp" | "tcp" | "serial",
        "packets": [
          {"t": 0.0,                            # seconds from the stream's start
@@ -25,6 +29,9 @@ Shape (a key left out means "not checked")::
              "response_to": packet | null, "response_in": packet | null}]}]}]}
 
 Packet numbers are 1-based positions in the stream's ``packets`` (one capture record each).
+A "pending" side is a rule decided and written (docs/fields-sharedlink.md) but not implemented
+there yet: :func:`stream_params` marks that side's test ``xfail(strict=True)`` with the reason,
+so it turns into a failure to fix (remove the key) as soon as the implementation follows it.
 """
 
 from __future__ import annotations
@@ -34,11 +41,18 @@ import re
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from sharedlink.capture.packets import TcpBuilder, UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
 from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWriter
 
 VECTORS = Path(__file__).resolve().parent / "vectors" / "sharedlink.json"
+#: every vector table, read in name order (sharedlink.json first)
+VECTOR_FILES = sorted(VECTORS.parent.glob("sharedlink*.json"))
+#: the sides a stream can be pending on ("agreement": tests/dissector/test_agreement.py, the two
+#: decoders compared with each other, pending where they differ today)
+SIDES = ("tshark", "python", "agreement")
 #: capture time of a stream's t = 0 (2026-01-01 12:00 UTC, as the generators use)
 START_NS = 1_767_268_800 * 1_000_000_000
 SERIAL_DIRS = {"in": DIR_IN, "out": DIR_OUT}
@@ -47,14 +61,42 @@ _CHECKSUM_MARK = re.compile(rb"\|C(\?\?|!!)\]")
 Stream = dict[str, Any]
 
 
-def load_streams(path: Path = VECTORS) -> list[Stream]:
-    """The streams of the vector table."""
-    with open(path, encoding="utf-8") as fh:
-        return list(json.load(fh)["streams"])
+def load_streams(paths: list[Path] | None = None) -> list[Stream]:
+    """The streams of the vector tables (all of ``tests/vectors/sharedlink*.json`` by default)."""
+    out: list[Stream] = []
+    for path in VECTOR_FILES if paths is None else paths:
+        with open(path, encoding="utf-8") as fh:
+            out += json.load(fh)["streams"]
+    names = [s["name"] for s in out]
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise ValueError(f"vector stream names used twice: {dupes}")
+    return out
 
 
 def stream_ids(streams: list[Stream]) -> list[str]:
     return [s["name"] for s in streams]
+
+
+def pending(stream: Stream, side: str) -> str | None:
+    """The reason ``side`` (one of :data:`SIDES`) does not follow the stream's rules yet."""
+    if side not in SIDES:
+        raise ValueError(f"unknown side {side!r}")
+    marks = stream.get("pending") or {}
+    unknown = set(marks) - set(SIDES)
+    if unknown:
+        raise ValueError(f"{stream['name']}: pending on unknown sides {sorted(unknown)}")
+    return marks.get(side)
+
+
+def stream_params(streams: list[Stream], side: str) -> list[Any]:
+    """``pytest.param`` per stream, a strict xfail where ``side`` is pending."""
+    out = []
+    for s in streams:
+        reason = pending(s, side)
+        marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
+        out.append(pytest.param(s, id=s["name"], marks=marks))
+    return out
 
 
 def payload_bytes(payload: str) -> bytes:

@@ -27,8 +27,10 @@ with quiet_interrupt():  # Ctrl-C while the command loads: exit 130, no tracebac
     from .errors import Error, UsageError
 
 #: sub-command modules, in the order ``--help`` lists them
-COMMANDS = ["gen", "replay", "serial", "compress", "expand", "diff", "stats", "export", "plot", "watch", "ingest", "query"]
-COMMANDS.append("plugins")  # the Wireshark files into the personal folders (what make install does)
+COMMANDS = [
+    "gen", "replay", "serial", "compress", "expand", "diff", "stats", "export", "plot", "lists", "watch",
+    "ingest", "query", "plugins",
+]
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_OK", "EXIT_USAGE", "Error", "UsageError", "main", "build_parser"]
 

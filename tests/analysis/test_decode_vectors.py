@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from sl_vectors import load_streams, stream_ids, write_stream
+from sl_vectors import load_streams, stream_params, write_stream
 
 from sharedlink.analysis.decode import Decoded, iter_decoded, parse_variables
 from sharedlink.capture.stream import StreamFrame
@@ -87,7 +87,7 @@ MODELLED = {
 }
 
 
-@pytest.mark.parametrize("stream", STREAMS, ids=stream_ids(STREAMS))
+@pytest.mark.parametrize("stream", stream_params(STREAMS, "python"))
 def test_python_decoder_follows_the_vectors(stream, tmp_path):
     ext = "pcapng" if stream.get("transport") == "serial" else "pcap"
     path = write_stream(stream, tmp_path / f"s.{ext}")

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from sl_vectors import expected_frames, load_streams, stream_ids, write_stream
+from sl_vectors import expected_frames, load_streams, stream_ids, stream_params, write_stream
 
 import tshark_util as tu
 
@@ -131,7 +131,7 @@ def _decode(stream: dict[str, Any], tmp_path: Path, two_pass: bool) -> list[list
     return [[_actual(t) for t in _frame_trees(p["_source"]["layers"])] for p in packets]
 
 
-@pytest.mark.parametrize("stream", STREAMS, ids=stream_ids(STREAMS))
+@pytest.mark.parametrize("stream", stream_params(STREAMS, "tshark"))
 def test_vector_stream(stream: dict[str, Any], tmp_path: Path) -> None:
     decoded = _decode(stream, tmp_path, two_pass=True)
     for num, pkt in enumerate(stream["packets"], 1):
