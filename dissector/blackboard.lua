@@ -31,7 +31,7 @@
 
 if set_plugin_info then
     set_plugin_info({
-        version = "1.1.0",
+        version = "1.3.0",
         description = "Blackboard messages (Holland) over serial captures, UDP and TCP",
         author = "SharedLink analyzer project",
         repository = "dissector/blackboard.lua",

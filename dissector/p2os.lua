@@ -24,7 +24,7 @@
 
 if set_plugin_info then
     set_plugin_info({
-        version = "1.1.0",
+        version = "1.3.0",
         description = "P2OS (Pioneer robot protocol) over TCP, UDP and serial captures",
         author = "SharedLink analyzer project",
         repository = "dissector/p2os.lua",

@@ -54,7 +54,7 @@
 
 if set_plugin_info then
     set_plugin_info({
-        version = "1.1.0",
+        version = "1.3.0",
         description = "Serial link captures (pcapng, USER link type): SharedLink, P2OS and blackboard",
         author = "SharedLink analyzer project",
         repository = "dissector/serial.lua",
