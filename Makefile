@@ -56,7 +56,7 @@ $(STAMP): pyproject.toml
 # --- the main job ----------------------------------------------------------------------------
 demo: deps
 	@mkdir -p out
-	$(CLI) gen out/demo.pcap --duration 10 --compress
+	$(CLI) gen -o out/demo.pcap --duration 10 --compress
 	@echo; echo "== tshark with dissector/sharedlink.lua (first 12 frames) =="
 	@tshark -n -X lua_script:dissector/sharedlink.lua -r out/demo.pcap -c 12 2>/dev/null
 	@echo; echo "== one frame in full =="
@@ -85,8 +85,8 @@ mutate: deps
 	env -u PYTHONPATH $(PY) scripts/mutate.py $(MUTATE_ARGS)
 
 captures: deps
-	$(CLI) gen captures/beacon-full.pcap --duration 60 --seed 1
-	$(CLI) gen captures/beacon-compressed.pcap --duration 60 --seed 1 --compress --sync-interval 1
+	$(CLI) gen -o captures/beacon-full.pcap --duration 60 --seed 1
+	$(CLI) gen -o captures/beacon-compressed.pcap --duration 60 --seed 1 --compress --sync-interval 1
 
 # a folder as `tshark -G folders` names it: $(call folder,Personal Lua Plugins)
 folder = $$(tshark -G folders 2>/dev/null | sed -n 's/^$(1):[[:space:]]*//p' | head -1)

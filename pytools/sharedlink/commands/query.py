@@ -21,6 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("sql", help='e.g. "SELECT pair, count(*) FROM frames GROUP BY pair"')
     p.add_argument("--format", dest="fmt", choices=("table", "csv", "json"), default="table",
                    help="output format (default table)")
+    p.add_argument("--json", dest="fmt", action="store_const", const="json",
+                   help="print the result as JSON on standard output (--format json)")
     p.set_defaults(func=run)
 
 

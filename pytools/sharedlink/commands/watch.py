@@ -9,7 +9,19 @@ from typing import Any
 
 from sharedlink.analysis.decode import Decoded
 from sharedlink.capture.pcapio import buffered_stdout
-from sharedlink.commands import EXIT_OK, add_decode_options, check_capture, decode_options
+from sharedlink.commands import (
+    BAUD,
+    EXIT_OK,
+    PORT,
+    OptionalPositional,
+    add_decode_options,
+    add_json_option,
+    add_location_options,
+    add_old_spelling,
+    add_speed_option,
+    capture_input,
+    decode_options,
+)
 from sharedlink.errors import UsageError
 from sharedlink.watch import (
     DEFAULT_PORT,
@@ -21,8 +33,6 @@ from sharedlink.watch import (
     json_line,
     run_watch,
 )
-
-LAT, LON, HEADING, VELOCITY = "AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,24 +46,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog="Exit codes: 0 the capture (--from) ended, 2 bad usage, 130 stopped with Ctrl-C.",
     )
     src = p.add_argument_group("source (default: UDP port 7013)")
-    src.add_argument("--port", type=int, default=DEFAULT_PORT,
+    p.add_argument("capture", nargs="?", type=Path, default=None, metavar="CAPTURE", action=OptionalPositional,
+                   help="play this capture at its recorded pace instead of listening (-: standard input)")
+    src.add_argument("--port", type=PORT, default=DEFAULT_PORT,
                      help=f"UDP port to listen on, every address, broadcasts included, shared with other "
                      f"listeners (default {DEFAULT_PORT})")
     src.add_argument("--listen", default="", metavar="ADDR", help="listen on this address only (default: all)")
     src.add_argument("--serial", metavar="DEVICE", default=None, help="read a serial port or pty instead")
-    src.add_argument("--baud", type=int, default=9600, help="with --serial: baud rate (default 9600)")
-    src.add_argument("--from", dest="capture", type=Path, default=None, metavar="CAPTURE",
-                     help="play a capture at its recorded pace instead")
-    src.add_argument("--speed", type=float, default=1.0, metavar="X", help="with --from: pace times X (default 1)")
+    src.add_argument("--baud", type=BAUD, default=9600, help="with --serial: baud rate (default 9600)")
+    add_old_spelling(src, "--from", "a positional CAPTURE (sharedlink watch CAPTURE)", "capture", type=Path)
+    add_speed_option(src, "with CAPTURE: its pace times X (2 = twice as fast; default 1)")
     out = p.add_argument_group("output")
-    out.add_argument("--json", action="store_true", help="one JSON line per frame on standard output instead of the view")
+    add_json_option(out, "one line per frame (instead of the view)")
     out.add_argument("--foxglove", action="store_true", help="serve the stream over the Foxglove WebSocket protocol")
     out.add_argument("--foxglove-port", type=int, default=8765, metavar="PORT", help="its port (default 8765; 0: any free)")
     out.add_argument("--foxglove-host", default="127.0.0.1", metavar="ADDR", help="its address (default 127.0.0.1)")
-    out.add_argument("--lat", default=LAT, help=f"latitude variable for Foxglove (default {LAT})")
-    out.add_argument("--lon", default=LON, help=f"longitude variable for Foxglove (default {LON})")
-    out.add_argument("--heading", default=HEADING, help=f"heading variable for Foxglove (default {HEADING})")
-    out.add_argument("--velocity", default=VELOCITY, help=f"speed variable for Foxglove (default {VELOCITY})")
+    add_location_options(out, "Foxglove", checked=False)
     add_decode_options(p)
     p.set_defaults(func=run)
 
@@ -62,7 +70,7 @@ def _source(args: argparse.Namespace) -> Any:
     if args.capture is not None and args.serial:
         raise UsageError("--from and --serial: one source at a time")
     if args.capture is not None:
-        check_capture(args.capture)
+        args.capture = capture_input(args.capture)
         if not args.speed > 0:
             raise UsageError("--speed must be positive")
         return CaptureSource(args.capture, args.speed)
@@ -136,4 +144,6 @@ def _live(source: Any, decoder: FastDecoder, outputs: list, sync: float) -> int:
             live.update(view.render(now_ns), refresh=True)
 
         run_watch(source, decoder, outputs, tick=tick, stats=view.stats)
+    if not console.is_terminal:  # redirected, rich leaves the last view without its newline
+        console.line()
     return EXIT_OK
