@@ -288,3 +288,30 @@ def test_diff_tables_fit_the_terminal(busy, tmp_path, columns):
     for name in ("AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"):
         assert name in text, text  # never split across lines
     assert "19,8" in text or "19,7" in text  # the sample counts whole
+
+
+def test_empty_inputs_are_reported(tmp_path):
+    import struct
+
+    empty = tmp_path / "empty.pcap"
+    empty.write_bytes(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, 1))  # a header, no record
+    for argv, what in ((["stats", empty], "no SharedLink frames"), (["export", empty], "no SharedLink frames"),
+                       (["plot", empty, "-o", tmp_path / "e.png"], "no SharedLink frames"),
+                       (["diff", empty, empty], "no SharedLink frames"),
+                       (["compress", empty, "-o", tmp_path / "c.pcap"], "no records")):
+        r = _run(*argv)
+        assert f"sharedlink: warning: {empty}: {what}\n" in r.stderr, (argv, r.stderr)
+
+
+def test_plot_capture_select_and_the_old_variables(tmp_path, drive):
+    import warnings
+
+    pytest.importorskip("matplotlib")
+    from sharedlink.analysis.plot import plot_capture
+
+    data = plot_capture(drive, tmp_path / "a.png", select=["AutoGpsVel"], variables=[("AutoGpsVel", 2)])
+    assert data.frames == 50 and (tmp_path / "a.png").stat().st_size > 0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        plot_capture(drive, tmp_path / "b.png", variables=["AutoGpsVel"])
+    assert any(issubclass(w.category, DeprecationWarning) and "select=" in str(w.message) for w in caught)

@@ -383,6 +383,12 @@ def generate_to(opts: Any, generate: Callable[[Any, Path], T], out: Path) -> T:
                          "give an earlier --start") from None
 
 
+def warn_empty(path: Path | str, count: int, what: str = "SharedLink frames") -> None:
+    """An empty input is reported (a warning on stderr; the exit code stays): nothing in it."""
+    if count == 0:
+        print(f"sharedlink: warning: {path}: no {what}", file=sys.stderr)
+
+
 def plural(n: int, word: str, words: str | None = None) -> str:
     """``1 frame``, ``2 frames``."""
     return f"{n} {word if n == 1 else (words or word + 's')}"
@@ -419,6 +425,7 @@ def run_transform(args: argparse.Namespace, mode: str) -> int:
     if args.json and is_stdout(args.output):
         raise UsageError("--json needs an output file (the capture goes to standard output)")
     st = transform_capture(args.input, args.output, mode, args.sync_interval, variables)
+    warn_empty(args.input, st.records, "records")
     if args.json:
         json.dump({"input": str(args.input), "output": str(args.output), "mode": mode, **st.to_dict()}, sys.stdout)
         print()

@@ -22,6 +22,7 @@ from sharedlink.commands import (
     fit_table,
     number,
     variables_option,
+    warn_empty,
 )
 from sharedlink.errors import UsageError
 from sharedlink.protocols.codec import TYPE_NAMES
@@ -80,6 +81,9 @@ def run(args: argparse.Namespace) -> int:
     unreadable = [s.error for s in (report.a, report.b) if s.error and s.records == 0]
     if unreadable:  # not a capture at all: nothing to compare
         raise UsageError("; ".join(unreadable))
+    for side in (report.a, report.b):
+        if not side.error:
+            warn_empty(side.path, side.frames)
     if args.json:
         json.dump(report.to_dict(), sys.stdout, indent=1)
         print()

@@ -29,6 +29,7 @@ from sharedlink.commands import (
     given_names,
     name_list,
     plural,
+    warn_empty,
 )
 from sharedlink.errors import UsageError
 
@@ -97,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
         what = "point" if fmt in ("geojson", "kml") else "message" if fmt == "mcap" else "row"
         n = result.points if what == "point" else result.rows
         print(f"wrote {args.output}: {plural(n, what)} from {plural(result.frames, 'frame')} ({fmt})", file=sys.stderr)
+    if fmt != "mcap" and not result.error:  # MCAP holds P2OS and blackboard channels too
+        warn_empty(args.capture, result.frames)
     if result.error:
         print(f"sharedlink: error: {result.error} (the {result.frames} frames before it were exported)", file=sys.stderr)
         return EXIT_USAGE

@@ -24,6 +24,7 @@ from sharedlink.commands import (
     number,
     plural,
     unknown_names,
+    warn_empty,
 )
 from sharedlink.errors import UsageError
 
@@ -64,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
     data = collect(args.capture, variables, sync, max_points=args.max_points,
                    lat=args.lat, lon=args.lon, speed=args.velocity)
     if data.error is None:
+        warn_empty(args.capture, data.frames)
         unknown_names({k: v for k, v in given.items() if k != "--select"}, data.variables)
     try:
         fig = build_figure(data, names)

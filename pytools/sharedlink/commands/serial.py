@@ -115,7 +115,7 @@ def run_capture(args: argparse.Namespace) -> int:
         raise UsageError("--count must be positive")
     to_stdout = str(args.out) == "-"
     if to_stdout and args.json:
-        raise UsageError("--json needs --out FILE (the capture goes to standard output)")
+        raise UsageError("--json needs -o FILE (the capture goes to standard output)")
     name = f"{args.tap[0]}<->{args.tap[1]}" if args.tap else args.device
     with ExitStack() as files:
         try:  # standard output buffered even under python -u: a record cut by SIGINT is written whole

@@ -17,6 +17,7 @@ from sharedlink.commands import (
     capture_input,
     decode_options,
     fit_table,
+    warn_empty,
 )
 
 
@@ -37,6 +38,8 @@ def run(args: argparse.Namespace) -> int:
     variables, sync = decode_options(args)
     args.capture = capture_input(args.capture)
     st = capture_stats(args.capture, variables, sync)
+    if not st.error:
+        warn_empty(args.capture, st.frames)
     if args.json:
         json.dump(st.to_dict(), sys.stdout, indent=2)
         print()
