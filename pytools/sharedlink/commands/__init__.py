@@ -199,13 +199,11 @@ def check_capture(path: Path) -> None:
 STDIN = Path("/dev/stdin")
 
 
-def capture_input(path: Path, *, streams: bool = True) -> Path:
-    """The capture a command reads: ``-`` is standard input where the command reads it once
-    (``streams``), checked not to be a terminal; any other path must be a file
-    (:func:`check_capture`)."""
+def capture_input(path: Path) -> Path:
+    """The capture a command reads: ``-`` is standard input (every command reads its capture
+    once, front to back, or copies a pipe: ``replay``), refused when it is a terminal; any other
+    path must be a file (:func:`check_capture`)."""
     if str(path) == "-":
-        if not streams:
-            raise UsageError("-: this command cannot read its capture from standard input: give a file")
         if sys.stdin is None or sys.stdin.isatty():
             raise UsageError("-: standard input is a terminal: pipe a capture in (< capture.pcap)")
         return STDIN
