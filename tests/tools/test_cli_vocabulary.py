@@ -192,7 +192,7 @@ def test_ingest_of_an_empty_folder_is_an_error(tmp_path):
 MISSING = [
     ["stats", "{m}"], ["export", "{m}"], ["plot", "{m}", "-o", "{t}/p.png"], ["compress", "{m}", "-o", "{t}/o.pcap"],
     ["expand", "{m}", "-o", "{t}/o.pcap"], ["diff", "{m}", "{m}"], ["replay", "{m}"], ["watch", "{m}"],
-    ["serial", "import", "{m}", "-o", "{t}/o.pcapng"], ["ingest", "{m}", "-o", "{t}/ds"],
+    ["serial", "import", "{m}", "-o", "{t}/o.pcapng"], ["ingest", "{m}", "-o", "{t}/ds"], ["query", "{m}", "SELECT 1"],
 ]
 
 

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from sharedlink.commands import EXIT_OK
+from sharedlink.errors import UsageError
 from sharedlink.fleet.query import run_query, text, write_csv, write_json
 
 
@@ -27,6 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.dataset.exists():  # the one wording of a missing input
+        raise UsageError(f"{args.dataset}: no such file")
     result = run_query(args.dataset, args.sql)
     if args.fmt == "csv":
         write_csv(result, sys.stdout)
