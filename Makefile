@@ -67,7 +67,7 @@ $(STAMP): pyproject.toml setup.py
 # --- the main job ----------------------------------------------------------------------------
 demo: deps
 	@mkdir -p out
-	$(CLI) gen out/demo.pcap --duration 10 --compress
+	$(CLI) gen -o out/demo.pcap --duration 10 --compress
 	@echo; echo "== tshark with dissector/sharedlink.lua (first 12 frames) =="
 	@tshark -n -X lua_script:dissector/sharedlink.lua -r out/demo.pcap -c 12 2>/dev/null
 	@echo; echo "== one frame in full =="
@@ -96,8 +96,8 @@ mutate: deps
 	env -u PYTHONPATH $(PY) scripts/mutate.py $(MUTATE_ARGS)
 
 captures: deps
-	$(CLI) gen captures/beacon-full.pcap --duration 60 --seed 1
-	$(CLI) gen captures/beacon-compressed.pcap --duration 60 --seed 1 --compress --sync-interval 1
+	$(CLI) gen -o captures/beacon-full.pcap --duration 60 --seed 1
+	$(CLI) gen -o captures/beacon-compressed.pcap --duration 60 --seed 1 --compress --sync-interval 1
 
 # every dissector/**/*.lua into the personal plugin folder, the serial extcap (its first line
 # pointed at the venv's Python) into the personal extcap folder and the coloring rules at the top

@@ -5,7 +5,7 @@
 >>> pkt = IP(dst="127.0.0.1") / UDP(sport=7013, dport=7013) / SharedLink(dst="A", src="B",
 ...         body="N0|T2|QAutoGpsLat|D38.34698779")
 >>> bytes(pkt[SharedLink])
-b'[:AB|N0|T2|QAutoGpsLat|D38.34698779|C..]\\r\\n'
+b'[:AB|N0|T2|QAutoGpsLat|D38.34698779|C37]\\r\\n'
 
 ``chksum`` left as None is computed by the codec when the packet is built; set it to a string
 to send a wrong one. Dissecting goes through :func:`sharedlink.protocols.codec.parse_frame`, so the

@@ -151,14 +151,14 @@ def test_cli_compress_expand_and_errors(tmp_path):
     assert r.returncode == 0 and "wrote" in r.stderr and "larger" in r.stderr
     assert (tmp_path / "e.pcap").read_bytes() == full.read_bytes()
     for args, msg in (
-        (["compress", str(tmp_path / "nope.pcap"), str(tmp_path / "o.pcap")], "No such file"),
-        (["compress", str(full), str(tmp_path / "o.pcap"), "--sync-interval", "0"], "--sync-interval"),
-        (["expand", str(full), str(tmp_path / "no-dir" / "o.pcap")], "No such file"),
-        (["expand", str(full), str(tmp_path / "o.pcap"), "--variables", "a:x"], "--variables"),
+        (["compress", str(tmp_path / "nope.pcap"), "-o", str(tmp_path / "o.pcap")], "nope.pcap: no such file"),
+        (["compress", str(full), "-o", str(tmp_path / "o.pcap"), "--sync-interval", "0"], "--sync-interval"),
+        (["expand", str(full), "-o", str(tmp_path / "no-dir" / "o.pcap")], "No such file"),
+        (["expand", str(full), "-o", str(tmp_path / "o.pcap"), "--variables", "a:x"], "--variables"),
     ):
         r = subprocess.run(CLI + args, capture_output=True, text=True)
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
     (tmp_path / "cut.pcap").write_bytes(full.read_bytes()[:-10])
-    r = subprocess.run(CLI + ["compress", str(tmp_path / "cut.pcap"), str(tmp_path / "o.pcap")], capture_output=True, text=True)
+    r = subprocess.run(CLI + ["compress", str(tmp_path / "cut.pcap"), "-o", str(tmp_path / "o.pcap")], capture_output=True, text=True)
     assert r.returncode == 2 and "truncated record" in r.stderr and "Traceback" not in r.stderr
     assert len(list(read_records(tmp_path / "o.pcap"))) == 50

@@ -298,11 +298,11 @@ def test_import_errors_are_clean(tmp_path):
     with pytest.raises(ImportError_) as ei:
         read_log(bad, "hex")
     assert ei.value.line == 2
-    for args in (["serial", "import", str(bad), "--out", str(tmp_path / "x.pcapng"), "--format", "hex"],
-                 ["serial", "import", str(tmp_path / "missing"), "--out", str(tmp_path / "x.pcapng")],
+    for args in (["serial", "import", str(bad), "-o", str(tmp_path / "x.pcapng"), "--log-format", "hex"],
+                 ["serial", "import", str(tmp_path / "missing"), "-o", str(tmp_path / "x.pcapng")],
                  ["serial", "capture", "--baud", "9600"],
-                 ["serial", "capture", str(tmp_path / "no-such-tty"), "--baud", "9600", "--out", str(tmp_path / "y.pcapng")],
-                 ["gen", str(tmp_path / "z.pcap"), "--transport", "serial", "--format", "pcap"]):
+                 ["serial", "capture", str(tmp_path / "no-such-tty"), "--baud", "9600", "-o", str(tmp_path / "y.pcapng")],
+                 ["gen", "-o", str(tmp_path / "z.pcap"), "--transport", "serial", "--format", "pcap"]):
         r = subprocess.run([*CLI, *args], capture_output=True, text=True)
         assert r.returncode == 2 and r.stderr.startswith("sharedlink: error: ") and "Traceback" not in r.stderr, (args, r.stderr)
     assert not (tmp_path / "x.pcapng").exists()

@@ -90,7 +90,7 @@ def frames(n: int, tag: str) -> list[bytes]:
 def test_capture_one_port_records_what_was_written(tmp_path):
     m, path = pty_pair()
     out = tmp_path / "live.pcapng"
-    proc = subprocess.Popen([*CLI, "serial", "capture", path, "--baud", "115200", "--out", str(out), "--json"],
+    proc = subprocess.Popen([*CLI, "serial", "capture", path, "--baud", "115200", "-o", str(out), "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_ready(proc)
@@ -129,7 +129,7 @@ def test_ctrl_c_while_stdout_is_full_leaves_the_record_whole(tmp_path, unbuffere
     rest was dropped: a truncated block (44 of 4140 bytes) with exit 0 and "1 records"."""
     m, path = pty_pair()
     r, w = one_page_pipe()
-    proc = subprocess.Popen([*CLI, "serial", "capture", path, "--baud", "115200", "--out", "-"],
+    proc = subprocess.Popen([*CLI, "serial", "capture", path, "--baud", "115200", "-o", "-"],
                             stdout=w, stderr=subprocess.PIPE, text=True, env=environment(unbuffered))
     os.close(w)
     sent = bytes(range(256)) * 40
@@ -159,7 +159,7 @@ def test_tap_relays_both_ways_and_records_both_directions(tmp_path):
     ma, pa = pty_pair()
     mb, pb = pty_pair()
     out = tmp_path / "tap.pcapng"
-    proc = subprocess.Popen([*CLI, "serial", "capture", "--tap", pa, pb, "--baud", "9600", "--out", str(out)],
+    proc = subprocess.Popen([*CLI, "serial", "capture", "--tap", pa, pb, "--baud", "9600", "-o", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_ready(proc)
@@ -245,7 +245,7 @@ def test_extcap_answers_wireshark_and_captures_into_a_fifo(tmp_path):
 def test_killed_capture_is_still_readable(tmp_path):
     m, path = pty_pair()
     out = tmp_path / "killed.pcapng"
-    proc = subprocess.Popen([*CLI, "serial", "capture", path, "--baud", "9600", "--out", str(out)],
+    proc = subprocess.Popen([*CLI, "serial", "capture", path, "--baud", "9600", "-o", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_ready(proc)
@@ -310,7 +310,7 @@ def test_make_install_puts_the_extcap_where_tshark_finds_it(tmp_path):
 def test_capture_ends_cleanly_when_the_line_goes_away(tmp_path):
     m, path = pty_pair()
     out = tmp_path / "hangup.pcapng"
-    proc = subprocess.Popen([*CLI, "serial", "capture", path, "--baud", "9600", "--out", str(out), "--json"],
+    proc = subprocess.Popen([*CLI, "serial", "capture", path, "--baud", "9600", "-o", str(out), "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     f = encode_positional("A", "B", ["1"])
     try:

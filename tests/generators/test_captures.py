@@ -20,19 +20,25 @@ def make_captures_commands() -> list[list[str]]:
     return [shlex.split(line.strip())[1:] for line in block.splitlines() if re.match(r"\s+\$\(CLI\) gen ", line)]
 
 
+def _output(cmd: list[str]) -> str:
+    """The capture a gen line writes: ``-o FILE`` (or the old positional ``gen FILE``)."""
+    return cmd[cmd.index("-o") + 1] if "-o" in cmd else cmd[1]
+
+
 def test_makefile_lists_every_capture():
     cmds = make_captures_commands()
-    made = sorted(Path(c[1]).name for c in cmds)
+    made = sorted(Path(_output(c)).name for c in cmds)
     assert made == sorted(p.name for p in (ROOT / "captures").glob("*.pcap*"))
     readme = (ROOT / "captures" / "README.md").read_text()
     for name in made:
         assert name in readme
 
 
-@pytest.mark.parametrize("cmd", make_captures_commands(), ids=lambda c: Path(c[1]).name)
+@pytest.mark.parametrize("cmd", make_captures_commands(), ids=lambda c: Path(_output(c)).name)
 def test_capture_is_byte_identical_when_remade(tmp_path, cmd):
-    target = ROOT / cmd[1]
+    target = ROOT / _output(cmd)
     out = tmp_path / target.name
-    r = subprocess.run([sys.executable, "-m", "sharedlink", cmd[0], str(out), *cmd[2:]], capture_output=True, text=True)
+    args = [str(out) if a == _output(cmd) else a for a in cmd]
+    r = subprocess.run([sys.executable, "-m", "sharedlink", *args], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert out.read_bytes() == target.read_bytes()

@@ -60,14 +60,14 @@ def test_cli_reports_each_error_once(tmp_path, capsys):
     bad = tmp_path / "bad.pcap"
     bad.write_bytes(b"not a capture at all, no magic here")
     out = tmp_path / "out.pcap"
-    for argv in (["stats", str(bad)], ["export", str(bad)], ["compress", str(bad), str(out)],
-                 ["expand", str(bad), str(out)]):
+    for argv in (["stats", str(bad)], ["export", str(bad)], ["compress", str(bad), "-o", str(out)],
+                 ["expand", str(bad), "-o", str(out)]):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert err.startswith(f"sharedlink: error: {bad}: file header: not a pcap") and err.count("sharedlink: error:") == 1, (argv, err)
     log = tmp_path / "bad.txt"
     log.write_text("00000000  5b 3a 41  |[:A|\n00000010  41 42\n")
-    assert main(["serial", "import", str(log), "--out", str(tmp_path / "x.pcapng"), "--format", "hex"]) == 2
+    assert main(["serial", "import", str(log), "-o", str(tmp_path / "x.pcapng"), "--log-format", "hex"]) == 2
     assert capsys.readouterr().err.startswith(f"sharedlink: error: {log}: line 2: ")
     assert main(["replay", str(bad), "--to", "127.0.0.1:9", "--speed", "0"]) == 2  # the one number validator
     err = capsys.readouterr().err

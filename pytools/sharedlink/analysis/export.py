@@ -37,6 +37,7 @@ from xml.sax.saxutils import escape as xml_escape
 
 from sharedlink.analysis.decode import VALUE_KINDS, Decoded, format_time, iter_decoded
 from sharedlink.capture.pcapio import CaptureError, atomic_open, display_name, rereadable
+from sharedlink.errors import UsageError
 from sharedlink.protocols.state import BEACON_VARIABLES, Variable
 
 FORMATS = ("csv", "jsonl", "geojson", "kml", "mcap")
@@ -58,6 +59,7 @@ class ExportOptions:
     lon: str = LON
     heading: str = HEADING  # mcap: the LocationFix heading
     velocity: str = VELOCITY  # mcap: the speed variable (LocationFix velocity)
+    require: Sequence[str] = ()  # names the capture must carry (csv/jsonl/geojson/kml), else UsageError
 
 
 @dataclass
@@ -67,6 +69,7 @@ class ExportResult:
     points: int = 0  # positions written (GeoJSON/KML)
     columns: list[str] = field(default_factory=list)
     error: str | None = None  # the capture is damaged here; everything before it was written
+    seen: set[str] = field(default_factory=set)  # variable names given a value (with opts.require)
 
 
 def _checksum(d: Decoded) -> str:
@@ -85,10 +88,13 @@ def _typed(v: Variable | None) -> Any:
 
 def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded]:
     """The decoded frames; damage after the first record ends the stream with ``error`` set."""
+    seen = result.seen if opts.require else None
     try:
         for item in iter_decoded(path, opts.variables, opts.sync_interval):
             if isinstance(item, Decoded):
                 result.frames += 1
+                if seen is not None:
+                    seen.update(u.name for u in item.updates if u.text is not None)
                 yield item
     except CaptureError as exc:
         if exc.record is None and result.frames == 0:
@@ -387,6 +393,10 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
             result.rows += writer.write(first)
         for d in frames:
             result.rows += writer.write(d)
+        missing = [n for n in opts.require if n not in result.seen]
+        if missing and result.error is None:  # a file output is not left behind (atomic_open)
+            have = ", ".join(sorted(result.seen)) or "none"
+            raise UsageError(f"no variable {', '.join(missing)} in {display_name(str(path))} (its variables: {have})")
     finally:
         writer.close()
     if isinstance(writer, (_GeoJson, _Kml)):

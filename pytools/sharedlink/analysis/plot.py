@@ -308,9 +308,18 @@ def figure_for_capture(path: str | Path, variables: Sequence[str] | None = None,
     return build_figure(collect(path, **kw), variables)
 
 
-def plot_capture(path: str | Path, out: str | Path, variables: Sequence[str] | None = None, **kw) -> PlotData:
-    """Write the plot of ``path`` to ``out`` (format from its suffix: png, svg, pdf)."""
+def plot_capture(path: str | Path, out: str | Path, select: Sequence[str] | None = None, **kw) -> PlotData:
+    """Write the plot of ``path`` to ``out`` (format from its suffix: png, svg, pdf), with a
+    panel per ``select``ed variable (default: every numeric one). ``variables=`` is the
+    a-priori list as everywhere (:func:`collect`); a list of plain names there is the old
+    spelling of ``select`` and still taken so, with a DeprecationWarning."""
+    old = kw.get("variables")
+    if old is not None and all(isinstance(v, str) for v in old):
+        import warnings
+
+        warnings.warn("plot_capture(variables=[names]) is deprecated: use select=", DeprecationWarning, stacklevel=2)
+        select = list(kw.pop("variables"))
     data = collect(path, **kw)
-    fig = build_figure(data, variables)
+    fig = build_figure(data, select)
     fig.savefig(str(out))
     return data

@@ -286,6 +286,9 @@ def tables(st: CaptureStats) -> list[tuple[str, list[str], list[list[str]]]]:
     def num(x: float | None, fmt: str = "%.6g") -> str:
         return "" if x is None else fmt % x
 
+    def whole(x: float | None) -> str:  # as --json has it: every digit
+        return "" if x is None else repr(x)
+
     ratio = st.compression_ratio
     summary = [
         ["frames", str(st.frames)],
@@ -316,7 +319,7 @@ def tables(st: CaptureStats) -> list[tuple[str, list[str], list[list[str]]]]:
         for _, p in sorted(st.pairs.items())
     ]
     variables = [
-        [v.pair, v.name, str(v.count), str(v.changes), num(v.min), num(v.max), v.last or ""]
+        [v.pair, v.name, str(v.count), str(v.changes), whole(v.min), whole(v.max), v.last or ""]
         for _, v in sorted(st.variables.items())
     ]
     return [

@@ -20,8 +20,9 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from sharedlink.analysis.transform import transform_capture
-from sharedlink.capture.pcapio import is_stdout, replacing_links
+from sharedlink.capture.pcapio import NS, is_stdout, replacing_links
 from sharedlink.errors import UsageError
+from sharedlink.protocols.codec import TYPE_NAMES
 from sharedlink.protocols.state import BEACON_VARIABLES, parse_variables
 
 T = TypeVar("T")
@@ -81,6 +82,15 @@ COUNT = number(1, 1e12, integer=True)
 PORT = number(1, 65535, integer=True)
 BAUD = number(1, 100_000_000, integer=True)
 
+#: a time factor (replay, watch): 2 plays twice as fast
+SPEED = number(1e-3, 1e6, unit="(1e-3: a thousand times slower)")
+
+
+def add_speed_option(p: argparse.ArgumentParser | Any, help: str) -> None:
+    """``--speed X``: the one time factor."""
+    p.add_argument("--speed", type=SPEED, default=1.0, metavar="X", help=help)
+
+
 # -- options: --variables (one parser, one meaning in every command) and --sync-interval -----
 
 VARIABLES_HELP = (
@@ -96,17 +106,23 @@ def add_variables_option(p: argparse.ArgumentParser) -> None:
 
 
 def variables_option(text: str | None) -> list[tuple[str, int | None]]:
-    """The ``--variables`` list (the beacon's when not given); UsageError if bad."""
+    """The ``--variables`` list (the beacon's when not given); UsageError if bad, a type that
+    is not a SharedLink type code (0, 2, 4) included."""
     if text is None:
         return list(BEACON_VARIABLES)
     try:
-        return parse_variables(text)
+        variables = parse_variables(text)
     except ValueError as exc:
         raise UsageError(f"--variables: {exc}") from None
+    for name, code in variables:
+        if code is not None and code not in TYPE_NAMES:
+            known = ", ".join(f"{c} {n}" for c, n in TYPE_NAMES.items())
+            raise UsageError(f"--variables: {name}:{code}: no such type (the types are {known})")
+    return variables
 
 
-def name_list(text: str | None, option: str = "--vars") -> list[str] | None:
-    """A comma-separated list of variable names (``--vars``): None when the option was not
+def name_list(text: str | None, option: str = "--select") -> list[str] | None:
+    """A comma-separated list of variable names (``--select``): None when the option was not
     given; no name in it is a usage error."""
     if text is None:
         return None
@@ -114,6 +130,45 @@ def name_list(text: str | None, option: str = "--vars") -> list[str] | None:
     if not names:
         raise UsageError(f"{option}: no variable named")
     return names
+
+
+def add_select_option(p: argparse.ArgumentParser | Any, help: str) -> None:
+    """``--select NAME,...``: the variables a command shows (``--vars`` the old spelling); read
+    with :func:`name_list`, the names checked against the capture's."""
+    p.add_argument("--select", default=None, metavar="NAME,...", help=help)
+    add_old_spelling(p, "--vars", "--select", "select")
+
+
+#: the variables a track is drawn from, by option (the beacon's)
+LOCATION = {"lat": "AutoGpsLat", "lon": "AutoGpsLon", "heading": "AutoGpsHead", "velocity": "AutoGpsVel"}
+_LOCATION_HELP = {"lat": "latitude variable", "lon": "longitude variable", "heading": "heading variable (degrees)",
+                  "velocity": "speed variable"}
+
+
+def add_location_options(p: argparse.ArgumentParser | Any, what: str, *, names: tuple[str, ...] = tuple(LOCATION),
+                         checked: bool = True) -> None:
+    """``--lat``, ``--lon``, ``--heading``, ``--velocity`` (those in ``names``): the variables
+    a track is drawn from. ``checked``: left None when not given, so that :func:`given_names`
+    knows which the user named (and fills in the beacon's for the others)."""
+    for key in names:
+        p.add_argument(f"--{key}", default=None if checked else LOCATION[key], metavar="NAME",
+                       help=f"{_LOCATION_HELP[key]} for {what} (default {LOCATION[key]})")
+
+
+def given_names(args: argparse.Namespace) -> dict[str, list[str]]:
+    """The variable names the user gave (``--select`` and the location options given), by
+    option, to check once the capture's variables are known; fills in the defaults."""
+    given: dict[str, list[str]] = {}
+    selected = name_list(getattr(args, "select", None))
+    if selected:
+        given["--select"] = selected
+    for key, default in LOCATION.items():
+        if hasattr(args, key):
+            if getattr(args, key) is None:
+                setattr(args, key, default)
+            else:
+                given[f"--{key}"] = [getattr(args, key)]
+    return given
 
 
 def add_decode_options(p: argparse.ArgumentParser) -> None:
@@ -134,11 +189,147 @@ def decode_options(args: argparse.Namespace) -> tuple[list[tuple[str, int | None
 
 
 def check_capture(path: Path) -> None:
-    """A capture to read must exist and be a file."""
+    """A capture to read must exist and be a file: the one wording of these messages."""
     if not path.exists():
         raise UsageError(f"{path}: no such file")
     if path.is_dir():
         raise UsageError(f"{path}: is a directory, not a capture")
+
+
+#: what ``-`` reads as a capture: standard input, read once front to back
+STDIN = Path("/dev/stdin")
+
+
+def capture_input(path: Path) -> Path:
+    """The capture a command reads: ``-`` is standard input (every command reads its capture
+    once, front to back, or copies a pipe: ``replay``), refused when it is a terminal; any other
+    path must be a file (:func:`check_capture`)."""
+    if str(path) == "-":
+        if sys.stdin is None or sys.stdin.isatty():
+            raise UsageError("-: standard input is a terminal: pipe a capture in (< capture.pcap)")
+        return STDIN
+    check_capture(path)
+    return path
+
+
+def unknown_names(wanted: dict[str, list[str]], known: list[str] | set[str]) -> None:
+    """Names the user gave (``{"--select": [...], "--lat": [...]}``) that the capture never
+    carries: a UsageError naming the first option and what the capture has."""
+    have = set(known)
+    for option, names in wanted.items():
+        missing = [n for n in names if n not in have]
+        if missing:
+            what = ", ".join(sorted(have)) if have else "no variables"
+            raise UsageError(f"{option}: no variable {', '.join(missing)} in the capture (it has {what})")
+
+
+# -- the vocabulary: shared options and the old spellings (docs/cli.md) -----------------------
+
+#: the note an old spelling prints on standard error, once per use
+DEPRECATED = "sharedlink: warning: {old} is deprecated, use {new} (the old spelling goes in the next release)"
+
+
+def deprecated(old: str, new: str) -> None:
+    """Say on standard error that ``old`` is an old spelling of ``new``."""
+    print(DEPRECATED.format(old=old, new=new), file=sys.stderr)
+
+
+class OldSpelling(argparse.Action):
+    """An old spelling kept for one release: stores into the new option's ``dest`` and says so
+    on standard error. Hidden from ``--help``; docs/cli.md lists every one. As a positional
+    (``nargs="?"``) it does nothing when absent."""
+
+    def __init__(self, option_strings: list[str], dest: str, new: str, **kwargs: Any) -> None:
+        self.new = new
+        kwargs.setdefault("help", argparse.SUPPRESS)
+        kwargs.setdefault("default", argparse.SUPPRESS if option_strings else None)
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        if values is None or values == []:  # an absent optional positional
+            return
+        if option_string is None:  # the positional: sharedlink gen OUT -> sharedlink gen -o OUT
+            deprecated(f"'{parser.prog} {self.metavar}'", f"'{parser.prog} {self.new}'")
+        else:
+            deprecated(f"{parser.prog.split(' ', 1)[-1]} {option_string}", self.new)
+        setattr(namespace, self.dest, values)
+
+
+class OptionalPositional(argparse.Action):
+    """An optional positional (``nargs="?"``) that leaves its ``dest`` alone when absent, so
+    that an old option spelling of it (``watch --from``) is not overwritten."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        if values is not None:
+            setattr(namespace, self.dest, values)
+
+
+def add_old_spelling(p: argparse.ArgumentParser | Any, old: str, new: str, dest: str, **kwargs: Any) -> None:
+    """``old`` as a hidden old spelling of ``new``: an option (``--out``) stores into ``dest``;
+    a positional (``OUT``, optional) into ``old_<dest>``, which :func:`require_output` reads."""
+    if old.startswith("-"):
+        p.add_argument(old, dest=dest, action=OldSpelling, new=new, **kwargs)
+    else:
+        p.add_argument(f"old_{dest}", action=OldSpelling, new=new, nargs="?", metavar=old, **kwargs)
+
+
+def add_output_option(p: argparse.ArgumentParser | Any, help: str, *, dest: str = "output", required: bool = False,
+                      default: Any = None, metavar: str = "FILE", type: Callable[[str], Any] = Path) -> None:
+    """``-o/--output FILE`` (``-``: standard output), the one name of every output."""
+    p.add_argument("-o", "--output", dest=dest, type=type, default=default, required=required, metavar=metavar,
+                   help=help)
+
+
+def require_output(args: argparse.Namespace, dest: str = "output") -> Path:
+    """The output, given as ``-o`` or by the old positional spelling; a UsageError when neither
+    or both."""
+    old, new = getattr(args, f"old_{dest}", None), getattr(args, dest, None)
+    if old is not None and new is not None:
+        raise UsageError(f"two outputs: {old} and -o {new}")
+    out = new if new is not None else old
+    if out is None:
+        raise UsageError("no output: give -o FILE (-: standard output)")
+    setattr(args, dest, Path(out))
+    return Path(out)
+
+
+def add_json_option(p: argparse.ArgumentParser | Any, what: str = "the summary") -> None:
+    """``--json``: what the command reports, as JSON on standard output."""
+    p.add_argument("--json", action="store_true", help=f"print {what} as JSON on standard output")
+
+
+def start_time(high_ns: int | None = None) -> Callable[[str], int]:
+    """An argparse ``type=`` for ``--start``: a UTC ISO 8601 date or time -> ns since 1970. A
+    plain number (seconds since 1970, the old ``serial import --start``) is still read, with a
+    deprecation note."""
+    import datetime as dt
+
+    seconds = number(0, None if high_ns is None else high_ns / 1e9 - 1, unit="seconds since 1970")
+
+    def parse(text: str) -> int:
+        try:
+            float(text)
+        except ValueError:
+            pass
+        else:
+            value = seconds(text)
+            deprecated(f"--start {text} (seconds since 1970)", "--start TIME in ISO 8601, e.g. 2026-03-02T08:00:00Z")
+            return int(round(value * 1e9))
+        try:
+            t = dt.datetime.fromisoformat(text[:-1] + "+00:00" if text.endswith("Z") else text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an ISO 8601 time (e.g. 2026-03-02T08:00:00Z)") from None
+        if t.tzinfo is None:
+            t = t.replace(tzinfo=dt.timezone.utc)
+        ns = int(t.timestamp()) * NS + t.microsecond * 1000
+        if ns < 0 or (high_ns is not None and ns > high_ns):
+            raise argparse.ArgumentTypeError(f"{text} is out of range: give a time from 1970 on that the capture can hold")
+        return ns
+
+    parse.__name__ = "time"
+    return parse
 
 
 # -- commands that write a file (gen, serial) ----------------------------------------------------
@@ -212,6 +403,17 @@ def generate_to(opts: Any, generate: Callable[[Any, Path], T], out: Path) -> T:
                          "give an earlier --start") from None
 
 
+def warn_empty(path: Path | str, count: int, what: str = "SharedLink frames") -> None:
+    """An empty input is reported (a warning on stderr; the exit code stays): nothing in it."""
+    if count == 0:
+        print(f"sharedlink: warning: {path}: no {what}", file=sys.stderr)
+
+
+def plural(n: int, word: str, words: str | None = None) -> str:
+    """``1 frame``, ``2 frames``."""
+    return f"{n} {word if n == 1 else (words or word + 's')}"
+
+
 def report(summary: dict, as_json: bool, line: str) -> None:
     """The closing summary: JSON on stdout with ``--json``, else ``line`` on stderr."""
     if as_json:
@@ -226,22 +428,26 @@ def report(summary: dict, as_json: bool, line: str) -> None:
 
 def add_transform_arguments(p: argparse.ArgumentParser) -> None:
     """The arguments ``compress`` and ``expand`` share."""
-    p.add_argument("input", type=Path, help="pcap or pcapng capture to read")
-    p.add_argument("output", type=Path, help="capture to write (same format as the input)")
+    p.add_argument("input", type=Path, help="pcap or pcapng capture to read (-: standard input)")
+    add_old_spelling(p, "OUT", "-o OUT", "output", type=Path)
+    add_output_option(p, "capture to write, same format as the input (-: standard output)")
     add_variables_option(p)
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_json_option(p)
     add_force_option(p)
 
 
 @honours_force
 def run_transform(args: argparse.Namespace, mode: str) -> int:
     """``compress`` / ``expand``: rewrite the capture, then the summary."""
+    require_output(args)
+    args.input = capture_input(args.input)
     if not (args.sync_interval > 0 and math.isfinite(args.sync_interval)):
         raise UsageError("--sync-interval must be a positive number of seconds")
     variables = variables_option(args.variables)
     if args.json and is_stdout(args.output):
         raise UsageError("--json needs an output file (the capture goes to standard output)")
     st = transform_capture(args.input, args.output, mode, args.sync_interval, variables)
+    warn_empty(args.input, st.records, "records")
     if args.json:
         json.dump({"input": str(args.input), "output": str(args.output), "mode": mode, **st.to_dict()}, sys.stdout)
         print()
@@ -259,3 +465,54 @@ def run_transform(args: argparse.Namespace, mode: str) -> int:
         print(f"sharedlink: error: {st.error} (the records before it were written)", file=sys.stderr)
         return EXIT_USAGE
     return EXIT_OK
+
+
+# -- tables that fit the terminal (stats, diff) --------------------------------------------------
+
+
+def fit_table(title: str, headers: list[str], rows: list[list[str]], width: int, *, wrap: tuple[int, ...] = (),
+              drop: tuple[int, ...] = (), right: tuple[int, ...] = (), styles: list[str | None] | None = None,
+              ) -> Any | None:
+    """A rich Table of ``rows`` no wider than ``width``, whose cells are never cut: columns in
+    ``wrap`` (prose) wrap at spaces, the others keep their whole text on one line. When too wide,
+    headers of several words go on several lines, then the columns in ``drop`` are left out in
+    that order (named in the caption). None when even that does not fit (the caller prints
+    plain lines instead, which the terminal wraps)."""
+    from rich.table import Table
+
+    show = any(headers)
+    n = len(headers)
+
+    def longest_word(text: str) -> int:
+        return max((len(w) for w in text.split()), default=0)
+
+    def need(cols: list[int], stacked: bool) -> int:
+        total = 1 + 3 * len(cols)  # borders and padding: "│ x │ y │"
+        for i in cols:
+            head = (longest_word(headers[i]) if stacked else len(headers[i])) if show else 0
+            if i in wrap:
+                cell = max((longest_word(r[i]) for r in rows), default=0)
+            else:
+                cell = max((len(r[i]) for r in rows), default=0)
+            total += max(head, cell, 1)
+        return total
+
+    cols, stacked = list(range(n)), False
+    if need(cols, False) > width:
+        stacked = True
+        for i in drop:
+            if need(cols, True) <= width:
+                break
+            cols.remove(i)
+        if need(cols, True) > width:
+            return None
+    dropped = [headers[i] for i in range(n) if i not in cols]
+    caption = f"left out to fit the terminal: {', '.join(dropped)} (--json has every column)" if dropped else None
+    t = Table(title=title, show_header=show, title_justify="left", caption=caption, caption_justify="left")
+    for i in cols:
+        head = headers[i].replace(" ", "\n") if stacked and i not in wrap else headers[i]
+        t.add_column(head, justify="right" if i in right else "left", no_wrap=i not in wrap,
+                     overflow="fold")  # never "…": the widths above leave room for every cell
+    for k, r in enumerate(rows):
+        t.add_row(*(r[i] for i in cols), style=styles[k] if styles else None)
+    return t

@@ -15,10 +15,14 @@ from sharedlink.commands import (
     EXIT_USAGE,
     MAX_SECONDS,
     SECONDS,
+    STDIN,
+    add_json_option,
     add_variables_option,
-    check_capture,
+    capture_input,
+    fit_table,
     number,
     variables_option,
+    warn_empty,
 )
 from sharedlink.errors import UsageError
 from sharedlink.protocols.codec import TYPE_NAMES
@@ -37,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog="Exit codes: 0 the data agree, 1 they diverge, 2 bad usage or a missing/damaged capture (what "
         "comes before the damage is still compared and reported), 130 interrupted.",
     )
-    p.add_argument("a", type=Path, help="first capture (pcap or pcapng), e.g. the full stream")
+    p.add_argument("a", type=Path, help="first capture (pcap or pcapng), e.g. the full stream (-: standard input)")
     p.add_argument("b", type=Path, help="second capture, e.g. the compressed stream")
     p.add_argument("--by", choices=("time", "sequence"), default="time",
                    help="align frames by time within --window (default) or by their order")
@@ -51,7 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_variables_option(p)
     p.add_argument("--single-process", action="store_true",
                    help="read both captures in this process (default: each in its own)")
-    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    add_json_option(p, "the report")
     p.set_defaults(func=run)
 
 
@@ -68,12 +72,18 @@ def run(args: argparse.Namespace) -> int:
         opts.validate()
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    for path in (args.a, args.b):
-        check_capture(path)
+    if str(args.a) == str(args.b) == "-":
+        raise UsageError("-: standard input can be only one of the two captures")
+    args.a, args.b = capture_input(args.a), capture_input(args.b)
+    if STDIN in (args.a, args.b):
+        opts.parallel = False  # a reader process has no standard input of its own
     report = diff_captures(args.a, args.b, opts)
     unreadable = [s.error for s in (report.a, report.b) if s.error and s.records == 0]
     if unreadable:  # not a capture at all: nothing to compare
         raise UsageError("; ".join(unreadable))
+    for side in (report.a, report.b):
+        if not side.error:
+            warn_empty(side.path, side.frames)
     if args.json:
         json.dump(report.to_dict(), sys.stdout, indent=1)
         print()
@@ -93,6 +103,16 @@ def run(args: argparse.Namespace) -> int:
 
 def _pct(x: float | None) -> str:
     return "-" if x is None else f"{x:.1%}"
+
+
+def _saving(x: float | None, what: str, short: bool = False) -> str:
+    """B against A: ``saves 26.0% of A's SharedLink bytes``, or when B is larger ``takes 36.9%
+    more SharedLink bytes than A`` (never a negative saving)."""
+    if x is None:
+        return f"{what}: -" if short else f"saves - of A's {what}"
+    if x >= 0:
+        return f"{x:.1%} of {what}" if short else f"saves {x:.1%} of A's {what}"
+    return f"{-x:.1%} more {what}" if short else f"takes {-x:.1%} more {what} than A"
 
 
 def _rel(ns: int | None, side: SideStats) -> str:
@@ -122,12 +142,17 @@ def _staleness(s: Staleness | None) -> str:
     return f"{s.ms:.0f} ms from {where} to A #{s.to_a_frame}/B #{s.to_b_frame}{late}"
 
 
-def _capture_rows(r: DiffReport) -> list[tuple[str, str, str]]:
+def _capture_rows(r: DiffReport, split: bool = False) -> list[tuple[str, str, str]]:
+    """The captures' figures side by side; ``split``: the value frames on a row of their own
+    (narrower columns, for tables)."""
     a, b = r.a, r.b
+    frames = [("SharedLink frames", f"{a.frames:,}", f"{b.frames:,}"),
+              ("frames with values", f"{a.value_frames:,}", f"{b.value_frames:,}")] if split else [
+        ("SharedLink frames (with values)", f"{a.frames:,} ({a.value_frames:,})", f"{b.frames:,} ({b.value_frames:,})")]
     rows = [
         ("file", a.path, b.path),
         ("records", f"{a.records:,}", f"{b.records:,}"),
-        ("SharedLink frames (with values)", f"{a.frames:,} ({a.value_frames:,})", f"{b.frames:,} ({b.value_frames:,})"),
+        *frames,
         ("SharedLink bytes", f"{a.payload_bytes:,}", f"{b.payload_bytes:,}"),
         ("captured bytes", f"{a.wire_bytes:,}", f"{b.wire_bytes:,}"),
         ("full-sync frames", f"{a.full:,}", f"{b.full:,}"),
@@ -142,7 +167,7 @@ def _capture_rows(r: DiffReport) -> list[tuple[str, str, str]]:
 
 def _summary_lines(r: DiffReport) -> list[str]:
     lines = [
-        f"B saves {_pct(r.saving_payload)} of A's SharedLink bytes ({_pct(r.saving_wire)} of captured bytes)",
+        f"B {_saving(r.saving_payload, 'SharedLink bytes')} ({_saving(r.saving_wire, 'captured bytes', short=True)})",
         f"aligned by {r.by}" + (f" within {r.window_ms:g} ms" if r.by == "time" else "")
         + f": {r.pairs:,} matched value-frame pairs",
     ]
@@ -198,27 +223,22 @@ def print_plain(r: DiffReport) -> None:
 
 def print_rich(r: DiffReport) -> None:
     from rich.console import Console
-    from rich.table import Table
 
     con = Console()
-    caps = Table(title="captures", title_justify="left")
-    caps.add_column("")
-    caps.add_column("A")
-    caps.add_column("B")
-    for label, a, b in _capture_rows(r):
-        caps.add_row(label, a, b)
+    caps = fit_table("captures", ["", "A", "B"], [list(x) for x in _capture_rows(r, split=True)[1:]], con.width,
+                     wrap=(0,))
+    rows = [[v.stream, v.name if v.present == "both" else f"{v.name} (only {v.present.upper()})",
+             TYPE_NAMES.get(v.type, "?") if v.type is not None else "?", f"{v.samples:,}", f"{v.mismatches:,}",
+             _divergence(v.first_divergence, r), _staleness(v.worst_staleness)] for v in r.variables]
+    vt = fit_table("variables", ["stream", "name", "type", "samples", "mismatches", "first divergence", "worst staleness"],
+                   rows, con.width, wrap=(5, 6), drop=(2, 6, 5, 0), right=(3, 4),
+                   styles=[None if v.agree else "red" for v in r.variables])
+    if caps is None or vt is None:  # too narrow for tables: plain lines, which the terminal wraps
+        print_plain(r)
+        return
+    con.print(f"A: {r.a.path}\nB: {r.b.path}", highlight=False)  # paths wrap as text, outside the table
     con.print(caps)
     for line in _summary_lines(r):
         con.print(line, highlight=False)
-    vt = Table(title="variables", title_justify="left")
-    for col in ("stream", "name", "type", "samples", "mismatches", "first divergence", "worst staleness"):
-        vt.add_column(col, justify="right" if col in ("samples", "mismatches") else "left", overflow="fold")
-    for v in r.variables:
-        name = v.name if v.present == "both" else f"{v.name} (only {v.present.upper()})"
-        style = None if v.agree else "red"
-        vt.add_row(
-            v.stream, name, TYPE_NAMES.get(v.type, "?") if v.type is not None else "?", f"{v.samples:,}",
-            f"{v.mismatches:,}", _divergence(v.first_divergence, r), _staleness(v.worst_staleness), style=style,
-        )
     con.print(vt)
     con.print(_verdict(r), style="bold green" if r.agree else "bold red", highlight=False)

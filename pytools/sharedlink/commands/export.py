@@ -10,10 +10,6 @@ from pathlib import Path
 from sharedlink.analysis.export import (
     BINARY_FORMATS,
     FORMATS,
-    HEADING,
-    LAT,
-    LON,
-    VELOCITY,
     ExportOptions,
     export,
     export_file,
@@ -24,10 +20,18 @@ from sharedlink.commands import (
     EXIT_USAGE,
     add_decode_options,
     add_force_option,
-    check_capture,
+    add_json_option,
+    add_location_options,
+    add_output_option,
+    add_select_option,
+    capture_input,
     decode_options,
+    deprecated,
+    given_names,
     honours_force,
     name_list,
+    plural,
+    warn_empty,
 )
 from sharedlink.errors import UsageError
 
@@ -44,40 +48,39 @@ def register(sub: argparse._SubParsersAction) -> None:
         "blackboard messages) for Foxglove and PlotJuggler. "
         "Streams: any size of capture.",
     )
-    p.add_argument("capture", type=Path, help="pcap or pcapng file")
+    p.add_argument("capture", type=Path, help="pcap or pcapng file (-: standard input)")
     p.add_argument("--format", dest="fmt", choices=FORMATS, default=None,
                    help="output format (default: from the -o file name, else csv)")
-    p.add_argument("-o", "--output", type=Path, default=None, help="file to write (default, or -: standard output)")
+    add_output_option(p, "file to write (default, or -: standard output)")
     add_force_option(p)
     p.add_argument("--changes", action="store_true", help="one row per variable change instead of one per frame")
-    p.add_argument("--vars", default=None, metavar="NAME,...", help="variables to export (default: all)")
-    p.add_argument("--lat", default=LAT, help=f"latitude variable for geojson/kml/mcap (default {LAT})")
-    p.add_argument("--lon", default=LON, help=f"longitude variable for geojson/kml/mcap (default {LON})")
-    p.add_argument("--heading", default=HEADING, help=f"heading variable (degrees) for mcap (default {HEADING})")
-    p.add_argument("--velocity", default=VELOCITY, help=f"speed variable for mcap (default {VELOCITY})")
+    add_select_option(p, "variables to export (default: all)")
+    add_location_options(p, "geojson/kml (and mcap)")
     add_decode_options(p)
-    p.add_argument("--json", action="store_true", help="print a summary as JSON on standard error")
+    add_json_option(p)
     p.set_defaults(func=run)
 
 
 @honours_force
 def run(args: argparse.Namespace) -> int:
     variables, sync = decode_options(args)
-    check_capture(args.capture)
+    args.capture = capture_input(args.capture)
+    given = given_names(args)
     fmt = args.fmt
     if fmt is None:
         fmt = _SUFFIXES.get(args.output.suffix.lower(), "csv") if args.output is not None else "csv"
-    columns = name_list(args.vars)
+    columns = name_list(args.select)
     if args.output is not None and args.output.is_dir():
         raise UsageError(f"{args.output}: is a directory")
     if fmt in BINARY_FORMATS:
         if args.output is None or is_stdout(args.output):
             raise UsageError(f"--format {fmt} is binary: give the file with -o")
         if args.changes or columns is not None:
-            raise UsageError(f"--format {fmt} writes every frame and variable: no --changes or --vars")
+            raise UsageError(f"--format {fmt} writes every frame and variable: no --changes or --select")
     refuse_overwrite(args.output, args.capture)
-    opts = ExportOptions(fmt=fmt, changes=args.changes, variables=variables, columns=columns,
-                         sync_interval=sync, lat=args.lat, lon=args.lon, heading=args.heading, velocity=args.velocity)
+    opts = ExportOptions(fmt=fmt, changes=args.changes, variables=variables, columns=columns, sync_interval=sync,
+                         lat=args.lat, lon=args.lon, heading=args.heading, velocity=args.velocity,
+                         require=_required(fmt, columns, given))
     try:
         if args.output is None or is_stdout(args.output):
             result = export(args.capture, sys.stdout, opts)
@@ -90,12 +93,27 @@ def run(args: argparse.Namespace) -> int:
     summary = {"capture": str(args.capture), "output": str(args.output or "-"), "format": fmt,
                "frames": result.frames, "rows": result.rows, "points": result.points, "error": result.error}
     if args.json:
-        print(json.dumps(summary), file=sys.stderr)
+        to_stdout = args.output is None or is_stdout(args.output)
+        if to_stdout:  # the export itself is on standard output
+            deprecated("export --json with the export on standard output (the summary on standard error)",
+                       "-o FILE with --json (the summary on standard output)")
+        print(json.dumps(summary), file=sys.stderr if to_stdout else sys.stdout)
     elif args.output is not None and not is_stdout(args.output):
-        what = "points" if fmt in ("geojson", "kml") else "messages" if fmt == "mcap" else "rows"
-        n = result.points if what == "points" else result.rows
-        print(f"wrote {args.output}: {n} {what} from {result.frames} frames ({fmt})", file=sys.stderr)
+        what = "point" if fmt in ("geojson", "kml") else "message" if fmt == "mcap" else "row"
+        n = result.points if what == "point" else result.rows
+        print(f"wrote {args.output}: {plural(n, what)} from {plural(result.frames, 'frame')} ({fmt})", file=sys.stderr)
+    if fmt != "mcap" and not result.error:  # MCAP holds P2OS and blackboard channels too
+        warn_empty(args.capture, result.frames)
     if result.error:
         print(f"sharedlink: error: {result.error} (the {result.frames} frames before it were exported)", file=sys.stderr)
         return EXIT_USAGE
     return EXIT_OK
+
+
+def _required(fmt: str, columns: list[str] | None, given: dict[str, list[str]]) -> list[str]:
+    """The names the capture must carry: the ``--select``ed ones, and for a track the location
+    options given (MCAP writes every variable and is not checked here)."""
+    names = list(columns or [])
+    if fmt in ("geojson", "kml"):
+        names += [n for opt in ("--lat", "--lon") for n in given.get(opt, [])]
+    return names

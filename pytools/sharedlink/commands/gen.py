@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sharedlink.capture.pcapio import NS
 from sharedlink.commands import (
     BAUD,
     BEACON_RECORD_BYTES,
@@ -15,11 +14,17 @@ from sharedlink.commands import (
     RATE,
     SECONDS,
     add_force_option,
+    add_json_option,
+    add_old_spelling,
+    add_output_option,
     check_room,
     generate_to,
     honours_force,
     number,
+    plural,
     report,
+    require_output,
+    start_time,
 )
 from sharedlink.errors import UsageError
 from sharedlink.generators.beacon import GenOptions, generate_file
@@ -32,13 +37,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Write a capture of SharedLink beacon traffic: a vehicle driving a plausible track, "
         "broadcast over UDP at --rate Hz, with optional compression and faults.",
     )
-    p.add_argument("out", type=Path, help="capture file to write")
+    add_old_spelling(p, "OUT", "-o OUT", "out", type=Path)
+    add_output_option(p, "capture file to write (-: standard output)", dest="out")
     add_force_option(p)
     p.add_argument("--duration", type=SECONDS, default=60.0, help="seconds of traffic (default 60)")
     p.add_argument("--frames", type=COUNT, default=None, help="number of beacon frames (overrides --duration)")
     p.add_argument("--rate", type=RATE, default=5.0, help="frames per second (default 5: every 200 ms)")
     p.add_argument("--compress", action="store_true", help="leave out unchanged values (shared-variable compression)")
-    p.add_argument("--sync-interval", type=SECONDS, default=1.0, help="with --compress: full set at least every S seconds (default 1)")
+    p.add_argument("--sync-interval", type=SECONDS, default=1.0, metavar="S",
+                   help="with --compress: full set at least every S seconds (default 1)")
     p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same bytes (default 1)")
     p.add_argument("--format", dest="fmt", choices=("pcap", "pcapng"), default=None, help="file format (default: from the file name, else pcap)")
     p.add_argument("--port", type=PORT, default=None, help="port (default: sharedlink 7013, p2os 8101, blackboard 7100)")
@@ -55,27 +62,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bad-checksum", type=FRACTION, default=0.0, metavar="RATE", help="fraction of frames sent with a wrong checksum")
     p.add_argument("--drop", type=FRACTION, default=0.0, metavar="RATE", help="fraction of frames lost")
     p.add_argument("--jitter", type=number(0, 3_600_000, unit="ms"), default=0.0, metavar="MS", help="timing jitter, uniform over +-MS/2 milliseconds")
-    p.add_argument("--start", type=_start_time, default=None, metavar="TIME",
+    p.add_argument("--start", type=start_time(), default=None, metavar="TIME",
                    help="time of the first beacon, UTC ISO 8601 (e.g. 2026-03-02T08:00:00Z; default 2026-01-01T12:00:00Z)")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_json_option(p)
     p.set_defaults(func=run)
-
-
-def _start_time(text: str) -> int:
-    """``--start``: UTC ISO 8601 date or time -> ns since 1970."""
-    import datetime as dt
-
-    try:
-        t = dt.datetime.fromisoformat(text[:-1] + "+00:00" if text.endswith("Z") else text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an ISO 8601 time (e.g. 2026-03-02T08:00:00Z)") from None
-    if t.tzinfo is None:
-        t = t.replace(tzinfo=dt.timezone.utc)
-    return int(t.timestamp()) * NS + t.microsecond * 1000
 
 
 @honours_force
 def run(args: argparse.Namespace) -> int:
+    require_output(args, "out")
     if args.transport == "serial" and args.protocol == "sharedlink":
         return run_gen_serial(args)
     fmt = args.fmt or ("pcapng" if str(args.out).endswith(".pcapng") or args.transport == "serial" else "pcap")
@@ -120,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
     report(
         summary, args.json,
-        f"wrote {args.out}: {stats.frames} frames ({kinds}), {stats.bytes} payload bytes"
+        f"wrote {args.out}: {plural(stats.frames, 'frame')} ({kinds}), {stats.bytes} payload bytes"
         + (f", {stats.dropped} dropped" if stats.dropped else "")
         + (f", {stats.bad_checksums} bad checksums" if stats.bad_checksums else ""),
     )
@@ -157,7 +152,7 @@ def run_session(args: argparse.Namespace, fmt: str) -> int:
         "kinds": stats.kinds,
     }
     kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
-    report(summary, args.json, f"wrote {args.out}: {stats.frames} frames over {opts.transport} port {opts.port} ({kinds})")
+    report(summary, args.json, f"wrote {args.out}: {plural(stats.frames, 'frame')} over {opts.transport} port {opts.port} ({kinds})")
     return 0
 
 
@@ -196,7 +191,7 @@ def run_gen_serial(args: argparse.Namespace) -> int:
     kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
     report(
         summary, args.json,
-        f"wrote {args.out}: {stats.frames} frames ({kinds}) in {stats.records} serial records at {opts.baud} baud"
+        f"wrote {args.out}: {plural(stats.frames, 'frame')} ({kinds}) in {plural(stats.records, 'serial record')} at {opts.baud} baud"
         + (f", {stats.noise_bytes} noise bytes" if stats.noise_bytes else ""),
     )
     return 0

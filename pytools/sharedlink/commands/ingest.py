@@ -6,9 +6,18 @@ import argparse
 import sys
 from pathlib import Path
 
-from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, decode_options
+from sharedlink.commands import (
+    EXIT_OK,
+    EXIT_USAGE,
+    add_decode_options,
+    add_json_option,
+    add_old_spelling,
+    add_output_option,
+    decode_options,
+)
+from sharedlink.commands import report as print_summary
 from sharedlink.errors import UsageError
-from sharedlink.fleet.ingest import BATCH_ROWS, Outcome, ingest
+from sharedlink.fleet.ingest import BATCH_ROWS, Outcome, find_captures, ingest
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,7 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("inputs", nargs="+", type=Path, metavar="CAPTURE_OR_DIR",
                    help="capture files, or directories searched for *.pcap, *.pcapng and *.cap")
-    p.add_argument("--to", dest="dataset", type=Path, required=True, metavar="DATASET", help="the dataset directory")
+    add_output_option(p, "the dataset directory (made if missing)", dest="dataset", metavar="DATASET")
+    add_old_spelling(p, "--to", "-o/--output", "dataset", type=Path, metavar="DATASET")
     p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run the tasks on this Dask distributed scheduler (e.g. tcp://host:8786) instead; "
@@ -34,11 +44,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"rows held per table before a row group is written (bounds memory; default {BATCH_ROWS})")
     p.add_argument("--quiet", "-q", action="store_true", help="no line per capture")
     add_decode_options(p)
+    add_json_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     variables, sync = decode_options(args)
+    if args.dataset is None:
+        raise UsageError("no dataset: give -o DATASET")
+    _check_inputs(args.inputs)
 
     def say(o: Outcome) -> None:
         if args.quiet and o.status in ("ingested", "unchanged"):
@@ -60,9 +74,21 @@ def run(args: argparse.Namespace) -> int:
         variables=variables, sync_interval=sync, force=args.force, batch_rows=args.batch_rows, on_outcome=say,
     )
     bad = report.count("damaged") + report.count("failed")
-    print(
+    summary = {"dataset": str(args.dataset), "ingested": report.count("ingested"), "unchanged": report.count("unchanged"),
+               "damaged_or_unreadable": bad, "frames": report.frames, "values": report.values}
+    print_summary(
+        summary, args.json,
         f"{args.dataset}: {report.count('ingested')} ingested ({report.frames} frames, {report.values} values), "
         f"{report.count('unchanged')} unchanged, {bad} damaged or unreadable",
-        file=sys.stderr,
     )
     return EXIT_OK if report.ok else EXIT_USAGE
+
+
+def _check_inputs(inputs: list[Path]) -> None:
+    """Every input exists, and a directory holds a capture: an empty input is an error (exit 2),
+    not a quiet run that ingests nothing."""
+    for path in inputs:
+        if not path.exists():
+            raise UsageError(f"{path}: no such file")
+        if path.is_dir() and not find_captures([path]):
+            raise UsageError(f"{path}: no captures in this directory (*.pcap, *.pcapng, *.cap)")

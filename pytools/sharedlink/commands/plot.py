@@ -7,18 +7,26 @@ import json
 import sys
 from pathlib import Path
 
-from sharedlink.analysis.export import LAT, LON
 from sharedlink.capture.pcapio import open_output, refuse_overwrite
 from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
     add_decode_options,
     add_force_option,
-    check_capture,
+    add_json_option,
+    add_location_options,
+    add_old_spelling,
+    add_output_option,
+    add_select_option,
+    capture_input,
     decode_options,
+    given_names,
     honours_force,
     name_list,
     number,
+    plural,
+    unknown_names,
+    warn_empty,
 )
 from sharedlink.errors import UsageError
 
@@ -30,36 +38,39 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Draw the vehicle's track (latitude/longitude coloured by speed, start and end, gaps and "
         "checksum failures marked) and each variable over time in panels below. Long captures are thinned.",
     )
-    p.add_argument("capture", type=Path, help="pcap or pcapng file")
-    p.add_argument("-o", "--output", type=Path, required=True, help="image to write (.png, .svg or .pdf)")
+    p.add_argument("capture", type=Path, help="pcap or pcapng file (-: standard input)")
+    add_output_option(p, "image to write (.png, .svg or .pdf)", required=True)
     add_force_option(p)
-    p.add_argument("--vars", default=None, metavar="NAME,...", help="variables to plot below the track (default: all numeric)")
-    p.add_argument("--lat", default=LAT, help=f"latitude variable (default {LAT})")
-    p.add_argument("--lon", default=LON, help=f"longitude variable (default {LON})")
-    p.add_argument("--speed", default="AutoGpsVel", help="variable the track is coloured by (default AutoGpsVel)")
+    add_select_option(p, "variables to plot below the track (default: all numeric)")
+    add_location_options(p, "the track, coloured by the speed", names=("lat", "lon", "velocity"))
+    add_old_spelling(p, "--speed", "--velocity (--speed is a time factor in replay and watch)", "velocity")
     p.add_argument("--max-points", type=number(10, 1e9, integer=True), default=5000, help="points kept per series (default 5000)")
     add_decode_options(p)
-    p.add_argument("--json", action="store_true", help="print a summary as JSON")
+    add_json_option(p)
     p.set_defaults(func=run)
 
 
 @honours_force
 def run(args: argparse.Namespace) -> int:
     variables, sync = decode_options(args)
-    check_capture(args.capture)
+    args.capture = capture_input(args.capture)
+    given = given_names(args)
     if args.output.suffix.lower() not in (".png", ".svg", ".pdf"):
         raise UsageError(f"{args.output}: give a .png, .svg or .pdf file name")
     refuse_overwrite(args.output, args.capture)
     if args.max_points < 10:
         raise UsageError("--max-points must be at least 10")
-    names = name_list(args.vars)
+    names = name_list(args.select)
     import matplotlib
 
     matplotlib.use("Agg")  # headless, whatever the environment says
     from sharedlink.analysis.plot import build_figure, collect
 
     data = collect(args.capture, variables, sync, max_points=args.max_points,
-                   lat=args.lat, lon=args.lon, speed=args.speed)
+                   lat=args.lat, lon=args.lon, speed=args.velocity)
+    if data.error is None:
+        warn_empty(args.capture, data.frames)
+        unknown_names({k: v for k, v in given.items() if k != "--select"}, data.variables)
     try:
         fig = build_figure(data, names)
     except ValueError as exc:
@@ -73,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary))
     else:
-        print(f"wrote {args.output}: track and {panels} variable panels from {data.frames} frames", file=sys.stderr)
+        print(f"wrote {args.output}: track and {plural(panels, 'variable panel')} from {plural(data.frames, 'frame')}",
+              file=sys.stderr)
     if data.error:
         print(f"sharedlink: error: {data.error} (the {data.frames} frames before it are plotted)", file=sys.stderr)
         return EXIT_USAGE

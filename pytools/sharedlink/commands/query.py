@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from sharedlink.commands import EXIT_OK
+from sharedlink.errors import UsageError
 from sharedlink.fleet.query import run_query, text, write_csv, write_json
 
 
@@ -21,10 +22,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("sql", help='e.g. "SELECT pair, count(*) FROM frames GROUP BY pair"')
     p.add_argument("--format", dest="fmt", choices=("table", "csv", "json"), default="table",
                    help="output format (default table)")
+    p.add_argument("--json", dest="fmt", action="store_const", const="json",
+                   help="print the result as JSON on standard output (--format json)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.dataset.exists():  # the one wording of a missing input
+        raise UsageError(f"{args.dataset}: no such file")
     result = run_query(args.dataset, args.sql)
     if args.fmt == "csv":
         write_csv(result, sys.stdout)

@@ -18,6 +18,10 @@ from sharedlink.commands import (
     EXIT_USAGE,
     PORT,
     SECONDS_OR_ZERO,
+    add_json_option,
+    add_old_spelling,
+    add_speed_option,
+    capture_input,
     number,
 )
 from sharedlink.errors import UsageError
@@ -48,7 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "missing/damaged capture (the frames before the damage are still sent), 130 interrupted (Ctrl-C; the "
         "summary is still printed).",
     )
-    p.add_argument("capture", type=Path, help="pcap or pcapng file")
+    p.add_argument("capture", type=Path, help="pcap or pcapng file (-: standard input)")
     dest = p.add_argument_group("destination")
     dest.add_argument("--to", metavar="HOST[:PORT]", default=None,
                       help="destination (default 127.0.0.1, on the port each frame had in the capture)")
@@ -59,14 +63,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     dest.add_argument("--baud", type=BAUD, default=9600, help="with --serial: baud rate (default 9600)")
     timing = p.add_argument_group("timing")
     pace = timing.add_mutually_exclusive_group()
-    pace.add_argument("--speed", type=number(1e-3, 1e6, unit="(1e-3: a thousand times slower)"), default=1.0, metavar="X", help="capture timing times X (2 = twice as fast)")
+    add_speed_option(pace, "capture timing times X (2 = twice as fast; default 1)")
     pace.add_argument("--pps", type=number(MIN_PPS, MAX_PPS, unit="frames per second (a period of 1 ns to 1e7 s)"),
                       default=None, metavar="N", help="a steady N frames per second instead")
     pace.add_argument("--topspeed", action="store_true", help="as fast as possible")
     timing.add_argument("--loop", type=number(0, 1e12, integer=True), default=1, metavar="N", help="passes over the capture (0 = until stopped; default 1)")
     timing.add_argument("--loop-delay", type=SECONDS_OR_ZERO, default=0.0, metavar="S",
                         help="extra pause between passes in seconds (timed passes are also one frame gap apart)")
-    timing.add_argument("--limit", type=COUNT, default=None, metavar="N", help="stop after N frames")
+    timing.add_argument("--count", dest="limit", type=COUNT, default=None, metavar="N", help="stop after N frames")
+    add_old_spelling(timing, "--limit", "--count", "limit", type=COUNT, metavar="N")
     timing.add_argument("--realtime", action="store_true",
                         help="pace at real-time priority (SCHED_FIFO) for steadier timing on a busy machine; needs root, "
                         "CAP_SYS_NICE or an RLIMIT_RTPRIO, else a warning and ordinary scheduling")
@@ -77,7 +82,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="only frames from this source address or network, e.g. 192.168.1.12 or 10.0.0.0/8 (repeatable)")
     out = p.add_argument_group("output")
     out.add_argument("--quiet", "-q", action="store_true", help="no progress, no summary (errors are still printed)")
-    out.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    add_json_option(out)
     p.set_defaults(func=run)
 
 
@@ -103,9 +108,8 @@ def _sink(args: argparse.Namespace) -> UdpSink | SerialSink:
 
 
 def run(args: argparse.Namespace) -> int:
-    if not args.capture.exists():
-        raise UsageError(f"{args.capture}: no such file")
     args.source = args.capture  # what messages name
+    args.capture = capture_input(args.capture)
     with rereadable(args.capture) as args.capture:  # a pipe is read once, then replayed from a copy
         return _run(args)
 

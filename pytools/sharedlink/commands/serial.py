@@ -27,9 +27,16 @@ from sharedlink.commands import (
     EXIT_USAGE,
     SECONDS,
     add_force_option,
+    add_json_option,
+    add_old_spelling,
+    add_output_option,
+    capture_input,
     honours_force,
     number,
+    plural,
     report,
+    require_output,
+    start_time,
 )
 from sharedlink.errors import Error, UsageError
 
@@ -62,13 +69,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     c.add_argument("device", nargs="?", help="serial port, e.g. /dev/ttyUSB0 (not with --tap)")
     c.add_argument("--baud", type=BAUD, required=True, help="line speed, bits per second")
-    c.add_argument("--out", default="-", help="capture file (default: standard output)")
+    add_output_option(c, "capture file to write (default, or -: standard output)", dest="out", default="-")
+    add_old_spelling(c, "--out", "-o/--output", "out", type=Path, metavar="FILE")
     add_force_option(c)
     c.add_argument("--tap", nargs=2, metavar=("DEV_A", "DEV_B"), help="relay between two ports, recording both directions")
     c.add_argument("--linktype", type=_linktype, default=147, help="USER link type: 147..162 or user0..user15 (default user0)")
     c.add_argument("--duration", type=SECONDS, default=None, help="stop after S seconds")
-    c.add_argument("--count", type=COUNT, default=None, help="stop after N records")
-    c.add_argument("--json", action="store_true", help="print the summary as JSON")
+    c.add_argument("--count", type=COUNT, default=None, metavar="N", help="stop after N records")
+    add_json_option(c)
     c.set_defaults(func=run_capture)
 
     i = ss.add_parser(
@@ -78,21 +86,25 @@ def register(sub: argparse._SubParsersAction) -> None:
         "timestamps into a serial capture.",
     )
     i.add_argument("log", type=Path, help="the log file")
-    i.add_argument("--out", type=Path, required=True, help="capture file to write (pcapng)")
+    add_output_option(i, "capture file to write (pcapng; -: standard output)", dest="out")
+    add_old_spelling(i, "--out", "-o/--output", "out", type=Path, metavar="FILE")
     add_force_option(i)
-    i.add_argument("--format", dest="fmt", choices=FORMATS, default="auto", help="log format (default: detected)")
+    i.add_argument("--log-format", dest="fmt", choices=FORMATS, default="auto", help="the log's format (default: detected)")
+    add_old_spelling(i, "--format", "--log-format (--format is an output format elsewhere)", "fmt", choices=FORMATS)
     i.add_argument("--frame", action="store_true", help="one record per decoded frame (and per noise run) instead of per chunk")
     i.add_argument("--protocol", choices=("auto",) + PROTOCOLS, default="auto", help="with --frame: the protocol (default: detected)")
     i.add_argument("--baud", type=BAUD, default=9600, help="raw and hex dumps: line speed for the timestamps (default 9600)")
     i.add_argument("--chunk", type=number(1, 1 << 24, integer=True), default=64, help="raw and hex dumps: bytes per record (default 64)")
     i.add_argument("--direction", choices=sorted(_DIRECTIONS), default="in", help="raw and hex dumps: direction of the bytes (default in)")
-    i.add_argument("--start", type=number(0, MAX_LOG_NS / 1e9 - 1, unit="seconds since 1970 (a capture holds times up to 2554)"), default=None, help="raw and hex dumps: time of the first byte, seconds since 1970 (default: the file's modification time)")
+    i.add_argument("--start", type=start_time(MAX_LOG_NS), default=None, metavar="TIME",
+                   help="raw and hex dumps: time of the first byte, UTC ISO 8601 (e.g. 2026-03-02T08:00:00Z; default: the "
+                   "file's modification time)")
     i.add_argument("--linktype", type=_linktype, default=147, help="USER link type (default user0 = 147)")
-    i.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_json_option(i)
     i.set_defaults(func=run_import)
 
     ls = ss.add_parser("ports", help="list the machine's serial ports")
-    ls.add_argument("--json", action="store_true")
+    add_json_option(ls, "the ports")
     ls.set_defaults(func=run_ports)
 
 
@@ -106,9 +118,9 @@ def run_capture(args: argparse.Namespace) -> int:
         raise UsageError("--baud must be positive")
     if args.count is not None and args.count <= 0:
         raise UsageError("--count must be positive")
-    to_stdout = args.out == "-"
+    to_stdout = str(args.out) == "-"
     if to_stdout and args.json:
-        raise UsageError("--json needs --out FILE (the capture goes to standard output)")
+        raise UsageError("--json needs -o FILE (the capture goes to standard output)")
     name = f"{args.tap[0]}<->{args.tap[1]}" if args.tap else args.device
     with ExitStack() as files:
         # standard output buffered even under python -u: a record cut by SIGINT is written whole;
@@ -130,7 +142,7 @@ def run_capture(args: argparse.Namespace) -> int:
                 raise
             raise UsageError(f"{name}: {exc}") from None
     summary = {
-        "file": args.out,
+        "file": str(args.out),
         "records": stats.records,
         "bytes": stats.bytes,
         "by_direction": stats.by_direction,
@@ -142,7 +154,9 @@ def run_capture(args: argparse.Namespace) -> int:
 
 @honours_force
 def run_import(args: argparse.Namespace) -> int:
-    start_ns = None if args.start is None else int(round(args.start * 1e9))
+    require_output(args, "out")
+    args.log = capture_input(args.log)  # one wording for a missing file; -: standard input
+    start_ns = args.start
     if args.baud <= 0:
         raise UsageError("--baud must be positive")
     refuse_overwrite(args.out, args.log)
@@ -175,7 +189,9 @@ def run_import(args: argparse.Namespace) -> int:
     summary = {"file": str(args.out), "format": fmt, "records": records, "bytes": sum(len(c.data) for c in chunks)}
     if args.frame:
         summary["frames"] = frames
-    report(summary, args.json, f"wrote {args.out}: {records} records from a {fmt} log" + (f" ({frames} frames)" if args.frame else ""))
+    log = "the log" if fmt == "log" else f"a {fmt} log"  # "log": the damaged one, its format unsaid
+    report(summary, args.json, f"wrote {args.out}: {plural(records, 'record')} from {log}"
+           + (f" ({plural(frames, 'frame')})" if args.frame else ""))
     if damage is not None:
         print(f"sharedlink: error: {damage} (the lines before it were written)", file=sys.stderr)
         return EXIT_USAGE

@@ -9,7 +9,16 @@ import sys
 from pathlib import Path
 
 from sharedlink.analysis.stats import capture_stats, render_text, tables
-from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options
+from sharedlink.commands import (
+    EXIT_OK,
+    EXIT_USAGE,
+    add_decode_options,
+    add_json_option,
+    capture_input,
+    decode_options,
+    fit_table,
+    warn_empty,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,16 +28,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Frames per kind and per node pair, rates, bytes, compression ratio, checksum failures, "
         "sync gaps and per-variable count/min/max/last. Streams: any size of capture.",
     )
-    p.add_argument("capture", type=Path, help="pcap or pcapng file")
+    p.add_argument("capture", type=Path, help="pcap or pcapng file (-: standard input)")
     add_decode_options(p)
-    p.add_argument("--json", action="store_true", help="print the statistics as JSON")
+    add_json_option(p, "the statistics")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     variables, sync = decode_options(args)
-    check_capture(args.capture)
+    args.capture = capture_input(args.capture)
     st = capture_stats(args.capture, variables, sync)
+    if not st.error:
+        warn_empty(args.capture, st.frames)
     if args.json:
         json.dump(st.to_dict(), sys.stdout, indent=2)
         print()
@@ -42,15 +53,27 @@ def run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _rich(st) -> None:  # pragma: no cover - terminals only
+#: per table (by its headers' count): columns that wrap, columns left out first, right-aligned numbers
+_LAYOUT: dict[int, dict] = {
+    2: dict(wrap=(0,), drop=(), right=()),  # the summary, frames per kind
+    9: dict(wrap=(4,), drop=(4, 8, 7, 6, 3), right=(1, 2, 3, 5, 6, 7, 8)),  # per node pair
+    7: dict(wrap=(), drop=(6, 3, 0, 2), right=(2, 3, 4, 5)),  # variables
+}
+
+
+def _rich(st) -> None:
+    """The tables on a terminal, fitted to its width (numbers never cut); plain text when a
+    table cannot fit even with columns left out."""
     from rich.console import Console
-    from rich.table import Table
 
     console = Console()
     for title, headers, rows in tables(st):
-        t = Table(title=title, show_header=any(headers), title_justify="left")
-        for h in headers:
-            t.add_column(h)
-        for r in rows:
-            t.add_row(*r)
-        console.print(t)
+        t = fit_table(title, headers, rows, console.width, **_LAYOUT.get(len(headers), {}))
+        if t is None:
+            grid = ([headers] if any(headers) else []) + rows
+            widths = [max(len(r[i]) for r in grid) for i in range(len(headers))]
+            console.print(title, highlight=False)
+            for r in grid:
+                console.print("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip(), highlight=False, soft_wrap=True)
+        else:
+            console.print(t)

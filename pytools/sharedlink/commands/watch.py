@@ -10,7 +10,20 @@ from typing import Any
 
 from sharedlink.analysis.decode import Decoded
 from sharedlink.capture.pcapio import buffered_stdout
-from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options
+from sharedlink.commands import (
+    BAUD,
+    EXIT_OK,
+    EXIT_USAGE,
+    PORT,
+    OptionalPositional,
+    add_decode_options,
+    add_json_option,
+    add_location_options,
+    add_old_spelling,
+    add_speed_option,
+    capture_input,
+    decode_options,
+)
 from sharedlink.errors import UsageError
 from sharedlink.watch import (
     DEFAULT_PORT,
@@ -23,8 +36,6 @@ from sharedlink.watch import (
     json_line,
     run_watch,
 )
-
-LAT, LON, HEADING, VELOCITY = "AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,7 +50,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "or a damaged capture (after the frames before the damage), 130 stopped with Ctrl-C.",
     )
     src = p.add_argument_group("source (default: UDP port 7013)")
-    src.add_argument("--port", type=int, default=DEFAULT_PORT,
+    p.add_argument("capture", nargs="?", type=Path, default=None, metavar="CAPTURE", action=OptionalPositional,
+                   help="play this capture at its recorded pace instead of listening (-: standard input)")
+    src.add_argument("--port", type=PORT, default=DEFAULT_PORT,
                      help=f"UDP port to watch (default {DEFAULT_PORT}): its datagrams, from or to it, are sniffed on the "
                      "interface as Wireshark does (root or CAP_NET_RAW), so every program on the port still gets them all")
     src.add_argument("--interface", default=None, metavar="IFACE",
@@ -50,19 +63,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--listen", default="", metavar="ADDR",
                      help="only datagrams to this address (with --bind: bind this address; default: all)")
     src.add_argument("--serial", metavar="DEVICE", default=None, help="read a serial port or pty instead")
-    src.add_argument("--baud", type=int, default=9600, help="with --serial: baud rate (default 9600)")
-    src.add_argument("--from", dest="capture", type=Path, default=None, metavar="CAPTURE",
-                     help="play a capture at its recorded pace instead")
-    src.add_argument("--speed", type=float, default=1.0, metavar="X", help="with --from: pace times X (default 1)")
+    src.add_argument("--baud", type=BAUD, default=9600, help="with --serial: baud rate (default 9600)")
+    add_old_spelling(src, "--from", "a positional CAPTURE (sharedlink watch CAPTURE)", "capture", type=Path)
+    add_speed_option(src, "with CAPTURE: its pace times X (2 = twice as fast; default 1)")
     out = p.add_argument_group("output")
-    out.add_argument("--json", action="store_true", help="one JSON line per frame on standard output instead of the view")
+    add_json_option(out, "one line per frame (instead of the view)")
     out.add_argument("--foxglove", action="store_true", help="serve the stream over the Foxglove WebSocket protocol")
     out.add_argument("--foxglove-port", type=int, default=8765, metavar="PORT", help="its port (default 8765; 0: any free)")
     out.add_argument("--foxglove-host", default="127.0.0.1", metavar="ADDR", help="its address (default 127.0.0.1)")
-    out.add_argument("--lat", default=LAT, help=f"latitude variable for Foxglove (default {LAT})")
-    out.add_argument("--lon", default=LON, help=f"longitude variable for Foxglove (default {LON})")
-    out.add_argument("--heading", default=HEADING, help=f"heading variable for Foxglove (default {HEADING})")
-    out.add_argument("--velocity", default=VELOCITY, help=f"speed variable for Foxglove (default {VELOCITY})")
+    add_location_options(out, "Foxglove", checked=False)
     add_decode_options(p)
     p.set_defaults(func=run)
 
@@ -71,7 +80,7 @@ def _source(args: argparse.Namespace) -> Any:
     if args.capture is not None and args.serial:
         raise UsageError("--from and --serial: one source at a time")
     if args.capture is not None:
-        check_capture(args.capture)
+        args.capture = capture_input(args.capture)
         if not args.speed > 0:
             raise UsageError("--speed must be positive")
         return CaptureSource(args.capture, args.speed, sessions=args.foxglove)  # P2OS, blackboard as export
@@ -168,4 +177,6 @@ def _live(source: Any, decoder: FastDecoder, outputs: list, sync: float, session
             live.update(view.render(now_ns), refresh=True)
 
         run_watch(source, decoder, outputs, tick=tick, stats=view.stats, session_outputs=sessions)
+    if not console.is_terminal:  # redirected, rich leaves the last view without its newline
+        console.line()
     return EXIT_OK
