@@ -11,7 +11,7 @@ WebSocket server.
 * UDP, by default: the interface is sniffed as Wireshark's dumpcap does (:class:`UdpSniffer`, a
   Linux packet socket with a kernel filter for the port; root or CAP_NET_RAW), so the watch
   takes nothing from the vehicle software on the port: every program bound to it still gets
-  every datagram. ``--bind`` (:class:`UdpSource`) binds the port instead, for a machine where
+  every datagram. ``--bind-port`` (:class:`UdpSource`) binds the port instead, for a machine where
   nothing else uses it; it refuses a port another program holds (no SO_REUSEADDR or
   SO_REUSEPORT: sharing a unicast port means taking datagrams away). Either way a large receive
   buffer and a drain-then-draw loop keep up with bursts; frames are stamped with the arrival
@@ -85,7 +85,7 @@ def _big_receive_buffer(sock: socket.socket) -> None:
 
 class UdpSource:
     """Datagrams to ``port`` on ``host`` (every address, broadcasts included, by default), the
-    port bound by the watch itself (``watch --bind``): they are the watch's, no other program
+    port bound by the watch itself (``watch --bind-port``): they are the watch's, no other program
     gets them. Binding is exclusive (no SO_REUSEADDR, no SO_REUSEPORT): a port another program
     holds is refused with ``EADDRINUSE`` instead of sharing it (Linux hands a shared unicast
     datagram to one socket only, so the vehicle software would lose it)."""
@@ -221,14 +221,14 @@ class UdpSniffer:
 
     def __init__(self, port: int = DEFAULT_PORT, interface: str | None = None, host: str = "") -> None:
         if not hasattr(socket, "AF_PACKET"):
-            raise SniffError("sniffing needs Linux packet sockets: give --bind to bind the port instead")
+            raise SniffError("sniffing needs Linux packet sockets: give --bind-port to bind the port instead")
         self.port = port
         self.host = host
         try:
             # no protocol yet (nothing queued) while the filter goes on, when an interface is named
             self.sock = socket.socket(socket.AF_PACKET, socket.SOCK_DGRAM, 0 if interface else socket.htons(ETH_P_ALL))
         except PermissionError:
-            raise SniffError("sniffing needs root or CAP_NET_RAW (as Wireshark's dumpcap): run it so, or give --bind "
+            raise SniffError("sniffing needs root or CAP_NET_RAW (as Wireshark's dumpcap): run it so, or give --bind-port "
                              "to bind the port instead (it must be free: nothing else may listen on it)") from None
         try:
             prog = port_filter(port)

@@ -11,6 +11,7 @@ import shlex
 import signal
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -22,6 +23,9 @@ VENV_BIN = Path(sys.executable).parent
 #: commands not run, and why
 SKIP = {
     "make test": "the whole suite, this test included",
+    "source .venv/bin/activate": "changes the calling shell only (a shell builtin, nothing to check)",
+    "python3 -m pip install --user .": "a user-site install from inside a virtualenv is refused by pip; test_package.py installs the wheel",
+    "pipx install .": "pipx is not installed here; tests/tools/test_package.py installs the wheel into a fresh venv",
     "sharedlink watch --foxglove": None,  # run below until its server is up, then stopped (it serves until Ctrl-C)
 }
 
@@ -88,8 +92,13 @@ def place(tmp_path_factory) -> Path:
     return d
 
 
-def _env() -> dict[str, str]:
-    return dict(os.environ, PATH=f"{VENV_BIN}{os.pathsep}{os.environ.get('PATH', '')}")
+def _env(place: Path) -> dict[str, str]:
+    """PATH with the venv's sharedlink; a new HOME for each command, so that `plugins install` and
+    `make install` write into it, never into the user's Wireshark folders (nor into the next
+    command's: a tshark -X lua_script run beside installed plugins would load them twice)."""
+    home = Path(tempfile.mkdtemp(prefix="home-", dir=place))
+    return dict(os.environ, PATH=f"{VENV_BIN}{os.pathsep}{os.environ.get('PATH', '')}", HOME=str(home),
+                XDG_CONFIG_HOME=str(home / ".config"))
 
 
 @pytest.mark.parametrize("command", COMMANDS)
@@ -99,7 +108,7 @@ def test_readme_command_runs(place, command):
     cwd = ROOT if command.startswith("make ") else place
     if command == "sharedlink watch --foxglove":
         return _run_until_serving(place, command)
-    r = subprocess.run(command, shell=True, cwd=cwd, env=_env(), capture_output=True, text=True, timeout=600)
+    r = subprocess.run(command, shell=True, cwd=cwd, env=_env(place), capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, (command, r.stdout[-2000:], r.stderr[-2000:])
     assert "Traceback" not in r.stderr and "deprecated" not in r.stderr, r.stderr
     if command.startswith("tshark"):
@@ -107,7 +116,7 @@ def test_readme_command_runs(place, command):
 
 
 def _run_until_serving(place: Path, command: str) -> None:
-    p = subprocess.Popen(shlex.split(command), cwd=place, env=_env(), stdout=subprocess.DEVNULL,
+    p = subprocess.Popen(shlex.split(command), cwd=place, env=_env(place), stdout=subprocess.DEVNULL,
                          stderr=subprocess.PIPE, text=True)
     try:
         line = p.stderr.readline() if p.stderr else ""

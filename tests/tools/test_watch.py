@@ -48,9 +48,9 @@ needs_sniffing = pytest.mark.skipif(not SNIFF, reason="sniffing needs root or CA
 
 
 def start_watch(*args: object) -> subprocess.Popen:
-    """The watch with ``args``; on a UDP port it sniffs, or binds the port (``--bind``) where
+    """The watch with ``args``; on a UDP port it sniffs, or binds the port (``--bind-port``) where
     this process may not sniff (tests of what the watch shows, not of how it listens)."""
-    extra = ["--bind"] if not SNIFF and "--port" in args and "--bind" not in args and "--interface" not in args else []
+    extra = ["--bind-port"] if not SNIFF and "--port" in args and "--bind-port" not in args and "--interface" not in args else []
     p = subprocess.Popen([*CLI, "watch", *map(str, args), *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     return p
 
@@ -163,7 +163,7 @@ def test_watch_sees_broadcasts_beside_another_listener(capture):
     w = start_watch("--port", port, "--json")
     try:
         wait_line(w, "udp port")
-        r = subprocess.run([*CLI, "replay", str(capture), "--to", f"127.255.255.255:{port}", "--broadcast", "--limit", "10",
+        r = subprocess.run([*CLI, "replay", str(capture), "--to", f"127.255.255.255:{port}", "--broadcast", "--count", "10",
                             "--speed", "20"], capture_output=True, text=True, timeout=120)
         assert r.returncode == 0, r.stderr
         theirs = [other.recv(65535) for _ in range(10)]
@@ -181,7 +181,7 @@ def test_bind_refuses_a_port_another_program_holds(reuse):
     port = free_port()
     vehicle = _vehicle_socket(port, reuse)
     try:
-        r = subprocess.run([*CLI, "watch", "--port", str(port), "--bind", "--json"], capture_output=True, text=True, timeout=60)
+        r = subprocess.run([*CLI, "watch", "--port", str(port), "--bind-port", "--json"], capture_output=True, text=True, timeout=60)
     finally:
         vehicle.close()
     assert r.returncode == 2, r.stderr
@@ -190,7 +190,7 @@ def test_bind_refuses_a_port_another_program_holds(reuse):
 
 def test_bind_takes_a_free_port():
     port = free_port()
-    w = start_watch("--port", port, "--bind", "--listen", "127.0.0.1", "--json")
+    w = start_watch("--port", port, "--bind-port", "--listen", "127.0.0.1", "--json")
     try:
         wait_line(w, "(bound by the watch)")
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
@@ -208,7 +208,7 @@ def test_sniffing_without_privileges_is_a_clear_error():
     r = subprocess.run(["setpriv", "--inh-caps=-all", "--bounding-set=-all", *CLI, "watch", "--port", str(free_port())],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2, r.stderr
-    assert r.stderr.count("\n") == 1 and "CAP_NET_RAW" in r.stderr and "--bind" in r.stderr, r.stderr
+    assert r.stderr.count("\n") == 1 and "CAP_NET_RAW" in r.stderr and "--bind-port" in r.stderr, r.stderr
 
 
 def test_from_a_truncated_capture_shows_the_same_frames_every_run(capture, tmp_path):
@@ -271,7 +271,7 @@ def test_ctrl_c_while_the_json_reader_lags_leaves_every_line_whole(unbuffered):
     of its own."""
     port = free_port()
     r, w = one_page_pipe()
-    p = subprocess.Popen([*CLI, "watch", "--port", str(port), "--json", *([] if SNIFF else ["--bind"])], stdout=w,
+    p = subprocess.Popen([*CLI, "watch", "--port", str(port), "--json", *([] if SNIFF else ["--bind-port"])], stdout=w,
                          stderr=subprocess.PIPE, text=True,
                          env=environment(unbuffered))
     os.close(w)
@@ -364,7 +364,7 @@ def _foxglove_messages(ws_port: int, watch_port: int, cap: Path) -> tuple[str, l
     from websockets.sync.client import connect
 
     src = free_port()
-    replay(cap, watch_port, "--limit", 1, "--bind", f"127.0.0.1:{src}")  # makes the direction's channels
+    replay(cap, watch_port, "--count", 1, "--bind", f"127.0.0.1:{src}")  # makes the direction's channels
     # Foxglove offers both names of its protocol; foxglove-sdk's server speaks foxglove.sdk.v1
     with connect(f"ws://127.0.0.1:{ws_port}", subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"]) as ws:
         chans: dict[str, dict] = {}

@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "its age and update rate, and the link's frames/s, checksum failures, late syncs and gaps (highlighted "
         "when they happen). --json prints one JSON line per frame instead; --foxglove also serves the decoded "
         "stream to Foxglove over its WebSocket protocol.",
-        epilog="Exit codes: 0 the capture (--from) ended, 2 bad usage, no permission to sniff, a port --bind finds taken "
+        epilog="Exit codes: 0 the capture (--from) ended, 2 bad usage, no permission to sniff, a port --bind-port finds taken "
         "or a damaged capture (after the frames before the damage), 130 stopped with Ctrl-C.",
     )
     src = p.add_argument_group("source (default: UDP port 7013)")
@@ -57,11 +57,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                      "interface as Wireshark does (root or CAP_NET_RAW), so every program on the port still gets them all")
     src.add_argument("--interface", default=None, metavar="IFACE",
                      help="sniff this interface only (default: every interface)")
-    src.add_argument("--bind", action="store_true",
+    src.add_argument("--bind-port", action="store_true",
                      help="bind the port instead of sniffing (no privileges needed): the watch then takes the datagrams, "
                      "so it refuses a port another program holds")
     src.add_argument("--listen", default="", metavar="ADDR",
-                     help="only datagrams to this address (with --bind: bind this address; default: all)")
+                     help="only datagrams to this address (with --bind-port: bind this address; default: all)")
     src.add_argument("--serial", metavar="DEVICE", default=None, help="read a serial port or pty instead")
     src.add_argument("--baud", type=BAUD, default=9600, help="with --serial: baud rate (default 9600)")
     add_old_spelling(src, "--from", "a positional CAPTURE (sharedlink watch CAPTURE)", "capture", type=Path)
@@ -93,15 +93,15 @@ def _source(args: argparse.Namespace) -> Any:
             raise UsageError(f"{args.serial}: {exc}") from None
     if not 0 < args.port < 65536:
         raise UsageError("--port must be 1..65535")
-    if args.bind:
+    if args.bind_port:
         if args.interface:
-            raise UsageError("--bind binds an address, not an interface: give --listen ADDR, or sniff with --interface")
+            raise UsageError("--bind-port binds an address, not an interface: give --listen ADDR, or sniff with --interface")
         try:
             return UdpSource(args.port, args.listen)
         except OSError as exc:
             if exc.errno == errno.EADDRINUSE:
-                raise UsageError(f"udp port {args.port}: another program holds it; --bind never shares a port (it "
-                                 "would take datagrams away from that program): leave out --bind to sniff it") from None
+                raise UsageError(f"udp port {args.port}: another program holds it; --bind-port never shares a port (it "
+                                 "would take datagrams away from that program): leave out --bind-port to sniff it") from None
             raise UsageError(f"udp port {args.port}: {exc.strerror or exc}") from None
     try:
         return UdpSniffer(args.port, args.interface, args.listen)
