@@ -47,10 +47,10 @@ def _writers(inp: Path, out: Path) -> dict[str, list[object]]:
     """Each writing command with ``inp`` as input and ``out`` as output."""
     return {
         "export": ["export", inp, "-o", out, "--format", "csv"],
-        "compress": ["compress", inp, out],
-        "expand": ["expand", inp, out],
+        "compress": ["compress", inp, "-o", out],
+        "expand": ["expand", inp, "-o", out],
         "plot": ["plot", inp, "-o", out],
-        "serial import": ["serial", "import", inp, "--out", out, "--format", "raw"],
+        "serial import": ["serial", "import", inp, "-o", out, "--log-format", "raw"],
     }
 
 
@@ -84,7 +84,7 @@ def test_output_that_is_the_input_is_refused(capture, tmp_path, command, how):
 
 @pytest.mark.parametrize("target", ["-", "/dev/stdout"])
 def test_standard_output_is_written_in_place(capture, tmp_path, target):
-    r = cli("compress", capture, target)
+    r = cli("compress", capture, "-o", target)
     assert r.returncode == 0, r.stderr
     out = tmp_path / "piped.pcap"
     out.write_bytes(r.stdout)
@@ -115,7 +115,7 @@ def test_fifo_stays_a_fifo(capture, tmp_path):
 
     t = threading.Thread(target=reader)
     t.start()
-    r = cli("compress", capture, fifo)
+    r = cli("compress", capture, "-o", fifo)
     t.join(60)
     assert r.returncode == 0, r.stderr
     assert stat.S_ISFIFO(os.stat(fifo).st_mode)
@@ -141,7 +141,7 @@ def test_full_disk_leaves_the_old_file_and_nothing_else(capture, tmp_path, comma
     suffix = {"export": ".csv", "plot": ".png"}.get(command, ".pcap")
     out = tmp_path / f"out{suffix}"
     out.write_bytes(b"the previous version")
-    args = _writers(capture, out).get(command) or ["gen", "--frames", "5000", out]
+    args = _writers(capture, out).get(command) or ["gen", "--frames", "5000", "-o", out]
     r = subprocess.run([*CLI, *map(str, args)], capture_output=True, timeout=120, preexec_fn=_file_size_limit(8000))
     assert r.returncode == 2, r.stderr
     assert b"sharedlink: error:" in r.stderr and b"Traceback" not in r.stderr, r.stderr
@@ -156,7 +156,7 @@ def test_full_disk_leaves_the_old_file_and_nothing_else(capture, tmp_path, comma
 @pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
 def test_signal_while_writing_cleans_up(tmp_path, sig, code):
     out = tmp_path / "big.pcap"
-    proc = subprocess.Popen([*CLI, "gen", "--frames", "20000000", str(out)], stderr=subprocess.PIPE)
+    proc = subprocess.Popen([*CLI, "gen", "--frames", "20000000", "-o", str(out)], stderr=subprocess.PIPE)
     deadline = time.monotonic() + 60
     while not any(p.name.endswith(".part") for p in tmp_path.iterdir()):
         assert time.monotonic() < deadline and proc.poll() is None
@@ -199,7 +199,7 @@ def test_ctrl_c_while_the_command_loads(capture, module):
 
 
 def _writer_args(command: str, inp: Path, out: Path) -> list[object]:
-    return _writers(inp, out).get(command) or ["gen", "--frames", "50", out]
+    return _writers(inp, out).get(command) or ["gen", "--frames", "50", "-o", out]
 
 
 @pytest.mark.parametrize("command", ["export", "compress", "expand", "plot", "gen", "serial import"])
@@ -244,13 +244,13 @@ def test_serial_capture_that_cannot_open_its_device_leaves_the_old_file(tmp_path
     header)."""
     out = tmp_path / "old.pcapng"
     out.write_bytes(b"yesterday's capture")
-    r = cli("serial", "capture", tmp_path / "no-such-tty", "--baud", "9600", "--out", out)
+    r = cli("serial", "capture", tmp_path / "no-such-tty", "--baud", "9600", "-o", out)
     assert r.returncode == 2, r.stderr
     assert r.stderr.count(b"\n") == 1 and b"no-such-tty" in r.stderr and b"Traceback" not in r.stderr
     assert out.read_bytes() == b"yesterday's capture"
     link = tmp_path / "link.pcapng"
     link.symlink_to(out)
-    r = cli("serial", "capture", tmp_path / "no-such-tty", "--baud", "9600", "--out", link)
+    r = cli("serial", "capture", tmp_path / "no-such-tty", "--baud", "9600", "-o", link)
     assert r.returncode == 2 and b"symbolic link" in r.stderr, r.stderr
     assert out.read_bytes() == b"yesterday's capture"
 

@@ -77,7 +77,7 @@ def test_time_stamps_past_year_9999(year_11476, tmp_path):
     assert json.loads(r.stdout.splitlines()[0])["time"] == "+11476-08-15T05:20:00.000000000Z"
     r = subprocess.run([*CLI, "export", str(year_11476), "-o", str(tmp_path / "t.kml")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "+11476-08-15T05:20:00" in (tmp_path / "t.kml").read_text(), r.stderr
-    r = subprocess.run([*CLI, "compress", str(year_11476), str(tmp_path / "c.pcapng")], capture_output=True, text=True, timeout=120)
+    r = subprocess.run([*CLI, "compress", str(year_11476), "-o", str(tmp_path / "c.pcapng")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "record 1" in r.stderr and "2554" in r.stderr and "Traceback" not in r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.kml"]
 
@@ -106,7 +106,7 @@ def test_serial_import_writes_the_lines_before_a_bad_one(tmp_path, bad):
     log = tmp_path / "l.log"
     log.write_text("\n".join(lines) + "\n")
     out = tmp_path / "l.pcapng"
-    r = subprocess.run([*CLI, "serial", "import", str(log), "--out", str(out)], capture_output=True, text=True, timeout=120)
+    r = subprocess.run([*CLI, "serial", "import", str(log), "-o", str(out)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "line 11" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert len(fields(out, ["frame.number"])) == 10
 
@@ -184,7 +184,7 @@ def test_expand_past_one_datagram_is_one_line_and_leaves_the_old_file(tmp_path):
     out = tmp_path / "out.pcap"
     out.write_bytes(b"the previous version")
     for command in ("expand", "compress"):
-        r = subprocess.run([*CLI, command, str(cap), str(out)], capture_output=True, text=True, timeout=120)
+        r = subprocess.run([*CLI, command, str(cap), "-o", str(out)], capture_output=True, text=True, timeout=120)
         if command == "compress":  # leaves out what the receiver has: it fits
             assert r.returncode == 0, r.stderr
             continue
