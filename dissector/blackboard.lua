@@ -221,13 +221,24 @@ end
 -- ---------------------------------------------------------------------------------------------
 -- text messages
 
+-- the offset of the first match of a Lua pattern (one character long) in [off, stop), or nil;
+-- read in windows that double, so the bytes copied are linear in the distance to the match
+local function find_byte(tvb, off, stop, pattern)
+    local i, w = off, 64
+    while i < stop do
+        local len = math.min(w, stop - i)
+        local k = string.find(tvb:raw(i, len), pattern)
+        if k then
+            return i + k - 1
+        end
+        i, w = i + len, w * 2
+    end
+    return nil
+end
+
 -- the first CR in [off, stop), or nil
 local function find_cr(tvb, off, stop)
-    if stop <= off then
-        return nil
-    end
-    local i = string.find(tvb:raw(off, stop - off), "\r", 1, true)
-    return i and off + i - 1 or nil
+    return find_byte(tvb, off, stop, "\r")
 end
 
 -- the hex digits between off + 1 and text_end decoded; every bad character flagged (the first
@@ -544,10 +555,9 @@ end
 
 -- bytes outside any message, up to the next type character (or the end); returns where it is
 local function dissect_junk(tvb, tree, off, n, infos)
-    local text = tvb:raw(off, n - off)
-    local j = off + (string.find(text, "[:;]", 2) or (n - off + 1)) - 1
+    local j = find_byte(tvb, off + 1, n, "[:;]") or n
     local item = tree:add(pf.junk, tvb:range(off, j - off))
-    if not string.find(string.sub(text, 1, j - off), "[^\r\n]") then
+    if not string.find(tvb:raw(off, j - off), "[^\r\n]") then
         item:append_text(" (line ends)")
     else
         item:add_proto_expert_info(ex.unexpected)

@@ -180,6 +180,7 @@ local ex = {
         expert.severity.WARN),
     direction_guess = ProtoExpert.new("p2os.direction.guessed", "Direction guessed from the content",
         expert.group.SEQUENCE, expert.severity.CHAT),
+    limit = ProtoExpert.new("p2os.limit", "Limit exceeded", expert.group.PROTOCOL, expert.severity.WARN),
 }
 local expert_list = {}
 for _, e in pairs(ex) do
@@ -191,13 +192,19 @@ p2os.experts = expert_list
 -- preferences and per-capture state
 
 p2os.prefs.tcp_port = Pref.uint("MobileSim TCP port", 8101, "TCP port of the P2OS server (MobileSim: 8101; 0: none)")
+p2os.prefs.max_conversations = Pref.uint("Max conversations", 65536,
+    "Conversations whose SYNC2 echo is remembered; past it a conversation's commands 0..2 keep their SYNC names")
 
 -- connection state: the frame of the first SYNC2 echo per conversation. Commands 0..2
 -- without argument before it are SYNC0..SYNC2, after it PULSE, OPEN, CLOSE.
 local sync2_frame = {}
+local conversations = 0 -- keys in sync2_frame (bounded by max_conversations)
+local not_kept = {} -- frame number -> true: a SYNC2 echo past max_conversations
 
 function p2os.init()
     sync2_frame = {}
+    conversations = 0
+    not_kept = {}
 end
 
 -- ---------------------------------------------------------------------------------------------
@@ -593,6 +600,24 @@ end
 -- ---------------------------------------------------------------------------------------------
 -- one packet (header at h, count bytes after the count byte, all present in tvb)
 
+-- a SYNC2 echo (with the robot's strings): the conversation's handshake ends here, unless
+-- max_conversations conversations are remembered already
+local function note_sync2(pinfo, tree, key)
+    if not pinfo.visited then
+        local s2 = sync2_frame[key]
+        if s2 == nil and conversations >= p2os.prefs.max_conversations then
+            not_kept[pinfo.number] = true
+        elseif s2 == nil or pinfo.number < s2 then
+            conversations = conversations + (s2 == nil and 1 or 0)
+            sync2_frame[key] = pinfo.number
+        end
+    end
+    if not_kept[pinfo.number] then
+        tree:add_proto_expert_info(ex.limit, "Limit exceeded: " .. istr(p2os.prefs.max_conversations)
+            .. " conversations remembered (p2os.max_conversations); this one's handshake is not")
+    end
+end
+
 local function dissect_one(tvb, pinfo, tree, h, count)
     local total = 3 + count
     local pt = tree:add(p2os, tvb:range(h, total))
@@ -626,11 +651,8 @@ local function dissect_one(tvb, pinfo, tree, h, count)
             local s2 = sync2_frame[key]
             summary = dissect_command(tvb, body, off, plen, s2 == nil or pinfo.number <= s2)
         else
-            if plen > 1 and u8(tvb, off) == 2 and not pinfo.visited then
-                local s2 = sync2_frame[key]
-                if s2 == nil or pinfo.number < s2 then
-                    sync2_frame[key] = pinfo.number
-                end
+            if plen > 1 and u8(tvb, off) == 2 then
+                note_sync2(pinfo, body, key)
             end
             summary = dissect_server(tvb, body, off, plen)
         end

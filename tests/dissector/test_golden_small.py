@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import lzma
 import os
+import re
 import subprocess
 from pathlib import Path
 
@@ -79,3 +80,24 @@ def test_update_golden():
     out = {f"{n} {m}": run(n, m) for n in INPUTS for m in MODES}
     with lzma.open(GOLDEN, "wt", encoding="utf-8", preset=9 | lzma.PRESET_EXTREME) as f:
         json.dump(out, f, indent=0, sort_keys=True)
+
+
+EXPERT_INPUTS = ["bb-edge.pcap", "p2os-edge.pcap", "serial-edge.pcapng", "bb-serial.pcapng"]
+
+
+def _expert_counts(name: str, *extra: str) -> dict[str, int]:
+    cmd = [*tu.TSHARK_CMD, "-n"] + [a for s in SCRIPTS for a in ("-X", f"lua_script:{s}")]
+    cmd += ["-r", str(HERE / name), *PREFS.get(name, []), "-q", "-z", "expert", *extra]
+    p = subprocess.run(cmd, capture_output=True, text=True, env=tu._clean_env(), timeout=120)
+    assert p.returncode == 0, p.stderr
+    tu.check_stderr(p.stderr)
+    return {m.group(1): int(m.group(2)) for m in re.finditer(r"^(Errors|Warns|Notes|Chats) \((\d+)\)", p.stdout, re.M)}
+
+
+@pytest.mark.parametrize("name", EXPERT_INPUTS)
+def test_expert_infos_without_a_filter(name: str):
+    """Issue 27: `-z expert` alone counts what it counts with a display filter on the protocols
+    (expert infos are there on every pass, whatever tree is built)."""
+    alone = _expert_counts(name)
+    assert alone, f"{name}: no expert infos at all"
+    assert alone == _expert_counts(name, "-Y", "p2os or blackboard or slserial")

@@ -512,3 +512,28 @@ def test_aria_string_argument_ends_with_its_nul(tmp_path):
     assert not any("after the expected end" in m for r in rows[:2] for m in r["_ws.expert.message"])
     assert rows[2]["p2os.extra"] == ["07"]
     assert any("after the expected end" in m for m in rows[2]["_ws.expert.message"])
+
+
+def test_max_conversations_bounds_the_handshake_state(tmp_path):
+    """Issue 31: the SYNC2 echo is remembered for at most p2os.max_conversations conversations;
+    past it the echo says "Limit exceeded: ..." and that conversation's command 1 stays SYNC1."""
+    echo = build_packet(SyncReply(2, (b"Robbie", b"Pioneer", b"p2dx")).encode())
+    one = bytes.fromhex("FAFB03010001")  # command 1: SYNC1 in the handshake, OPEN after it
+    path = tmp_path / "three.pcap"
+    with open(path, "wb") as fh:
+        w = PcapWriter(fh)
+        ts = 10**18
+        for client in (40001, 40002, 40003):
+            evs = [(ts + i * 10_000_000, c, p) for i, (c, p) in enumerate([(False, echo), (True, one)])]
+            ts += 10**9
+            for t, _, frame in session_frames(evs, "tcp", ("127.0.0.1", client), ("127.0.0.1", 8101)):
+                w.write(t, frame)
+    names = ["p2os.command.name", "p2os.robot.name", "_ws.expert.message"]
+    for two_pass in (False, True):
+        rows = [r for r in p2os_fields(path, names, prefs={"p2os.max_conversations": 2}, two_pass=two_pass)
+                if r["p2os.command.name"] or r["p2os.robot.name"]]
+        assert [n for r in rows for n in r["p2os.command.name"]] == ["OPEN", "OPEN", "SYNC1"]
+        limited = [r["p2os.robot.name"] for r in rows if any(m.startswith("Limit exceeded:") for m in r["_ws.expert.message"])]
+        assert limited == [["Robbie"]]
+    rows = p2os_fields(path, names)
+    assert [n for r in rows for n in r["p2os.command.name"]] == ["OPEN"] * 3
