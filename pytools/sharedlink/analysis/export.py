@@ -29,7 +29,7 @@ import csv
 import json
 import math
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -58,6 +58,7 @@ class ExportOptions:
     lon: str = LON
     heading: str = HEADING  # mcap: the LocationFix heading
     velocity: str = VELOCITY  # mcap: the speed variable (LocationFix velocity)
+    progress: Callable[[int, int], None] | None = None  # called with (bytes read, records) now and then
 
 
 @dataclass
@@ -86,7 +87,8 @@ def _typed(v: Variable | None) -> Any:
 def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded]:
     """The decoded frames; damage after the first record ends the stream with ``error`` set."""
     try:
-        for item in iter_decoded(path, opts.variables, opts.sync_interval):
+        # (rows read values from the table and what frames changed: carried Updates are not needed)
+        for item in iter_decoded(path, opts.variables, opts.sync_interval, carried=False, progress=opts.progress):
             if isinstance(item, Decoded):
                 result.frames += 1
                 yield item

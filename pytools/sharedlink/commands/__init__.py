@@ -235,3 +235,63 @@ def run_transform(args: argparse.Namespace, mode: str) -> int:
         print(f"sharedlink: error: {st.error} (the records before it were written)", file=sys.stderr)
         return EXIT_USAGE
     return EXIT_OK
+
+
+# -- progress, for commands that read a whole capture ------------------------------------------
+
+#: seconds of work before a progress bar appears (shorter runs never show one)
+PROGRESS_AFTER_S = 2.0
+
+
+class Progress:
+    """A progress bar on stderr (rich) for a command reading ``path``: records, bytes, rate and
+    time left. It appears only after :data:`PROGRESS_AFTER_S` seconds, and only when stdout and
+    stderr are both terminals and ``quiet`` is False (never on a pipe, with ``--json`` or
+    ``--quiet``). Call it with (bytes read, records read); use it as a context manager."""
+
+    def __init__(self, path: Path | str | None, quiet: bool = False, what: str = "reading", unit: str = "records") -> None:
+        import time
+
+        self._clock = time.monotonic
+        self.enabled = not quiet and sys.stdout.isatty() and sys.stderr.isatty()
+        self.start = self._clock()
+        self.what, self.unit = what, unit
+        self.total: int | None = None
+        if self.enabled and path is not None:
+            try:
+                p = Path(path)
+                self.total = p.stat().st_size if p.is_file() else None
+            except OSError:
+                self.total = None
+        self._bar: Any = None
+        self._task: Any = None
+
+    def __call__(self, done: int, records: int = 0) -> None:
+        if not self.enabled:
+            return
+        if self._bar is None:
+            if self._clock() - self.start < PROGRESS_AFTER_S:
+                return
+            from rich.console import Console
+            from rich.progress import (
+                BarColumn,
+                DownloadColumn,
+                TextColumn,
+                TimeRemainingColumn,
+                TransferSpeedColumn,
+            )
+            from rich.progress import Progress as Bar
+
+            self._bar = Bar(TextColumn("{task.description}"), BarColumn(), DownloadColumn(), TransferSpeedColumn(),
+                            TimeRemainingColumn(), console=Console(stderr=True), transient=True)
+            self._task = self._bar.add_task(self.what, total=self.total)
+            self._bar.start()
+        self._bar.update(self._task, completed=done, description=f"{self.what}: {records:,} {self.unit}")
+
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+            self._bar = None

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, decode_options
+from sharedlink.commands import EXIT_OK, EXIT_USAGE, Progress, add_decode_options, decode_options
 from sharedlink.errors import UsageError
 from sharedlink.fleet.ingest import BATCH_ROWS, Outcome, ingest
 
@@ -40,7 +40,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     variables, sync = decode_options(args)
 
+    done = [0, 0]  # bytes and captures finished, for the progress bar
+
     def say(o: Outcome) -> None:
+        done[0] += o.entry.size if o.entry is not None else 0
+        done[1] += 1
+        progress(done[0], done[1])
         if args.quiet and o.status in ("ingested", "unchanged"):
             return
         if o.status == "unchanged":
@@ -55,10 +60,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.batch_rows < 1:
         raise UsageError("--batch-rows must be at least 1")
-    report = ingest(
-        args.inputs, args.dataset, workers=args.workers, scheduler=args.scheduler, vehicle=args.vehicle,
-        variables=variables, sync_interval=sync, force=args.force, batch_rows=args.batch_rows, on_outcome=say,
-    )
+    with Progress(None, quiet=args.quiet, what="ingesting", unit="captures") as progress:
+        report = ingest(
+            args.inputs, args.dataset, workers=args.workers, scheduler=args.scheduler, vehicle=args.vehicle,
+            variables=variables, sync_interval=sync, force=args.force, batch_rows=args.batch_rows, on_outcome=say,
+        )
     bad = report.count("damaged") + report.count("failed")
     print(
         f"{args.dataset}: {report.count('ingested')} ingested ({report.frames} frames, {report.values} values), "

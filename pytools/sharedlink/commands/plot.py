@@ -12,6 +12,7 @@ from sharedlink.capture.pcapio import open_output, refuse_overwrite
 from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
+    Progress,
     add_decode_options,
     check_capture,
     decode_options,
@@ -54,8 +55,9 @@ def run(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")  # headless, whatever the environment says
     from sharedlink.analysis.plot import build_figure, collect
 
-    data = collect(args.capture, variables, sync, max_points=args.max_points,
-                   lat=args.lat, lon=args.lon, speed=args.speed)
+    with Progress(args.capture, quiet=args.json, what="plotting") as progress:
+        data = collect(args.capture, variables, sync, max_points=args.max_points,
+                       lat=args.lat, lon=args.lon, speed=args.speed, progress=progress)
     try:
         fig = build_figure(data, names)
     except ValueError as exc:

@@ -9,7 +9,14 @@ import sys
 from pathlib import Path
 
 from sharedlink.analysis.stats import capture_stats, render_text, tables
-from sharedlink.commands import EXIT_OK, EXIT_USAGE, add_decode_options, check_capture, decode_options
+from sharedlink.commands import (
+    EXIT_OK,
+    EXIT_USAGE,
+    Progress,
+    add_decode_options,
+    check_capture,
+    decode_options,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,7 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     variables, sync = decode_options(args)
     check_capture(args.capture)
-    st = capture_stats(args.capture, variables, sync)
+    with Progress(args.capture, quiet=args.json) as progress:
+        st = capture_stats(args.capture, variables, sync, progress)
     if args.json:
         json.dump(st.to_dict(), sys.stdout, indent=2)
         print()
