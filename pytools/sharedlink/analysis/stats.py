@@ -276,7 +276,9 @@ class _FullSize:
 
     @staticmethod
     def _stamp(table: VariableTable) -> tuple:
-        return (len(table.vars), len(table.names), table.named)
+        # new names of a named table come with the values that add them (update); a positional
+        # table's size follows its list
+        return (len(table.names), table.named) if table.named is False else (table.named,)
 
     def same(self, table: VariableTable) -> bool:
         return self._stamp(table) == self.stamp
