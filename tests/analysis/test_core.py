@@ -165,3 +165,46 @@ def test_core_takes_the_compressed_beacon_fast(tmp_path):
     dec = Decoder()
     n = sum(isinstance(d, Decoded) for d in dec.capture(path))
     assert n == 2000 and dec.fast >= 1990  # only the first frames of each layout go the reference way
+
+
+def _stats_by_reference(path: Path):
+    """``stats`` as the plain path gives it: every frame through ReferenceDecoder and CaptureStats.add."""
+    from sharedlink.analysis.stats import CaptureStats
+
+    st = CaptureStats(path=str(path))
+    dec = ReferenceDecoder(carried=False)
+    for item in iter_frames(path):
+        if isinstance(item, StreamFrame) and item.frame is not None:
+            st.add(dec.decode(item))
+        elif isinstance(item, tuple):
+            st.other_records += 1
+        else:
+            st.noise_segments += 1
+            st.noise_bytes += len(item.raw)
+            if item.raw.startswith(b"[:"):
+                st.kinds["malformed"] = st.kinds.get("malformed", 0) + 1
+    return st
+
+
+def _same_stats(path: Path) -> None:
+    from sharedlink.analysis.stats import capture_stats
+
+    got, want = capture_stats(path).to_dict(), _stats_by_reference(path).to_dict()
+    assert got == want
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=list(HealthCheck))
+@given(streams())
+def test_counted_stats_equal_the_reference_on_generated_streams(tmp_path_factory, stream):
+    """stats takes the fast path's frames as counted batches (no Decoded, no Updates): the same
+    statistics as every frame through the reference decoder and CaptureStats.add."""
+    _same_stats(_write(tmp_path_factory.mktemp("st") / "s.pcap", stream))
+
+
+@pytest.mark.parametrize("variant", [dict(compress=True, bad_checksum=0.05, drop=0.3, seed=2), dict(jitter_ms=300.0),
+                                     dict(form="positional", compress=True)])
+def test_counted_stats_equal_the_reference_on_drives(tmp_path, variant):
+    path = tmp_path / "d.pcap"
+    variant = dict(variant)
+    generate_file(GenOptions(duration=60, seed=variant.pop("seed", 5), **variant), path)
+    _same_stats(path)

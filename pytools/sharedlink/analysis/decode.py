@@ -33,6 +33,8 @@ import socket
 import struct
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import NamedTuple
+from zlib import adler32
 
 from sharedlink.capture.packets import Datagram, PacketDecoder
 from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, NS, CaptureError, read_records
@@ -196,6 +198,9 @@ class ReferenceDecoder:
 #: body ("T2|QName|Dvalue|" ..., empty when bare), checksum
 _HOT = re.compile(r"\[:([A-P])([A-P])\|N0\|((?:T[024]\|Q[A-Za-z0-9_.]+\|D[-+0-9.eE]+\|)*)C([0-9A-F]{2})\]\r\n")
 _HEX = {f"{i:02X}": i for i in range(256)}
+#: checksum digits -> what to take from (1 + the byte sum of the whole frame) so that the rest is
+#: 0 mod 256 when the checksum is right: the 1, '[' (91), the digits, ']' CR LF (116) and the value
+_CKSUB = {f"{i:02X}": 1 + 91 + ord(f"{i:02X}"[0]) + ord(f"{i:02X}"[1]) + 116 + i for i in range(256)}
 #: layouts kept per direction (a compressed beacon has a handful)
 MAX_LAYOUTS = 32
 
@@ -210,10 +215,12 @@ class _Layout:
     while the direction's names stay the same (``stamp``): the names the frame leaves out
     (carried) and whether it is full."""
 
-    __slots__ = ("names", "types", "present", "stamp", "missing", "full")
+    __slots__ = ("names", "types", "present", "stamp", "missing", "full", "checked", "full_at")
 
     def __init__(self, names: tuple[str, ...], types: tuple[int, ...]) -> None:
         self.names, self.types, self.present = names, types, frozenset(names)
+        self.checked = -1  # the direction's version its types were last checked at
+        self.full_at = -1  # ... and ``full`` worked out at (counts only)
         self.stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) the two below hold for
         self.missing: tuple[str, ...] = ()
         self.full = False
@@ -224,13 +231,54 @@ class _Hot:
     delta frames have had; ``last``: the last Update the fast path made for each variable,
     reused while it still says the same (Updates are immutable)."""
 
-    __slots__ = ("table", "sync", "layouts", "last", "stamp")
+    __slots__ = ("table", "sync", "layouts", "last", "stamp", "version")
 
     def __init__(self, table: VariableTable, sync: list) -> None:
         self.table, self.sync = table, sync
+        self.version = 0  # counts the direction's frames through the reference path (types may move)
         self.layouts: dict[tuple[str, ...], _Layout] = {}
         self.last: dict[str, Update] = {}
         self.stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) ``last`` was made for
+
+
+def _named_size(name: str, type_code: int | None, text: str | None) -> int:
+    """Bytes of one value in a named full set, ``|T t|Q name|D text`` (0 without a value)."""
+    if text is None:
+        return 0
+    return 4 + len(name) + len(text) + (2 + len(str(type_code)) if type_code is not None else 0)
+
+
+class DirCounts:
+    """Counts only: what :meth:`Decoder.count` took of one direction's frames since the last
+    batch (every one a good full or delta frame in the named form). ``layouts``: layout ->
+    [frames, number and time of the last one]; ``changed``: name -> the texts it changed to, in
+    order; ``gaps``: the sync gaps of its full frames (ns); ``size``: the bytes of a full set's
+    values now."""
+
+    __slots__ = ("conv", "src", "dst", "table", "first_ts", "last_ts", "frames", "bytes", "full", "late", "gaps",
+                 "full_bytes", "layouts", "changed", "size", "last_full")
+
+    def __init__(self, conv: tuple, src: str, dst: str, h: _Hot, ts: int, size: int) -> None:
+        self.conv, self.src, self.dst, self.table = conv, src, dst, h.table
+        self.first_ts = self.last_ts = ts
+        self.frames = self.bytes = self.full = self.late = self.full_bytes = 0
+        self.gaps: list[int] = []
+        self.layouts: dict[_Layout, list[int]] = {}
+        self.changed: dict[str, list[str]] = {}
+        self.size = size
+        self.last_full: tuple[int, int] | None = None
+
+    @property
+    def pair(self) -> str:
+        return f"{self.src}>{self.dst}"
+
+    def counts(self) -> dict[str, int]:
+        """Values carried per name (each frame of a layout carries all its names)."""
+        out: dict[str, int] = {}
+        for lay, (n, _number, _ts) in self.layouts.items():
+            for name in lay.names:
+                out[name] = out.get(name, 0) + n
+        return out
 
 
 class Decoder(ReferenceDecoder):
@@ -254,6 +302,7 @@ class Decoder(ReferenceDecoder):
         super().__init__(variables, sync_interval, carried)
         self._hot: dict[tuple, _Hot] = {}
         self.fast = 0  # frames decoded by the fast path
+        self.batch: dict[tuple, DirCounts] = {}  # counts only: what count() took, per direction
         self.splitter = FrameSplitter()
 
     def decode(self, sf: StreamFrame) -> Decoded:
@@ -281,13 +330,24 @@ class Decoder(ReferenceDecoder):
                 self._learn(d)
                 yield d
 
-    def capture(self, path: str | Path, progress: Callable[[int, int], None] | None = None
-                ) -> Iterator[Decoded | StreamFrame | tuple[int, int]]:
+    def capture(self, path: str | Path, progress: Callable[[int, int], None] | None = None, counts: bool = False
+                ) -> Iterator[Decoded | StreamFrame | tuple[int, int] | Counted]:
         """Every item of a capture, as :func:`iter_decoded` gives them. ``progress(bytes, records)`` is
-        called every few thousand records with (bytes of the file read so far, records)."""
-        return _capture_items(self, path, progress)
+        called every few thousand records with (bytes of the file read so far, records).
+        ``counts``: the frames the fast path takes come as :class:`Counted` batches instead of
+        :class:`Decoded` frames (for callers that count: no per-frame objects)."""
+        return _capture_items(self, path, progress, counts)
 
     def _try_fast(self, number: int, ts: int, conv: tuple, raw: bytes) -> Decoded | None:
+        found = self._match(conv, raw)
+        if found is None:
+            return None
+        h, lay, src, dst, values = found
+        return self._fast(number, ts, conv, raw, h, lay, src, dst, values)
+
+    def _match(self, conv: tuple, raw: bytes) -> tuple[_Hot, _Layout, str, str, list[str]] | None:
+        """The direction, layout, letters and values (``D`` fields) of a datagram the fast path
+        takes, else None."""
         # measured choices: one latin-1 decode of the datagram, then str operations (the values
         # come out as str, no decode each); one split of the body gives the layout and values
         m = _HOT.fullmatch(raw.decode("latin-1"))
@@ -299,13 +359,111 @@ class Decoder(ReferenceDecoder):
             return None
         parts = body.split("|")
         lay = h.layouts.get(_layout_key(parts))
-        if lay is None or (sum(raw[1 : m.end(3) + 1]) & 0xFF) != _HEX[cs]:
+        if lay is None:
             return None
-        vars_ = h.table.vars
-        for n, t in zip(lay.names, lay.types):
-            if vars_[n].type_code != t:
+        # the checksum: adler32's low half is 1 + the byte sum for up to 256 bytes (C speed)
+        if len(raw) <= 256:
+            if ((adler32(raw) & 0xFFFF) - _CKSUB[cs]) & 0xFF:
                 return None
-        return self._fast(number, ts, conv, raw, h, lay, src, dst, parts[2::3])
+        elif (sum(raw[1 : m.end(3) + 1]) & 0xFF) != _HEX[cs]:
+            return None
+        if lay.checked != h.version:  # the types may have moved since: the layout's must still hold
+            vars_ = h.table.vars
+            for n, t in zip(lay.names, lay.types):
+                if vars_[n].type_code != t:
+                    return None
+            lay.checked = h.version
+        return h, lay, src, dst, parts[2::3]
+
+    def count(self, number: int, ts: int, conv: tuple, raw: bytes) -> bool:
+        """Counts only: take a datagram the fast path takes into :attr:`batch` (no
+        :class:`Decoded`, no Updates) and return True; False when it is not one (decode it).
+        Per value only a comparison; what every value of a layout shares (its count, the frame
+        that last carried it) is kept per layout and written to the table by :meth:`take_batch`,
+        which the caller calls before anything else is decoded."""
+        found = self._match(conv, raw)
+        if found is None:
+            return False
+        h, lay, src, dst, values = found
+        key = (conv, src, dst)
+        c = self.batch.get(key)
+        if c is None:
+            c = self.batch[key] = DirCounts(conv, src, dst, h, ts, self._hot_size(h))
+        vars_ = h.table.vars
+        size = c.size
+        for name, dval in zip(lay.names, values):
+            v = vars_[name]
+            text = dval[1:]
+            old = v.text
+            if old != text:
+                texts = c.changed.get(name)
+                if texts is None:
+                    texts = c.changed[name] = []
+                texts.append(text)
+                size += len(text) - len(old) if old is not None else _named_size(name, v.type_code, text)
+                v.text = text
+        c.size = size
+        seen = c.layouts.get(lay)
+        if seen is None:
+            c.layouts[lay] = [1, number, ts]
+        else:
+            seen[0] += 1
+            seen[1], seen[2] = number, ts
+        c.frames += 1
+        c.bytes += len(raw)
+        if ts > c.last_ts:
+            c.last_ts = ts
+        elif ts < c.first_ts:
+            c.first_ts = ts
+        c.full_bytes += size + 14  # "[:AB|N0" ... "|CXX]" CR LF around the values
+        if lay.full_at != h.version:
+            lay.full_at = h.version
+            self._layout_full(h.table, lay)
+        sync = h.sync
+        if lay.full:
+            c.full += 1
+            c.last_full = number, ts
+            if sync[1] is not None:
+                c.gaps.append(ts - sync[1])
+            sync[1] = ts
+        else:
+            since = sync[1] if sync[1] is not None else sync[0]
+            if ts - since > self.late_ns:
+                c.late += 1
+        return True
+
+    def take_batch(self) -> dict[tuple, DirCounts]:
+        """What :meth:`count` gathered since the last call (then empty), the tables brought up
+        to date (which frame last set each value, the last full set, the form)."""
+        b = self.batch
+        self.batch = {}
+        for c in b.values():
+            table = c.table
+            vars_ = table.vars
+            for lay, (_n, number, ts) in sorted(c.layouts.items(), key=lambda kv: kv[1][1]):
+                for name in lay.names:
+                    v = vars_[name]
+                    v.set_in, v.set_at = number, ts
+            if c.last_full is not None:
+                table.last_full_at, table.last_full_in = c.last_full[1], c.last_full[0]
+            table.named = True
+            self.fast += c.frames
+        return b
+    @staticmethod
+    def _hot_size(h: _Hot) -> int:
+        """Bytes of the values of a full set of the direction (named form, without the frame's
+        13 bytes and CR LF): :func:`sharedlink.analysis.stats.full_size`'s rule."""
+        return sum(_named_size(n, v.type_code, v.text) for n, v in h.table.vars.items())
+
+    @staticmethod
+    def _layout_full(table: VariableTable, lay: _Layout) -> bool:
+        stamp = (len(table.vars), len(table.sent_names))
+        if lay.stamp != stamp:
+            present = lay.present
+            lay.missing = tuple(n for n in table.vars if n not in present)
+            lay.full = bool(present) and sum(1 for n in present if n in table.sent_names) == len(table.sent_names)
+            lay.stamp = stamp
+        return lay.full
 
     def _learn(self, d: Decoded) -> None:
         if d.kind == "declaration":
@@ -325,6 +483,7 @@ class Decoder(ReferenceDecoder):
             if h is None and len(self._hot) >= MAX_CONVERSATIONS:
                 return
             h = self._hot[key] = _Hot(d.table, sync)
+        h.version += 1
         parts = m.group(3).split("|")  # the body ends with its last "|": one more, empty part
         names = tuple(q[1:] for q in parts[1::3])
         if len(h.layouts) < MAX_LAYOUTS and all(n in d.table.vars for n in names):
@@ -398,18 +557,32 @@ _ETH_IPV4 = b"\x08\x00\x45"
 _UDP = 17
 
 
-def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int], None] | None
-                   ) -> Iterator[Decoded | StreamFrame | tuple[int, int]]:
+class Counted(NamedTuple):
+    """Counts only (:meth:`Decoder.capture` with ``counts``): the frames the fast path took since
+    the previous item, per direction. It comes before the next item of any other kind, so
+    callers see everything in capture order."""
+
+    dirs: dict[tuple, DirCounts]
+
+
+#: fast frames gathered into one :class:`Counted` at most
+BATCH_FRAMES = 512
+
+
+def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int], None] | None, counting: bool = False
+                   ) -> Iterator[Decoded | StreamFrame | tuple[int, int] | Counted]:
     """The record loop of :meth:`Decoder.capture`: plain Ethernet/IPv4/UDP records (not
-    fragments) go to :meth:`Decoder.decode_datagram` straight from the record's bytes; every other
-    record through the general reader's packet decoder and splitters (as
-    :func:`~sharedlink.capture.stream.iter_frames`)."""
+    fragments) go to :meth:`Decoder.decode_datagram` (``counting``: first to
+    :meth:`Decoder.count`) straight from the record's bytes; every other record through the
+    general reader's packet decoder and splitters (as :func:`~sharedlink.capture.stream.iter_frames`)."""
     serial = SerialSplitter()
     packets = PacketDecoder().decode  # IP fragments reassembled
     splitter = dec.splitter
     general = ReferenceDecoder.decode
     addrs: dict[bytes, tuple[str, str, int, str, int]] = {}
     datagram = dec.decode_datagram
+    count = dec.count
+    taken = 0  # frames in dec.batch
     unpack = _UDP_HEAD.unpack_from
     read = 24  # bytes of the file read, about (pcap's headers; pcapng's blocks are a little longer)
     try:
@@ -432,8 +605,22 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
                     if end >= 42:  # (else the general decoder's verdict: not a UDP datagram)
                         stop = min(34 + ulen, end) if ulen >= 8 else end
                         if stop > 42:
-                            yield from datagram(rec.number, rec.ts_ns, conv, data[42:stop])
+                            payload = data[42:stop]
+                            if counting:
+                                if count(rec.number, rec.ts_ns, conv, payload):
+                                    taken += 1
+                                    if taken >= BATCH_FRAMES:
+                                        yield Counted(dec.take_batch())
+                                        taken = 0
+                                    continue
+                                if taken:
+                                    yield Counted(dec.take_batch())
+                                    taken = 0
+                            yield from datagram(rec.number, rec.ts_ns, conv, payload)
                         continue
+            if taken:
+                yield Counted(dec.take_batch())
+                taken = 0
             if rec.linktype in USER_LINKTYPES:
                 for item in serial.feed(rec.number, rec.ts_ns, rec.linktype, data, rec.flags, rec.interface):
                     yield _decode_item(dec, general, item)
@@ -445,9 +632,13 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
             for sf in splitter.split(rec.number, rec.ts_ns, dg):
                 yield _decode_item(dec, general, sf)
     except CaptureError:
+        if dec.batch:
+            yield Counted(dec.take_batch())
         for item in serial.flush():
             yield _decode_item(dec, general, item)
         raise
+    if dec.batch:
+        yield Counted(dec.take_batch())
     for item in serial.flush():
         yield _decode_item(dec, general, item)
 

@@ -26,9 +26,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Decoded, Decoder
+from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Counted, Decoded, Decoder
 from sharedlink.capture.pcapio import CaptureError
-from sharedlink.protocols.codec import guess_value, typed_value
+from sharedlink.protocols.codec import _DOUBLE_TEXT, TYPE_DOUBLE, guess_value, typed_value
 from sharedlink.protocols.limits import LimitCounts
 from sharedlink.protocols.state import BEACON_VARIABLES, Update, VariableTable
 
@@ -254,6 +254,81 @@ class CaptureStats:
                     v.max = xf
 
 
+    def add_counts(self, batch: Counted) -> None:
+        """Frames the decoder's fast path counted (:class:`~sharedlink.analysis.decode.Counted`):
+        good full and delta frames in the named form, the same sums as :meth:`add` of each."""
+        limit = self.sync_interval + SYNC_SLACK_S
+        variables = self.variables
+        for c in batch.dirs.values():
+            pair = c.pair
+            self.frames += c.frames
+            self.bytes += c.bytes
+            p = self.pairs.get(pair)
+            if p is None:
+                p = self.pairs[pair] = PairStats(pair, first_ns=c.first_ts, last_ns=c.last_ts)
+            p.frames += c.frames
+            p.bytes += c.bytes
+            for kind, n in (("full", c.full), ("delta", c.frames - c.full)):
+                if n:
+                    self.kinds[kind] = self.kinds.get(kind, 0) + n
+                    p.kinds[kind] = p.kinds.get(kind, 0) + n
+            if self.first_ns is None or c.first_ts < self.first_ns:
+                self.first_ns = c.first_ts
+            if self.last_ns is None or c.last_ts > self.last_ns:
+                self.last_ns = c.last_ts
+            p.first_ns = min(p.first_ns, c.first_ts)  # type: ignore[type-var]
+            p.last_ns = max(p.last_ns, c.last_ts)  # type: ignore[type-var]
+            self.sync_late += c.late
+            p.sync_late += c.late
+            for g in c.gaps:
+                gap = g / NS
+                if gap > limit:
+                    self.sync_gaps += 1
+                    p.sync_gaps += 1
+                if p.max_sync_gap_s is None or gap > p.max_sync_gap_s:
+                    p.max_sync_gap_s = gap
+            self.value_bytes += c.bytes
+            self.full_bytes += c.full_bytes
+            self._full.pop(id(c.table), None)  # its values moved without an add(): size it again
+            tvars = c.table.vars
+            changed = c.changed
+            for name, count in c.counts().items():
+                v = variables.get((pair, name))
+                if v is None:
+                    v = variables[(pair, name)] = VarStats(pair, name)
+                tv = tvars[name]
+                if tv.type_code is not None:
+                    v.type_code = tv.type_code
+                v.count += count
+                if v.last_frame is None or tv.set_in > v.last_frame:  # type: ignore[operator]
+                    v.last, v.last_frame = tv.text, tv.set_in
+                texts = changed.get(name)
+                if texts:
+                    v.changes += len(texts)
+                    _min_max(v, set(texts))
+
+
+def _min_max(v: VarStats, texts: set[str]) -> None:
+    """Take ``texts`` (values ``v`` took) into its min and max; numbers only, NaN left out."""
+    tc = v.type_code
+    if tc == TYPE_DOUBLE and all(map(_DOUBLE_TEXT.fullmatch, texts)):  # the common case, at C speed
+        xs = list(map(float, texts))
+        lo, hi = min(xs), max(xs)
+        if v.min is None or lo < v.min:
+            v.min = lo
+        if v.max is None or hi > v.max:
+            v.max = hi
+        return
+    for text in texts:
+        x = guess_value(text) if tc is None else typed_value(tc, text)
+        if isinstance(x, (int, float)) and x == x:
+            xf = float(x)
+            if v.min is None or xf < v.min:
+                v.min = xf
+            if v.max is None or xf > v.max:
+                v.max = xf
+
+
 class _FullSize:
     """:func:`full_size` of one table (without CR LF), kept up to date from the values good
     frames carry, so a frame costs what it holds and not the direction's whole table; made
@@ -336,11 +411,13 @@ def capture_stats(
     st = CaptureStats(path=str(path), sync_interval=sync_interval)
     dec = Decoder(variables, sync_interval, carried=False)  # stats reads only what frames carry
     st.limits = dec.limits
-    it = dec.capture(path, progress)
+    it = dec.capture(path, progress, counts=True)
     try:
         for item in it:
             if isinstance(item, Decoded):
                 st.add(item)
+            elif isinstance(item, Counted):
+                st.add_counts(item)
             elif isinstance(item, tuple):
                 st.other_records += 1
             else:
