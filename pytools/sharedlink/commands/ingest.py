@@ -5,10 +5,14 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sharedlink.commands import EXIT_OK, EXIT_USAGE, Progress, add_decode_options, decode_options
 from sharedlink.errors import UsageError
-from sharedlink.fleet.ingest import BATCH_ROWS, Outcome, ingest
+from sharedlink.fleet import BATCH_ROWS
+
+if TYPE_CHECKING:
+    from sharedlink.fleet.ingest import Outcome
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -38,6 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sharedlink.fleet.ingest import ingest  # pyarrow loads only for this command
+
     variables, sync = decode_options(args)
 
     done = [0, 0]  # bytes and captures finished, for the progress bar

@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 from sharedlink.commands import EXIT_OK
-from sharedlink.fleet.query import run_query, text, write_csv, write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,6 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sharedlink.fleet.query import run_query, write_csv, write_json  # pyarrow loads for this command only
+
     result = run_query(args.dataset, args.sql)
     if args.fmt == "csv":
         write_csv(result, sys.stdout)
@@ -38,6 +39,8 @@ def run(args: argparse.Namespace) -> int:
 def _table(result) -> None:
     from rich.console import Console
     from rich.table import Table
+
+    from sharedlink.fleet.query import text
 
     t = Table(show_header=True, header_style="bold")
     for c in result.columns:

@@ -27,6 +27,7 @@ import pyarrow.parquet as pq
 
 from sharedlink.analysis.decode import NS, Decoded, iter_decoded
 from sharedlink.errors import InputError, UsageError
+from sharedlink.fleet import BATCH_ROWS as BATCH_ROWS  # its home is the package (a light import for the CLI)
 from sharedlink.fleet.dataset import (
     MANIFEST,
     SCHEMAS,
@@ -43,8 +44,6 @@ from sharedlink.protocols.state import BEACON_VARIABLES
 
 #: file name endings taken as captures when a directory is given
 CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap")
-#: rows buffered per table before a row group is written (bounds a worker's memory)
-BATCH_ROWS = 65_536
 DAY_NS = 86_400 * NS
 _HASH_CHUNK = 1 << 20
 
