@@ -83,6 +83,22 @@ def export_changes(path: Path) -> object:
     return export(path, io.StringIO(), ExportOptions(fmt="jsonl", changes=True))
 
 
+def watch_decode(path: Path) -> object:
+    """What ``watch`` does with each datagram (its decoder, as commands/watch.py makes it)."""
+    from sharedlink.capture.packets import decode_packet
+    from sharedlink.capture.pcapio import read_records
+    from sharedlink.watch import FastDecoder, RawDatagram
+
+    dec = FastDecoder(carried=False)
+    n = 0
+    for rec in read_records(path):
+        dg = decode_packet(rec.linktype, rec.data)
+        conv = (dg.proto, dg.src, dg.sport, dg.dst, dg.dport)
+        for d in dec.datagram(RawDatagram(rec.number, rec.ts_ns, conv, dg.payload)):
+            n += isinstance(d, Decoded) and len(d.changes())
+    return n
+
+
 def diff_self(path: Path) -> object:
     return diff_captures(path, path, DiffOptions(parallel=False))
 
@@ -119,7 +135,7 @@ def conversations(n: int) -> list[tuple[int, bytes]]:
     return [(10000 + i, full) for i in range(n)] + [(10000 + i, delta) for i in range(n)]
 
 
-@pytest.mark.parametrize("run", [stats, export_changes, diff_self], ids=["stats", "export", "diff"])
+@pytest.mark.parametrize("run", [stats, export_changes, diff_self, watch_decode], ids=["stats", "export", "diff", "watch"])
 def test_new_names_every_frame_cost_linear_time(tmp_path, run):
     small = write(tmp_path / "s.pcap", new_names(400))
     big = write(tmp_path / "b.pcap", new_names(1600))
