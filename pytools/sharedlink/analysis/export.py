@@ -78,20 +78,10 @@ def _typed(v: Variable | None) -> Any:
     """A variable's typed value for JSON (a number that JSON cannot hold stays text)."""
     if v is None or v.text is None:
         return None
-    key = (v.type_code, v.text)
-    x = _TYPED.get(key, _TYPED)
-    if x is _TYPED:  # most rows repeat the values of the row before (carried, unchanged)
-        x = v.value
-        if isinstance(x, float) and not math.isfinite(x):
-            x = v.text
-        if len(_TYPED) >= 256:
-            _TYPED.clear()
-        _TYPED[key] = x
+    x = v.value  # (kept on the variable while its text stays: carried values cost nothing)
+    if isinstance(x, float) and not math.isfinite(x):
+        return v.text
     return x
-
-
-#: (type code, text) -> typed value, for the values rows repeat
-_TYPED: dict[tuple[int | None, str], Any] = {}
 
 
 def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded]:

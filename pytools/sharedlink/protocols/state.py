@@ -85,14 +85,23 @@ class Variable:
     text: str | None = None
     set_in: int | None = None  # frame number that last carried the value
     set_at: int | None = None  # its timestamp (ns)
+    #: (text, type code, value) of the last :attr:`value` asked: rows of a carried value ask again
+    _typed: tuple | None = field(default=None, repr=False, compare=False)
 
     @property
     def value(self) -> int | float | str | None:
-        if self.text is None:
-            return None
-        if self.type_code is None:
-            return guess_value(self.text)
-        return parse_typed(self.type_code, self.text)[0]
+        text, tc = self.text, self.type_code
+        c = self._typed
+        if c is not None and c[0] is text and c[1] == tc:
+            return c[2]
+        if text is None:
+            x: int | float | str | None = None
+        elif tc is None:
+            x = guess_value(text)
+        else:
+            x = parse_typed(tc, text)[0]
+        self._typed = (text, tc, x)
+        return x
 
 
 class Update(NamedTuple):
