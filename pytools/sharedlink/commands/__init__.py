@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import shutil
 import struct
 import sys
@@ -254,6 +255,7 @@ class Progress:
 
         self._clock = time.monotonic
         self.enabled = not quiet and sys.stdout.isatty() and sys.stderr.isatty()
+        self.after = float(os.environ.get("SHAREDLINK_PROGRESS_AFTER", PROGRESS_AFTER_S))  # (tests: 0)
         self.start = self._clock()
         self.what, self.unit = what, unit
         self.total: int | None = None
@@ -270,7 +272,7 @@ class Progress:
         if not self.enabled:
             return
         if self._bar is None:
-            if self._clock() - self.start < PROGRESS_AFTER_S:
+            if self._clock() - self.start < self.after:
                 return
             from rich.console import Console
             from rich.progress import (
