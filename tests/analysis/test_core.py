@@ -208,3 +208,31 @@ def test_counted_stats_equal_the_reference_on_drives(tmp_path, variant):
     variant = dict(variant)
     generate_file(GenOptions(duration=60, seed=variant.pop("seed", 5), **variant), path)
     _same_stats(path)
+
+
+def _same_jsonl(path: Path) -> int:
+    """export jsonl's line builder against json.dumps of the row dict, frame by frame."""
+    import io
+    import json
+
+    from sharedlink.analysis.export import ExportOptions, _Jsonl
+
+    w = _Jsonl(io.StringIO(), ExportOptions(fmt="jsonl"), [])
+    n = 0
+    for d in iter_decoded(path, carried=False):
+        if isinstance(d, Decoded):
+            assert w.line(d) == json.dumps(w.row(d)) + "\n"
+            n += 1
+    return n
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
+@given(streams())
+def test_jsonl_lines_equal_json_dumps_on_generated_streams(tmp_path_factory, stream):
+    _same_jsonl(_write(tmp_path_factory.mktemp("js") / "s.pcap", stream))
+
+
+def test_jsonl_lines_equal_json_dumps_on_a_drive(tmp_path):
+    path = tmp_path / "d.pcap"
+    generate_file(GenOptions(duration=30, seed=3, compress=True, bad_checksum=0.05), path)
+    assert _same_jsonl(path) > 100
