@@ -320,7 +320,8 @@ def _same(a, b, tables: bool = True) -> None:
 def _compare(cap: Path) -> tuple[int, int]:
     """Decode ``cap`` with the general decoder and with FastDecoder (frame by frame, and datagram
     by datagram as the UDP source feeds it); every result equal. Returns the fast path's counts."""
-    from sharedlink.analysis.decode import Decoded, Decoder
+    from sharedlink.analysis.decode import Decoded
+    from sharedlink.analysis.decode import ReferenceDecoder as Decoder  # the plain path, the oracle
     from sharedlink.capture.packets import decode_packet
     from sharedlink.capture.pcapio import read_records
     from sharedlink.capture.stream import StreamFrame, iter_frames
