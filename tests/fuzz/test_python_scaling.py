@@ -2,7 +2,7 @@
 
 Each pattern is built at N and 4N (frames, names or conversations) and run in this process; the
 test fails when the time or the peak memory (tracemalloc) of the 4N run is more than
-:data:`GROWTH` times the N run's (linear growth is 4x; quadratic 16x). Small absolute floors
+:data:`GROWTH` (6) times the N run's (linear growth is 4x; quadratic 16x). Small absolute floors
 keep timer noise on a busy machine out of the ratio. Past a bound of
 ``sharedlink.protocols.limits`` the input is dropped and counted, never allocated.
 """
@@ -28,8 +28,9 @@ from sharedlink.capture.pcapio import PcapWriter
 from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
 from sharedlink.protocols.limits import MAX_NAMES, MAX_SLOTS
 
-#: the most the 4N run may cost against the N run (time and peak memory)
-GROWTH = 5.0
+#: the most the 4N run may cost against the N run (time and peak memory): linear is 4x, quadratic
+#: 16x; "about 5x" with room for a shared machine's noise (linear runs measured 4.0x-4.7x here)
+GROWTH = 6.0
 T0 = 1_700_000_000 * 10**9
 STEP = 200_000_000
 
@@ -69,8 +70,8 @@ def assert_linear(run: Callable[[Path], object], small: Path, big: Path, floor_s
                   floor_bytes: int = 4 << 20) -> None:
     """``run`` on the 4N capture costs at most GROWTH times what it costs on the N one."""
     run(small)  # warm up (imports, caches)
-    # best of two each: a shared machine's load comes and goes
-    (t1, m1), (t4, m4) = (min(measure(lambda p=p: run(p)) for _ in range(2)) for p in (small, big))
+    # best of three each: a shared machine's load comes and goes
+    (t1, m1), (t4, m4) = (min(measure(lambda p=p: run(p)) for _ in range(3)) for p in (small, big))
     assert t4 <= GROWTH * max(t1, floor_s), f"time {t1:.3f} s -> {t4:.3f} s at 4N"
     assert m4 <= GROWTH * max(m1, floor_bytes), f"peak memory {m1} -> {m4} bytes at 4N"
 
