@@ -27,7 +27,6 @@ from __future__ import annotations
 import heapq
 import json
 import math
-import re
 import select
 import socket
 import struct
@@ -37,14 +36,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, NamedTuple
 
-from sharedlink.analysis.decode import DATA_KINDS, NS, VALUE_KINDS, Decoded, Decoder, format_time
+from sharedlink.analysis.decode import NS, VALUE_KINDS, Decoded, Decoder, format_time
 from sharedlink.analysis.sessions import SessionMessage
-from sharedlink.capture.packets import Datagram, PacketDecoder
+from sharedlink.capture.packets import PacketDecoder
 from sharedlink.capture.pcapio import LINKTYPE_RAW, CaptureError
-from sharedlink.capture.stream import FrameSplitter, StreamFrame, iter_frames
-from sharedlink.protocols.codec import Frame, parse_frame
-from sharedlink.protocols.state import BEACON_VARIABLES, Update, VariableTable, conversation_key
-from sharedlink.protocols.state import _update as _state_update  # the general path's Update builder, shared
+from sharedlink.capture.stream import StreamFrame, iter_frames
+from sharedlink.protocols.codec import Frame
 from sharedlink.replay import SigintGate
 
 DEFAULT_PORT = 7013
@@ -416,228 +413,18 @@ def _ts_ns(item: Any) -> int:
     return item.ts_ns
 
 
-# -- decoding, with a fast path for the beacon's steady state ---------------------------------
-
-#: one named full/delta frame alone in a datagram (decoded as latin-1), with plain names and
-#: numeric values, or a bare ``N0`` (nothing changed): groups destination letter, source letter,
-#: body ("T2|QName|Dvalue|" ..., empty when bare), checksum
-_HOT = re.compile(r"\[:([A-P])([A-P])\|N0\|((?:T[024]\|Q[A-Za-z0-9_.]+\|D[-+0-9.eE]+\|)*)C([0-9A-F]{2})\]\r\n")
-_HEX = {f"{i:02X}": i for i in range(256)}
+# -- decoding: the core decoder -----------------------------------------------------------------
 
 
-def _layout_key(parts: list[str]) -> tuple[str, ...]:
-    """A hot body's layout (its ``T`` and ``Q`` fields, no values) from ``body.split("|")``."""
-    return (*parts[0::3], *parts[1::3])
+class FastDecoder(Decoder):
+    """The decoding core (:class:`~sharedlink.analysis.decode.Decoder`: a fast path for frames
+    in a layout already seen, the reference path for the rest), taking the UDP source's
+    :class:`RawDatagram` s whole."""
 
-
-class _FastDecoded(Decoded):
-    """A :class:`Decoded` from the fast path: its ``frame`` is parsed from ``raw`` only when
-    someone asks for it (the outputs of the watch read the letters, kind and updates)."""
-
-    def __init__(self, number: int, ts_ns: int, conv: tuple, raw: bytes, src: str, dst: str, kind: str,
-                 updates: tuple[Update, ...], table: VariableTable, late: bool, gap: int | None) -> None:
-        # one dict update instead of a frozen dataclass's setattr per field (measured: the hot path)
-        self.__dict__.update(number=number, ts_ns=ts_ns, conv=conv, raw=raw, kind=kind, checksum_ok=True,
-                             updates=updates, table=table, late=late, sync_gap_ns=gap, shown=updates, response_to=None,
-                             _src=src, _dst=dst, _frame=None)
-
-    @property  # type: ignore[override]
-    def frame(self) -> Frame:
-        f = self._frame  # type: ignore[attr-defined]
-        if f is None:
-            f = parse_frame(self.raw)
-            object.__setattr__(self, "_frame", f)
-        return f
-
-    @property
-    def src(self) -> str:
-        return self._src  # type: ignore[attr-defined]
-
-    @property
-    def dst(self) -> str:
-        return self._dst  # type: ignore[attr-defined]
-
-    @property
-    def pair(self) -> str:
-        return f"{self._src}>{self._dst}"  # type: ignore[attr-defined]
-
-
-@dataclass
-class _Layout:
-    """One frame layout of a direction: its names, their types and positions in the list, and
-    what follows from them while the direction's names stay the same (``stamp``): the names
-    the frame leaves out (carried) and whether it is full."""
-
-    names: tuple[str, ...]
-    types: tuple[int, ...]
-    present: frozenset[str] = frozenset()
-    stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) the two below hold for
-    missing: tuple[str, ...] = ()
-    full: bool = False
-
-
-@dataclass
-class _Hot:
-    """A direction's steady state: its table, sync state and the layouts (types and names,
-    in order) its good full and delta frames have had."""
-
-    table: VariableTable
-    sync: list
-    layouts: dict[tuple[bytes, ...], _Layout] = field(default_factory=dict)
-    #: the last Update the fast path made for each variable: reused while it still holds (Updates
-    #: are frozen), since most of a compressed frame's updates are the same carried values again
-    last: dict[str, Update] = field(default_factory=dict)
-    stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) ``last`` was made for
-
-
-#: layouts kept per direction (a compressed beacon has a handful)
-MAX_LAYOUTS = 32
-
-
-class FastDecoder:
-    """:class:`~sharedlink.analysis.decode.Decoder` with a fast path for the beacon's steady
-    state, the same results (a test decodes varied captures both ways and compares).
-
-    The fast path takes a datagram holding exactly one named ``N0`` frame with a good checksum
-    whose layout (types and names, in order) one of the direction's earlier good full or delta
-    frames had when it went through the general decoder, its variables still of those types;
-    it then does what the general path does for such a frame (``VariableTable.apply``'s named
-    branch and the decoder's sync tracking) without parsing the frame into fields. Anything
-    else (a bad checksum, several frames, declarations, replies, queries, positional frames)
-    goes through the general decoder; a frame there that changes the direction's state in
-    another way forgets its layouts, a declaration forgets every layout (lists change names)."""
-
-    def __init__(self, variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES, sync_interval: float = 1.0) -> None:
-        self.general = Decoder(variables, sync_interval)
-        self.late_ns = self.general.late_ns
-        self._hot: dict[tuple, _Hot] = {}
-        self.fast = 0  # frames decoded by the fast path
-        self.splitter = FrameSplitter()
-        # the general decoder's sync state; without it (a changed Decoder) there is no fast path
-        self._sync: dict | None = getattr(self.general, "_sync", None)
-
-    def decode(self, sf: StreamFrame) -> Decoded:
-        """One frame (``sf.frame`` parsed)."""
-        d = self._try_fast(sf.number, sf.ts_ns, sf.conv, sf.raw)
-        if d is None:
-            d = self.general.decode(sf)
-            self._learn(d)
-        return d
-
-    def datagram(self, dg: RawDatagram) -> list[Decoded | StreamFrame]:
-        """The frames of a UDP datagram, and its noise (a :class:`StreamFrame` with ``frame``
-        None). A datagram that is one hot frame is not parsed at all."""
-        d = self._try_fast(dg.number, dg.ts_ns, dg.conv, dg.data)
-        if d is not None:
-            return [d]
-        proto, src, sport, dst, dport = dg.conv
-        out: list[Decoded | StreamFrame] = []
-        for sf in self.splitter.split(dg.number, dg.ts_ns, Datagram(proto, src, dst, sport, dport, dg.data)):
-            if sf.frame is None:
-                out.append(sf)
-            else:
-                d = self.general.decode(sf)
-                self._learn(d)
-                out.append(d)
-        return out
-
-    def _try_fast(self, number: int, ts: int, conv: tuple, raw: bytes) -> Decoded | None:
-        # measured choices: one latin-1 decode of the datagram, then str operations (the values
-        # come out as str, no decode each); one split of the body gives the layout and values
-        m = _HOT.fullmatch(raw.decode("latin-1")) if self._sync is not None else None
-        if m is None:
-            return None
-        dst, src, body, cs = m.groups()
-        h = self._hot.get((conv, src, dst))
-        if h is None:
-            return None
-        parts = body.split("|")
-        lay = h.layouts.get(_layout_key(parts))
-        if lay is None or (sum(raw[1 : m.end(3) + 1]) & 0xFF) != _HEX[cs]:
-            return None
-        vars_ = h.table.vars
-        for n, t in zip(lay.names, lay.types):
-            if vars_[n].type_code != t:
-                return None
-        return self._fast(number, ts, conv, raw, h, lay, src, dst, parts[2::3])
-
-    def _learn(self, d: Decoded) -> None:
-        if d.kind == "declaration":
-            self._hot.clear()
-            return
-        if d.checksum_ok is False:
-            return  # changed nothing
-        key = (d.conv, d.src, d.dst)
-        m = _HOT.fullmatch(d.raw.decode("latin-1")) if self._sync is not None else None
-        sync = self._sync.get((conversation_key(d.conv), d.src, d.dst)) if self._sync is not None else None
-        # (a bare N0 is named only in a direction already named, else it is read as positional)
-        if m is None or d.checksum_ok is not True or d.kind not in DATA_KINDS or sync is None or d.table.named is not True:
-            self._hot.pop(key, None)
-            return
-        h = self._hot.get(key)
-        if h is None or h.table is not d.table or h.sync is not sync:
-            h = self._hot[key] = _Hot(d.table, sync)
-        parts = m.group(3).split("|")  # the body ends with its last "|": one more, empty part
-        names = tuple(q[1:] for q in parts[1::3])
-        if len(h.layouts) < MAX_LAYOUTS:
-            h.layouts[_layout_key(parts)] = _Layout(names, tuple(int(t[1:]) for t in parts[0:-1:3]), frozenset(names))
-
-    def _fast(self, number: int, ts: int, conv: tuple, raw: bytes, h: _Hot, lay: _Layout, src: str, dst: str,
-              values: list[str]) -> Decoded:
-        table = h.table
-        vars_ = table.vars
-        sent = table.sent_names
-        last = h.last
-        updates: list[Update] = []
-        add = updates.append
-        stamp = (len(vars_), len(sent))
-        if h.stamp != stamp:  # new names: indexes and types may differ, make every Update again
-            last.clear()
-            h.stamp = stamp
-        if lay.stamp != stamp:  # the direction's names changed: what the layout leaves out, again
-            present = lay.present
-            lay.missing = tuple(n for n in vars_ if n not in present)
-            # the kind before the frame, as VariableTable.kind (a bare N0 is a delta)
-            lay.full = bool(present) and all(n in present for n in sent)
-            lay.stamp = stamp
-        for name, dval in zip(lay.names, values):
-            text = dval[1:]
-            v = vars_[name]
-            index = sent.get(name)
-            if index is None:
-                index = sent[name] = len(sent)
-            changed = v.text != text
-            v.text, v.set_in, v.set_at = text, number, ts
-            u = last.get(name)
-            if changed or u is None or u.changed or u.carried or u.index != index or u.text != text:
-                u = last[name] = _state_update(v, index, False, None, changed)
-            add(u)
-        if len(sent) != stamp[1]:
-            lay.stamp = (-1, -1)
-        for name in lay.missing:
-            v = vars_[name]
-            text = v.text
-            if text is None:
-                continue
-            u = last.get(name)
-            if u is None or not u.carried or u.carried_from != v.set_in or u.text != text:
-                u = last[name] = _state_update(v, sent.get(name, table._index(name)), True, v.set_in, False)
-            add(u)
-        table.named = True
-        sync = h.sync
-        gap: int | None = None
-        late = False
-        full = lay.full
-        if full:
-            table.last_full_at, table.last_full_in = ts, number
-            if sync[1] is not None:
-                gap = ts - sync[1]
-            sync[1] = ts
-        else:
-            since = sync[1] if sync[1] is not None else sync[0]
-            late = ts - since > self.late_ns
-        self.fast += 1
-        return _FastDecoded(number, ts, conv, raw, src, dst, "full" if full else "delta", tuple(updates), table, late, gap)
+    def datagram(self, dg: RawDatagram) -> Iterator[Decoded | StreamFrame]:
+        """The frames of a UDP datagram, and its noise (a :class:`StreamFrame` with ``frame`` None),
+        each decoded when taken."""
+        return self.decode_datagram(dg.number, dg.ts_ns, dg.conv, dg.data)
 
 
 # -- the live view ---------------------------------------------------------------------------

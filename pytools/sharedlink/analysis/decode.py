@@ -1,10 +1,12 @@
-"""Decoded frames with the variable table after each: what stats, export and plot read.
+"""The decoding core: frames in, :class:`Decoded` frames (typed updates, the table after each) out.
 
-:func:`iter_decoded` walks a capture with :func:`sharedlink.capture.stream.iter_frames` (streaming, TCP
-reassembled, serial captures deframed per direction) and keeps a
+Every command that decodes goes through :class:`Decoder` (stats, export in every format, plot,
+ingest, watch): :func:`iter_decoded` walks a capture (streaming, TCP reassembled, serial captures
+deframed per direction, as :func:`sharedlink.capture.stream.iter_frames`) and keeps a
 :class:`~sharedlink.protocols.state.LinkState`, so every SharedLink frame comes out as a
 :class:`Decoded`: its kind in stream context, its checksum verdict, the variables it set and the
-direction's whole table as the frame leaves it. Noise and records that are neither UDP/TCP nor
+direction's whole table as the frame leaves it. :class:`ReferenceDecoder` is the plain path the
+core is checked against (and hands what its fast path does not take). Noise and records that are neither UDP/TCP nor
 serial SharedLink pass through unchanged (a :class:`~sharedlink.capture.stream.StreamFrame` with
 ``frame`` None, or a ``(number, ts_ns)`` tuple) so callers can count them.
 
@@ -26,14 +28,28 @@ Choices (shared with the dissector, see ``docs/protocol.md``):
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+import re
+import socket
+import struct
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import NamedTuple
+from zlib import adler32
 
-from sharedlink.capture.pcapio import NS
-from sharedlink.capture.stream import StreamFrame, iter_frames
-from sharedlink.protocols.codec import Frame
-from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, Update, VariableTable, conversation_key
+from sharedlink.capture.packets import Datagram, PacketDecoder
+from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, NS, CaptureError, read_records
+from sharedlink.capture.serial_format import USER_LINKTYPES
+from sharedlink.capture.stream import FrameSplitter, SerialSplitter, StreamFrame
+from sharedlink.protocols.codec import Frame, oversized_numbers, parse_frame
+from sharedlink.protocols.limits import MAX_CONVERSATIONS, MAX_PENDING
+from sharedlink.protocols.state import (
+    BEACON_VARIABLES,
+    LinkState,
+    Update,
+    VariableTable,
+    _update,
+    conversation_key,
+)
 from sharedlink.protocols.state import parse_variables as parse_variables  # its home is state
 
 #: seconds past the sync interval before a value frame counts as late (as in the dissector)
@@ -44,40 +60,53 @@ VALUE_KINDS = ("full", "delta", "reply")
 DATA_KINDS = ("full", "delta")
 
 
-@dataclass(frozen=True)
 class Decoded:
     """One SharedLink frame in stream context.
 
     ``table`` is the live table of the frame's direction (it changes as later frames are
-    decoded): read what you need from it before taking the next item.
+    decoded): read what you need from it before taking the next item. ``frame`` is parsed
+    from ``raw`` only when asked (the fast path never needs it).
     """
 
-    number: int
-    ts_ns: int
-    conv: tuple[str, str, int, str, int]
-    raw: bytes
-    frame: Frame
-    kind: str
-    checksum_ok: bool | None  # None: the frame has no checksum field
-    updates: tuple[Update, ...]  # empty when the checksum is bad
-    table: VariableTable
-    late: bool  # sync late (see the module doc)
-    sync_gap_ns: int | None  # on a full frame: time since the direction's previous full one
-    shown: tuple[Update, ...] = ()  # the values the frame shows: ``updates``, or as sent when bad
-    response_to: int | None = None  # a reply: the number of its query or declaration
+    __slots__ = ("number", "ts_ns", "conv", "raw", "kind", "checksum_ok", "updates", "table", "late", "sync_gap_ns",
+                 "shown", "response_to", "src", "dst", "_frame")
+
+    def __init__(
+        self,
+        number: int,
+        ts_ns: int,
+        conv: tuple[str, str, int, str, int],
+        raw: bytes,
+        frame: Frame | None,
+        kind: str,
+        checksum_ok: bool | None,  # None: the frame has no checksum field
+        updates: tuple[Update, ...],  # empty when the checksum is bad
+        table: VariableTable,
+        late: bool,  # sync late (see the module doc)
+        sync_gap_ns: int | None,  # on a full frame: time since the direction's previous full one
+        shown: tuple[Update, ...] = (),  # the values the frame shows: ``updates``, or as sent when bad
+        response_to: int | None = None,  # a reply: the number of its query or declaration
+        src: str = "",  # the letters (taken from ``frame`` when it is given)
+        dst: str = "",
+    ) -> None:
+        self.number, self.ts_ns, self.conv, self.raw, self._frame = number, ts_ns, conv, raw, frame
+        self.kind, self.checksum_ok, self.updates, self.table = kind, checksum_ok, updates, table
+        self.late, self.sync_gap_ns, self.shown, self.response_to = late, sync_gap_ns, shown, response_to
+        if frame is not None:
+            src, dst = frame.src, frame.dst
+        self.src, self.dst = src, dst
 
     @property
-    def src(self) -> str:
-        return self.frame.src
-
-    @property
-    def dst(self) -> str:
-        return self.frame.dst
+    def frame(self) -> Frame:
+        f = self._frame
+        if f is None:
+            f = self._frame = parse_frame(self.raw)
+        return f
 
     @property
     def pair(self) -> str:
         """``"B>A"``: from B to A."""
-        return f"{self.frame.src}>{self.frame.dst}"
+        return f"{self.src}>{self.dst}"
 
     def changes(self) -> list[Update]:
         """The variables this frame gave a new value (carried values left out)."""
@@ -87,12 +116,23 @@ class Decoded:
         """The values this frame carries itself (changed or not)."""
         return [u for u in self.updates if not u.carried and u.text is not None]
 
+    def __repr__(self) -> str:
+        return f"Decoded(number={self.number}, pair={self.pair!r}, kind={self.kind!r}, checksum_ok={self.checksum_ok})"
 
-class Decoder:
-    """Turns :class:`StreamFrame` s into :class:`Decoded` frames (one capture, in order)."""
 
-    def __init__(self, variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES, sync_interval: float = 1.0) -> None:
+class ReferenceDecoder:
+    """The plain decoder, frame by frame through :class:`~sharedlink.protocols.state.LinkState`:
+    obviously right, slow. The tests' oracle, and the path :class:`Decoder` hands every frame
+    its fast path does not take; no command uses it on its own.
+
+    ``carried`` False leaves a named frame's carried values out of ``updates`` (for callers that
+    read only what frames carry: then a frame costs what it holds, not the direction's table)."""
+
+    def __init__(self, variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES, sync_interval: float = 1.0,
+                 carried: bool = True) -> None:
         self.link = LinkState(default_list=list(variables))
+        self.limits = self.link.limits
+        self.carried = carried
         self.late_ns = round((sync_interval + SYNC_SLACK_S) * NS)
         self._sync: dict[tuple, list[int | None]] = {}  # table key -> [first data ts, last full ts]
         self._asks: list[tuple[tuple, frozenset[str], int]] = []  # unanswered (match key, names, number)
@@ -104,18 +144,21 @@ class Decoder:
         table = self.link.table(frame.src, frame.dst, conv)
         kind = table.kind(frame)
         ok = frame.checksum.ok if frame.checksum is not None else None
+        self.limits.numbers += oversized_numbers(frame.fields)
         late = False
         gap: int | None = None
         if ok is False:
             updates: tuple[Update, ...] = ()
-            shown = tuple(table.preview(frame, sf.number, sf.ts_ns)) if kind in VALUE_KINDS else ()
+            shown = tuple(table.preview(frame, sf.number, sf.ts_ns, self.carried)) if kind in VALUE_KINDS else ()
         else:
-            updates = shown = tuple(self.link.apply(frame, sf.number, sf.ts_ns, conv))
+            updates = shown = tuple(self.link.apply(frame, sf.number, sf.ts_ns, conv, self.carried))
         if kind in DATA_KINDS:
             skey = (conv, frame.src, frame.dst)
             sync = self._sync.get(skey)
             if sync is None:
-                sync = self._sync[skey] = [sf.ts_ns, None]
+                sync = [sf.ts_ns, None]
+                if len(self._sync) < MAX_CONVERSATIONS:
+                    self._sync[skey] = sync
             if kind == "full" and ok is not False:
                 if sync[1] is not None:
                     gap = sf.ts_ns - sync[1]
@@ -135,8 +178,8 @@ class Decoder:
         if kind != "reply":
             names = frozenset(f.text for f in frame.fields if f.letter == "Q")
             self._asks.append(((ports, frame.src, frame.dst), names, sf.number))
-            if len(self._asks) > 4096:
-                del self._asks[:1024]
+            if len(self._asks) > 4 * MAX_PENDING:  # (all conversations together)
+                del self._asks[:MAX_PENDING]
             return None
         want = {f.text for f in frame.fields if f.letter == "R"}
         key = (ports, frame.dst, frame.src)
@@ -148,30 +191,506 @@ class Decoder:
         return None
 
 
+# -- the core: the reference decoder with a fast path for frames in a layout already seen -----------
+
+#: one named full/delta frame alone in a datagram (decoded as latin-1), with plain names and
+#: numeric values, or a bare ``N0`` (nothing changed): groups destination letter, source letter,
+#: body ("T2|QName|Dvalue|" ..., empty when bare), checksum
+_HOT = re.compile(r"\[:([A-P])([A-P])\|N0\|((?:T[024]\|Q[A-Za-z0-9_.]+\|D[-+0-9.eE]+\|)*)C([0-9A-F]{2})\]\r\n")
+_HEX = {f"{i:02X}": i for i in range(256)}
+#: checksum digits -> what to take from (1 + the byte sum of the whole frame) so that the rest is
+#: 0 mod 256 when the checksum is right: the 1, '[' (91), the digits, ']' CR LF (116) and the value
+_CKSUB = {f"{i:02X}": 1 + 91 + ord(f"{i:02X}"[0]) + ord(f"{i:02X}"[1]) + 116 + i for i in range(256)}
+#: layouts kept per direction (a compressed beacon has a handful)
+MAX_LAYOUTS = 32
+
+
+def _layout_key(parts: list[str]) -> tuple[str, ...]:
+    """A hot body's layout (its ``T`` and ``Q`` fields, no values) from ``body.split("|")``."""
+    return (*parts[0::3], *parts[1::3])
+
+
+class _Layout:
+    """One frame layout of a direction: its names, their types, and what follows from them
+    while the direction's names stay the same (``stamp``): the names the frame leaves out
+    (carried) and whether it is full."""
+
+    __slots__ = ("names", "types", "present", "stamp", "missing", "full", "checked", "full_at")
+
+    def __init__(self, names: tuple[str, ...], types: tuple[int, ...]) -> None:
+        self.names, self.types, self.present = names, types, frozenset(names)
+        self.checked = -1  # the direction's version its types were last checked at
+        self.full_at = -1  # ... and ``full`` worked out at (counts only)
+        self.stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) the two below hold for
+        self.missing: tuple[str, ...] = ()
+        self.full = False
+
+
+class _Hot:
+    """A direction's steady state: its table, sync state and the layouts its good full and
+    delta frames have had; ``last``: the last Update the fast path made for each variable,
+    reused while it still says the same (Updates are immutable)."""
+
+    __slots__ = ("table", "sync", "layouts", "last", "stamp", "version")
+
+    def __init__(self, table: VariableTable, sync: list) -> None:
+        self.table, self.sync = table, sync
+        self.version = 0  # counts the direction's frames through the reference path (types may move)
+        self.layouts: dict[tuple[str, ...], _Layout] = {}
+        self.last: dict[str, Update] = {}
+        self.stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) ``last`` was made for
+
+
+def _named_size(name: str, type_code: int | None, text: str | None) -> int:
+    """Bytes of one value in a named full set, ``|T t|Q name|D text`` (0 without a value)."""
+    if text is None:
+        return 0
+    return 4 + len(name) + len(text) + (2 + len(str(type_code)) if type_code is not None else 0)
+
+
+class DirCounts:
+    """Counts only: what :meth:`Decoder.count` took of one direction's frames since the last
+    batch (every one a good full or delta frame in the named form). ``layouts``: layout ->
+    [frames, number and time of the last one]; ``changed``: name -> the texts it changed to, in
+    order; ``gaps``: the sync gaps of its full frames (ns); ``size``: the bytes of a full set's
+    values now."""
+
+    __slots__ = ("conv", "src", "dst", "table", "first_ts", "last_ts", "frames", "bytes", "full", "late", "gaps",
+                 "full_bytes", "layouts", "changed", "size", "last_full")
+
+    def __init__(self, conv: tuple, src: str, dst: str, h: _Hot, ts: int, size: int) -> None:
+        self.conv, self.src, self.dst, self.table = conv, src, dst, h.table
+        self.first_ts = self.last_ts = ts
+        self.frames = self.bytes = self.full = self.late = self.full_bytes = 0
+        self.gaps: list[int] = []
+        self.layouts: dict[_Layout, list[int]] = {}
+        self.changed: dict[str, list[str]] = {}
+        self.size = size
+        self.last_full: tuple[int, int] | None = None
+
+    @property
+    def pair(self) -> str:
+        return f"{self.src}>{self.dst}"
+
+    def counts(self) -> dict[str, int]:
+        """Values carried per name (each frame of a layout carries all its names)."""
+        out: dict[str, int] = {}
+        for lay, (n, _number, _ts) in self.layouts.items():
+            for name in lay.names:
+                out[name] = out.get(name, 0) + n
+        return out
+
+
+class Decoder(ReferenceDecoder):
+    """The decoding core: every command that decodes SharedLink goes through it. Same results
+    as :class:`ReferenceDecoder` (the tests compare them on generated streams built to catch a
+    wrong reuse), fast by construction:
+
+    * a datagram holding exactly one named ``N0`` frame with a good checksum, in a layout (types
+      and names, in order) one of its direction's earlier good full or delta frames had, its
+      variables still of those types, is decoded from one latin-1 string and one split, without
+      building a :class:`~sharedlink.protocols.codec.Frame` (``Decoded.frame`` parses it if
+      asked); unchanged carried values reuse the Update made for the previous frame;
+    * everything else goes through the reference path; a frame there that changes the
+      direction's state in another way forgets its layouts, a declaration forgets every layout;
+    * :meth:`capture` reads a capture's plain Ethernet/IPv4/UDP records without the general
+      packet decoder, the rest through :func:`sharedlink.capture.stream.iter_frames`' splitters.
+    """
+
+    def __init__(self, variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES, sync_interval: float = 1.0,
+                 carried: bool = True) -> None:
+        super().__init__(variables, sync_interval, carried)
+        self._hot: dict[tuple, _Hot] = {}
+        self.fast = 0  # frames decoded by the fast path
+        self.batch: dict[tuple, DirCounts] = {}  # counts only: what count() took, per direction
+        self.splitter = FrameSplitter()
+
+    def decode(self, sf: StreamFrame) -> Decoded:
+        """One frame (``sf.frame`` parsed)."""
+        d = self._try_fast(sf.number, sf.ts_ns, sf.conv, sf.raw)
+        if d is None:
+            d = ReferenceDecoder.decode(self, sf)
+            self._learn(d)
+        return d
+
+    def decode_datagram(self, number: int, ts_ns: int, conv: tuple, data: bytes) -> Iterator[Decoded | StreamFrame]:
+        """The frames of a UDP datagram, and its noise (a :class:`StreamFrame` with ``frame``
+        None), each decoded when it is taken (so its ``table`` is the table as that frame leaves
+        it). A datagram that is one hot frame is not parsed at all."""
+        d = self._try_fast(number, ts_ns, conv, data)
+        if d is not None:
+            yield d
+            return
+        proto, src, sport, dst, dport = conv
+        for sf in self.splitter.split(number, ts_ns, Datagram(proto, src, dst, sport, dport, data)):
+            if sf.frame is None:
+                yield sf
+            else:
+                d = ReferenceDecoder.decode(self, sf)
+                self._learn(d)
+                yield d
+
+    def capture(self, path: str | Path, progress: Callable[[int, int], None] | None = None, counts: bool = False
+                ) -> Iterator[Decoded | StreamFrame | tuple[int, int] | Counted]:
+        """Every item of a capture, as :func:`iter_decoded` gives them. ``progress(bytes, records)`` is
+        called every few thousand records with (bytes of the file read so far, records).
+        ``counts``: the frames the fast path takes come as :class:`Counted` batches instead of
+        :class:`Decoded` frames (for callers that count: no per-frame objects)."""
+        return _capture_items(self, path, progress, counts)
+
+    def _try_fast(self, number: int, ts: int, conv: tuple, raw: bytes) -> Decoded | None:
+        found = self._match(conv, raw)
+        if found is None:
+            return None
+        h, lay, src, dst, values = found
+        return self._fast(number, ts, conv, raw, h, lay, src, dst, values)
+
+    def _match(self, conv: tuple, raw: bytes) -> tuple[_Hot, _Layout, str, str, list[str]] | None:
+        """The direction, layout, letters and values (``D`` fields) of a datagram the fast path
+        takes, else None."""
+        # measured choices: one latin-1 decode of the datagram, then str operations (the values
+        # come out as str, no decode each); one split of the body gives the layout and values
+        m = _HOT.fullmatch(raw.decode("latin-1"))
+        if m is None:
+            return None
+        dst, src, body, cs = m.groups()
+        h = self._hot.get((conv, src, dst))
+        if h is None:
+            return None
+        parts = body.split("|")
+        lay = h.layouts.get(_layout_key(parts))
+        if lay is None:
+            return None
+        # the checksum: adler32's low half is 1 + the byte sum for up to 256 bytes (C speed)
+        if len(raw) <= 256:
+            if ((adler32(raw) & 0xFFFF) - _CKSUB[cs]) & 0xFF:
+                return None
+        elif (sum(raw[1 : m.end(3) + 1]) & 0xFF) != _HEX[cs]:
+            return None
+        if lay.checked != h.version:  # the types may have moved since: the layout's must still hold
+            vars_ = h.table.vars
+            for n, t in zip(lay.names, lay.types):
+                if vars_[n].type_code != t:
+                    return None
+            lay.checked = h.version
+        return h, lay, src, dst, parts[2::3]
+
+    def count(self, number: int, ts: int, conv: tuple, raw: bytes) -> bool:
+        """Counts only: take a datagram the fast path takes into :attr:`batch` (no
+        :class:`Decoded`, no Updates) and return True; False when it is not one (decode it).
+        Per value only a comparison; what every value of a layout shares (its count, the frame
+        that last carried it) is kept per layout and written to the table by :meth:`take_batch`,
+        which the caller calls before anything else is decoded."""
+        found = self._match(conv, raw)
+        if found is None:
+            return False
+        h, lay, src, dst, values = found
+        key = (conv, src, dst)
+        c = self.batch.get(key)
+        if c is None:
+            c = self.batch[key] = DirCounts(conv, src, dst, h, ts, self._hot_size(h))
+        vars_ = h.table.vars
+        size = c.size
+        for name, dval in zip(lay.names, values):
+            v = vars_[name]
+            text = dval[1:]
+            old = v.text
+            if old != text:
+                texts = c.changed.get(name)
+                if texts is None:
+                    texts = c.changed[name] = []
+                texts.append(text)
+                size += len(text) - len(old) if old is not None else _named_size(name, v.type_code, text)
+                v.text = text
+        c.size = size
+        seen = c.layouts.get(lay)
+        if seen is None:
+            c.layouts[lay] = [1, number, ts]
+        else:
+            seen[0] += 1
+            seen[1], seen[2] = number, ts
+        c.frames += 1
+        c.bytes += len(raw)
+        if ts > c.last_ts:
+            c.last_ts = ts
+        elif ts < c.first_ts:
+            c.first_ts = ts
+        c.full_bytes += size + 14  # "[:AB|N0" ... "|CXX]" CR LF around the values
+        if lay.full_at != h.version:
+            lay.full_at = h.version
+            self._layout_full(h.table, lay)
+        sync = h.sync
+        if lay.full:
+            c.full += 1
+            c.last_full = number, ts
+            if sync[1] is not None:
+                c.gaps.append(ts - sync[1])
+            sync[1] = ts
+        else:
+            since = sync[1] if sync[1] is not None else sync[0]
+            if ts - since > self.late_ns:
+                c.late += 1
+        return True
+
+    def take_batch(self) -> dict[tuple, DirCounts]:
+        """What :meth:`count` gathered since the last call (then empty), the tables brought up
+        to date (which frame last set each value, the last full set, the form)."""
+        b = self.batch
+        self.batch = {}
+        for c in b.values():
+            table = c.table
+            vars_ = table.vars
+            for lay, (_n, number, ts) in sorted(c.layouts.items(), key=lambda kv: kv[1][1]):
+                for name in lay.names:
+                    v = vars_[name]
+                    v.set_in, v.set_at = number, ts
+            if c.last_full is not None:
+                table.last_full_at, table.last_full_in = c.last_full[1], c.last_full[0]
+            table.named = True
+            self.fast += c.frames
+        return b
+    @staticmethod
+    def _hot_size(h: _Hot) -> int:
+        """Bytes of the values of a full set of the direction (named form, without the frame's
+        13 bytes and CR LF): :func:`sharedlink.analysis.stats.full_size`'s rule."""
+        return sum(_named_size(n, v.type_code, v.text) for n, v in h.table.vars.items())
+
+    @staticmethod
+    def _layout_full(table: VariableTable, lay: _Layout) -> bool:
+        stamp = (len(table.vars), len(table.sent_names))
+        if lay.stamp != stamp:
+            present = lay.present
+            lay.missing = tuple(n for n in table.vars if n not in present)
+            lay.full = bool(present) and sum(1 for n in present if n in table.sent_names) == len(table.sent_names)
+            lay.stamp = stamp
+        return lay.full
+
+    def _learn(self, d: Decoded) -> None:
+        if d.kind == "declaration":
+            self._hot.clear()
+            return
+        if d.checksum_ok is False:
+            return  # changed nothing
+        key = (d.conv, d.src, d.dst)
+        m = _HOT.fullmatch(d.raw.decode("latin-1"))
+        sync = self._sync.get((conversation_key(d.conv), d.src, d.dst))
+        # (a bare N0 is named only in a direction already named, else it is read as positional)
+        if m is None or d.checksum_ok is not True or d.kind not in DATA_KINDS or sync is None or d.table.named is not True:
+            self._hot.pop(key, None)
+            return
+        h = self._hot.get(key)
+        if h is None or h.table is not d.table or h.sync is not sync:
+            if h is None and len(self._hot) >= MAX_CONVERSATIONS:
+                return
+            h = self._hot[key] = _Hot(d.table, sync)
+        h.version += 1
+        parts = m.group(3).split("|")  # the body ends with its last "|": one more, empty part
+        names = tuple(q[1:] for q in parts[1::3])
+        if len(h.layouts) < MAX_LAYOUTS and all(n in d.table.vars for n in names):
+            h.layouts[_layout_key(parts)] = _Layout(names, tuple(int(t[1:]) for t in parts[0:-1:3]))
+
+    def _fast(self, number: int, ts: int, conv: tuple, raw: bytes, h: _Hot, lay: _Layout, src: str, dst: str,
+              values: list[str]) -> Decoded:
+        table = h.table
+        vars_ = table.vars
+        sent = table.sent_names
+        last = h.last
+        updates: list[Update] = []
+        add = updates.append
+        stamp = (len(vars_), len(sent))
+        if h.stamp != stamp:  # new names: indexes and types may differ, make every Update again
+            last.clear()
+            h.stamp = stamp
+        if lay.stamp != stamp:  # the direction's names changed: what the layout leaves out, again
+            present = lay.present
+            lay.missing = tuple(n for n in vars_ if n not in present)
+            # the kind before the frame, as VariableTable.kind (a bare N0 is a delta)
+            lay.full = bool(present) and sum(1 for n in present if n in sent) == len(sent)
+            lay.stamp = stamp
+        for name, dval in zip(lay.names, values):
+            text = dval[1:]
+            v = vars_[name]
+            index = sent.get(name)
+            if index is None:
+                index = sent[name] = len(sent)
+            changed = v.text != text
+            v.text, v.set_in, v.set_at = text, number, ts
+            u = last.get(name)
+            if changed or u is None or u.changed or u.carried or u.index != index or u.text != text:
+                u = last[name] = _update(v, index, False, None, changed)
+            add(u)
+        if len(sent) != stamp[1]:
+            lay.stamp = (-1, -1)
+        if self.carried:
+            for name in lay.missing:
+                v = vars_[name]
+                text = v.text
+                if text is None:
+                    continue
+                u = last.get(name)
+                if u is None or not u.carried or u.carried_from != v.set_in or u.text != text:
+                    u = last[name] = _update(v, sent.get(name, table._index(name)), True, v.set_in, False)
+                add(u)
+        table.named = True
+        sync = h.sync
+        gap: int | None = None
+        late = False
+        full = lay.full
+        if full:
+            table.last_full_at, table.last_full_in = ts, number
+            if sync[1] is not None:
+                gap = ts - sync[1]
+            sync[1] = ts
+        else:
+            since = sync[1] if sync[1] is not None else sync[0]
+            late = ts - since > self.late_ns
+        self.fast += 1
+        ups = tuple(updates)
+        return Decoded(number, ts, conv, raw, None, "full" if full else "delta", True, ups, table, late, gap, ups, None,
+                       src, dst)
+
+
+# -- captures ---------------------------------------------------------------------------------
+
+#: Ethernet II, IPv4 without options (IHL 5), UDP: bytes 12..14 of the packet, and byte 23
+_ETH_IPV4 = b"\x08\x00\x45"
+_UDP = 17
+
+
+class Counted(NamedTuple):
+    """Counts only (:meth:`Decoder.capture` with ``counts``): the frames the fast path took since
+    the previous item, per direction. It comes before the next item of any other kind, so
+    callers see everything in capture order."""
+
+    dirs: dict[tuple, DirCounts]
+
+
+#: fast frames gathered into one :class:`Counted` at most
+BATCH_FRAMES = 512
+
+
+def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int], None] | None, counting: bool = False
+                   ) -> Iterator[Decoded | StreamFrame | tuple[int, int] | Counted]:
+    """The record loop of :meth:`Decoder.capture`: plain Ethernet/IPv4/UDP records (not
+    fragments) go to :meth:`Decoder.decode_datagram` (``counting``: first to
+    :meth:`Decoder.count`) straight from the record's bytes; every other record through the
+    general reader's packet decoder and splitters (as :func:`~sharedlink.capture.stream.iter_frames`)."""
+    serial = SerialSplitter()
+    packets = PacketDecoder().decode  # IP fragments reassembled
+    splitter = dec.splitter
+    general = ReferenceDecoder.decode
+    addrs: dict[bytes, tuple[str, str, int, str, int]] = {}
+    datagram = dec.decode_datagram
+    count = dec.count
+    taken = 0  # frames in dec.batch
+    unpack = _UDP_HEAD.unpack_from
+    read = 24  # bytes of the file read, about (pcap's headers; pcapng's blocks are a little longer)
+    try:
+        for rec in read_records(path):
+            data = rec.data
+            if progress is not None:
+                read += 16 + len(data)
+                if not rec.number & 4095:
+                    progress(read, rec.number)
+            if rec.linktype == LINKTYPE_ETHERNET and data[12:15] == _ETH_IPV4 and len(data) >= 42 and data[23] == _UDP:
+                tlen, frag, a, sport, dport, ulen = unpack(data, 16)
+                if not frag & 0x3FFF and tlen >= 20:
+                    key = a + data[34:38]
+                    conv = addrs.get(key)
+                    if conv is None:
+                        if len(addrs) > MAX_CONVERSATIONS:
+                            addrs.clear()
+                        conv = addrs[key] = ("udp", socket.inet_ntoa(a[:4]), sport, socket.inet_ntoa(a[4:8]), dport)
+                    end = min(14 + tlen, len(data))
+                    if end >= 42:  # (else the general decoder's verdict: not a UDP datagram)
+                        stop = min(34 + ulen, end) if ulen >= 8 else end
+                        if stop > 42:
+                            payload = data[42:stop]
+                            if counting:
+                                if count(rec.number, rec.ts_ns, conv, payload):
+                                    taken += 1
+                                    if taken >= BATCH_FRAMES:
+                                        yield Counted(dec.take_batch())
+                                        taken = 0
+                                    continue
+                                if taken:
+                                    yield Counted(dec.take_batch())
+                                    taken = 0
+                            yield from datagram(rec.number, rec.ts_ns, conv, payload)
+                        continue
+            if taken:
+                yield Counted(dec.take_batch())
+                taken = 0
+            if rec.linktype in USER_LINKTYPES:
+                for item in serial.feed(rec.number, rec.ts_ns, rec.linktype, data, rec.flags, rec.interface):
+                    yield _decode_item(dec, general, item)
+                continue
+            dg = packets(rec.linktype, data)
+            if dg is None:
+                yield rec.number, rec.ts_ns
+                continue
+            for sf in splitter.split(rec.number, rec.ts_ns, dg):
+                yield _decode_item(dec, general, sf)
+    except CaptureError:
+        if dec.batch:
+            yield Counted(dec.take_batch())
+        for item in serial.flush():
+            yield _decode_item(dec, general, item)
+        raise
+    if dec.batch:
+        yield Counted(dec.take_batch())
+    for item in serial.flush():
+        yield _decode_item(dec, general, item)
+
+
+def _decode_item(dec: Decoder, general: Callable, item: StreamFrame | tuple[int, int]
+                 ) -> Decoded | StreamFrame | tuple[int, int]:
+    if isinstance(item, StreamFrame) and item.frame is not None:
+        d = general(dec, item)
+        dec._learn(d)
+        return d
+    return item
+
+
+#: from byte 16 of an Ethernet/IPv4 packet: IP total length, flags and fragment offset, (TTL,
+#: protocol, checksum skipped) the addresses (8 bytes), UDP ports and length
+_UDP_HEAD = struct.Struct("!H2xH4x8sHHH")
+
+
 def iter_decoded(
     path: str | Path,
     variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES,
     sync_interval: float = 1.0,
+    carried: bool = True,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Iterator[Decoded | StreamFrame | tuple[int, int]]:
-    """Every item of a capture: :class:`Decoded` for frames, the noise :class:`StreamFrame`
-    and ``(number, ts_ns)`` for other records unchanged. Raises
-    :class:`~sharedlink.capture.pcapio.CaptureError` on damage, after everything before it."""
-    dec = Decoder(variables, sync_interval)
-    for item in iter_frames(path):
-        if isinstance(item, StreamFrame) and item.frame is not None:
-            yield dec.decode(item)
-        else:
-            yield item
+    """Every item of a capture, through the core (:class:`Decoder`): :class:`Decoded` for
+    frames, the noise :class:`StreamFrame` and ``(number, ts_ns)`` for other records unchanged.
+    Raises :class:`~sharedlink.capture.pcapio.CaptureError` on damage, after everything before
+    it. ``carried`` False: named frames' carried values are left out of ``updates``;
+    ``progress(bytes read, records)`` is called now and then."""
+    return Decoder(variables, sync_interval, carried).capture(path, progress)
 
 
 def format_time(ts_ns: int) -> str:
     """UTC ISO 8601 with nanoseconds: ``2026-01-01T12:00:00.200000000Z``. Any year (past 9999
     it has more digits, as ISO 8601's expanded years; before year 1 a sign)."""
+    global _last_second
     sec, frac = divmod(ts_ns, NS)
+    last = _last_second  # (one tuple, replaced whole: safe between threads)
+    if sec != last[0]:  # frames come several a second: the date and time once a second
+        last = _last_second = (sec, _format_second(sec))
+    return "%s.%09dZ" % (last[1], frac)
+
+
+_last_second: tuple[int | None, str] = (None, "")
+
+
+def _format_second(sec: int) -> str:
     days, rest = divmod(sec, 86400)
     y, m, d = _civil_from_days(days)
     year = "%04d" % y if 0 <= y <= 9999 else "%+05d" % y
-    return "%s-%02d-%02dT%02d:%02d:%02d.%09dZ" % (year, m, d, rest // 3600, rest // 60 % 60, rest % 60, frac)
+    return "%s-%02d-%02dT%02d:%02d:%02d" % (year, m, d, rest // 3600, rest // 60 % 60, rest % 60)
 
 
 def _civil_from_days(z: int) -> tuple[int, int, int]:

@@ -29,7 +29,7 @@ import csv
 import json
 import math
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -60,6 +60,7 @@ class ExportOptions:
     heading: str = HEADING  # mcap: the LocationFix heading
     velocity: str = VELOCITY  # mcap: the speed variable (LocationFix velocity)
     require: Sequence[str] = ()  # names the capture must carry (csv/jsonl/geojson/kml), else UsageError
+    progress: Callable[[int, int], None] | None = None  # called with (bytes read, records) now and then
 
 
 @dataclass
@@ -80,7 +81,7 @@ def _typed(v: Variable | None) -> Any:
     """A variable's typed value for JSON (a number that JSON cannot hold stays text)."""
     if v is None or v.text is None:
         return None
-    x = v.value
+    x = v.value  # (kept on the variable while its text stays: carried values cost nothing)
     if isinstance(x, float) and not math.isfinite(x):
         return v.text
     return x
@@ -90,7 +91,8 @@ def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iter
     """The decoded frames; damage after the first record ends the stream with ``error`` set."""
     seen = result.seen if opts.require else None
     try:
-        for item in iter_decoded(path, opts.variables, opts.sync_interval):
+        # (rows read values from the table and what frames changed: carried Updates are not needed)
+        for item in iter_decoded(path, opts.variables, opts.sync_interval, carried=False, progress=opts.progress):
             if isinstance(item, Decoded):
                 result.frames += 1
                 if seen is not None:
@@ -181,6 +183,11 @@ class _Csv(_Writer):
 
 
 class _Jsonl(_Writer):
+    def __init__(self, out: IO[str], opts: ExportOptions, columns: list[str]) -> None:
+        super().__init__(out, opts, columns)
+        self._frags: dict[str, tuple[str, int | None, str]] = {}  # name -> (text, type, '"name": value')
+        self._json: dict[str, str] = {}  # names and letters as JSON strings
+
     def write(self, d: Decoded) -> int:
         if self.opts.changes:
             n = 0
@@ -188,11 +195,47 @@ class _Jsonl(_Writer):
                 self.out.write(json.dumps(row) + "\n")
                 n += 1
             return n
+        self.out.write(self.line(d))
+        return 1
+
+    def row(self, d: Decoded) -> dict[str, Any]:
+        """A frame's row as a dict (the plain path :meth:`line` is checked against)."""
         row = self.frame_row(d)
         row["values"] = self.values(d)
         row["changed"] = [u.name for u in d.changes()]
-        self.out.write(json.dumps(row) + "\n")
-        return 1
+        return row
+
+    def line(self, d: Decoded) -> str:
+        """``json.dumps(self.row(d)) + "\\n"``, built from pieces kept while they hold: a
+        value's ``"name": value`` is made again only when its text or type changed."""
+        if self.t0 is None:
+            self.t0 = d.ts_ns
+        frags, js, wanted = self._frags, self._json, self.opts.columns
+        if len(frags) > 8192 or len(js) > 8192:
+            frags.clear()
+            js.clear()
+        values = []
+        for n, v in d.table.vars.items():
+            text = v.text
+            if text is None or (wanted is not None and n not in wanted):
+                continue
+            f = frags.get(n)
+            if f is None or f[0] is not text or f[1] != v.type_code:
+                f = frags[n] = (text, v.type_code, "%s: %s" % (self._js(n), json.dumps(_typed(v))))
+            values.append(f[2])
+        changed = ", ".join([self._js(u.name) for u in d.changes()])
+        ok = d.checksum_ok
+        return '{"number": %d, "time": "%s", "ts_ns": %d, "t": %r, "src": %s, "dst": %s, "kind": %s, ' \
+               '"checksum": "%s", "values": {%s}, "changed": [%s]}\n' % (
+                   d.number, format_time(d.ts_ns), d.ts_ns, round((d.ts_ns - self.t0) / 1e9, 9), self._js(d.src),
+                   self._js(d.dst), self._js(d.kind), "none" if ok is None else ("good" if ok else "bad"),
+                   ", ".join(values), changed)
+
+    def _js(self, text: str) -> str:
+        j = self._json.get(text)
+        if j is None:
+            j = self._json[text] = json.dumps(text)
+        return j
 
     def values(self, d: Decoded) -> dict[str, Any]:
         wanted = self.opts.columns

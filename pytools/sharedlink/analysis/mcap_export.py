@@ -33,7 +33,7 @@ def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOp
     record sets ``result.error`` (what came before it is published)."""
     other = False
     try:
-        for item in iter_decoded(path, opts.variables, opts.sync_interval):
+        for item in iter_decoded(path, opts.variables, opts.sync_interval, carried=False, progress=opts.progress):
             if isinstance(item, Decoded):
                 result.frames += 1
                 channels.frame(item)

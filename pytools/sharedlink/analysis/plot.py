@@ -16,7 +16,7 @@ and show the same gaps (shaded) and checksum failures (red lines).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -114,12 +114,13 @@ def collect(
     lat: str = LAT,
     lon: str = LON,
     speed: str = SPEED,
+    progress: Callable[[int, int], None] | None = None,
 ) -> PlotData:
     """Read a capture into :class:`PlotData` (one streaming pass). Damage after the first
     record sets ``error``; a missing or unreadable file raises CaptureError."""
     data = PlotData(str(path), speed_var=speed)
     try:
-        for item in iter_decoded(path, variables, sync_interval):
+        for item in iter_decoded(path, variables, sync_interval, progress=progress):
             if isinstance(item, Decoded):
                 _add(data, item, max_points, gap_factor, lat, lon, speed)
     except CaptureError as exc:

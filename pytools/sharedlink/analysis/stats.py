@@ -13,7 +13,8 @@ Definitions (the Lua tap ``dissector/sharedlink_stats.lua`` counts the same way)
 * per variable (and node pair): ``count`` values carried in frames with a good checksum (a
   value left out and carried forward is not counted), ``changes``, numeric ``min``/``max``,
   and the ``last`` value as written;
-* sync: ``late`` frames as the dissector's ``sharedlink.sync.late`` expert; ``gaps``: full sets
+* sync: ``late`` frames as the dissector's ``sharedlink.sync.late`` expert (frames with a bad
+  checksum included, as Expert Information and the tap count them); ``gaps``: full sets
   further apart than the sync interval plus the slack, and the longest such interval;
 * compression: bytes of the value frames (full and delta) against the bytes the same frames
   would take as full sets in the same form; ``ratio`` = sent / full.
@@ -21,14 +22,15 @@ Definitions (the Lua tap ``dissector/sharedlink_stats.lua`` counts the same way)
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Decoded, iter_decoded
+from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Counted, Decoded, Decoder
 from sharedlink.capture.pcapio import CaptureError
-from sharedlink.protocols.codec import guess_value, typed_value
-from sharedlink.protocols.state import BEACON_VARIABLES, VariableTable
+from sharedlink.protocols.codec import _DOUBLE_TEXT, TYPE_DOUBLE, guess_value, typed_value
+from sharedlink.protocols.limits import LimitCounts
+from sharedlink.protocols.state import BEACON_VARIABLES, Update, VariableTable
 
 
 @dataclass
@@ -125,6 +127,8 @@ class CaptureStats:
     first_ns: int | None = None  # the earliest and the latest frame time (not the first and last
     last_ns: int | None = None  # records: a capture's records need not be in time order)
     error: str | None = None  # the capture is damaged here (everything before it is counted)
+    limits: LimitCounts = field(default_factory=LimitCounts)  # input dropped at a bound (limits.py)
+    _full: dict[int, _FullSize] = field(default_factory=dict, repr=False, compare=False)  # per table
 
     @property
     def duration_s(self) -> float:
@@ -166,6 +170,7 @@ class CaptureStats:
             },
             "pairs": [p.to_dict() for _, p in sorted(self.pairs.items())],
             "variables": [v.to_dict() for _, v in sorted(self.variables.items())],
+            "limits": self.limits.to_dict(),
             "error": self.error,
         }
 
@@ -174,9 +179,11 @@ class CaptureStats:
     def add(self, d: Decoded) -> None:
         size = len(d.raw)
         ts = d.ts_ns
+        kind = d.kind
         self.frames += 1
         self.bytes += size
-        self.kinds[d.kind] = self.kinds.get(d.kind, 0) + 1
+        kinds = self.kinds
+        kinds[kind] = kinds.get(kind, 0) + 1
         # the real time span: records are frames in file order, whatever their time stamps say
         if self.first_ns is None or ts < self.first_ns:
             self.first_ns = ts
@@ -188,20 +195,20 @@ class CaptureStats:
             p = self.pairs[pair] = PairStats(pair, first_ns=ts, last_ns=ts)
         p.frames += 1
         p.bytes += size
-        p.kinds[d.kind] = p.kinds.get(d.kind, 0) + 1
+        p.kinds[kind] = p.kinds.get(kind, 0) + 1
         if ts < p.first_ns:  # type: ignore[operator]
             p.first_ns = ts
         if ts > p.last_ns:  # type: ignore[operator]
             p.last_ns = ts
+        if d.late:  # whatever the checksum, as the dissector's expert and its tap count it
+            self.sync_late += 1
+            p.sync_late += 1
         if d.checksum_ok is False:
             self.checksum_failures += 1
             p.checksum_failures += 1
             return
         if d.checksum_ok is None:
             self.checksum_missing += 1
-        if d.late:
-            self.sync_late += 1
-            p.sync_late += 1
         if d.sync_gap_ns is not None:
             gap = d.sync_gap_ns / NS
             if gap > self.sync_interval + SYNC_SLACK_S:
@@ -209,9 +216,19 @@ class CaptureStats:
                 p.sync_gaps += 1
             if p.max_sync_gap_s is None or gap > p.max_sync_gap_s:
                 p.max_sync_gap_s = gap
-        if d.kind in DATA_KINDS:
+        if kind == "declaration":
+            self._full.clear()  # lists changed (here or, for L, the other way): sizes again
+        full = self._full.get(id(d.table))
+        if full is not None and (full.table is not d.table or not full.same(d.table)):
+            full = None
+            del self._full[id(d.table)]
+        if full is not None:
+            full.update(d.updates)
+        if kind in DATA_KINDS:
+            if full is None:
+                full = self._full[id(d.table)] = _FullSize(d.table)
             self.value_bytes += size
-            self.full_bytes += full_size(d.table, d.frame.dst, d.frame.src, d.raw.endswith(b"\r\n"))
+            self.full_bytes += full.size + (2 if d.raw.endswith(b"\r\n") else 0)
         variables = self.variables
         for u in d.updates:
             if u.carried or u.text is None:
@@ -223,9 +240,11 @@ class CaptureStats:
             if tv is not None and tv.type_code is not None:
                 v.type_code = tv.type_code
             v.count += 1
+            v.last, v.last_frame = u.text, d.number
+            if not u.changed and v.count > 1:
+                continue  # the same value again: min and max stand
             if u.changed:
                 v.changes += 1
-            v.last, v.last_frame = u.text, d.number
             x = guess_value(u.text) if v.type_code is None else typed_value(v.type_code, u.text)
             if isinstance(x, (int, float)) and x == x:  # numbers, NaN left out
                 xf = float(x)
@@ -233,6 +252,134 @@ class CaptureStats:
                     v.min = xf
                 if v.max is None or xf > v.max:
                     v.max = xf
+
+
+    def add_counts(self, batch: Counted) -> None:
+        """Frames the decoder's fast path counted (:class:`~sharedlink.analysis.decode.Counted`):
+        good full and delta frames in the named form, the same sums as :meth:`add` of each."""
+        limit = self.sync_interval + SYNC_SLACK_S
+        variables = self.variables
+        for c in batch.dirs.values():
+            pair = c.pair
+            self.frames += c.frames
+            self.bytes += c.bytes
+            p = self.pairs.get(pair)
+            if p is None:
+                p = self.pairs[pair] = PairStats(pair, first_ns=c.first_ts, last_ns=c.last_ts)
+            p.frames += c.frames
+            p.bytes += c.bytes
+            for kind, n in (("full", c.full), ("delta", c.frames - c.full)):
+                if n:
+                    self.kinds[kind] = self.kinds.get(kind, 0) + n
+                    p.kinds[kind] = p.kinds.get(kind, 0) + n
+            if self.first_ns is None or c.first_ts < self.first_ns:
+                self.first_ns = c.first_ts
+            if self.last_ns is None or c.last_ts > self.last_ns:
+                self.last_ns = c.last_ts
+            p.first_ns = min(p.first_ns, c.first_ts)  # type: ignore[type-var]
+            p.last_ns = max(p.last_ns, c.last_ts)  # type: ignore[type-var]
+            self.sync_late += c.late
+            p.sync_late += c.late
+            for g in c.gaps:
+                gap = g / NS
+                if gap > limit:
+                    self.sync_gaps += 1
+                    p.sync_gaps += 1
+                if p.max_sync_gap_s is None or gap > p.max_sync_gap_s:
+                    p.max_sync_gap_s = gap
+            self.value_bytes += c.bytes
+            self.full_bytes += c.full_bytes
+            self._full.pop(id(c.table), None)  # its values moved without an add(): size it again
+            tvars = c.table.vars
+            changed = c.changed
+            for name, count in c.counts().items():
+                v = variables.get((pair, name))
+                if v is None:
+                    v = variables[(pair, name)] = VarStats(pair, name)
+                tv = tvars[name]
+                if tv.type_code is not None:
+                    v.type_code = tv.type_code
+                v.count += count
+                if v.last_frame is None or tv.set_in > v.last_frame:  # type: ignore[operator]
+                    v.last, v.last_frame = tv.text, tv.set_in
+                texts = changed.get(name)
+                if texts:
+                    v.changes += len(texts)
+                    _min_max(v, set(texts))
+
+
+def _min_max(v: VarStats, texts: set[str]) -> None:
+    """Take ``texts`` (values ``v`` took) into its min and max; numbers only, NaN left out."""
+    tc = v.type_code
+    if tc == TYPE_DOUBLE and all(map(_DOUBLE_TEXT.fullmatch, texts)):  # the common case, at C speed
+        xs = list(map(float, texts))
+        lo, hi = min(xs), max(xs)
+        if v.min is None or lo < v.min:
+            v.min = lo
+        if v.max is None or hi > v.max:
+            v.max = hi
+        return
+    for text in texts:
+        x = guess_value(text) if tc is None else typed_value(tc, text)
+        if isinstance(x, (int, float)) and x == x:
+            xf = float(x)
+            if v.min is None or xf < v.min:
+                v.min = xf
+            if v.max is None or xf > v.max:
+                v.max = xf
+
+
+class _FullSize:
+    """:func:`full_size` of one table (without CR LF), kept up to date from the values good
+    frames carry, so a frame costs what it holds and not the direction's whole table; made
+    again when the table's names, list or form change."""
+
+    __slots__ = ("table", "stamp", "size", "parts", "counts")
+
+    def __init__(self, table: VariableTable) -> None:
+        self.table = table
+        self.stamp = self._stamp(table)
+        self.size = full_size(table, "", "", False)
+        self.parts: dict[str, int] = {}  # named: a variable's bytes; positional: its text's length
+        self.counts: dict[str, int] = {}  # positional: the slots a name has in the list
+        if table.named is False:
+            for name in table.names:
+                self.counts[name] = self.counts.get(name, 0) + 1
+            self.parts = {n: len(v.text or "") for n, v in table.vars.items() if n in self.counts}
+        else:
+            self.parts = {n: _named_size(n, v.type_code, v.text) for n, v in table.vars.items() if v.text is not None}
+
+    @staticmethod
+    def _stamp(table: VariableTable) -> tuple:
+        # new names of a named table come with the values that add them (update); a positional
+        # table's size follows its list
+        return (len(table.names), table.named) if table.named is False else (table.named,)
+
+    def same(self, table: VariableTable) -> bool:
+        return self._stamp(table) == self.stamp
+
+    def update(self, updates: Sequence[Update]) -> None:
+        parts = self.parts
+        if self.table.named is False:
+            counts = self.counts
+            for u in updates:
+                if not u.carried and u.text is not None and u.name in counts:
+                    n = len(u.text)
+                    self.size += counts[u.name] * (n - parts.get(u.name, 0))
+                    parts[u.name] = n
+            return
+        for u in updates:
+            if not u.carried and u.text is not None:
+                n = _named_size(u.name, u.type_code, u.text)
+                self.size += n - parts.get(u.name, 0)
+                parts[u.name] = n
+
+
+def _named_size(name: str, type_code: int | None, text: str | None) -> int:
+    """Bytes of one value in a named full set: ``|T t|Q name|D text``."""
+    if text is None:
+        return 0
+    return 4 + len(name) + len(text) + (2 + len(str(type_code)) if type_code is not None else 0)
 
 
 def full_size(table: VariableTable, dst: str, src: str, crlf: bool = True) -> int:
@@ -257,15 +404,20 @@ def capture_stats(
     path: str | Path,
     variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES,
     sync_interval: float = 1.0,
+    progress: Callable[[int, int], None] | None = None,
 ) -> CaptureStats:
-    """Statistics of one capture. A damaged file gives the statistics of everything before
+    """Statistics of one capture (``progress(bytes read, records)`` is called now and then). A damaged file gives the statistics of everything before
     the damage with ``error`` set; a missing or unreadable one raises CaptureError."""
     st = CaptureStats(path=str(path), sync_interval=sync_interval)
-    it = iter_decoded(path, variables, sync_interval)
+    dec = Decoder(variables, sync_interval, carried=False)  # stats reads only what frames carry
+    st.limits = dec.limits
+    it = dec.capture(path, progress, counts=True)
     try:
         for item in it:
             if isinstance(item, Decoded):
                 st.add(item)
+            elif isinstance(item, Counted):
+                st.add_counts(item)
             elif isinstance(item, tuple):
                 st.other_records += 1
             else:
@@ -303,6 +455,8 @@ def tables(st: CaptureStats) -> list[tuple[str, list[str], list[list[str]]]]:
         ["noise", "%d segments, %d bytes" % (st.noise_segments, st.noise_bytes)],
         ["other records", str(st.other_records)],
     ]
+    if st.limits.total:
+        summary.append(["dropped at limits", ", ".join(f"{k} {n}" for k, n in st.limits.to_dict().items() if n)])
     kinds = [[k, str(n)] for k, n in sorted(st.kinds.items())]
     pairs = [
         [

@@ -44,9 +44,10 @@ def take(reader: ChangeReader, buf: bytes, mult: int, number: int) -> tuple[int,
     does not qualify (then the per-record loop does it: the results are the same)."""
     fk = next(iter(reader._fast.values()))
     positional = len(buf) > 66 and buf[66] == 68
-    rx = fk.bulk_pos if positional else fk.bulk_named
-    if rx is None:
+    lazy = fk.bulk_pos if positional else fk.bulk_named
+    if lazy is None:
         return None
+    rx = lazy.get()
     rows = rx.findall(buf)
     n = len(rows)
     if n < 64:

@@ -42,12 +42,44 @@ def _bulk_head(addr: bytes) -> bytes:
 _CKADJ = {b"%02X" % i: 1 + 91 + 116 + (b"%02X" % i)[0] + (b"%02X" % i)[1] + i for i in range(256)}
 
 _REC = struct.Struct("<IIII")
+#: variables a direction may have for the fast tier to keep a layout of it (wider tables, and
+#: tables that keep growing, go the general way: a layout is one compiled pattern of every name)
+MAX_FAST_VARS = 64
 #: the record header plus, at fixed offsets of an Ethernet/IPv4/UDP packet: IP total length,
 #: IP addresses and UDP ports (12 bytes: the conversation), UDP length (both lengths read
 #: little-endian: compared against _SWAP16), the frame's two address letters and the byte
 #: after "[:AB|N0|"
 _REC_X = struct.Struct("<IIII16xH8x12sH4x2s4xB")
 _SWAP16 = [((x & 0xFF) << 8) | (x >> 8) for x in range(65536)]
+
+
+#: compiled layouts, shared by the conversations that have the same one (a capture of thousands of
+#: conversations compiled the same pattern for each); emptied when it holds this many
+_PATTERNS: dict[bytes, re.Pattern[bytes]] = {}
+MAX_PATTERNS = 1024
+
+
+def _compiled(pattern: bytes) -> re.Pattern[bytes]:
+    rx = _PATTERNS.get(pattern)
+    if rx is None:
+        if len(_PATTERNS) >= MAX_PATTERNS:
+            _PATTERNS.clear()
+        rx = _PATTERNS[pattern] = re.compile(pattern)
+    return rx
+
+
+class _Lazy:
+    """A block pattern compiled when the block tier first asks (it runs on one direction only)."""
+
+    __slots__ = ("pattern", "_rx")
+
+    def __init__(self, pattern: bytes) -> None:
+        self.pattern, self._rx = pattern, None
+
+    def get(self) -> re.Pattern[bytes]:
+        if self._rx is None:
+            self._rx = _compiled(self.pattern)
+        return self._rx
 
 
 class FastKey:
@@ -101,8 +133,8 @@ class FastKey:
                 rb"(?:\|T" + str(self.types[i]).encode() + rb"\|Q" + re.escape(latin[i]) + rb"\|D(" + _V + rb"+))?"
                 for i in self.nslots
             )
-            self.named = re.compile(_ETH_IP_UDP + head + body + tail).fullmatch
-            self.bulk_named = re.compile(bulk_head + b"(" + head + body + tail + b")")
+            self.named = _compiled(_ETH_IP_UDP + head + body + tail).fullmatch
+            self.bulk_named = _Lazy(bulk_head + b"(" + head + body + tail + b")")
         else:
             self.nslots, self.named, self.bulk_named = [], None, None
         names = t.names
@@ -116,8 +148,8 @@ class FastKey:
             self.pslots = [self.slots.index(n) for n in names]
             self.preq = sorted(t.filled)
             body = (rb"\|D(" + _V + rb"*)") * len(names)
-            self.pos = re.compile(_ETH_IP_UDP + head + body + tail).fullmatch
-            self.bulk_pos = re.compile(bulk_head + b"(" + head + body + tail + b")")
+            self.pos = _compiled(_ETH_IP_UDP + head + body + tail).fullmatch
+            self.bulk_pos = _Lazy(bulk_head + b"(" + head + body + tail + b")")
         else:
             self.pslots, self.preq, self.pos, self.bulk_pos = [], [], None, None
         self._hot()

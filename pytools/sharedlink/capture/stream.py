@@ -50,7 +50,15 @@ from sharedlink.capture.pcapio import (
     records_from,
 )
 from sharedlink.capture.serial_format import DIRECTION_NAMES, USER_LINKTYPES, Piece, StreamReader
-from sharedlink.protocols.codec import Frame, SharedLinkError, declared_list, frame_kind, iter_segments
+from sharedlink.protocols.codec import (
+    Frame,
+    SharedLinkError,
+    declared_list,
+    frame_kind,
+    iter_segments,
+    positional_values,
+)
+from sharedlink.protocols.limits import MAX_SLOTS
 from sharedlink.protocols.state import (
     BEACON_VARIABLES,
     LinkState,
@@ -570,16 +578,21 @@ class ChangeReader:
         table = self.link.table(frame.src, frame.dst, conv)
         decl = declared_list(frame.fields)
         target = self.link.table(frame.dst, frame.src, reverse_conversation(conv)) if decl is not None and decl[0] == "L" else table
-        before = {n: (v.text is not None, v.type_code) for n, v in target.vars.items()}
+        # what this frame can give a first value or a new type: the names it holds (linear in
+        # the frame, not in the direction's table)
+        tvars = target.vars
+        touched = _touched_names(frame, target)
+        before = {n: (v.text is not None, v.type_code) for n in touched if (v := tvars.get(n)) is not None}
         kind = table.kind(frame)
-        updates = self.link.apply(frame, number, ts, conv)
+        updates = self.link.apply(frame, number, ts, conv, carried=False)
         parts = [key]
         idx = self._base + len(self._recs)
         for u in updates:
             if u.changed and not u.carried and u.text is not None:
                 parts += (SEP_CHANGE, escape(u.name), SEP_VALUE, escape(u.text))
-        for n, v in target.vars.items():
-            if v.text is not None and before.get(n) != (True, v.type_code):
+        for n in touched:
+            v = tvars.get(n)
+            if v is not None and v.text is not None and before.get(n) != (True, v.type_code):
                 tkey = key if target is table else rkey
                 self._events.append((idx, tkey, escape(n), v.type_code))
         if kind == "full":
@@ -593,9 +606,12 @@ class ChangeReader:
         self._keys.add(key)
         for k, t in ((hk, table), (rhk, target)):
             fk = self._fast.get(k) if k is not None else None
-            if fk is not None:
+            if fk is not None and len(t.vars) > fast_records.MAX_FAST_VARS:
+                del self._fast[k]  # a layout this wide is no steady state: the general path takes it
+                self._hot.pop(k, None)  # type: ignore[arg-type]
+            elif fk is not None:
                 fk.refresh()
-            elif k == hk and k is not None and self.fast_enabled:
+            elif k == hk and k is not None and self.fast_enabled and len(t.vars) <= fast_records.MAX_FAST_VARS:
                 self._fast[k] = fast_records.FastKey(key, k, t, sync, self._hot)
             if target is table:
                 break
@@ -651,6 +667,17 @@ class ChangeReader:
 
 
 _REC = struct.Struct("<IIII")
+
+
+def _touched_names(frame: Frame, table: object) -> list[str]:
+    """The variables a frame can set or retype in ``table``: the names it holds (``Q``/``R``),
+    and for a positional frame the names of its slots."""
+    names = [f.text for f in frame.fields if f.letter in ("Q", "R")]
+    if not names:
+        ordinal, vals = positional_values(frame.fields)
+        name_at = table.name_at  # type: ignore[attr-defined]
+        names = [name_at(i) or f"var{i}" for i in range(ordinal, min(ordinal + len(vals), MAX_SLOTS))]
+    return list(dict.fromkeys(names))  # each once, in order
 
 
 def read_changes(

@@ -12,6 +12,7 @@ import argparse
 import functools
 import json
 import math
+import os
 import shutil
 import struct
 import sys
@@ -516,3 +517,64 @@ def fit_table(title: str, headers: list[str], rows: list[list[str]], width: int,
     for k, r in enumerate(rows):
         t.add_row(*(r[i] for i in cols), style=styles[k] if styles else None)
     return t
+
+
+# -- progress, for commands that read a whole capture ------------------------------------------
+
+#: seconds of work before a progress bar appears (shorter runs never show one)
+PROGRESS_AFTER_S = 2.0
+
+
+class Progress:
+    """A progress bar on stderr (rich) for a command reading ``path``: records, bytes, rate and
+    time left. It appears only after :data:`PROGRESS_AFTER_S` seconds, and only when stdout and
+    stderr are both terminals and ``quiet`` is False (never on a pipe, with ``--json`` or
+    ``--quiet``). Call it with (bytes read, records read); use it as a context manager."""
+
+    def __init__(self, path: Path | str | None, quiet: bool = False, what: str = "reading", unit: str = "records") -> None:
+        import time
+
+        self._clock = time.monotonic
+        self.enabled = not quiet and sys.stdout.isatty() and sys.stderr.isatty()
+        self.after = float(os.environ.get("SHAREDLINK_PROGRESS_AFTER", PROGRESS_AFTER_S))  # (tests: 0)
+        self.start = self._clock()
+        self.what, self.unit = what, unit
+        self.total: int | None = None
+        if self.enabled and path is not None:
+            try:
+                p = Path(path)
+                self.total = p.stat().st_size if p.is_file() else None
+            except OSError:
+                self.total = None
+        self._bar: Any = None
+        self._task: Any = None
+
+    def __call__(self, done: int, records: int = 0) -> None:
+        if not self.enabled:
+            return
+        if self._bar is None:
+            if self._clock() - self.start < self.after:
+                return
+            from rich.console import Console
+            from rich.progress import (
+                BarColumn,
+                DownloadColumn,
+                TextColumn,
+                TimeRemainingColumn,
+                TransferSpeedColumn,
+            )
+            from rich.progress import Progress as Bar
+
+            self._bar = Bar(TextColumn("{task.description}"), BarColumn(), DownloadColumn(), TransferSpeedColumn(),
+                            TimeRemainingColumn(), console=Console(stderr=True), transient=True)
+            self._task = self._bar.add_task(self.what, total=self.total)
+            self._bar.start()
+        self._bar.update(self._task, completed=done, description=f"{self.what}: {records:,} {self.unit}")
+
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+            self._bar = None

@@ -18,6 +18,7 @@ from sharedlink.capture.pcapio import is_stdout, refuse_overwrite
 from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
+    Progress,
     add_decode_options,
     add_force_option,
     add_json_option,
@@ -81,11 +82,14 @@ def run(args: argparse.Namespace) -> int:
     opts = ExportOptions(fmt=fmt, changes=args.changes, variables=variables, columns=columns, sync_interval=sync,
                          lat=args.lat, lon=args.lon, heading=args.heading, velocity=args.velocity,
                          require=_required(fmt, columns, given))
+    to_stdout = args.output is None or is_stdout(args.output)
     try:
-        if args.output is None or is_stdout(args.output):
-            result = export(args.capture, sys.stdout, opts)
-        else:
-            result = export_file(args.capture, args.output, opts)
+        with Progress(args.capture, quiet=args.json or to_stdout, what="exporting") as progress:
+            opts.progress = progress
+            if to_stdout:
+                result = export(args.capture, sys.stdout, opts)
+            else:
+                result = export_file(args.capture, args.output, opts)
     except BrokenPipeError:
         raise
     except OSError as exc:

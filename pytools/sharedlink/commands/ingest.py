@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
+    Progress,
     add_decode_options,
     add_json_option,
     add_old_spelling,
@@ -17,7 +19,10 @@ from sharedlink.commands import (
 )
 from sharedlink.commands import report as print_summary
 from sharedlink.errors import UsageError
-from sharedlink.fleet.ingest import BATCH_ROWS, Outcome, find_captures, ingest
+from sharedlink.fleet import BATCH_ROWS
+
+if TYPE_CHECKING:
+    from sharedlink.fleet.ingest import Outcome
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -49,12 +54,19 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sharedlink.fleet.ingest import ingest  # pyarrow loads only for this command
+
     variables, sync = decode_options(args)
     if args.dataset is None:
         raise UsageError("no dataset: give -o DATASET")
     _check_inputs(args.inputs)
 
+    done = [0, 0]  # bytes and captures finished, for the progress bar
+
     def say(o: Outcome) -> None:
+        done[0] += o.entry.size if o.entry is not None else 0
+        done[1] += 1
+        progress(done[0], done[1])
         if args.quiet and o.status in ("ingested", "unchanged"):
             return
         if o.status == "unchanged":
@@ -69,10 +81,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.batch_rows < 1:
         raise UsageError("--batch-rows must be at least 1")
-    report = ingest(
-        args.inputs, args.dataset, workers=args.workers, scheduler=args.scheduler, vehicle=args.vehicle,
-        variables=variables, sync_interval=sync, force=args.force, batch_rows=args.batch_rows, on_outcome=say,
-    )
+    with Progress(None, quiet=args.quiet, what="ingesting", unit="captures") as progress:
+        report = ingest(
+            args.inputs, args.dataset, workers=args.workers, scheduler=args.scheduler, vehicle=args.vehicle,
+            variables=variables, sync_interval=sync, force=args.force, batch_rows=args.batch_rows, on_outcome=say,
+        )
     bad = report.count("damaged") + report.count("failed")
     summary = {"dataset": str(args.dataset), "ingested": report.count("ingested"), "unchanged": report.count("unchanged"),
                "damaged_or_unreadable": bad, "frames": report.frames, "values": report.values}
@@ -87,6 +100,8 @@ def run(args: argparse.Namespace) -> int:
 def _check_inputs(inputs: list[Path]) -> None:
     """Every input exists, and a directory holds a capture: an empty input is an error (exit 2),
     not a quiet run that ingests nothing."""
+    from sharedlink.fleet.ingest import find_captures  # pyarrow loads only for this command
+
     for path in inputs:
         if not path.exists():
             raise UsageError(f"{path}: no such file")

@@ -11,6 +11,7 @@ from sharedlink.capture.pcapio import open_output, refuse_overwrite
 from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
+    Progress,
     add_decode_options,
     add_force_option,
     add_json_option,
@@ -66,8 +67,9 @@ def run(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")  # headless, whatever the environment says
     from sharedlink.analysis.plot import build_figure, collect
 
-    data = collect(args.capture, variables, sync, max_points=args.max_points,
-                   lat=args.lat, lon=args.lon, speed=args.velocity)
+    with Progress(args.capture, quiet=args.json, what="plotting") as progress:
+        data = collect(args.capture, variables, sync, max_points=args.max_points,
+                       lat=args.lat, lon=args.lon, speed=args.velocity, progress=progress)
     if data.error is None:
         warn_empty(args.capture, data.frames)
         unknown_names({k: v for k, v in given.items() if k != "--select"}, data.variables)

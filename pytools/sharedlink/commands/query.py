@@ -8,7 +8,6 @@ from pathlib import Path
 
 from sharedlink.commands import EXIT_OK
 from sharedlink.errors import UsageError
-from sharedlink.fleet.query import run_query, text, write_csv, write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,6 +29,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if not args.dataset.exists():  # the one wording of a missing input
         raise UsageError(f"{args.dataset}: no such file")
+    from sharedlink.fleet.query import (  # pyarrow loads for this command only
+        run_query,
+        write_csv,
+        write_json,
+    )
+
     result = run_query(args.dataset, args.sql)
     if args.fmt == "csv":
         write_csv(result, sys.stdout)
@@ -43,6 +48,8 @@ def run(args: argparse.Namespace) -> int:
 def _table(result) -> None:
     from rich.console import Console
     from rich.table import Table
+
+    from sharedlink.fleet.query import text
 
     t = Table(show_header=True, header_style="bold")
     for c in result.columns:

@@ -12,6 +12,7 @@ from sharedlink.analysis.stats import capture_stats, render_text, tables
 from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
+    Progress,
     add_decode_options,
     add_json_option,
     capture_input,
@@ -37,7 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     variables, sync = decode_options(args)
     args.capture = capture_input(args.capture)
-    st = capture_stats(args.capture, variables, sync)
+    with Progress(args.capture, quiet=args.json) as progress:
+        st = capture_stats(args.capture, variables, sync, progress)
     if not st.error:
         warn_empty(args.capture, st.frames)
     if args.json:

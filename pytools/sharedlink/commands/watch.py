@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     source = _source(args)
     server = None
     try:
-        decoder = FastDecoder(variables, sync)
+        decoder = FastDecoder(variables, sync, carried=False)  # the outputs read values from the table
         outputs: list = []
         sessions: list = []
         if args.foxglove:

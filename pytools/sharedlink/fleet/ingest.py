@@ -27,6 +27,7 @@ import pyarrow.parquet as pq
 
 from sharedlink.analysis.decode import NS, Decoded, iter_decoded
 from sharedlink.errors import InputError, UsageError
+from sharedlink.fleet import BATCH_ROWS as BATCH_ROWS  # its home is the package (a light import for the CLI)
 from sharedlink.fleet.dataset import (
     MANIFEST,
     SCHEMAS,
@@ -43,8 +44,6 @@ from sharedlink.protocols.state import BEACON_VARIABLES
 
 #: file name endings taken as captures when a directory is given
 CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap")
-#: rows buffered per table before a row group is written (bounds a worker's memory)
-BATCH_ROWS = 65_536
 DAY_NS = 86_400 * NS
 _HASH_CHUNK = 1 << 20
 
@@ -112,6 +111,7 @@ def _decode_into(task: Task, entry: CaptureEntry, frames: _TableWriter, values: 
     cap, vehicle = task.path, task.vehicle
     days: dict[int, str] = {}
     convs: dict[tuple, tuple[str, str]] = {}
+    seen: dict[tuple[int | None, str], tuple[int | None, float | None, str | None]] = {}
     seq = 0
     try:
         for item in iter_decoded(cap, task.variables, task.sync_interval):
@@ -130,7 +130,7 @@ def _decode_into(task: Task, entry: CaptureEntry, frames: _TableWriter, values: 
             conv = convs.get(item.conv)
             if conv is None:
                 conv = convs[item.conv] = _conversation(item.conv)
-            src, dst = item.frame.src, item.frame.dst
+            src, dst = item.src, item.dst  # (not item.frame: the core's fast frames are not parsed)
             pair = f"{src}>{dst}"
             key = (day, f"{src}-{dst}")
             frames.add(key, (cap, vehicle, seq, item.number, ts, conv[0], conv[1], src, dst, pair, item.kind,
@@ -143,7 +143,12 @@ def _decode_into(task: Task, entry: CaptureEntry, frames: _TableWriter, values: 
                     continue
                 tv = tvars.get(u.name)
                 tc = tv.type_code if tv is not None else None
-                values.add(key, head + (u.name, tc, u.text, *_typed(tc, u.text), u.carried, u.changed))
+                typed = seen.get((tc, u.text))
+                if typed is None:  # carried values repeat row after row: typed once
+                    if len(seen) >= 1024:
+                        seen.clear()
+                    typed = seen[(tc, u.text)] = _typed(tc, u.text)
+                values.add(key, head + (u.name, tc, u.text, *typed, u.carried, u.changed))
                 entry.values += 1
     except InputError as exc:  # damage: the rows before it are kept
         entry.error = str(exc)

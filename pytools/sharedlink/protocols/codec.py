@@ -19,6 +19,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
 from sharedlink.errors import DecodeError
+from sharedlink.protocols.limits import MAX_NUMBER_DIGITS, MAX_SLOTS
 
 OPEN = ord("[")
 CLOSE = ord("]")
@@ -311,7 +312,10 @@ def parse_typed(type_code: int | None, text: str) -> tuple[int | float | str, bo
     ``sharedlink.var.badvalue``). Strings and untyped values are the text, and fit."""
     if type_code == TYPE_LONG:
         if _LONG_TEXT.fullmatch(text):
-            return int(text), True
+            try:
+                return int(text), True
+            except ValueError:  # more digits than Python converts (sys.get_int_max_str_digits)
+                return text, False
         return text, False
     if type_code == TYPE_DOUBLE:
         if _DOUBLE_TEXT.fullmatch(text):
@@ -328,15 +332,38 @@ def typed_value(type_code: int | None, text: str) -> int | float | str:
 def guess_value(text: str) -> int | float | str:
     """Type a positional value that came with no ``T``: long, then double, else string."""
     if _LONG_TEXT.fullmatch(text):
-        return int(text)
+        try:
+            return int(text)
+        except ValueError:  # more digits than Python converts: stays text
+            return text
     if _DOUBLE_TEXT.fullmatch(text):
         return float(text)
     return text
 
 
 def parse_int(text: str) -> int | None:
-    """A non-negative decimal ordinal or type code, else None."""
-    return int(text) if text.isascii() and text.isdigit() else None
+    """A non-negative decimal ordinal or type code, else None. A number of more than
+    :data:`~sharedlink.protocols.limits.MAX_NUMBER_DIGITS` digits is malformed: None (see
+    :func:`oversized_numbers`)."""
+    return int(text) if len(text) <= MAX_NUMBER_DIGITS and text.isascii() and text.isdigit() else None
+
+
+def _ordinal(text: str) -> int:
+    """An ordinal as the value forms use it: a number, 0 when it is none (``N?``), and
+    :data:`~sharedlink.protocols.limits.MAX_SLOTS` (past every slot: what it names is dropped)
+    when it has too many digits."""
+    n = parse_int(text)
+    if n is not None:
+        return n
+    return MAX_SLOTS if len(text) > MAX_NUMBER_DIGITS and text.isdigit() else 0
+
+
+def oversized_numbers(fields: Sequence[Field]) -> int:
+    """How many ``N``/``L``/``T`` fields of a frame hold a number longer than
+    :data:`~sharedlink.protocols.limits.MAX_NUMBER_DIGITS` digits (malformed: read as no number)."""
+    return sum(
+        1 for f in fields if f.letter in ("N", "L", "T") and len(f.text) > MAX_NUMBER_DIGITS and f.text.isdigit()
+    )
 
 
 # -- frame semantics ------------------------------------------------------------------
@@ -416,7 +443,7 @@ def positional_values(fields: Sequence[Field]) -> tuple[int, list[str | None]]:
     values: list[str | None] = []
     for f in fields:
         if f.letter == "N":
-            ordinal = parse_int(f.text) or 0
+            ordinal = _ordinal(f.text)
         elif f.letter == "D":
             values.append(f.text if f.text != "" else None)
     return ordinal, values
@@ -435,7 +462,7 @@ def declared_list(fields: Sequence[Field]) -> tuple[str, int, list[tuple[str, in
     type_code: int | None = None
     for f in fields:
         if f.letter in ("N", "L"):
-            which, ordinal = f.letter, parse_int(f.text) or 0
+            which, ordinal = f.letter, _ordinal(f.text)
         elif f.letter == "T":
             type_code = parse_int(f.text)
         elif f.letter == "Q":

@@ -17,11 +17,15 @@ diff, compress, expand and the decoder all use it. The rules are the dissector's
 
 The caller keeps frames with a bad checksum away from :meth:`VariableTable.apply` (they may
 be shown with :meth:`VariableTable.preview`, which changes nothing).
+
+Bounds (:mod:`sharedlink.protocols.limits`): a slot at or past ``MAX_SLOTS`` (a value or a
+declared name) and a new name past ``MAX_NAMES`` in one direction are dropped and counted in
+the table's :class:`~sharedlink.protocols.limits.LimitCounts` (shared by a :class:`LinkState`),
+never allocated; so no frame costs more than its own size plus the bounded table.
 """
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -37,6 +41,7 @@ from sharedlink.protocols.codec import (
     parse_typed,
     positional_values,
 )
+from sharedlink.protocols.limits import MAX_CONVERSATIONS, MAX_NAMES, MAX_SLOTS, LimitCounts
 
 #: The beacon's variables (BUL-009), used when no list is given or learnt.
 BEACON_VARIABLES: tuple[tuple[str, int], ...] = (
@@ -80,14 +85,23 @@ class Variable:
     text: str | None = None
     set_in: int | None = None  # frame number that last carried the value
     set_at: int | None = None  # its timestamp (ns)
+    #: (text, type code, value) of the last :attr:`value` asked: rows of a carried value ask again
+    _typed: tuple | None = field(default=None, repr=False, compare=False)
 
     @property
     def value(self) -> int | float | str | None:
-        if self.text is None:
-            return None
-        if self.type_code is None:
-            return guess_value(self.text)
-        return parse_typed(self.type_code, self.text)[0]
+        text, tc = self.text, self.type_code
+        c = self._typed
+        if c is not None and c[0] is text and c[1] == tc:
+            return c[2]
+        if text is None:
+            x: int | float | str | None = None
+        elif tc is None:
+            x = guess_value(text)
+        else:
+            x = parse_typed(tc, text)[0]
+        self._typed = (text, tc, x)
+        return x
 
 
 class Update(NamedTuple):
@@ -131,6 +145,9 @@ class VariableTable:
     filled: set[int] = field(default_factory=set)  # positional slots that have held a value
     sent_names: dict[str, int] = field(default_factory=dict)  # names sent in named data frames -> position
     list_from: object = None  # the letter pair's shared list in use, None once a list is declared here
+    limits: LimitCounts = field(default_factory=LimitCounts)  # input dropped at a bound (shared by a LinkState)
+    slot_of: dict[str, int] = field(default_factory=dict)  # name -> its first slot in ``names``
+    _shown: dict[str, Variable] | None = field(default=None, repr=False, compare=False)  # preview's values
 
     @classmethod
     def with_list(cls, names: Sequence[tuple[str, int | None]] | Sequence[str]) -> VariableTable:
@@ -141,21 +158,39 @@ class VariableTable:
     def declare(self, ordinal: int, names: Sequence[tuple[str, int | None]]) -> None:
         """Install a declared list (or part of one, from ``ordinal``). Each declared name
         takes the type declared with it: a name declared without ``T`` is untyped, whatever
-        an earlier list (this conversation's, the letter pair's or the a-priori one) said."""
+        an earlier list (this conversation's, the letter pair's or the a-priori one) said.
+        Slots at or past ``MAX_SLOTS`` are dropped (counted in ``limits.slots``)."""
+        room = MAX_SLOTS - ordinal
+        if room < len(names):
+            self.limits.slots += len(names) - max(room, 0)
+            if room <= 0:
+                return
+            names = names[:room]
         if ordinal > len(self.names):
             self.names.extend(f"var{i}" for i in range(len(self.names), ordinal))
         del self.names[ordinal:]
         for name, type_code in names:
             self.names.append(name)
+            v = self._var(name, type_code)
+            if v is None:
+                continue  # past MAX_NAMES: the slot keeps its name, no variable is made
             if type_code is not None:
                 self.types[name] = type_code
             else:
                 self.types.pop(name, None)
-            self._var(name, type_code).type_code = type_code
+            v.type_code = type_code
+        slot_of: dict[str, int] = {}
+        for i, n in enumerate(self.names):
+            slot_of.setdefault(n, i)
+        self.slot_of = slot_of
 
-    def _var(self, name: str, type_code: int | None = None) -> Variable:
+    def _var(self, name: str, type_code: int | None = None) -> Variable | None:
+        """The variable ``name`` (made when new); None for a new name past ``MAX_NAMES``."""
         v = self.vars.get(name)
         if v is None:
+            if len(self.vars) >= MAX_NAMES:
+                self.limits.names += 1
+                return None
             v = self.vars[name] = Variable(name, type_code if type_code is not None else self.types.get(name))
         elif type_code is not None:
             v.type_code = type_code
@@ -176,82 +211,125 @@ class VariableTable:
         if any(f.letter == "Q" for f in fields):
             if frame_ordinal(fields) != 0:
                 return "delta"
+            sent = self.sent_names
+            # every name sent before is present: count the frame's names that were (linear in the frame)
             present = {nv.name for nv in named_values(fields)}
-            return "full" if all(n in present for n in self.sent_names) else "delta"
+            return "full" if sum(1 for n in present if n in sent) == len(sent) else "delta"
         ordinal, vals = positional_values(fields)
         if frame_ordinal(fields) != 0 or not vals:
             return "delta"  # a bare N0 stays a delta with no change
         n = len(vals)
         return "full" if all(i < n and vals[i] is not None for i in self.filled) else "delta"
 
-    def preview(self, frame: Frame, number: int = 0, time_ns: int = 0) -> list[Update]:
+    def preview(self, frame: Frame, number: int = 0, time_ns: int = 0, carried: bool = True) -> list[Update]:
         """What :meth:`apply` would return, leaving the table as it is (for frames whose
-        checksum failed: their values are shown as sent, nothing is stored)."""
-        return copy.deepcopy(self).apply(frame, number, time_ns)
+        checksum failed: their values are shown as sent, nothing is stored). Costs what the
+        frame holds plus the carried values, never a copy of the table."""
+        return self._apply(frame, number, time_ns, carried, False)
 
-    def apply(self, frame: Frame, number: int = 0, time_ns: int = 0) -> list[Update]:
+    def apply(self, frame: Frame, number: int = 0, time_ns: int = 0, carried: bool = True) -> list[Update]:
         """Apply a frame; return the value of every variable it concerns (for value frames:
-        every known variable, carried ones marked)."""
+        every known variable, carried ones marked; with ``carried`` False a named frame's
+        carried values are left out: the caller pays only for what the frame holds)."""
+        return self._apply(frame, number, time_ns, carried, True)
+
+    def _apply(self, frame: Frame, number: int, time_ns: int, carried: bool, store: bool) -> list[Update]:
+        self._shown = None if store else {}  # a preview: the values shown so far, over the table
         kind = self.kind(frame)
         fields = frame.fields
-        updates: list[Update] = []
         if kind == "declaration":
             decl = declared_list(fields)
-            if decl is not None and decl[0] == "N":
+            if store and decl is not None and decl[0] == "N":
                 self.declare(decl[1], decl[2])
-            return updates
-        if kind in ("full", "delta"):
-            bare = not any(f.letter == "D" for f in fields)  # a bare N0: the direction's form, no change
-            if any(f.letter == "Q" for f in fields) or (bare and self.named):
-                self.named = True
-                seen: set[str] = set()
-                sent = self.sent_names
-                for nv in named_values(fields):
-                    seen.add(nv.name)
-                    pos = sent.setdefault(nv.name, len(sent))
-                    v = self._var(nv.name, nv.type_code)
-                    if nv.name not in self.names and nv.type_code is not None:
-                        self.types.setdefault(nv.name, nv.type_code)
-                    u = self._set(v, nv.text, number, time_ns)
-                    updates.append(_update(v, pos, False, None, u.changed))
-                for name, v in self.vars.items():
-                    if name not in seen and v.text is not None:
-                        updates.append(_update(v, sent.get(name, self._index(name)), True, v.set_in, False))
-            else:
-                self.named = False
-                ordinal, vals = positional_values(fields)
-                for i, text in enumerate(vals):
-                    idx = ordinal + i
-                    name = self.name_at(idx)
-                    if name is None:
-                        name = f"var{idx}"
-                        self.declare(len(self.names), [(f"var{j}", None) for j in range(len(self.names), idx + 1)])
-                    v = self._var(name)
-                    if text is None:
-                        updates.append(_update(v, idx, True, v.set_in, False))
-                    else:
-                        self.filled.add(idx)
-                        u = self._set(v, text, number, time_ns)
-                        updates.append(_update(v, idx, False, None, u.changed))
-            if kind == "full":
-                self.last_full_at, self.last_full_in = time_ns, number
-            return updates
+            return []
         if kind == "reply":
-            for nv in named_values(fields):
-                v = self._var(nv.name, nv.type_code)
-                updates.append(self._set(v, nv.text, number, time_ns))
+            return [u for nv in named_values(fields) if (u := self._value(nv.name, nv.type_code, nv.text, number, time_ns,
+                                                                           None, store)) is not None]
+        if kind not in ("full", "delta"):
+            return []
+        bare = not any(f.letter == "D" for f in fields)  # a bare N0: the direction's form, no change
+        if any(f.letter == "Q" for f in fields) or (bare and self.named):
+            updates = self._named(fields, number, time_ns, carried, store)
+        else:
+            updates = self._positional(fields, number, time_ns, store)
+        if kind == "full" and store:
+            self.last_full_at, self.last_full_in = time_ns, number
         return updates
 
-    def _index(self, name: str) -> int | None:
-        try:
-            return self.names.index(name)
-        except ValueError:
-            return None
+    def _named(self, fields: Sequence, number: int, time_ns: int, carried: bool, store: bool) -> list[Update]:
+        if store:
+            self.named = True
+        updates: list[Update] = []
+        seen: set[str] = set()
+        sent = self.sent_names if store else dict(self.sent_names)  # (a preview: positions new names would take)
+        for nv in named_values(fields):
+            seen.add(nv.name)
+            pos = sent.get(nv.name)
+            if pos is None:
+                if store and nv.name not in self.vars and len(self.vars) >= MAX_NAMES:
+                    self.limits.names += 1
+                    continue
+                pos = sent[nv.name] = len(sent)
+            if store and nv.name not in self.names and nv.type_code is not None:
+                self.types.setdefault(nv.name, nv.type_code)
+            u = self._value(nv.name, nv.type_code, nv.text, number, time_ns, pos, store)
+            if u is not None:
+                updates.append(u)
+        if carried:
+            for name, v in self.vars.items():
+                if name not in seen and v.text is not None:
+                    updates.append(_update(v, sent.get(name, self._index(name)), True, v.set_in, False))
+        return updates
 
-    def _set(self, v: Variable, text: str, number: int, time_ns: int) -> Update:
-        changed = v.text != text
-        v.text, v.set_in, v.set_at = text, number, time_ns
-        return _update(v, self._index(v.name), False, None, changed)
+    def _positional(self, fields: Sequence, number: int, time_ns: int, store: bool) -> list[Update]:
+        if store:
+            self.named = False
+        updates: list[Update] = []
+        ordinal, vals = positional_values(fields)
+        for i, text in enumerate(vals):
+            idx = ordinal + i
+            if idx >= MAX_SLOTS:
+                if store:
+                    self.limits.slots += len(vals) - i
+                break
+            name = self.name_at(idx)
+            if name is None:
+                name = f"var{idx}"
+                if store:
+                    self.declare(len(self.names), [(f"var{j}", None) for j in range(len(self.names), idx + 1)])
+            if text is None:
+                v = ((self._shown or {}).get(name) or self.vars.get(name)
+                     or (self._var(name) if store else Variable(name, self.types.get(name))))
+                if v is not None:
+                    updates.append(_update(v, idx, True, v.set_in, False))
+                continue
+            if store:
+                self.filled.add(idx)
+            u = self._value(name, None, text, number, time_ns, idx, store)
+            if u is not None:
+                updates.append(u)
+        return updates
+
+    def _value(self, name: str, type_code: int | None, text: str, number: int, time_ns: int, index: int | None,
+               store: bool) -> Update | None:
+        """Set (or, not ``store``, show) one value; None when the name is past ``MAX_NAMES``."""
+        if store:
+            v = self._var(name, type_code)
+            if v is None:
+                return None
+            changed = v.text != text
+            v.text, v.set_in, v.set_at = text, number, time_ns
+        else:
+            shown = self._shown
+            assert shown is not None
+            old = shown.get(name) or self.vars.get(name)
+            tc = type_code if type_code is not None else (old.type_code if old is not None else self.types.get(name))
+            changed = (old.text if old is not None else None) != text
+            v = shown[name] = Variable(name, tc, text, number, time_ns)
+        return _update(v, self._index(name) if index is None else index, False, None, changed)
+
+    def _index(self, name: str) -> int | None:
+        return self.slot_of.get(name)
 
 
 @dataclass
@@ -264,13 +342,22 @@ class LinkState:
     default_list: Sequence[tuple[str, int | None]] = BEACON_VARIABLES
     tables: dict[tuple[object, str, str], VariableTable] = field(default_factory=dict)
     pair_lists: dict[tuple[str, str], list[tuple[str, int | None]]] = field(default_factory=dict)
+    limits: LimitCounts = field(default_factory=LimitCounts)  # input dropped at a bound, every table's
 
     def table(self, src: str, dst: str, conv: Hashable = None) -> VariableTable:
+        """The table of a direction (made when new). Past ``MAX_CONVERSATIONS`` directions a
+        new one gets a fresh table that is not kept (counted in ``limits.conversations``):
+        its frames are decoded on their own, with no state before them."""
         key = (conv, src, dst)
         t = self.tables.get(key)
         if t is None:
-            t = self.tables[key] = VariableTable.with_list(list(self.default_list))
+            t = VariableTable.with_list(list(self.default_list))
+            t.limits = self.limits
             t.list_from = self.default_list
+            if len(self.tables) >= MAX_CONVERSATIONS:
+                self.limits.conversations += 1
+            else:
+                self.tables[key] = t
         if t.list_from is not None and self.pair_lists:
             shared = self.pair_lists.get((src, dst))
             if shared is not None and t.list_from is not shared:
@@ -278,7 +365,8 @@ class LinkState:
                 t.list_from = shared
         return t
 
-    def apply(self, frame: Frame, number: int = 0, time_ns: int = 0, conv: Hashable = None) -> list[Update]:
+    def apply(self, frame: Frame, number: int = 0, time_ns: int = 0, conv: Hashable = None,
+              carried: bool = True) -> list[Update]:
         decl = declared_list(frame.fields)
         if decl is not None:
             # N: the sender's outbound list; L: its inbound list, the reverse direction's
@@ -289,7 +377,7 @@ class LinkState:
             t.list_from = None
             self.pair_lists[(src, dst)] = [(n, t.types.get(n)) for n in t.names]
             return []
-        return self.table(frame.src, frame.dst, conv).apply(frame, number, time_ns)
+        return self.table(frame.src, frame.dst, conv).apply(frame, number, time_ns, carried)
 
 
 def conversation_key(conv: tuple[str, str, int, str, int]) -> Hashable:

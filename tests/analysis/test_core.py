@@ -1,0 +1,238 @@
+"""The decoding core (analysis.decode.Decoder) against the plain reference decoder, on streams
+built to catch a wrong reuse.
+
+The core's fast path takes a datagram that is one named N0 frame in a layout seen before, and
+reuses the Update it made for a carried value while that value holds. These streams mix such
+frames with what can change a value behind the fast path's back without making it forget the
+direction: frames of a datagram holding two frames (each decoded by the reference path, each
+learnt), replies, declarations, positional frames, bad checksums, several directions and
+conversations. Every item is compared field by field (text, carried, carried_from, changed,
+index, type, bad; kind, late, gap, the table after it) with the reference decoder's.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from sharedlink.analysis.decode import Decoded, Decoder, ReferenceDecoder, iter_decoded
+from sharedlink.capture.packets import UdpBuilder
+from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.capture.stream import StreamFrame, iter_frames
+from sharedlink.generators.beacon import GenOptions, generate_file
+from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
+
+NAMES = ("Lat", "Lon", "Head", "Vel")
+VALUES = ("1", "2", "2.5", "-3", "10")  # few values: unchanged and carried values are the rule
+
+
+def _named(draw, src: str, dst: str, bad: bool = False) -> bytes:
+    names = draw(st.lists(st.sampled_from(NAMES), unique=True, max_size=4))
+    triplets = [(n, 2, draw(st.sampled_from(VALUES))) for n in names]
+    raw = encode_named(dst, src, triplets)
+    if bad:  # the same frame with a wrong checksum
+        raw = raw[:-5] + (b"00" if raw[-5:-3] != b"00" else b"01") + raw[-3:]
+    return raw
+
+
+@st.composite
+def _frame(draw, src: str, dst: str) -> bytes:
+    kind = draw(st.sampled_from(("named", "named", "named", "named", "bad", "reply", "declaration", "positional",
+                                 "odd", "query")))
+    if kind == "named":
+        return _named(draw, src, dst)
+    if kind == "bad":
+        return _named(draw, src, dst, bad=True)
+    if kind == "reply":
+        return build_frame(Frame(dst, src, (Field("R", draw(st.sampled_from(NAMES))),
+                                            Field("D", draw(st.sampled_from(VALUES))))))
+    if kind == "query":
+        return build_frame(Frame(dst, src, (Field("Q", draw(st.sampled_from(NAMES))),)))
+    if kind == "declaration":
+        names = draw(st.lists(st.sampled_from(NAMES), unique=True, min_size=1, max_size=4))
+        fields = [Field("N", "0")]
+        for n in names:
+            fields += [Field("T", "2"), Field("Q", n)]
+        return build_frame(Frame(dst, src, tuple(fields)))
+    if kind == "positional":
+        texts = draw(st.lists(st.one_of(st.none(), st.sampled_from(VALUES)), min_size=1, max_size=4))
+        return encode_positional(dst, src, texts)
+    # a named frame the fast path's pattern does not take (a value with a space): reference path
+    n = draw(st.sampled_from(NAMES))
+    return encode_named(dst, src, [(n, 4, draw(st.sampled_from(VALUES)) + " x")])
+
+
+@st.composite
+def streams(draw, max_datagrams: int = 40) -> list[tuple[int, int, bytes]]:
+    """(sender, ts_ns, payload): mostly one named frame a datagram, sometimes two frames."""
+    out = []
+    ts = 1_700_000_000 * 10**9
+    for _ in range(draw(st.integers(1, max_datagrams))):
+        sender = draw(st.integers(0, 2))  # two conversations of B>A, and one of C>A
+        src = "C" if sender == 2 else "B"
+        ts += draw(st.sampled_from((200_000_000, 200_000_000, 1_700_000_000)))
+        payload = draw(_frame(src, "A"))
+        if draw(st.integers(0, 4)) == 0:
+            payload += draw(_frame(src, "A"))  # two frames in one datagram
+        out.append((sender, ts, payload))
+    return out
+
+
+def _write(path: Path, stream: list[tuple[int, int, bytes]]) -> Path:
+    senders = [UdpBuilder(f"10.0.0.{i + 1}", "10.0.0.9", 7013, 7013) for i in range(3)]
+    with open(path, "wb") as fh:
+        w = PcapWriter(fh)
+        for i, (sender, ts, payload) in enumerate(stream):
+            w.write(ts, senders[sender].frame(payload, i + 1))
+    return path
+
+
+def _key(item) -> tuple:
+    """Everything a caller can read of an item, the table after it included."""
+    if isinstance(item, Decoded):
+        t = item.table
+        return (item.number, item.ts_ns, item.conv, item.raw, item.src, item.dst, item.pair, item.kind,
+                item.checksum_ok, item.updates, item.late, item.sync_gap_ns, item.shown, item.response_to, item.frame,
+                {n: (v.text, v.type_code, v.set_in, v.set_at) for n, v in t.vars.items()},
+                (t.last_full_at, t.last_full_in, t.named, dict(t.sent_names), tuple(t.names), sorted(t.filled)))
+    if isinstance(item, StreamFrame):
+        return ("noise", item.number, item.raw)
+    return ("other", item)
+
+
+def _reference(path: Path, carried: bool = True) -> list[tuple]:
+    dec = ReferenceDecoder(carried=carried)
+    out = []
+    for item in iter_frames(path):
+        if isinstance(item, StreamFrame) and item.frame is not None:
+            item = dec.decode(item)
+        out.append(_key(item))
+    return out
+
+
+def compare(path: Path, carried: bool = True) -> int:
+    """The core and the reference give the same items; returns how many the fast path took."""
+    dec = Decoder(carried=carried)
+    got = [_key(item) for item in dec.capture(path)]  # (keys taken item by item: tables are live)
+    want = _reference(path, carried)
+    assert len(got) == len(want)
+    for g, w in zip(got, want):
+        assert g == w
+    return dec.fast
+
+
+def test_two_frames_in_a_datagram_change_a_value_between_fast_frames(tmp_path):
+    """The case a planted bug slipped through: a value carried by two fast frames, changed in
+    between by a frame the reference path decodes (one of two frames in a datagram) while the
+    direction's layouts stay learnt. Reusing the first carried Update gives the old text."""
+    B = "B"
+    full = encode_named("A", B, [("Lat", 2, "1"), ("Lon", 2, "1")])
+    lat_only = encode_named("A", B, [("Lat", 2, "2")])
+    lat_only2 = encode_named("A", B, [("Lat", 2, "3")])
+    lon_changed = encode_named("A", B, [("Lon", 2, "5")])
+    stream = [(0, 10**18 + i * 200_000_000, p) for i, p in enumerate(
+        [full, lat_only, full, lat_only, lat_only2, lat_only + lon_changed, lat_only2, lat_only])]
+    path = _write(tmp_path / "reuse.pcap", stream)
+    assert compare(path) >= 3
+    last = [d for d in iter_decoded(path) if isinstance(d, Decoded)]
+    lon = [u for u in last[-1].updates if u.name == "Lon"]
+    assert lon and lon[0].text == "5" and lon[0].carried and lon[0].carried_from == 6
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+@given(streams())
+def test_core_equals_reference_on_generated_streams(tmp_path_factory, stream):
+    path = _write(tmp_path_factory.mktemp("core") / "s.pcap", stream)
+    compare(path)
+    compare(path, carried=False)
+
+
+@pytest.mark.parametrize("variant", [dict(compress=True, bad_checksum=0.1, drop=0.1, jitter_ms=300.0), dict(),
+                                     dict(form="positional", compress=True, bad_checksum=0.05)])
+def test_core_equals_reference_on_drives(tmp_path, variant):
+    path = tmp_path / "d.pcap"
+    generate_file(GenOptions(duration=30, seed=5, **variant), path)
+    n = compare(path)
+    assert n > 50 or variant.get("form") == "positional"
+
+
+def test_core_takes_the_compressed_beacon_fast(tmp_path):
+    path = tmp_path / "c.pcap"
+    generate_file(GenOptions(frames=2000, compress=True, seed=1), path)
+    dec = Decoder()
+    n = sum(isinstance(d, Decoded) for d in dec.capture(path))
+    assert n == 2000 and dec.fast >= 1990  # only the first frames of each layout go the reference way
+
+
+def _stats_by_reference(path: Path):
+    """``stats`` as the plain path gives it: every frame through ReferenceDecoder and CaptureStats.add."""
+    from sharedlink.analysis.stats import CaptureStats
+
+    st = CaptureStats(path=str(path))
+    dec = ReferenceDecoder(carried=False)
+    for item in iter_frames(path):
+        if isinstance(item, StreamFrame) and item.frame is not None:
+            st.add(dec.decode(item))
+        elif isinstance(item, tuple):
+            st.other_records += 1
+        else:
+            st.noise_segments += 1
+            st.noise_bytes += len(item.raw)
+            if item.raw.startswith(b"[:"):
+                st.kinds["malformed"] = st.kinds.get("malformed", 0) + 1
+    return st
+
+
+def _same_stats(path: Path) -> None:
+    from sharedlink.analysis.stats import capture_stats
+
+    got, want = capture_stats(path).to_dict(), _stats_by_reference(path).to_dict()
+    assert got == want
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=list(HealthCheck))
+@given(streams())
+def test_counted_stats_equal_the_reference_on_generated_streams(tmp_path_factory, stream):
+    """stats takes the fast path's frames as counted batches (no Decoded, no Updates): the same
+    statistics as every frame through the reference decoder and CaptureStats.add."""
+    _same_stats(_write(tmp_path_factory.mktemp("st") / "s.pcap", stream))
+
+
+@pytest.mark.parametrize("variant", [dict(compress=True, bad_checksum=0.05, drop=0.3, seed=2), dict(jitter_ms=300.0),
+                                     dict(form="positional", compress=True)])
+def test_counted_stats_equal_the_reference_on_drives(tmp_path, variant):
+    path = tmp_path / "d.pcap"
+    variant = dict(variant)
+    generate_file(GenOptions(duration=60, seed=variant.pop("seed", 5), **variant), path)
+    _same_stats(path)
+
+
+def _same_jsonl(path: Path) -> int:
+    """export jsonl's line builder against json.dumps of the row dict, frame by frame."""
+    import io
+    import json
+
+    from sharedlink.analysis.export import ExportOptions, _Jsonl
+
+    w = _Jsonl(io.StringIO(), ExportOptions(fmt="jsonl"), [])
+    n = 0
+    for d in iter_decoded(path, carried=False):
+        if isinstance(d, Decoded):
+            assert w.line(d) == json.dumps(w.row(d)) + "\n"
+            n += 1
+    return n
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
+@given(streams())
+def test_jsonl_lines_equal_json_dumps_on_generated_streams(tmp_path_factory, stream):
+    _same_jsonl(_write(tmp_path_factory.mktemp("js") / "s.pcap", stream))
+
+
+def test_jsonl_lines_equal_json_dumps_on_a_drive(tmp_path):
+    path = tmp_path / "d.pcap"
+    generate_file(GenOptions(duration=30, seed=3, compress=True, bad_checksum=0.05), path)
+    assert _same_jsonl(path) > 100

@@ -1,0 +1,79 @@
+"""Progress bars: on a terminal (after a while), never on a pipe or with --json/--quiet.
+
+The commands run in a real pseudo-terminal; SHAREDLINK_PROGRESS_AFTER=0 shows the bar at once
+(by default it waits 2 s, longer than these small captures take).
+"""
+
+from __future__ import annotations
+
+import os
+import pty
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from sharedlink.generators.beacon import GenOptions, generate_file
+
+CLI = [sys.executable, "-m", "sharedlink"]
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory) -> Path:
+    p = tmp_path_factory.mktemp("progress") / "c.pcap"
+    generate_file(GenOptions(frames=20_000, compress=True, seed=1), p)
+    return p
+
+
+def _run(args: list, tty: bool, after: str = "0") -> tuple[int, str]:
+    """Run the CLI with stdout and stderr on a pseudo-terminal (``tty``) or pipes; its stderr."""
+    env = dict(os.environ, SHAREDLINK_PROGRESS_AFTER=after, COLUMNS="120")
+    if not tty:
+        r = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, env=env, timeout=120)
+        return r.returncode, r.stderr
+    master, slave = pty.openpty()
+    try:
+        p = subprocess.Popen([*CLI, *map(str, args)], stdout=slave, stderr=slave, stdin=subprocess.DEVNULL, env=env)
+        os.close(slave)
+        out = b""
+        while True:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:
+                break
+            if not chunk:
+                break
+            out += chunk
+        return p.wait(timeout=120), out.decode("utf-8", "replace")
+    finally:
+        os.close(master)
+
+
+def test_a_terminal_gets_a_progress_bar(capture):
+    rc, err = _run(["stats", capture], tty=True)
+    assert rc == 0 and "reading:" in err and "records" in err, err[-2000:]
+
+
+def test_no_bar_before_its_time(capture):
+    rc, err = _run(["stats", capture], tty=True, after="600")
+    assert rc == 0 and "reading:" not in err
+
+
+@pytest.mark.parametrize("args", [["stats", "--json"], ["export", "--format", "jsonl", "--json", "-o", "OUT"],
+                                  ["export", "--format", "jsonl"]])
+def test_no_bar_with_json_or_to_standard_output(capture, tmp_path, args):
+    args = [a if a != "OUT" else tmp_path / "o.jsonl" for a in args]
+    rc, err = _run([args[0], capture, *args[1:]], tty=True)
+    assert rc == 0 and "reading:" not in err and "exporting:" not in err
+
+
+def test_no_bar_on_a_pipe(capture, tmp_path):
+    for args in (["stats", capture], ["export", capture, "-o", tmp_path / "o.csv"]):
+        rc, err = _run(args, tty=False)
+        assert rc == 0 and "reading:" not in err and "exporting:" not in err
+
+
+def test_export_to_a_file_gets_a_bar(capture, tmp_path):
+    rc, err = _run(["export", capture, "-o", tmp_path / "o.csv"], tty=True)
+    assert rc == 0 and "exporting:" in err
