@@ -22,6 +22,7 @@ from sl_captures import BEACON, reference
 
 from sharedlink.analysis.stats import capture_stats
 from sharedlink.generators.beacon import GenOptions, generate_file
+from sharedlink.protocols.state import BEACON_VARIABLES
 from tshark_util import REPO, TSHARK_CMD, check_stderr, fields, tshark
 
 CLI = [sys.executable, "-m", "sharedlink"]
@@ -134,11 +135,11 @@ def test_stats_streams(tmp_path):
 # -- the Lua tap ------------------------------------------------------------------------------
 
 
-def tap_stats(path: Path, flt: str = "") -> dict:
+def tap_stats(path: Path, flt: str = "", prefs: dict | None = None) -> dict:
     """Run ``tshark -z sharedlink,stats`` with both scripts and parse its report. The tap writes
     pairs as the packet list does (``B→A``); they are returned as Python writes them (``B>A``)."""
     z = "sharedlink,stats" + ("," + flt if flt else "")
-    res = tshark(path, ["-q", "-X", f"lua_script:{STATS_LUA}", "-z", z])
+    res = tshark(path, ["-q", "-X", f"lua_script:{STATS_LUA}", "-z", z], prefs=prefs)
     text = res.stdout
     assert "SharedLink statistics" in text, text
     out: dict = {"kinds": {}, "pairs": {}, "vars": {}}
@@ -184,6 +185,46 @@ def test_tap_matches_python_stats(captures, variant):
     assert {k: late for k, (_n, _bad, late, _kinds) in tap["pairs"].items()} == {
         p.pair: p.sync_late for p in st.pairs.values()
     }
+
+
+#: vector streams where `stats` and the tap disagree, and why (Python side, not fixed yet)
+_MALFORMED = ("stats counts a '[:' that is no frame as kind 'malformed' and as noise, not in its frame total "
+              "nor under a pair; the tap counts it as a frame of the pair its header names (issue 28)")
+_NOISE = ("Lua side (sharedlink_stats.lua): the tap counts the 2 packets of modem noise (no frame in them) as "
+          "frames of kind 'unknown', pair ?->?; 'unknown' is not a kind of docs/fields-sharedlink.md, stats counts "
+          "them as noise")
+_KNOWN = {"crlf-inside-a-value-and-modem-noise": _NOISE, "frame-kinds-other-and-malformed": _MALFORMED}
+
+
+def _vector_streams() -> list:
+    from sl_vectors import load_streams
+
+    out = []
+    for s in load_streams():
+        if s.get("transport") == "serial":  # (the serial transport needs serial.lua)
+            continue
+        why = _KNOWN.get(s["name"])
+        out.append(pytest.param(s, id=s["name"], marks=[pytest.mark.xfail(reason=why, strict=True)] if why else []))
+    return out
+
+
+@pytest.mark.parametrize("stream", _vector_streams())
+def test_tap_matches_python_stats_on_the_shared_vectors(tmp_path, stream):
+    """Every count the tap has (frames, checksum failures, sync late, kinds, per pair) on the
+    shared vector streams, as `stats` counts it."""
+    from sl_vectors import write_stream
+
+    from sharedlink.protocols.state import parse_variables
+
+    path = write_stream(stream, tmp_path / "v.pcap")
+    prefs = {"sharedlink.variables": stream["variables"]} if "variables" in stream else None
+    variables = parse_variables(stream["variables"]) if "variables" in stream else list(BEACON_VARIABLES)
+    st = capture_stats(path, variables)
+    tap = tap_stats(path, prefs=prefs)
+    assert (tap["Frames"], tap["Checksum failures"], tap["Sync late"]) == (st.frames, st.checksum_failures,
+                                                                         st.sync_late)
+    assert tap["kinds"] == st.kinds
+    assert tap["pairs"] == {p.pair: (p.frames, p.checksum_failures, p.sync_late, p.kinds) for p in st.pairs.values()}
 
 
 def test_tap_filter_argument(captures):

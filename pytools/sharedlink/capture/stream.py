@@ -58,7 +58,7 @@ from sharedlink.protocols.codec import (
     iter_segments,
     positional_values,
 )
-from sharedlink.protocols.limits import MAX_SLOTS
+from sharedlink.protocols.limits import MAX_HELD_BYTES, MAX_SLOTS
 from sharedlink.protocols.state import (
     BEACON_VARIABLES,
     LinkState,
@@ -115,7 +115,7 @@ class StreamFrame:
     error: str | None = None
 
 
-_TCP_BUFFER_MAX = 1 << 16
+_TCP_BUFFER_MAX = MAX_HELD_BYTES  # an unterminated frame held per TCP conversation, at most
 #: frames that carry values: the ones a change stream has a record for
 _VALUE_KINDS = ("full", "delta", "reply")
 
