@@ -78,3 +78,27 @@ def environment(unbuffered: str) -> dict[str, str]:
     if unbuffered:
         env["PYTHONUNBUFFERED"] = unbuffered
     return env
+
+
+def on_pty(cmd: list[str], env: dict[str, str], timeout: float = 120) -> tuple[int, str]:
+    """Run ``cmd`` with stdout and stderr on one pseudo-terminal (stdin empty): (exit code, all
+    it wrote there, decoded). For what a command shows a person: progress bars, fitted tables."""
+    import pty
+    import subprocess
+
+    master, slave = pty.openpty()
+    try:
+        p = subprocess.Popen(cmd, stdout=slave, stderr=slave, stdin=subprocess.DEVNULL, env=env)
+        os.close(slave)
+        out = b""
+        while True:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:  # EIO: the command closed its end
+                break
+            if not chunk:
+                break
+            out += chunk
+        return p.wait(timeout=timeout), out.decode("utf-8", "replace")
+    finally:
+        os.close(master)

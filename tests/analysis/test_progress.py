@@ -7,12 +7,12 @@ The commands run in a real pseudo-terminal; SHAREDLINK_PROGRESS_AFTER=0 shows th
 from __future__ import annotations
 
 import os
-import pty
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from sl_pipes import on_pty
 
 from sharedlink.generators.beacon import GenOptions, generate_file
 
@@ -32,22 +32,7 @@ def _run(args: list, tty: bool, after: str = "0") -> tuple[int, str]:
     if not tty:
         r = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, env=env, timeout=120)
         return r.returncode, r.stderr
-    master, slave = pty.openpty()
-    try:
-        p = subprocess.Popen([*CLI, *map(str, args)], stdout=slave, stderr=slave, stdin=subprocess.DEVNULL, env=env)
-        os.close(slave)
-        out = b""
-        while True:
-            try:
-                chunk = os.read(master, 65536)
-            except OSError:
-                break
-            if not chunk:
-                break
-            out += chunk
-        return p.wait(timeout=120), out.decode("utf-8", "replace")
-    finally:
-        os.close(master)
+    return on_pty([*CLI, *map(str, args)], env)
 
 
 def test_a_terminal_gets_a_progress_bar(capture):

@@ -8,13 +8,13 @@ import argparse
 import contextlib
 import io
 import os
-import pty
 import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from sl_pipes import on_pty
 
 from sharedlink.cli import build_parser
 
@@ -238,22 +238,10 @@ def test_text_reads_right(tmp_path, drive):
 
 def _on_terminal(columns: int, *args) -> str:
     """The command's output on a pseudo-terminal ``columns`` wide, escapes removed."""
-    master, slave = pty.openpty()
     env = dict(os.environ, COLUMNS=str(columns), LINES="60", TERM="xterm")
-    p = subprocess.Popen([*CLI, *map(str, args)], stdout=slave, stderr=slave, stdin=subprocess.DEVNULL, env=env)
-    os.close(slave)
-    out = b""
-    while True:
-        try:
-            chunk = os.read(master, 65536)
-        except OSError:
-            break
-        if not chunk:
-            break
-        out += chunk
-    os.close(master)
-    assert p.wait(timeout=300) == 0
-    return re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", out.decode())
+    code, out = on_pty([*CLI, *map(str, args)], env, timeout=300)
+    assert code == 0
+    return re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", out)
 
 
 @pytest.fixture(scope="module")
