@@ -926,6 +926,9 @@ local pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r
 local pr_nq, pr_nd, pr_n_empty_d, pr_n_pos
 local pr_cpos, pr_ctext, pr_cmd_start
 local pr_fast_sh, pr_fast_hit, pr_fast_sum
+-- pr_odd: parse_general met a field whose tree item carries an expert info (an empty field, an
+-- unknown letter, an ordinal or type that is not a number)
+local pr_odd
 
 -- For tests, marks on the Info of the packets a speed trick took: SHAREDLINK_EXPRESS_MARK=1 the
 -- express lane's ("[express] "), SHAREDLINK_FAST_MARK=1 parse_frame's fast paths' ("[fast] ";
@@ -957,6 +960,7 @@ do
         pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = 0, 0, 0, 0
         pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = nil, nil, nil, false
         pr_fast_sh, pr_fast_hit, pr_fast_sum = nil, false, nil
+        pr_odd = false
     end
 
     -- The header: last index of the content, the address bytes (nil when cut short), the index of
@@ -1047,7 +1051,7 @@ do
             idx = idx + 1
         end
         nv, pr_nq, pr_nd = n, n, n
-        pr_fast_sh, pr_fast_hit = sh, true
+        pr_fast_sh, pr_fast_hit = sh, sh
         if rec_fields then fast_positions(sh.ntext, n, true) end
         return true
     end
@@ -1065,13 +1069,19 @@ do
             if VV[k] == "" then n_empty_d = n_empty_d + 1 end
         end
         nv, pr_nd, pr_n_pos, pr_n_empty_d = n, n, n, n_empty_d
-        pr_fast_hit = true
+        pr_fast_hit = ps
         if rec_fields then fast_positions(ps.ntext, n, false) end
         return true
     end
 
     -- The plain path: every field from p on, in one pass (fields recorded with their positions
     -- when a tree is built), variables gathered as T/Q/R/D come; results in P.
+    -- An N or L field's text as the tree shows it without an expert: a number 0 .. 2^32-1.
+    local function ordinal_ok(text)
+        local n = tonumber(text)
+        return n and n >= 0 and n < 4294967296 and n == floor(n)
+    end
+
     local function parse_general(f, p, bodyend, rec_fields)
         local n_ord, l_ord, n_text = nil, nil, nil
         local has_e, has_m, has_p, has_g, has_r = false, false, false, false, false
@@ -1082,6 +1092,7 @@ do
         local cpos, ctext = nil, nil  -- checksum field start and text
         local cmd_start = nil         -- first E/M field
         local ord_text = false        -- N or L with a non-numeric ordinal (N?, L?: a list request)
+        local odd = false             -- a field with an expert info in the tree (see pr_odd)
         while p and p <= bodyend + 1 do
             local c = s_byte(f, p)
             local _, fe, t1, t2, t3
@@ -1094,6 +1105,7 @@ do
                 VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = t1, t2, t3, idx, false
                 idx = idx + 1
                 nq, nd = nq + 1, nd + 1
+                if not valid_type(t1) then odd = true end
                 if rec_fields then
                     local q1 = p + #t1 + 2
                     local d1 = q1 + #t2 + 2
@@ -1112,6 +1124,7 @@ do
                     -- empty field
                     nf = nf + 1
                     if rec_fields then FL[nf], FS[nf], FE[nf] = false, p, p - 1 end
+                    odd = true
                     p = p + 1
                 else
                     nf = nf + 1
@@ -1149,12 +1162,15 @@ do
                             pend_q, pend_r, pend_qf = false, false, 0
                         end
                         pend_t, pend_tf = t1, nf
+                        if not valid_type(t1) then odd = true end
                     elseif c == L_N then
+                        if not ordinal_ok(t1) then odd = true end
                         if not n_ord then
                             n_ord = to_ordinal(t1); idx = n_ord; n_text = t1
                             if not tonumber(t1) then ord_text = true end
                         end
                     elseif c == L_L then
+                        if not ordinal_ok(t1) then odd = true end
                         if not l_ord then
                             l_ord = to_ordinal(t1); idx = l_ord
                             if not tonumber(t1) then ord_text = true end
@@ -1166,6 +1182,7 @@ do
                         if not cmd_start then cmd_start = p end
                     elseif c == L_P then has_p = true
                     elseif c == L_G then has_g = true
+                    else odd = true   -- an unknown letter, or C before the last field
                     end
                     p = fe + 2
                 end
@@ -1180,6 +1197,7 @@ do
         pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r = has_e, has_m, has_p, has_g, has_r
         pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = nq, nd, n_empty_d, n_pos
         pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = cpos, ctext, cmd_start, ord_text
+        pr_odd = odd
     end
 
     -- A named layout's code, made once per pattern (kept for 256 patterns): store(vals, from,
@@ -1327,8 +1345,9 @@ do
             end
         end
         if p then parse_general(f, p, bodyend, rec_fields) end
-        -- layouts are learnt on a miss (a frame the fast paths did not take)
-        if shape_key then
+        -- layouts are learnt on a miss (a frame the fast paths did not take), from a frame whose
+        -- fields carry no expert info
+        if shape_key and not pr_odd then
             learn_named_shape(f, shape_key, dstb, srcb)
             learn_positional_shape(f, shape_key, dstb, srcb)
             learn_bare_shape(f, shape_key, dstb, srcb)
@@ -2056,10 +2075,44 @@ do
     end
 end
 
+-- With no tree, whether the frame's tree would carry an expert info (true when unsure): then
+-- the tree is built all the same, on the tree Wireshark gave (which keeps no items but reports
+-- the experts to Expert Information and -z expert).  Checks what tree_full adds experts for.
+local function has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status)
+    if malformed_msg or not addrs_ok or pr_odd or cs_status == 0 or not pr_cpos then return true end
+    local ctext = pr_ctext
+    if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then return true end
+    if rec and (rec.late or rec.unmatched) then return true end
+    local b = a + fl - 1
+    if terminated and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then return true end
+    local types = list.t
+    for v = 1, nv do
+        local val = VV[v]
+        if val or kind == "declaration" or VR[v] then
+            local vtype
+            if VN[v] then
+                if VT[v] then vtype = valid_type(VT[v]); if not vtype then return true end end
+            else
+                if not list[VI[v] + 1] then return true end
+                vtype = types and types[VI[v] + 1]
+            end
+            if val and vtype and (val ~= "" or VN[v]) then
+                if vtype == 2 then
+                    if not tonumber(val) then return true end
+                elseif vtype == 0 and not parse_long(val) then
+                    return true
+                end
+            end
+        end
+    end
+    return false
+end
+
 -- f: a string holding the frame at f[1..fl] ('[' .. ']' when terminated, else up to
 -- where it stops; bytes after fl may follow when terminated); a: index of f[1] in the
--- payload s; e: index in s of the last byte including the line end.
-local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
+-- payload s; e: index in s of the last byte including the line end.  tree: nil when there is
+-- none (see dissect); root: the tree Wireshark gave, for the expert infos of a frame then.
+local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, root)
     local num = pinfo.number
 
     -- a tree that is shown (-V, -T fields/json, the GUI's details) gets every range and
@@ -2067,7 +2120,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     -- protocol item is added once the frame is known (the full tree: with its text)
     local vis = tree ~= nil and PG.visible(tree)
 
-    local bodyend, dstb, srcb, malformed_msg = parse_frame(f, fl, terminated, vis, tree ~= nil)
+    local bodyend, dstb, srcb, malformed_msg = parse_frame(f, fl, terminated, vis, true)
     local cs_val, cs_calc, cs_status = checksum_verdict(f, bodyend)
     local good = cs_status ~= 0
     local kind, is_data = kind_of_fields(malformed_msg)
@@ -2090,8 +2143,16 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
 
     info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
 
-    -- Tree (skipped entirely when there is none, e.g. tshark summary pass)
-    if not tree then return end
+    -- Tree (skipped when there is none, e.g. tshark summary pass, unless it has expert infos:
+    -- then built on root, where only the experts stay)
+    if not tree then
+        if not (root and has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status)) then
+            return
+        end
+        tree = root
+        if pr_fast_hit then fast_positions(pr_fast_hit.ntext, nv, pr_fast_sh ~= nil) end
+        vis = true
+    end
     if pr_fast_hit and not vis then
         local ti = TI.add(tree, sl, tvb(a - 1, e - a + 1))
         tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, pinfo.visited, rec, ne, nm,
@@ -2105,7 +2166,7 @@ end
 -- Payload scanning
 ------------------------------------------------------------------------------
 -- Noise s[i..j] between frames (CR/LF alone is not noise).
-local function add_noise(s, i, j, tvb, tree)
+local function add_noise(s, i, j, tvb, tree, root)
     local k = s_find(s, "[^\r\n]", i)
     if not k or k > j then return end
     if info_full then
@@ -2115,7 +2176,11 @@ local function add_noise(s, i, j, tvb, tree)
         info_add("noise (" .. (j - i + 1) .. " bytes)")
         frames_in_info = frames_in_info + 1
     end
-    if not tree then return end
+    if not tree then
+        -- no tree: the expert alone, on the tree Wireshark gave
+        if root then TI.add_proto_expert_info(root, ei.noise, (j - i + 1) .. " bytes outside any frame") end
+        return
+    end
     local r = tvb(i - 1, j - i + 1)
     local ti = tree:add(sl, r)
     ti:append_text(", noise")
@@ -2170,6 +2235,31 @@ local function express_missing(d, sh)
     return xm
 end
 
+-- With no tree, whether the express lane's frame is one whose tree has no expert info: its line
+-- ends in CR LF, its checksum is two upper-case hex digits, every value matches its type.  A
+-- frame that has one goes to the phases (dissect_frame reports it).
+local express_plain
+do
+    local UHEX = {}
+    for t in pairs(HEXV) do
+        if not s_find(t, "[a-f]") then UHEX[t] = true end
+    end
+    local function value_ok(vtype, v)
+        if vtype == 2 then return tonumber(v) ~= nil end
+        if vtype == 0 then return v == nil or parse_long(v) ~= nil end
+        return true
+    end
+    function express_plain(s, n, sh, ctext, c1, c2, c3, c4, c5, c6, c7, c8)
+        if not UHEX[ctext] or s_byte(s, n) ~= B_LF or s_byte(s, n - 1) ~= B_CR or s_byte(s, n - 2) ~= B_RBRACK then
+            return false
+        end
+        local tv = sh.TV
+        if not tv then return true end
+        return value_ok(tv[1], c1) and value_ok(tv[2], c2) and value_ok(tv[3], c3) and value_ok(tv[4], c4)
+            and value_ok(tv[5], c5) and value_ok(tv[6], c6) and value_ok(tv[7], c7) and value_ok(tv[8], c8)
+    end
+end
+
 local function express(s, n, tvb, pinfo, tree, cols, vis)
     local dstb, srcb = s_byte(s, 3, 4)
     local key = (dstb or 0) * 256 + (srcb or 0)
@@ -2209,6 +2299,7 @@ local function express(s, n, tvb, pinfo, tree, cols, vis)
     local total, sum, ctext = sh.sums(c1, c2, c3, c4, c5, c6, c7, c8, c9)
     if not total or total + sh.info_len > INFO_MAX then return false end
     if pref_validate and HEXV[ctext] ~= (sh.fixed + sum) % 256 then return false end
+    if not tree and not express_plain(s, n, sh, ctext, c1, c2, c3, c4, c5, c6, c7, c8) then return false end
     local pg = PG
     local num = pg.number(pinfo)
     local visited = pg.visited(pinfo)
@@ -2359,15 +2450,15 @@ local function dissect(tvb, pinfo, tree)
         if not a then
             if s_byte(s, n) == B_LBRACK and pinfo.can_desegment > 0 then
                 -- a frame may start with this '[' in the next segment
-                if n > pos then add_noise(s, pos, n - 1, tvb, t) end
+                if n > pos then add_noise(s, pos, n - 1, tvb, t, tree) end
                 pinfo.desegment_offset = n - 1
                 pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
             else
-                add_noise(s, pos, n, tvb, t)
+                add_noise(s, pos, n, tvb, t, tree)
             end
             break
         end
-        if a > pos then add_noise(s, pos, a - 1, tvb, t) end
+        if a > pos then add_noise(s, pos, a - 1, tvb, t, tree) end
         if close_at ~= false and close_at < a + 2 then close_at = s_find(s, "]", a + 2, true) or false end
         local b = close_at
         open_at = s_find(s, "[:", a + 2, true) or false
@@ -2382,13 +2473,13 @@ local function dissect(tvb, pinfo, tree)
                 e = b + 1
             end
             if a == 1 then
-                dissect_frame(s, b, a, e, true, tvb, pinfo, t, sk, s)
+                dissect_frame(s, b, a, e, true, tvb, pinfo, t, sk, s, tree)
             else
-                dissect_frame(s_sub(s, a, b), b - a + 1, a, e, true, tvb, pinfo, t, sk, s)
+                dissect_frame(s_sub(s, a, b), b - a + 1, a, e, true, tvb, pinfo, t, sk, s, tree)
             end
             pos = e + 1
         elseif na then
-            dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, tvb, pinfo, t, sk, s)
+            dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, tvb, pinfo, t, sk, s, tree)
             pos = na
         else
             if (n - a) < MAX_PENDING and pinfo.can_desegment > 0 then
@@ -2396,7 +2487,7 @@ local function dissect(tvb, pinfo, tree)
                 pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
                 break
             end
-            dissect_frame(s_sub(s, a, n), n - a + 1, a, n, false, tvb, pinfo, t, sk, s)
+            dissect_frame(s_sub(s, a, n), n - a + 1, a, n, false, tvb, pinfo, t, sk, s, tree)
             pos = n + 1
         end
     end
@@ -2421,6 +2512,7 @@ sl.dissector = dissect
 ------------------------------------------------------------------------------
 -- Heuristics
 ------------------------------------------------------------------------------
+do
 local function looks_like_sharedlink(tvb, is_tcp)
     local n = tvb:len()
     if n < 5 then return false end
@@ -2463,15 +2555,18 @@ end
 
 sl:register_heuristic("udp", make_heuristic(false))
 sl:register_heuristic("tcp", make_heuristic(true))
+end
 
 ------------------------------------------------------------------------------
 -- Ports
 ------------------------------------------------------------------------------
+local apply_ports
+do
 local udp_table = DissectorTable.get("udp.port")
 local tcp_table = DissectorTable.get("tcp.port")
 local current_ports = ""
 
-local function apply_ports()
+function apply_ports()
     local ports = sl.prefs.ports
     if type(ports) ~= "string" then ports = tostring(ports or "") end
     if ports == current_ports then return end
@@ -2484,6 +2579,7 @@ local function apply_ports()
         tcp_table:add(ports, sl)
     end
     current_ports = ports
+end
 end
 
 function sl.prefs_changed()
