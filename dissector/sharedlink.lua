@@ -21,6 +21,10 @@
 --                                 (0 long, 2 double, 4 string; default
 --                                 AutoGpsLat,AutoGpsLon,AutoGpsHead,AutoGpsVel, untyped)
 --   sharedlink.sync_interval      expected full-frame interval in ms (default 1000)
+--   sharedlink.max_slots, max_names, max_conversations, max_pending, max_held_bytes
+--                                 limits (1024, 4096, 65536, 1024, 65536): input past one is
+--                                 dropped with sharedlink.limit.exceeded ("Limits" in
+--                                 docs/fields-sharedlink.md)
 -- Heuristic dissectors (Enabled Protocols / --disable-heuristic): sharedlink_udp,
 -- sharedlink_tcp.
 --
@@ -196,6 +200,9 @@ local ei = {
         expert.group.PROTOCOL, expert.severity.NOTE),
     unanswered = ProtoExpert.new("sharedlink.reply.unmatched", "Reply without a matching query",
         expert.group.SEQUENCE, expert.severity.NOTE),
+    -- input past one of the limits (docs/fields-sharedlink.md "Limits"): dropped, never allocated
+    limit = ProtoExpert.new("sharedlink.limit.exceeded", "Limit exceeded",
+        expert.group.PROTOCOL, expert.severity.WARN),
 }
 sl.experts = register(ei)
 
@@ -216,11 +223,34 @@ sl.prefs.variables = Pref.string("Positional variable list", DEFAULT_VARS,
     "Comma-separated a-priori variable list naming positional D values (index 0 first)")
 sl.prefs.sync_interval = Pref.uint("Sync interval (ms)", 1000,
     "A full frame is expected at least this often per direction (plus 500 ms slack)")
+-- Limits (issue 31; the same names and defaults as the Python tools' sharedlink.protocols.limits)
+local LIMIT_DEFAULTS = { max_slots = 1024, max_names = 4096, max_conversations = 65536, max_pending = 1024,
+    max_held_bytes = 65536 }
+sl.prefs.max_slots = Pref.uint("Maximum slot number", LIMIT_DEFAULTS.max_slots,
+    "Positional slots, ordinals and declared list entries at or past this number are dropped")
+sl.prefs.max_names = Pref.uint("Maximum names a direction holds", LIMIT_DEFAULTS.max_names,
+    "New variable names past this many in one direction are dropped")
+sl.prefs.max_conversations = Pref.uint("Maximum directions with state", LIMIT_DEFAULTS.max_conversations,
+    "Directions past this many keep no state")
+sl.prefs.max_pending = Pref.uint("Maximum unanswered queries", LIMIT_DEFAULTS.max_pending,
+    "Queries past this many unanswered ones in a conversation are not matched with a reply")
+sl.prefs.max_held_bytes = Pref.uint("Maximum bytes held for an unterminated frame", LIMIT_DEFAULTS.max_held_bytes,
+    "A TCP frame not terminated within this many bytes is decoded as unterminated")
 
 local pref_list = {}         -- parsed variable list
 local pref_validate = true
 local pref_heuristic = true
 local pref_sync = 1.0 + SYNC_SLACK
+-- the limits in use (from the preferences) and the per-capture facts they need: journal (a
+-- direction keeps a journal, see journal_start), ndirs (directions with state), npend
+-- (unanswered queries a conversation)
+local LIM = { journal = false, ndirs = 0, npend = {} }
+local function read_limits()
+    for k, v in pairs(LIMIT_DEFAULTS) do
+        local x = tonumber(sl.prefs[k])
+        LIM[k] = (x and x >= 0) and math.floor(x) or v
+    end
+end
 
 -- "Name:T,Name,..." -> list of names with list.t[i] = type number (0 long, 2 double,
 -- 4 string) for the typed ones (twin: pytools sharedlink --variables parser)
@@ -267,6 +297,7 @@ local function reset_state()
     sk_str, sk_str_n = {}, 0
     dir_cache_key, dir_cache_num, dir_cache_ports = nil, nil, 0
     last_asrc, last_adst, last_pdir, last_akey = nil, nil, nil, nil
+    LIM.journal, LIM.ndirs, LIM.npend = false, 0, {}
 end
 reset_state()
 
@@ -287,6 +318,7 @@ function sl.init()
     pref_validate = sl.prefs.validate_checksum
     pref_heuristic = sl.prefs.heuristic
     pref_sync = (tonumber(sl.prefs.sync_interval) or 1000) / 1000 + SYNC_SLACK
+    read_limits()
 end
 
 ------------------------------------------------------------------------------
@@ -296,7 +328,6 @@ local ARROW = "\226\134\146"     -- U+2192
 local ELLIPSIS = "\226\128\166"  -- U+2026
 local INFO_MAX = 120
 local CTRL = "[\0-\31\127]"   -- control characters (not to be shown in the Info column)
-local MAX_PENDING = 65536        -- longest unterminated frame worth waiting for (TCP)
 
 local B_LBRACK, B_RBRACK, B_PIPE, B_COLON = 91, 93, 124, 58
 local B_CR, B_LF = 13, 10
@@ -429,7 +460,7 @@ end
 -- seen: name -> stamp of the last frame that had it; maxslot: highest positional slot that
 -- ever held a value; first/lastfull: times of the first frame and of the last good full one.
 local function new_dir()
-    return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, seen = {}, maxslot = -1,
+    return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, nkey = {}, seen = {}, maxslot = -1,
         first = nil, lastfull = nil, list = nil }
 end
 
@@ -469,6 +500,8 @@ local function get_dir(pinfo, num, dstb, srcb)
     local d = byaddr[key]
     if not d then
         d = new_dir()
+        if LIM.ndirs >= LIM.max_conversations then d.over = true; return d end   -- kept nowhere
+        LIM.ndirs = LIM.ndirs + 1
         byaddr[key] = d
     end
     return d
@@ -492,6 +525,8 @@ local function get_rev_dir(pinfo, dstb, srcb)
     local d = byaddr[key]
     if not d then
         d = new_dir()
+        if LIM.ndirs >= LIM.max_conversations then d.over = true; return d end   -- kept nowhere
+        LIM.ndirs = LIM.ndirs + 1
         byaddr[key] = d
     end
     return d
@@ -747,155 +782,6 @@ local function add_typed_value(vt, range, vtype, text)
     end
 end
 
--- Fields of a frame parsed by a fast path, for a tree nobody sees (a display filter,
--- coloring rules, a tap): the fields of the full tree with their values, without byte
--- ranges, labels or flags, which only a visible tree shows.  Speed trick (measured: each
--- TvbRange, label or flag is one more Lua-to-C call).  The full tree is built below.
--- vals: the frame's values; carry: carried values of its empty D fields (value, frame, ...);
--- miss: named variables left out (name, value, frame, ...), nmiss entries.
---
--- Only the fields somebody asked for are repeated per variable.  In a tree nobody sees,
--- Wireshark adds a field only when a filter, coloring rule or tap references it; for any
--- other it hands back the parent item (proto.c, TRY_TO_FAKE_THIS_ITEM), whose text is the
--- parent's text.  So the first item of each per-variable field in a frame tells whether the
--- field is referenced (its text differs from its parent's: a real item has its own label;
--- checked on 4.0, 4.4 and 4.6), and an unreferenced field is not added again for the
--- frame's other variables (about 18 fewer Lua-to-C calls in a beacon frame).  Decided
--- again in every frame, as the referenced fields change when the user changes a filter.
---
--- tshark (no GUI) keeps what it learnt for the whole pass, every field included: its filters,
--- taps and field extractors are all set before the first packet and a field Wireshark once
--- saw referenced stays referenced.  (tshark -2 primes the display filter in its first pass
--- too; the cache starts again with each pass all the same.)  The GUI learns again in
--- every frame: its display filter and coloring rules change while it runs, and it dissects
--- packet-list rows (coloring rules only) in the middle of a filter pass.  The environment
--- variable SHAREDLINK_PROBE_EACH_FRAME makes tshark do as the GUI (for the tests).
-local REF = {}      -- field -> referenced (nil: not known yet)
-local VAR_FIELDS = { hf.var, hf.ftype, hf.var_name, hf.var_index, hf.var_value, hf.var_double,
-    hf.var_long, hf.var_string, hf.var_carried, hf.var_carried_from }
-local CACHE_REFS = not (gui_enabled and gui_enabled()) and not os.getenv("SHAREDLINK_PROBE_EACH_FRAME")
-local ref_num, ref_visited = -1, nil   -- the frame and pass the cache was last used in
-local UNKNOWN = {}  -- "the parent's text is not read yet"
-
--- Add field = value under parent (whose text is ptext, or UNKNOWN) unless the field is known
--- to be unreferenced; learn that on its first item.  Returns the item or nil.
-local function ref_add(parent, ptext, field, value)
-    local r = REF[field]
-    if r == false then return nil end
-    local it
-    if value == nil then it = TI.add(parent, field) else it = TI.add(parent, field, value) end
-    if r == nil then
-        if ptext == UNKNOWN then ptext = parent.text end
-        r = it.text ~= ptext
-        REF[field] = r
-    end
-    return r and it or nil
-end
-
--- Start a frame's compact tree: the learnt fields kept (tshark, the same pass) or forgotten.
--- Returns the text ref_add compares ti's children with.
-local function ref_start(ti, num, visited)
-    if CACHE_REFS then
-        if visited ~= ref_visited or num < ref_num then
-            for k in pairs(REF) do REF[k] = nil end
-            ref_visited = visited
-        end
-        ref_num = num
-        return UNKNOWN
-    end
-    for k = 1, #VAR_FIELDS do REF[VAR_FIELDS[k]] = nil end
-    return ti.text
-end
-
--- A field of the frame itself in the compact tree: learnt as the per-variable ones when the
--- cache is on, else always added (once a frame, a probe would cost as much as it saves).
-local function frame_add(ti, ttext, field, value)
-    if CACHE_REFS then return ref_add(ti, ttext, field, value) end
-    return TI.add(ti, field, value)
-end
-
--- A variable's item in the compact tree: its subtree, or ti itself when nobody asked for
--- sharedlink.var; and the text its children are compared with (var_text: a real variable
--- item's text, the same for all; reset each frame).
-local var_text = nil
-local function compact_var(ti, ttext)
-    local vt = ref_add(ti, ttext, hf.var)
-    if not vt then return ti, ttext end
-    var_text = var_text or vt.text
-    return vt, var_text
-end
-
--- A carried value's fields: its value and frame when known.
-local function compact_carried(vt, ptext, cv, cf)
-    if cv then ref_add(vt, ptext, hf.var_value, cv) end
-    ref_add(vt, ptext, hf.var_carried, true)
-    if cf then ref_add(vt, ptext, hf.var_carried_from, cf) end
-end
-
-local function tree_compact(ti, ttext, dstb, srcb, kind, n_ord, nvars, list, d, num, carry, miss, nmiss, fast_tv)
-    frame_add(ti, ttext, hf.dst, LETTER[dstb])
-    frame_add(ti, ttext, hf.dst_node, dstb - B_A + 1)
-    frame_add(ti, ttext, hf.src, LETTER[srcb])
-    frame_add(ti, ttext, hf.src_node, srcb - B_A + 1)
-    frame_add(ti, ttext, hf.kind, kind)
-    frame_add(ti, ttext, hf.ordinal, n_ord)
-    var_text = nil
-    local ke = 0
-    for v = 1, nvars do
-        local vt, ptext = compact_var(ti, ttext)
-        local name, val = VN[v], VV[v]
-        local vtype
-        local index = VI[v]
-        if name then
-            vtype = fast_tv and fast_tv[v] or valid_type(VT[v])
-            ref_add(vt, ptext, hf.ftype, vtype)
-            if d then
-                local first = d.nfirst[name]
-                index = (first and first <= num) and d.npos[name] or nil
-            end
-        else
-            name = list[index + 1]
-            vtype = list.t and list.t[index + 1]
-        end
-        if name then
-            ref_add(vt, ptext, hf.var_name, name)
-        else
-            TI.add_proto_expert_info(vt, ei.var_unknown,
-                "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
-        end
-        if index then ref_add(vt, ptext, hf.var_index, index) end
-        if val ~= "" or VN[v] then
-            ref_add(vt, ptext, hf.var_value, val)
-            if vtype then
-                if vtype == 2 then
-                    local x = tonumber(val)
-                    if x then ref_add(vt, ptext, hf.var_double, x)
-                    else TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a double: " .. val) end
-                elseif vtype == 0 then
-                    local x = parse_long(val)
-                    if x then ref_add(vt, ptext, hf.var_long, x)
-                    else TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a long (int64): " .. val) end
-                elseif vtype == 4 then
-                    ref_add(vt, ptext, hf.var_string, val)
-                end
-            end
-        else
-            local cv, cf = false, false
-            if carry then cv, cf = carry[ke + 1], carry[ke + 2] end
-            ke = ke + 2
-            compact_carried(vt, ptext, cv, cf)
-        end
-    end
-    for k = 1, nmiss, 3 do
-        local name = miss[k]
-        local vt, ptext = compact_var(ti, ttext)
-        ref_add(vt, ptext, hf.var_name, name)
-        local index = d and d.npos[name]
-        if index then ref_add(vt, ptext, hf.var_index, index) end
-        compact_carried(vt, ptext, miss[k + 1], miss[k + 2])
-    end
-end
-
 -- A zero-length range at off, kept inside the tvb.
 local function zrange(tvb, off)
     local n = tvb:len()
@@ -929,6 +815,9 @@ local pr_fast_sh, pr_fast_hit, pr_fast_sum
 -- pr_odd: parse_general met a field whose tree item carries an expert info (an empty field, an
 -- unknown letter, an ordinal or type that is not a number)
 local pr_odd
+-- pr_limit: why the frame is past a limit its fields alone tell (a "Limit exceeded: ..." text),
+-- else false
+local pr_limit
 
 -- For tests, marks on the Info of the packets a speed trick took: SHAREDLINK_EXPRESS_MARK=1 the
 -- express lane's ("[express] "), SHAREDLINK_FAST_MARK=1 parse_frame's fast paths' ("[fast] ";
@@ -960,7 +849,7 @@ do
         pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = 0, 0, 0, 0
         pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = nil, nil, nil, false
         pr_fast_sh, pr_fast_hit, pr_fast_sum = nil, false, nil
-        pr_odd = false
+        pr_odd, pr_limit = false, false
     end
 
     -- The header: last index of the content, the address bytes (nil when cut short), the index of
@@ -1165,12 +1054,18 @@ do
                         if not valid_type(t1) then odd = true end
                     elseif c == L_N then
                         if not ordinal_ok(t1) then odd = true end
+                        if #t1 > 9 and not s_find(t1, "[^0-9]") then
+                            odd, pr_limit = true, "Limit exceeded: N has more than 9 digits"
+                        end
                         if not n_ord then
                             n_ord = to_ordinal(t1); idx = n_ord; n_text = t1
                             if not tonumber(t1) then ord_text = true end
                         end
                     elseif c == L_L then
                         if not ordinal_ok(t1) then odd = true end
+                        if #t1 > 9 and not s_find(t1, "[^0-9]") then
+                            odd, pr_limit = true, "Limit exceeded: L has more than 9 digits"
+                        end
                         if not l_ord then
                             l_ord = to_ordinal(t1); idx = l_ord
                             if not tonumber(t1) then ord_text = true end
@@ -1345,6 +1240,10 @@ do
             end
         end
         if p then parse_general(f, p, bodyend, rec_fields) end
+        -- positional slots and declared entries at or past max_slots (their state is dropped)
+        if nv > 0 and VI[nv] >= LIM.max_slots and not pr_limit then
+            pr_odd, pr_limit = true, "Limit exceeded: a slot or ordinal at or past " .. LIM.max_slots .. " (max_slots)"
+        end
         -- layouts are learnt on a miss (a frame the fast paths did not take), from a frame whose
         -- fields carry no expert info
         if shape_key and not pr_odd then
@@ -1384,6 +1283,91 @@ local function kind_of_fields(malformed_msg)
     return "other", false
 end
 
+-- The journal: linear state for a direction with many names.  A direction with up to
+-- JOURNAL_NAMES names stores, for each frame that leaves some out, their values in the frame's
+-- record (cheap, few objects: see carried_store).  Past that, a copy per frame would grow with
+-- the names (quadratic), so the direction keeps instead, for each name, the values it took and
+-- the frames they came from (d.hist[name] = { key, value, key, value, ... }, a frame's key
+-- num * 2^20 + its offset in the packet: frames in capture order) and d.nkey, the key of the
+-- frame each name was first sent in (in the order of d.names); a later pass finds what a frame
+-- carried from them.  d.jkey: the key of the first frame judged by the journal.
+local JOURNAL_NAMES = 32
+local journal
+do
+    local function fkey(num, sk) return num * 1048576 + sk % 1048576 end
+
+    local function start(d, key)
+        local hist, vals, from = {}, d.vals, d.from
+        for _, name in ipairs(d.names) do
+            hist[name] = { (from[name] or 0) * 1048576, vals[name] or false }
+        end
+        d.hist, d.jkey = hist, key
+        LIM.journal = true
+        return hist
+    end
+
+    local function set(hist, name, key, val)
+        local h = hist[name]
+        if not h then h = {}; hist[name] = h end
+        local n = #h
+        if n > 0 and h[n - 1] == key then h[n] = val else h[n + 1], h[n + 2] = key, val end
+    end
+
+    -- the value name had before the frame of key (and its frame), false, false when none
+    local function get(h, key)
+        if not h then return false, false end
+        local lo, hi, found = 1, #h / 2, nil
+        while lo <= hi do
+            local mid = floor((lo + hi) / 2)
+            if h[2 * mid - 1] < key then found = mid; lo = mid + 1 else hi = mid - 1 end
+        end
+        if not found then return false, false end
+        return h[2 * found], floor(h[2 * found - 1] / 1048576)
+    end
+
+    -- how many names the direction knew at the frame of key (first sent at or before it)
+    local function known_at(d, key)
+        local nk = d.nkey
+        local lo, hi, found = 1, #nk, 0
+        while lo <= hi do
+            local mid = floor((lo + hi) / 2)
+            if nk[mid] <= key then found = mid; lo = mid + 1 else hi = mid - 1 end
+        end
+        return found
+    end
+
+    -- A later pass, a named data frame the journal judged: the number of names it carried, and
+    -- with fill, the names in MISS (name, value, frame, ...; nm entries) as the first pass had them.
+    local PRESENT, pstamp = {}, 0
+    local function missing(d, key, fill)
+        pstamp = pstamp + 1
+        local npos, nk, present = d.npos, d.nkey, 0
+        for v = 1, nv do
+            local name = VN[v]
+            if name and VV[v] and PRESENT[name] ~= pstamp then
+                local i = npos[name]
+                if i and nk[i + 1] <= key then present = present + 1 end
+                PRESENT[name] = pstamp
+            end
+        end
+        local known = known_at(d, key)
+        local nm = 0
+        if fill then
+            local names, hist = d.names, d.hist
+            for k = 1, known do
+                local name = names[k]
+                if PRESENT[name] ~= pstamp then
+                    local cv, cf = get(hist[name], key)
+                    MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, cv, cf
+                    nm = nm + 3
+                end
+            end
+        end
+        return known - present, nm
+    end
+    journal = { key = fkey, start = start, set = set, missing = missing }
+end
+
 -- state_first_pass and its helpers (a block, as parse_frame)
 local state_first_pass
 do
@@ -1391,11 +1375,16 @@ do
     -- what it leaves out is gathered in CARRY (empty D fields: value, frame, ...; ne entries) and
     -- MISS (named variables: name, value, frame, ...; nm entries).  Returns whether it is full,
     -- ne, nm, the number of named variables carried, and full_local (the verdict without state).
-    local function data_values(d, list, num, good, full_local)
+    local function data_values(d, list, num, sk, good, full_local, has_tree)
         local fast_sh, n_pos, nd, n_ord = pr_fast_sh, pr_n_pos, pr_nd, pr_n_ord
         local ne, nm, miss_n = 0, 0, 0
         local full
-        if good and fast_sh and d.names_is == fast_sh.N then
+        local hist, key = d.hist, nil
+        if hist or #d.names > JOURNAL_NAMES then
+            key = journal.key(num, sk)
+            if not hist and not d.over then hist = journal.start(d, key) end
+        end
+        if good and fast_sh and d.names_is == fast_sh.N and not hist then
             -- same layout as the known variable set: nothing can be missing
             local vals, from = d.vals, d.from
             for v = 1, nv do
@@ -1411,26 +1400,38 @@ do
             local stamp = stamp_ctr
             local required_missing = false   -- a slot that held a value is empty here
             local maxslot = -1
+            local present = 0                -- known names present (distinct)
+            local max_slots = LIM.max_slots
             ne = 0
             for v = 1, nv do
                 local val = VV[v]
                 if val then
                     local name = VN[v]
                     if name then
-                        if good then
-                            vals[name] = val
-                            from[name] = num
-                            if not seen[name] then
+                        local st = seen[name]
+                        if not st and good then
+                            if #names < LIM.max_names then
                                 names[#names + 1] = name
                                 d.npos[name] = #names - 1
                                 d.nfirst[name] = num
+                                d.nkey[#names] = key or journal.key(num, sk)
                                 d.names_is = nil
+                                st = 0
+                            else
+                                -- a new name past max_names: no state
+                                LIM.hit = "Limit exceeded: more than " .. LIM.max_names ..
+                                    " names in this direction (max_names)"
                             end
-                            seen[name] = stamp
-                        elseif seen[name] then
-                            seen[name] = stamp
                         end
-                    else
+                        if st then
+                            if good then
+                                vals[name] = val
+                                from[name] = num
+                                if hist then journal.set(hist, name, key, val) end
+                            end
+                            if st ~= stamp then present = present + 1; seen[name] = stamp end
+                        end
+                    elseif VI[v] < max_slots then
                         local slot = VI[v]
                         name = list[slot + 1] or ("#" .. slot)
                         if slot > maxslot then maxslot = slot end
@@ -1454,8 +1455,20 @@ do
                     if vals[list[slot + 1] or ("#" .. slot)] then required_missing = true; break end
                 end
             end
-            -- named: known variables missing from this frame
-            if n_pos == 0 and #names > 0 then
+            -- named: known variables missing from this frame (a journal: counted; listed only
+            -- for a tree, kept in no record)
+            if n_pos == 0 and #names > 0 and hist then
+                miss_n = #names - present
+                if has_tree then
+                    for k = 1, #names do
+                        local name = names[k]
+                        if seen[name] ~= stamp then
+                            MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
+                            nm = nm + 3
+                        end
+                    end
+                end
+            elseif n_pos == 0 and #names > 0 then
                 for k = 1, #names do
                     local name = names[k]
                     if seen[name] ~= stamp then
@@ -1469,13 +1482,13 @@ do
             full = nd > 0 and (n_ord == nil or n_ord == 0) and not required_missing and miss_n == 0
             if n_pos == 0 then full_local = full_local and miss_n == 0 end
         end
-        return full, ne, nm, miss_n, full_local
+        return full, ne, nm, miss_n, full_local, hist ~= nil
     end
 
     -- State, first pass, a data frame: the sync clock, and the record later passes read (late
     -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
     local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
-        local rec = nil
+        local rec = LIM.hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
         local kind
         local now = pinfo.rel_ts
         local first = d.first
@@ -1533,7 +1546,7 @@ do
         end
         local maxi = #newlist
         for v = 1, nv do
-            if VN[v] then
+            if VN[v] and VI[v] < LIM.max_slots then
                 newlist[VI[v] + 1] = VN[v]
                 types[VI[v] + 1] = VT[v] and valid_type(VT[v]) or nil
                 if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
@@ -1558,6 +1571,8 @@ do
                     local qrec = pending_q[qkey]
                     if qrec then
                         pending_q[qkey] = nil
+                        local ck = dst .. ">" .. src .. ports
+                        LIM.npend[ck] = (LIM.npend[ck] or 1) - 1
                         qrec.resp_in = qrec.resp_in or {}
                         qrec.resp_in[name] = num
                         rec.resp_to = rec.resp_to or {}
@@ -1572,7 +1587,16 @@ do
                     rec = rec or get_rec(num, sk, true)
                     rec.num = num
                     rec.t = pinfo.rel_ts
-                    pending_q[src .. ">" .. dst .. ":" .. name .. ports] = rec
+                    local qkey, ck = src .. ">" .. dst .. ":" .. name .. ports, src .. ">" .. dst .. ports
+                    if pending_q[qkey] then
+                        pending_q[qkey] = rec
+                    elseif (LIM.npend[ck] or 0) < LIM.max_pending then
+                        pending_q[qkey] = rec
+                        LIM.npend[ck] = (LIM.npend[ck] or 0) + 1
+                    else
+                        LIM.hit = "Limit exceeded: more than " .. LIM.max_pending ..
+                            " unanswered queries in this conversation (max_pending)"
+                    end
                 end
             end
         end
@@ -1581,12 +1605,18 @@ do
 
     -- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
     -- direction state (data frames), the named variables carried, and ne/nm (see data_values).
-    function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, addrs_ok, full_local)
+    function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, addrs_ok, full_local,
+                              has_tree)
         local rec, list, d = nil, pref_list, nil
         local miss_n, ne, nm = 0, 0, 0
+        LIM.hit = false
         local letters = src .. dst
         if (is_data or kind == "malformed") and addrs_ok then
             d = get_dir(pinfo, num, dstb, srcb)
+            if d.over then
+                LIM.hit = "Limit exceeded: more than " .. LIM.max_conversations .. " directions with state" ..
+                    " (max_conversations); this one keeps none"
+            end
             list = d.list or pair_lists[letters] or pref_list
             -- remember when the list in use changes (read back on later passes)
             if list ~= (d.used_list or pref_list) then
@@ -1598,9 +1628,10 @@ do
                 d.used_list = list
             end
             if is_data then
-                local full
-                full, ne, nm, miss_n, full_local = data_values(d, list, num, good, full_local)
-                rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
+                local full, journaled
+                full, ne, nm, miss_n, full_local, journaled = data_values(d, list, num, sk, good, full_local, has_tree)
+                -- a journal's carried names go in no record (see journal)
+                rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm)
             end
         elseif kind == "declaration" and addrs_ok and good then
             learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
@@ -1608,20 +1639,26 @@ do
         if (kind == "query" or kind == "reply" or kind == "declaration") and addrs_ok and good then
             rec = link_query_reply(pinfo, num, sk, kind, dst, src, rec)
         end
+        if LIM.hit then
+            rec = rec or get_rec(num, sk, true)
+            rec.limit = LIM.hit
+        end
         return kind, rec, list, d, miss_n, ne, nm
     end
 end
 
 -- The list in use at frame (num, sk) on the first pass, from the direction's history of changes.
+-- The entries (num, sk, list) are in capture order: a binary search (linear time over a pass).
 local function list_at(d, num, sk)
     local h = d.uhist
-    if h then
-        for k = #h - 2, 1, -3 do
-            local hn = h[k]
-            if hn < num or (hn == num and h[k + 1] <= sk) then return h[k + 2] end
-        end
+    if not h then return pref_list end
+    local lo, hi, found = 1, #h / 3, nil
+    while lo <= hi do
+        local mid = floor((lo + hi) / 2)
+        local hn = h[3 * mid - 2]
+        if hn < num or (hn == num and h[3 * mid - 1] <= sk) then found = mid; lo = mid + 1 else hi = mid - 1 end
     end
-    return pref_list
+    return found and h[3 * found] or pref_list
 end
 
 -- State on a later pass: the record, and the list in use at this frame on the first pass
@@ -1629,10 +1666,16 @@ end
 local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local, has_tree)
     local rec = get_rec(num, sk, false)
     local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
+    local nm = 0
     local list, d = pref_list, nil
-    if (is_data or kind == "malformed") and addrs_ok and (has_tree or pr_n_pos > 0) then
+    if (is_data or kind == "malformed") and addrs_ok and (has_tree or pr_n_pos > 0 or LIM.journal) then
         d = get_dir(pinfo, num, dstb, srcb)
         list = list_at(d, num, sk)
+        -- a named frame the journal judged: what it carried, from the journal
+        if is_data and d.jkey and pr_n_pos == 0 then
+            local key = journal.key(num, sk)
+            if key >= d.jkey then miss_n, nm = journal.missing(d, key, has_tree) end
+        end
     end
     if is_data then
         if rec and rec.kind then
@@ -1641,7 +1684,7 @@ local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs
             kind = (full_local and miss_n == 0) and "full" or "delta"
         end
     end
-    return kind, rec, list, d, miss_n
+    return kind, rec, list, d, miss_n, nm
 end
 
 -- Info column: this frame's piece.
@@ -1700,9 +1743,160 @@ local function info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n
     end
 end
 
+local tree_compact_frame
+do
+-- Fields of a frame parsed by a fast path, for a tree nobody sees (a display filter,
+-- coloring rules, a tap): the fields of the full tree with their values, without byte
+-- ranges, labels or flags, which only a visible tree shows.  Speed trick (measured: each
+-- TvbRange, label or flag is one more Lua-to-C call).  The full tree is built below.
+-- vals: the frame's values; carry: carried values of its empty D fields (value, frame, ...);
+-- miss: named variables left out (name, value, frame, ...), nmiss entries.
+--
+-- Only the fields somebody asked for are repeated per variable.  In a tree nobody sees,
+-- Wireshark adds a field only when a filter, coloring rule or tap references it; for any
+-- other it hands back the parent item (proto.c, TRY_TO_FAKE_THIS_ITEM), whose text is the
+-- parent's text.  So the first item of each per-variable field in a frame tells whether the
+-- field is referenced (its text differs from its parent's: a real item has its own label;
+-- checked on 4.0, 4.4 and 4.6), and an unreferenced field is not added again for the
+-- frame's other variables (about 18 fewer Lua-to-C calls in a beacon frame).  Decided
+-- again in every frame, as the referenced fields change when the user changes a filter.
+--
+-- tshark (no GUI) keeps what it learnt for the whole pass, every field included: its filters,
+-- taps and field extractors are all set before the first packet and a field Wireshark once
+-- saw referenced stays referenced.  (tshark -2 primes the display filter in its first pass
+-- too; the cache starts again with each pass all the same.)  The GUI learns again in
+-- every frame: its display filter and coloring rules change while it runs, and it dissects
+-- packet-list rows (coloring rules only) in the middle of a filter pass.  The environment
+-- variable SHAREDLINK_PROBE_EACH_FRAME makes tshark do as the GUI (for the tests).
+local REF = {}      -- field -> referenced (nil: not known yet)
+local VAR_FIELDS = { hf.var, hf.ftype, hf.var_name, hf.var_index, hf.var_value, hf.var_double,
+    hf.var_long, hf.var_string, hf.var_carried, hf.var_carried_from }
+local CACHE_REFS = not (gui_enabled and gui_enabled()) and not os.getenv("SHAREDLINK_PROBE_EACH_FRAME")
+local ref_num, ref_visited = -1, nil   -- the frame and pass the cache was last used in
+local UNKNOWN = {}  -- "the parent's text is not read yet"
+
+-- Add field = value under parent (whose text is ptext, or UNKNOWN) unless the field is known
+-- to be unreferenced; learn that on its first item.  Returns the item or nil.
+local function ref_add(parent, ptext, field, value)
+    local r = REF[field]
+    if r == false then return nil end
+    local it
+    if value == nil then it = TI.add(parent, field) else it = TI.add(parent, field, value) end
+    if r == nil then
+        if ptext == UNKNOWN then ptext = parent.text end
+        r = it.text ~= ptext
+        REF[field] = r
+    end
+    return r and it or nil
+end
+
+-- Start a frame's compact tree: the learnt fields kept (tshark, the same pass) or forgotten.
+-- Returns the text ref_add compares ti's children with.
+local function ref_start(ti, num, visited)
+    if CACHE_REFS then
+        if visited ~= ref_visited or num < ref_num then
+            for k in pairs(REF) do REF[k] = nil end
+            ref_visited = visited
+        end
+        ref_num = num
+        return UNKNOWN
+    end
+    for k = 1, #VAR_FIELDS do REF[VAR_FIELDS[k]] = nil end
+    return ti.text
+end
+
+-- A field of the frame itself in the compact tree: learnt as the per-variable ones when the
+-- cache is on, else always added (once a frame, a probe would cost as much as it saves).
+local function frame_add(ti, ttext, field, value)
+    if CACHE_REFS then return ref_add(ti, ttext, field, value) end
+    return TI.add(ti, field, value)
+end
+
+-- A variable's item in the compact tree: its subtree, or ti itself when nobody asked for
+-- sharedlink.var; and the text its children are compared with (var_text: a real variable
+-- item's text, the same for all; reset each frame).
+local var_text = nil
+local function compact_var(ti, ttext)
+    local vt = ref_add(ti, ttext, hf.var)
+    if not vt then return ti, ttext end
+    var_text = var_text or vt.text
+    return vt, var_text
+end
+
+-- A carried value's fields: its value and frame when known.
+local function compact_carried(vt, ptext, cv, cf)
+    if cv then ref_add(vt, ptext, hf.var_value, cv) end
+    ref_add(vt, ptext, hf.var_carried, true)
+    if cf then ref_add(vt, ptext, hf.var_carried_from, cf) end
+end
+
+local function tree_compact(ti, ttext, dstb, srcb, kind, n_ord, nvars, list, d, num, carry, miss, nmiss, fast_tv)
+    frame_add(ti, ttext, hf.dst, LETTER[dstb])
+    frame_add(ti, ttext, hf.dst_node, dstb - B_A + 1)
+    frame_add(ti, ttext, hf.src, LETTER[srcb])
+    frame_add(ti, ttext, hf.src_node, srcb - B_A + 1)
+    frame_add(ti, ttext, hf.kind, kind)
+    frame_add(ti, ttext, hf.ordinal, n_ord)
+    var_text = nil
+    local ke = 0
+    for v = 1, nvars do
+        local vt, ptext = compact_var(ti, ttext)
+        local name, val = VN[v], VV[v]
+        local vtype
+        local index = VI[v]
+        if name then
+            vtype = fast_tv and fast_tv[v] or valid_type(VT[v])
+            ref_add(vt, ptext, hf.ftype, vtype)
+            if d then
+                local first = d.nfirst[name]
+                index = (first and first <= num) and d.npos[name] or nil
+            end
+        else
+            name = list[index + 1]
+            vtype = list.t and list.t[index + 1]
+        end
+        if name then
+            ref_add(vt, ptext, hf.var_name, name)
+        else
+            TI.add_proto_expert_info(vt, ei.var_unknown,
+                "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
+        end
+        if index then ref_add(vt, ptext, hf.var_index, index) end
+        if val ~= "" or VN[v] then
+            ref_add(vt, ptext, hf.var_value, val)
+            if vtype then
+                if vtype == 2 then
+                    local x = tonumber(val)
+                    if x then ref_add(vt, ptext, hf.var_double, x)
+                    else TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a double: " .. val) end
+                elseif vtype == 0 then
+                    local x = parse_long(val)
+                    if x then ref_add(vt, ptext, hf.var_long, x)
+                    else TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a long (int64): " .. val) end
+                elseif vtype == 4 then
+                    ref_add(vt, ptext, hf.var_string, val)
+                end
+            end
+        else
+            local cv, cf = false, false
+            if carry then cv, cf = carry[ke + 1], carry[ke + 2] end
+            ke = ke + 2
+            compact_carried(vt, ptext, cv, cf)
+        end
+    end
+    for k = 1, nmiss, 3 do
+        local name = miss[k]
+        local vt, ptext = compact_var(ti, ttext)
+        ref_add(vt, ptext, hf.var_name, name)
+        local index = d and d.npos[name]
+        if index then ref_add(vt, ptext, hf.var_index, index) end
+        compact_carried(vt, ptext, miss[k + 1], miss[k + 2])
+    end
+end
+
 -- The compact tree of a fast-path frame nobody sees: its fields (tree_compact), the sync and
 -- checksum fields and experts, without ranges or labels.
-local function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, visited, rec, ne, nm,
+function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, visited, rec, ne, nm,
                                   cs_val, cs_calc, cs_status)
     local ctext = pr_ctext
     local carry = rec or (ne > 0 and CARRY)
@@ -1717,6 +1911,8 @@ local function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, nu
         frame_add(ti, ttext, hf.sync_is_late, true)
         TI.add_proto_expert_info(ti, ei.sync_late)
     end
+    if pr_limit then TI.add_proto_expert_info(ti, ei.limit, pr_limit) end
+    if rec and rec.limit then TI.add_proto_expert_info(ti, ei.limit, rec.limit) end
     if cs_val then frame_add(ti, ttext, hf.checksum, cs_val) else frame_add(ti, ttext, hf.checksum_text, ctext) end
     if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then TI.add_proto_expert_info(ti, ei.checksum_format) end
     if pref_validate then
@@ -1730,6 +1926,8 @@ local function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, nu
     if not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
         TI.add_proto_expert_info(ti, ei.crlf_missing)
     end
+end
+
 end
 
 -- The full tree (shown: every range and label).
@@ -1990,6 +2188,8 @@ do
         local cs_val, cs_calc, cs_status = tc.cs_val, tc.cs_calc, tc.cs_status
         local terminated, malformed_msg = tc.terminated, tc.malformed_msg
         local cpos, ctext = pr_cpos, pr_ctext
+        if pr_limit then TI.add_proto_expert_info(ti, ei.limit, pr_limit) end
+        if rec and rec.limit then TI.add_proto_expert_info(ti, ei.limit, rec.limit) end
         if rec and rec.late then
             TI.set_generated(TI.add(ti, hf.sync_is_late, true))
             TI.add_proto_expert_info(ti, ei.sync_late,
@@ -2080,6 +2280,7 @@ end
 -- the experts to Expert Information and -z expert).  Checks what tree_full adds experts for.
 local function has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status)
     if malformed_msg or not addrs_ok or pr_odd or cs_status == 0 or not pr_cpos then return true end
+    if rec and rec.limit then return true end
     local ctext = pr_ctext
     if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then return true end
     if rec and (rec.late or rec.unmatched) then return true end
@@ -2131,13 +2332,13 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     local full_local = pr_nd > 0 and (pr_n_ord == nil or pr_n_ord == 0) and pr_n_empty_d == 0
 
     local rec, list, d, miss_n
-    local ne, nm = 0, 0
+    local ne, nm = 0
     if not pinfo.visited then
         kind, rec, list, d, miss_n, ne, nm = state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src,
-            addrs_ok, full_local)
+            addrs_ok, full_local, tree ~= nil)
     else
-        kind, rec, list, d, miss_n = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local,
-            tree ~= nil)
+        kind, rec, list, d, miss_n, nm = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok,
+            full_local, tree ~= nil)
     end
     if is_data and not kind then kind = full_local and "full" or "delta" end   -- addresses not A-P
 
@@ -2310,6 +2511,11 @@ local function express(s, n, tvb, pinfo, tree, cols, vis)
         -- a later pass: no record means the first pass found it full; a carried-only record, a delta
         rec = get_rec(num, sk, false)
         if not rec and sh.bare then return false end   -- a bare frame with no record: the phases say why
+        if LIM.journal then
+            -- a frame the journal judged: the phases
+            d = get_dir(pinfo, num, dstb, srcb)
+            if d.jkey and journal.key(num, sk) >= d.jkey then return false end
+        end
         if rec then
             if rec.late or rec[1] or rec.kind ~= "d" or not rec.miss then return false end
             tail = CARRIED_TAIL[floor(#rec.miss / 3)]
@@ -2322,6 +2528,7 @@ local function express(s, n, tvb, pinfo, tree, cols, vis)
         end
     else
         d = get_dir(pinfo, num, dstb, srcb)
+        if d.hist or d.over or #d.names >= JOURNAL_NAMES then return false end   -- a journal, a limit: the phases
         list = d.list or pair_lists[sh.letters] or pref_list
         if list ~= (d.used_list or pref_list) then return false end
         local names, vals, from = sh.N, d.vals, d.from
@@ -2482,10 +2689,14 @@ local function dissect(tvb, pinfo, tree)
             dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, tvb, pinfo, t, sk, s, tree)
             pos = na
         else
-            if (n - a) < MAX_PENDING and pinfo.can_desegment > 0 then
-                pinfo.desegment_offset = a - 1
-                pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
-                break
+            if pinfo.can_desegment > 0 then
+                if (n - a) < LIM.max_held_bytes then
+                    pinfo.desegment_offset = a - 1
+                    pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
+                    break
+                end
+                TI.add_proto_expert_info(tree, ei.limit, "Limit exceeded: an unterminated frame of over " ..
+                    LIM.max_held_bytes .. " bytes (max_held_bytes), decoded as it is")
             end
             dissect_frame(s_sub(s, a, n), n - a + 1, a, n, false, tvb, pinfo, t, sk, s, tree)
             pos = n + 1
@@ -2588,7 +2799,9 @@ function sl.prefs_changed()
     pref_validate = sl.prefs.validate_checksum
     pref_heuristic = sl.prefs.heuristic
     pref_sync = (tonumber(sl.prefs.sync_interval) or 1000) / 1000 + SYNC_SLACK
+    read_limits()
 end
 
 apply_ports()
 pref_list = parse_list(DEFAULT_VARS)
+read_limits()
