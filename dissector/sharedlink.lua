@@ -50,8 +50,8 @@
 -- plain named frames (up to 8: a compressed stream's deltas) is parsed by one anchored
 -- pattern, in a shown tree too (the fields' places follow from the layout and the values'
 -- lengths), and the express lane (see express) takes such frames in every pass; the shown
--- tree's labels are made once (addresses, protocol line, a correct checksum), and the Lua
--- collector runs at twice its default pace (see the note where it is set).  Per-frame state
+-- tree's labels are made once (addresses, protocol line, a correct checksum); every use of
+-- Wireshark's internals is in wsapi, checked against the documented API.  Per-frame state
 -- is stored only for frames that need it (carried values, late sync, queries/replies);
 -- carried-only records are packed as text lines, 256 per Lua string, and the list in use is
 -- kept as a per-direction history of changes, so that long compressed captures add few Lua
@@ -98,7 +98,7 @@
 
 if set_plugin_info then
     set_plugin_info({
-        version = "1.2.0",
+        version = "1.3.0",
         description = "SharedLink (Kairos Autonomi BUL-009/BUL-049) dissector",
         repository = "dissector/sharedlink.lua",
     })
@@ -301,17 +301,6 @@ local function reset_state()
 end
 reset_state()
 
--- The Lua collector's pace, twice the default (Lua 5.2 and 5.4 alike: the multiplier read back
--- and doubled).  Every packet leaves a few dozen finalizable objects behind (wslua's Tvb, Pinfo,
--- TreeItem, TvbRange; a shown tree one pair a field), and a collector twice as eager did the
--- shown tree 2 to 4 % faster with the same peak memory (measured, Wireshark 4.0, interleaved
--- A/B runs; -Y about 1 %, the summary pass within the noise).  It is the whole Lua state's (all
--- plugins share one); set once, when this file loads.
-do
-    local stepmul = collectgarbage("setstepmul", 0)
-    collectgarbage("setstepmul", (tonumber(stepmul) or 0) > 0 and stepmul * 2 or 400)
-end
-
 function sl.init()
     reset_state()
     pref_list = parse_list(sl.prefs.variables)
@@ -432,25 +421,100 @@ local function nstime_of(d)
     return NSTime.new(secs, ns)
 end
 
--- Pinfo's and TreeItem's attributes read through their getters, the C functions wslua's
--- __index finds in the class's metatable (__getters) and calls.  Speed trick (measured): a
--- pinfo.number is a call into C that finds the getter (hashing "__getters") and calls it;
--- PG.number(pinfo) is the second call alone.  Set from the first packet's objects; an
--- attribute without a getter there is read the usual way.
-local PG = { ready = false }
-local function getters_init(pinfo, tree)
-    local function fill(obj, names)
+------------------------------------------------------------------------------
+-- wsapi: every use of Wireshark's internals, in one place.  Each trick is checked once (at load,
+-- or on the first packet where it needs an object) against the documented wslua API, and falls
+-- back to that API when the check fails; nothing else in this file reaches past the documented
+-- API.  The environment switches the tests use are read here too (docs/architecture.md).
+------------------------------------------------------------------------------
+local wsapi = { ready = false }
+do
+    local function documented(name) return function(o) return o[name] end end
+
+    -- (1) Pinfo's and TreeItem's attributes read through their getters, the C functions wslua's
+    -- __index finds in the class's metatable (__getters) and calls.  Speed trick (measured): a
+    -- pinfo.number is a call into C that finds the getter (hashing "__getters") and calls it;
+    -- PG.number(pinfo) is the second call alone.  A getter is taken only when it exists and gives
+    -- what the documented attribute gives on the first packet's objects.
+    local PG = {}
+    wsapi.PG = PG
+    local function getter(obj, name)
         local mt = getmetatable(obj)
         local g = type(mt) == "table" and rawget(mt, "__getters")
-        for _, name in ipairs(names) do
-            local f = type(g) == "table" and rawget(g, name)
-            PG[name] = type(f) == "function" and f or function(o) return o[name] end
-        end
+        local f = type(g) == "table" and rawget(g, name)
+        if type(f) ~= "function" then return documented(name) end
+        local ok, a = pcall(f, obj)
+        local b = obj[name]
+        if not ok or (a ~= b and tostring(a) ~= tostring(b)) then return documented(name) end
+        return f
     end
-    fill(pinfo, { "number", "visited", "rel_ts", "src_port", "dst_port", "src", "dst", "cols", "p2p_dir" })
-    fill(tree, { "hidden", "visible" })
-    PG.ready = true
+
+    -- (2) TreeItem's and Tvb's methods called through the class tables (speed trick, measured: -V
+    -- 16 us a frame less): ti:add(...) looks the method up through wslua's __index, a call into C,
+    -- each time.  Taken when the class table holds a function, and kept on the first packet only
+    -- if it is the very method an item finds.
+    local TI = {}
+    wsapi.TI = TI
+    local TI_METHODS = { "add", "set_hidden", "set_generated", "set_text", "append_text", "add_proto_expert_info" }
+    local function method(class, name)
+        local ok, f = pcall(function() return class[name] end)
+        if ok and type(f) == "function" then return f end
+        return function(o, ...) return o[name](o, ...) end
+    end
+    for _, m in ipairs(TI_METHODS) do TI[m] = method(TreeItem, m) end
+    wsapi.tvb_raw = method(Tvb, "raw")
+
+    function wsapi.init(pinfo, tree, tvb)
+        for _, name in ipairs({ "number", "visited", "rel_ts", "src_port", "dst_port", "src", "dst", "cols",
+            "p2p_dir" }) do
+            PG[name] = getter(pinfo, name)
+        end
+        for _, name in ipairs({ "hidden", "visible" }) do PG[name] = getter(tree, name) end
+        for _, m in ipairs(TI_METHODS) do
+            if tree[m] ~= TI[m] then TI[m] = function(o, ...) return o[m](o, ...) end end
+        end
+        if tvb.raw ~= wsapi.tvb_raw then wsapi.tvb_raw = function(t, ...) return t:raw(...) end end
+        wsapi.ready = true
+    end
+
+    -- (3) "No tree at all" (tshark's summary pass): a TreeItem does not say so directly.  Its text
+    -- is nil both with no tree and with the sparse tree of -T fields / -Y on 4.6, but its
+    -- tostring() tells "has subtree=false" only when there is no tree (4.0 to 4.6).  Speed trick
+    -- (measured, 1.5 us a packet): before 4.6 a tree's root item is hidden (wslua's fake item)
+    -- and "no tree" is not, so one attribute read tells.  When unsure: a tree (slower, never wrong).
+    local major, minor = tostring(get_version and get_version() or ""):match("^(%d+)%.(%d+)")
+    major, minor = tonumber(major), tonumber(minor)
+    local hidden_tells = major ~= nil and (major < 4 or (major == 4 and minor < 6))
+    function wsapi.no_tree(tree)
+        if hidden_tells then return not PG.hidden(tree) end
+        return s_find(tostring(tree), "has subtree=false", 1, true) ~= nil
+    end
+
+    -- (4) The referenced-field probe.  In a tree nobody sees, Wireshark adds a field only when a
+    -- filter, coloring rule or tap references it; for any other it hands back the parent item
+    -- (proto.c, TRY_TO_FAKE_THIS_ITEM), whose text is the parent's text.  So an item whose text
+    -- differs from its parent's is a real one (checked on 4.0, 4.4 and 4.6).  When either text
+    -- is missing (a release whose items carry none) the probe cannot tell: referenced.
+    function wsapi.referenced(item, parent_text)
+        local t = item.text
+        if type(t) ~= "string" or type(parent_text) ~= "string" then return true end
+        return t ~= parent_text
+    end
+    -- What the probe learnt may be kept over a run of consecutive frames of one pass in tshark,
+    -- whose filters, taps and field extractors are all set before the first packet; the GUI
+    -- (and anything that dissects frames out of order, as sharkd does) learns again each frame.
+    wsapi.cache_refs = not (gui_enabled and gui_enabled())
+
+    -- (5) Environment switches, for the tests (docs/architecture.md): SHAREDLINK_NO_FAST=1 (every
+    -- frame parsed field by field), SHAREDLINK_NO_EXPRESS=1 (no express lane),
+    -- SHAREDLINK_FAST_MARK=1 / SHAREDLINK_EXPRESS_MARK=1 (mark the Info of the packets those took),
+    -- SHAREDLINK_PROBE_EACH_FRAME=1 (tshark learns the referenced fields each frame, as the GUI).
+    local function env(name) return os.getenv("SHAREDLINK_" .. name) == "1" end
+    wsapi.env = { no_fast = env("NO_FAST"), no_express = env("NO_EXPRESS"), fast_mark = env("FAST_MARK"),
+        express_mark = env("EXPRESS_MARK"), probe_each_frame = env("PROBE_EACH_FRAME") }
+    if wsapi.env.probe_each_frame then wsapi.cache_refs = false end
 end
+local PG = wsapi.PG
 
 ------------------------------------------------------------------------------
 -- Direction state
@@ -762,9 +826,7 @@ end
 -- (a tree nobody sees) the item is added with its value only.
 -- TreeItem's methods called through this table (speed trick, measured: -V 16 us a frame
 -- less): ti:add(...) looks the method up through wslua's __index, a call into C, each time.
-local TI = { add = TreeItem.add, set_hidden = TreeItem.set_hidden, set_generated = TreeItem.set_generated,
-    set_text = TreeItem.set_text, append_text = TreeItem.append_text,
-    add_proto_expert_info = TreeItem.add_proto_expert_info }
+local TI = wsapi.TI   -- see wsapi (2)
 
 local function add_typed_value(vt, range, vtype, text)
     local field, v
@@ -822,15 +884,14 @@ local pr_limit
 -- For tests, marks on the Info of the packets a speed trick took: SHAREDLINK_EXPRESS_MARK=1 the
 -- express lane's ("[express] "), SHAREDLINK_FAST_MARK=1 parse_frame's fast paths' ("[fast] ";
 -- fast_hit: one of the packet's frames took one).
-local MARKS = { express = os.getenv("SHAREDLINK_EXPRESS_MARK") == "1" and "[express] ",
-    fast = os.getenv("SHAREDLINK_FAST_MARK") == "1", fast_hit = false }
+local MARKS = { express = wsapi.env.express_mark and "[express] ", fast = wsapi.env.fast_mark, fast_hit = false }
 
 -- parse_frame and the helpers only it uses (a block: the main chunk may hold 200 locals);
 -- fast_positions serves the express lane too
 local parse_frame, fast_positions
 do
     -- SHAREDLINK_NO_FAST=1 turns the fast paths off (tests: every frame parsed field by field)
-    local FAST = os.getenv("SHAREDLINK_NO_FAST") ~= "1"
+    local FAST = not wsapi.env.no_fast
 
     -- The layouts' value classes, written as ranges: a value is any byte but '|', ']', the
     -- control characters and DEL (VALUE, the phases' fast paths) and also not '[' (XVALUE, the
@@ -1771,7 +1832,7 @@ do
 local REF = {}      -- field -> referenced (nil: not known yet)
 local VAR_FIELDS = { hf.var, hf.ftype, hf.var_name, hf.var_index, hf.var_value, hf.var_double,
     hf.var_long, hf.var_string, hf.var_carried, hf.var_carried_from }
-local CACHE_REFS = not (gui_enabled and gui_enabled()) and not os.getenv("SHAREDLINK_PROBE_EACH_FRAME")
+local CACHE_REFS = wsapi.cache_refs
 local ref_num, ref_visited = -1, nil   -- the frame and pass the cache was last used in
 local UNKNOWN = {}  -- "the parent's text is not read yet"
 
@@ -1784,7 +1845,7 @@ local function ref_add(parent, ptext, field, value)
     if value == nil then it = TI.add(parent, field) else it = TI.add(parent, field, value) end
     if r == nil then
         if ptext == UNKNOWN then ptext = parent.text end
-        r = it.text ~= ptext
+        r = wsapi.referenced(it, ptext)
         REF[field] = r
     end
     return r and it or nil
@@ -1794,7 +1855,7 @@ end
 -- Returns the text ref_add compares ti's children with.
 local function ref_start(ti, num, visited)
     if CACHE_REFS then
-        if visited ~= ref_visited or num < ref_num then
+        if visited ~= ref_visited or (num ~= ref_num and num ~= ref_num + 1) then
             for k in pairs(REF) do REF[k] = nil end
             ref_visited = visited
         end
@@ -2388,14 +2449,6 @@ local function add_noise(s, i, j, tvb, tree, root)
     ti:add(hf.noise, r):add_proto_expert_info(ei.noise, (j - i + 1) .. " bytes outside any frame")
 end
 
--- Before Wireshark 4.6 a TreeItem's hidden flag tells "no tree" (see dissect); unknown: no.
-local HIDDEN_TELLS
-do
-    local major, minor = tostring(get_version and get_version() or ""):match("^(%d+)%.(%d+)")
-    major, minor = tonumber(major), tonumber(minor)
-    HIDDEN_TELLS = major ~= nil and (major < 4 or (major == 4 and minor < 6))
-end
-
 -- Express lane (speed trick, measured: the summary pass 10 us a frame faster, a compressed
 -- stream's 20): in any pass (no tree, one nobody sees, a shown one), a packet that is one plain
 -- named frame of a layout its node pair sent before, with a good checksum and N0, whose
@@ -2405,7 +2458,7 @@ end
 -- carried variables; data_record; info_frame's one concatenation; tree_compact_frame or
 -- tree_full); anything else returns false before changing any state, and the phases take the
 -- packet.  SHAREDLINK_NO_EXPRESS=1 turns it off; the tests compare both ways.
-local EXPRESS = os.getenv("SHAREDLINK_NO_EXPRESS") ~= "1"
+local EXPRESS = not wsapi.env.no_express
 local NO_SHAPES = {}
 local XSK = {}            -- frame key -> "|sk|d|0" (a line's text after its frame number)
 local CARRIED_TAIL = {}   -- n -> " (+n carried)"
@@ -2616,33 +2669,19 @@ local function express(s, n, tvb, pinfo, tree, cols, vis)
     return true
 end
 
--- Tvb:raw from the class's method table (as TI): tvb:raw() looks it up through wslua's __index
-local TVB_RAW = rawget(Tvb, "raw") or function(tvb) return tvb:raw() end
 local function dissect(tvb, pinfo, tree)
-    local s = TVB_RAW(tvb)
+    if not wsapi.ready then wsapi.init(pinfo, tree, tvb) end
+    local s = wsapi.tvb_raw(tvb)
     local n = #s
     if n <= 0 then return 0 end
-    if not PG.ready then getters_init(pinfo, tree) end
     local cols = PG.cols(pinfo)
 
     cols.protocol = "SharedLink"
 
-    -- With no tree at all (tshark's summary pass) skip all tree work.  A TreeItem does
-    -- not say so directly: its text is nil both with no tree and with the sparse tree of
-    -- -T fields / -Y on 4.6, but its tostring() tells "has subtree=false" only when there
-    -- is no tree (4.0 to 4.6).  Should that text ever change, we build the tree: slower,
-    -- never wrong.
-    -- Speed trick (measured, 1.5 us a packet): before 4.6 a tree's root item is hidden
-    -- (wslua's fake item) and "no tree" is not, so one attribute read tells; 4.6 says hidden
-    -- in both cases and the text decides.
+    -- With no tree at all (tshark's summary pass) skip all tree work (wsapi.no_tree); frames with
+    -- expert infos still get them (see dissect_frame)
     local t = tree
-    if t ~= nil then
-        if HIDDEN_TELLS then
-            if not PG.hidden(t) then t = nil end
-        elseif s_find(tostring(t), "has subtree=false", 1, true) then
-            t = nil
-        end
-    end
+    if t ~= nil and wsapi.no_tree(t) then t = nil end
     -- the express lane (the tree's visibility is the whole tree's)
     if EXPRESS and express(s, n, tvb, pinfo, t, cols, t ~= nil and PG.visible(t)) then return n end
     -- the phases: the frames' keys, and the Info they build
