@@ -9,6 +9,8 @@ PY := $(BIN)/python
 CLI := $(BIN)/sharedlink
 STAMP := $(VENV)/.installed
 DISSECTORS := $(wildcard dissector/*.lua)
+# the modules sharedlink.lua loads (dissector/sharedlink/*.lua), installed as that folder beside it
+DISSECTOR_MODULES := dissector/sharedlink
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export PYTHONDONTWRITEBYTECODE := 1
 
@@ -104,7 +106,8 @@ CONF_DIR_SH = conf=$(call folder,Personal configuration); glob=$(call folder,Glo
 # every dissector/*.lua, the serial extcap (its first line pointed at the venv's Python, which
 # `venv` makes sure exists and imports sharedlink.extcap) and the coloring rules
 install: tshark venv
-	@$(PLUGIN_DIR_SH); mkdir -p "$$dir" && cp $(DISSECTORS) "$$dir"/ && echo "installed $(notdir $(DISSECTORS)) into $$dir"
+	@$(PLUGIN_DIR_SH); mkdir -p "$$dir" && cp -r $(DISSECTORS) $(DISSECTOR_MODULES) "$$dir"/ && \
+	echo "installed $(notdir $(DISSECTORS) $(DISSECTOR_MODULES)) into $$dir"
 	@$(PY) -c 'import sharedlink.extcap' || { echo "$(abspath $(PY)) cannot import sharedlink.extcap: run make venv" >&2; exit 2; }
 	@$(EXTCAP_DIR_SH); mkdir -p "$$ext" && sed '1s|.*|#!$(abspath $(PY))|' extcap/sharedlink-serial > "$$ext/sharedlink-serial" && \
 	chmod 755 "$$ext/sharedlink-serial" && echo "installed the sharedlink-serial extcap into $$ext (interpreter $(abspath $(PY)))"
@@ -121,7 +124,9 @@ install: tshark venv
 # fields no dissector registers: "Could not compile" at every start). A colorfilters file that is
 # then the global default again (install made it from that) is removed.
 uninstall: tshark
-	@$(PLUGIN_DIR_SH); for f in $(notdir $(DISSECTORS)); do rm -f "$$dir/$$f"; done; echo "removed $(notdir $(DISSECTORS)) from $$dir"
+	@$(PLUGIN_DIR_SH); for f in $(notdir $(DISSECTORS)); do rm -f "$$dir/$$f"; done; \
+	for m in $(notdir $(DISSECTOR_MODULES)); do rm -rf "$$dir/$$m"; done; \
+	echo "removed $(notdir $(DISSECTORS) $(DISSECTOR_MODULES)) from $$dir"
 	@$(EXTCAP_DIR_SH); rm -f "$$ext/sharedlink-serial"; echo "removed the sharedlink-serial extcap from $$ext"
 	@$(CONF_DIR_SH); cf="$$conf/colorfilters"; \
 	if [ -f "$$cf" ] && grep -qxF -f dissector/sharedlink.colorfilters "$$cf"; then \
