@@ -2272,17 +2272,8 @@ do
     end
 end
 
--- With no tree, whether the frame's tree would carry an expert info (true when unsure): then
--- the tree is built all the same, on the tree Wireshark gave (which keeps no items but reports
--- the experts to Expert Information and -z expert).  Checks what tree_full adds experts for.
-local function has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status)
-    if malformed_msg or not addrs_ok or pr_odd or cs_status == 0 or not pr_cpos then return true end
-    if rec and rec.limit then return true end
-    local ctext = pr_ctext
-    if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then return true end
-    if rec and (rec.late or rec.unmatched) then return true end
-    local b = a + fl - 1
-    if terminated and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then return true end
+-- Whether a variable's value would get var.badvalue or var.unknown (see has_experts).
+local function values_have_experts(kind, list)
     local types = list.t
     for v = 1, nv do
         local val = VV[v]
@@ -2304,6 +2295,19 @@ local function has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kin
         end
     end
     return false
+end
+
+-- With no tree, whether the frame's tree would carry an expert info (true when unsure): then
+-- the tree is built all the same, on the tree Wireshark gave (which keeps no items but reports
+-- the experts to Expert Information and -z expert).  Checks what tree_full adds experts for.
+local function has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status)
+    if malformed_msg or not addrs_ok or pr_odd or cs_status == 0 or not pr_cpos then return true end
+    if rec and (rec.limit or rec.late or rec.unmatched) then return true end
+    local ctext = pr_ctext
+    if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then return true end
+    local b = a + fl - 1
+    if terminated and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then return true end
+    return values_have_experts(kind, list)
 end
 
 -- f: a string holding the frame at f[1..fl] ('[' .. ']' when terminated, else up to
