@@ -21,6 +21,10 @@
 --                                 (0 long, 2 double, 4 string; default
 --                                 AutoGpsLat,AutoGpsLon,AutoGpsHead,AutoGpsVel, untyped)
 --   sharedlink.sync_interval      expected full-frame interval in ms (default 1000)
+--   sharedlink.max_slots, max_names, max_conversations, max_pending, max_held_bytes
+--                                 limits (1024, 4096, 65536, 1024, 65536): input past one is
+--                                 dropped with sharedlink.limit.exceeded ("Limits" in
+--                                 docs/fields-sharedlink.md)
 -- Heuristic dissectors (Enabled Protocols / --disable-heuristic): sharedlink_udp,
 -- sharedlink_tcp.
 --
@@ -46,8 +50,8 @@
 -- plain named frames (up to 8: a compressed stream's deltas) is parsed by one anchored
 -- pattern, in a shown tree too (the fields' places follow from the layout and the values'
 -- lengths), and the express lane (see express) takes such frames in every pass; the shown
--- tree's labels are made once (addresses, protocol line, a correct checksum), and the Lua
--- collector runs at twice its default pace (see the note where it is set).  Per-frame state
+-- tree's labels are made once (addresses, protocol line, a correct checksum); every use of
+-- Wireshark's internals is in wsapi, checked against the documented API.  Per-frame state
 -- is stored only for frames that need it (carried values, late sync, queries/replies);
 -- carried-only records are packed as text lines, 256 per Lua string, and the list in use is
 -- kept as a per-direction history of changes, so that long compressed captures add few Lua
@@ -92,9 +96,14 @@
 
 -- luacheck: read globals gui_enabled
 
+-- Load guard: the file may be loaded twice (installed, and named with -X lua_script:); the second
+-- load would register the protocol again (an error), so it does nothing.
+if package.loaded["sharedlink.dissector"] then return end
+package.loaded["sharedlink.dissector"] = true
+
 if set_plugin_info then
     set_plugin_info({
-        version = "1.2.0",
+        version = "1.3.0",
         description = "SharedLink (Kairos Autonomi BUL-009/BUL-049) dissector",
         repository = "dissector/sharedlink.lua",
     })
@@ -196,6 +205,9 @@ local ei = {
         expert.group.PROTOCOL, expert.severity.NOTE),
     unanswered = ProtoExpert.new("sharedlink.reply.unmatched", "Reply without a matching query",
         expert.group.SEQUENCE, expert.severity.NOTE),
+    -- input past one of the limits (docs/fields-sharedlink.md "Limits"): dropped, never allocated
+    limit = ProtoExpert.new("sharedlink.limit.exceeded", "Limit exceeded",
+        expert.group.PROTOCOL, expert.severity.WARN),
 }
 sl.experts = register(ei)
 
@@ -216,11 +228,34 @@ sl.prefs.variables = Pref.string("Positional variable list", DEFAULT_VARS,
     "Comma-separated a-priori variable list naming positional D values (index 0 first)")
 sl.prefs.sync_interval = Pref.uint("Sync interval (ms)", 1000,
     "A full frame is expected at least this often per direction (plus 500 ms slack)")
+-- Limits (issue 31; the same names and defaults as the Python tools' sharedlink.protocols.limits)
+local LIMIT_DEFAULTS = { max_slots = 1024, max_names = 4096, max_conversations = 65536, max_pending = 1024,
+    max_held_bytes = 65536 }
+sl.prefs.max_slots = Pref.uint("Maximum slot number", LIMIT_DEFAULTS.max_slots,
+    "Positional slots, ordinals and declared list entries at or past this number are dropped")
+sl.prefs.max_names = Pref.uint("Maximum names a direction holds", LIMIT_DEFAULTS.max_names,
+    "New variable names past this many in one direction are dropped")
+sl.prefs.max_conversations = Pref.uint("Maximum directions with state", LIMIT_DEFAULTS.max_conversations,
+    "Directions past this many keep no state")
+sl.prefs.max_pending = Pref.uint("Maximum unanswered queries", LIMIT_DEFAULTS.max_pending,
+    "Queries past this many unanswered ones in a conversation are not matched with a reply")
+sl.prefs.max_held_bytes = Pref.uint("Maximum bytes held for an unterminated frame", LIMIT_DEFAULTS.max_held_bytes,
+    "A TCP frame not terminated within this many bytes is decoded as unterminated")
 
 local pref_list = {}         -- parsed variable list
 local pref_validate = true
 local pref_heuristic = true
 local pref_sync = 1.0 + SYNC_SLACK
+-- the limits in use (from the preferences) and the per-capture facts they need: journal (a
+-- direction keeps a journal, see journal_start), ndirs (directions with state), npend
+-- (unanswered queries a conversation)
+local LIM = { journal = false, ndirs = 0, npend = {} }
+local function read_limits()
+    for k, v in pairs(LIMIT_DEFAULTS) do
+        local x = tonumber(sl.prefs[k])
+        LIM[k] = (x and x >= 0) and math.floor(x) or v
+    end
+end
 
 -- "Name:T,Name,..." -> list of names with list.t[i] = type number (0 long, 2 double,
 -- 4 string) for the typed ones (twin: pytools sharedlink --variables parser)
@@ -267,19 +302,9 @@ local function reset_state()
     sk_str, sk_str_n = {}, 0
     dir_cache_key, dir_cache_num, dir_cache_ports = nil, nil, 0
     last_asrc, last_adst, last_pdir, last_akey = nil, nil, nil, nil
+    LIM.journal, LIM.ndirs, LIM.npend = false, 0, {}
 end
 reset_state()
-
--- The Lua collector's pace, twice the default (Lua 5.2 and 5.4 alike: the multiplier read back
--- and doubled).  Every packet leaves a few dozen finalizable objects behind (wslua's Tvb, Pinfo,
--- TreeItem, TvbRange; a shown tree one pair a field), and a collector twice as eager did the
--- shown tree 2 to 4 % faster with the same peak memory (measured, Wireshark 4.0, interleaved
--- A/B runs; -Y about 1 %, the summary pass within the noise).  It is the whole Lua state's (all
--- plugins share one); set once, when this file loads.
-do
-    local stepmul = collectgarbage("setstepmul", 0)
-    collectgarbage("setstepmul", (tonumber(stepmul) or 0) > 0 and stepmul * 2 or 400)
-end
 
 function sl.init()
     reset_state()
@@ -287,6 +312,7 @@ function sl.init()
     pref_validate = sl.prefs.validate_checksum
     pref_heuristic = sl.prefs.heuristic
     pref_sync = (tonumber(sl.prefs.sync_interval) or 1000) / 1000 + SYNC_SLACK
+    read_limits()
 end
 
 ------------------------------------------------------------------------------
@@ -296,7 +322,6 @@ local ARROW = "\226\134\146"     -- U+2192
 local ELLIPSIS = "\226\128\166"  -- U+2026
 local INFO_MAX = 120
 local CTRL = "[\0-\31\127]"   -- control characters (not to be shown in the Info column)
-local MAX_PENDING = 65536        -- longest unterminated frame worth waiting for (TCP)
 
 local B_LBRACK, B_RBRACK, B_PIPE, B_COLON = 91, 93, 124, 58
 local B_CR, B_LF = 13, 10
@@ -401,25 +426,31 @@ local function nstime_of(d)
     return NSTime.new(secs, ns)
 end
 
--- Pinfo's and TreeItem's attributes read through their getters, the C functions wslua's
--- __index finds in the class's metatable (__getters) and calls.  Speed trick (measured): a
--- pinfo.number is a call into C that finds the getter (hashing "__getters") and calls it;
--- PG.number(pinfo) is the second call alone.  Set from the first packet's objects; an
--- attribute without a getter there is read the usual way.
-local PG = { ready = false }
-local function getters_init(pinfo, tree)
-    local function fill(obj, names)
-        local mt = getmetatable(obj)
-        local g = type(mt) == "table" and rawget(mt, "__getters")
-        for _, name in ipairs(names) do
-            local f = type(g) == "table" and rawget(g, name)
-            PG[name] = type(f) == "function" and f or function(o) return o[name] end
+------------------------------------------------------------------------------
+-- Modules: dissector/sharedlink/<name>.lua beside this file, run once each with a token that
+-- tells them apart from Wireshark's own loading of plugin subfolders (see each module's head).
+-- Works the same from a checkout (tshark -X lua_script:dissector/sharedlink.lua) and from the
+-- personal plugin folder (make install copies this file and the folder), 4.0 to 4.6.
+------------------------------------------------------------------------------
+local load_module
+do
+    local here = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
+    local TOKEN = { sharedlink_module = true }
+    local loaded = {}
+    function load_module(name)
+        local m = loaded[name]
+        if m == nil then
+            m = assert(loadfile(here .. "sharedlink/" .. name .. ".lua"))(TOKEN)
+            loaded[name] = m
         end
+        return m
     end
-    fill(pinfo, { "number", "visited", "rel_ts", "src_port", "dst_port", "src", "dst", "cols", "p2p_dir" })
-    fill(tree, { "hidden", "visible" })
-    PG.ready = true
 end
+
+-- wsapi: every use of Wireshark's internals, checked against the documented API
+-- (dissector/sharedlink/wsapi.lua)
+local wsapi = load_module("wsapi")
+local PG = wsapi.PG
 
 ------------------------------------------------------------------------------
 -- Direction state
@@ -429,7 +460,7 @@ end
 -- seen: name -> stamp of the last frame that had it; maxslot: highest positional slot that
 -- ever held a value; first/lastfull: times of the first frame and of the last good full one.
 local function new_dir()
-    return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, seen = {}, maxslot = -1,
+    return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, nkey = {}, seen = {}, maxslot = -1,
         first = nil, lastfull = nil, list = nil }
 end
 
@@ -469,6 +500,8 @@ local function get_dir(pinfo, num, dstb, srcb)
     local d = byaddr[key]
     if not d then
         d = new_dir()
+        if LIM.ndirs >= LIM.max_conversations then d.over = true; return d end   -- kept nowhere
+        LIM.ndirs = LIM.ndirs + 1
         byaddr[key] = d
     end
     return d
@@ -492,6 +525,8 @@ local function get_rev_dir(pinfo, dstb, srcb)
     local d = byaddr[key]
     if not d then
         d = new_dir()
+        if LIM.ndirs >= LIM.max_conversations then d.over = true; return d end   -- kept nowhere
+        LIM.ndirs = LIM.ndirs + 1
         byaddr[key] = d
     end
     return d
@@ -727,9 +762,7 @@ end
 -- (a tree nobody sees) the item is added with its value only.
 -- TreeItem's methods called through this table (speed trick, measured: -V 16 us a frame
 -- less): ti:add(...) looks the method up through wslua's __index, a call into C, each time.
-local TI = { add = TreeItem.add, set_hidden = TreeItem.set_hidden, set_generated = TreeItem.set_generated,
-    set_text = TreeItem.set_text, append_text = TreeItem.append_text,
-    add_proto_expert_info = TreeItem.add_proto_expert_info }
+local TI = wsapi.TI   -- see wsapi (2)
 
 local function add_typed_value(vt, range, vtype, text)
     local field, v
@@ -747,6 +780,972 @@ local function add_typed_value(vt, range, vtype, text)
     end
 end
 
+-- A zero-length range at off, kept inside the tvb.
+local function zrange(tvb, off)
+    local n = tvb:len()
+    if off >= n then off = n - 1 end
+    if off < 0 then off = 0 end
+    return tvb(off, 0)
+end
+
+local function pat_escape(text)
+    return (s_gsub(text, "[%^%$%(%)%%%.%[%]%*%+%-%?]", "%%%0"))
+end
+
+
+------------------------------------------------------------------------------
+-- One frame, in phases: parse (fast paths, else every field), learn the layout for the
+-- fast paths, checksum verdict, kind, state (first pass: compute and store; later passes:
+-- read the record), Info column, tree (compact when nobody sees it, else full).
+------------------------------------------------------------------------------
+-- What parsing found in the current frame, beside the field and variable arrays above
+-- (pr_*: module-level locals, reset by parse_reset; speed trick, measured: fields of a table
+-- cost 3 us a frame more).  n_ord/l_ord: the N/L ordinals (n_text: N's text);
+-- has_e..has_r: an E, M, P, G or R field; nq/nd: Q and D fields; n_pos: positional D fields,
+-- n_empty_d: empty ones; cpos/ctext: the checksum field's start and text; cmd_start: the
+-- first E/M field; ord_text: N? or L? (a list request); fast_sh: the named layout matched,
+-- fast_hit: a fast path parsed the frame, fast_sum: the checksum it computed.
+local pr_n_ord, pr_l_ord, pr_n_text, pr_ord_text
+local pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r
+local pr_nq, pr_nd, pr_n_empty_d, pr_n_pos
+local pr_cpos, pr_ctext, pr_cmd_start
+local pr_fast_sh, pr_fast_hit, pr_fast_sum
+-- pr_odd: parse_general met a field whose tree item carries an expert info (an empty field, an
+-- unknown letter, an ordinal or type that is not a number)
+local pr_odd
+-- pr_limit: why the frame is past a limit its fields alone tell (a "Limit exceeded: ..." text),
+-- else false
+local pr_limit
+
+-- For tests, marks on the Info of the packets a speed trick took: SHAREDLINK_EXPRESS_MARK=1 the
+-- express lane's ("[express] "), SHAREDLINK_FAST_MARK=1 parse_frame's fast paths' ("[fast] ";
+-- fast_hit: one of the packet's frames took one).
+local MARKS = { express = wsapi.env.express_mark and "[express] ", fast = wsapi.env.fast_mark, fast_hit = false }
+
+-- parse_frame and the helpers only it uses (a block: the main chunk may hold 200 locals);
+-- fast_positions serves the express lane too
+local parse_frame, fast_positions
+do
+    -- SHAREDLINK_NO_FAST=1 turns the fast paths off (tests: every frame parsed field by field)
+    local FAST = not wsapi.env.no_fast
+
+    -- The layouts' value classes, written as ranges: a value is any byte but '|', ']', the
+    -- control characters and DEL (VALUE, the phases' fast paths) and also not '[' (XVALUE, the
+    -- express lane: a "[:" there would make the phases split the frame).  Speed trick
+    -- (measured): the matcher tries a class's items in order and a digit is in the first range,
+    -- where the negated forms ([^|%]\0-\31\127]) tried every item, escapes costing most
+    -- (-1.6 and -2.0 thousand instructions a frame, summary pass); XCHECKSUM ends the payload
+    -- after the checksum and at most CR LF.
+    local VALUE = "([ -\\^-{}-~\128-\255]*)"
+    local XVALUE = "([ -Z\\^-{}-~\128-\255]*)"
+    local XCHECKSUM = "|C([^][|]*)%]\r?\n?$"
+    -- a double-typed value in the express lane: a plain decimal number only, which tonumber always
+    -- takes (speed trick, measured: the lane needs no tonumber to know the value has no
+    -- var.badvalue; other doubles, "1e5" or " 2", go to the phases)
+    local XDOUBLE = "([-+]?%d+%.?%d*)"
+    local function parse_reset()
+        nf, nv = 0, 0
+        pr_n_ord, pr_l_ord, pr_n_text = nil, nil, nil
+        pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r = false, false, false, false, false
+        pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = 0, 0, 0, 0
+        pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = nil, nil, nil, false
+        pr_fast_sh, pr_fast_hit, pr_fast_sum = nil, false, nil
+        pr_odd, pr_limit = false, false
+    end
+
+    -- The header: last index of the content, the address bytes (nil when cut short), the index of
+    -- the first field (nil: none), and why the frame is malformed (nil: it is not).
+    local function parse_header(f, fl, terminated)
+        local malformed_msg = nil
+        if not terminated then malformed_msg = "Unterminated frame (no closing ])" end
+        local bodyend = terminated and fl - 1 or fl
+        local dstb, srcb = s_byte(f, 3), s_byte(f, 4)
+        if bodyend < 3 then dstb = nil end
+        if bodyend < 4 then srcb = nil end
+        local p
+        if bodyend < 5 then
+            p = nil
+            if not malformed_msg and not srcb then malformed_msg = "Frame too short for a header" end
+        elseif s_byte(f, 5) == B_PIPE then
+            p = 6
+        else
+            local q = s_find(f, "|", 5, true)
+            p = q and q + 1 or nil
+            if not malformed_msg then malformed_msg = "Expected | after the addresses" end
+        end
+        return bodyend, dstb, srcb, p, malformed_msg
+    end
+
+    -- A fast pattern's captures (the values, then the checksum text) into VV and pr_*; the
+    -- checksum as the layout's fixed sum plus the values' sums (speed trick, measured).  Returns
+    -- the number of values.
+    local function take_fast_values(layout, c1, c2, c3, c4, c5, c6, c7, c8, c9)
+        VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
+        local n = layout.n
+        pr_ctext = VV[n + 1]
+        local sum = layout.fixed
+        for k = 1, n do sum = sum + str_sum(VV[k]) end
+        pr_fast_sum = sum % 256
+        pr_n_ord = layout.ord
+        return n
+    end
+
+    -- The fields' places in a frame a fast path parsed (N, T/Q/D triplets or D fields, C), for
+    -- a shown tree: the layout fixes every field but the values, whose lengths place the rest.
+    function fast_positions(ntext, n, named)
+        FL[1], FS[1], FE[1] = L_N, 6, 6 + #ntext
+        local p, i = 8 + #ntext, 1
+        for k = 1, n do
+            if named then
+                local t, q = VT[k], VN[k]
+                FL[i + 1], FS[i + 1], FE[i + 1] = L_T, p, p + #t
+                p = p + #t + 2
+                FL[i + 2], FS[i + 2], FE[i + 2] = L_Q, p, p + #q
+                p = p + #q + 2
+                VTf[k], VQf[k] = i + 1, i + 2
+                i = i + 2
+            else
+                VTf[k], VQf[k] = 0, 0
+            end
+            local v = VV[k]
+            FL[i + 1], FS[i + 1], FE[i + 1] = L_D, p, p + #v
+            VDf[k] = i + 1
+            p = p + #v + 2
+            i = i + 1
+        end
+        FL[i + 1], FS[i + 1], FE[i + 1] = L_C, p, p + #pr_ctext
+        nf = i + 1
+    end
+
+    -- Fast path: a frame with the layout of one of the node pair's
+    -- recent plain named frames is matched by one anchored pattern.  mru: the pair's layouts,
+    -- most recently matched first (a compressed stream's deltas cycle through a few subsets of
+    -- the variables): a layout that does not fit fails within the first differing name, cheaply.
+    -- Returns true when it parsed the frame.
+    local function parse_fast_named(f, mru, rec_fields)
+        local _, sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
+        for k = 1, #mru do
+            sh = mru[k]
+            _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, sh.pat)
+            if c1 then
+                if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
+                break
+            end
+        end
+        if not c1 then return false end
+        local n = take_fast_values(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
+        local st, sn = sh.T, sh.N
+        local idx = sh.ord
+        for k = 1, n do
+            VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], idx, false
+            idx = idx + 1
+        end
+        nv, pr_nq, pr_nd = n, n, n
+        pr_fast_sh, pr_fast_hit = sh, sh
+        if rec_fields then fast_positions(sh.ntext, n, true) end
+        return true
+    end
+
+    -- The same for the pair's last plain positional frame (N, D fields, C).
+    local function parse_fast_positional(f, ps, rec_fields)
+        local _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, ps.pat)
+        if not c1 then return false end
+        local n = take_fast_values(ps, c1, c2, c3, c4, c5, c6, c7, c8, c9)
+        local idx = ps.ord
+        local n_empty_d = 0
+        for k = 1, n do
+            VT[k], VN[k], VI[k], VR[k] = false, false, idx, false
+            idx = idx + 1
+            if VV[k] == "" then n_empty_d = n_empty_d + 1 end
+        end
+        nv, pr_nd, pr_n_pos, pr_n_empty_d = n, n, n, n_empty_d
+        pr_fast_hit = ps
+        if rec_fields then fast_positions(ps.ntext, n, false) end
+        return true
+    end
+
+    -- The plain path: every field from p on, in one pass (fields recorded with their positions
+    -- when a tree is built), variables gathered as T/Q/R/D come; results in P.
+    -- An N or L field's text as the tree shows it without an expert: a number 0 .. 2^32-1.
+    local function ordinal_ok(text)
+        local n = tonumber(text)
+        return n and n >= 0 and n < 4294967296 and n == floor(n)
+    end
+
+    local function parse_general(f, p, bodyend, rec_fields)
+        local n_ord, l_ord, n_text = nil, nil, nil
+        local has_e, has_m, has_p, has_g, has_r = false, false, false, false, false
+        local nq, nd, n_empty_d, n_pos = 0, 0, 0, 0
+        local pend_t, pend_q, pend_r = false, false, false   -- pending T text, Q/R name
+        local pend_tf, pend_qf = 0, 0
+        local idx = 0
+        local cpos, ctext = nil, nil  -- checksum field start and text
+        local cmd_start = nil         -- first E/M field
+        local ord_text = false        -- N or L with a non-numeric ordinal (N?, L?: a list request)
+        local odd = false             -- a field with an expert info in the tree (see pr_odd)
+        while p and p <= bodyend + 1 do
+            local c = s_byte(f, p)
+            local _, fe, t1, t2, t3
+            if c == L_T and not pend_q then
+                _, fe, t1, t2, t3 = s_find(f, "^T([^]|]*)|Q([^]|]*)|D([^]|]*)", p)
+            end
+            if fe and fe <= bodyend then
+                -- fast path: a complete T/Q/D triplet
+                nv = nv + 1
+                VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = t1, t2, t3, idx, false
+                idx = idx + 1
+                nq, nd = nq + 1, nd + 1
+                if not valid_type(t1) then odd = true end
+                if rec_fields then
+                    local q1 = p + #t1 + 2
+                    local d1 = q1 + #t2 + 2
+                    FL[nf + 1], FS[nf + 1], FE[nf + 1] = L_T, p, q1 - 2
+                    FL[nf + 2], FS[nf + 2], FE[nf + 2] = L_Q, q1, d1 - 2
+                    FL[nf + 3], FS[nf + 3], FE[nf + 3] = L_D, d1, fe
+                    VTf[nv], VQf[nv], VDf[nv] = nf + 1, nf + 2, nf + 3
+                end
+                nf = nf + 3
+                pend_t = false
+                p = fe + 2
+            else
+                _, fe, t1 = s_find(f, "^[^]|]([^]|]*)", p)
+                if fe and fe > bodyend then fe = nil end
+                if not fe then
+                    -- empty field
+                    nf = nf + 1
+                    if rec_fields then FL[nf], FS[nf], FE[nf] = false, p, p - 1 end
+                    odd = true
+                    p = p + 1
+                else
+                    nf = nf + 1
+                    if rec_fields then FL[nf], FS[nf], FE[nf] = c, p, fe end
+                    if c == L_D then
+                        nd = nd + 1
+                        if not (has_e or has_m) then
+                            nv = nv + 1
+                            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, t1, idx, pend_r
+                            VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, nf
+                            if not pend_q then
+                                n_pos = n_pos + 1
+                                if t1 == "" then n_empty_d = n_empty_d + 1 end
+                            end
+                            idx = idx + 1
+                            pend_t, pend_q, pend_r, pend_tf, pend_qf = false, false, false, 0, 0
+                        end
+                    elseif c == L_Q or c == L_R then
+                        if pend_q then
+                            nv = nv + 1
+                            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
+                            VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
+                            idx = idx + 1
+                            pend_t, pend_tf = false, 0
+                        end
+                        pend_q, pend_qf = t1, nf
+                        pend_r = (c == L_R)
+                        if pend_r then has_r = true else nq = nq + 1 end
+                    elseif c == L_T then
+                        if pend_q then
+                            nv = nv + 1
+                            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
+                            VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
+                            idx = idx + 1
+                            pend_q, pend_r, pend_qf = false, false, 0
+                        end
+                        pend_t, pend_tf = t1, nf
+                        if not valid_type(t1) then odd = true end
+                    elseif c == L_N then
+                        if not ordinal_ok(t1) then odd = true end
+                        if #t1 > 9 and not s_find(t1, "[^0-9]") then
+                            odd, pr_limit = true, "Limit exceeded: N has more than 9 digits"
+                        end
+                        if not n_ord then
+                            n_ord = to_ordinal(t1); idx = n_ord; n_text = t1
+                            if not tonumber(t1) then ord_text = true end
+                        end
+                    elseif c == L_L then
+                        if not ordinal_ok(t1) then odd = true end
+                        if #t1 > 9 and not s_find(t1, "[^0-9]") then
+                            odd, pr_limit = true, "Limit exceeded: L has more than 9 digits"
+                        end
+                        if not l_ord then
+                            l_ord = to_ordinal(t1); idx = l_ord
+                            if not tonumber(t1) then ord_text = true end
+                        end
+                    elseif c == L_C and fe == bodyend then
+                        cpos, ctext = p, t1
+                    elseif c == L_E or c == L_M then
+                        if c == L_E then has_e = true else has_m = true end
+                        if not cmd_start then cmd_start = p end
+                    elseif c == L_P then has_p = true
+                    elseif c == L_G then has_g = true
+                    else odd = true   -- an unknown letter, or C before the last field
+                    end
+                    p = fe + 2
+                end
+            end
+        end
+        if pend_q then
+            nv = nv + 1
+            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
+            VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
+        end
+        pr_n_ord, pr_l_ord, pr_n_text = n_ord, l_ord, n_text
+        pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r = has_e, has_m, has_p, has_g, has_r
+        pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = nq, nd, n_empty_d, n_pos
+        pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = cpos, ctext, cmd_start, ord_text
+        pr_odd = odd
+    end
+
+    -- A named layout's code, made once per pattern (kept for 256 patterns): store(vals, from,
+    -- num, v1, ..., vn) stores the values as the direction's last ones (the express lane), and
+    -- info(v1, ..., vn) / dinfo(...) make the Info of a full frame / a delta (the express lane
+    -- and info_frame).  Speed trick (measured): the names and the Info's pieces are constants in
+    -- the code, one concatenation, nothing looked up.
+    local LAYOUT_CODE, layout_code_n = {}, 0
+    local function layout_code(pat, sn, pieces, dpieces)
+        local code = LAYOUT_CODE[pat]
+        if not code then
+            local args, store, info, dinfo = {}, {}, {}, {}
+            for k = 1, #sn do
+                local q = string.format("%q", sn[k])
+                args[k] = "v" .. k
+                store[k] = "vals[" .. q .. "] = v" .. k .. " from[" .. q .. "] = num"
+                info[2 * k - 1], info[2 * k] = string.format("%q", pieces[k]), args[k]
+                dinfo[2 * k - 1], dinfo[2 * k] = string.format("%q", dpieces[k]), args[k]
+            end
+            local vs = t_concat(args, ", ")
+            code = { assert(load("return function(vals, from, num, " .. vs .. ") " .. t_concat(store, " ") ..
+                " end, function(" .. vs .. ") return " .. t_concat(info, " .. ") ..
+                " end, function(" .. vs .. ") return " .. t_concat(dinfo, " .. ") .. " end",
+                "=layout_code", "t", {}))() }
+            if layout_code_n >= 256 then LAYOUT_CODE, layout_code_n = {}, 0 end
+            LAYOUT_CODE[pat], layout_code_n = code, layout_code_n + 1
+        end
+        return code[1], code[2], code[3]
+    end
+
+    -- Remember the layout of a plain named frame (N, T/Q/D triplets, C) for parse_fast_named.
+    local function learn_named_shape(f, shape_key, dstb, srcb)
+        local n_text, cpos, n_pos, ord_text, n_ord = pr_n_text, pr_cpos, pr_n_pos, pr_ord_text, pr_n_ord
+        if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == 3 * nv + 2 and n_pos == 0
+            and s_byte(f, 6) == L_N and not ord_text then
+            local ok = true
+            for k = 1, nv do
+                if not (VT[k] and VN[k] and VV[k] and valid_type(VT[k])) or VR[k] then ok = false; break end
+            end
+            if ok then
+                local parts = { "^%[:", pat_escape(LETTER[dstb] .. LETTER[srcb]), "|N", pat_escape(n_text) }
+                -- the express lane's: the head (up to the first value) as plain text, the rest a
+                -- pattern anchored where the head ends
+                local xparts = {}
+                local st, sn, tv = {}, {}, {}
+                local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
+                local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
+                local first = " " .. s_gsub(VN[1], CTRL, "?") .. "="
+                local pieces, ilen = { head .. first }, #head
+                local fixed = byte_sum(f, 2, cpos)
+                for k = 1, nv do
+                    st[k], sn[k], tv[k] = VT[k], VN[k], valid_type(VT[k])
+                    local tq = "|T" .. pat_escape(VT[k]) .. "|Q" .. pat_escape(VN[k])
+                    parts[#parts + 1] = tq .. "|D" .. VALUE
+                    xparts[#xparts + 1] = (k > 1 and tq .. "|D" or "^") .. (tv[k] == 2 and XDOUBLE or XVALUE)
+                    if k > 1 then pieces[k] = " " .. s_gsub(VN[k], CTRL, "?") .. "=" end
+                    ilen = ilen + #VN[k] + 2
+                    fixed = fixed - str_sum(VV[k])
+                end
+                parts[#parts + 1] = "|C([^]|]*)%]"
+                xparts[#xparts + 1] = XCHECKSUM
+                local mru = shapes[shape_key]
+                if not mru then mru = {}; shapes[shape_key] = mru end
+                local pat = t_concat(parts)
+                -- a layout known already comes first again, the same table: everything in it
+                -- follows from the pattern, and the direction's names_is compares the table's N
+                for k = 1, #mru do
+                    if mru[k].pat == pat then
+                        if k > 1 then table.insert(mru, 1, table.remove(mru, k)) end
+                        return
+                    end
+                end
+                xlen, xlen_n = {}, 0
+                if #mru >= MAX_SHAPES then mru[#mru] = nil end
+                local dpieces = { dhead .. first }
+                for k = 2, nv do dpieces[k] = pieces[k] end
+                local xstore, xinfo, xdinfo = layout_code(pat, sn, pieces, dpieces)
+                table.insert(mru, 1, { pat = pat, n = nv, T = st, N = sn, TV = tv, ord = n_ord, ntext = n_text,
+                    xstore = xstore, xinfo = xinfo, xdinfo = xdinfo,
+                    info_len = ilen, dinfo_len = ilen + #dhead - #head,
+                    fixed = fixed % 256, letters = LETTER[srcb] .. LETTER[dstb],
+                    xhead = "[:" .. LETTER[dstb] .. LETTER[srcb] .. "|N" .. n_text .. "|T" .. VT[1] .. "|Q" .. VN[1]
+                        .. "|D",
+                    xpat = t_concat(xparts), sums = EXPRESS_SUMS[nv] })
+            end
+        end
+    end
+
+    -- Remember the layout of a plain positional frame (N, D fields, C) for parse_fast_positional.
+    local function learn_positional_shape(f, shape_key, dstb, srcb)
+        local n_text, cpos, n_pos, nq, has_r = pr_n_text, pr_cpos, pr_n_pos, pr_nq, pr_has_r
+        local ord_text, n_ord = pr_ord_text, pr_n_ord
+        if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == nv + 2 and n_pos == nv and nq == 0
+            and not has_r and s_byte(f, 6) == L_N and not ord_text then
+            local ok = true
+            for k = 1, nv do
+                if VT[k] or VN[k] or not VV[k] then ok = false; break end
+            end
+            if ok then
+                local pat = "^%[:" .. pat_escape(LETTER[dstb] .. LETTER[srcb]) .. "|N" .. pat_escape(n_text) ..
+                    s_rep("|D" .. VALUE, nv) .. "|C([^]|]*)%]"
+                local ps = pshapes[shape_key]
+                if not ps or ps.pat ~= pat then
+                    local fixed = byte_sum(f, 2, cpos)
+                    for k = 1, nv do fixed = fixed - str_sum(VV[k]) end
+                    pshapes[shape_key] = { pat = pat, n = nv, ord = n_ord, ntext = n_text, fixed = fixed % 256 }
+                end
+            end
+        end
+    end
+
+    -- Remember the layout of a bare frame (N0 and C only: every variable carried) for the
+    -- express lane alone (see express).
+    local function bare_sums(ctext) return 0, 0, ctext end
+    local function bare_store() end
+    local function learn_bare_shape(f, shape_key, dstb, srcb)
+        local n_text, cpos = pr_n_text, pr_cpos
+        if nv == 0 and nf == 2 and n_text and cpos and pr_n_ord == 0 and not pr_ord_text and s_byte(f, 6) == L_N then
+            local xhead = "[:" .. LETTER[dstb] .. LETTER[srcb] .. "|N" .. n_text
+            local bs = bshapes[shape_key]
+            if not bs or bs.xhead ~= xhead then
+                xlen, xlen_n = {}, 0
+                local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
+                bshapes[shape_key] = { xhead = xhead, xpat = "^" .. XCHECKSUM, n = 0, N = {}, ord = 0, ntext = n_text,
+                    fixed = byte_sum(f, 2, cpos) % 256,
+                    letters = LETTER[srcb] .. LETTER[dstb], info_len = 0, dinfo_len = #dhead,
+                    sums = bare_sums, xstore = bare_store, xdinfo = function() return dhead end, bare = true }
+            end
+        end
+    end
+
+    -- Parse a frame: header, then a fast path when one fits, else every field.  Returns the last
+    -- index of the content, the address bytes and why it is malformed (nil: it is not).
+    function parse_frame(f, fl, terminated, vis, rec_fields)
+        parse_reset()
+        local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)
+        local shape_key = nil
+        if p == 6 and not malformed_msg and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P then
+            shape_key = dstb * 256 + srcb
+            -- a shown tree (vis) needs the fields' places too
+            local mru, ps = FAST and shapes[shape_key], FAST and pshapes[shape_key]
+            if (mru and parse_fast_named(f, mru, vis)) or (ps and parse_fast_positional(f, ps, vis)) then
+                if MARKS.fast then MARKS.fast_hit = true end
+                return bodyend, dstb, srcb, malformed_msg
+            end
+        end
+        if p then parse_general(f, p, bodyend, rec_fields) end
+        -- positional slots and declared entries at or past max_slots (their state is dropped)
+        if nv > 0 and VI[nv] >= LIM.max_slots and not pr_limit then
+            pr_odd, pr_limit = true, "Limit exceeded: a slot or ordinal at or past " .. LIM.max_slots .. " (max_slots)"
+        end
+        -- layouts are learnt on a miss (a frame the fast paths did not take), from a frame whose
+        -- fields carry no expert info
+        if shape_key and not pr_odd then
+            learn_named_shape(f, shape_key, dstb, srcb)
+            learn_positional_shape(f, shape_key, dstb, srcb)
+            learn_bare_shape(f, shape_key, dstb, srcb)
+        end
+        return bodyend, dstb, srcb, malformed_msg
+    end
+end
+
+-- Checksum verdict, before the state (a frame with a bad checksum changes no state): the
+-- value of the checksum text (nil: not hex), the calculated value, the status (1 good, 0 bad,
+-- 2 unverified; nil: no C field).
+local function checksum_verdict(f, bodyend)
+    local ctext = pr_ctext
+    if pr_fast_hit then pr_cpos = bodyend - #ctext end   -- the fast patterns end in |C<ctext>]
+    local cpos = pr_cpos
+    if not cpos then return nil, nil, nil end
+    local cs_val = checksum_value(ctext)
+    if not pref_validate then return cs_val, nil, 2 end
+    local cs_calc = pr_fast_sum or byte_sum(f, 2, cpos) % 256
+    return cs_val, cs_calc, (cs_val == cs_calc) and 1 or 0
+end
+
+-- The kind the fields alone tell; a data frame (full or delta, told by the state) gives nil, true.
+local function kind_of_fields(malformed_msg)
+    if malformed_msg then return "malformed", false end
+    if pr_has_e or pr_has_m then return "command", false end
+    if pr_has_p then return "ping", false end
+    if pr_has_g then return "pong", false end
+    if pr_has_r then return "reply", false end
+    local nd, nq, ord_text = pr_nd, pr_nq, pr_ord_text
+    if nd == 0 and nq > 0 and (pr_l_ord or pr_n_ord) and not ord_text then return "declaration", false end
+    if nd == 0 and (nq > 0 or ord_text) then return "query", false end
+    if nd > 0 or pr_n_ord then return nil, true end
+    return "other", false
+end
+
+-- The journal: linear state for a direction with many names.  A direction with up to
+-- JOURNAL_NAMES names stores, for each frame that leaves some out, their values in the frame's
+-- record (cheap, few objects: see carried_store).  Past that, a copy per frame would grow with
+-- the names (quadratic), so the direction keeps instead, for each name, the values it took and
+-- the frames they came from (d.hist[name] = { key, value, key, value, ... }, a frame's key
+-- num * 2^20 + its offset in the packet: frames in capture order) and d.nkey, the key of the
+-- frame each name was first sent in (in the order of d.names); a later pass finds what a frame
+-- carried from them.  d.jkey: the key of the first frame judged by the journal.
+local JOURNAL_NAMES = 32
+local journal
+do
+    local function fkey(num, sk) return num * 1048576 + sk % 1048576 end
+
+    local function start(d, key)
+        local hist, vals, from = {}, d.vals, d.from
+        for _, name in ipairs(d.names) do
+            hist[name] = { (from[name] or 0) * 1048576, vals[name] or false }
+        end
+        d.hist, d.jkey = hist, key
+        LIM.journal = true
+        return hist
+    end
+
+    local function set(hist, name, key, val)
+        local h = hist[name]
+        if not h then h = {}; hist[name] = h end
+        local n = #h
+        if n > 0 and h[n - 1] == key then h[n] = val else h[n + 1], h[n + 2] = key, val end
+    end
+
+    -- the value name had before the frame of key (and its frame), false, false when none
+    local function get(h, key)
+        if not h then return false, false end
+        local lo, hi, found = 1, #h / 2, nil
+        while lo <= hi do
+            local mid = floor((lo + hi) / 2)
+            if h[2 * mid - 1] < key then found = mid; lo = mid + 1 else hi = mid - 1 end
+        end
+        if not found then return false, false end
+        return h[2 * found], floor(h[2 * found - 1] / 1048576)
+    end
+
+    -- how many names the direction knew at the frame of key (first sent at or before it)
+    local function known_at(d, key)
+        local nk = d.nkey
+        local lo, hi, found = 1, #nk, 0
+        while lo <= hi do
+            local mid = floor((lo + hi) / 2)
+            if nk[mid] <= key then found = mid; lo = mid + 1 else hi = mid - 1 end
+        end
+        return found
+    end
+
+    -- A later pass, a named data frame the journal judged: the number of names it carried, and
+    -- with fill, the names in MISS (name, value, frame, ...; nm entries) as the first pass had them.
+    local PRESENT, pstamp = {}, 0
+    local function missing(d, key, fill)
+        pstamp = pstamp + 1
+        local npos, nk, present = d.npos, d.nkey, 0
+        for v = 1, nv do
+            local name = VN[v]
+            if name and VV[v] and PRESENT[name] ~= pstamp then
+                local i = npos[name]
+                if i and nk[i + 1] <= key then present = present + 1 end
+                PRESENT[name] = pstamp
+            end
+        end
+        local known = known_at(d, key)
+        local nm = 0
+        if fill then
+            local names, hist = d.names, d.hist
+            for k = 1, known do
+                local name = names[k]
+                if PRESENT[name] ~= pstamp then
+                    local cv, cf = get(hist[name], key)
+                    MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, cv, cf
+                    nm = nm + 3
+                end
+            end
+        end
+        return known - present, nm
+    end
+    journal = { key = fkey, start = start, set = set, missing = missing }
+end
+
+-- state_first_pass and its helpers (a block, as parse_frame)
+local state_first_pass
+do
+    -- State, first pass, a data frame: its values go into the direction's state (good checksum),
+    -- what it leaves out is gathered in CARRY (empty D fields: value, frame, ...; ne entries) and
+    -- MISS (named variables: name, value, frame, ...; nm entries).  Returns whether it is full,
+    -- ne, nm, the number of named variables carried, and full_local (the verdict without state).
+    local function data_values(d, list, num, sk, good, full_local, has_tree)
+        local fast_sh, n_pos, nd, n_ord = pr_fast_sh, pr_n_pos, pr_nd, pr_n_ord
+        local ne, nm, miss_n = 0, 0, 0
+        local full
+        local hist, key = d.hist, nil
+        if hist or #d.names > JOURNAL_NAMES then
+            key = journal.key(num, sk)
+            if not hist and not d.over then hist = journal.start(d, key) end
+        end
+        if good and fast_sh and d.names_is == fast_sh.N and not hist then
+            -- same layout as the known variable set: nothing can be missing
+            local vals, from = d.vals, d.from
+            for v = 1, nv do
+                local name = VN[v]
+                vals[name] = VV[v]
+                from[name] = num
+            end
+            full = full_local
+        else
+            local vals, from, seen = d.vals, d.from, d.seen
+            local names = d.names
+            stamp_ctr = stamp_ctr + 1
+            local stamp = stamp_ctr
+            local required_missing = false   -- a slot that held a value is empty here
+            local maxslot = -1
+            local present = 0                -- known names present (distinct)
+            local max_slots = LIM.max_slots
+            ne = 0
+            for v = 1, nv do
+                local val = VV[v]
+                if val then
+                    local name = VN[v]
+                    if name then
+                        local st = seen[name]
+                        if not st and good then
+                            if #names < LIM.max_names then
+                                names[#names + 1] = name
+                                d.npos[name] = #names - 1
+                                d.nfirst[name] = num
+                                d.nkey[#names] = key or journal.key(num, sk)
+                                d.names_is = nil
+                                st = 0
+                            else
+                                -- a new name past max_names: no state
+                                LIM.hit = "Limit exceeded: more than " .. LIM.max_names ..
+                                    " names in this direction (max_names)"
+                            end
+                        end
+                        if st then
+                            if good then
+                                vals[name] = val
+                                from[name] = num
+                                if hist then journal.set(hist, name, key, val) end
+                            end
+                            if st ~= stamp then present = present + 1; seen[name] = stamp end
+                        end
+                    elseif VI[v] < max_slots then
+                        local slot = VI[v]
+                        name = list[slot + 1] or ("#" .. slot)
+                        if slot > maxslot then maxslot = slot end
+                        if val == "" then
+                            local cv = vals[name]
+                            if cv then required_missing = true end
+                            CARRY[ne + 1] = cv or false
+                            CARRY[ne + 2] = from[name] or false
+                            ne = ne + 2
+                        elseif good then
+                            vals[name] = val
+                            from[name] = num
+                            if slot > d.maxslot then d.maxslot = slot end
+                        end
+                    end
+                end
+            end
+            -- positional: required slots past the frame's last D
+            if n_pos > 0 then
+                for slot = maxslot + 1, d.maxslot do
+                    if vals[list[slot + 1] or ("#" .. slot)] then required_missing = true; break end
+                end
+            end
+            -- named: known variables missing from this frame (a journal: counted; listed only
+            -- for a tree, kept in no record)
+            if n_pos == 0 and #names > 0 and hist then
+                miss_n = #names - present
+                if has_tree then
+                    for k = 1, #names do
+                        local name = names[k]
+                        if seen[name] ~= stamp then
+                            MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
+                            nm = nm + 3
+                        end
+                    end
+                end
+            elseif n_pos == 0 and #names > 0 then
+                for k = 1, #names do
+                    local name = names[k]
+                    if seen[name] ~= stamp then
+                        MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
+                        nm = nm + 3
+                        miss_n = miss_n + 1
+                    end
+                end
+            end
+            if fast_sh and good and miss_n == 0 and #names == fast_sh.n then d.names_is = fast_sh.N end
+            full = nd > 0 and (n_ord == nil or n_ord == 0) and not required_missing and miss_n == 0
+            if n_pos == 0 then full_local = full_local and miss_n == 0 end
+        end
+        return full, ne, nm, miss_n, full_local, hist ~= nil
+    end
+
+    -- State, first pass, a data frame: the sync clock, and the record later passes read (late
+    -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
+    local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
+        local rec = LIM.hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
+        local kind
+        local now = pinfo.rel_ts
+        local first = d.first
+        if not first then first = now; d.first = now end
+        if full then
+            if good then d.lastfull = now end
+        else
+            local age = now - (d.lastfull or first)
+            if age > pref_sync then
+                rec = rec or get_rec(num, sk, true)
+                rec.late = age
+            end
+        end
+        local kch = full and "f" or "d"
+        -- carried values of empty D fields: a packed text record unless the
+        -- frame has a table record anyway
+        if ne > 0 or nm > 0 then
+            if rec or not carried_store(num, sk, ne, nm, kch) then
+                rec = rec or get_rec(num, sk, true)
+                for k = 1, ne do rec[k] = CARRY[k] end
+                if nm > 0 then
+                    local miss = {}
+                    for k = 1, nm do miss[k] = MISS[k] end
+                    rec.miss = miss
+                end
+            end
+        elseif full ~= full_local then
+            rec = rec or get_rec(num, sk, true)
+        end
+        if rec then rec.kind = kch end
+        kind = full and "full" or "delta"
+        return rec, kind
+    end
+
+    -- State, first pass, a declaration with a good checksum: the list it declares.
+    local function learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
+        local l_ord, n_ord = pr_l_ord, pr_n_ord
+        local dd, rl
+        if l_ord then
+            -- the sender's inbound list = the list used from dst to src
+            dd = get_rev_dir(pinfo, dstb, srcb)
+            rl = dst .. src
+        else
+            dd = get_dir(pinfo, num, dstb, srcb)
+            rl = letters
+        end
+        local base_list = dd.list or pair_lists[rl] or pref_list
+        local newlist = {}
+        local types = {}
+        newlist.t = types
+        local start = l_ord or n_ord or 0
+        for k = 1, math.min(start, #base_list) do
+            newlist[k] = base_list[k]
+            types[k] = base_list.t and base_list.t[k]
+        end
+        local maxi = #newlist
+        for v = 1, nv do
+            if VN[v] and VI[v] < LIM.max_slots then
+                newlist[VI[v] + 1] = VN[v]
+                types[VI[v] + 1] = VT[v] and valid_type(VT[v]) or nil
+                if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
+            end
+        end
+        for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
+        dd.list = newlist
+        pair_lists[rl] = newlist
+    end
+
+    -- State, first pass: a query or declaration waits for its reply; a reply finds its query.
+    local function link_query_reply(pinfo, num, sk, kind, dst, src, rec)
+        local pa, pb = pinfo.src_port, pinfo.dst_port
+        if pa > pb then pa, pb = pb, pa end
+        local ports = ":" .. pa .. "-" .. pb
+        for v = 1, nv do
+            local name = VN[v]
+            if name then
+                if VR[v] then
+                    rec = rec or get_rec(num, sk, true)
+                    local qkey = dst .. ">" .. src .. ":" .. name .. ports
+                    local qrec = pending_q[qkey]
+                    if qrec then
+                        pending_q[qkey] = nil
+                        local ck = dst .. ">" .. src .. ports
+                        LIM.npend[ck] = (LIM.npend[ck] or 1) - 1
+                        qrec.resp_in = qrec.resp_in or {}
+                        qrec.resp_in[name] = num
+                        rec.resp_to = rec.resp_to or {}
+                        rec.resp_to[name] = qrec.num
+                        rec.rt = rec.rt or {}
+                        rec.rt[name] = pinfo.rel_ts - qrec.t
+                    else
+                        rec.unmatched = rec.unmatched or {}
+                        rec.unmatched[name] = true
+                    end
+                elseif kind ~= "reply" then
+                    rec = rec or get_rec(num, sk, true)
+                    rec.num = num
+                    rec.t = pinfo.rel_ts
+                    local qkey, ck = src .. ">" .. dst .. ":" .. name .. ports, src .. ">" .. dst .. ports
+                    if pending_q[qkey] then
+                        pending_q[qkey] = rec
+                    elseif (LIM.npend[ck] or 0) < LIM.max_pending then
+                        pending_q[qkey] = rec
+                        LIM.npend[ck] = (LIM.npend[ck] or 0) + 1
+                    else
+                        LIM.hit = "Limit exceeded: more than " .. LIM.max_pending ..
+                            " unanswered queries in this conversation (max_pending)"
+                    end
+                end
+            end
+        end
+        return rec
+    end
+
+    -- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
+    -- direction state (data frames), the named variables carried, and ne/nm (see data_values).
+    function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, addrs_ok, full_local,
+                              has_tree)
+        local rec, list, d = nil, pref_list, nil
+        local miss_n, ne, nm = 0, 0, 0
+        LIM.hit = false
+        local letters = src .. dst
+        if (is_data or kind == "malformed") and addrs_ok then
+            d = get_dir(pinfo, num, dstb, srcb)
+            if d.over then
+                LIM.hit = "Limit exceeded: more than " .. LIM.max_conversations .. " directions with state" ..
+                    " (max_conversations); this one keeps none"
+            end
+            list = d.list or pair_lists[letters] or pref_list
+            -- remember when the list in use changes (read back on later passes)
+            if list ~= (d.used_list or pref_list) then
+                local h = d.uhist
+                if not h then h = {}; d.uhist = h end
+                h[#h + 1] = num
+                h[#h + 1] = sk
+                h[#h + 1] = list
+                d.used_list = list
+            end
+            if is_data then
+                local full, journaled
+                full, ne, nm, miss_n, full_local, journaled = data_values(d, list, num, sk, good, full_local, has_tree)
+                -- a journal's carried names go in no record (see journal)
+                rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm)
+            end
+        elseif kind == "declaration" and addrs_ok and good then
+            learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
+        end
+        if (kind == "query" or kind == "reply" or kind == "declaration") and addrs_ok and good then
+            rec = link_query_reply(pinfo, num, sk, kind, dst, src, rec)
+        end
+        if LIM.hit then
+            rec = rec or get_rec(num, sk, true)
+            rec.limit = LIM.hit
+        end
+        return kind, rec, list, d, miss_n, ne, nm
+    end
+end
+
+-- The list in use at frame (num, sk) on the first pass, from the direction's history of changes.
+-- The entries (num, sk, list) are in capture order: a binary search (linear time over a pass).
+local function list_at(d, num, sk)
+    local h = d.uhist
+    if not h then return pref_list end
+    local lo, hi, found = 1, #h / 3, nil
+    while lo <= hi do
+        local mid = floor((lo + hi) / 2)
+        local hn = h[3 * mid - 2]
+        if hn < num or (hn == num and h[3 * mid - 1] <= sk) then found = mid; lo = mid + 1 else hi = mid - 1 end
+    end
+    return found and h[3 * found] or pref_list
+end
+
+-- State on a later pass: the record, and the list in use at this frame on the first pass
+-- (looked up only where it names something: positional values, or a tree to show indexes).
+local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local, has_tree)
+    local rec = get_rec(num, sk, false)
+    local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
+    local nm = 0
+    local list, d = pref_list, nil
+    if (is_data or kind == "malformed") and addrs_ok and (has_tree or pr_n_pos > 0 or LIM.journal) then
+        d = get_dir(pinfo, num, dstb, srcb)
+        list = list_at(d, num, sk)
+        -- a named frame the journal judged: what it carried, from the journal
+        if is_data and d.jkey and pr_n_pos == 0 then
+            local key = journal.key(num, sk)
+            if key >= d.jkey then miss_n, nm = journal.missing(d, key, has_tree) end
+        end
+    end
+    if is_data then
+        if rec and rec.kind then
+            kind = rec.kind == "f" and "full" or "delta"
+        else
+            kind = (full_local and miss_n == 0) and "full" or "delta"
+        end
+    end
+    return kind, rec, list, d, miss_n, nm
+end
+
+-- Info column: this frame's piece.
+local function info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
+    local fast_sh, n_empty_d, l_ord, n_ord = pr_fast_sh, pr_n_empty_d, pr_l_ord, pr_n_ord
+    local cmd_start, cpos = pr_cmd_start, pr_cpos
+    if frames_in_info > 0 then
+        if info_full then frames_dropped = frames_dropped + 1 else info_add(" ; ") end
+    end
+    frames_in_info = frames_in_info + 1
+    local info_done = false
+    if fast_sh and frames_in_info == 1 and (kind == "full" or kind == "delta") and not (rec and rec.late) then
+        -- same text as the pieces below, in one concatenation (speed trick, measured)
+        local full = kind == "full"
+        local total = full and fast_sh.info_len or fast_sh.dinfo_len
+        for k = 1, nv do total = total + #VV[k] end
+        local tail = (miss_n > 0) and (" (+" .. miss_n .. " carried)") or nil
+        if tail then total = total + #tail end
+        if total <= INFO_MAX then
+            ninfo, info_len = 1, total
+            INFO[1] = (full and fast_sh.xinfo or fast_sh.xdinfo)(VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7],
+                VV[8])
+            if tail then INFO[1] = INFO[1] .. tail end
+            info_done = true
+        end
+    end
+    if not info_done then info_clean = false end
+    if not info_full and not info_done then
+        info_add(src .. ARROW .. dst .. " " .. kind)
+        if is_data or kind == "reply" or kind == "malformed" then
+            for v = 1, nv do
+                if info_full then break end
+                local val = VV[v]
+                if val and (val ~= "" or VN[v]) then
+                    local name = VN[v]
+                    if not name then name = list[VI[v] + 1] or ("#" .. VI[v]) end
+                    info_add(" " .. name .. "=" .. val)
+                end
+            end
+            local nc = n_empty_d + miss_n
+            if nc > 0 then info_add(" (+" .. nc .. " carried)") end
+        elseif kind == "query" then
+            for v = 1, nv do
+                if VN[v] then info_add(" " .. VN[v]) end
+            end
+        elseif kind == "declaration" then
+            info_add(l_ord and (" L" .. l_ord) or (" N" .. (n_ord or 0)))
+            for v = 1, nv do
+                if VN[v] then info_add(" " .. VN[v]) end
+            end
+        elseif kind == "command" and cmd_start then
+            local cmd = s_gsub(s_sub(f, cmd_start, cpos and cpos - 2 or bodyend), "|D?", " ")
+            info_add(" " .. cmd)
+        end
+        if rec and rec.late then info_add(" [sync late]") end
+    end
+end
+
+local tree_compact_frame
+do
 -- Fields of a frame parsed by a fast path, for a tree nobody sees (a display filter,
 -- coloring rules, a tap): the fields of the full tree with their values, without byte
 -- ranges, labels or flags, which only a visible tree shows.  Speed trick (measured: each
@@ -773,7 +1772,7 @@ end
 local REF = {}      -- field -> referenced (nil: not known yet)
 local VAR_FIELDS = { hf.var, hf.ftype, hf.var_name, hf.var_index, hf.var_value, hf.var_double,
     hf.var_long, hf.var_string, hf.var_carried, hf.var_carried_from }
-local CACHE_REFS = not (gui_enabled and gui_enabled()) and not os.getenv("SHAREDLINK_PROBE_EACH_FRAME")
+local CACHE_REFS = wsapi.cache_refs
 local ref_num, ref_visited = -1, nil   -- the frame and pass the cache was last used in
 local UNKNOWN = {}  -- "the parent's text is not read yet"
 
@@ -786,7 +1785,7 @@ local function ref_add(parent, ptext, field, value)
     if value == nil then it = TI.add(parent, field) else it = TI.add(parent, field, value) end
     if r == nil then
         if ptext == UNKNOWN then ptext = parent.text end
-        r = it.text ~= ptext
+        r = wsapi.referenced(it, ptext)
         REF[field] = r
     end
     return r and it or nil
@@ -796,7 +1795,7 @@ end
 -- Returns the text ref_add compares ti's children with.
 local function ref_start(ti, num, visited)
     if CACHE_REFS then
-        if visited ~= ref_visited or num < ref_num then
+        if visited ~= ref_visited or (num ~= ref_num and num ~= ref_num + 1) then
             for k in pairs(REF) do REF[k] = nil end
             ref_visited = visited
         end
@@ -896,794 +1895,9 @@ local function tree_compact(ti, ttext, dstb, srcb, kind, n_ord, nvars, list, d, 
     end
 end
 
--- A zero-length range at off, kept inside the tvb.
-local function zrange(tvb, off)
-    local n = tvb:len()
-    if off >= n then off = n - 1 end
-    if off < 0 then off = 0 end
-    return tvb(off, 0)
-end
-
-local function pat_escape(text)
-    return (s_gsub(text, "[%^%$%(%)%%%.%[%]%*%+%-%?]", "%%%0"))
-end
-
-
-------------------------------------------------------------------------------
--- One frame, in phases: parse (fast paths, else every field), learn the layout for the
--- fast paths, checksum verdict, kind, state (first pass: compute and store; later passes:
--- read the record), Info column, tree (compact when nobody sees it, else full).
-------------------------------------------------------------------------------
--- What parsing found in the current frame, beside the field and variable arrays above
--- (pr_*: module-level locals, reset by parse_reset; speed trick, measured: fields of a table
--- cost 3 us a frame more).  n_ord/l_ord: the N/L ordinals (n_text: N's text);
--- has_e..has_r: an E, M, P, G or R field; nq/nd: Q and D fields; n_pos: positional D fields,
--- n_empty_d: empty ones; cpos/ctext: the checksum field's start and text; cmd_start: the
--- first E/M field; ord_text: N? or L? (a list request); fast_sh: the named layout matched,
--- fast_hit: a fast path parsed the frame, fast_sum: the checksum it computed.
-local pr_n_ord, pr_l_ord, pr_n_text, pr_ord_text
-local pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r
-local pr_nq, pr_nd, pr_n_empty_d, pr_n_pos
-local pr_cpos, pr_ctext, pr_cmd_start
-local pr_fast_sh, pr_fast_hit, pr_fast_sum
-
--- For tests, marks on the Info of the packets a speed trick took: SHAREDLINK_EXPRESS_MARK=1 the
--- express lane's ("[express] "), SHAREDLINK_FAST_MARK=1 parse_frame's fast paths' ("[fast] ";
--- fast_hit: one of the packet's frames took one).
-local MARKS = { express = os.getenv("SHAREDLINK_EXPRESS_MARK") == "1" and "[express] ",
-    fast = os.getenv("SHAREDLINK_FAST_MARK") == "1", fast_hit = false }
-
--- parse_frame and the helpers only it uses (a block: the main chunk may hold 200 locals);
--- fast_positions serves the express lane too
-local parse_frame, fast_positions
-do
-    -- SHAREDLINK_NO_FAST=1 turns the fast paths off (tests: every frame parsed field by field)
-    local FAST = os.getenv("SHAREDLINK_NO_FAST") ~= "1"
-
-    -- The layouts' value classes, written as ranges: a value is any byte but '|', ']', the
-    -- control characters and DEL (VALUE, the phases' fast paths) and also not '[' (XVALUE, the
-    -- express lane: a "[:" there would make the phases split the frame).  Speed trick
-    -- (measured): the matcher tries a class's items in order and a digit is in the first range,
-    -- where the negated forms ([^|%]\0-\31\127]) tried every item, escapes costing most
-    -- (-1.6 and -2.0 thousand instructions a frame, summary pass); XCHECKSUM ends the payload
-    -- after the checksum and at most CR LF.
-    local VALUE = "([ -\\^-{}-~\128-\255]*)"
-    local XVALUE = "([ -Z\\^-{}-~\128-\255]*)"
-    local XCHECKSUM = "|C([^][|]*)%]\r?\n?$"
-    local function parse_reset()
-        nf, nv = 0, 0
-        pr_n_ord, pr_l_ord, pr_n_text = nil, nil, nil
-        pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r = false, false, false, false, false
-        pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = 0, 0, 0, 0
-        pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = nil, nil, nil, false
-        pr_fast_sh, pr_fast_hit, pr_fast_sum = nil, false, nil
-    end
-
-    -- The header: last index of the content, the address bytes (nil when cut short), the index of
-    -- the first field (nil: none), and why the frame is malformed (nil: it is not).
-    local function parse_header(f, fl, terminated)
-        local malformed_msg = nil
-        if not terminated then malformed_msg = "Unterminated frame (no closing ])" end
-        local bodyend = terminated and fl - 1 or fl
-        local dstb, srcb = s_byte(f, 3), s_byte(f, 4)
-        if bodyend < 3 then dstb = nil end
-        if bodyend < 4 then srcb = nil end
-        local p
-        if bodyend < 5 then
-            p = nil
-            if not malformed_msg and not srcb then malformed_msg = "Frame too short for a header" end
-        elseif s_byte(f, 5) == B_PIPE then
-            p = 6
-        else
-            local q = s_find(f, "|", 5, true)
-            p = q and q + 1 or nil
-            if not malformed_msg then malformed_msg = "Expected | after the addresses" end
-        end
-        return bodyend, dstb, srcb, p, malformed_msg
-    end
-
-    -- A fast pattern's captures (the values, then the checksum text) into VV and pr_*; the
-    -- checksum as the layout's fixed sum plus the values' sums (speed trick, measured).  Returns
-    -- the number of values.
-    local function take_fast_values(layout, c1, c2, c3, c4, c5, c6, c7, c8, c9)
-        VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
-        local n = layout.n
-        pr_ctext = VV[n + 1]
-        local sum = layout.fixed
-        for k = 1, n do sum = sum + str_sum(VV[k]) end
-        pr_fast_sum = sum % 256
-        pr_n_ord = layout.ord
-        return n
-    end
-
-    -- The fields' places in a frame a fast path parsed (N, T/Q/D triplets or D fields, C), for
-    -- a shown tree: the layout fixes every field but the values, whose lengths place the rest.
-    function fast_positions(ntext, n, named)
-        FL[1], FS[1], FE[1] = L_N, 6, 6 + #ntext
-        local p, i = 8 + #ntext, 1
-        for k = 1, n do
-            if named then
-                local t, q = VT[k], VN[k]
-                FL[i + 1], FS[i + 1], FE[i + 1] = L_T, p, p + #t
-                p = p + #t + 2
-                FL[i + 2], FS[i + 2], FE[i + 2] = L_Q, p, p + #q
-                p = p + #q + 2
-                VTf[k], VQf[k] = i + 1, i + 2
-                i = i + 2
-            else
-                VTf[k], VQf[k] = 0, 0
-            end
-            local v = VV[k]
-            FL[i + 1], FS[i + 1], FE[i + 1] = L_D, p, p + #v
-            VDf[k] = i + 1
-            p = p + #v + 2
-            i = i + 1
-        end
-        FL[i + 1], FS[i + 1], FE[i + 1] = L_C, p, p + #pr_ctext
-        nf = i + 1
-    end
-
-    -- Fast path: a frame with the layout of one of the node pair's
-    -- recent plain named frames is matched by one anchored pattern.  mru: the pair's layouts,
-    -- most recently matched first (a compressed stream's deltas cycle through a few subsets of
-    -- the variables): a layout that does not fit fails within the first differing name, cheaply.
-    -- Returns true when it parsed the frame.
-    local function parse_fast_named(f, mru, rec_fields)
-        local _, sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
-        for k = 1, #mru do
-            sh = mru[k]
-            _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, sh.pat)
-            if c1 then
-                if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
-                break
-            end
-        end
-        if not c1 then return false end
-        local n = take_fast_values(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
-        local st, sn = sh.T, sh.N
-        local idx = sh.ord
-        for k = 1, n do
-            VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], idx, false
-            idx = idx + 1
-        end
-        nv, pr_nq, pr_nd = n, n, n
-        pr_fast_sh, pr_fast_hit = sh, true
-        if rec_fields then fast_positions(sh.ntext, n, true) end
-        return true
-    end
-
-    -- The same for the pair's last plain positional frame (N, D fields, C).
-    local function parse_fast_positional(f, ps, rec_fields)
-        local _, _, c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_find(f, ps.pat)
-        if not c1 then return false end
-        local n = take_fast_values(ps, c1, c2, c3, c4, c5, c6, c7, c8, c9)
-        local idx = ps.ord
-        local n_empty_d = 0
-        for k = 1, n do
-            VT[k], VN[k], VI[k], VR[k] = false, false, idx, false
-            idx = idx + 1
-            if VV[k] == "" then n_empty_d = n_empty_d + 1 end
-        end
-        nv, pr_nd, pr_n_pos, pr_n_empty_d = n, n, n, n_empty_d
-        pr_fast_hit = true
-        if rec_fields then fast_positions(ps.ntext, n, false) end
-        return true
-    end
-
-    -- The plain path: every field from p on, in one pass (fields recorded with their positions
-    -- when a tree is built), variables gathered as T/Q/R/D come; results in P.
-    local function parse_general(f, p, bodyend, rec_fields)
-        local n_ord, l_ord, n_text = nil, nil, nil
-        local has_e, has_m, has_p, has_g, has_r = false, false, false, false, false
-        local nq, nd, n_empty_d, n_pos = 0, 0, 0, 0
-        local pend_t, pend_q, pend_r = false, false, false   -- pending T text, Q/R name
-        local pend_tf, pend_qf = 0, 0
-        local idx = 0
-        local cpos, ctext = nil, nil  -- checksum field start and text
-        local cmd_start = nil         -- first E/M field
-        local ord_text = false        -- N or L with a non-numeric ordinal (N?, L?: a list request)
-        while p and p <= bodyend + 1 do
-            local c = s_byte(f, p)
-            local _, fe, t1, t2, t3
-            if c == L_T and not pend_q then
-                _, fe, t1, t2, t3 = s_find(f, "^T([^]|]*)|Q([^]|]*)|D([^]|]*)", p)
-            end
-            if fe and fe <= bodyend then
-                -- fast path: a complete T/Q/D triplet
-                nv = nv + 1
-                VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = t1, t2, t3, idx, false
-                idx = idx + 1
-                nq, nd = nq + 1, nd + 1
-                if rec_fields then
-                    local q1 = p + #t1 + 2
-                    local d1 = q1 + #t2 + 2
-                    FL[nf + 1], FS[nf + 1], FE[nf + 1] = L_T, p, q1 - 2
-                    FL[nf + 2], FS[nf + 2], FE[nf + 2] = L_Q, q1, d1 - 2
-                    FL[nf + 3], FS[nf + 3], FE[nf + 3] = L_D, d1, fe
-                    VTf[nv], VQf[nv], VDf[nv] = nf + 1, nf + 2, nf + 3
-                end
-                nf = nf + 3
-                pend_t = false
-                p = fe + 2
-            else
-                _, fe, t1 = s_find(f, "^[^]|]([^]|]*)", p)
-                if fe and fe > bodyend then fe = nil end
-                if not fe then
-                    -- empty field
-                    nf = nf + 1
-                    if rec_fields then FL[nf], FS[nf], FE[nf] = false, p, p - 1 end
-                    p = p + 1
-                else
-                    nf = nf + 1
-                    if rec_fields then FL[nf], FS[nf], FE[nf] = c, p, fe end
-                    if c == L_D then
-                        nd = nd + 1
-                        if not (has_e or has_m) then
-                            nv = nv + 1
-                            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, t1, idx, pend_r
-                            VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, nf
-                            if not pend_q then
-                                n_pos = n_pos + 1
-                                if t1 == "" then n_empty_d = n_empty_d + 1 end
-                            end
-                            idx = idx + 1
-                            pend_t, pend_q, pend_r, pend_tf, pend_qf = false, false, false, 0, 0
-                        end
-                    elseif c == L_Q or c == L_R then
-                        if pend_q then
-                            nv = nv + 1
-                            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
-                            VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
-                            idx = idx + 1
-                            pend_t, pend_tf = false, 0
-                        end
-                        pend_q, pend_qf = t1, nf
-                        pend_r = (c == L_R)
-                        if pend_r then has_r = true else nq = nq + 1 end
-                    elseif c == L_T then
-                        if pend_q then
-                            nv = nv + 1
-                            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
-                            VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
-                            idx = idx + 1
-                            pend_q, pend_r, pend_qf = false, false, 0
-                        end
-                        pend_t, pend_tf = t1, nf
-                    elseif c == L_N then
-                        if not n_ord then
-                            n_ord = to_ordinal(t1); idx = n_ord; n_text = t1
-                            if not tonumber(t1) then ord_text = true end
-                        end
-                    elseif c == L_L then
-                        if not l_ord then
-                            l_ord = to_ordinal(t1); idx = l_ord
-                            if not tonumber(t1) then ord_text = true end
-                        end
-                    elseif c == L_C and fe == bodyend then
-                        cpos, ctext = p, t1
-                    elseif c == L_E or c == L_M then
-                        if c == L_E then has_e = true else has_m = true end
-                        if not cmd_start then cmd_start = p end
-                    elseif c == L_P then has_p = true
-                    elseif c == L_G then has_g = true
-                    end
-                    p = fe + 2
-                end
-            end
-        end
-        if pend_q then
-            nv = nv + 1
-            VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = pend_t, pend_q, false, idx, pend_r
-            VTf[nv], VQf[nv], VDf[nv] = pend_tf, pend_qf, 0
-        end
-        pr_n_ord, pr_l_ord, pr_n_text = n_ord, l_ord, n_text
-        pr_has_e, pr_has_m, pr_has_p, pr_has_g, pr_has_r = has_e, has_m, has_p, has_g, has_r
-        pr_nq, pr_nd, pr_n_empty_d, pr_n_pos = nq, nd, n_empty_d, n_pos
-        pr_cpos, pr_ctext, pr_cmd_start, pr_ord_text = cpos, ctext, cmd_start, ord_text
-    end
-
-    -- A named layout's code, made once per pattern (kept for 256 patterns): store(vals, from,
-    -- num, v1, ..., vn) stores the values as the direction's last ones (the express lane), and
-    -- info(v1, ..., vn) / dinfo(...) make the Info of a full frame / a delta (the express lane
-    -- and info_frame).  Speed trick (measured): the names and the Info's pieces are constants in
-    -- the code, one concatenation, nothing looked up.
-    local LAYOUT_CODE, layout_code_n = {}, 0
-    local function layout_code(pat, sn, pieces, dpieces)
-        local code = LAYOUT_CODE[pat]
-        if not code then
-            local args, store, info, dinfo = {}, {}, {}, {}
-            for k = 1, #sn do
-                local q = string.format("%q", sn[k])
-                args[k] = "v" .. k
-                store[k] = "vals[" .. q .. "] = v" .. k .. " from[" .. q .. "] = num"
-                info[2 * k - 1], info[2 * k] = string.format("%q", pieces[k]), args[k]
-                dinfo[2 * k - 1], dinfo[2 * k] = string.format("%q", dpieces[k]), args[k]
-            end
-            local vs = t_concat(args, ", ")
-            code = { assert(load("return function(vals, from, num, " .. vs .. ") " .. t_concat(store, " ") ..
-                " end, function(" .. vs .. ") return " .. t_concat(info, " .. ") ..
-                " end, function(" .. vs .. ") return " .. t_concat(dinfo, " .. ") .. " end",
-                "=layout_code", "t", {}))() }
-            if layout_code_n >= 256 then LAYOUT_CODE, layout_code_n = {}, 0 end
-            LAYOUT_CODE[pat], layout_code_n = code, layout_code_n + 1
-        end
-        return code[1], code[2], code[3]
-    end
-
-    -- Remember the layout of a plain named frame (N, T/Q/D triplets, C) for parse_fast_named.
-    local function learn_named_shape(f, shape_key, dstb, srcb)
-        local n_text, cpos, n_pos, ord_text, n_ord = pr_n_text, pr_cpos, pr_n_pos, pr_ord_text, pr_n_ord
-        if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == 3 * nv + 2 and n_pos == 0
-            and s_byte(f, 6) == L_N and not ord_text then
-            local ok = true
-            for k = 1, nv do
-                if not (VT[k] and VN[k] and VV[k] and valid_type(VT[k])) or VR[k] then ok = false; break end
-            end
-            if ok then
-                local parts = { "^%[:", pat_escape(LETTER[dstb] .. LETTER[srcb]), "|N", pat_escape(n_text) }
-                -- the express lane's: the head (up to the first value) as plain text, the rest a
-                -- pattern anchored where the head ends
-                local xparts = {}
-                local st, sn, tv = {}, {}, {}
-                local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
-                local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
-                local first = " " .. s_gsub(VN[1], CTRL, "?") .. "="
-                local pieces, ilen = { head .. first }, #head
-                local fixed = byte_sum(f, 2, cpos)
-                for k = 1, nv do
-                    st[k], sn[k], tv[k] = VT[k], VN[k], valid_type(VT[k])
-                    local tq = "|T" .. pat_escape(VT[k]) .. "|Q" .. pat_escape(VN[k])
-                    parts[#parts + 1] = tq .. "|D" .. VALUE
-                    xparts[#xparts + 1] = (k > 1 and tq .. "|D" or "^") .. XVALUE
-                    if k > 1 then pieces[k] = " " .. s_gsub(VN[k], CTRL, "?") .. "=" end
-                    ilen = ilen + #VN[k] + 2
-                    fixed = fixed - str_sum(VV[k])
-                end
-                parts[#parts + 1] = "|C([^]|]*)%]"
-                xparts[#xparts + 1] = XCHECKSUM
-                local mru = shapes[shape_key]
-                if not mru then mru = {}; shapes[shape_key] = mru end
-                local pat = t_concat(parts)
-                -- a layout known already comes first again, the same table: everything in it
-                -- follows from the pattern, and the direction's names_is compares the table's N
-                for k = 1, #mru do
-                    if mru[k].pat == pat then
-                        if k > 1 then table.insert(mru, 1, table.remove(mru, k)) end
-                        return
-                    end
-                end
-                xlen, xlen_n = {}, 0
-                if #mru >= MAX_SHAPES then mru[#mru] = nil end
-                local dpieces = { dhead .. first }
-                for k = 2, nv do dpieces[k] = pieces[k] end
-                local xstore, xinfo, xdinfo = layout_code(pat, sn, pieces, dpieces)
-                table.insert(mru, 1, { pat = pat, n = nv, T = st, N = sn, TV = tv, ord = n_ord, ntext = n_text,
-                    xstore = xstore, xinfo = xinfo, xdinfo = xdinfo,
-                    info_len = ilen, dinfo_len = ilen + #dhead - #head,
-                    fixed = fixed % 256, letters = LETTER[srcb] .. LETTER[dstb],
-                    xhead = "[:" .. LETTER[dstb] .. LETTER[srcb] .. "|N" .. n_text .. "|T" .. VT[1] .. "|Q" .. VN[1]
-                        .. "|D",
-                    xpat = t_concat(xparts), sums = EXPRESS_SUMS[nv] })
-            end
-        end
-    end
-
-    -- Remember the layout of a plain positional frame (N, D fields, C) for parse_fast_positional.
-    local function learn_positional_shape(f, shape_key, dstb, srcb)
-        local n_text, cpos, n_pos, nq, has_r = pr_n_text, pr_cpos, pr_n_pos, pr_nq, pr_has_r
-        local ord_text, n_ord = pr_ord_text, pr_n_ord
-        if shape_key and n_text and cpos and nv >= 1 and nv <= 8 and nf == nv + 2 and n_pos == nv and nq == 0
-            and not has_r and s_byte(f, 6) == L_N and not ord_text then
-            local ok = true
-            for k = 1, nv do
-                if VT[k] or VN[k] or not VV[k] then ok = false; break end
-            end
-            if ok then
-                local pat = "^%[:" .. pat_escape(LETTER[dstb] .. LETTER[srcb]) .. "|N" .. pat_escape(n_text) ..
-                    s_rep("|D" .. VALUE, nv) .. "|C([^]|]*)%]"
-                local ps = pshapes[shape_key]
-                if not ps or ps.pat ~= pat then
-                    local fixed = byte_sum(f, 2, cpos)
-                    for k = 1, nv do fixed = fixed - str_sum(VV[k]) end
-                    pshapes[shape_key] = { pat = pat, n = nv, ord = n_ord, ntext = n_text, fixed = fixed % 256 }
-                end
-            end
-        end
-    end
-
-    -- Remember the layout of a bare frame (N0 and C only: every variable carried) for the
-    -- express lane alone (see express).
-    local function bare_sums(ctext) return 0, 0, ctext end
-    local function bare_store() end
-    local function learn_bare_shape(f, shape_key, dstb, srcb)
-        local n_text, cpos = pr_n_text, pr_cpos
-        if nv == 0 and nf == 2 and n_text and cpos and pr_n_ord == 0 and not pr_ord_text and s_byte(f, 6) == L_N then
-            local xhead = "[:" .. LETTER[dstb] .. LETTER[srcb] .. "|N" .. n_text
-            local bs = bshapes[shape_key]
-            if not bs or bs.xhead ~= xhead then
-                xlen, xlen_n = {}, 0
-                local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
-                bshapes[shape_key] = { xhead = xhead, xpat = "^" .. XCHECKSUM, n = 0, N = {}, ord = 0, ntext = n_text,
-                    fixed = byte_sum(f, 2, cpos) % 256,
-                    letters = LETTER[srcb] .. LETTER[dstb], info_len = 0, dinfo_len = #dhead,
-                    sums = bare_sums, xstore = bare_store, xdinfo = function() return dhead end, bare = true }
-            end
-        end
-    end
-
-    -- Parse a frame: header, then a fast path when one fits, else every field.  Returns the last
-    -- index of the content, the address bytes and why it is malformed (nil: it is not).
-    function parse_frame(f, fl, terminated, vis, rec_fields)
-        parse_reset()
-        local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)
-        local shape_key = nil
-        if p == 6 and not malformed_msg and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P then
-            shape_key = dstb * 256 + srcb
-            -- a shown tree (vis) needs the fields' places too
-            local mru, ps = FAST and shapes[shape_key], FAST and pshapes[shape_key]
-            if (mru and parse_fast_named(f, mru, vis)) or (ps and parse_fast_positional(f, ps, vis)) then
-                if MARKS.fast then MARKS.fast_hit = true end
-                return bodyend, dstb, srcb, malformed_msg
-            end
-        end
-        if p then parse_general(f, p, bodyend, rec_fields) end
-        -- layouts are learnt on a miss (a frame the fast paths did not take)
-        if shape_key then
-            learn_named_shape(f, shape_key, dstb, srcb)
-            learn_positional_shape(f, shape_key, dstb, srcb)
-            learn_bare_shape(f, shape_key, dstb, srcb)
-        end
-        return bodyend, dstb, srcb, malformed_msg
-    end
-end
-
--- Checksum verdict, before the state (a frame with a bad checksum changes no state): the
--- value of the checksum text (nil: not hex), the calculated value, the status (1 good, 0 bad,
--- 2 unverified; nil: no C field).
-local function checksum_verdict(f, bodyend)
-    local ctext = pr_ctext
-    if pr_fast_hit then pr_cpos = bodyend - #ctext end   -- the fast patterns end in |C<ctext>]
-    local cpos = pr_cpos
-    if not cpos then return nil, nil, nil end
-    local cs_val = checksum_value(ctext)
-    if not pref_validate then return cs_val, nil, 2 end
-    local cs_calc = pr_fast_sum or byte_sum(f, 2, cpos) % 256
-    return cs_val, cs_calc, (cs_val == cs_calc) and 1 or 0
-end
-
--- The kind the fields alone tell; a data frame (full or delta, told by the state) gives nil, true.
-local function kind_of_fields(malformed_msg)
-    if malformed_msg then return "malformed", false end
-    if pr_has_e or pr_has_m then return "command", false end
-    if pr_has_p then return "ping", false end
-    if pr_has_g then return "pong", false end
-    if pr_has_r then return "reply", false end
-    local nd, nq, ord_text = pr_nd, pr_nq, pr_ord_text
-    if nd == 0 and nq > 0 and (pr_l_ord or pr_n_ord) and not ord_text then return "declaration", false end
-    if nd == 0 and (nq > 0 or ord_text) then return "query", false end
-    if nd > 0 or pr_n_ord then return nil, true end
-    return "other", false
-end
-
--- state_first_pass and its helpers (a block, as parse_frame)
-local state_first_pass
-do
-    -- State, first pass, a data frame: its values go into the direction's state (good checksum),
-    -- what it leaves out is gathered in CARRY (empty D fields: value, frame, ...; ne entries) and
-    -- MISS (named variables: name, value, frame, ...; nm entries).  Returns whether it is full,
-    -- ne, nm, the number of named variables carried, and full_local (the verdict without state).
-    local function data_values(d, list, num, good, full_local)
-        local fast_sh, n_pos, nd, n_ord = pr_fast_sh, pr_n_pos, pr_nd, pr_n_ord
-        local ne, nm, miss_n = 0, 0, 0
-        local full
-        if good and fast_sh and d.names_is == fast_sh.N then
-            -- same layout as the known variable set: nothing can be missing
-            local vals, from = d.vals, d.from
-            for v = 1, nv do
-                local name = VN[v]
-                vals[name] = VV[v]
-                from[name] = num
-            end
-            full = full_local
-        else
-            local vals, from, seen = d.vals, d.from, d.seen
-            local names = d.names
-            stamp_ctr = stamp_ctr + 1
-            local stamp = stamp_ctr
-            local required_missing = false   -- a slot that held a value is empty here
-            local maxslot = -1
-            ne = 0
-            for v = 1, nv do
-                local val = VV[v]
-                if val then
-                    local name = VN[v]
-                    if name then
-                        if good then
-                            vals[name] = val
-                            from[name] = num
-                            if not seen[name] then
-                                names[#names + 1] = name
-                                d.npos[name] = #names - 1
-                                d.nfirst[name] = num
-                                d.names_is = nil
-                            end
-                            seen[name] = stamp
-                        elseif seen[name] then
-                            seen[name] = stamp
-                        end
-                    else
-                        local slot = VI[v]
-                        name = list[slot + 1] or ("#" .. slot)
-                        if slot > maxslot then maxslot = slot end
-                        if val == "" then
-                            local cv = vals[name]
-                            if cv then required_missing = true end
-                            CARRY[ne + 1] = cv or false
-                            CARRY[ne + 2] = from[name] or false
-                            ne = ne + 2
-                        elseif good then
-                            vals[name] = val
-                            from[name] = num
-                            if slot > d.maxslot then d.maxslot = slot end
-                        end
-                    end
-                end
-            end
-            -- positional: required slots past the frame's last D
-            if n_pos > 0 then
-                for slot = maxslot + 1, d.maxslot do
-                    if vals[list[slot + 1] or ("#" .. slot)] then required_missing = true; break end
-                end
-            end
-            -- named: known variables missing from this frame
-            if n_pos == 0 and #names > 0 then
-                for k = 1, #names do
-                    local name = names[k]
-                    if seen[name] ~= stamp then
-                        MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
-                        nm = nm + 3
-                        miss_n = miss_n + 1
-                    end
-                end
-            end
-            if fast_sh and good and miss_n == 0 and #names == fast_sh.n then d.names_is = fast_sh.N end
-            full = nd > 0 and (n_ord == nil or n_ord == 0) and not required_missing and miss_n == 0
-            if n_pos == 0 then full_local = full_local and miss_n == 0 end
-        end
-        return full, ne, nm, miss_n, full_local
-    end
-
-    -- State, first pass, a data frame: the sync clock, and the record later passes read (late
-    -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
-    local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
-        local rec = nil
-        local kind
-        local now = pinfo.rel_ts
-        local first = d.first
-        if not first then first = now; d.first = now end
-        if full then
-            if good then d.lastfull = now end
-        else
-            local age = now - (d.lastfull or first)
-            if age > pref_sync then
-                rec = rec or get_rec(num, sk, true)
-                rec.late = age
-            end
-        end
-        local kch = full and "f" or "d"
-        -- carried values of empty D fields: a packed text record unless the
-        -- frame has a table record anyway
-        if ne > 0 or nm > 0 then
-            if rec or not carried_store(num, sk, ne, nm, kch) then
-                rec = rec or get_rec(num, sk, true)
-                for k = 1, ne do rec[k] = CARRY[k] end
-                if nm > 0 then
-                    local miss = {}
-                    for k = 1, nm do miss[k] = MISS[k] end
-                    rec.miss = miss
-                end
-            end
-        elseif full ~= full_local then
-            rec = rec or get_rec(num, sk, true)
-        end
-        if rec then rec.kind = kch end
-        kind = full and "full" or "delta"
-        return rec, kind
-    end
-
-    -- State, first pass, a declaration with a good checksum: the list it declares.
-    local function learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
-        local l_ord, n_ord = pr_l_ord, pr_n_ord
-        local dd, rl
-        if l_ord then
-            -- the sender's inbound list = the list used from dst to src
-            dd = get_rev_dir(pinfo, dstb, srcb)
-            rl = dst .. src
-        else
-            dd = get_dir(pinfo, num, dstb, srcb)
-            rl = letters
-        end
-        local base_list = dd.list or pair_lists[rl] or pref_list
-        local newlist = {}
-        local types = {}
-        newlist.t = types
-        local start = l_ord or n_ord or 0
-        for k = 1, math.min(start, #base_list) do
-            newlist[k] = base_list[k]
-            types[k] = base_list.t and base_list.t[k]
-        end
-        local maxi = #newlist
-        for v = 1, nv do
-            if VN[v] then
-                newlist[VI[v] + 1] = VN[v]
-                types[VI[v] + 1] = VT[v] and valid_type(VT[v]) or nil
-                if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
-            end
-        end
-        for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
-        dd.list = newlist
-        pair_lists[rl] = newlist
-    end
-
-    -- State, first pass: a query or declaration waits for its reply; a reply finds its query.
-    local function link_query_reply(pinfo, num, sk, kind, dst, src, rec)
-        local pa, pb = pinfo.src_port, pinfo.dst_port
-        if pa > pb then pa, pb = pb, pa end
-        local ports = ":" .. pa .. "-" .. pb
-        for v = 1, nv do
-            local name = VN[v]
-            if name then
-                if VR[v] then
-                    rec = rec or get_rec(num, sk, true)
-                    local qkey = dst .. ">" .. src .. ":" .. name .. ports
-                    local qrec = pending_q[qkey]
-                    if qrec then
-                        pending_q[qkey] = nil
-                        qrec.resp_in = qrec.resp_in or {}
-                        qrec.resp_in[name] = num
-                        rec.resp_to = rec.resp_to or {}
-                        rec.resp_to[name] = qrec.num
-                        rec.rt = rec.rt or {}
-                        rec.rt[name] = pinfo.rel_ts - qrec.t
-                    else
-                        rec.unmatched = rec.unmatched or {}
-                        rec.unmatched[name] = true
-                    end
-                elseif kind ~= "reply" then
-                    rec = rec or get_rec(num, sk, true)
-                    rec.num = num
-                    rec.t = pinfo.rel_ts
-                    pending_q[src .. ">" .. dst .. ":" .. name .. ports] = rec
-                end
-            end
-        end
-        return rec
-    end
-
-    -- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
-    -- direction state (data frames), the named variables carried, and ne/nm (see data_values).
-    function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, addrs_ok, full_local)
-        local rec, list, d = nil, pref_list, nil
-        local miss_n, ne, nm = 0, 0, 0
-        local letters = src .. dst
-        if (is_data or kind == "malformed") and addrs_ok then
-            d = get_dir(pinfo, num, dstb, srcb)
-            list = d.list or pair_lists[letters] or pref_list
-            -- remember when the list in use changes (read back on later passes)
-            if list ~= (d.used_list or pref_list) then
-                local h = d.uhist
-                if not h then h = {}; d.uhist = h end
-                h[#h + 1] = num
-                h[#h + 1] = sk
-                h[#h + 1] = list
-                d.used_list = list
-            end
-            if is_data then
-                local full
-                full, ne, nm, miss_n, full_local = data_values(d, list, num, good, full_local)
-                rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
-            end
-        elseif kind == "declaration" and addrs_ok and good then
-            learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
-        end
-        if (kind == "query" or kind == "reply" or kind == "declaration") and addrs_ok and good then
-            rec = link_query_reply(pinfo, num, sk, kind, dst, src, rec)
-        end
-        return kind, rec, list, d, miss_n, ne, nm
-    end
-end
-
--- The list in use at frame (num, sk) on the first pass, from the direction's history of changes.
-local function list_at(d, num, sk)
-    local h = d.uhist
-    if h then
-        for k = #h - 2, 1, -3 do
-            local hn = h[k]
-            if hn < num or (hn == num and h[k + 1] <= sk) then return h[k + 2] end
-        end
-    end
-    return pref_list
-end
-
--- State on a later pass: the record, and the list in use at this frame on the first pass
--- (looked up only where it names something: positional values, or a tree to show indexes).
-local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local, has_tree)
-    local rec = get_rec(num, sk, false)
-    local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
-    local list, d = pref_list, nil
-    if (is_data or kind == "malformed") and addrs_ok and (has_tree or pr_n_pos > 0) then
-        d = get_dir(pinfo, num, dstb, srcb)
-        list = list_at(d, num, sk)
-    end
-    if is_data then
-        if rec and rec.kind then
-            kind = rec.kind == "f" and "full" or "delta"
-        else
-            kind = (full_local and miss_n == 0) and "full" or "delta"
-        end
-    end
-    return kind, rec, list, d, miss_n
-end
-
--- Info column: this frame's piece.
-local function info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
-    local fast_sh, n_empty_d, l_ord, n_ord = pr_fast_sh, pr_n_empty_d, pr_l_ord, pr_n_ord
-    local cmd_start, cpos = pr_cmd_start, pr_cpos
-    if frames_in_info > 0 then
-        if info_full then frames_dropped = frames_dropped + 1 else info_add(" ; ") end
-    end
-    frames_in_info = frames_in_info + 1
-    local info_done = false
-    if fast_sh and frames_in_info == 1 and (kind == "full" or kind == "delta") and not (rec and rec.late) then
-        -- same text as the pieces below, in one concatenation (speed trick, measured)
-        local full = kind == "full"
-        local total = full and fast_sh.info_len or fast_sh.dinfo_len
-        for k = 1, nv do total = total + #VV[k] end
-        local tail = (miss_n > 0) and (" (+" .. miss_n .. " carried)") or nil
-        if tail then total = total + #tail end
-        if total <= INFO_MAX then
-            ninfo, info_len = 1, total
-            INFO[1] = (full and fast_sh.xinfo or fast_sh.xdinfo)(VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7],
-                VV[8])
-            if tail then INFO[1] = INFO[1] .. tail end
-            info_done = true
-        end
-    end
-    if not info_done then info_clean = false end
-    if not info_full and not info_done then
-        info_add(src .. ARROW .. dst .. " " .. kind)
-        if is_data or kind == "reply" or kind == "malformed" then
-            for v = 1, nv do
-                if info_full then break end
-                local val = VV[v]
-                if val and (val ~= "" or VN[v]) then
-                    local name = VN[v]
-                    if not name then name = list[VI[v] + 1] or ("#" .. VI[v]) end
-                    info_add(" " .. name .. "=" .. val)
-                end
-            end
-            local nc = n_empty_d + miss_n
-            if nc > 0 then info_add(" (+" .. nc .. " carried)") end
-        elseif kind == "query" then
-            for v = 1, nv do
-                if VN[v] then info_add(" " .. VN[v]) end
-            end
-        elseif kind == "declaration" then
-            info_add(l_ord and (" L" .. l_ord) or (" N" .. (n_ord or 0)))
-            for v = 1, nv do
-                if VN[v] then info_add(" " .. VN[v]) end
-            end
-        elseif kind == "command" and cmd_start then
-            local cmd = s_gsub(s_sub(f, cmd_start, cpos and cpos - 2 or bodyend), "|D?", " ")
-            info_add(" " .. cmd)
-        end
-        if rec and rec.late then info_add(" [sync late]") end
-    end
-end
-
 -- The compact tree of a fast-path frame nobody sees: its fields (tree_compact), the sync and
 -- checksum fields and experts, without ranges or labels.
-local function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, visited, rec, ne, nm,
+function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, visited, rec, ne, nm,
                                   cs_val, cs_calc, cs_status)
     local ctext = pr_ctext
     local carry = rec or (ne > 0 and CARRY)
@@ -1698,6 +1912,8 @@ local function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, nu
         frame_add(ti, ttext, hf.sync_is_late, true)
         TI.add_proto_expert_info(ti, ei.sync_late)
     end
+    if pr_limit then TI.add_proto_expert_info(ti, ei.limit, pr_limit) end
+    if rec and rec.limit then TI.add_proto_expert_info(ti, ei.limit, rec.limit) end
     if cs_val then frame_add(ti, ttext, hf.checksum, cs_val) else frame_add(ti, ttext, hf.checksum_text, ctext) end
     if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then TI.add_proto_expert_info(ti, ei.checksum_format) end
     if pref_validate then
@@ -1711,6 +1927,8 @@ local function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, nu
     if not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
         TI.add_proto_expert_info(ti, ei.crlf_missing)
     end
+end
+
 end
 
 -- The full tree (shown: every range and label).
@@ -1971,6 +2189,8 @@ do
         local cs_val, cs_calc, cs_status = tc.cs_val, tc.cs_calc, tc.cs_status
         local terminated, malformed_msg = tc.terminated, tc.malformed_msg
         local cpos, ctext = pr_cpos, pr_ctext
+        if pr_limit then TI.add_proto_expert_info(ti, ei.limit, pr_limit) end
+        if rec and rec.limit then TI.add_proto_expert_info(ti, ei.limit, rec.limit) end
         if rec and rec.late then
             TI.set_generated(TI.add(ti, hf.sync_is_late, true))
             TI.add_proto_expert_info(ti, ei.sync_late,
@@ -2056,10 +2276,49 @@ do
     end
 end
 
+-- Whether a variable's value would get var.badvalue or var.unknown (see has_experts).
+local function values_have_experts(kind, list)
+    local types = list.t
+    for v = 1, nv do
+        local val = VV[v]
+        if val or kind == "declaration" or VR[v] then
+            local vtype
+            if VN[v] then
+                if VT[v] then vtype = valid_type(VT[v]); if not vtype then return true end end
+            else
+                if not list[VI[v] + 1] then return true end
+                vtype = types and types[VI[v] + 1]
+            end
+            if val and vtype and (val ~= "" or VN[v]) then
+                if vtype == 2 then
+                    if not tonumber(val) then return true end
+                elseif vtype == 0 and not parse_long(val) then
+                    return true
+                end
+            end
+        end
+    end
+    return false
+end
+
+-- With no tree, whether the frame's tree would carry an expert info (true when unsure): then
+-- the tree is built all the same, on the tree Wireshark gave (which keeps no items but reports
+-- the experts to Expert Information and -z expert).  Checks what tree_full adds experts for.
+local function has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status)
+    if malformed_msg or not addrs_ok or pr_odd or cs_status == 0 or not pr_cpos then return true end
+    if rec and (rec.limit or rec.late or rec.unmatched) then return true end
+    local ctext = pr_ctext
+    if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then return true end
+    local b = a + fl - 1
+    if terminated and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then return true end
+    return values_have_experts(kind, list)
+end
+
 -- f: a string holding the frame at f[1..fl] ('[' .. ']' when terminated, else up to
 -- where it stops; bytes after fl may follow when terminated); a: index of f[1] in the
--- payload s; e: index in s of the last byte including the line end.
-local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
+-- payload s; e: index in s of the last byte including the line end.  tree: nil when there is
+-- none (see dissect); root: the tree Wireshark gave, for the expert infos of a frame then.
+local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, root)
     local num = pinfo.number
 
     -- a tree that is shown (-V, -T fields/json, the GUI's details) gets every range and
@@ -2067,7 +2326,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     -- protocol item is added once the frame is known (the full tree: with its text)
     local vis = tree ~= nil and PG.visible(tree)
 
-    local bodyend, dstb, srcb, malformed_msg = parse_frame(f, fl, terminated, vis, tree ~= nil)
+    local bodyend, dstb, srcb, malformed_msg = parse_frame(f, fl, terminated, vis, true)
     local cs_val, cs_calc, cs_status = checksum_verdict(f, bodyend)
     local good = cs_status ~= 0
     local kind, is_data = kind_of_fields(malformed_msg)
@@ -2078,20 +2337,28 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s)
     local full_local = pr_nd > 0 and (pr_n_ord == nil or pr_n_ord == 0) and pr_n_empty_d == 0
 
     local rec, list, d, miss_n
-    local ne, nm = 0, 0
+    local ne, nm = 0
     if not pinfo.visited then
         kind, rec, list, d, miss_n, ne, nm = state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src,
-            addrs_ok, full_local)
+            addrs_ok, full_local, tree ~= nil)
     else
-        kind, rec, list, d, miss_n = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local,
-            tree ~= nil)
+        kind, rec, list, d, miss_n, nm = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok,
+            full_local, tree ~= nil)
     end
     if is_data and not kind then kind = full_local and "full" or "delta" end   -- addresses not A-P
 
     info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
 
-    -- Tree (skipped entirely when there is none, e.g. tshark summary pass)
-    if not tree then return end
+    -- Tree (skipped when there is none, e.g. tshark summary pass, unless it has expert infos:
+    -- then built on root, where only the experts stay)
+    if not tree then
+        if not (root and has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status)) then
+            return
+        end
+        tree = root
+        if pr_fast_hit then fast_positions(pr_fast_hit.ntext, nv, pr_fast_sh ~= nil) end
+        vis = true
+    end
     if pr_fast_hit and not vis then
         local ti = TI.add(tree, sl, tvb(a - 1, e - a + 1))
         tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, pinfo.visited, rec, ne, nm,
@@ -2105,7 +2372,7 @@ end
 -- Payload scanning
 ------------------------------------------------------------------------------
 -- Noise s[i..j] between frames (CR/LF alone is not noise).
-local function add_noise(s, i, j, tvb, tree)
+local function add_noise(s, i, j, tvb, tree, root)
     local k = s_find(s, "[^\r\n]", i)
     if not k or k > j then return end
     if info_full then
@@ -2115,19 +2382,15 @@ local function add_noise(s, i, j, tvb, tree)
         info_add("noise (" .. (j - i + 1) .. " bytes)")
         frames_in_info = frames_in_info + 1
     end
-    if not tree then return end
+    if not tree then
+        -- no tree: the expert alone, on the tree Wireshark gave
+        if root then TI.add_proto_expert_info(root, ei.noise, (j - i + 1) .. " bytes outside any frame") end
+        return
+    end
     local r = tvb(i - 1, j - i + 1)
     local ti = tree:add(sl, r)
     ti:append_text(", noise")
     ti:add(hf.noise, r):add_proto_expert_info(ei.noise, (j - i + 1) .. " bytes outside any frame")
-end
-
--- Before Wireshark 4.6 a TreeItem's hidden flag tells "no tree" (see dissect); unknown: no.
-local HIDDEN_TELLS
-do
-    local major, minor = tostring(get_version and get_version() or ""):match("^(%d+)%.(%d+)")
-    major, minor = tonumber(major), tonumber(minor)
-    HIDDEN_TELLS = major ~= nil and (major < 4 or (major == 4 and minor < 6))
 end
 
 -- Express lane (speed trick, measured: the summary pass 10 us a frame faster, a compressed
@@ -2139,7 +2402,7 @@ end
 -- carried variables; data_record; info_frame's one concatenation; tree_compact_frame or
 -- tree_full); anything else returns false before changing any state, and the phases take the
 -- packet.  SHAREDLINK_NO_EXPRESS=1 turns it off; the tests compare both ways.
-local EXPRESS = os.getenv("SHAREDLINK_NO_EXPRESS") ~= "1"
+local EXPRESS = not wsapi.env.no_express
 local NO_SHAPES = {}
 local XSK = {}            -- frame key -> "|sk|d|0" (a line's text after its frame number)
 local CARRIED_TAIL = {}   -- n -> " (+n carried)"
@@ -2168,6 +2431,31 @@ local function express_missing(d, sh)
     if not cache then cache = {}; d.xmiss = cache end
     cache[sh] = xm
     return xm
+end
+
+-- With no tree, whether the express lane's frame is one whose tree has no expert info: its line
+-- ends in CR LF, its checksum is two upper-case hex digits, every value matches its type.  A
+-- frame that has one goes to the phases (dissect_frame reports it).
+local express_plain
+do
+    local UHEX = {}
+    for t in pairs(HEXV) do
+        if not s_find(t, "[a-f]") then UHEX[t] = true end
+    end
+    -- a double's value matched XDOUBLE already (see learn_named_shape)
+    local function value_ok(vtype, v)
+        if vtype == 0 then return v == nil or parse_long(v) ~= nil end
+        return true
+    end
+    function express_plain(s, n, sh, ctext, c1, c2, c3, c4, c5, c6, c7, c8)
+        if not UHEX[ctext] or s_byte(s, n) ~= B_LF or s_byte(s, n - 1) ~= B_CR or s_byte(s, n - 2) ~= B_RBRACK then
+            return false
+        end
+        local tv = sh.TV
+        if not tv then return true end
+        return value_ok(tv[1], c1) and value_ok(tv[2], c2) and value_ok(tv[3], c3) and value_ok(tv[4], c4)
+            and value_ok(tv[5], c5) and value_ok(tv[6], c6) and value_ok(tv[7], c7) and value_ok(tv[8], c8)
+    end
 end
 
 local function express(s, n, tvb, pinfo, tree, cols, vis)
@@ -2209,6 +2497,7 @@ local function express(s, n, tvb, pinfo, tree, cols, vis)
     local total, sum, ctext = sh.sums(c1, c2, c3, c4, c5, c6, c7, c8, c9)
     if not total or total + sh.info_len > INFO_MAX then return false end
     if pref_validate and HEXV[ctext] ~= (sh.fixed + sum) % 256 then return false end
+    if not tree and not express_plain(s, n, sh, ctext, c1, c2, c3, c4, c5, c6, c7, c8) then return false end
     local pg = PG
     local num = pg.number(pinfo)
     local visited = pg.visited(pinfo)
@@ -2219,6 +2508,11 @@ local function express(s, n, tvb, pinfo, tree, cols, vis)
         -- a later pass: no record means the first pass found it full; a carried-only record, a delta
         rec = get_rec(num, sk, false)
         if not rec and sh.bare then return false end   -- a bare frame with no record: the phases say why
+        if LIM.journal then
+            -- a frame the journal judged: the phases
+            d = get_dir(pinfo, num, dstb, srcb)
+            if d.jkey and journal.key(num, sk) >= d.jkey then return false end
+        end
         if rec then
             if rec.late or rec[1] or rec.kind ~= "d" or not rec.miss then return false end
             tail = CARRIED_TAIL[floor(#rec.miss / 3)]
@@ -2231,6 +2525,7 @@ local function express(s, n, tvb, pinfo, tree, cols, vis)
         end
     else
         d = get_dir(pinfo, num, dstb, srcb)
+        if d.hist or d.over or #d.names >= JOURNAL_NAMES then return false end   -- a journal, a limit: the phases
         list = d.list or pair_lists[sh.letters] or pref_list
         if list ~= (d.used_list or pref_list) then return false end
         local names, vals, from = sh.N, d.vals, d.from
@@ -2318,33 +2613,19 @@ local function express(s, n, tvb, pinfo, tree, cols, vis)
     return true
 end
 
--- Tvb:raw from the class's method table (as TI): tvb:raw() looks it up through wslua's __index
-local TVB_RAW = rawget(Tvb, "raw") or function(tvb) return tvb:raw() end
 local function dissect(tvb, pinfo, tree)
-    local s = TVB_RAW(tvb)
+    if not wsapi.ready then wsapi.init(pinfo, tree, tvb) end
+    local s = wsapi.tvb_raw(tvb)
     local n = #s
     if n <= 0 then return 0 end
-    if not PG.ready then getters_init(pinfo, tree) end
     local cols = PG.cols(pinfo)
 
     cols.protocol = "SharedLink"
 
-    -- With no tree at all (tshark's summary pass) skip all tree work.  A TreeItem does
-    -- not say so directly: its text is nil both with no tree and with the sparse tree of
-    -- -T fields / -Y on 4.6, but its tostring() tells "has subtree=false" only when there
-    -- is no tree (4.0 to 4.6).  Should that text ever change, we build the tree: slower,
-    -- never wrong.
-    -- Speed trick (measured, 1.5 us a packet): before 4.6 a tree's root item is hidden
-    -- (wslua's fake item) and "no tree" is not, so one attribute read tells; 4.6 says hidden
-    -- in both cases and the text decides.
+    -- With no tree at all (tshark's summary pass) skip all tree work (wsapi.no_tree); frames with
+    -- expert infos still get them (see dissect_frame)
     local t = tree
-    if t ~= nil then
-        if HIDDEN_TELLS then
-            if not PG.hidden(t) then t = nil end
-        elseif s_find(tostring(t), "has subtree=false", 1, true) then
-            t = nil
-        end
-    end
+    if t ~= nil and wsapi.no_tree(t) then t = nil end
     -- the express lane (the tree's visibility is the whole tree's)
     if EXPRESS and express(s, n, tvb, pinfo, t, cols, t ~= nil and PG.visible(t)) then return n end
     -- the phases: the frames' keys, and the Info they build
@@ -2359,15 +2640,15 @@ local function dissect(tvb, pinfo, tree)
         if not a then
             if s_byte(s, n) == B_LBRACK and pinfo.can_desegment > 0 then
                 -- a frame may start with this '[' in the next segment
-                if n > pos then add_noise(s, pos, n - 1, tvb, t) end
+                if n > pos then add_noise(s, pos, n - 1, tvb, t, tree) end
                 pinfo.desegment_offset = n - 1
                 pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
             else
-                add_noise(s, pos, n, tvb, t)
+                add_noise(s, pos, n, tvb, t, tree)
             end
             break
         end
-        if a > pos then add_noise(s, pos, a - 1, tvb, t) end
+        if a > pos then add_noise(s, pos, a - 1, tvb, t, tree) end
         if close_at ~= false and close_at < a + 2 then close_at = s_find(s, "]", a + 2, true) or false end
         local b = close_at
         open_at = s_find(s, "[:", a + 2, true) or false
@@ -2382,21 +2663,25 @@ local function dissect(tvb, pinfo, tree)
                 e = b + 1
             end
             if a == 1 then
-                dissect_frame(s, b, a, e, true, tvb, pinfo, t, sk, s)
+                dissect_frame(s, b, a, e, true, tvb, pinfo, t, sk, s, tree)
             else
-                dissect_frame(s_sub(s, a, b), b - a + 1, a, e, true, tvb, pinfo, t, sk, s)
+                dissect_frame(s_sub(s, a, b), b - a + 1, a, e, true, tvb, pinfo, t, sk, s, tree)
             end
             pos = e + 1
         elseif na then
-            dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, tvb, pinfo, t, sk, s)
+            dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, tvb, pinfo, t, sk, s, tree)
             pos = na
         else
-            if (n - a) < MAX_PENDING and pinfo.can_desegment > 0 then
-                pinfo.desegment_offset = a - 1
-                pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
-                break
+            if pinfo.can_desegment > 0 then
+                if (n - a) < LIM.max_held_bytes then
+                    pinfo.desegment_offset = a - 1
+                    pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
+                    break
+                end
+                TI.add_proto_expert_info(tree, ei.limit, "Limit exceeded: an unterminated frame of over " ..
+                    LIM.max_held_bytes .. " bytes (max_held_bytes), decoded as it is")
             end
-            dissect_frame(s_sub(s, a, n), n - a + 1, a, n, false, tvb, pinfo, t, sk, s)
+            dissect_frame(s_sub(s, a, n), n - a + 1, a, n, false, tvb, pinfo, t, sk, s, tree)
             pos = n + 1
         end
     end
@@ -2421,6 +2706,7 @@ sl.dissector = dissect
 ------------------------------------------------------------------------------
 -- Heuristics
 ------------------------------------------------------------------------------
+do
 local function looks_like_sharedlink(tvb, is_tcp)
     local n = tvb:len()
     if n < 5 then return false end
@@ -2463,15 +2749,18 @@ end
 
 sl:register_heuristic("udp", make_heuristic(false))
 sl:register_heuristic("tcp", make_heuristic(true))
+end
 
 ------------------------------------------------------------------------------
 -- Ports
 ------------------------------------------------------------------------------
+local apply_ports
+do
 local udp_table = DissectorTable.get("udp.port")
 local tcp_table = DissectorTable.get("tcp.port")
 local current_ports = ""
 
-local function apply_ports()
+function apply_ports()
     local ports = sl.prefs.ports
     if type(ports) ~= "string" then ports = tostring(ports or "") end
     if ports == current_ports then return end
@@ -2485,6 +2774,7 @@ local function apply_ports()
     end
     current_ports = ports
 end
+end
 
 function sl.prefs_changed()
     apply_ports()
@@ -2492,7 +2782,9 @@ function sl.prefs_changed()
     pref_validate = sl.prefs.validate_checksum
     pref_heuristic = sl.prefs.heuristic
     pref_sync = (tonumber(sl.prefs.sync_interval) or 1000) / 1000 + SYNC_SLACK
+    read_limits()
 end
 
 apply_ports()
 pref_list = parse_list(DEFAULT_VARS)
+read_limits()

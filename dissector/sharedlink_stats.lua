@@ -36,7 +36,7 @@
 
 if set_plugin_info then
     set_plugin_info({
-        version = "1.1.0",
+        version = "1.3.0",
         description = "SharedLink statistics (tshark -z sharedlink,stats; Statistics > SharedLink)",
         author = "SharedLink analyzer project",
         repository = "dissector/sharedlink_stats.lua",

@@ -68,8 +68,16 @@ def test_install_then_uninstall(tmp_path):
     interpreter = extcap.read_text().splitlines()[0][2:]
     assert os.access(interpreter, os.X_OK), interpreter
 
+    # sharedlink.lua's modules are installed beside it, and run by nobody but it (Wireshark runs
+    # them as plugins of their own too: they must do nothing then, and say nothing)
+    plugin_dir = Path(re.search(r"^Personal Lua Plugins:\s*(.+)$", tshark(home, "-G", "folders").stdout, re.M)
+                      .group(1).strip())
+    assert (plugin_dir / "sharedlink" / "wsapi.lua").is_file()
+    assert any(ln.split("\t")[2:3] == ["sharedlink"] for ln in tshark(home, "-G", "protocols").stdout.splitlines())
+
     make("uninstall", home)
     assert not set(LUA) & set(lua_plugins(home))
+    assert not (plugin_dir / "sharedlink").exists()
     assert "sharedlink-serial" not in tshark(home, "-D").stdout
     assert not extcap.exists()
     assert cf.read_text() == theirs

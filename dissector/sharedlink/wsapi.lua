@@ -1,0 +1,102 @@
+-- SharedLink dissector module: wsapi, every use of Wireshark's internals (see the note below).
+-- Loaded by sharedlink.lua (load_module); Wireshark also runs every .lua file it finds in a
+-- plugin folder's subfolders as a plugin of its own (4.0 with no arguments, 4.4 and later with
+-- the file's name and path): this file then does nothing.
+-- luacheck: read globals gui_enabled
+
+local token = ...
+if type(token) ~= "table" or token.sharedlink_module ~= true then return end
+
+local s_find = string.find
+
+-- wsapi: every use of Wireshark's internals, in one place.  Each trick is checked once (at load,
+-- or on the first packet where it needs an object) against the documented wslua API, and falls
+-- back to that API when the check fails; nothing else in this file reaches past the documented
+-- API.  The environment switches the tests use are read here too (docs/architecture.md).
+local wsapi = { ready = false }
+local function documented(name) return function(o) return o[name] end end
+
+-- (1) Pinfo's and TreeItem's attributes read through their getters, the C functions wslua's
+-- __index finds in the class's metatable (__getters) and calls.  Speed trick (measured): a
+-- pinfo.number is a call into C that finds the getter (hashing "__getters") and calls it;
+-- PG.number(pinfo) is the second call alone.  A getter is taken only when it exists and gives
+-- what the documented attribute gives on the first packet's objects.
+local PG = {}
+wsapi.PG = PG
+local function getter(obj, name)
+    local mt = getmetatable(obj)
+    local g = type(mt) == "table" and rawget(mt, "__getters")
+    local f = type(g) == "table" and rawget(g, name)
+    if type(f) ~= "function" then return documented(name) end
+    local ok, a = pcall(f, obj)
+    local b = obj[name]
+    if not ok or (a ~= b and tostring(a) ~= tostring(b)) then return documented(name) end
+    return f
+end
+
+-- (2) TreeItem's and Tvb's methods called through the class tables (speed trick, measured: -V
+-- 16 us a frame less): ti:add(...) looks the method up through wslua's __index, a call into C,
+-- each time.  Taken when the class table holds a function, and kept on the first packet only
+-- if it is the very method an item finds.
+local TI = {}
+wsapi.TI = TI
+local TI_METHODS = { "add", "set_hidden", "set_generated", "set_text", "append_text", "add_proto_expert_info" }
+local function method(class, name)
+    local ok, f = pcall(function() return class[name] end)
+    if ok and type(f) == "function" then return f end
+    return function(o, ...) return o[name](o, ...) end
+end
+for _, m in ipairs(TI_METHODS) do TI[m] = method(TreeItem, m) end
+wsapi.tvb_raw = method(Tvb, "raw")
+
+function wsapi.init(pinfo, tree, tvb)
+    for _, name in ipairs({ "number", "visited", "rel_ts", "src_port", "dst_port", "src", "dst", "cols",
+        "p2p_dir" }) do
+        PG[name] = getter(pinfo, name)
+    end
+    for _, name in ipairs({ "hidden", "visible" }) do PG[name] = getter(tree, name) end
+    for _, m in ipairs(TI_METHODS) do
+        if tree[m] ~= TI[m] then TI[m] = function(o, ...) return o[m](o, ...) end end
+    end
+    if tvb.raw ~= wsapi.tvb_raw then wsapi.tvb_raw = function(t, ...) return t:raw(...) end end
+    wsapi.ready = true
+end
+
+-- (3) "No tree at all" (tshark's summary pass): a TreeItem does not say so directly.  Its text
+-- is nil both with no tree and with the sparse tree of -T fields / -Y on 4.6, but its
+-- tostring() tells "has subtree=false" only when there is no tree (4.0 to 4.6).  Speed trick
+-- (measured, 1.5 us a packet): before 4.6 a tree's root item is hidden (wslua's fake item)
+-- and "no tree" is not, so one attribute read tells.  When unsure: a tree (slower, never wrong).
+local major, minor = tostring(get_version and get_version() or ""):match("^(%d+)%.(%d+)")
+major, minor = tonumber(major), tonumber(minor)
+local hidden_tells = major ~= nil and (major < 4 or (major == 4 and minor < 6))
+function wsapi.no_tree(tree)
+    if hidden_tells then return not PG.hidden(tree) end
+    return s_find(tostring(tree), "has subtree=false", 1, true) ~= nil
+end
+
+-- (4) The referenced-field probe.  In a tree nobody sees, Wireshark adds a field only when a
+-- filter, coloring rule or tap references it; for any other it hands back the parent item
+-- (proto.c, TRY_TO_FAKE_THIS_ITEM), whose text is the parent's text.  So an item whose text
+-- differs from its parent's is a real one (checked on 4.0, 4.4 and 4.6).  When either text
+-- is missing (a release whose items carry none) the probe cannot tell: referenced.
+function wsapi.referenced(item, parent_text)
+    local t = item.text
+    if type(t) ~= "string" or type(parent_text) ~= "string" then return true end
+    return t ~= parent_text
+end
+-- What the probe learnt may be kept over a run of consecutive frames of one pass in tshark,
+-- whose filters, taps and field extractors are all set before the first packet; the GUI
+-- (and anything that dissects frames out of order, as sharkd does) learns again each frame.
+wsapi.cache_refs = not (gui_enabled and gui_enabled())
+
+-- (5) Environment switches, for the tests (docs/architecture.md): SHAREDLINK_NO_FAST=1 (every
+-- frame parsed field by field), SHAREDLINK_NO_EXPRESS=1 (no express lane),
+-- SHAREDLINK_FAST_MARK=1 / SHAREDLINK_EXPRESS_MARK=1 (mark the Info of the packets those took),
+-- SHAREDLINK_PROBE_EACH_FRAME=1 (tshark learns the referenced fields each frame, as the GUI).
+local function env(name) return os.getenv("SHAREDLINK_" .. name) == "1" end
+wsapi.env = { no_fast = env("NO_FAST"), no_express = env("NO_EXPRESS"), fast_mark = env("FAST_MARK"),
+    express_mark = env("EXPRESS_MARK"), probe_each_frame = env("PROBE_EACH_FRAME") }
+if wsapi.env.probe_each_frame then wsapi.cache_refs = false end
+
+return wsapi

@@ -1,0 +1,68 @@
+"""Expert infos on every pass (issue 27): whatever tree is (not) built, the same expert infos.
+
+tshark's summary pass has no tree, a display filter gives a tree nobody sees, -V a shown one; the
+GUI opens a capture with no tree as well, and Expert Information must not wait for a filter.
+``-z expert`` alone (no filter, no -V) must count what it counts with ``-Y sharedlink`` and with
+a shown tree, per severity and group.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+import tshark_util as tu
+
+REPO = Path(__file__).resolve().parents[2]
+INPUTS = REPO / "tests" / "dissector" / "golden" / "inputs"
+SERIAL_LUA = REPO / "dissector" / "serial.lua"
+# captures with bad checksums, late syncs, malformed frames, noise, odd fields and unmatched replies
+CAPTURES = ["gen-faults.pcap", "gen-positional.pcap", "gen-late-sync.pcap", "gen-serial.pcapng",
+            "vector-frame-kinds-other-and-malformed.pcap", "vector-crlf-inside-a-value-and-modem-noise.pcap",
+            "vector-positional-typed-by-declaration.pcap", "vector-reply-to-a-declaration.pcap"]
+FUZZ = sorted((REPO / "tests" / "fuzz" / "fuzz-regressions").glob("*.pcap"))
+
+_HEAD = re.compile(r"^(Errors|Warns|Notes|Chats|Comments) \((\d+)\)$")
+_ROW = re.compile(r"^\s+(\d+)\s+(\S+)\s+(\S+)\s+(.*)$")
+
+
+def _counts(text: str) -> Counter:
+    """(severity, group) -> count from -z expert's table."""
+    out: Counter = Counter()
+    sev = None
+    for line in text.splitlines():
+        m = _HEAD.match(line)
+        if m:
+            sev = m.group(1)
+            continue
+        m = _ROW.match(line)
+        if m and sev and m.group(1).isdigit():
+            out[(sev, m.group(2))] += int(m.group(1))
+    return out
+
+
+def _expert(cap: Path, *args: str) -> Counter:
+    extra = ["-X", f"lua_script:{SERIAL_LUA}"] if cap.suffix == ".pcapng" else []
+    return _counts(tu.tshark(cap, [*extra, "-z", "expert", *args]).stdout)
+
+
+@pytest.mark.parametrize("cap", [INPUTS / c for c in CAPTURES] + FUZZ, ids=lambda p: p.stem)
+def test_expert_alone_counts_what_a_filter_and_a_shown_tree_count(cap: Path) -> None:
+    alone = _expert(cap, "-q")
+    assert alone, "the capture has expert infos"
+    assert _expert(cap, "-q", "-Y", "sharedlink") == alone
+    assert _expert(cap, "-V") == alone
+    # two passes (the GUI's way): the second pass's experts (-2 may decode a fuzzed capture's
+    # heuristic conversations differently from one pass, so compared with itself)
+    assert _expert(cap, "-q", "-2") == _expert(cap, "-q", "-2", "-Y", "sharedlink")
+
+
+def test_gen_faults_counts_as_the_issue_says() -> None:
+    """`sharedlink gen f.pcap --compress --drop 0.2 --bad-checksum 0.05 --seed 2`: 14 bad checksums
+    and 31 late syncs, with no filter."""
+    counts = _expert(INPUTS / "gen-faults.pcap", "-q")
+    assert counts[("Errors", "Checksum")] == 14
+    assert counts[("Warns", "Sequence")] == 31
