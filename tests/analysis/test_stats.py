@@ -343,3 +343,39 @@ def test_tap_and_python_agree_on_mixed_traffic(tmp_path):
         p.pair: (p.frames, p.checksum_failures, p.kinds) for p in st.pairs.values()
     }
     assert tap["vars"] == {k: (v.count, v.last) for k, v in st.variables.items()}
+
+
+@pytest.mark.parametrize("transport", ["udp", "tcp"])
+def test_blackboard_and_p2os_are_not_noise(tmp_path, transport):
+    """Issue 30: the related robot protocols on UDP/TCP are counted as themselves, never as noise
+    (a blackboard session's binary acks and read responses with it); real noise still is."""
+    from sharedlink.generators.blackboard import BlackboardGenOptions, generate_blackboard_file
+    from sharedlink.generators.p2os import P2osGenOptions, generate_p2os_file
+
+    bb = generate_blackboard_file(BlackboardGenOptions(duration=3, transport=transport), tmp_path / "bb.pcap")
+    st = capture_stats(tmp_path / "bb.pcap")
+    assert st.noise_segments == 0 and st.frames == 0
+    assert set(st.other_protocols) == {"blackboard"} and st.other_protocols["blackboard"][0] > 0
+    if transport == "udp":  # one datagram a message or answer
+        assert st.other_protocols["blackboard"][0] == bb.messages
+    if transport == "tcp":
+        generate_p2os_file(P2osGenOptions(duration=3), tmp_path / "p2.pcap")
+        st = capture_stats(tmp_path / "p2.pcap")
+        assert st.noise_segments == 0 and set(st.other_protocols) == {"p2os"}
+        assert st.to_dict()["other_protocols"]["p2os"]["segments"] == st.other_protocols["p2os"][0]
+        r = subprocess.run([sys.executable, "-m", "sharedlink", "stats", str(tmp_path / "p2.pcap")],
+                           capture_output=True, text=True, timeout=120)
+        assert "p2os (not SharedLink)" in r.stdout and "Traceback" not in r.stderr
+
+
+def test_noise_that_is_no_related_protocol_stays_noise(tmp_path):
+    from sharedlink.capture.packets import UdpBuilder
+    from sharedlink.capture.pcapio import PcapWriter
+
+    with open(tmp_path / "n.pcap", "wb") as fh:
+        w = PcapWriter(fh)
+        b = UdpBuilder("10.0.0.1", "10.0.0.9", 7013, 7013)
+        for i, payload in enumerate([b"ATZ\r\nOK\r\n", b"\x00\x01\x02", b":zz\r"]):
+            w.write(1_700_000_000 * 10**9 + i, b.frame(payload, i + 1))
+    st = capture_stats(tmp_path / "n.pcap")
+    assert st.noise_segments == 3 and st.other_protocols == {}

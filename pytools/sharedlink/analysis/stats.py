@@ -22,6 +22,7 @@ Definitions (the Lua tap ``dissector/sharedlink_stats.lua`` counts the same way)
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -122,6 +123,8 @@ class CaptureStats:
     noise_segments: int = 0
     noise_bytes: int = 0
     other_records: int = 0  # capture records that are not UDP/TCP over IP
+    #: segments of the two related robot protocols on the same ports (P2OS, blackboard): not noise
+    other_protocols: dict[str, list[int]] = field(default_factory=dict)  # name -> [segments, bytes]
     value_bytes: int = 0  # bytes of good full/delta frames
     full_bytes: int = 0  # what those frames would take as full sets
     first_ns: int | None = None  # the earliest and the latest frame time (not the first and last
@@ -162,6 +165,7 @@ class CaptureStats:
             "noise_segments": self.noise_segments,
             "noise_bytes": self.noise_bytes,
             "other_records": self.other_records,
+            "other_protocols": {k: {"segments": n, "bytes": b} for k, (n, b) in sorted(self.other_protocols.items())},
             "compression": {
                 "value_bytes": self.value_bytes,
                 "full_bytes": self.full_bytes,
@@ -412,6 +416,7 @@ def capture_stats(
     dec = Decoder(variables, sync_interval, carried=False)  # stats reads only what frames carry
     st.limits = dec.limits
     it = dec.capture(path, progress, counts=True)
+    talks: dict[tuple, str] = {}  # conversations (both directions) a related protocol was seen on
     try:
         for item in it:
             if isinstance(item, Decoded):
@@ -421,6 +426,18 @@ def capture_stats(
             elif isinstance(item, tuple):
                 st.other_records += 1
             else:
+                proto, src, sport, dst, dport = item.conv
+                key = (proto, *sorted(((src, sport), (dst, dport))))
+                other = other_protocol(item.raw)
+                if other is not None:
+                    talks[key] = other
+                else:  # its binary replies (a blackboard ack or read response) on the same conversation
+                    other = talks.get(key)
+                if other is not None:
+                    counts = st.other_protocols.setdefault(other, [0, 0])
+                    counts[0] += 1
+                    counts[1] += len(item.raw)
+                    continue
                 st.noise_segments += 1
                 st.noise_bytes += len(item.raw)
                 if item.raw.startswith(b"[:"):  # a frame that is not one: the dissector's "malformed"
@@ -430,6 +447,22 @@ def capture_stats(
             raise
         st.error = str(exc)
     return st
+
+
+#: a Holland blackboard message (set ``:`` or request ``;``, ASCII hex, CR), as blackboard.lua's heuristic
+_BLACKBOARD = re.compile(rb"[:;][0-9A-Fa-f]{8,}\r")
+
+
+def other_protocol(raw: bytes) -> str | None:
+    """The related robot protocol a segment that holds no SharedLink frame starts with, as the
+    dissectors' heuristics see it: ``p2os`` (``FA FB``), ``blackboard`` (``:``/``;`` then hex and
+    CR), else None (noise; :func:`capture_stats` also counts the binary replies on a conversation
+    that carried one of these as that protocol)."""
+    if raw.startswith(b"\xfa\xfb"):
+        return "p2os"
+    if _BLACKBOARD.match(raw):
+        return "blackboard"
+    return None
 
 
 def tables(st: CaptureStats) -> list[tuple[str, list[str], list[list[str]]]]:
@@ -455,6 +488,8 @@ def tables(st: CaptureStats) -> list[tuple[str, list[str], list[list[str]]]]:
         ["noise", "%d segments, %d bytes" % (st.noise_segments, st.noise_bytes)],
         ["other records", str(st.other_records)],
     ]
+    for name, (n, b) in sorted(st.other_protocols.items()):
+        summary.append([f"{name} (not SharedLink)", "%d segments, %d bytes" % (n, b)])
     if st.limits.total:
         summary.append(["dropped at limits", ", ".join(f"{k} {n}" for k, n in st.limits.to_dict().items() if n)])
     kinds = [[k, str(n)] for k, n in sorted(st.kinds.items())]
