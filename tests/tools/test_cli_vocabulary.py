@@ -174,6 +174,11 @@ def test_unknown_names_are_refused_once_the_capture_is_read(tmp_path, drive):
     assert not out.exists()
     r = _run("export", drive, "--format", "geojson", "--lat", "Nope", "-o", tmp_path / "t.geojson")
     assert r.returncode == 2 and "no variable Nope" in r.stderr and not (tmp_path / "t.geojson").exists()
+    for opt in ("--lat", "--lon", "--heading", "--velocity"):  # MCAP's LocationFix too, no file left behind
+        r = _run("export", drive, opt, "Nope", "-o", tmp_path / "t.mcap")
+        assert r.returncode == 2 and "no variable Nope" in r.stderr and not (tmp_path / "t.mcap").exists(), r.stderr
+    r = _run("export", drive, "--velocity", "AutoGpsVel", "-o", tmp_path / "t.mcap")
+    assert r.returncode == 0 and (tmp_path / "t.mcap").exists(), r.stderr
     for opt in ("--lat", "--lon", "--velocity", "--select"):
         r = _run("plot", drive, "-o", tmp_path / "p.png", opt, "Nope")
         assert r.returncode == 2 and "Nope" in r.stderr and r.stderr.count("\n") == 1, (opt, r.stderr)

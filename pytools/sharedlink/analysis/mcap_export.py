@@ -20,6 +20,7 @@ from sharedlink.analysis.export import ExportOptions, ExportResult
 from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
 from sharedlink.analysis.sessions import iter_sessions
 from sharedlink.capture.pcapio import CaptureError, atomic_open
+from sharedlink.errors import UsageError
 
 PROFILE = "sharedlink"
 
@@ -32,11 +33,14 @@ def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOp
     """Every frame and session message of ``path`` onto ``channels``; damage after the first
     record sets ``result.error`` (what came before it is published)."""
     other = False
+    seen = result.seen if opts.require else None
     try:
         for item in iter_decoded(path, opts.variables, opts.sync_interval, carried=False, progress=opts.progress):
             if isinstance(item, Decoded):
                 result.frames += 1
                 channels.frame(item)
+                if seen is not None:
+                    seen.update(u.name for u in item.updates if u.text is not None)
             else:
                 other = True
     except CaptureError as exc:
@@ -63,6 +67,10 @@ def export_mcap(path: str | Path, dest: str | Path, opts: ExportOptions) -> Expo
         writer = foxglove.open_mcap(fh, context=ctx, writer_options=MCAPWriteOptions(profile=PROFILE))
         try:
             publish_capture(path, channels, opts, result)
+            missing = [n for n in opts.require if n not in result.seen]
+            if missing and result.error is None:  # the file is not left behind (atomic_open)
+                have = ", ".join(sorted(result.seen)) or "none"
+                raise UsageError(f"no variable {', '.join(missing)} in {path} (its variables: {have})")
         finally:
             writer.close()
     result.rows = sum(channels.counts.values())

@@ -115,9 +115,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _required(fmt: str, columns: list[str] | None, given: dict[str, list[str]]) -> list[str]:
-    """The names the capture must carry: the ``--select``ed ones, and for a track the location
-    options given (MCAP writes every variable and is not checked here)."""
+    """The names the capture must carry: the ``--select``ed ones, and the location options given
+    for a track (geojson, kml: --lat, --lon; mcap's LocationFix: --heading and --velocity too)."""
     names = list(columns or [])
     if fmt in ("geojson", "kml"):
         names += [n for opt in ("--lat", "--lon") for n in given.get(opt, [])]
+    elif fmt == "mcap":
+        names += [n for opt in ("--lat", "--lon", "--heading", "--velocity") for n in given.get(opt, [])]
     return names
