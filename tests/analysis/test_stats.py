@@ -197,14 +197,18 @@ _KNOWN = {"crlf-inside-a-value-and-modem-noise": _NOISE, "frame-kinds-other-and-
 
 
 def _vector_streams() -> list:
-    from sl_vectors import load_streams
+    from sl_vectors import load_streams, pending
 
     out = []
     for s in load_streams():
         if s.get("transport") == "serial":  # (the serial transport needs serial.lua)
             continue
-        why = _KNOWN.get(s["name"])
-        out.append(pytest.param(s, id=s["name"], marks=[pytest.mark.xfail(reason=why, strict=True)] if why else []))
+        # a rule the two decoders do not both follow yet (issue 29): they differ until both do
+        # (not strict for those: the counts compared here need not depend on the rule)
+        known, rule = _KNOWN.get(s["name"]), pending(s, "agreement")
+        marks = [pytest.mark.xfail(reason=known, strict=True)] if known else \
+            [pytest.mark.xfail(reason=rule, strict=False)] if rule else []
+        out.append(pytest.param(s, id=s["name"], marks=marks))
     return out
 
 
