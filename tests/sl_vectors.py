@@ -161,3 +161,16 @@ def write_stream(stream: Stream, path: Path) -> Path:
 def expected_frames(stream: Stream) -> list[tuple[int, int, dict[str, Any]]]:
     """(packet number, frame index within the packet, expected frame) for every frame."""
     return [(n, k, f) for n, p in enumerate(stream["packets"], 1) for k, f in enumerate(p["frames"])]
+
+
+#: a real vehicle's 28-value list and its OCU's 10 control values (the public shared_link_bridge:
+#: its L0 and N0 declarations), as (name, type or None)
+REAL_VEHICLE_LIST = [
+    ("AutoGpsHead", 2), ("AutoGpsLat", 2), ("AutoGpsLon", 2), ("AutoGpsVel", 2), ("AutoGpsReferences", 0),
+    ("AutoGpsQuality", 0), ("AutoGpsStamp", 2), ("pause", 0), ("key_on", 0), ("eng_enb", 0), ("pe7", 0),
+    ("bbrake", 0), ("fbrake", 0), ("steerang", 2), ("throttle", 0), ("svp_enb_eng", None), ("serialpck", 0),
+    ("veh_gear", 0), ("veh_state", 0), ("veh_estop", 0), ("veh_obstacle", 0), ("vehicle_bat", 2),
+    ("run_composite", 4), ("VehicleName", 4), ("Health_total", 0), ("rpm", 0), ("fuel", 0), ("sys_thd", 2),
+]
+REAL_OCU_LIST = [("video_mux1", 0), ("veh_start", 0), ("veh_enable", 0), ("veh_motion", 0), ("joy_steer", 2),
+       ("veh_steer", 0), ("veh_brake", 0), ("veh_throttle", 0), ("veh_shift", 0), ("veh_clutch", 0)]

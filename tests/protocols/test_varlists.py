@@ -6,6 +6,7 @@ real vehicle; the 10 names are its OCU's control values (N0)."""
 from __future__ import annotations
 
 import pytest
+from sl_vectors import REAL_OCU_LIST, REAL_VEHICLE_LIST
 
 from sharedlink.protocols.varlists import (
     ANY_PAIR,
@@ -18,15 +19,7 @@ from sharedlink.protocols.varlists import (
     parse_varlists,
 )
 
-VEHICLE = [
-    ("AutoGpsHead", 2), ("AutoGpsLat", 2), ("AutoGpsLon", 2), ("AutoGpsVel", 2), ("AutoGpsReferences", 0),
-    ("AutoGpsQuality", 0), ("AutoGpsStamp", 2), ("pause", 0), ("key_on", 0), ("eng_enb", 0), ("pe7", 0),
-    ("bbrake", 0), ("fbrake", 0), ("steerang", 2), ("throttle", 0), ("svp_enb_eng", None), ("serialpck", 0),
-    ("veh_gear", 0), ("veh_state", 0), ("veh_estop", 0), ("veh_obstacle", 0), ("vehicle_bat", 2),
-    ("run_composite", 4), ("VehicleName", 4), ("Health_total", 0), ("rpm", 0), ("fuel", 0), ("sys_thd", 2),
-]
-OCU = [("video_mux1", 0), ("veh_start", 0), ("veh_enable", 0), ("veh_motion", 0), ("joy_steer", 2),
-       ("veh_steer", 0), ("veh_brake", 0), ("veh_throttle", 0), ("veh_shift", 0), ("veh_clutch", 0)]
+VEHICLE, OCU = REAL_VEHICLE_LIST, REAL_OCU_LIST
 VEHICLE_TEXT = (
     "AutoGpsHead:2,AutoGpsLat:2,AutoGpsLon:2,AutoGpsVel:2,AutoGpsReferences:0,AutoGpsQuality:0,AutoGpsStamp:2,"
     "pause:0,key_on:0,eng_enb:0,pe7:0,bbrake:0,fbrake:0,steerang:2,throttle:0,svp_enb_eng,serialpck:0,veh_gear:0,"
