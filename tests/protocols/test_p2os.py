@@ -505,7 +505,9 @@ def test_aria_string_argument_ends_with_its_nul(tmp_path):
                               "p2os.checksum.status", "_ws.expert.message"])
     rows = [r for r in rows if r["p2os.command.name"]]
     assert [r["p2os.command.name"] for r in rows] == [["SAY"], ["TTY2"], ["SAY"]]
-    assert [r["p2os.arg.string"] for r in rows] == [["\\x01\\x02"], ["hello"], ["\\x01\\x02"]]
+    # tshark 4.4+ escapes the backslash of a shown \x01 again in -T fields ("\\x01"); 4.0 does not
+    strings = [[v.replace("\\\\", "\\") for v in r["p2os.arg.string"]] for r in rows]
+    assert strings == [["\\x01\\x02"], ["hello"], ["\\x01\\x02"]]
     assert [r["p2os.arg.terminator"] for r in rows] == [["0x00"]] * 3
     assert [r["p2os.checksum.status"] for r in rows] == [["1"]] * 3
     assert not rows[0]["p2os.extra"] and not rows[1]["p2os.extra"]
