@@ -80,6 +80,38 @@ def _big_receive_buffer(sock: socket.socket) -> None:
             pass
 
 
+
+def socket_batches(source: Any, size: int, take: Callable[[bytes, Any], tuple[tuple, bytes] | None],
+                   timeout: float) -> Iterator[Batch]:
+    """The batches of a non-blocking socket source (``source.sock``, its datagram count
+    ``source.number``): what arrived, up to 512, each ``recvfrom(size)`` made a
+    :class:`RawDatagram` by ``take(data, addr) -> (conv, payload)`` (None: not one), drained
+    without blocking, then (nothing there) one wait of ``timeout``; after a batch that was not
+    full, a pause of :data:`GATHER_S` so the next datagrams arrive together (a wake-up per frame
+    costs more than the frame)."""
+    recv = source.sock.recvfrom
+    fd = source.sock.fileno()
+    while True:
+        out: list = []
+        n = source.number
+        while len(out) < 512:
+            try:
+                data, addr = recv(size)
+            except (BlockingIOError, InterruptedError):
+                if out or not select.select([fd], [], [], timeout)[0]:
+                    break
+                continue
+            got = take(data, addr)
+            if got is None:
+                continue
+            n += 1
+            out.append(RawDatagram(n, time.time_ns(), got[0], got[1]))
+        source.number = n
+        yield out
+        if len(out) < 512:
+            time.sleep(GATHER_S)
+
+
 class UdpSource:
     """Datagrams to ``port`` on ``host`` (every address, broadcasts included, by default), the
     port bound by the watch itself (``watch --bind-port``): they are the watch's, no other program
@@ -107,25 +139,12 @@ class UdpSource:
         the loop pauses :data:`GATHER_S` so the next datagrams arrive together. (Measured at
         10,000 frames/s: ``recvmmsg`` through ctypes saved 1.7 µs a frame over this loop, the
         pause 25 µs; not worth a ctypes binding.)"""
-        recv = self.sock.recvfrom
-        fd = self.sock.fileno()
         port = self.port
-        while True:
-            out: list = []
-            n = self.number
-            while len(out) < 512:
-                try:
-                    data, addr = recv(65535)
-                except (BlockingIOError, InterruptedError):
-                    if out or not select.select([fd], [], [], timeout)[0]:
-                        break
-                    continue
-                n += 1
-                out.append(RawDatagram(n, time.time_ns(), ("udp", addr[0], addr[1], "", port), data))
-            self.number = n
-            yield out
-            if len(out) < 512:  # let the next ones gather: a wake-up per frame costs more than the frame
-                time.sleep(GATHER_S)
+
+        def take(data: bytes, addr: Any) -> tuple[tuple, bytes]:
+            return ("udp", addr[0], addr[1], "", port), data
+
+        return socket_batches(self, 65535, take, timeout)
 
     def now_ns(self) -> int:
         return time.time_ns()
@@ -271,30 +290,15 @@ class UdpSniffer:
 
     def batches(self, timeout: float) -> Iterator[Batch]:
         """As :meth:`UdpSource.batches`, from the copies the tap gives."""
-        recv = self.sock.recvfrom
-        fd = self.sock.fileno()
         datagram = self._datagram
-        while True:
-            out: list = []
-            n = self.number
-            while len(out) < 512:
-                try:
-                    data, addr = recv(SNAPLEN)
-                except (BlockingIOError, InterruptedError):
-                    if out or not select.select([fd], [], [], timeout)[0]:
-                        break
-                    continue
-                if addr[2] == PACKET_OUTGOING and addr[3] == ARPHRD_LOOPBACK:
-                    continue  # seen again coming in
-                u = datagram(data)
-                if u is None:
-                    continue
-                n += 1
-                out.append(RawDatagram(n, time.time_ns(), ("udp", u[0], u[1], u[2], u[3]), u[4]))
-            self.number = n
-            yield out
-            if len(out) < 512:
-                time.sleep(GATHER_S)
+
+        def take(data: bytes, addr: Any) -> tuple[tuple, bytes] | None:
+            if addr[2] == PACKET_OUTGOING and addr[3] == ARPHRD_LOOPBACK:
+                return None  # seen again coming in
+            u = datagram(data)
+            return None if u is None else (("udp", u[0], u[1], u[2], u[3]), u[4])
+
+        return socket_batches(self, SNAPLEN, take, timeout)
 
     def now_ns(self) -> int:
         return time.time_ns()
