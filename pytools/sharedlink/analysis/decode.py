@@ -197,6 +197,9 @@ class ReferenceDecoder:
 #: numeric values, or a bare ``N0`` (nothing changed): groups destination letter, source letter,
 #: body ("T2|QName|Dvalue|" ..., empty when bare), checksum
 _HOT = re.compile(r"\[:([A-P])([A-P])\|N0\|((?:T[024]\|Q[A-Za-z0-9_.]+\|D[-+0-9.eE]+\|)*)C([0-9A-F]{2})\]\r\n")
+#: one positional ``N0`` frame alone in a datagram, numeric or empty (carried) values: groups
+#: destination letter, source letter, body ("|Dvalue|D|Dvalue" ..., at least one value), checksum
+_HOT_POS = re.compile(r"\[:([A-P])([A-P])\|N0((?:\|D[-+0-9.eE]*)+)\|C([0-9A-F]{2})\]\r\n")
 _HEX = {f"{i:02X}": i for i in range(256)}
 #: checksum digits -> what to take from (1 + the byte sum of the whole frame) so that the rest is
 #: 0 mod 256 when the checksum is right: the 1, '[' (91), the digits, ']' CR LF (116) and the value
@@ -215,10 +218,11 @@ class _Layout:
     while the direction's names stay the same (``stamp``): the names the frame leaves out
     (carried) and whether it is full."""
 
-    __slots__ = ("names", "types", "present", "stamp", "missing", "full", "checked", "full_at")
+    __slots__ = ("names", "types", "present", "stamp", "missing", "full", "checked", "full_at", "vars")
 
-    def __init__(self, names: tuple[str, ...], types: tuple[int, ...]) -> None:
+    def __init__(self, names: tuple[str, ...], types: tuple[int, ...], vars_: tuple = ()) -> None:
         self.names, self.types, self.present = names, types, frozenset(names)
+        self.vars = vars_  # positional: the slots' Variables, as the reference path named them
         self.checked = -1  # the direction's version its types were last checked at
         self.full_at = -1  # ... and ``full`` worked out at (counts only)
         self.stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) the two below hold for
@@ -228,15 +232,18 @@ class _Layout:
 
 class _Hot:
     """A direction's steady state: its table, sync state and the layouts its good full and
-    delta frames have had; ``last``: the last Update the fast path made for each variable,
-    reused while it still says the same (Updates are immutable)."""
+    delta frames have had (named: by types and names; positional: by slot count, named as the
+    reference path named the slots of the last such frame it decoded); ``last``: the last
+    Update the fast path made for each variable, reused while it still says the same (Updates
+    are immutable; forgotten whenever the reference path decodes a frame of the direction)."""
 
-    __slots__ = ("table", "sync", "layouts", "last", "stamp", "version")
+    __slots__ = ("table", "sync", "layouts", "last", "stamp", "version", "pos")
 
     def __init__(self, table: VariableTable, sync: list) -> None:
         self.table, self.sync = table, sync
         self.version = 0  # counts the direction's frames through the reference path (types may move)
         self.layouts: dict[tuple[str, ...], _Layout] = {}
+        self.pos: dict[int, _Layout] = {}  # positional layouts by slot count
         self.last: dict[str, Update] = {}
         self.stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) ``last`` was made for
 
@@ -291,8 +298,12 @@ class Decoder(ReferenceDecoder):
       variables still of those types, is decoded from one latin-1 string and one split, without
       building a :class:`~sharedlink.protocols.codec.Frame` (``Decoded.frame`` parses it if
       asked); unchanged carried values reuse the Update made for the previous frame;
+    * so is a positional ``N0`` frame alone in a datagram with as many slots as its direction's
+      last positional frame through the reference path, its slots named as that decoding named
+      them (the naming rules stay in :mod:`sharedlink.protocols.state`);
     * everything else goes through the reference path; a frame there that changes the
-      direction's state in another way forgets its layouts, a declaration forgets every layout;
+      direction's state in another way forgets its layouts, a declaration forgets every layout,
+      and any frame there forgets the Updates kept for reuse and the positional layouts;
     * :meth:`capture` reads a capture's plain Ethernet/IPv4/UDP records without the general
       packet decoder, the rest through :func:`sharedlink.capture.stream.iter_frames`' splitters.
     """
@@ -338,12 +349,38 @@ class Decoder(ReferenceDecoder):
         :class:`Decoded` frames (for callers that count: no per-frame objects)."""
         return _capture_items(self, path, progress, counts)
 
+    def datagram(self, dg) -> Iterator[Decoded | StreamFrame]:
+        """:meth:`decode_datagram` of an object with ``number``, ``ts_ns``, ``conv`` and ``data``
+        (the watch's received datagrams)."""
+        return self.decode_datagram(dg.number, dg.ts_ns, dg.conv, dg.data)
+
     def _try_fast(self, number: int, ts: int, conv: tuple, raw: bytes) -> Decoded | None:
         found = self._match(conv, raw)
         if found is None:
-            return None
+            return self._try_positional(number, ts, conv, raw)
         h, lay, src, dst, values = found
         return self._fast(number, ts, conv, raw, h, lay, src, dst, values)
+
+    def _try_positional(self, number: int, ts: int, conv: tuple, raw: bytes) -> Decoded | None:
+        """A positional ``N0`` frame alone in a datagram, in a slot count its direction's last
+        reference-path frame had, with a good checksum: decoded without a Frame."""
+        m = _HOT_POS.fullmatch(raw.decode("latin-1"))
+        if m is None:
+            return None
+        dst, src, body, cs = m.groups()
+        h = self._hot.get((conv, src, dst))
+        if h is None or not h.pos:
+            return None
+        values = body[2:].split("|D")
+        lay = h.pos.get(len(values))
+        if lay is None:
+            return None
+        if len(raw) <= 256:
+            if ((adler32(raw) & 0xFFFF) - _CKSUB[cs]) & 0xFF:
+                return None
+        elif (sum(raw[1 : m.end(3) + 1]) & 0xFF) != _HEX[cs]:
+            return None
+        return self._fast_positional(number, ts, conv, raw, h, lay, src, dst, values)
 
     def _match(self, conv: tuple, raw: bytes) -> tuple[_Hot, _Layout, str, str, list[str]] | None:
         """The direction, layout, letters and values (``D`` fields) of a datagram the fast path
@@ -355,7 +392,7 @@ class Decoder(ReferenceDecoder):
             return None
         dst, src, body, cs = m.groups()
         h = self._hot.get((conv, src, dst))
-        if h is None:
+        if h is None or (not body and h.table.named is not True):  # (a bare N0 takes the direction's form)
             return None
         parts = body.split("|")
         lay = h.layouts.get(_layout_key(parts))
@@ -472,10 +509,15 @@ class Decoder(ReferenceDecoder):
         if d.checksum_ok is False:
             return  # changed nothing
         key = (d.conv, d.src, d.dst)
-        m = _HOT.fullmatch(d.raw.decode("latin-1"))
+        text = d.raw.decode("latin-1")
+        m = _HOT.fullmatch(text)
         sync = self._sync.get((conversation_key(d.conv), d.src, d.dst))
+        named = d.table.named
         # (a bare N0 is named only in a direction already named, else it is read as positional)
-        if m is None or d.checksum_ok is not True or d.kind not in DATA_KINDS or sync is None or d.table.named is not True:
+        if m is None or named is not True:
+            m = None
+            mp = _HOT_POS.fullmatch(text) if named is False else None
+        if (m is None and mp is None) or d.checksum_ok is not True or d.kind not in DATA_KINDS or sync is None:
             self._hot.pop(key, None)
             return
         h = self._hot.get(key)
@@ -484,6 +526,17 @@ class Decoder(ReferenceDecoder):
                 return
             h = self._hot[key] = _Hot(d.table, sync)
         h.version += 1
+        h.last.clear()  # the reference path may have moved a type, an index or a value
+        h.pos.clear()  # slots are named as this frame's decoding says, not as an earlier one's
+        if m is None:
+            # a positional layout: the names the reference path gave the slots, in slot order
+            ups = d.updates
+            n = len(mp.group(3)[2:].split("|D"))
+            vars_ = d.table.vars
+            if len(ups) == n and all(u.index == i and u.name in vars_ for i, u in enumerate(ups)):
+                names = tuple(u.name for u in ups)
+                h.pos[n] = _Layout(names, (), tuple(vars_[x] for x in names))
+            return
         parts = m.group(3).split("|")  # the body ends with its last "|": one more, empty part
         names = tuple(q[1:] for q in parts[1::3])
         if len(h.layouts) < MAX_LAYOUTS and all(n in d.table.vars for n in names):
@@ -498,7 +551,7 @@ class Decoder(ReferenceDecoder):
         updates: list[Update] = []
         add = updates.append
         stamp = (len(vars_), len(sent))
-        if h.stamp != stamp:  # new names: indexes and types may differ, make every Update again
+        if h.stamp != stamp or table.named is not True:  # new names or another form: indexes may differ
             last.clear()
             h.stamp = stamp
         if lay.stamp != stamp:  # the direction's names changed: what the layout leaves out, again
@@ -536,6 +589,56 @@ class Decoder(ReferenceDecoder):
         gap: int | None = None
         late = False
         full = lay.full
+        if full:
+            table.last_full_at, table.last_full_in = ts, number
+            if sync[1] is not None:
+                gap = ts - sync[1]
+            sync[1] = ts
+        else:
+            since = sync[1] if sync[1] is not None else sync[0]
+            late = ts - since > self.late_ns
+        self.fast += 1
+        ups = tuple(updates)
+        return Decoded(number, ts, conv, raw, None, "full" if full else "delta", True, ups, table, late, gap, ups, None,
+                       src, dst)
+
+    def _fast_positional(self, number: int, ts: int, conv: tuple, raw: bytes, h: _Hot, lay: _Layout, src: str,
+                         dst: str, values: list[str]) -> Decoded:
+        """A positional frame, as :meth:`VariableTable._positional` decodes it (a slot without a
+        value: its variable carried; full when every slot that has held a value has one)."""
+        table = h.table
+        filled = table.filled
+        n = len(values)
+        last = h.last
+        if table.named is not False:  # the named path's Updates index names by when they were sent
+            last.clear()
+        full = True
+        for i in filled:  # the kind before the frame, as VariableTable.kind
+            if i >= n or not values[i]:
+                full = False
+                break
+        updates: list[Update] = []
+        add = updates.append
+        for i, (v, text) in enumerate(zip(lay.vars, values)):
+            name = v.name
+            u = last.get(name)
+            if not text:
+                t = v.text
+                if u is None or not u.carried or u.index != i or u.carried_from != v.set_in or u.text != t:
+                    u = last[name] = _update(v, i, True, v.set_in, False)
+                add(u)
+                continue
+            if i not in filled:
+                filled.add(i)
+            changed = v.text != text
+            v.text, v.set_in, v.set_at = text, number, ts
+            if changed or u is None or u.changed or u.carried or u.index != i or u.text != text:
+                u = last[name] = _update(v, i, False, None, changed)
+            add(u)
+        table.named = False
+        sync = h.sync
+        gap: int | None = None
+        late = False
         if full:
             table.last_full_at, table.last_full_in = ts, number
             if sync[1] is not None:
