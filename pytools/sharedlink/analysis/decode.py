@@ -28,6 +28,7 @@ Choices (shared with the dissector, see ``docs/protocol.md``):
 
 from __future__ import annotations
 
+import os
 import re
 import socket
 import struct
@@ -37,7 +38,16 @@ from typing import NamedTuple
 from zlib import adler32
 
 from sharedlink.capture.packets import Datagram, PacketDecoder
-from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, NS, CaptureError, read_records
+from sharedlink.capture.pcapio import (
+    LINKTYPE_ETHERNET,
+    NS,
+    PCAP_MAGIC_NS,
+    PCAP_MAGIC_US,
+    CaptureError,
+    pcap_header,
+    read_records,
+    shown_name,
+)
 from sharedlink.capture.serial_format import USER_LINKTYPES
 from sharedlink.capture.stream import FrameSplitter, SerialSplitter, StreamFrame
 from sharedlink.protocols.codec import Frame, oversized_numbers, parse_frame
@@ -313,7 +323,7 @@ class Decoder(ReferenceDecoder):
         super().__init__(variables, sync_interval, carried)
         self._hot: dict[tuple, _Hot] = {}
         self.fast = 0  # frames decoded by the fast path
-        self.batch: dict[tuple, DirCounts] = {}  # counts only: what count() took, per direction
+        self.batch: dict[_Hot, DirCounts] = {}  # counts only: what count() took, per direction
         self.splitter = FrameSplitter()
 
     def decode(self, sf: StreamFrame) -> Decoded:
@@ -422,10 +432,9 @@ class Decoder(ReferenceDecoder):
         if found is None:
             return False
         h, lay, src, dst, values = found
-        key = (conv, src, dst)
-        c = self.batch.get(key)
+        c = self.batch.get(h)  # (by direction: one _Hot each)
         if c is None:
-            c = self.batch[key] = DirCounts(conv, src, dst, h, ts, self._hot_size(h))
+            c = self.batch[h] = DirCounts(conv, src, dst, h, ts, self._hot_size(h))
         vars_ = h.table.vars
         size = c.size
         for name, dval in zip(lay.names, values):
@@ -472,7 +481,7 @@ class Decoder(ReferenceDecoder):
     def take_batch(self) -> dict[tuple, DirCounts]:
         """What :meth:`count` gathered since the last call (then empty), the tables brought up
         to date (which frame last set each value, the last full set, the form)."""
-        b = self.batch
+        b = {(c.conv, c.src, c.dst): c for c in self.batch.values()}
         self.batch = {}
         for c in b.values():
             table = c.table
@@ -689,28 +698,30 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
     unpack = _UDP_HEAD.unpack_from
     read = 24  # bytes of the file read, about (pcap's headers; pcapng's blocks are a little longer)
     try:
-        for rec in read_records(path):
-            data = rec.data
+        for number, ts_ns, linktype, data, flags, interface in _records(path):
             if progress is not None:
                 read += 16 + len(data)
-                if not rec.number & 4095:
-                    progress(read, rec.number)
-            if rec.linktype == LINKTYPE_ETHERNET and data[12:15] == _ETH_IPV4 and len(data) >= 42 and data[23] == _UDP:
-                tlen, frag, a, sport, dport, ulen = unpack(data, 16)
+                if not number & 4095:
+                    progress(read, number)
+            if linktype == LINKTYPE_ETHERNET and len(data) >= 42:
+                eth, tlen, frag, proto, key, ulen = unpack(data, 12)
+            else:
+                eth = None
+            if eth == _ETH_IPV4 and proto == _UDP:
                 if not frag & 0x3FFF and tlen >= 20:
-                    key = a + data[34:38]
                     conv = addrs.get(key)
                     if conv is None:
                         if len(addrs) > MAX_CONVERSATIONS:
                             addrs.clear()
-                        conv = addrs[key] = ("udp", socket.inet_ntoa(a[:4]), sport, socket.inet_ntoa(a[4:8]), dport)
+                        sport, dport = struct.unpack_from("!HH", key, 8)
+                        conv = addrs[key] = ("udp", socket.inet_ntoa(key[:4]), sport, socket.inet_ntoa(key[4:8]), dport)
                     end = min(14 + tlen, len(data))
                     if end >= 42:  # (else the general decoder's verdict: not a UDP datagram)
                         stop = min(34 + ulen, end) if ulen >= 8 else end
                         if stop > 42:
                             payload = data[42:stop]
                             if counting:
-                                if count(rec.number, rec.ts_ns, conv, payload):
+                                if count(number, ts_ns, conv, payload):
                                     taken += 1
                                     if taken >= BATCH_FRAMES:
                                         yield Counted(dec.take_batch())
@@ -719,20 +730,20 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
                                 if taken:
                                     yield Counted(dec.take_batch())
                                     taken = 0
-                            yield from datagram(rec.number, rec.ts_ns, conv, payload)
+                            yield from datagram(number, ts_ns, conv, payload)
                         continue
             if taken:
                 yield Counted(dec.take_batch())
                 taken = 0
-            if rec.linktype in USER_LINKTYPES:
-                for item in serial.feed(rec.number, rec.ts_ns, rec.linktype, data, rec.flags, rec.interface):
+            if linktype in USER_LINKTYPES:
+                for item in serial.feed(number, ts_ns, linktype, data, flags, interface):
                     yield _decode_item(dec, general, item)
                 continue
-            dg = packets(rec.linktype, data)
+            dg = packets(linktype, data)
             if dg is None:
-                yield rec.number, rec.ts_ns
+                yield number, ts_ns
                 continue
-            for sf in splitter.split(rec.number, rec.ts_ns, dg):
+            for sf in splitter.split(number, ts_ns, dg):
                 yield _decode_item(dec, general, sf)
     except CaptureError:
         if dec.batch:
@@ -746,6 +757,66 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
         yield _decode_item(dec, general, item)
 
 
+#: a classic little-endian pcap record header
+_PCAP_REC = struct.Struct("<IIII")
+#: bytes of a classic pcap file read at a time
+PCAP_BLOCK = 1 << 20
+
+
+def _records(path: str | Path) -> Iterator[tuple[int, int, int, bytes, int, int]]:
+    """``(number, ts_ns, link type, data, flags, interface)`` of every record: a regular classic
+    little-endian pcap file read in blocks here (no Record object, one read a block), anything
+    else through :func:`~sharedlink.capture.pcapio.read_records`. The same records and the
+    same :class:`~sharedlink.capture.pcapio.CaptureError` s either way."""
+    p = str(path)
+    fh = None
+    if os.path.isfile(p):
+        try:
+            fh = open(p, "rb")  # noqa: SIM115 - closed below
+        except OSError:
+            fh = None  # read_records reports it
+    if fh is None:
+        for r in read_records(path):
+            yield r.number, r.ts_ns, r.linktype, r.data, r.flags, r.interface
+        return
+    with fh:
+        head = fh.read(24)
+        magic = struct.unpack_from("<I", head)[0] if len(head) >= 4 else None
+        if magic not in (PCAP_MAGIC_NS, PCAP_MAGIC_US) or len(head) < 24:
+            fh.close()
+            for r in read_records(path):
+                yield r.number, r.ts_ns, r.linktype, r.data, r.flags, r.interface
+            return
+        name = shown_name(path)
+        _endian, mult, linktype = pcap_header(name, head)
+        unpack = _PCAP_REC.unpack_from
+        number = 0
+        rest = b""
+        while True:
+            block = fh.read(PCAP_BLOCK)
+            buf = rest + block if rest else block
+            end = len(buf)
+            off = 0
+            while off + 16 <= end:
+                sec, frac, incl, _orig = unpack(buf, off)
+                if incl > 0x4000000:
+                    raise CaptureError(name, number + 1, f"record length {incl} is implausible (damaged file)")
+                e = off + 16 + incl
+                if e > end:
+                    break
+                number += 1
+                yield number, sec * NS + frac * mult, linktype, buf[off + 16 : e], 0, 0
+                off = e
+            rest = buf[off:]
+            if not block:
+                break
+        if rest:
+            if len(rest) < 16:
+                raise CaptureError(name, number + 1, f"truncated record header ({len(rest)} of 16 bytes)")
+            incl = _PCAP_REC.unpack_from(rest)[2]
+            raise CaptureError(name, number + 1, f"truncated record ({len(rest) - 16} of {incl} bytes)")
+
+
 def _decode_item(dec: Decoder, general: Callable, item: StreamFrame | tuple[int, int]
                  ) -> Decoded | StreamFrame | tuple[int, int]:
     if isinstance(item, StreamFrame) and item.frame is not None:
@@ -755,9 +826,10 @@ def _decode_item(dec: Decoder, general: Callable, item: StreamFrame | tuple[int,
     return item
 
 
-#: from byte 16 of an Ethernet/IPv4 packet: IP total length, flags and fragment offset, (TTL,
-#: protocol, checksum skipped) the addresses (8 bytes), UDP ports and length
-_UDP_HEAD = struct.Struct("!H2xH4x8sHHH")
+#: from byte 12 of an Ethernet/IPv4 packet: the type and the IP version and header length (3
+#: bytes), IP total length, flags and fragment offset, (TTL skipped) protocol, (checksum
+#: skipped) the addresses and UDP ports (12 bytes: the conversation), UDP length
+_UDP_HEAD = struct.Struct("!3sxHxxHxB2x12sH")
 
 
 def iter_decoded(
