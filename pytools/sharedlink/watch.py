@@ -420,15 +420,9 @@ def _ts_ns(item: Any) -> int:
 # -- decoding: the core decoder -----------------------------------------------------------------
 
 
-class FastDecoder(Decoder):
-    """The decoding core (:class:`~sharedlink.analysis.decode.Decoder`: a fast path for frames
-    in a layout already seen, the reference path for the rest), taking the UDP source's
-    :class:`RawDatagram` s whole."""
-
-    def datagram(self, dg: RawDatagram) -> Iterator[Decoded | StreamFrame]:
-        """The frames of a UDP datagram, and its noise (a :class:`StreamFrame` with ``frame`` None),
-        each decoded when taken."""
-        return self.decode_datagram(dg.number, dg.ts_ns, dg.conv, dg.data)
+#: the old name of the decoding core here: :class:`~sharedlink.analysis.decode.Decoder` takes the
+#: UDP source's :class:`RawDatagram` s whole itself (:meth:`~sharedlink.analysis.decode.Decoder.datagram`)
+FastDecoder = Decoder
 
 
 # -- the live view ---------------------------------------------------------------------------

@@ -28,6 +28,7 @@ Choices (shared with the dissector, see ``docs/protocol.md``):
 
 from __future__ import annotations
 
+import os
 import re
 import socket
 import struct
@@ -37,7 +38,16 @@ from typing import NamedTuple
 from zlib import adler32
 
 from sharedlink.capture.packets import Datagram, PacketDecoder
-from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, NS, CaptureError, read_records
+from sharedlink.capture.pcapio import (
+    LINKTYPE_ETHERNET,
+    NS,
+    PCAP_MAGIC_NS,
+    PCAP_MAGIC_US,
+    CaptureError,
+    pcap_header,
+    read_records,
+    shown_name,
+)
 from sharedlink.capture.serial_format import USER_LINKTYPES
 from sharedlink.capture.stream import FrameSplitter, SerialSplitter, StreamFrame
 from sharedlink.protocols.codec import Frame, oversized_numbers, parse_frame
@@ -197,6 +207,9 @@ class ReferenceDecoder:
 #: numeric values, or a bare ``N0`` (nothing changed): groups destination letter, source letter,
 #: body ("T2|QName|Dvalue|" ..., empty when bare), checksum
 _HOT = re.compile(r"\[:([A-P])([A-P])\|N0\|((?:T[024]\|Q[A-Za-z0-9_.]+\|D[-+0-9.eE]+\|)*)C([0-9A-F]{2})\]\r\n")
+#: one positional ``N0`` frame alone in a datagram, numeric or empty (carried) values: groups
+#: destination letter, source letter, body ("|Dvalue|D|Dvalue" ..., at least one value), checksum
+_HOT_POS = re.compile(r"\[:([A-P])([A-P])\|N0((?:\|D[-+0-9.eE]*)+)\|C([0-9A-F]{2})\]\r\n")
 _HEX = {f"{i:02X}": i for i in range(256)}
 #: checksum digits -> what to take from (1 + the byte sum of the whole frame) so that the rest is
 #: 0 mod 256 when the checksum is right: the 1, '[' (91), the digits, ']' CR LF (116) and the value
@@ -215,10 +228,11 @@ class _Layout:
     while the direction's names stay the same (``stamp``): the names the frame leaves out
     (carried) and whether it is full."""
 
-    __slots__ = ("names", "types", "present", "stamp", "missing", "full", "checked", "full_at")
+    __slots__ = ("names", "types", "present", "stamp", "missing", "full", "checked", "full_at", "vars")
 
-    def __init__(self, names: tuple[str, ...], types: tuple[int, ...]) -> None:
+    def __init__(self, names: tuple[str, ...], types: tuple[int, ...], vars_: tuple = ()) -> None:
         self.names, self.types, self.present = names, types, frozenset(names)
+        self.vars = vars_  # positional: the slots' Variables, as the reference path named them
         self.checked = -1  # the direction's version its types were last checked at
         self.full_at = -1  # ... and ``full`` worked out at (counts only)
         self.stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) the two below hold for
@@ -228,15 +242,18 @@ class _Layout:
 
 class _Hot:
     """A direction's steady state: its table, sync state and the layouts its good full and
-    delta frames have had; ``last``: the last Update the fast path made for each variable,
-    reused while it still says the same (Updates are immutable)."""
+    delta frames have had (named: by types and names; positional: by slot count, named as the
+    reference path named the slots of the last such frame it decoded); ``last``: the last
+    Update the fast path made for each variable, reused while it still says the same (Updates
+    are immutable; forgotten whenever the reference path decodes a frame of the direction)."""
 
-    __slots__ = ("table", "sync", "layouts", "last", "stamp", "version")
+    __slots__ = ("table", "sync", "layouts", "last", "stamp", "version", "pos")
 
     def __init__(self, table: VariableTable, sync: list) -> None:
         self.table, self.sync = table, sync
         self.version = 0  # counts the direction's frames through the reference path (types may move)
         self.layouts: dict[tuple[str, ...], _Layout] = {}
+        self.pos: dict[int, _Layout] = {}  # positional layouts by slot count
         self.last: dict[str, Update] = {}
         self.stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) ``last`` was made for
 
@@ -291,8 +308,12 @@ class Decoder(ReferenceDecoder):
       variables still of those types, is decoded from one latin-1 string and one split, without
       building a :class:`~sharedlink.protocols.codec.Frame` (``Decoded.frame`` parses it if
       asked); unchanged carried values reuse the Update made for the previous frame;
+    * so is a positional ``N0`` frame alone in a datagram with as many slots as its direction's
+      last positional frame through the reference path, its slots named as that decoding named
+      them (the naming rules stay in :mod:`sharedlink.protocols.state`);
     * everything else goes through the reference path; a frame there that changes the
-      direction's state in another way forgets its layouts, a declaration forgets every layout;
+      direction's state in another way forgets its layouts, a declaration forgets every layout,
+      and any frame there forgets the Updates kept for reuse and the positional layouts;
     * :meth:`capture` reads a capture's plain Ethernet/IPv4/UDP records without the general
       packet decoder, the rest through :func:`sharedlink.capture.stream.iter_frames`' splitters.
     """
@@ -302,7 +323,7 @@ class Decoder(ReferenceDecoder):
         super().__init__(variables, sync_interval, carried)
         self._hot: dict[tuple, _Hot] = {}
         self.fast = 0  # frames decoded by the fast path
-        self.batch: dict[tuple, DirCounts] = {}  # counts only: what count() took, per direction
+        self.batch: dict[_Hot, DirCounts] = {}  # counts only: what count() took, per direction
         self.splitter = FrameSplitter()
 
     def decode(self, sf: StreamFrame) -> Decoded:
@@ -338,12 +359,38 @@ class Decoder(ReferenceDecoder):
         :class:`Decoded` frames (for callers that count: no per-frame objects)."""
         return _capture_items(self, path, progress, counts)
 
+    def datagram(self, dg) -> Iterator[Decoded | StreamFrame]:
+        """:meth:`decode_datagram` of an object with ``number``, ``ts_ns``, ``conv`` and ``data``
+        (the watch's received datagrams)."""
+        return self.decode_datagram(dg.number, dg.ts_ns, dg.conv, dg.data)
+
     def _try_fast(self, number: int, ts: int, conv: tuple, raw: bytes) -> Decoded | None:
         found = self._match(conv, raw)
         if found is None:
-            return None
+            return self._try_positional(number, ts, conv, raw)
         h, lay, src, dst, values = found
         return self._fast(number, ts, conv, raw, h, lay, src, dst, values)
+
+    def _try_positional(self, number: int, ts: int, conv: tuple, raw: bytes) -> Decoded | None:
+        """A positional ``N0`` frame alone in a datagram, in a slot count its direction's last
+        reference-path frame had, with a good checksum: decoded without a Frame."""
+        m = _HOT_POS.fullmatch(raw.decode("latin-1"))
+        if m is None:
+            return None
+        dst, src, body, cs = m.groups()
+        h = self._hot.get((conv, src, dst))
+        if h is None or not h.pos:
+            return None
+        values = body[2:].split("|D")
+        lay = h.pos.get(len(values))
+        if lay is None:
+            return None
+        if len(raw) <= 256:
+            if ((adler32(raw) & 0xFFFF) - _CKSUB[cs]) & 0xFF:
+                return None
+        elif (sum(raw[1 : m.end(3) + 1]) & 0xFF) != _HEX[cs]:
+            return None
+        return self._fast_positional(number, ts, conv, raw, h, lay, src, dst, values)
 
     def _match(self, conv: tuple, raw: bytes) -> tuple[_Hot, _Layout, str, str, list[str]] | None:
         """The direction, layout, letters and values (``D`` fields) of a datagram the fast path
@@ -355,7 +402,7 @@ class Decoder(ReferenceDecoder):
             return None
         dst, src, body, cs = m.groups()
         h = self._hot.get((conv, src, dst))
-        if h is None:
+        if h is None or (not body and h.table.named is not True):  # (a bare N0 takes the direction's form)
             return None
         parts = body.split("|")
         lay = h.layouts.get(_layout_key(parts))
@@ -385,10 +432,9 @@ class Decoder(ReferenceDecoder):
         if found is None:
             return False
         h, lay, src, dst, values = found
-        key = (conv, src, dst)
-        c = self.batch.get(key)
+        c = self.batch.get(h)  # (by direction: one _Hot each)
         if c is None:
-            c = self.batch[key] = DirCounts(conv, src, dst, h, ts, self._hot_size(h))
+            c = self.batch[h] = DirCounts(conv, src, dst, h, ts, self._hot_size(h))
         vars_ = h.table.vars
         size = c.size
         for name, dval in zip(lay.names, values):
@@ -435,7 +481,7 @@ class Decoder(ReferenceDecoder):
     def take_batch(self) -> dict[tuple, DirCounts]:
         """What :meth:`count` gathered since the last call (then empty), the tables brought up
         to date (which frame last set each value, the last full set, the form)."""
-        b = self.batch
+        b = {(c.conv, c.src, c.dst): c for c in self.batch.values()}
         self.batch = {}
         for c in b.values():
             table = c.table
@@ -472,10 +518,15 @@ class Decoder(ReferenceDecoder):
         if d.checksum_ok is False:
             return  # changed nothing
         key = (d.conv, d.src, d.dst)
-        m = _HOT.fullmatch(d.raw.decode("latin-1"))
+        text = d.raw.decode("latin-1")
+        m = _HOT.fullmatch(text)
         sync = self._sync.get((conversation_key(d.conv), d.src, d.dst))
+        named = d.table.named
         # (a bare N0 is named only in a direction already named, else it is read as positional)
-        if m is None or d.checksum_ok is not True or d.kind not in DATA_KINDS or sync is None or d.table.named is not True:
+        if m is None or named is not True:
+            m = None
+            mp = _HOT_POS.fullmatch(text) if named is False else None
+        if (m is None and mp is None) or d.checksum_ok is not True or d.kind not in DATA_KINDS or sync is None:
             self._hot.pop(key, None)
             return
         h = self._hot.get(key)
@@ -484,6 +535,17 @@ class Decoder(ReferenceDecoder):
                 return
             h = self._hot[key] = _Hot(d.table, sync)
         h.version += 1
+        h.last.clear()  # the reference path may have moved a type, an index or a value
+        h.pos.clear()  # slots are named as this frame's decoding says, not as an earlier one's
+        if m is None:
+            # a positional layout: the names the reference path gave the slots, in slot order
+            ups = d.updates
+            n = len(mp.group(3)[2:].split("|D"))
+            vars_ = d.table.vars
+            if len(ups) == n and all(u.index == i and u.name in vars_ for i, u in enumerate(ups)):
+                names = tuple(u.name for u in ups)
+                h.pos[n] = _Layout(names, (), tuple(vars_[x] for x in names))
+            return
         parts = m.group(3).split("|")  # the body ends with its last "|": one more, empty part
         names = tuple(q[1:] for q in parts[1::3])
         if len(h.layouts) < MAX_LAYOUTS and all(n in d.table.vars for n in names):
@@ -498,7 +560,7 @@ class Decoder(ReferenceDecoder):
         updates: list[Update] = []
         add = updates.append
         stamp = (len(vars_), len(sent))
-        if h.stamp != stamp:  # new names: indexes and types may differ, make every Update again
+        if h.stamp != stamp or table.named is not True:  # new names or another form: indexes may differ
             last.clear()
             h.stamp = stamp
         if lay.stamp != stamp:  # the direction's names changed: what the layout leaves out, again
@@ -549,6 +611,56 @@ class Decoder(ReferenceDecoder):
         return Decoded(number, ts, conv, raw, None, "full" if full else "delta", True, ups, table, late, gap, ups, None,
                        src, dst)
 
+    def _fast_positional(self, number: int, ts: int, conv: tuple, raw: bytes, h: _Hot, lay: _Layout, src: str,
+                         dst: str, values: list[str]) -> Decoded:
+        """A positional frame, as :meth:`VariableTable._positional` decodes it (a slot without a
+        value: its variable carried; full when every slot that has held a value has one)."""
+        table = h.table
+        filled = table.filled
+        n = len(values)
+        last = h.last
+        if table.named is not False:  # the named path's Updates index names by when they were sent
+            last.clear()
+        full = True
+        for i in filled:  # the kind before the frame, as VariableTable.kind
+            if i >= n or not values[i]:
+                full = False
+                break
+        updates: list[Update] = []
+        add = updates.append
+        for i, (v, text) in enumerate(zip(lay.vars, values)):
+            name = v.name
+            u = last.get(name)
+            if not text:
+                t = v.text
+                if u is None or not u.carried or u.index != i or u.carried_from != v.set_in or u.text != t:
+                    u = last[name] = _update(v, i, True, v.set_in, False)
+                add(u)
+                continue
+            if i not in filled:
+                filled.add(i)
+            changed = v.text != text
+            v.text, v.set_in, v.set_at = text, number, ts
+            if changed or u is None or u.changed or u.carried or u.index != i or u.text != text:
+                u = last[name] = _update(v, i, False, None, changed)
+            add(u)
+        table.named = False
+        sync = h.sync
+        gap: int | None = None
+        late = False
+        if full:
+            table.last_full_at, table.last_full_in = ts, number
+            if sync[1] is not None:
+                gap = ts - sync[1]
+            sync[1] = ts
+        else:
+            since = sync[1] if sync[1] is not None else sync[0]
+            late = ts - since > self.late_ns
+        self.fast += 1
+        ups = tuple(updates)
+        return Decoded(number, ts, conv, raw, None, "full" if full else "delta", True, ups, table, late, gap, ups, None,
+                       src, dst)
+
 
 # -- captures ---------------------------------------------------------------------------------
 
@@ -586,28 +698,30 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
     unpack = _UDP_HEAD.unpack_from
     read = 24  # bytes of the file read, about (pcap's headers; pcapng's blocks are a little longer)
     try:
-        for rec in read_records(path):
-            data = rec.data
+        for number, ts_ns, linktype, data, flags, interface in _records(path):
             if progress is not None:
                 read += 16 + len(data)
-                if not rec.number & 4095:
-                    progress(read, rec.number)
-            if rec.linktype == LINKTYPE_ETHERNET and data[12:15] == _ETH_IPV4 and len(data) >= 42 and data[23] == _UDP:
-                tlen, frag, a, sport, dport, ulen = unpack(data, 16)
+                if not number & 4095:
+                    progress(read, number)
+            if linktype == LINKTYPE_ETHERNET and len(data) >= 42:
+                eth, tlen, frag, proto, key, ulen = unpack(data, 12)
+            else:
+                eth = None
+            if eth == _ETH_IPV4 and proto == _UDP:
                 if not frag & 0x3FFF and tlen >= 20:
-                    key = a + data[34:38]
                     conv = addrs.get(key)
                     if conv is None:
                         if len(addrs) > MAX_CONVERSATIONS:
                             addrs.clear()
-                        conv = addrs[key] = ("udp", socket.inet_ntoa(a[:4]), sport, socket.inet_ntoa(a[4:8]), dport)
+                        sport, dport = struct.unpack_from("!HH", key, 8)
+                        conv = addrs[key] = ("udp", socket.inet_ntoa(key[:4]), sport, socket.inet_ntoa(key[4:8]), dport)
                     end = min(14 + tlen, len(data))
                     if end >= 42:  # (else the general decoder's verdict: not a UDP datagram)
                         stop = min(34 + ulen, end) if ulen >= 8 else end
                         if stop > 42:
                             payload = data[42:stop]
                             if counting:
-                                if count(rec.number, rec.ts_ns, conv, payload):
+                                if count(number, ts_ns, conv, payload):
                                     taken += 1
                                     if taken >= BATCH_FRAMES:
                                         yield Counted(dec.take_batch())
@@ -616,20 +730,20 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
                                 if taken:
                                     yield Counted(dec.take_batch())
                                     taken = 0
-                            yield from datagram(rec.number, rec.ts_ns, conv, payload)
+                            yield from datagram(number, ts_ns, conv, payload)
                         continue
             if taken:
                 yield Counted(dec.take_batch())
                 taken = 0
-            if rec.linktype in USER_LINKTYPES:
-                for item in serial.feed(rec.number, rec.ts_ns, rec.linktype, data, rec.flags, rec.interface):
+            if linktype in USER_LINKTYPES:
+                for item in serial.feed(number, ts_ns, linktype, data, flags, interface):
                     yield _decode_item(dec, general, item)
                 continue
-            dg = packets(rec.linktype, data)
+            dg = packets(linktype, data)
             if dg is None:
-                yield rec.number, rec.ts_ns
+                yield number, ts_ns
                 continue
-            for sf in splitter.split(rec.number, rec.ts_ns, dg):
+            for sf in splitter.split(number, ts_ns, dg):
                 yield _decode_item(dec, general, sf)
     except CaptureError:
         if dec.batch:
@@ -643,6 +757,66 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
         yield _decode_item(dec, general, item)
 
 
+#: a classic little-endian pcap record header
+_PCAP_REC = struct.Struct("<IIII")
+#: bytes of a classic pcap file read at a time
+PCAP_BLOCK = 1 << 20
+
+
+def _records(path: str | Path) -> Iterator[tuple[int, int, int, bytes, int, int]]:
+    """``(number, ts_ns, link type, data, flags, interface)`` of every record: a regular classic
+    little-endian pcap file read in blocks here (no Record object, one read a block), anything
+    else through :func:`~sharedlink.capture.pcapio.read_records`. The same records and the
+    same :class:`~sharedlink.capture.pcapio.CaptureError` s either way."""
+    p = str(path)
+    fh = None
+    if os.path.isfile(p):
+        try:
+            fh = open(p, "rb")  # noqa: SIM115 - closed below
+        except OSError:
+            fh = None  # read_records reports it
+    if fh is None:
+        for r in read_records(path):
+            yield r.number, r.ts_ns, r.linktype, r.data, r.flags, r.interface
+        return
+    with fh:
+        head = fh.read(24)
+        magic = struct.unpack_from("<I", head)[0] if len(head) >= 4 else None
+        if magic not in (PCAP_MAGIC_NS, PCAP_MAGIC_US) or len(head) < 24:
+            fh.close()
+            for r in read_records(path):
+                yield r.number, r.ts_ns, r.linktype, r.data, r.flags, r.interface
+            return
+        name = shown_name(path)
+        _endian, mult, linktype = pcap_header(name, head)
+        unpack = _PCAP_REC.unpack_from
+        number = 0
+        rest = b""
+        while True:
+            block = fh.read(PCAP_BLOCK)
+            buf = rest + block if rest else block
+            end = len(buf)
+            off = 0
+            while off + 16 <= end:
+                sec, frac, incl, _orig = unpack(buf, off)
+                if incl > 0x4000000:
+                    raise CaptureError(name, number + 1, f"record length {incl} is implausible (damaged file)")
+                e = off + 16 + incl
+                if e > end:
+                    break
+                number += 1
+                yield number, sec * NS + frac * mult, linktype, buf[off + 16 : e], 0, 0
+                off = e
+            rest = buf[off:]
+            if not block:
+                break
+        if rest:
+            if len(rest) < 16:
+                raise CaptureError(name, number + 1, f"truncated record header ({len(rest)} of 16 bytes)")
+            incl = _PCAP_REC.unpack_from(rest)[2]
+            raise CaptureError(name, number + 1, f"truncated record ({len(rest) - 16} of {incl} bytes)")
+
+
 def _decode_item(dec: Decoder, general: Callable, item: StreamFrame | tuple[int, int]
                  ) -> Decoded | StreamFrame | tuple[int, int]:
     if isinstance(item, StreamFrame) and item.frame is not None:
@@ -652,9 +826,10 @@ def _decode_item(dec: Decoder, general: Callable, item: StreamFrame | tuple[int,
     return item
 
 
-#: from byte 16 of an Ethernet/IPv4 packet: IP total length, flags and fragment offset, (TTL,
-#: protocol, checksum skipped) the addresses (8 bytes), UDP ports and length
-_UDP_HEAD = struct.Struct("!H2xH4x8sHHH")
+#: from byte 12 of an Ethernet/IPv4 packet: the type and the IP version and header length (3
+#: bytes), IP total length, flags and fragment offset, (TTL skipped) protocol, (checksum
+#: skipped) the addresses and UDP ports (12 bytes: the conversation), UDP length
+_UDP_HEAD = struct.Struct("!3sxHxxHxB2x12sH")
 
 
 def iter_decoded(

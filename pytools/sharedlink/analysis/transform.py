@@ -6,9 +6,10 @@ positional form: the slot stays as an empty ``D``) and sends a full set at least
 Each frame keeps its form, addresses, timestamp and place in the capture; the UDP/IP headers
 around it are rewritten with correct lengths and checksums.
 
-The data never change: two :class:`~sharedlink.protocols.state.LinkState` s follow the stream, one as
-the input says it (what the sender meant), one as the output says it (what a receiver of the
-output knows), and each output frame carries exactly what the receiver lacks. Frames that
+The data never change: two decoders (the core, :class:`~sharedlink.analysis.decode.Decoder`, so
+the same rules as every other command) follow the stream, one as the input says it (what the
+sender meant), one as the output says it (what a receiver of the output knows), and each output
+frame carries exactly what the receiver lacks. Frames that
 are not plain value frames (declarations, queries, replies, commands, frames with unusual
 fields, bad checksums, frames inside TCP streams) are copied unchanged, and both views apply
 them alike. So ``sharedlink diff IN OUT`` agrees, and compressing a full beacon capture gives
@@ -23,7 +24,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import BinaryIO
 
-from sharedlink.analysis.decode import format_time
+from sharedlink.analysis.decode import Decoder, format_time
 from sharedlink.capture.packets import PacketDecoder, network_offset, ones_complement_checksum
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
@@ -36,9 +37,10 @@ from sharedlink.capture.pcapio import (
     open_records,
     refuse_overwrite,
 )
+from sharedlink.capture.stream import StreamFrame
 from sharedlink.errors import OutputError
 from sharedlink.protocols.codec import Field, Frame, build_frame, frame_kind, iter_segments
-from sharedlink.protocols.state import BEACON_VARIABLES, LinkState, VariableTable
+from sharedlink.protocols.state import BEACON_VARIABLES, VariableTable, conversation_key
 
 MODES = ("compress", "expand")
 
@@ -101,8 +103,9 @@ class Rewriter:
             raise ValueError("--sync-interval must be positive")
         self.mode = mode
         self.sync_ns = round(sync_interval * NS)
-        self.src = LinkState(default_list=list(variables))  # the data, as the input carries it
-        self.out = LinkState(default_list=list(variables))  # what a receiver of the output knows
+        self.src_decoder = Decoder(variables, sync_interval, carried=False)  # the data, as the input carries it
+        self.out_decoder = Decoder(variables, sync_interval, carried=False)  # what a receiver of the output knows
+        self.src, self.out = self.src_decoder.link, self.out_decoder.link  # (their tables)
         self.next_sync: dict[tuple[Hashable, str, str], int] = {}
         self.form: dict[tuple[Hashable, str, str], str] = {}  # the form each direction uses
         self.stats = TransformStats()
@@ -114,6 +117,8 @@ class Rewriter:
         st = self.stats
         st.frames += 1
         st.bytes_in += len(raw)
+        if conv is None:  # (the decoders key by a conversation's shape)
+            conv = ("", "", 0, "", 0)
         kind = frame_kind(frame.fields)
         value = kind in ("full", "delta")
         st.value_frames += value
@@ -122,20 +127,22 @@ class Rewriter:
             st.bytes_out += len(raw)
             return raw  # a receiver drops it: neither view applies it
         layout = _plain_layout(frame.fields) if value else None
+        sf = StreamFrame(0, ts_ns, conv, raw, frame)
         if layout is None or not rewritable:
             st.copied += value
-            self.src.apply(frame, 0, ts_ns, conv)
-            self.out.apply(frame, 0, ts_ns, conv)
+            self.src_decoder.decode(sf)
+            self.out_decoder.decode(sf)
             st.bytes_out += len(raw)
             return raw
-        src = self.src.table(frame.src, frame.dst, conv)
-        out = self.out.table(frame.src, frame.dst, conv)
+        ckey = conversation_key(conv)
+        src = self.src.table(frame.src, frame.dst, ckey)
+        out = self.out.table(frame.src, frame.dst, ckey)
         key = (conv, frame.src, frame.dst)
         if len(frame.fields) == 1:  # a bare N: the form the direction has been using
             layout = self.form.get(key, layout)
         else:
             self.form[key] = layout
-        self.src.apply(frame, 0, ts_ns, conv)
+        self.src_decoder.decode(sf)
         full = self.mode == "expand"
         if not full:
             due = self.next_sync.get(key)
@@ -149,8 +156,8 @@ class Rewriter:
         else:
             fields = self._positional(frame.fields, src, out, full)
         new = Frame(frame.dst, frame.src, fields, frame.crlf)
-        self.out.apply(new, 0, ts_ns, conv)
         data = build_frame(new)
+        self.out_decoder.decode(StreamFrame(0, ts_ns, conv, data, new))
         st.rewritten += 1
         st.full += full
         st.delta += not full

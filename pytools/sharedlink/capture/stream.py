@@ -31,8 +31,9 @@ from array import array
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING
 
-from sharedlink.capture import fast_blocks, fast_records
 from sharedlink.capture.change_records import SEP_CHANGE as SEP_CHANGE
 from sharedlink.capture.change_records import SEP_VALUE as SEP_VALUE
 from sharedlink.capture.change_records import escape as escape
@@ -65,6 +66,12 @@ from sharedlink.protocols.state import (
     parse_variables,
     reverse_conversation,
 )
+
+if TYPE_CHECKING:
+    from sharedlink.capture import fast_blocks, fast_records
+else:  # loaded by the first ChangeReader (the commands that only decode do not pay for their tables)
+    fast_blocks: ModuleType | None = None
+    fast_records: ModuleType | None = None
 
 
 def parse_record(rec: bytes) -> tuple[bytes, list[tuple[bytes, bytes]]]:
@@ -339,6 +346,9 @@ class ChangeReader:
         fast: bool = True,
         block: int = 1 << 20,
     ) -> None:
+        global fast_blocks, fast_records
+        if fast_records is None:
+            from sharedlink.capture import fast_blocks, fast_records
         self.link = LinkState(default_list=list(variables))
         self.sync_ns = max(1, round(sync_interval * NS))
         self.fast_enabled = fast

@@ -6,9 +6,8 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from sharedlink.analysis.diff import DiffOptions, DiffReport, Divergence, Staleness, diff_captures
-from sharedlink.capture.stream import SideStats
 from sharedlink.commands import (
     EXIT_FAIL,
     EXIT_OK,
@@ -26,6 +25,10 @@ from sharedlink.commands import (
 )
 from sharedlink.errors import UsageError
 from sharedlink.protocols.codec import TYPE_NAMES
+
+if TYPE_CHECKING:  # (loaded when the command runs: every command's start-up pays for what is imported here)
+    from sharedlink.analysis.diff import DiffReport, Divergence, Staleness
+    from sharedlink.capture.stream import SideStats
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -60,6 +63,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sharedlink.analysis.diff import DiffOptions, diff_captures
+
     opts = DiffOptions(
         by=args.by,
         window_ms=args.window,
