@@ -176,3 +176,19 @@ def test_export_streams(tmp_path):
             peaks[(fmt, p)] = tracemalloc.get_traced_memory()[1]
             tracemalloc.stop()
         assert peaks[(fmt, big)] < 1.5 * peaks[(fmt, small)] + 200_000, peaks
+
+
+@pytest.mark.parametrize("type_code", [None, 0, 2, 4, 7])
+def test_jsonl_value_is_json_dumps_of_the_typed_value(type_code):
+    """jsonl's value member (_value_json: int()/float() straight, the forms they take beyond the
+    protocol's ruled out) is exactly json.dumps of the reference's typed value (Variable.value,
+    text when not finite) for texts of every kind."""
+    from sharedlink.analysis.export import _typed, _value_json
+    from sharedlink.protocols.state import Variable
+
+    texts = ["7", "-0", "0", "12345678901234567890", "1.5", "-0.25", "1e5", "1E-3", "1e999", "-1e999", "007", "1.",
+             ".5", "+3", "abc", "", "0x10", "1_000", "NaN", " 1", "2.50", "inf", "-Infinity", "1" * 5000, "\u0663",
+             "1e5\n", "+", "-", ".", "e5", "1e", "0b1", "1.5e+3", "\u00e9", '"q"']
+    for t in texts:
+        v = Variable("x", type_code, t)
+        assert _value_json(v) == json.dumps(_typed(v)), t

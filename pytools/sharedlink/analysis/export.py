@@ -38,6 +38,7 @@ from xml.sax.saxutils import escape as xml_escape
 from sharedlink.analysis.decode import VALUE_KINDS, Decoded, format_time, iter_decoded
 from sharedlink.capture.pcapio import CaptureError, atomic_open, display_name, rereadable
 from sharedlink.errors import UsageError
+from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG
 from sharedlink.protocols.state import BEACON_VARIABLES, Variable
 
 FORMATS = ("csv", "jsonl", "geojson", "kml", "mcap")
@@ -85,6 +86,37 @@ def _typed(v: Variable | None) -> Any:
     if isinstance(x, float) and not math.isfinite(x):
         return v.text
     return x
+
+
+#: jsonl lines gathered before one write
+_HELD_LINES = 256
+
+
+def _value_json(v: Variable) -> str:
+    """``json.dumps(_typed(v))``, without the general typing: a long's or double's text that
+    ``int()``/``float()`` take, once the forms they take beyond the protocol's (``_``, spaces,
+    other digits) are ruled out, is converted directly (a float's and an int's JSON is their
+    repr); ``nan``/``inf`` and overflowing exponents are not finite and stay text, as in
+    :func:`~sharedlink.protocols.codec.parse_typed`."""
+    t, tc = v.text, v.type_code
+    if (tc == TYPE_DOUBLE or tc == TYPE_LONG or tc is None) and "_" not in t and t.isascii() and t.strip() == t:
+        if tc != TYPE_DOUBLE:
+            try:
+                return repr(int(t))
+            except ValueError:  # not an integer (or more digits than Python converts)
+                if tc == TYPE_LONG:
+                    return _jstr(t)
+        try:
+            x = float(t)
+        except ValueError:
+            return _jstr(t)
+        if x - x == 0.0:  # finite (inf - inf and nan are nan)
+            return repr(x)
+    return _jstr(t)
+
+
+#: a str as a JSON string (the C function json.dumps uses for one)
+_jstr = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
 
 
 def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded]:
@@ -186,7 +218,10 @@ class _Jsonl(_Writer):
     def __init__(self, out: IO[str], opts: ExportOptions, columns: list[str]) -> None:
         super().__init__(out, opts, columns)
         self._frags: dict[str, tuple[str, int | None, str]] = {}  # name -> (text, type, '"name": value')
-        self._json: dict[str, str] = {}  # names and letters as JSON strings
+        self._json: dict[str, str] = {}  # names as JSON strings
+        self._heads: dict[tuple, str] = {}  # (src, dst, kind, checksum) -> their members, "values" opened
+        self._names: dict[tuple[str, ...], str] = {}  # changed names -> their JSON list's inside
+        self._held: list[str] = []  # lines not yet written (written in blocks: one write per block)
 
     def write(self, d: Decoded) -> int:
         if self.opts.changes:
@@ -195,8 +230,19 @@ class _Jsonl(_Writer):
                 self.out.write(json.dumps(row) + "\n")
                 n += 1
             return n
-        self.out.write(self.line(d))
+        held = self._held
+        held.append(self.line(d))
+        if len(held) >= _HELD_LINES:
+            self.flush()
         return 1
+
+    def flush(self) -> None:
+        if self._held:
+            self.out.write("".join(self._held))
+            self._held.clear()
+
+    def close(self) -> None:
+        self.flush()
 
     def row(self, d: Decoded) -> dict[str, Any]:
         """A frame's row as a dict (the plain path :meth:`line` is checked against)."""
@@ -207,29 +253,40 @@ class _Jsonl(_Writer):
 
     def line(self, d: Decoded) -> str:
         """``json.dumps(self.row(d)) + "\\n"``, built from pieces kept while they hold: a
-        value's ``"name": value`` is made again only when its text or type changed."""
+        value's ``"name": value`` is made again only when its text or type changed; the
+        letters, kind and checksum members once per combination; the changed names once per
+        list of names."""
         if self.t0 is None:
             self.t0 = d.ts_ns
-        frags, js, wanted = self._frags, self._json, self.opts.columns
-        if len(frags) > 8192 or len(js) > 8192:
+        frags, wanted = self._frags, self.opts.columns
+        if len(frags) > 8192 or len(self._json) > 8192 or len(self._heads) > 8192 or len(self._names) > 8192:
             frags.clear()
-            js.clear()
+            self._json.clear()
+            self._heads.clear()
+            self._names.clear()
         values = []
+        add = values.append
         for n, v in d.table.vars.items():
             text = v.text
             if text is None or (wanted is not None and n not in wanted):
                 continue
             f = frags.get(n)
             if f is None or f[0] is not text or f[1] != v.type_code:
-                f = frags[n] = (text, v.type_code, "%s: %s" % (self._js(n), json.dumps(_typed(v))))
-            values.append(f[2])
-        changed = ", ".join([self._js(u.name) for u in d.changes()])
+                f = frags[n] = (text, v.type_code, "%s: %s" % (self._js(n), _value_json(v)))
+            add(f[2])
+        changed = tuple([u.name for u in d.updates if u.changed and not u.carried and u.text is not None])
+        names = self._names.get(changed)
+        if names is None:
+            names = self._names[changed] = ", ".join([self._js(n) for n in changed])
         ok = d.checksum_ok
-        return '{"number": %d, "time": "%s", "ts_ns": %d, "t": %r, "src": %s, "dst": %s, "kind": %s, ' \
-               '"checksum": "%s", "values": {%s}, "changed": [%s]}\n' % (
-                   d.number, format_time(d.ts_ns), d.ts_ns, round((d.ts_ns - self.t0) / 1e9, 9), self._js(d.src),
-                   self._js(d.dst), self._js(d.kind), "none" if ok is None else ("good" if ok else "bad"),
-                   ", ".join(values), changed)
+        hkey = (d.src, d.dst, d.kind, ok)
+        head = self._heads.get(hkey)
+        if head is None:
+            head = self._heads[hkey] = '"src": %s, "dst": %s, "kind": %s, "checksum": "%s", "values": {' % (
+                self._js(d.src), self._js(d.dst), self._js(d.kind), "none" if ok is None else ("good" if ok else "bad"))
+        ts = d.ts_ns
+        return '{"number": %d, "time": "%s", "ts_ns": %d, "t": %r, %s%s}, "changed": [%s]}\n' % (
+            d.number, format_time(ts), ts, round((ts - self.t0) / 1e9, 9), head, ", ".join(values), names)
 
     def _js(self, text: str) -> str:
         j = self._json.get(text)
