@@ -89,8 +89,9 @@ def content_hash(path: str | Path) -> tuple[int, str]:
     return size, "blake2b:" + h.hexdigest()
 
 
-def ingest_capture(task: Task) -> Outcome:
-    """Ingest one capture (see the module doc). Never raises for a bad capture: the outcome says."""
+def ingest_capture(task: Task, progress: Callable[[int, int], None] | None = None) -> Outcome:
+    """Ingest one capture (see the module doc). Never raises for a bad capture: the outcome says.
+    ``progress(bytes read, records)`` is called now and then while it decodes."""
     try:
         size, digest = content_hash(task.path)
     except OSError as exc:
@@ -101,7 +102,7 @@ def ingest_capture(task: Task) -> Outcome:
     run = uuid.uuid4().hex[:8]
     rows = _Rows(Path(task.root), task.path, task.vehicle, f"{task.id}-{run}", task.batch_rows)
     try:
-        _decode_into(task, entry, rows)
+        _decode_into(task, entry, rows, progress)
         entry.files += rows.close()
     except BaseException:
         rows.abort()
@@ -109,7 +110,8 @@ def ingest_capture(task: Task) -> Outcome:
     return Outcome(task.path, "damaged" if entry.error else "ingested", entry, entry.error)
 
 
-def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows) -> None:
+def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callable[[int, int], None] | None = None
+                 ) -> None:
     """The capture's frames into ``rows``. Hot path (one pass per frame): the frame is held as
     it is (its rows are made column by column when its partition is written) and counted."""
     parts = rows.parts
@@ -121,7 +123,7 @@ def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows) -> None:
     part_key: tuple = ()
     held = batch = rows.batch_rows
     try:
-        for item in iter_decoded(task.path, task.variables, task.sync_interval):
+        for item in iter_decoded(task.path, task.variables, task.sync_interval, progress=progress):
             if type(item) is not Decoded:
                 n = item[0] if isinstance(item, tuple) else item.number  # type: ignore[union-attr]
                 if n > records:
@@ -451,12 +453,16 @@ def ingest(
     force: bool = False,
     batch_rows: int = BATCH_ROWS,
     on_outcome: Callable[[Outcome], None] | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> IngestReport:
     """Ingest captures (files or directories) into the dataset at ``root`` (made if need be).
 
     ``vehicle`` names the vehicle of every capture; by default a capture's vehicle is the name
     of the directory it is in. Unchanged captures (same content and options) are skipped unless
     ``force``. ``workers`` local processes, or the Dask scheduler at ``scheduler``.
+    ``progress(bytes, records)``: the bytes and records of the captures read so far (all
+    together), with one local worker now and then while a capture is decoded, with more or a
+    scheduler as each capture is done.
     """
     root = Path(root)
     if workers < 1:
@@ -473,8 +479,13 @@ def ingest(
         report.swept = sweep(root, manifest)
         tasks = [_task(p, root, manifest, vehicle, opts, variables, sync_interval, force, batch_rows) for p in paths]
         tasks.sort(key=lambda t: -_size(t.path))  # big ones first: better balance
-        run = _run_dask(tasks, scheduler) if scheduler else _run_local(tasks, workers)
+        run = _run_dask(tasks, scheduler) if scheduler else _run_local(tasks, workers, progress)
+        done = records = 0
         for outcome in run:
+            done += _size(outcome.path)
+            records += outcome.entry.records if outcome.entry is not None else 0
+            if progress is not None:
+                progress(done, records)
             _record(root, manifest, outcome)
             report.outcomes.append(outcome)
             if on_outcome is not None:
@@ -527,10 +538,16 @@ def _record(root: Path, manifest: Manifest, outcome: Outcome) -> None:
         sweep(root, manifest)
 
 
-def _run_local(tasks: list[Task], workers: int) -> Iterator[Outcome]:
+def _run_local(tasks: list[Task], workers: int, progress: Callable[[int, int], None] | None = None
+               ) -> Iterator[Outcome]:
     if workers == 1 or len(tasks) <= 1:
+        before = records = 0
         for t in tasks:
-            yield _guarded(t)
+            inner = None if progress is None else (lambda b, r, at=(before, records): progress(at[0] + b, at[1] + r))
+            outcome = _guarded(t, inner)
+            before += _size(t.path)
+            records += outcome.entry.records if outcome.entry is not None else 0
+            yield outcome
         return
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
@@ -560,9 +577,9 @@ def _run_dask(tasks: list[Task], address: str) -> Iterator[Outcome]:
             yield fut.result()
 
 
-def _guarded(task: Task) -> Outcome:
+def _guarded(task: Task, progress: Callable[[int, int], None] | None = None) -> Outcome:
     """:func:`ingest_capture`, with an unexpected failure reported as the capture's outcome."""
     try:
-        return ingest_capture(task)
+        return ingest_capture(task, progress)
     except (OSError, ValueError, pa.ArrowException) as exc:
         return Outcome(task.path, "failed", error=f"{task.path}: {exc}")
