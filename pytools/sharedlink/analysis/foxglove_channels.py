@@ -52,7 +52,7 @@ from sharedlink.analysis.decode import VALUE_KINDS, Decoded
 from sharedlink.analysis.sessions import Ack, SessionMessage
 from sharedlink.capture.pcapio import NS
 from sharedlink.protocols import blackboard, p2os
-from sharedlink.protocols.codec import ADDRESS_LETTERS, TYPE_DOUBLE, TYPE_LONG
+from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG
 
 # -- default variable names (the beacon's, BUL-009)
 LAT, LON, HEADING, SPEED = "AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"
@@ -152,12 +152,12 @@ _NUMERIC = (int, float)
 _dumps = json.dumps
 #: a str as a JSON string (the C function json.dumps uses for one, without its overhead)
 _jstr = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
-#: JSON of node letters and of lists of changed names (FoxgloveChannels.frame's caches)
-_QUOTED = {c: _dumps(c) for c in ADDRESS_LETTERS}
+#: JSON of lists of changed names (FoxgloveChannels.frame's cache)
 _NAMES: dict[tuple[str, ...], str] = {}
 _NAMES_MAX = 4096
 #: the frames message, formatted by hand (see FoxgloveChannels.frame)
-_ROW = '{"number": %d, "src": %s, "dst": %s, "kind": "%s", "checksum": "%s", "late": %s, "changed": %s, "text": %s}'
+_ROW = ('{"number": %%d, "src": %s, "dst": %s, "kind": "%s", "checksum": "%s", "late": %s, "changed": %%s, '
+        '"text": %%s}')
 
 
 def values_json(d: Decoded) -> dict[str, Any]:
@@ -248,6 +248,8 @@ class _Direction:
     nframes: int = 0
     nlocations: int = 0
     log_location: Any = None
+    pair: str = ""  # "B>A"
+    rows: dict[tuple, str] = field(default_factory=dict)  # (kind, checksum ok, late) -> frames row format
     fix: tuple | None = None  # (heading, speed as typed, frame id, _fix_tail) of the last fix made
 
 
@@ -287,6 +289,7 @@ class FoxgloveChannels:
                 meta,
             )
             dr.location_topic, dr.values_topic, dr.frames_topic = base + "/location", base + "/values", base + "/frames"
+            dr.pair = d.pair
             # the base channels' log, called with encoded bytes (foxglove.Channel.log's own path
             # for bytes, without its type checks)
             dr.log_frames, dr.log_values = dr.frames.base.log, dr.values.base.log
@@ -324,15 +327,18 @@ class FoxgloveChannels:
             names = _dumps(changed)
             if len(_NAMES) < _NAMES_MAX:
                 _NAMES[tuple(changed)] = names
-        row = _ROW % (
-            d.number, _QUOTED.get(src) or _jstr(src), _QUOTED.get(dst) or _jstr(dst), d.kind,
-            "none" if ok is None else ("good" if ok else "bad"), "true" if d.late else "false", names,
-            _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
+        late = d.late
+        kind = d.kind
+        fmt = dr.rows.get((kind, ok, late))
+        if fmt is None:  # the row with its letters, kind, checksum and late filled in, once
+            fixed = [_jstr(src), _jstr(dst), kind, "none" if ok is None else ("good" if ok else "bad")]
+            fmt = dr.rows[(kind, ok, late)] = _ROW % (*[f.replace("%", "%%") for f in fixed], "true" if late else "false")
+        row = fmt % (d.number, names, _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
         dr.log_frames(row.encode(), ts)
         dr.log_values(dr.values_json, ts)
         dr.nframes += 1
-        if ok is not False and d.kind in VALUE_KINDS:
-            fix = self._fix_bytes(dr, typed, ts, d.pair)
+        if ok is not False and kind in VALUE_KINDS:
+            fix = self._fix_bytes(dr, typed, ts, dr.pair)
             if fix is not None:
                 if dr.location is None:  # (LocationFixChannel's channel: its schema and encoding, fed bytes)
                     dr.location = foxglove.Channel(dr.location_topic, schema=_FIX_SCHEMA, message_encoding="protobuf",
