@@ -277,7 +277,7 @@ def test_value_fragment_is_the_typed_value_as_json(type_code):
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.one_of(st.just(0.0), st.floats(-90, 90)), st.one_of(st.just(0.0), st.floats(-180, 180)),
+@given(st.one_of(st.just(0.0), st.floats(-90, 90), st.integers(-90, 90)), st.one_of(st.just(0.0), st.floats(-180, 180)),
        st.one_of(st.none(), st.just(0.0), st.floats(-720, 720)), st.one_of(st.none(), st.just(0), st.floats(0, 200)),
        st.integers(0, (1 << 32) * 10**9 - 1), st.sampled_from(["B>A", "C>A", ""]))
 def test_spliced_location_fix_equals_the_whole_encoding(lat, lon, head, speed, ts_ns, frame_id):

@@ -183,6 +183,8 @@ _COVARIANCE_FIELD = b"\x22\x48" + bytes(72)
 #: False: it does not (the sdk's is used), None: not checked yet]
 _splice: list[bool | None] = [None]
 _pack_double = struct.Struct("<d").pack
+#: latitude (field 1) and longitude (field 2) with their tags
+_pack_lat_lon = struct.Struct("<BdBd").pack
 
 
 def _varint(n: int) -> bytes:
@@ -355,17 +357,21 @@ class FoxgloveChannels:
         frame id stay; latitude, longitude and the timestamp are packed per frame."""
         o = self.opts
         lat, lon = typed.get(o.lat), typed.get(o.lon)
-        if type(lat) not in _NUMERIC or type(lon) not in _NUMERIC:
-            return None
-        lat, lon = float(lat), float(lon)
+        if type(lat) is not float or type(lon) is not float:  # (the common case: both doubles)
+            if type(lat) not in _NUMERIC or type(lon) not in _NUMERIC:
+                return None
+            lat, lon = float(lat), float(lon)
         if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
             return None
         head, speed = typed.get(o.heading), typed.get(o.speed)
         c = dr.fix
         if c is None or c[0] is not head or c[1] is not speed or c[2] != frame_id:
             c = dr.fix = (head, speed, frame_id, self._fix_tail(head, speed, frame_id))
-        msg = ((b"\x09" + _pack_double(lat) if lat != 0.0 else b"") + (b"\x11" + _pack_double(lon) if lon != 0.0 else b"")
-               + _COVARIANCE_FIELD + _timestamp_field(ts_ns) + c[3])
+        if lat != 0.0 and lon != 0.0:
+            where = _pack_lat_lon(9, lat, 0x11, lon)
+        else:
+            where = (b"\x09" + _pack_double(lat) if lat != 0.0 else b"") + (b"\x11" + _pack_double(lon) if lon != 0.0 else b"")
+        msg = b"".join((where, _COVARIANCE_FIELD, _timestamp_field(ts_ns), c[3]))
         if _splice[0] is not True:
             whole = self._location(typed, ts_ns, frame_id).encode()  # type: ignore[union-attr]
             if _splice[0] is None:
