@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench import Result
+from bench import Result, load_now, load_since
 from sharedlink.generators.beacon import GenOptions, generate_file
 
 FRAMES = 30_000
@@ -53,6 +53,7 @@ def run(work: Path) -> list[Result]:
     port = free_port()
     env = dict(os.environ, FORCE_COLOR="1", COLUMNS="120", LINES="40")
     view = work / "watch-view.txt"
+    started = load_now()
     with open(view, "w") as out:
         w = subprocess.Popen([sys.executable, "-m", "sharedlink", "watch", "--port", str(port)],
                              stdout=out, stderr=subprocess.PIPE, text=True, env=env)
@@ -84,5 +85,6 @@ def run(work: Path) -> list[Result]:
             cores / TARGET_CORES,
             "<= 1x",
             ok and cores <= TARGET_CORES,
+            load_since(started),
         )
     ]

@@ -16,7 +16,8 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
-from sl_captures import BEACON, reference
+from hypothesis import HealthCheck, given, settings
+from sl_captures import BEACON, captures, reference, write_capture
 
 from sharedlink.analysis.export import ExportOptions, export_file
 from sharedlink.generators.beacon import GenOptions, generate_file
@@ -176,3 +177,57 @@ def test_export_streams(tmp_path):
             peaks[(fmt, p)] = tracemalloc.get_traced_memory()[1]
             tracemalloc.stop()
         assert peaks[(fmt, big)] < 1.5 * peaks[(fmt, small)] + 200_000, peaks
+
+
+@pytest.mark.parametrize("type_code", [None, 0, 2, 4, 7])
+def test_jsonl_value_is_json_dumps_of_the_typed_value(type_code):
+    """jsonl's value member (_value_json: int()/float() straight, the forms they take beyond the
+    protocol's ruled out) is exactly json.dumps of the reference's typed value (Variable.value,
+    text when not finite) for texts of every kind."""
+    from sharedlink.analysis.export import _typed, _value_json
+    from sharedlink.protocols.state import Variable
+
+    texts = ["7", "-0", "0", "12345678901234567890", "1.5", "-0.25", "1e5", "1E-3", "1e999", "-1e999", "007", "1.",
+             ".5", "+3", "abc", "", "0x10", "1_000", "NaN", " 1", "2.50", "inf", "-Infinity", "1" * 5000, "\u0663",
+             "1e5\n", "+", "-", ".", "e5", "1e", "0b1", "1.5e+3", "\u00e9", '"q"']
+    for t in texts:
+        v = Variable("x", type_code, t)
+        assert _value_json(v) == json.dumps(_typed(v)), t
+
+
+def _two_pass_csv(path: Path) -> str:
+    """The CSV export by its definition: a first pass learns every name given a value (in order
+    of first appearance), the second writes each frame's row with every column."""
+    import io
+
+    from sharedlink.analysis.decode import Decoded, format_time, iter_decoded
+
+    names: dict[str, None] = {}
+    for d in iter_decoded(path, carried=False):
+        if isinstance(d, Decoded):
+            names.update((u.name, None) for u in d.updates if u.text is not None)
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(["number", "time", "ts_ns", "t", "src", "dst", "kind", "checksum", *names])
+    t0 = None
+    for d in iter_decoded(path, carried=False):
+        if not isinstance(d, Decoded):
+            continue
+        t0 = d.ts_ns if t0 is None else t0
+        ok = "none" if d.checksum_ok is None else ("good" if d.checksum_ok else "bad")
+        vals = [getattr(d.table.vars.get(n), "text", None) for n in names]
+        w.writerow([d.number, format_time(d.ts_ns), d.ts_ns, round((d.ts_ns - t0) / 1e9, 9), d.src, d.dst, d.kind, ok,
+                    *["" if v is None else v for v in vals]])
+    return out.getvalue()
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
+@given(captures(max_frames=25))
+def test_one_pass_csv_equals_the_two_pass_definition(tmp_path_factory, datagrams):
+    """csv without --select reads the capture once (rows spooled while the columns are learnt,
+    the rows before a late column padded): the same text as learning the columns first, on
+    streams whose names appear late, in declarations, replies, bad frames, two directions."""
+    path = write_capture(tmp_path_factory.mktemp("csv") / "c.pcap", datagrams)
+    out = tmp_path_factory.mktemp("csvout") / "c.csv"
+    export_file(path, out, ExportOptions(fmt="csv"))
+    assert out.read_text(encoding="utf-8") == _two_pass_csv(path)

@@ -62,3 +62,35 @@ def test_no_bar_on_a_pipe(capture, tmp_path):
 def test_export_to_a_file_gets_a_bar(capture, tmp_path):
     rc, err = _run(["export", capture, "-o", tmp_path / "o.csv"], tty=True)
     assert rc == 0 and "exporting:" in err
+
+
+def test_plot_to_a_file_gets_a_bar(capture, tmp_path):
+    rc, err = _run(["plot", capture, "-o", tmp_path / "p.png"], tty=True)
+    assert rc == 0 and "plotting:" in err and "records" in err, err[-2000:]
+
+
+def test_ingest_gets_a_bar_but_not_with_quiet_json_or_on_a_pipe(capture, tmp_path):
+    """ingest's bar counts the bytes and records of every capture (one worker: while each is
+    decoded)."""
+    rc, err = _run(["ingest", capture, "-o", tmp_path / "ds"], tty=True)
+    assert rc == 0 and "ingesting:" in err and "records" in err, err[-2000:]
+    for i, extra in enumerate((["--quiet"], ["--json"])):
+        rc, err = _run(["ingest", capture, "-o", tmp_path / f"ds{i}", *extra], tty=True)
+        assert rc == 0 and "ingesting:" not in err
+    rc, err = _run(["ingest", capture, "-o", tmp_path / "ds-pipe"], tty=False)
+    assert rc == 0 and "ingesting:" not in err
+
+
+def test_ingest_progress_covers_every_capture(tmp_path):
+    """The library's progress: bytes grow to the captures' total size, records to theirs."""
+    from sharedlink.fleet.ingest import ingest
+
+    caps = []
+    for i in range(2):
+        caps.append(tmp_path / f"c{i}.pcap")
+        generate_file(GenOptions(frames=9000, seed=i + 1), caps[-1])
+    calls: list[tuple[int, int]] = []
+    report = ingest(caps, tmp_path / "ds", progress=lambda b, r: calls.append((b, r)))
+    assert report.ok
+    assert calls[-1] == (sum(c.stat().st_size for c in caps), 18000)
+    assert [b for b, _ in calls] == sorted(b for b, _ in calls) and len(calls) > 3

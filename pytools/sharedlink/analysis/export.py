@@ -3,8 +3,8 @@
 Streaming: rows are written as frames are decoded (:func:`sharedlink.analysis.decode.iter_decoded`);
 nothing grows with the capture except, for GeoJSON and KML, the track coordinates, which are
 spooled to a temporary file and copied into the document at the end. CSV needs its columns
-before the first row, so without ``variables`` it reads the capture twice (the first pass
-only learns the variable names).
+before the first row, so without ``columns`` its rows are spooled to a temporary file while the
+variable names are learnt (one pass over the capture), then copied out after the header.
 
 Rows, one per SharedLink frame (``changes=False``):
 ``number, time (UTC ISO 8601, ns), ts_ns, t (s since the first frame), src, dst, kind,
@@ -26,8 +26,11 @@ MCAP (a binary file, for Foxglove and PlotJuggler) is written by
 from __future__ import annotations
 
 import csv
+import io
+import itertools
 import json
 import math
+import shutil
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -36,8 +39,9 @@ from typing import IO, Any
 from xml.sax.saxutils import escape as xml_escape
 
 from sharedlink.analysis.decode import VALUE_KINDS, Decoded, format_time, iter_decoded
-from sharedlink.capture.pcapio import CaptureError, atomic_open, display_name, rereadable
+from sharedlink.capture.pcapio import CaptureError, atomic_open, display_name
 from sharedlink.errors import UsageError
+from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG
 from sharedlink.protocols.state import BEACON_VARIABLES, Variable
 
 FORMATS = ("csv", "jsonl", "geojson", "kml", "mcap")
@@ -87,6 +91,37 @@ def _typed(v: Variable | None) -> Any:
     return x
 
 
+#: jsonl lines gathered before one write
+_HELD_LINES = 256
+
+
+def _value_json(v: Variable) -> str:
+    """``json.dumps(_typed(v))``, without the general typing: a long's or double's text that
+    ``int()``/``float()`` take, once the forms they take beyond the protocol's (``_``, spaces,
+    other digits) are ruled out, is converted directly (a float's and an int's JSON is their
+    repr); ``nan``/``inf`` and overflowing exponents are not finite and stay text, as in
+    :func:`~sharedlink.protocols.codec.parse_typed`."""
+    t, tc = v.text, v.type_code
+    if (tc == TYPE_DOUBLE or tc == TYPE_LONG or tc is None) and "_" not in t and t.isascii() and t.strip() == t:
+        if tc != TYPE_DOUBLE:
+            try:
+                return repr(int(t))
+            except ValueError:  # not an integer (or more digits than Python converts)
+                if tc == TYPE_LONG:
+                    return _jstr(t)
+        try:
+            x = float(t)
+        except ValueError:
+            return _jstr(t)
+        if x - x == 0.0:  # finite (inf - inf and nan are nan)
+            return repr(x)
+    return _jstr(t)
+
+
+#: a str as a JSON string (the C function json.dumps uses for one)
+_jstr = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
+
+
 def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded]:
     """The decoded frames; damage after the first record ends the stream with ``error`` set."""
     seen = result.seen if opts.require else None
@@ -102,17 +137,6 @@ def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iter
         if exc.record is None and result.frames == 0:
             raise
         result.error = str(exc)
-
-
-def scan_variables(path: str | Path, opts: ExportOptions) -> list[str]:
-    """Every variable name the capture's frames give a value, in order of first appearance."""
-    seen: dict[str, None] = {}
-    probe = ExportResult()
-    for d in _frames(path, opts, probe):
-        for u in d.updates:
-            if u.text is not None:
-                seen.setdefault(u.name, None)
-    return list(seen)
 
 
 class _Writer:
@@ -158,8 +182,22 @@ class _Writer:
 
 
 class _Csv(_Writer):
-    def __init__(self, out: IO[str], opts: ExportOptions, columns: list[str]) -> None:
+    """CSV rows. ``learn``: the columns are not known before the first row (every variable the
+    capture gives a value, in order of first appearance), so rows go to a spool file with the
+    columns known when they are written; :meth:`close` writes the header, then the rows, those
+    written before the last column appeared padded with empty cells (a variable has no value
+    in a row before the first frame that gives it one). One pass over the capture."""
+
+    def __init__(self, out: IO[str], opts: ExportOptions, columns: list[str], learn: bool = False) -> None:
         super().__init__(out, opts, columns)
+        self.learn = learn
+        if learn:
+            self.known = set(columns)
+            self.pieces: list[str] = []
+            self.spool = tempfile.TemporaryFile("w+b")  # noqa: SIM115 (closed in close)
+            self.runs: list[list[int]] = [[len(columns), 0]]  # [columns known, rows written with them]
+            self.w = csv.writer(_Pieces(self.pieces), lineterminator="\n")
+            return
         self.w = csv.writer(out, lineterminator="\n")
         self.w.writerow(CHANGE_COLUMNS if opts.changes else FRAME_COLUMNS + columns)
 
@@ -172,21 +210,66 @@ class _Csv(_Writer):
                 self.w.writerow(["" if row[c] is None else row[c] for c in CHANGE_COLUMNS])
                 n += 1
             return n
-        row = self.frame_row(d)
+        if self.learn:
+            known = self.known
+            for u in d.updates:
+                if u.name not in known and u.text is not None:
+                    known.add(u.name)
+                    self.columns.append(u.name)
+            runs = self.runs
+            if runs[-1][0] != len(self.columns):
+                runs.append([len(self.columns), 0])
+            runs[-1][1] += 1
+            if len(self.pieces) >= _HELD_LINES:
+                self._spill()
+        if self.t0 is None:
+            self.t0 = d.ts_ns
+        ts, ok = d.ts_ns, d.checksum_ok
         vars_ = d.table.vars
-        vals = []
+        vals = [d.number, format_time(ts), ts, round((ts - self.t0) / 1e9, 9), d.src, d.dst, d.kind,
+                "none" if ok is None else ("good" if ok else "bad")]
+        add = vals.append
         for name in self.columns:
             v = vars_.get(name)
-            vals.append("" if v is None or v.text is None else v.text)
-        self.w.writerow([row[c] for c in FRAME_COLUMNS] + vals)
+            add("" if v is None or v.text is None else v.text)
+        self.w.writerow(vals)
         return 1
+
+    def _spill(self) -> None:
+        self.spool.write("".join(self.pieces).encode("utf-8"))
+        self.pieces.clear()
+
+    def close(self) -> None:
+        if not self.learn:
+            return
+        self._spill()
+        self.spool.seek(0)
+        out, width = self.out, len(self.columns)
+        csv.writer(out, lineterminator="\n").writerow(FRAME_COLUMNS + self.columns)
+        with io.TextIOWrapper(self.spool, encoding="utf-8", newline="") as rows:
+            pad = csv.writer(out, lineterminator="\n")
+            reader = csv.reader(rows)
+            for known, n in self.runs[:-1]:  # rows written before the last column appeared
+                for row in itertools.islice(reader, n):
+                    pad.writerow(row + [""] * (width - known))
+            shutil.copyfileobj(rows, out, 1 << 20)  # (the last run has every column)
+
+
+class _Pieces:
+    """A file-like ``write`` that keeps what is written in a list (csv.writer's rows, gathered)."""
+
+    def __init__(self, pieces: list[str]) -> None:
+        self.write = pieces.append
 
 
 class _Jsonl(_Writer):
     def __init__(self, out: IO[str], opts: ExportOptions, columns: list[str]) -> None:
         super().__init__(out, opts, columns)
         self._frags: dict[str, tuple[str, int | None, str]] = {}  # name -> (text, type, '"name": value')
-        self._json: dict[str, str] = {}  # names and letters as JSON strings
+        self._json: dict[str, str] = {}  # names as JSON strings
+        self._heads: dict[tuple, str] = {}  # (src, dst, kind, checksum) -> their members, "values" opened
+        self._names: dict[tuple[str, ...], str] = {}  # changed names -> their JSON list's inside
+        self._held: list[str] = []  # lines not yet written (written in blocks: one write per block)
 
     def write(self, d: Decoded) -> int:
         if self.opts.changes:
@@ -195,8 +278,19 @@ class _Jsonl(_Writer):
                 self.out.write(json.dumps(row) + "\n")
                 n += 1
             return n
-        self.out.write(self.line(d))
+        held = self._held
+        held.append(self.line(d))
+        if len(held) >= _HELD_LINES:
+            self.flush()
         return 1
+
+    def flush(self) -> None:
+        if self._held:
+            self.out.write("".join(self._held))
+            self._held.clear()
+
+    def close(self) -> None:
+        self.flush()
 
     def row(self, d: Decoded) -> dict[str, Any]:
         """A frame's row as a dict (the plain path :meth:`line` is checked against)."""
@@ -207,29 +301,40 @@ class _Jsonl(_Writer):
 
     def line(self, d: Decoded) -> str:
         """``json.dumps(self.row(d)) + "\\n"``, built from pieces kept while they hold: a
-        value's ``"name": value`` is made again only when its text or type changed."""
+        value's ``"name": value`` is made again only when its text or type changed; the
+        letters, kind and checksum members once per combination; the changed names once per
+        list of names."""
         if self.t0 is None:
             self.t0 = d.ts_ns
-        frags, js, wanted = self._frags, self._json, self.opts.columns
-        if len(frags) > 8192 or len(js) > 8192:
+        frags, wanted = self._frags, self.opts.columns
+        if len(frags) > 8192 or len(self._json) > 8192 or len(self._heads) > 8192 or len(self._names) > 8192:
             frags.clear()
-            js.clear()
+            self._json.clear()
+            self._heads.clear()
+            self._names.clear()
         values = []
+        add = values.append
         for n, v in d.table.vars.items():
             text = v.text
             if text is None or (wanted is not None and n not in wanted):
                 continue
             f = frags.get(n)
             if f is None or f[0] is not text or f[1] != v.type_code:
-                f = frags[n] = (text, v.type_code, "%s: %s" % (self._js(n), json.dumps(_typed(v))))
-            values.append(f[2])
-        changed = ", ".join([self._js(u.name) for u in d.changes()])
+                f = frags[n] = (text, v.type_code, "%s: %s" % (self._js(n), _value_json(v)))
+            add(f[2])
+        changed = tuple([u.name for u in d.updates if u.changed and not u.carried and u.text is not None])
+        names = self._names.get(changed)
+        if names is None:
+            names = self._names[changed] = ", ".join([self._js(n) for n in changed])
         ok = d.checksum_ok
-        return '{"number": %d, "time": "%s", "ts_ns": %d, "t": %r, "src": %s, "dst": %s, "kind": %s, ' \
-               '"checksum": "%s", "values": {%s}, "changed": [%s]}\n' % (
-                   d.number, format_time(d.ts_ns), d.ts_ns, round((d.ts_ns - self.t0) / 1e9, 9), self._js(d.src),
-                   self._js(d.dst), self._js(d.kind), "none" if ok is None else ("good" if ok else "bad"),
-                   ", ".join(values), changed)
+        hkey = (d.src, d.dst, d.kind, ok)
+        head = self._heads.get(hkey)
+        if head is None:
+            head = self._heads[hkey] = '"src": %s, "dst": %s, "kind": %s, "checksum": "%s", "values": {' % (
+                self._js(d.src), self._js(d.dst), self._js(d.kind), "none" if ok is None else ("good" if ok else "bad"))
+        ts = d.ts_ns
+        return '{"number": %d, "time": "%s", "ts_ns": %d, "t": %r, %s%s}, "changed": [%s]}\n' % (
+            d.number, format_time(ts), ts, round((ts - self.t0) / 1e9, 9), head, ", ".join(values), names)
 
     def _js(self, text: str) -> str:
         j = self._json.get(text)
@@ -416,19 +521,17 @@ def export(path: str | Path, out: IO[str], opts: ExportOptions) -> ExportResult:
         raise ValueError(f"unknown format {opts.fmt!r} (one of {', '.join(FORMATS)})")
     result = ExportResult()
     columns = list(opts.columns) if opts.columns is not None else []
-    if opts.fmt == "csv" and not opts.changes and opts.columns is None:  # two passes
-        with rereadable(path) as again:
-            columns = scan_variables(again, opts)
-            result.columns = columns
-            return _write(again, out, opts, columns, result)
-    result.columns = columns
+    result.columns = columns  # (csv without columns: the writer adds them as it learns them)
     return _write(path, out, opts, columns, result)
 
 
 def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[str], result: ExportResult) -> ExportResult:
     frames = _frames(path, opts, result)
     first = next(frames, None)  # a missing/unreadable file raises here, before any output
-    writer = _WRITERS[opts.fmt](out, opts, columns)
+    if opts.fmt == "csv" and not opts.changes and opts.columns is None:
+        writer: _Writer = _Csv(out, opts, columns, learn=True)
+    else:
+        writer = _WRITERS[opts.fmt](out, opts, columns)
     if isinstance(writer, _Kml):
         writer.name = f"SharedLink tracks: {display_name(Path(path).name)}"
     try:

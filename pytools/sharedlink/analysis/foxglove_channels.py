@@ -32,11 +32,12 @@ from __future__ import annotations
 import json
 import math
 import re
+import struct
 from dataclasses import dataclass, field
 from typing import Any
 
 import foxglove
-from foxglove.channels import LocationFixChannel, PoseInFrameChannel
+from foxglove.channels import PoseInFrameChannel
 from foxglove.messages import (
     LocationFix,
     LocationFixPositionCovarianceType,
@@ -51,7 +52,7 @@ from sharedlink.analysis.decode import VALUE_KINDS, Decoded
 from sharedlink.analysis.sessions import Ack, SessionMessage
 from sharedlink.capture.pcapio import NS
 from sharedlink.protocols import blackboard, p2os
-from sharedlink.protocols.codec import ADDRESS_LETTERS, TYPE_DOUBLE, TYPE_LONG
+from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG
 
 # -- default variable names (the beacon's, BUL-009)
 LAT, LON, HEADING, SPEED = "AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"
@@ -151,12 +152,12 @@ _NUMERIC = (int, float)
 _dumps = json.dumps
 #: a str as a JSON string (the C function json.dumps uses for one, without its overhead)
 _jstr = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
-#: JSON of node letters and of lists of changed names (FoxgloveChannels.frame's caches)
-_QUOTED = {c: _dumps(c) for c in ADDRESS_LETTERS}
+#: JSON of lists of changed names (FoxgloveChannels.frame's cache)
 _NAMES: dict[tuple[str, ...], str] = {}
 _NAMES_MAX = 4096
 #: the frames message, formatted by hand (see FoxgloveChannels.frame)
-_ROW = '{"number": %d, "src": %s, "dst": %s, "kind": "%s", "checksum": "%s", "late": %s, "changed": %s, "text": %s}'
+_ROW = ('{"number": %%d, "src": %s, "dst": %s, "kind": "%s", "checksum": "%s", "late": %s, "changed": %%s, '
+        '"text": %%s}')
 
 
 def values_json(d: Decoded) -> dict[str, Any]:
@@ -169,6 +170,56 @@ def frame_json(d: Decoded) -> dict[str, Any]:
     text = d.raw.decode("latin-1")
     return {"number": d.number, "src": d.src, "dst": d.dst, "kind": d.kind, "checksum": _checksum(d.checksum_ok),
             "late": d.late, "changed": [u.name for u in d.changes()], "text": text[:-2] if text.endswith("\r\n") else text}
+
+
+#: LocationFixChannel's schema (the location channels are fed encoded LocationFix messages)
+_FIX_SCHEMA = LocationFix.get_schema()
+#: the packed position_covariance field (9 zero doubles): field 4, length 72; the covariance
+#: type (5) is UNKNOWN, 0, left out
+_COVARIANCE_FIELD = b"\x22\x48" + bytes(72)
+
+
+#: [True: the hand-made LocationFix encoding equals foxglove-sdk's (checked on the first fix),
+#: False: it does not (the sdk's is used), None: not checked yet]
+_splice: list[bool | None] = [None]
+_pack_double = struct.Struct("<d").pack
+#: latitude (field 1) and longitude (field 2) with their tags
+_pack_lat_lon = struct.Struct("<BdBd").pack
+
+
+def _varint(n: int) -> bytes:
+    n &= 0xFFFFFFFFFFFFFFFF  # (a negative int64: ten bytes, two's complement)
+    out = bytearray()
+    while n >= 0x80:
+        out.append((n & 0x7F) | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+_last_seconds: tuple[int | None, bytes] = (None, b"")
+
+
+def _timestamp_field(ts_ns: int) -> bytes:
+    """LocationFix's timestamp field (6: google.protobuf.Timestamp, seconds 1 and nanos 2, each
+    left out when 0) for ``ts_ns``."""
+    global _last_seconds
+    sec, nanos = divmod(ts_ns, NS)
+    last = _last_seconds
+    if last[0] != sec:
+        last = _last_seconds = (sec, b"\x08" + _varint(sec) if sec else b"")
+    frac = _NANOS.get(nanos)
+    if frac is None:  # (frames at a steady rate share a few fractions of a second)
+        if len(_NANOS) >= 4096:
+            _NANOS.clear()
+        frac = _NANOS[nanos] = b"\x10" + _varint(nanos) if nanos else b""
+    body = last[1] + frac
+    return b"\x32" + _LENGTH[len(body)] + body
+
+
+#: nanos of a second -> their field; a one-byte length
+_NANOS: dict[int, bytes] = {}
+_LENGTH = [bytes((n,)) for n in range(128)]
 
 
 def _stamp(ts_ns: int) -> Timestamp:
@@ -198,6 +249,10 @@ class _Direction:
     frames_topic: str = ""
     nframes: int = 0
     nlocations: int = 0
+    log_location: Any = None
+    pair: str = ""  # "B>A"
+    rows: dict[tuple, str] = field(default_factory=dict)  # (kind, checksum ok, late) -> frames row format
+    fix: tuple | None = None  # (heading, speed as typed, frame id, _fix_tail) of the last fix made
 
 
 @dataclass
@@ -236,6 +291,7 @@ class FoxgloveChannels:
                 meta,
             )
             dr.location_topic, dr.values_topic, dr.frames_topic = base + "/location", base + "/values", base + "/frames"
+            dr.pair = d.pair
             # the base channels' log, called with encoded bytes (foxglove.Channel.log's own path
             # for bytes, without its type checks)
             dr.log_frames, dr.log_values = dr.frames.base.log, dr.values.base.log
@@ -273,20 +329,73 @@ class FoxgloveChannels:
             names = _dumps(changed)
             if len(_NAMES) < _NAMES_MAX:
                 _NAMES[tuple(changed)] = names
-        row = _ROW % (
-            d.number, _QUOTED.get(src) or _jstr(src), _QUOTED.get(dst) or _jstr(dst), d.kind,
-            "none" if ok is None else ("good" if ok else "bad"), "true" if d.late else "false", names,
-            _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
+        late = d.late
+        kind = d.kind
+        fmt = dr.rows.get((kind, ok, late))
+        if fmt is None:  # the row with its letters, kind, checksum and late filled in, once
+            fixed = [_jstr(src), _jstr(dst), kind, "none" if ok is None else ("good" if ok else "bad")]
+            fmt = dr.rows[(kind, ok, late)] = _ROW % (*[f.replace("%", "%%") for f in fixed], "true" if late else "false")
+        row = fmt % (d.number, names, _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
         dr.log_frames(row.encode(), ts)
         dr.log_values(dr.values_json, ts)
         dr.nframes += 1
-        if ok is not False and d.kind in VALUE_KINDS:
-            fix = self._location(typed, ts, d.pair)
+        if ok is not False and kind in VALUE_KINDS:
+            fix = self._fix_bytes(dr, typed, ts, dr.pair)
             if fix is not None:
-                if dr.location is None:
-                    dr.location = LocationFixChannel(dr.location_topic, metadata=dr.meta, context=self.ctx)
-                dr.location.log(fix, log_time=ts)
+                if dr.location is None:  # (LocationFixChannel's channel: its schema and encoding, fed bytes)
+                    dr.location = foxglove.Channel(dr.location_topic, schema=_FIX_SCHEMA, message_encoding="protobuf",
+                                                   metadata=dr.meta, context=self.ctx)
+                    dr.log_location = dr.location.base.log
+                dr.log_location(fix, ts)
                 dr.nlocations += 1
+
+    def _fix_bytes(self, dr: _Direction, typed: dict[str, Any], ts_ns: int, frame_id: str) -> bytes | None:
+        """The direction's LocationFix after a frame, protobuf-encoded (None: no position), as
+        foxglove-sdk encodes :meth:`_location`'s message (checked once per process against it,
+        else that is used; the tests compare them on many values). Hot path: the fields that
+        follow the timestamp (frame id, heading, velocity) are kept while heading, speed and
+        frame id stay; latitude, longitude and the timestamp are packed per frame."""
+        o = self.opts
+        lat, lon = typed.get(o.lat), typed.get(o.lon)
+        if type(lat) is not float or type(lon) is not float:  # (the common case: both doubles)
+            if type(lat) not in _NUMERIC or type(lon) not in _NUMERIC:
+                return None
+            lat, lon = float(lat), float(lon)
+        if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+            return None
+        head, speed = typed.get(o.heading), typed.get(o.speed)
+        c = dr.fix
+        if c is None or c[0] is not head or c[1] is not speed or c[2] != frame_id:
+            c = dr.fix = (head, speed, frame_id, self._fix_tail(head, speed, frame_id))
+        if lat != 0.0 and lon != 0.0:
+            where = _pack_lat_lon(9, lat, 0x11, lon)
+        else:
+            where = (b"\x09" + _pack_double(lat) if lat != 0.0 else b"") + (b"\x11" + _pack_double(lon) if lon != 0.0 else b"")
+        msg = b"".join((where, _COVARIANCE_FIELD, _timestamp_field(ts_ns), c[3]))
+        if _splice[0] is not True:
+            whole = self._location(typed, ts_ns, frame_id).encode()  # type: ignore[union-attr]
+            if _splice[0] is None:
+                _splice[0] = msg == whole
+            return whole
+        return msg
+
+    def _fix_tail(self, head: Any, speed: Any, frame_id: str) -> bytes:
+        """LocationFix's fields after the timestamp: frame_id (7), heading (10, radians) and
+        velocity (11: Vector3 with x 1, y 2, z 3), as :meth:`_location` sets them; protobuf
+        leaves out empty strings and zero numbers, not an optional field that is set."""
+        head = float(head) if type(head) in _NUMERIC else None
+        speed = float(speed) if type(speed) in _NUMERIC else None
+        fid = frame_id.encode()
+        out = b"\x3a" + _varint(len(fid)) + fid if fid else b""
+        if head is not None:
+            rad = math.radians(head)
+            out += b"\x51" + _pack_double(rad)
+            if speed is not None:
+                ms = speed * self._speed_scale
+                x, y = ms * math.sin(rad), ms * math.cos(rad)
+                v = (b"\x09" + _pack_double(x) if x != 0.0 else b"") + (b"\x11" + _pack_double(y) if y != 0.0 else b"")
+                out += b"\x5a" + _varint(len(v)) + v
+        return out
 
     def location(self, d: Decoded) -> LocationFix | None:
         """The direction's position after ``d`` (None: no valid latitude and longitude)."""

@@ -61,12 +61,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("no dataset: give -o DATASET")
     _check_inputs(args.inputs)
 
-    done = [0, 0]  # bytes and captures finished, for the progress bar
-
     def say(o: Outcome) -> None:
-        done[0] += o.entry.size if o.entry is not None else 0
-        done[1] += 1
-        progress(done[0], done[1])
         if args.quiet and o.status in ("ingested", "unchanged"):
             return
         if o.status == "unchanged":
@@ -81,10 +76,12 @@ def run(args: argparse.Namespace) -> int:
 
     if args.batch_rows < 1:
         raise UsageError("--batch-rows must be at least 1")
-    with Progress(None, quiet=args.quiet, what="ingesting", unit="captures") as progress:
+    with Progress(None, quiet=args.quiet or args.json, what="ingesting") as progress:
+        progress.total = _total_size(args.inputs)  # (bytes of every capture: the bar's whole)
         report = ingest(
             args.inputs, args.dataset, workers=args.workers, scheduler=args.scheduler, vehicle=args.vehicle,
             variables=variables, sync_interval=sync, force=args.force, batch_rows=args.batch_rows, on_outcome=say,
+            progress=progress,
         )
     bad = report.count("damaged") + report.count("failed")
     summary = {"dataset": str(args.dataset), "ingested": report.count("ingested"), "unchanged": report.count("unchanged"),
@@ -95,6 +92,15 @@ def run(args: argparse.Namespace) -> int:
         f"{report.count('unchanged')} unchanged, {bad} damaged or unreadable",
     )
     return EXIT_OK if report.ok else EXIT_USAGE
+
+
+def _total_size(inputs: list[Path]) -> int | None:
+    from sharedlink.fleet.ingest import find_captures
+
+    try:
+        return sum(p.stat().st_size for p in find_captures(inputs))
+    except OSError:
+        return None
 
 
 def _check_inputs(inputs: list[Path]) -> None:
