@@ -301,8 +301,9 @@ def test_bulk_tier_drains_waiting_frames_as_the_reference_does(tmp_path):
             extra_side = bulk.first_unmatched_a if a == x else bulk.first_unmatched_b
             assert [u.frame for u in extra_side] == ([2, 5, 85] if by == "time" else [165, 167, 168]), by
             assert bulk.pairs == 165
-            # AutoGpsLon of C>A is learnt at the first positional frame, after 2 of the 5 C>A pairs
-            lon = next(v for v in bulk.variables if (v.stream, v.name) == ("C>A", "AutoGpsLon"))
+            # slot 1 of C>A is learnt at the first positional frame, after 2 of the 5 C>A pairs
+            # (#1: a 2-slot frame is not named by the 4-name a-priori list, issue 29)
+            lon = next(v for v in bulk.variables if (v.stream, v.name) == ("C>A", "#1"))
             assert lon.samples == 3
 
 
