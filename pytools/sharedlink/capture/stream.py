@@ -577,6 +577,11 @@ class ChangeReader:
                 fk.flush()
         table = self.link.table(frame.src, frame.dst, conv)
         decl = declared_list(frame.fields)
+        if decl is not None:  # a list may change under other conversations too (issue 29: by receiver
+            for fk in self._fast.values():  # address, by letter pair): every fast view goes, as the core's do
+                fk.flush()
+            self._fast.clear()
+            self._hot.clear()
         target = self.link.table(frame.dst, frame.src, reverse_conversation(conv)) if decl is not None and decl[0] == "L" else table
         # what this frame can give a first value or a new type: the names it holds (linear in
         # the frame, not in the direction's table)
