@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sharedlink.protocols.codec import (
     Field,
@@ -277,3 +279,54 @@ def test_pending_asks_are_bounded_per_conversation():
     answered = [link_response(pending, udp(VEH, OCU), r, "reply", 0) for _ in range(MAX_PENDING + 1)]
     assert answered[:2] == [MAX_PENDING + 9, MAX_PENDING + 8] and answered[-1] is None
     assert len([a for a in answered if a is not None]) == MAX_PENDING
+
+
+POOL = ["a", "b", "c", "d", "e"]
+
+
+@st.composite
+def list_sessions(draw):
+    """Declarations (a list of distinct names in any order) and positional frames as long as the
+    list in force, some slots empty."""
+    steps = [("decl", draw(st.lists(st.sampled_from(POOL), min_size=1, max_size=5, unique=True)))]
+    for _ in range(draw(st.integers(1, 25))):
+        if draw(st.integers(0, 4)) == 0:
+            steps.append(("decl", draw(st.lists(st.sampled_from(POOL), min_size=1, max_size=5, unique=True))))
+        else:
+            steps.append(("data", draw(st.lists(st.one_of(st.none(), st.sampled_from(["1", "2", "x"])),
+                                                min_size=5, max_size=5))))
+    return steps
+
+
+@settings(max_examples=200, deadline=None)
+@given(list_sessions())
+def test_a_new_list_keeps_values_by_name_and_drops_the_rest(steps):
+    """The rule of issue 29 against a model kept by name: a name the new list keeps keeps its
+    value, the frame it came from and its "once filled" mark; a dropped one loses them; a frame
+    is full when every once-filled name of the list has a value in it."""
+    link = LinkState()
+    names: list[str] = []
+    values: dict[str, tuple[str, int]] = {}  # name -> (text, frame)
+    filled: set[str] = set()
+    for number, (what, arg) in enumerate(steps, 1):
+        if what == "decl":
+            link.apply(frame(declaration_fields([(n, 4) for n in arg])), number)
+            names = list(arg)
+            values = {n: v for n, v in values.items() if n in names}
+            filled &= set(names)
+            continue
+        texts = arg[: len(names)]
+        f = frame(positional_fields(texts))
+        want_kind = "full" if all(texts[names.index(n)] is not None for n in filled) else "delta"
+        assert link.table("B", "A").kind(f) == want_kind
+        ups = link.apply(f, number)
+        want = []
+        for n, text in zip(names, texts):
+            if text is None:
+                old = values.get(n)
+                want.append((n, old[0] if old else None, True, old[1] if old else None))
+            else:
+                values[n] = (text, number)
+                filled.add(n)
+                want.append((n, text, False, None))
+        assert [(u.name, u.text, u.carried, u.carried_from) for u in ups] == want
