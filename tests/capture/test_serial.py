@@ -56,6 +56,31 @@ def test_any_split_gives_the_frames_of_the_whole_stream(data, cuts, protocol):
             assert p.frame == parse_frame(p.data) and p.records
 
 
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(sl_stream(max_items=6), st.binary(max_size=20), st.sampled_from(["sharedlink", "blackboard"]),
+       st.lists(st.integers(1, 3), min_size=1, max_size=8))
+def test_held_bytes_appended_without_a_scan_give_what_a_scan_gives(data, garbage, protocol, sizes):
+    """Records that only lengthen a held frame are appended without a scan (linear time byte by
+    byte, issue 31): the pieces, their reasons and their records are those of scanning the
+    whole stream at each record (a Deframer that never takes the short cut)."""
+    if protocol == "blackboard":
+        data = b"".join(blackboard.build_message(blackboard.SetMessage(0x1F00 + i, 1, bytes([i]))) for i in range(3))
+    stream = garbage + data[: len(data) // 2] + garbage + data
+    fast, slow = Deframer(protocol), Deframer(protocol)
+    got, want = [], []
+    pos = k = 0
+    while pos < len(stream):
+        c = stream[pos : pos + sizes[k % len(sizes)]]
+        pos, k = pos + len(c), k + 1
+        got += fast.feed(c, k)
+        slow._finish = ()  # the reference: every record scanned again
+        want += slow.feed(c, k)
+    got += fast.flush()
+    want += slow.flush()
+    assert [(p.start, p.data, p.frame, p.reason, p.records) for p in got] == [
+        (p.start, p.data, p.frame, p.reason, p.records) for p in want]
+
+
 @settings(max_examples=150, deadline=None)
 @given(sl_stream(max_items=6), st.binary(min_size=1, max_size=30), st.lists(st.integers(0, 10_000), max_size=20))
 def test_a_truncated_tail_or_garbage_loses_no_frame_around_it(data, garbage, cuts):
