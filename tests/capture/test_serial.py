@@ -331,6 +331,10 @@ def test_import_errors_are_clean(tmp_path):
         r = subprocess.run([*CLI, *args], capture_output=True, text=True)
         assert r.returncode == 2 and r.stderr.startswith("sharedlink: error: ") and "Traceback" not in r.stderr, (args, r.stderr)
     assert not (tmp_path / "x.pcapng").exists()
+    r = subprocess.run([*CLI, "serial", "capture", str(tmp_path / "no-such-tty"), "--baud", "9600", "-o",
+                        str(tmp_path / "y.pcapng")], capture_output=True, text=True)
+    # a port that does not open: named once, the reason once (pyserial says both twice)
+    assert r.stderr.count("no-such-tty") == 1 and r.stderr.count("No such file or directory") == 1, r.stderr
 
 
 def test_gen_transport_serial_cli(tmp_path):
