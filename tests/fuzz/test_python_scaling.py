@@ -339,3 +339,17 @@ def test_an_interceptty_log_of_one_direction_imports_in_linear_time(tmp_path):
     assert [len(c.data) for c in chunks] == [MAX_HELD_BYTES] * 3 + [200_000 - 3 * MAX_HELD_BYTES]
     # each chunk timed by its last byte, as before
     assert [c.ts_ns for c in chunks] == [1000 * k * MAX_HELD_BYTES for k in (1, 2, 3)] + [1000 * 200_000]
+
+
+@pytest.mark.xfail(strict=True, reason="mcap_export (py-outputs' file) opens three channels per conversation; "
+                   "past MCAP's 65535 channels every message of a new channel is lost with one "
+                   "'error logging message: McapError(TooManyChannels)' line each, and the summary still "
+                   "counts them (30k conversations: 48,928 such lines, exit 0)")
+def test_mcap_of_more_conversations_than_mcap_has_channels_loses_nothing_silently(tmp_path):
+    n = 22_000  # three channels each: 66,000
+    path = write(tmp_path / "conv.pcap", conversations(n))
+    r = subprocess.run([sys.executable, "-m", "sharedlink", "export", str(path), "--format", "mcap",
+                        "-o", str(tmp_path / "c.mcap")], capture_output=True, text=True, timeout=600)
+    assert "McapError" not in r.stderr and "Traceback" not in r.stderr, r.stderr[:300]
+    # either every message written, or a clear refusal (a limit counted and said once)
+    assert r.returncode == 0 or (r.returncode == 2 and r.stderr.count("\n") == 1), r.stderr[:300]
