@@ -20,6 +20,7 @@ from sharedlink.capture.serial_format import (
     DIR_IN,
     DIR_OUT,
     DIR_UNKNOWN,
+    GIVEN_UP,
     MAX_PENDING,
     Deframer,
     SerialCaptureWriter,
@@ -359,3 +360,27 @@ def test_random_bytes_never_raise():
             d = Deframer(proto)
             pieces = [p for i in range(0, len(data), 5) for p in d.feed(data[i : i + 5])] + d.flush()
             assert b"".join(p.data for p in pieces) == data
+
+
+@pytest.mark.parametrize("protocol", ["auto", "sharedlink"])
+def test_frames_given_up_at_the_limit_are_those_serial_lua_gives_up(tmp_path, protocol):
+    """Unfinished frames of 1.5 MAX_HELD_BYTES in 1 KB records, a good frame after each: the
+    Python reader gives up (reason GIVEN_UP) on the very records where serial.lua warns "Limit
+    exceeded", and finds the good frames on the same records (auto: the first babble is
+    released as unrecognised by both before a frame is seen)."""
+    import tshark_util as tu
+
+    good = encode_positional("A", "B", ["1"])
+    cap = tmp_path / "over.pcapng"
+    with open(cap, "wb") as fh:
+        w = SerialCaptureWriter(fh, flush=False)
+        for k in range(3):
+            for c in [b"[:AB|N0|D"] + [b"7" * 1024] * 96 + [good]:
+                w.write(c, DIR_OUT, 10**18 + k * 10**9 + len(c))
+    ours = [(r.number, p.is_frame) for r, _d, p in read_capture(cap, protocol) if p.is_frame or p.reason == GIVEN_UP]
+    rows = tu.fields(cap, ["frame.number", "sharedlink.kind", "_ws.expert.message"], two_pass=False,
+                     prefs={"slserial.protocol": protocol},
+                     extra=["-X", f"lua_script:{tu.REPO / 'dissector' / 'serial.lua'}"])
+    theirs = [(int(r["frame.number"][0]), "full" in r["sharedlink.kind"]) for r in rows
+              if "full" in r["sharedlink.kind"] or any(m.startswith("Limit exceeded") for m in r["_ws.expert.message"])]
+    assert ours == theirs and sum(f for _n, f in ours) == 3 and len(ours) == (5 if protocol == "auto" else 6)
