@@ -384,3 +384,21 @@ def test_frames_given_up_at_the_limit_are_those_serial_lua_gives_up(tmp_path, pr
     theirs = [(int(r["frame.number"][0]), "full" in r["sharedlink.kind"]) for r in rows
               if "full" in r["sharedlink.kind"] or any(m.startswith("Limit exceeded") for m in r["_ws.expert.message"])]
     assert ours == theirs and sum(f for _n, f in ours) == 3 and len(ours) == (5 if protocol == "auto" else 6)
+
+
+def test_a_hex_dump_whose_repeat_asks_for_terabytes_is_refused_at_once(tmp_path):
+    """xxd's '*' repeats the line before up to the next offset: three lines could ask for 64 GB
+    (the import allocated until killed). Past MAX_DUMP_BYTES it is one line and exit 2; a real
+    repeat still expands (in one step, not a line at a time)."""
+    from sharedlink.capture.serial_import import MAX_DUMP_BYTES
+
+    line = "00000000: 5b3a 4142 7c4e 307c 4431 7c43 3030 5d0d  [:AB|N0|D1|C00].\n"
+    bomb = tmp_path / "bomb.hex"
+    bomb.write_text(line + "*\n1000000000: 0a\n")
+    r = subprocess.run([*CLI, "serial", "import", str(bomb), "-o", str(tmp_path / "b.pcapng")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "line 3: offset 0x1000000000 is past what a dump may expand to" in r.stderr, r.stderr
+    assert r.stderr.count("\n") == 1 and not (tmp_path / "b.pcapng").exists()
+    assert 0x1000000000 > MAX_DUMP_BYTES
+    data = parse_hexdump(line + "*\n00100000: 0a\n00100001\n")
+    assert len(data) == 0x100001 and data[:16] * (0x100000 // 16) + b"\n" == data

@@ -110,9 +110,14 @@ def _hex_line(line: str) -> tuple[str, int, bytes] | None:
     return None
 
 
+#: the most bytes a hex dump may expand to with its ``*`` lines (a few lines could otherwise
+#: ask for terabytes)
+MAX_DUMP_BYTES = 1 << 30
+
+
 def parse_hexdump(text: str, path: str = "<hex>") -> bytes:
-    """The bytes of an xxd / hexdump -C / od dump (``*`` repeats expanded; the last offset
-    line, when present, gives the length)."""
+    """The bytes of an xxd / hexdump -C / od dump (``*`` repeats expanded, at most
+    :data:`MAX_DUMP_BYTES` in all; the last offset line, when present, gives the length)."""
     out = bytearray()
     prev: bytes | None = None
     repeat = False
@@ -131,9 +136,10 @@ def parse_hexdump(text: str, path: str = "<hex>") -> bytes:
             off = int(line.strip().rstrip(":"), 8)  # od offsets are octal
         elif st == "od":
             style = "od"
-        if repeat and prev is not None:
-            while len(out) + len(prev) <= off:
-                out += prev
+        if off > MAX_DUMP_BYTES:
+            raise SerialImportError(path, no, f"offset {off:#x} is past what a dump may expand to ({MAX_DUMP_BYTES:,} bytes)")
+        if repeat and prev:
+            out += prev * ((off - len(out)) // len(prev))  # the '*' lines: prev repeated up to off
             repeat = False
         if off < len(out) and st != "end":
             raise SerialImportError(path, no, f"offset {off:#x} goes back (expected {len(out):#x})")
