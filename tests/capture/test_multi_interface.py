@@ -216,3 +216,18 @@ def test_compress_counts_the_serial_value_frames_it_copies(tmp_path):
     rc = transform("compress", cap, tmp_path / "c.pcapng")
     assert tshark_view(tmp_path / "c.pcapng")[1] == want
     assert rc["value_frames"] == 50
+
+
+def test_a_simple_packet_block_cut_at_the_snaplen_holds_no_padding(tmp_path):
+    """An SPB stores only the original length: its data is that length cut at interface 0's
+    SnapLen, as Wireshark reads it (the block's padding bytes were taken for packet data)."""
+    frame = UdpBuilder("10.0.0.1", "10.0.0.2", 7013, 7013).frame(encode_named("A", "B", [("Lat", 2, "1.5")]), 1)
+    cut = 62  # not a multiple of 4: two padding bytes follow
+    body = struct.pack("<I", len(frame)) + frame[:cut] + b"\0\0"
+    cap = tmp_path / "spb.pcapng"
+    cap.write_bytes(shb() + _block(1, struct.pack("<HHI", 1, 0, cut)) + _block(3, body) + _block(3, body))
+    recs = list(read_records(cap))
+    assert [len(r.data) for r in recs] == [cut, cut] and all(r.orig_len == len(frame) for r in recs)
+    assert recs[0].data == frame[:cut]
+    rows = tu.fields(cap, ["frame.cap_len", "frame.len"], two_pass=False)
+    assert [(int(r["frame.cap_len"][0]), int(r["frame.len"][0])) for r in rows] == [(cut, len(frame))] * 2
