@@ -609,6 +609,9 @@ class SigintGate:
 
 
 Progress = Callable[[ReplayStats], None]
+#: a wait for one frame this long or longer is announced (``Replayer(long_wait=...)``)
+LONG_WAIT_S = 60
+LONG_WAIT_NS = LONG_WAIT_S * NS
 
 
 class Replayer:
@@ -616,7 +619,10 @@ class Replayer:
 
     ``progress`` is called about every ``progress_interval`` seconds with the running
     statistics, only when there is time to spare before the next deadline (it never delays a
-    frame). Ctrl-C stops cleanly: :meth:`run` returns the statistics with ``interrupted`` set.
+    frame). ``long_wait(record, seconds)`` is called before a frame the capture's timing makes
+    wait :data:`LONG_WAIT_S` or more (a gap in the capture: a year-long one would otherwise
+    look like a hang). Ctrl-C stops cleanly: :meth:`run` returns the statistics with
+    ``interrupted`` set.
     """
 
     def __init__(
@@ -626,8 +632,10 @@ class Replayer:
         opts: ReplayOptions | None = None,
         progress: Progress | None = None,
         progress_interval: float = 0.5,
+        long_wait: Callable[[int, float], None] | None = None,
     ) -> None:
         self.source, self.sink = source, sink
+        self.long_wait = long_wait  # (record number, seconds) before a wait of LONG_WAIT_S or more
         self.opts = opts or ReplayOptions()
         self.opts.validate()
         self.progress = progress
@@ -730,6 +738,8 @@ class Replayer:
                     deadline = prev
                 count += 1
                 now = clock()
+                if deadline - now >= LONG_WAIT_NS and self.long_wait is not None:
+                    self.long_wait(fr.number, (deadline - now) / NS)
                 if now >= self._next_progress and (deadline - now > 2_000_000 or now > self._next_progress + self.progress_ns):
                     self._report(now)  # when there is time to spare, or it is long overdue
                 pace(deadline, deadline - prev)

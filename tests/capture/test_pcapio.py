@@ -207,3 +207,17 @@ def test_multi_interface_pcapng_reads_as_tshark_does(sample, tmp_path, endian, o
     assert json.loads(r.stdout)["value_frames"] == len(rows) and json.loads(r.stdout)["records"] == len(src)
     r = subprocess.run([*cmd, "diff", str(multi), str(out)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "AGREE" in r.stdout, r.stdout + r.stderr
+
+
+def test_udp_builder_wraps_the_ip_id_and_refuses_a_payload_no_datagram_holds():
+    """A counter past 65535 as the IP id was a struct.error; so was a payload over 65,507 bytes
+    (issue 31's "64 KB frame" traceback came from such a pack)."""
+    from sharedlink.capture.packets import MAX_UDP_PAYLOAD
+
+    b = UdpBuilder("10.0.0.1", "10.0.0.2", 7013, 7013)
+    f = b.frame(b"x", 70000)
+    assert f == b.frame(b"x", 70000 - 65536) and decode_packet(1, f).payload == b"x"
+    assert struct.unpack("!H", f[18:20])[0] == 70000 & 0xFFFF
+    assert decode_packet(1, b.frame(b"y" * MAX_UDP_PAYLOAD, 1)).payload == b"y" * MAX_UDP_PAYLOAD
+    with pytest.raises(ValueError, match="65,508 bytes is more than an IPv4 datagram holds"):
+        b.frame(b"z" * (MAX_UDP_PAYLOAD + 1), 1)

@@ -20,6 +20,7 @@ from sharedlink.capture.serial_format import (
     DIR_IN,
     DIR_OUT,
     DIR_UNKNOWN,
+    GIVEN_UP,
     MAX_PENDING,
     Deframer,
     SerialCaptureWriter,
@@ -54,6 +55,31 @@ def test_any_split_gives_the_frames_of_the_whole_stream(data, cuts, protocol):
     for p in pieces:
         if p.is_frame:
             assert p.frame == parse_frame(p.data) and p.records
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(sl_stream(max_items=6), st.binary(max_size=20), st.sampled_from(["sharedlink", "blackboard"]),
+       st.lists(st.integers(1, 3), min_size=1, max_size=8))
+def test_held_bytes_appended_without_a_scan_give_what_a_scan_gives(data, garbage, protocol, sizes):
+    """Records that only lengthen a held frame are appended without a scan (linear time byte by
+    byte, issue 31): the pieces, their reasons and their records are those of scanning the
+    whole stream at each record (a Deframer that never takes the short cut)."""
+    if protocol == "blackboard":
+        data = b"".join(blackboard.build_message(blackboard.SetMessage(0x1F00 + i, 1, bytes([i]))) for i in range(3))
+    stream = garbage + data[: len(data) // 2] + garbage + data
+    fast, slow = Deframer(protocol), Deframer(protocol)
+    got, want = [], []
+    pos = k = 0
+    while pos < len(stream):
+        c = stream[pos : pos + sizes[k % len(sizes)]]
+        pos, k = pos + len(c), k + 1
+        got += fast.feed(c, k)
+        slow._finish = ()  # the reference: every record scanned again
+        want += slow.feed(c, k)
+    got += fast.flush()
+    want += slow.flush()
+    assert [(p.start, p.data, p.frame, p.reason, p.records) for p in got] == [
+        (p.start, p.data, p.frame, p.reason, p.records) for p in want]
 
 
 @settings(max_examples=150, deadline=None)
@@ -306,6 +332,10 @@ def test_import_errors_are_clean(tmp_path):
         r = subprocess.run([*CLI, *args], capture_output=True, text=True)
         assert r.returncode == 2 and r.stderr.startswith("sharedlink: error: ") and "Traceback" not in r.stderr, (args, r.stderr)
     assert not (tmp_path / "x.pcapng").exists()
+    r = subprocess.run([*CLI, "serial", "capture", str(tmp_path / "no-such-tty"), "--baud", "9600", "-o",
+                        str(tmp_path / "y.pcapng")], capture_output=True, text=True)
+    # a port that does not open: named once, the reason once (pyserial says both twice)
+    assert r.stderr.count("no-such-tty") == 1 and r.stderr.count("No such file or directory") == 1, r.stderr
 
 
 def test_gen_transport_serial_cli(tmp_path):
@@ -330,3 +360,45 @@ def test_random_bytes_never_raise():
             d = Deframer(proto)
             pieces = [p for i in range(0, len(data), 5) for p in d.feed(data[i : i + 5])] + d.flush()
             assert b"".join(p.data for p in pieces) == data
+
+
+@pytest.mark.parametrize("protocol", ["auto", "sharedlink"])
+def test_frames_given_up_at_the_limit_are_those_serial_lua_gives_up(tmp_path, protocol):
+    """Unfinished frames of 1.5 MAX_HELD_BYTES in 1 KB records, a good frame after each: the
+    Python reader gives up (reason GIVEN_UP) on the very records where serial.lua warns "Limit
+    exceeded", and finds the good frames on the same records (auto: the first babble is
+    released as unrecognised by both before a frame is seen)."""
+    import tshark_util as tu
+
+    good = encode_positional("A", "B", ["1"])
+    cap = tmp_path / "over.pcapng"
+    with open(cap, "wb") as fh:
+        w = SerialCaptureWriter(fh, flush=False)
+        for k in range(3):
+            for c in [b"[:AB|N0|D"] + [b"7" * 1024] * 96 + [good]:
+                w.write(c, DIR_OUT, 10**18 + k * 10**9 + len(c))
+    ours = [(r.number, p.is_frame) for r, _d, p in read_capture(cap, protocol) if p.is_frame or p.reason == GIVEN_UP]
+    rows = tu.fields(cap, ["frame.number", "sharedlink.kind", "_ws.expert.message"], two_pass=False,
+                     prefs={"slserial.protocol": protocol},
+                     extra=["-X", f"lua_script:{tu.REPO / 'dissector' / 'serial.lua'}"])
+    theirs = [(int(r["frame.number"][0]), "full" in r["sharedlink.kind"]) for r in rows
+              if "full" in r["sharedlink.kind"] or any(m.startswith("Limit exceeded") for m in r["_ws.expert.message"])]
+    assert ours == theirs and sum(f for _n, f in ours) == 3 and len(ours) == (5 if protocol == "auto" else 6)
+
+
+def test_a_hex_dump_whose_repeat_asks_for_terabytes_is_refused_at_once(tmp_path):
+    """xxd's '*' repeats the line before up to the next offset: three lines could ask for 64 GB
+    (the import allocated until killed). Past MAX_DUMP_BYTES it is one line and exit 2; a real
+    repeat still expands (in one step, not a line at a time)."""
+    from sharedlink.capture.serial_import import MAX_DUMP_BYTES
+
+    line = "00000000: 5b3a 4142 7c4e 307c 4431 7c43 3030 5d0d  [:AB|N0|D1|C00].\n"
+    bomb = tmp_path / "bomb.hex"
+    bomb.write_text(line + "*\n1000000000: 0a\n")
+    r = subprocess.run([*CLI, "serial", "import", str(bomb), "-o", str(tmp_path / "b.pcapng")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "line 3: offset 0x1000000000 is past what a dump may expand to" in r.stderr, r.stderr
+    assert r.stderr.count("\n") == 1 and not (tmp_path / "b.pcapng").exists()
+    assert 0x1000000000 > MAX_DUMP_BYTES
+    data = parse_hexdump(line + "*\n00100000: 0a\n00100001\n")
+    assert len(data) == 0x100001 and data[:16] * (0x100000 // 16) + b"\n" == data

@@ -1,10 +1,12 @@
 """Hostile input against the Python decoders (issue 31): bounded memory, linear time, no traceback.
 
-Each pattern is built at N and 4N (frames, names or conversations) and run in this process; the
-test fails when the time or the peak memory (tracemalloc) of the 4N run is more than
-:data:`GROWTH` (6) times the N run's (linear growth is 4x; quadratic 16x). Small absolute floors
-keep timer noise on a busy machine out of the ratio. Past a bound of
-``sharedlink.protocols.limits`` the input is dropped and counted, never allocated.
+Each pattern is built at N and 4N (frames, names, conversations or serial records) and run in
+this process; the test fails when the CPU time or the peak memory (tracemalloc) of the 4N run is
+more than :data:`GROWTH` (5) times the N run's (linear growth is 4x; quadratic 16x). CPU time
+is measured without tracemalloc (whose own tables made the traced runs superlinear: 5.0x on a
+linear pattern), best of three, and memory in a separate traced run; N is chosen so that the N
+run takes 0.1-0.5 s of CPU, where start-up costs no longer hide a quadratic term. Past a bound
+of ``sharedlink.protocols.limits`` the input is dropped and counted, never allocated.
 """
 
 from __future__ import annotations
@@ -25,12 +27,13 @@ from sharedlink.analysis.export import ExportOptions, export
 from sharedlink.analysis.stats import capture_stats
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.capture.serial_format import DIR_OUT, GIVEN_UP, Deframer, SerialCaptureWriter, read_capture
 from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
-from sharedlink.protocols.limits import MAX_NAMES, MAX_SLOTS
+from sharedlink.protocols.limits import MAX_HELD_BYTES, MAX_NAMES, MAX_SLOTS
 
 #: the most the 4N run may cost against the N run (time and peak memory): linear is 4x, quadratic
-#: 16x; "about 5x" with room for a shared machine's noise (linear runs measured 4.0x-4.7x here)
-GROWTH = 6.0
+#: 16x. Measured here (2 cores shared with other jobs, best of three CPU times): 3.3x-4.9x.
+GROWTH = 5.0
 T0 = 1_700_000_000 * 10**9
 STEP = 200_000_000
 
@@ -53,28 +56,51 @@ def write(path: Path, payloads: Sequence[bytes | tuple[int, bytes]]) -> Path:
     return path
 
 
-def measure(fn: Callable[[], object]) -> tuple[float, int]:
-    """(CPU seconds of this process, peak traced bytes) of ``fn()``: CPU time, not wall time, so
-    that other processes on a shared machine (pytest's other worker) do not enter the ratio."""
-    tracemalloc.start()
+def cpu_seconds(fn: Callable[[], object]) -> float:
+    """CPU seconds of this process spent in ``fn()``: not wall time, so that other processes on
+    a shared machine (pytest's other worker) do not enter the ratio."""
     t = time.process_time()
+    fn()
+    return time.process_time() - t
+
+
+def peak_bytes(fn: Callable[[], object]) -> int:
+    """The peak of the memory ``fn()`` allocated (tracemalloc)."""
+    tracemalloc.start()
     try:
         fn()
+        return tracemalloc.get_traced_memory()[1]
     finally:
-        elapsed = time.process_time() - t
-        peak = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
-    return elapsed, peak
 
 
-def assert_linear(run: Callable[[Path], object], small: Path, big: Path, floor_s: float = 0.2,
-                  floor_bytes: int = 4 << 20) -> None:
-    """``run`` on the 4N capture costs at most GROWTH times what it costs on the N one."""
+def measure(fn: Callable[[], object]) -> tuple[float, int]:
+    """(CPU seconds, peak traced bytes) of ``fn()``, from two runs (an untraced one timed)."""
+    return cpu_seconds(fn), peak_bytes(fn)
+
+
+def assert_linear(run: Callable[[Path], object], pattern: Callable[[int], Sequence[bytes | tuple[int, bytes]]],
+                  n: int, tmp: Path, n_memory: int | None = None, floor_s: float = 0.05,
+                  floor_bytes: int = 256 << 10, writer: Callable[[Path, Sequence], Path] | None = None) -> None:
+    """``run`` on the pattern's 4N capture costs at most GROWTH times what it costs on the N one.
+    Memory (traced, exact but slow to trace) is compared at ``n_memory`` and 4 ``n_memory``
+    (default ``n``). The floors only keep a run too short to time from failing on timer noise;
+    the sizes are chosen so that the N run is well above them."""
+    def capture(size: int) -> Path:
+        path = tmp / f"{pattern.__name__}-{size}.pcap"
+        return path if path.exists() else (writer or write)(path, pattern(size))
+
+    nm = n_memory or n
+    m1, m4 = peak_bytes(lambda: run(capture(nm))), peak_bytes(lambda: run(capture(4 * nm)))
+    assert m4 <= GROWTH * max(m1, floor_bytes), f"peak memory {m1} -> {m4} bytes from N={nm} to 4N"
+    small, big = capture(n), capture(4 * n)
     run(small)  # warm up (imports, caches)
-    # best of three each: a shared machine's load comes and goes
-    (t1, m1), (t4, m4) = (min(measure(lambda p=p: run(p)) for _ in range(3)) for p in (small, big))
-    assert t4 <= GROWTH * max(t1, floor_s), f"time {t1:.3f} s -> {t4:.3f} s at 4N"
-    assert m4 <= GROWTH * max(m1, floor_bytes), f"peak memory {m1} -> {m4} bytes at 4N"
+    for _attempt in range(2):  # a shared machine's load comes and goes: a failure is timed again
+        # best of three each
+        t1, t4 = (min(cpu_seconds(lambda p=p: run(p)) for _ in range(3)) for p in (small, big))
+        if t4 <= GROWTH * max(t1, floor_s):
+            return
+    raise AssertionError(f"CPU time {t1:.3f} s -> {t4:.3f} s from N={n} to 4N ({t4 / max(t1, floor_s):.1f}x)")
 
 
 def stats(path: Path) -> object:
@@ -108,9 +134,15 @@ def diff_self(path: Path) -> object:
 # -- patterns -----------------------------------------------------------------------------------
 
 
+#: the directions new_names takes turns in: at 4N = 12000 frames each holds 4001 names (the
+#: pattern stays below MAX_NAMES, where every name is still stored)
+PAIRS = (("A", "B"), ("C", "D"), ("E", "F"))
+
+
 def new_names(n: int) -> list[bytes]:
-    """Every frame sends one name never sent before (and the first name again)."""
-    return [encode_named("A", "B", [("First", 2, "1"), (f"Name{i}", 2, str(i))]) for i in range(n)]
+    """Every frame sends one name never sent before (and the first name again), the directions
+    of :data:`PAIRS` in turn."""
+    return [encode_named(*PAIRS[i % len(PAIRS)], [("First", 2, "1"), (f"Name{i}", 2, str(i))]) for i in range(n)]
 
 
 def bad_checksums(n: int) -> list[bytes]:
@@ -139,29 +171,104 @@ def conversations(n: int) -> list[tuple[int, bytes]]:
 
 @pytest.mark.parametrize("run", [stats, export_changes, diff_self, watch_decode], ids=["stats", "export", "diff", "watch"])
 def test_new_names_every_frame_cost_linear_time(tmp_path, run):
-    small = write(tmp_path / "s.pcap", new_names(400))
-    big = write(tmp_path / "b.pcap", new_names(1600))
-    assert_linear(run, small, big)
+    assert capture_stats(write(tmp_path / "all.pcap", new_names(12000))).limits.total == 0  # every name stored
+    assert_linear(run, new_names, 3000, tmp_path, n_memory=1000)
 
 
 @pytest.mark.parametrize("run", [stats, export_changes], ids=["stats", "export"])
 def test_bad_checksum_frames_cost_what_they_hold(tmp_path, run):
-    small = write(tmp_path / "s.pcap", bad_checksums(100))
-    big = write(tmp_path / "b.pcap", bad_checksums(400))
-    assert_linear(run, small, big)
+    assert_linear(run, bad_checksums, 300, tmp_path, n_memory=100)
 
 
 def test_replies_in_a_big_list_cost_linear_time(tmp_path):
-    small = write(tmp_path / "s.pcap", replies_in_a_big_list(1000))
-    big = write(tmp_path / "b.pcap", replies_in_a_big_list(4000))
-    assert_linear(stats, small, big)
+    assert_linear(stats, replies_in_a_big_list, 8000, tmp_path, n_memory=1000)
 
 
 @pytest.mark.parametrize("run", [stats, export_changes, diff_self], ids=["stats", "export", "diff"])
 def test_many_conversations_cost_linear_time_and_memory(tmp_path, run):
-    small = write(tmp_path / "s.pcap", conversations(1000))
-    big = write(tmp_path / "b.pcap", conversations(4000))
-    assert_linear(run, small, big)
+    assert_linear(run, conversations, 2000, tmp_path, n_memory=500)
+
+
+# -- serial: held bytes ---------------------------------------------------------------------------
+
+
+def write_serial(path: Path, chunks: Sequence[bytes]) -> Path:
+    """A serial capture (pcapng, USER0), one outbound record per chunk, 1 ms apart."""
+    with open(path, "wb") as fh:
+        w = SerialCaptureWriter(fh, flush=False)
+        for i, c in enumerate(chunks):
+            w.write(c, DIR_OUT, T0 + i * 1_000_000)
+    return path
+
+
+def sl_unterminated(n: int) -> list[bytes]:
+    """A SharedLink frame that never ends, sent one byte a record (serial.lua and the Python
+    deframer rescanned the held bytes each record: 4k to 16k records 0.2 s to 3.2 s here)."""
+    return [b"[:AB|N0|D"] + [b"7"] * n
+
+
+def bb_unterminated(n: int) -> list[bytes]:
+    """The same for a blackboard message (no CR ever)."""
+    return [b":031F00"] + [b"0"] * n
+
+
+def past_the_limit(n: int) -> list[bytes]:
+    """Unfinished frames of 1.5 MAX_HELD_BYTES each, 1 KB records, a good frame after each."""
+    chunk = b"7" * 1024
+    good = encode_positional("A", "B", ["1"])
+    out: list[bytes] = []
+    for _ in range(max(1, n // 100)):
+        out += [b"[:AB|N0|D"] + [chunk] * (3 * MAX_HELD_BYTES // 2048) + [good]
+    return out
+
+
+def serial_records(path: Path) -> object:
+    """What stats, export and the other capture readers do with a serial capture (the pieces)."""
+    return sum(1 for _ in read_capture(path))
+
+
+def serial_deframer(path: Path, protocol: str = "sharedlink") -> object:
+    """What ``watch`` on a serial device does with each read (one Deframer, SharedLink there)."""
+    from sharedlink.capture.pcapio import read_records
+
+    d = Deframer(protocol)
+    n = 0
+    for rec in read_records(path):
+        n += len(d.feed(rec.data, rec.number))
+    return n + len(d.flush())
+
+
+def bb_deframer(path: Path) -> object:
+    return serial_deframer(path, "blackboard")
+
+
+@pytest.mark.parametrize("pattern,run", [
+    (sl_unterminated, serial_records), (sl_unterminated, serial_deframer), (sl_unterminated, stats),
+    (bb_unterminated, serial_records), (bb_unterminated, bb_deframer),
+], ids=["sharedlink-reader", "sharedlink-deframer", "sharedlink-stats", "blackboard-reader", "blackboard-deframer"])
+def test_an_unterminated_serial_frame_byte_by_byte_costs_linear_time(tmp_path, pattern, run):
+    # 4N = 60000 bytes: one frame held whole (under MAX_HELD_BYTES), the case that was quadratic
+    assert_linear(run, pattern, 15000, tmp_path, n_memory=4000, writer=write_serial)
+
+
+def test_held_serial_bytes_stop_at_the_limit_counted_and_given_out(tmp_path):
+    """Past MAX_HELD_BYTES an unfinished frame is given out as noise (counted in the deframer),
+    never held: the held bytes stay under the limit plus one record, the memory of a capture
+    of many such frames stays that of one, and the good frame after each is still found."""
+    d = Deframer("sharedlink")
+    held, pieces = [], []
+    for c in past_the_limit(300):
+        pieces += d.feed(c)
+        held.append(len(d.pending))
+    pieces += d.flush()
+    assert max(held) <= MAX_HELD_BYTES and d.given_up == 3
+    assert [p.reason for p in pieces if not p.is_frame].count(GIVEN_UP) == 3
+    assert d.given_up_bytes == sum(len(p.data) for p in pieces if p.reason == GIVEN_UP) > 3 * MAX_HELD_BYTES
+    assert len([p for p in pieces if p.is_frame]) == 3
+    path = write_serial(tmp_path / "over.pcapng", past_the_limit(300))
+    st = capture_stats(path)
+    assert st.frames == 3 and "Traceback" not in str(st)
+    assert_linear(serial_records, past_the_limit, 200, tmp_path, writer=write_serial)
 
 
 # -- bounds ---------------------------------------------------------------------------------------
@@ -213,3 +320,36 @@ def test_thousands_of_digits_are_a_count_not_a_traceback(tmp_path, command):
     r = subprocess.run(cli, capture_output=True, text=True, timeout=60)
     assert "Traceback" not in r.stderr and r.returncode == 0, r.stderr
     assert capture_stats(path).limits.numbers == 2
+
+
+def test_an_interceptty_log_of_one_direction_imports_in_linear_time(tmp_path):
+    """interceptty logs one byte a line; consecutive bytes of one direction were merged by
+    concatenating (quadratic: 300k bytes took minutes). Now gathered, and cut at MAX_HELD_BYTES."""
+    from sharedlink.capture.serial_import import parse_log
+
+    def log(n: int) -> str:
+        return "< 0x37 (7)\n" * n
+
+    small, big = log(50_000), log(200_000)
+    parse_log(small)
+    t1, t4 = (min(cpu_seconds(lambda t=t: parse_log(t, byte_ns=1000)) for _ in range(3)) for t in (small, big))
+    assert t4 <= GROWTH * max(t1, 0.05), (t1, t4)
+    chunks = parse_log(big, byte_ns=1000)
+    assert b"".join(c.data for c in chunks) == b"7" * 200_000
+    assert [len(c.data) for c in chunks] == [MAX_HELD_BYTES] * 3 + [200_000 - 3 * MAX_HELD_BYTES]
+    # each chunk timed by its last byte, as before
+    assert [c.ts_ns for c in chunks] == [1000 * k * MAX_HELD_BYTES for k in (1, 2, 3)] + [1000 * 200_000]
+
+
+@pytest.mark.xfail(strict=True, reason="mcap_export (py-outputs' file) opens three channels per conversation; "
+                   "past MCAP's 65535 channels every message of a new channel is lost with one "
+                   "'error logging message: McapError(TooManyChannels)' line each, and the summary still "
+                   "counts them (30k conversations: 48,928 such lines, exit 0)")
+def test_mcap_of_more_conversations_than_mcap_has_channels_loses_nothing_silently(tmp_path):
+    n = 22_000  # three channels each: 66,000
+    path = write(tmp_path / "conv.pcap", conversations(n))
+    r = subprocess.run([sys.executable, "-m", "sharedlink", "export", str(path), "--format", "mcap",
+                        "-o", str(tmp_path / "c.mcap")], capture_output=True, text=True, timeout=600)
+    assert "McapError" not in r.stderr and "Traceback" not in r.stderr, r.stderr[:300]
+    # either every message written, or a clear refusal (a limit counted and said once)
+    assert r.returncode == 0 or (r.returncode == 2 and r.stderr.count("\n") == 1), r.stderr[:300]

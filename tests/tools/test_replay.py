@@ -772,3 +772,32 @@ def test_times_that_do_not_advance_are_warned_about(tmp_path, rx):
     generate_file(GenOptions(frames=3, rate=100, port=rx.port), normal)
     r = run_cli(normal, "--json")
     assert r.returncode == 0 and "warning" not in r.stderr and json.loads(r.stdout)["flat_times"] == 0, r.stderr
+
+
+def test_a_long_gap_in_the_capture_is_announced_before_the_wait(tmp_path):
+    """Two frames a year apart: replay at the capture's pace waits that long for the second, and
+    said nothing (it looked hung). Now a warning names the record and the wait before it."""
+    b = UdpBuilder("10.0.0.1", "10.0.0.9", 7013, 7013)
+    cap = tmp_path / "gap.pcap"
+    with open(cap, "wb") as fh:
+        w = PcapWriter(fh)
+        w.write(10**18, b.frame(b"[:AB|N0|D1]\r\n", 1))
+        w.write(10**18 + 31_536_000 * 10**9, b.frame(b"[:AB|N0|D2]\r\n", 2))
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(20)
+    proc = subprocess.Popen([*CLI, str(cap), "--to", f"127.0.0.1:{rx.getsockname()[1]}", "--speed", "2"],
+                            stderr=subprocess.PIPE)
+    try:
+        assert rx.recv(100) == b"[:AB|N0|D1]\r\n"
+        said = b""
+        deadline = time.monotonic() + 20
+        while b"later in the capture" not in said and time.monotonic() < deadline:
+            if select.select([proc.stderr], [], [], 0.5)[0]:
+                said += os.read(proc.stderr.fileno(), 4096)
+        assert b"record 2 comes 182.5 days later in the capture (at 2x): waiting for it" in said, said
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+        rx.close()
+    assert proc.returncode == 130 and b"Traceback" not in err, err

@@ -46,6 +46,10 @@ def mac_bytes(mac: str) -> bytes:
     return bytes(int(x, 16) for x in mac.split(":"))
 
 
+#: the largest UDP payload an IPv4 datagram holds (65535 - 20 - 8)
+MAX_UDP_PAYLOAD = 65507
+
+
 class UdpBuilder:
     """Builds Ethernet/IPv4/UDP frames between fixed endpoints with correct IP and UDP
     checksums. Everything that does not change per packet is computed once."""
@@ -60,6 +64,9 @@ class UdpBuilder:
         dst_mac: str = "ff:ff:ff:ff:ff:ff",
         ttl: int = 64,
     ) -> None:
+        for port in (sport, dport):
+            if not 0 <= port <= 0xFFFF:
+                raise ValueError(f"UDP port {port} is not in 0..65535")
         self.src = socket.inet_aton(src_ip)
         self.dst = socket.inet_aton(dst_ip)
         self.sport, self.dport, self.ttl = sport, dport, ttl
@@ -72,7 +79,12 @@ class UdpBuilder:
         return self.headers(len(payload), payload, ip_id) + payload
 
     def headers(self, plen: int, payload: bytes, ip_id: int) -> bytes:
-        """The Ethernet, IPv4 and UDP headers for ``payload`` (its length is ``plen``)."""
+        """The Ethernet, IPv4 and UDP headers for ``payload`` (its length is ``plen``). The IP
+        identification is ``ip_id`` modulo 65536 (a counter may run past it); a payload longer
+        than an IPv4 UDP datagram holds (:data:`MAX_UDP_PAYLOAD`) is a ValueError."""
+        if plen > MAX_UDP_PAYLOAD:
+            raise ValueError(f"a UDP payload of {plen:,} bytes is more than an IPv4 datagram holds ({MAX_UDP_PAYLOAD:,})")
+        ip_id &= 0xFFFF
         ulen = 8 + plen
         tlen = 20 + ulen
         s = self._ip_const + tlen + ip_id + 0x4000  # DF set

@@ -565,6 +565,7 @@ def _read_pcap(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
 def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
     endian = "<"
     interfaces: list[tuple[int, int, int]] = []  # (linktype, units per second, offset in ns)
+    snaplens: list[int] = []  # each interface's SnapLen (0: none)
     number = 0
     first = True
     buf = head
@@ -597,6 +598,7 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
             if len(body) < total - 12:
                 raise CaptureError(p, where, "truncated section header")
             interfaces = []
+            snaplens = []
             first = False
             continue
         btype, total = struct.unpack(endian + "II", h)
@@ -611,7 +613,7 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
                 raise CaptureError(p, number + 1, "truncated interface description")
             # each interface has its own link type, time resolution (if_tsresol, default
             # microseconds) and time offset (if_tsoffset, seconds added to every time on it)
-            linktype = struct.unpack(endian + "H", body[:2])[0]
+            linktype, _reserved, snaplen = struct.unpack(endian + "HHI", body[:8])
             units, offset = 1_000_000, 0
             for code, val in _options(body[8:], endian):
                 if code == 9 and val:
@@ -620,6 +622,7 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
                 elif code == 14 and len(val) == 8:
                     offset = struct.unpack(endian + "q", val)[0] * 1_000_000_000
             interfaces.append((linktype, units, offset))
+            snaplens.append(snaplen)
         elif btype == BT_EPB or btype == BT_PB:
             number += 1
             if len(body) < 20:
@@ -648,7 +651,9 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
             if not interfaces or len(body) < 4:
                 raise CaptureError(p, number, "simple packet block without interface")
             orig = struct.unpack(endian + "I", body[:4])[0]
-            data = body[4 : 4 + orig]
+            # the captured length is not stored: the original length, cut at interface 0's
+            # SnapLen (the block's padding is no packet data)
+            data = body[4 : 4 + (min(orig, snaplens[0]) if snaplens[0] else orig)]
             yield Record(number, 0, interfaces[0][0], data, orig)
         elif btype in FRAME_BLOCKS:
             number += 1  # no packet, but Wireshark gives it a frame number

@@ -27,6 +27,7 @@ from typing import BinaryIO, Callable, Union
 from sharedlink.capture.pcapio import LINKTYPE_USER0, PcapngWriter, Record, read_records
 from sharedlink.protocols import blackboard, p2os
 from sharedlink.protocols.codec import Frame, iter_segments
+from sharedlink.protocols.limits import MAX_HELD_BYTES
 
 #: EPB flags direction values (pcapng spec, epb_flags bits 0-1)
 DIR_UNKNOWN, DIR_IN, DIR_OUT = 0, 1, 2
@@ -34,13 +35,21 @@ DIRECTION_NAMES = {DIR_UNKNOWN: "unknown", DIR_IN: "inbound", DIR_OUT: "outbound
 #: LINKTYPE_USER0 .. LINKTYPE_USER15
 USER_LINKTYPES = range(LINKTYPE_USER0, LINKTYPE_USER0 + 16)
 PROTOCOLS = ("sharedlink", "p2os", "blackboard")
-#: an unfinished frame longer than this is given up as noise (bounds memory on garbage)
-MAX_PENDING = 65536
+#: an unfinished frame longer than this is given up as noise (bounds memory on garbage): the
+#: issue-31 limit ``MAX_HELD_BYTES`` (``slserial.max_held_bytes`` in the dissector); old name
+MAX_PENDING = MAX_HELD_BYTES
 #: a direction whose protocol is not recognised yet holds at most this many bytes
 MAX_UNDETECTED = 4096
 UNDETECTED_KEEP = 512
 #: an undecided direction holding this many bytes takes the other direction's protocol
 ADOPT_AFTER = 64
+#: the reason of the noise piece that ends an unfinished frame given up at MAX_HELD_BYTES
+GIVEN_UP = f"an unfinished frame of over {MAX_HELD_BYTES} bytes given up (limit max_held_bytes)"
+#: per protocol, the bytes that may end or restart the one unfinished frame a direction holds:
+#: a record with none of them only lengthens it (appended, nothing scanned again)
+_FINISHERS: dict[str, tuple[bytes, ...]] = {"sharedlink": (b"[", b"]"), "blackboard": (b"\r",)}
+#: (bytes a held frame starts with, the byte that ends it) of those protocols
+_HELD_FRAME: dict[str, tuple[bytes, bytes]] = {"sharedlink": (b"[", b"]"), "blackboard": (b":;", b"\r")}
 
 Decoded = Union[Frame, p2os.Packet, blackboard.SetMessage, blackboard.RequestMessage]
 
@@ -126,14 +135,18 @@ def scan_sharedlink(buf: bytes, final: bool) -> tuple[list[tuple[int, int, Decod
             after = buf[f.end : hold]
             if f.frame is not None and not f.frame.crlf and after in (b"", b"\r") and f.end + len(after) == n:
                 hold = f.start
-        if n - hold > MAX_PENDING:
-            hold = n
+    over = n - hold > MAX_HELD_BYTES
+    if over:
+        hold = n
     out: list[tuple[int, int, Decoded | None, str]] = []
     for s in segs:
         if s.start >= hold:
             break
         end = min(s.end, hold)
         out.append((s.start, end - s.start, s.frame, "" if s.is_frame else (s.error.reason if s.error else "noise")))
+    if over and out:
+        o, ln, _f, _r = out[-1]
+        out[-1] = (o, ln, None, GIVEN_UP)
     return out, hold
 
 
@@ -144,7 +157,7 @@ def scan_p2os(buf: bytes, final: bool) -> tuple[list[tuple[int, int, Decoded | N
     n = len(buf)
     hold = n
     for c in p2os.iter_chunks(buf):
-        if not final and c.packet is None and c.reason.startswith("truncated") and n - c.offset <= MAX_PENDING:
+        if not final and c.packet is None and c.reason.startswith("truncated") and n - c.offset <= MAX_HELD_BYTES:
             hold = c.offset
             break
         out.append((c.offset, len(c.data), c.packet, c.reason))
@@ -166,14 +179,17 @@ def scan_blackboard(buf: bytes, final: bool) -> tuple[list[tuple[int, int, Decod
     n = len(buf)
     pos = noise = 0
     hold = n
+    given_up = False
     while pos < n:
         o = _find_start(buf, pos)
         if o < 0:
             break
         cr = buf.find(b"\r", o + 1)
         if cr < 0:
-            if not final and n - o <= MAX_PENDING:
+            if not final and n - o <= MAX_HELD_BYTES:
                 hold = o
+            elif not final:
+                given_up = True
             break
         o2 = max(buf.rfind(b":", o, cr), buf.rfind(b";", o, cr))
         end = cr + 1  # a message ends at its CR: an LF still to come would be noise
@@ -189,7 +205,7 @@ def scan_blackboard(buf: bytes, final: bool) -> tuple[list[tuple[int, int, Decod
         out.append((o2, end - o2, msg, ""))
         noise = pos = end
     if noise < hold:
-        out.append((noise, hold - noise, None, "noise between messages"))
+        out.append((noise, hold - noise, None, GIVEN_UP if given_up else "noise between messages"))
     return out, hold
 
 
@@ -223,6 +239,14 @@ class Deframer:
     ``protocol`` is "sharedlink", "p2os", "blackboard" or "auto" (the first protocol with a
     good frame in the bytes seen; until then the bytes are held, at most
     :data:`MAX_UNDETECTED` of them).
+
+    Bounded and linear (issue 31): an unfinished frame is held up to :data:`MAX_HELD_BYTES`
+    (``limits.MAX_HELD_BYTES``, the dissector's ``slserial.max_held_bytes``); past it the
+    held bytes are given out as one noise piece (reason :data:`GIVEN_UP`), counted in
+    ``given_up`` / ``given_up_bytes``, and nothing more is held for them. A chunk that only
+    lengthens the held frame (no ``[`` or ``]`` for SharedLink, no CR for blackboard) is
+    appended without scanning the held bytes again, as ``dissector/serial.lua`` does, so a
+    frame sent byte by byte costs linear time.
     """
 
     def __init__(self, protocol: str = "sharedlink", fallback: Callable[[], str | None] | None = None) -> None:
@@ -230,13 +254,16 @@ class Deframer:
             raise ValueError(f"unknown protocol {protocol!r} (auto, {', '.join(PROTOCOLS)})")
         self.protocol: str | None = None if protocol == "auto" else protocol
         self._fallback = fallback
-        self.buf = b""
+        self.buf = bytearray()
         self.base = 0  # stream offset of buf[0]
         self._recs: list[tuple[int, int, int]] = []  # (record number, start, end) of buffered bytes
+        self._finish: tuple[bytes, ...] = ()  # set: buf is one unfinished frame these bytes may end
+        self.given_up = 0  # unfinished frames given up at MAX_HELD_BYTES
+        self.given_up_bytes = 0  # the bytes of those frames (given out as noise)
 
     @property
     def pending(self) -> bytes:
-        return self.buf
+        return bytes(self.buf)
 
     @property
     def pending_records(self) -> list[int]:
@@ -244,19 +271,23 @@ class Deframer:
         return [r for r, _s, _e in self._recs]
 
     def feed(self, chunk: bytes, record: int = 0) -> list[Piece]:
-        if chunk:
-            end = self.base + len(self.buf) + len(chunk)
-            self._recs.append((record, end - len(chunk), end))
-            self.buf += bytes(chunk)
+        if not chunk:
+            return self._run(False) if self.buf and not self._finish else []
+        end = self.base + len(self.buf) + len(chunk)
+        self._recs.append((record, end - len(chunk), end))
+        self.buf += chunk
+        fin = self._finish
+        if fin and len(self.buf) <= MAX_HELD_BYTES and not any(b in chunk for b in fin):
+            return []  # it only lengthens the held frame: the scan would find what it found
         return self._run(False)
 
     def flush(self) -> list[Piece]:
         return self._run(True)
 
     def _run(self, final: bool) -> list[Piece]:
-        buf = self.buf
-        if not buf:
+        if not self.buf:
             return []
+        buf = bytes(self.buf)
         if self.protocol is None:
             self.protocol = detect(buf)
             if self.protocol is None and self._fallback is not None and len(buf) >= ADOPT_AFTER:
@@ -264,23 +295,41 @@ class Deframer:
             if self.protocol is None:
                 if final or len(buf) > MAX_UNDETECTED:
                     cut = len(buf) if final else len(buf) - UNDETECTED_KEEP
-                    return self._emit([(0, cut, None, "protocol not recognised")], cut)
+                    return self._emit(buf, [(0, cut, None, "protocol not recognised")], cut)
                 return []
         pieces, hold = SCANNERS[self.protocol](buf, final)
-        return self._emit(pieces, hold)
+        return self._emit(buf, pieces, hold)
 
-    def _emit(self, pieces: Sequence[tuple[int, int, Decoded | None, str]], hold: int) -> list[Piece]:
-        base, buf, proto = self.base, self.buf, self.protocol or ""
+    def _emit(self, buf: bytes, pieces: Sequence[tuple[int, int, Decoded | None, str]], hold: int) -> list[Piece]:
+        base, proto = self.base, self.protocol or ""
         out = []
+        recs = self._recs
+        i = 0
         for off, ln, frame, reason in pieces:
             if ln <= 0:
                 continue
             s, e = base + off, base + off + ln
-            recs = tuple(r for r, rs, re in self._recs if re > s and rs < e)
-            out.append(Piece(s, buf[off : off + ln], frame, reason, proto, recs))
-        self.buf = buf[hold:]
+            while i < len(recs) and recs[i][2] <= s:  # pieces come in order: records before s are done
+                i += 1
+            numbers = []
+            j = i
+            while j < len(recs) and recs[j][1] < e:
+                numbers.append(recs[j][0])
+                j += 1
+            if reason == GIVEN_UP:
+                self.given_up += 1
+                self.given_up_bytes += ln
+            out.append(Piece(s, buf[off : off + ln], frame, reason, proto, tuple(numbers)))
         self.base = base + hold
-        self._recs = [t for t in self._recs if t[2] > self.base]
+        self.buf = bytearray(buf[hold:])
+        k = 0
+        while k < len(recs) and recs[k][2] <= self.base:
+            k += 1
+        self._recs = recs[k:]
+        # the fast append holds when the held bytes are one frame's start and no end of it yet
+        opens, ends = _HELD_FRAME.get(proto, (b"", b""))
+        held = self.buf
+        self._finish = _FINISHERS[proto] if held and opens and held[0] in opens and ends not in held else ()
         return out
 
 
@@ -306,6 +355,11 @@ class StreamReader:
 
     def feed(self, direction: int, chunk: bytes, record: int = 0) -> list[Piece]:
         return self.deframer(direction).feed(chunk, record)
+
+    @property
+    def given_up(self) -> int:
+        """Unfinished frames given up at MAX_HELD_BYTES, every direction's."""
+        return sum(d.given_up for d in self.dirs.values())
 
     def flush(self) -> list[tuple[int, Piece]]:
         out: list[tuple[int, Piece]] = []

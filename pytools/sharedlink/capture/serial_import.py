@@ -28,6 +28,7 @@ from pathlib import Path
 from sharedlink.capture.pcapio import NS
 from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, DIR_UNKNOWN
 from sharedlink.errors import InputError
+from sharedlink.protocols.limits import MAX_HELD_BYTES
 
 FORMATS = ("auto", "raw", "hex", "log")
 
@@ -109,9 +110,14 @@ def _hex_line(line: str) -> tuple[str, int, bytes] | None:
     return None
 
 
+#: the most bytes a hex dump may expand to with its ``*`` lines (a few lines could otherwise
+#: ask for terabytes)
+MAX_DUMP_BYTES = 1 << 30
+
+
 def parse_hexdump(text: str, path: str = "<hex>") -> bytes:
-    """The bytes of an xxd / hexdump -C / od dump (``*`` repeats expanded; the last offset
-    line, when present, gives the length)."""
+    """The bytes of an xxd / hexdump -C / od dump (``*`` repeats expanded, at most
+    :data:`MAX_DUMP_BYTES` in all; the last offset line, when present, gives the length)."""
     out = bytearray()
     prev: bytes | None = None
     repeat = False
@@ -130,9 +136,10 @@ def parse_hexdump(text: str, path: str = "<hex>") -> bytes:
             off = int(line.strip().rstrip(":"), 8)  # od offsets are octal
         elif st == "od":
             style = "od"
-        if repeat and prev is not None:
-            while len(out) + len(prev) <= off:
-                out += prev
+        if off > MAX_DUMP_BYTES:
+            raise SerialImportError(path, no, f"offset {off:#x} is past what a dump may expand to ({MAX_DUMP_BYTES:,} bytes)")
+        if repeat and prev:
+            out += prev * ((off - len(out)) // len(prev))  # the '*' lines: prev repeated up to off
             repeat = False
         if off < len(out) and st != "end":
             raise SerialImportError(path, no, f"offset {off:#x} goes back (expected {len(out):#x})")
@@ -213,10 +220,22 @@ MAX_LOG_NS = (1 << 64) - 1
 
 def parse_log(text: str, path: str = "<log>", start_ns: int = 0, byte_ns: int = 0) -> list[Chunk]:
     """Chunks of a text log. interceptty-style lines carry no time: they get ``start_ns``
-    plus ``byte_ns`` per byte. A bad line raises :class:`SerialImportError` whose ``partial``
-    holds the chunks of the lines before it."""
+    plus ``byte_ns`` per byte, and consecutive bytes of one direction are one chunk (at most
+    ``MAX_HELD_BYTES``: a longer run is cut into chunks of that size, the bytes gathered in
+    linear time). A bad line raises :class:`SerialImportError` whose ``partial`` holds the
+    chunks of the lines before it."""
     out: list[Chunk] = []
     clock = start_ns
+    run: list[bytes] = []  # the untimed bytes of one direction not yet made a chunk
+    run_len = 0
+    run_dir = DIR_UNKNOWN
+
+    def end_run() -> None:
+        nonlocal run, run_len
+        if run:
+            out.append(Chunk(clock, run_dir, b"".join(run)))
+            run, run_len = [], 0
+
     for no, line in enumerate(text.splitlines(), 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
@@ -227,29 +246,25 @@ def parse_log(text: str, path: str = "<log>", start_ns: int = 0, byte_ns: int = 
         elif parsed[0] is not None and not 0 <= parsed[0] <= MAX_LOG_NS:
             reason = "time stamp out of range (a capture holds 1970 to 2554)"
         if parsed is None or reason is not None:
+            end_run()
             err = SerialImportError(path, no, reason or "")
-            err.partial = [Chunk(c.ts_ns, c.direction, c.data) for c in out]
+            err.partial = list(out)
             raise err
         ts, d, data = parsed
         if ts is None:  # interceptty: merge consecutive bytes of one direction
+            if run and (d != run_dir or run_len + len(data) > MAX_HELD_BYTES):
+                end_run()
             clock += byte_ns
-            if out and out[-1].direction == d and not _timed(out[-1]):
-                out[-1] = _Untimed(clock, d, out[-1].data + data)
-            else:
-                out.append(_Untimed(clock, d, data))
+            run.append(data)
+            run_len += len(data)
+            run_dir = d
             continue
+        end_run()
         if data:
             out.append(Chunk(ts, d, data))
             clock = ts
-    return [Chunk(c.ts_ns, c.direction, c.data) for c in out]
-
-
-class _Untimed(Chunk):
-    pass
-
-
-def _timed(c: Chunk) -> bool:
-    return not isinstance(c, _Untimed)
+    end_run()
+    return out
 
 
 # -- the whole import --------------------------------------------------------------------------

@@ -129,8 +129,13 @@ def _run(args: argparse.Namespace) -> int:
     sink = _sink(args)
     progress = None if args.quiet else _Progress(args.source.name, sink.description, opts.mode)
     try:
-        replayer = Replayer(CaptureFrames(args.capture, flt), sink, opts,
-                            progress=progress, progress_interval=progress.interval if progress else 1.0)
+        def long_wait(record: int, seconds: float) -> None:
+            print(f"\nsharedlink: warning: {args.source}: record {record} comes {_duration(seconds)} later in the capture"
+                  f"{'' if opts.speed == 1 else f' (at {opts.speed:g}x)'}: waiting for it (Ctrl-C stops; --pps N or "
+                  "--topspeed play without the capture's gaps)", file=sys.stderr, flush=True)
+
+        replayer = Replayer(CaptureFrames(args.capture, flt), sink, opts, progress=progress,
+                            progress_interval=progress.interval if progress else 1.0, long_wait=long_wait)
         stats = replayer.run()
     finally:
         if progress is not None:
@@ -218,3 +223,11 @@ class _Progress:
     def close(self) -> None:
         if self.live is not None:
             self.live.stop()
+
+
+def _duration(seconds: float) -> str:
+    """``90`` -> "1.5 min", ``7200`` -> "2.0 h", ``3e7`` -> "347.2 days"."""
+    for unit, size in (("days", 86400), ("h", 3600), ("min", 60)):
+        if seconds >= size:
+            return f"{seconds / size:.1f} {unit}"
+    return f"{seconds:.0f} s"

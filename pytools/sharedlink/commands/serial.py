@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from contextlib import ExitStack
 from pathlib import Path
@@ -140,7 +141,7 @@ def run_capture(args: argparse.Namespace) -> int:
         except Exception as exc:  # serial.SerialException / OSError opening or configuring a port
             if isinstance(exc, (KeyboardInterrupt, BrokenPipeError, Error)):
                 raise
-            raise UsageError(f"{name}: {exc}") from None
+            raise UsageError(f"{name}: {_port_error(exc)}") from None
     summary = {
         "file": str(args.out),
         "records": stats.records,
@@ -150,6 +151,15 @@ def run_capture(args: argparse.Namespace) -> int:
     }
     report(summary, args.json, f"wrote {args.out}: {stats.records} records, {stats.bytes} bytes (stopped: {stats.stopped_by or 'end'})")
     return 0
+
+
+def _port_error(exc: BaseException) -> str:
+    """One clause for a port that would not open: pyserial's "[Errno 2] could not open port X:
+    [Errno 2] No such file or directory: 'X'" says the errno and the name twice."""
+    code = getattr(exc, "errno", None)
+    if isinstance(code, int) and code > 0:
+        return f"cannot open it: {os.strerror(code)}"
+    return str(exc)
 
 
 @honours_force
