@@ -301,8 +301,9 @@ def test_bulk_tier_drains_waiting_frames_as_the_reference_does(tmp_path):
             extra_side = bulk.first_unmatched_a if a == x else bulk.first_unmatched_b
             assert [u.frame for u in extra_side] == ([2, 5, 85] if by == "time" else [165, 167, 168]), by
             assert bulk.pairs == 165
-            # AutoGpsLon of C>A is learnt at the first positional frame, after 2 of the 5 C>A pairs
-            lon = next(v for v in bulk.variables if (v.stream, v.name) == ("C>A", "AutoGpsLon"))
+            # slot 1 of C>A is learnt at the first positional frame, after 2 of the 5 C>A pairs
+            # (#1: a 2-slot frame is not named by the 4-name a-priori list, issue 29)
+            lon = next(v for v in bulk.variables if (v.stream, v.name) == ("C>A", "#1"))
             assert lon.samples == 3
 
 
@@ -559,3 +560,25 @@ def test_pcapng_against_pcap_and_a_damaged_pcapng(tmp_path):
     rep = diff(pc, tmp_path / "cut.pcapng")
     assert rep.errors and "record 300" in rep.errors[0]
     assert rep.pairs == 299 and rep.unmatched_a == 1 and rep.unmatched_b == 0
+
+
+def test_fast_path_follows_a_list_changed_from_another_conversation(tmp_path):
+    """Issue 29: the OCU (4104 -> the vehicle's 4000) declares the vehicle's list (L0), the
+    vehicle sends from 1033: a new declaration reorders it, and the vehicle's next frames, whose
+    conversation the fast path had taken, are named by the new list on both paths (the fast
+    one kept the old layout)."""
+    from sl_vectors import write_stream
+
+    ocu, veh, veh_out = "10.0.0.1:4104", "10.0.0.2:4000", "10.0.0.2:1033"
+    packets = [{"t": 0.0, "src": ocu, "dst": veh, "payload": "[:BA|L0|T0|Qa|T0|Qb|C??]\r\n", "frames": []}]
+    packets += [{"t": 0.1 * i, "src": veh_out, "dst": ocu, "payload": f"[:AB|N0|D{i}|D{10 + i}|C??]\r\n",
+                 "frames": []} for i in range(1, 6)]
+    packets.append({"t": 1.0, "src": ocu, "dst": veh, "payload": "[:BA|L0|T0|Qb|T0|Qa|C??]\r\n", "frames": []})
+    packets += [{"t": 1.0 + 0.1 * i, "src": veh_out, "dst": ocu, "payload": f"[:AB|N0|D{20 + i}|D{30 + i}|C??]\r\n",
+                 "frames": []} for i in range(1, 6)]
+    cap = write_stream({"name": "reorder", "transport": "udp", "packets": packets}, tmp_path / "r.pcap")
+    fast, slow = ([c.as_tuple() if isinstance(c, Chunk) else c.to_dict() for c in read_changes(cap, fast=f)]
+                  for f in (True, False))
+    assert fast == slow
+    records = [r for c in read_changes(cap) if isinstance(c, Chunk) for r in c.records]
+    assert records[-1] == b"AB\x1fb\x1e25\x1fa\x1e35"

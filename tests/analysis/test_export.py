@@ -231,3 +231,25 @@ def test_one_pass_csv_equals_the_two_pass_definition(tmp_path_factory, datagrams
     out = tmp_path_factory.mktemp("csvout") / "c.csv"
     export_file(path, out, ExportOptions(fmt="csv"))
     assert out.read_text(encoding="utf-8") == _two_pass_csv(path)
+
+
+def test_change_rows_of_a_reply_take_its_own_values(tmp_path):
+    """Issue 29: a reply's values are never stored in its direction's table, so its change rows
+    come from the frame itself (the CSV writer read the table and failed on a reply's name)."""
+    from sl_vectors import load_streams, write_stream
+
+    stream = {s["name"]: s for s in load_streams()}["real-reply-from-the-vehicle-source-port"]
+    cap = write_stream(stream, tmp_path / "r.pcap")
+    rows = {}
+    for fmt in ("csv", "jsonl"):
+        out = tmp_path / f"r.{fmt}"
+        r = run_cli("export", cap, "--changes", "-o", out)
+        assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+        text = out.read_text()
+        got = list(csv.DictReader(text.splitlines())) if fmt == "csv" else [json.loads(x) for x in text.splitlines()]
+        rows[fmt] = [(int(x["number"]), x["name"], x["value"]) for x in got]
+    want = [(4, "AutoGpsVel", "0"), (6, "VehicleName", "VEH_Other"), (7, "VehicleName", "VEH_NorthEastern1")]
+    assert rows["csv"][-3:] == want
+    # typed in JSON: AutoGpsVel by the default list's double, the rest untyped
+    assert rows["jsonl"][-3:] == [(4, "AutoGpsVel", 0.0), *want[1:]]
+    assert rows["csv"][0] == (2, "video_mux1", "0") and len(rows["csv"]) == 13

@@ -163,7 +163,7 @@ def test_impossible_variable_types_are_refused(tmp_path, drive, command):
             "plot": [drive, "-o", tmp_path / "p.png"], "ingest": [drive, "-o", tmp_path / "ds"]}[command]
     r = _run(command, *args, "--variables", "A:9")
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
-        "sharedlink: error: --variables: A:9: no such type (the types are 0 long, 2 double, 4 string)"], r.stderr
+        "sharedlink: error: --variables: bad type '9' for A (types are 0 long, 2 double, 4 string)"], r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 

@@ -22,8 +22,10 @@ Choices (shared with the dissector, see ``docs/protocol.md``):
 * ``late`` is the dissector's ``sharedlink.sync.late``: a data frame that is not a full set,
   seen more than the sync interval plus :data:`SYNC_SLACK_S` after the direction's last full
   set with a good (or no) checksum, or its first data frame before any.
-* ``response_to``: a reply's query or declaration (the latest unanswered one the other way
-  between the same ports whose names include the reply's).
+* ``response_to``: a reply's query or declaration (the latest unanswered one whose names
+  include the reply's, from the queried address to the querier's address and port, whatever
+  the reply's source port), or the list request (``L?``/``N?``) a declaration answers
+  (:func:`sharedlink.protocols.state.link_response`).
 """
 
 from __future__ import annotations
@@ -51,14 +53,16 @@ from sharedlink.capture.pcapio import (
 from sharedlink.capture.serial_format import USER_LINKTYPES
 from sharedlink.capture.stream import FrameSplitter, SerialSplitter, StreamFrame
 from sharedlink.protocols.codec import Frame, oversized_numbers, parse_frame
-from sharedlink.protocols.limits import MAX_CONVERSATIONS, MAX_PENDING
+from sharedlink.protocols.limits import MAX_CONVERSATIONS
 from sharedlink.protocols.state import (
     BEACON_VARIABLES,
     LinkState,
+    PendingAsks,
     Update,
     VariableTable,
     _update,
     conversation_key,
+    link_response,
 )
 from sharedlink.protocols.state import parse_variables as parse_variables  # its home is state
 
@@ -145,7 +149,7 @@ class ReferenceDecoder:
         self.carried = carried
         self.late_ns = round((sync_interval + SYNC_SLACK_S) * NS)
         self._sync: dict[tuple, list[int | None]] = {}  # table key -> [first data ts, last full ts]
-        self._asks: list[tuple[tuple, frozenset[str], int]] = []  # unanswered (match key, names, number)
+        self._asks = PendingAsks()  # unanswered queries, list requests and declarations, per querier
 
     def decode(self, sf: StreamFrame) -> Decoded:
         frame = sf.frame
@@ -182,23 +186,9 @@ class ReferenceDecoder:
         )
 
     def _link_response(self, sf: StreamFrame, frame: Frame, kind: str) -> int | None:
-        """Remember a query or declaration; for a reply, the one it answers."""
-        proto, _src, sport, _dst, dport = sf.conv
-        ports = (proto, min(sport, dport), max(sport, dport))
-        if kind != "reply":
-            names = frozenset(f.text for f in frame.fields if f.letter == "Q")
-            self._asks.append(((ports, frame.src, frame.dst), names, sf.number))
-            if len(self._asks) > 4 * MAX_PENDING:  # (all conversations together)
-                del self._asks[:MAX_PENDING]
-            return None
-        want = {f.text for f in frame.fields if f.letter == "R"}
-        key = (ports, frame.dst, frame.src)
-        for i in range(len(self._asks) - 1, -1, -1):
-            k, names, number = self._asks[i]
-            if k == key and want <= names:
-                del self._asks[i]
-                return number
-        return None
+        """Remember a query or declaration; for a reply (or a declaration answering a list
+        request), the one it answers (:func:`sharedlink.protocols.state.link_response`)."""
+        return link_response(self._asks, conversation_key(sf.conv), frame, kind, sf.number)
 
 
 # -- the core: the reference decoder with a fast path for frames in a layout already seen -----------

@@ -165,14 +165,15 @@ class _Writer:
         row["checksum"] = _checksum(d)
         return row
 
-    def change_rows(self, d: Decoded) -> Iterator[dict[str, Any]]:
+    def change_rows(self, d: Decoded, text: bool = False) -> Iterator[dict[str, Any]]:
+        """One row per change, its value typed (``text``: as sent), from the frame's own
+        Updates (a reply's values are never in the table: issue 29)."""
         wanted = self.opts.columns
         for u in d.changes():
             if wanted is not None and u.name not in wanted:
                 continue
-            v = d.table.vars.get(u.name)
             row = self.base(d)
-            row.update(name=u.name, type=v.type_code if v is not None else None, value=_typed(v))
+            row.update(name=u.name, type=u.type_code, value=u.text if text else _typed(Variable(u.name, u.type_code, u.text)))
             yield row
 
     def write(self, d: Decoded) -> int:
@@ -205,9 +206,7 @@ class _Csv(_Writer):
     def write(self, d: Decoded) -> int:
         if self.opts.changes:
             n = 0
-            for row in self.change_rows(d):
-                v = d.table.vars[row["name"]]
-                row["value"] = v.text
+            for row in self.change_rows(d, text=True):
                 self.w.writerow(["" if row[c] is None else row[c] for c in CHANGE_COLUMNS])
                 n += 1
             return n

@@ -590,6 +590,11 @@ class ChangeReader:
                 fk.flush()
         table = self.link.table(frame.src, frame.dst, conv)
         decl = declared_list(frame.fields)
+        if decl is not None:  # a list may change under other conversations too (issue 29: by receiver
+            for fk in self._fast.values():  # address, by letter pair): every fast view goes, as the core's do
+                fk.flush()
+            self._fast.clear()
+            self._hot.clear()
         target = self.link.table(frame.dst, frame.src, reverse_conversation(conv)) if decl is not None and decl[0] == "L" else table
         # what this frame can give a first value or a new type: the names it holds (linear in
         # the frame, not in the direction's table)
@@ -600,7 +605,7 @@ class ChangeReader:
         updates = self.link.apply(frame, number, ts, conv, carried=False)
         parts = [key]
         idx = self._base + len(self._recs)
-        for u in updates:
+        for u in updates if kind != "reply" else ():  # a reply's values are never stored (issue 29)
             if u.changed and not u.carried and u.text is not None:
                 parts += (SEP_CHANGE, escape(u.name), SEP_VALUE, escape(u.text))
         for n in touched:
@@ -696,8 +701,8 @@ def _touched_names(frame: Frame, table: object) -> list[str]:
     names = [f.text for f in frame.fields if f.letter in ("Q", "R")]
     if not names:
         ordinal, vals = positional_values(frame.fields)
-        name_at = table.name_at  # type: ignore[attr-defined]
-        names = [name_at(i) or f"var{i}" for i in range(ordinal, min(ordinal + len(vals), MAX_SLOTS))]
+        slot_name, n = table.slot_name, ordinal + len(vals)  # type: ignore[attr-defined]
+        names = [slot_name(i, n) for i in range(ordinal, min(n, MAX_SLOTS))]  # (issue 29's naming rule)
     return list(dict.fromkeys(names))  # each once, in order
 
 

@@ -22,7 +22,6 @@ from typing import Any, TypeVar
 
 from sharedlink.capture.pcapio import NS, is_stdout, replacing_links
 from sharedlink.errors import UsageError
-from sharedlink.protocols.codec import TYPE_NAMES
 from sharedlink.protocols.state import BEACON_VARIABLES, parse_variables
 
 T = TypeVar("T")
@@ -94,31 +93,28 @@ def add_speed_option(p: argparse.ArgumentParser | Any, help: str) -> None:
 # -- options: --variables (one parser, one meaning in every command) and --sync-interval -----
 
 VARIABLES_HELP = (
-    "the a-priori outbound list positional frames are named by until the capture declares its own, "
-    "NAME[:TYPE],... (TYPE 0 long, 2 double, 4 string; default the beacon's "
-    "AutoGpsLat:2,AutoGpsLon:2,AutoGpsHead:2,AutoGpsVel:2)"
+    "the lists positional frames are named by until the capture declares its own: NAME[:TYPE],... "
+    "(TYPE 0 long, 2 double, 4 string), which names only frames with as many slots as it has "
+    "(default the beacon's AutoGpsLat:2,AutoGpsLon:2,AutoGpsHead:2,AutoGpsVel:2), and/or a list per "
+    "node pair that names every frame of that pair, 'B>A: NAME[:TYPE],...; A>B: ...' (as sharedlink lists prints them)"
 )
 
 
 def add_variables_option(p: argparse.ArgumentParser) -> None:
-    """``--variables NAME[:TYPE],...``, read by :func:`variables_option`."""
-    p.add_argument("--variables", metavar="NAME[:TYPE],...", default=None, help=VARIABLES_HELP)
+    """``--variables NAME[:TYPE],...`` (or per-pair lists), read by :func:`variables_option`."""
+    p.add_argument("--variables", metavar="LIST", default=None, help=VARIABLES_HELP)
 
 
 def variables_option(text: str | None) -> list[tuple[str, int | None]]:
-    """The ``--variables`` list (the beacon's when not given); UsageError if bad, a type that
-    is not a SharedLink type code (0, 2, 4) included."""
+    """The ``--variables`` lists (the beacon's when not given) as one flat list
+    (:func:`sharedlink.protocols.state.parse_variables`: per-pair lists as ``"B>A:name"``
+    entries); UsageError if bad, a type that is not a SharedLink type code (0, 2, 4) included."""
     if text is None:
         return list(BEACON_VARIABLES)
     try:
-        variables = parse_variables(text)
+        return parse_variables(text)
     except ValueError as exc:
         raise UsageError(f"--variables: {exc}") from None
-    for name, code in variables:
-        if code is not None and code not in TYPE_NAMES:
-            known = ", ".join(f"{c} {n}" for c, n in TYPE_NAMES.items())
-            raise UsageError(f"--variables: {name}:{code}: no such type (the types are {known})")
-    return variables
 
 
 def name_list(text: str | None, option: str = "--select") -> list[str] | None:

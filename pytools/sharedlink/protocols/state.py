@@ -4,16 +4,24 @@ One :class:`VariableTable` per direction of a conversation (see :class:`LinkStat
 variable lists from declaration frames, names and types positional values from them, carries
 elided values forward (compression) and remembers which frame last set each variable. gen,
 diff, compress, expand and the decoder all use it. The rules are the dissector's
-(``docs/fields-sharedlink.md``, "Decoding rules"):
+(``docs/fields-sharedlink.md``, "Decoding rules", and "Rules for real sessions", issue 29,
+which wins where they differ):
 
 * a positional frame is full when its ordinal is 0 and every *required* slot has a non-empty
   ``D``; a slot is required once a frame of this direction gave it a value, so a sender that
   leaves never-filled slots empty still sends full sets;
 * a named frame is full when its ordinal is 0 (or absent) and it carries every name the
   direction has sent before in a named frame; an empty ``D`` in a triplet is an empty value;
-* a positional value is typed by the declared list (``T`` before ``Q``) or the a-priori list;
+* a positional slot is named and typed by the list its direction uses (:class:`LinkState`):
+  a declared one, one the user gave for the node pair, or the a-priori list of every pair, which
+  names only frames with as many slots as it has; a slot no list names is ``#i``, untyped;
   text that does not fit its type stays text, flagged ``bad``;
+* a new list replaces the old one: kept names keep their values (by name), dropped ones lose them;
+* a reply's values are shown, never stored;
 * ``L?`` / ``N?`` are queries and leave the learnt list alone.
+
+Replies and the list requests declarations answer are linked by :func:`link_response`
+(per querier, whatever the answer's source port).
 
 The caller keeps frames with a bad checksum away from :meth:`VariableTable.apply` (they may
 be shown with :meth:`VariableTable.preview`, which changes nothing).
@@ -31,7 +39,6 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 from sharedlink.protocols.codec import (
-    TYPE_NAMES,
     Frame,
     declared_list,
     frame_kind,
@@ -41,7 +48,10 @@ from sharedlink.protocols.codec import (
     parse_typed,
     positional_values,
 )
-from sharedlink.protocols.limits import MAX_CONVERSATIONS, MAX_NAMES, MAX_SLOTS, LimitCounts
+from sharedlink.protocols.limits import MAX_CONVERSATIONS, MAX_NAMES, MAX_PENDING, MAX_SLOTS, LimitCounts
+from sharedlink.protocols.varlists import flatten, parse_varlists, split
+
+VarList = list[tuple[str, int | None]]
 
 #: The beacon's variables (BUL-009), used when no list is given or learnt.
 BEACON_VARIABLES: tuple[tuple[str, int], ...] = (
@@ -51,31 +61,17 @@ BEACON_VARIABLES: tuple[tuple[str, int], ...] = (
     ("AutoGpsVel", 2),
 )
 
-_TYPE_HELP = ", ".join(f"{code} {name}" for code, name in TYPE_NAMES.items())
-
-
 def parse_variables(text: str) -> list[tuple[str, int | None]]:
     """A variable list as ``--variables`` gives it, ``"Lat:2,Lon:2,Name:4,Count"`` ->
-    ``[("Lat", 2), ("Lon", 2), ("Name", 4), ("Count", None)]``: the a-priori outbound list
-    positional frames are named by (type codes as in ``T`` fields: 0 long, 2 double, 4 string;
-    none given, or an empty one, = guessed from the text). Empty items are skipped
-    (``"A:2,B,"`` is ``A`` and ``B``). Raises ValueError on a bad name or type, or no name at all.
-    The one parser of such lists: every command and library function uses it."""
-    out: list[tuple[str, int | None]] = []
-    for part in text.split(","):
-        part = part.strip()
-        if not part:
-            continue
-        name, _, type_text = part.partition(":")
-        if not name or any(c in name for c in "|[]"):
-            raise ValueError(f"bad variable name {name!r}")
-        try:
-            out.append((name, int(type_text) if type_text else None))
-        except ValueError:
-            raise ValueError(f"bad type {type_text!r} for {name} ({_TYPE_HELP})") from None
-    if not out:
-        raise ValueError("empty variable list")
-    return out
+    ``[("Lat", 2), ("Lon", 2), ("Name", 4), ("Count", None)]``: the a-priori list positional
+    frames of every pair are named by, when a frame has as many slots as it (type codes as in
+    ``T`` fields: 0 long, 2 double, 4 string; none given, or an empty one, = untyped). Per-pair
+    lists (``B>A: AutoGpsHead:2,...; A>B: ...``, :func:`sharedlink.protocols.varlists.parse_varlists`)
+    come in the same flat list, their names as ``"B>A:AutoGpsHead"``
+    (:func:`~sharedlink.protocols.varlists.flatten`); :class:`LinkState` takes them apart. Empty
+    items are skipped (``"A:2,B,"`` is ``A`` and ``B``). Raises ValueError on a bad name or type,
+    or no name at all. The one parser of such lists: every command and library function uses it."""
+    return flatten(parse_varlists(text))
 
 
 @dataclass
@@ -132,11 +128,27 @@ def _update(
     return Update(v.name, index, text, carried, carried_from, changed, tc, bad)
 
 
+def placeholder(index: int) -> str:
+    """The name of a slot no list names: ``#3`` (as the dissector shows it)."""
+    return f"#{index}"
+
+
+@dataclass(eq=False)
+class VarSource:
+    """A list positional frames are named by, as one object (a table notices a new list by
+    identity): from a declaration, a list the user gave for the node pair, or the a-priori list
+    of every pair (``by_length``: it names only a frame with as many slots as it has).
+    docs/fields-sharedlink.md, "Rules for real sessions"."""
+
+    names: tuple[tuple[str, int | None], ...]
+    by_length: bool = False
+
+
 @dataclass
 class VariableTable:
     """The variables of one direction of a conversation."""
 
-    names: list[str] = field(default_factory=list)  # the positional (outbound) list
+    names: list[str] = field(default_factory=list)  # a full set's slots: the list in use, then #i past it
     types: dict[str, int | None] = field(default_factory=dict)
     vars: dict[str, Variable] = field(default_factory=dict)
     last_full_at: int | None = None
@@ -144,45 +156,92 @@ class VariableTable:
     named: bool | None = None  # which form this direction uses, once seen
     filled: set[int] = field(default_factory=set)  # positional slots that have held a value
     sent_names: dict[str, int] = field(default_factory=dict)  # names sent in named data frames -> position
-    list_from: object = None  # the letter pair's shared list in use, None once a list is declared here
+    list_from: object = None  # the VarSource in use (LinkState's), None: a list given to the table itself
     limits: LimitCounts = field(default_factory=LimitCounts)  # input dropped at a bound (shared by a LinkState)
     slot_of: dict[str, int] = field(default_factory=dict)  # name -> its first slot in ``names``
+    in_use: VarList = field(default_factory=list)  # the list in use, with its types
+    by_length: bool = False  # the list names only frames with exactly len(list) slots (the a-priori list)
+    unlisted: bool = False  # (by_length) the last positional frame had another length: ``names`` are #i
+    own: VarSource | None = None  # the list this conversation declared itself (LinkState)
     _shown: dict[str, Variable] | None = field(default=None, repr=False, compare=False)  # preview's values
 
     @classmethod
-    def with_list(cls, names: Sequence[tuple[str, int | None]] | Sequence[str]) -> VariableTable:
+    def with_list(cls, names: Sequence[tuple[str, int | None]] | Sequence[str], by_length: bool = False
+                  ) -> VariableTable:
         t = cls()
-        t.declare(0, [(n, None) if isinstance(n, str) else n for n in names])
+        t.use_list([(n, None) if isinstance(n, str) else n for n in names], by_length)
         return t
 
     def declare(self, ordinal: int, names: Sequence[tuple[str, int | None]]) -> None:
-        """Install a declared list (or part of one, from ``ordinal``). Each declared name
-        takes the type declared with it: a name declared without ``T`` is untyped, whatever
-        an earlier list (this conversation's, the letter pair's or the a-priori one) said.
-        Slots at or past ``MAX_SLOTS`` are dropped (counted in ``limits.slots``)."""
-        room = MAX_SLOTS - ordinal
-        if room < len(names):
-            self.limits.slots += len(names) - max(room, 0)
-            if room <= 0:
-                return
-            names = names[:room]
-        if ordinal > len(self.names):
-            self.names.extend(f"var{i}" for i in range(len(self.names), ordinal))
-        del self.names[ordinal:]
+        """Install a declared list (or part of one, from ``ordinal``: the slots before it are
+        kept): it replaces the list in use (:meth:`use_list`)."""
+        self.use_list(extend_list(self.in_use, ordinal, names, self.limits))
+
+    def use_list(self, names: Sequence[tuple[str, int | None]], by_length: bool = False) -> None:
+        """Replace the list in use (docs/fields-sharedlink.md, "A declaration replaces its
+        direction's list"). A name the new list keeps keeps its value, the frame it came from
+        and its "once filled" mark, at its new slot (carrying is by name); a name it drops loses
+        them (unless named frames send it); slots past its end no longer exist. Types belong to
+        the list: each listed name takes the type given with it, untyped when none, whatever an
+        earlier list said. Past ``MAX_SLOTS`` names are dropped (counted in ``limits.slots``)."""
+        if len(names) > MAX_SLOTS:
+            self.limits.slots += len(names) - MAX_SLOTS
+            names = names[:MAX_SLOTS]
+        old = self.names
+        marked = {old[i] for i in self.filled if i < len(old)}
+        self.in_use = list(names)
+        self.by_length = by_length and bool(names)
+        self.unlisted = False
+        keep = {n for n, _ in names}
+        for n in [n for n in self.vars if n not in keep and n not in self.sent_names]:
+            del self.vars[n]
+            self.types.pop(n, None)
         for name, type_code in names:
-            self.names.append(name)
             v = self._var(name, type_code)
-            if v is None:
-                continue  # past MAX_NAMES: the slot keeps its name, no variable is made
             if type_code is not None:
                 self.types[name] = type_code
             else:
                 self.types.pop(name, None)
-            v.type_code = type_code
+            if v is not None:
+                v.type_code = type_code
+        self._set_names([n for n, _ in names])
+        self.filled = {i for i, n in enumerate(self.names) if n in marked}
+
+    def _set_names(self, names: list[str]) -> None:
+        self.names = names
         slot_of: dict[str, int] = {}
-        for i, n in enumerate(self.names):
+        for i, n in enumerate(names):
             slot_of.setdefault(n, i)
         self.slot_of = slot_of
+
+    def slot_name(self, index: int, frame_slots: int) -> str:
+        """The name of slot ``index`` in a positional frame of ``frame_slots`` slots (its ordinal
+        plus its ``D`` fields): the list's, unless the list is the a-priori one and the frame
+        has another length, or the slot is past the list: then :func:`placeholder`."""
+        lst = self.in_use
+        if index < len(lst) and not (self.by_length and frame_slots != len(lst)):
+            return lst[index][0]
+        return placeholder(index)
+
+    def _widen(self, frame_slots: int) -> None:
+        """A positional frame of ``frame_slots`` slots was stored: ``names`` (a full set's slots)
+        becomes the slots such a frame has, named as it names them: the a-priori list's names
+        after a frame of its length, else ``#i`` over the widest such frame; a list that names
+        every frame grows ``#i`` past its end."""
+        names = self.names
+        if self.by_length:
+            if frame_slots == len(self.in_use):
+                if self.unlisted:
+                    self.unlisted = False
+                    self._set_names([n for n, _ in self.in_use])
+                return
+            width = min(max(frame_slots, len(names) if self.unlisted else 0), MAX_SLOTS)
+            if not self.unlisted or width != len(names):
+                self.unlisted = True
+                self._set_names([placeholder(i) for i in range(width)])
+        elif frame_slots > len(names):
+            width = min(frame_slots, MAX_SLOTS)
+            self._set_names(names + [self.slot_name(i, width) for i in range(len(names), width)])
 
     def _var(self, name: str, type_code: int | None = None) -> Variable | None:
         """The variable ``name`` (made when new); None for a new name past ``MAX_NAMES``."""
@@ -243,8 +302,7 @@ class VariableTable:
                 self.declare(decl[1], decl[2])
             return []
         if kind == "reply":
-            return [u for nv in named_values(fields) if (u := self._value(nv.name, nv.type_code, nv.text, number, time_ns,
-                                                                           None, store)) is not None]
+            return self._reply(fields, number, time_ns)
         if kind not in ("full", "delta"):
             return []
         bare = not any(f.letter == "D" for f in fields)  # a bare N0: the direction's form, no change
@@ -255,6 +313,19 @@ class VariableTable:
         if kind == "full" and store:
             self.last_full_at, self.last_full_in = time_ns, number
         return updates
+
+    def _reply(self, fields: Sequence, number: int, time_ns: int) -> list[Update]:
+        """A reply's values, shown and never stored (docs/fields-sharedlink.md, disagreement 2:
+        they change no carried value, no "once filled" mark, no list): typed by the ``T``
+        before them, else by the list this direction uses."""
+        out: list[Update] = []
+        for nv in named_values(fields):
+            old = self.vars.get(nv.name)
+            tc = nv.type_code if nv.type_code is not None else self.types.get(nv.name)
+            v = Variable(nv.name, tc, nv.text, number, time_ns)
+            changed = (old.text if old is not None else None) != nv.text
+            out.append(_update(v, self._index(nv.name), False, None, changed))
+        return out
 
     def _named(self, fields: Sequence, number: int, time_ns: int, carried: bool, store: bool) -> list[Update]:
         if store:
@@ -286,17 +357,14 @@ class VariableTable:
             self.named = False
         updates: list[Update] = []
         ordinal, vals = positional_values(fields)
+        frame_slots = ordinal + len(vals)
         for i, text in enumerate(vals):
             idx = ordinal + i
             if idx >= MAX_SLOTS:
                 if store:
                     self.limits.slots += len(vals) - i
                 break
-            name = self.name_at(idx)
-            if name is None:
-                name = f"var{idx}"
-                if store:
-                    self.declare(len(self.names), [(f"var{j}", None) for j in range(len(self.names), idx + 1)])
+            name = self.slot_name(idx, frame_slots)
             if text is None:
                 v = ((self._shown or {}).get(name) or self.vars.get(name)
                      or (self._var(name) if store else Variable(name, self.types.get(name))))
@@ -308,6 +376,8 @@ class VariableTable:
             u = self._value(name, None, text, number, time_ns, idx, store)
             if u is not None:
                 updates.append(u)
+        if store and vals:
+            self._widen(frame_slots)
         return updates
 
     def _value(self, name: str, type_code: int | None, text: str, number: int, time_ns: int, index: int | None,
@@ -332,52 +402,188 @@ class VariableTable:
         return self.slot_of.get(name)
 
 
+def extend_list(base: Sequence[tuple[str, int | None]], ordinal: int, names: Sequence[tuple[str, int | None]],
+                limits: LimitCounts) -> VarList:
+    """The list a declaration at ``ordinal`` makes of ``base``: its slots before ``ordinal``
+    (``#i`` where it has none), then the declared names; past ``MAX_SLOTS`` dropped and
+    counted in ``limits.slots``."""
+    room = MAX_SLOTS - ordinal
+    if room < len(names):
+        limits.slots += len(names) - max(room, 0)
+        names = names[:max(room, 0)]
+        if room <= 0:
+            return list(base[:MAX_SLOTS])
+    head = list(base[:ordinal]) + [(placeholder(i), None) for i in range(len(base), ordinal)]
+    return head + list(names)
+
+
+def receiver_key(conv: Hashable, src: str, dst: str) -> Hashable:
+    """The key of a direction's receiver: UDP/TCP by the two addresses and the letters, ports
+    left out (a vehicle listens on 4000 and sends from 1033); serial and anything else by the
+    whole conversation key and the letters."""
+    if isinstance(conv, tuple) and len(conv) == 5 and conv[0] != "serial":
+        return (conv[0], conv[1], conv[3], src, dst)
+    return (conv, src, dst)
+
+
+def ask_key(conv: Hashable, src: str, dst: str) -> Hashable:
+    """Where the answer to a query or declaration sent on ``conv`` from ``src`` to ``dst``
+    must go: the querier's address and port, the queried address, the letters. UDP/TCP only
+    by those; serial (and anything else) by the conversation."""
+    if isinstance(conv, tuple) and len(conv) == 5 and conv[0] != "serial":
+        proto, saddr, sport, daddr, _dport = conv
+        return (proto, saddr, sport, daddr, src, dst)
+    return (conv, src, dst)
+
+
+def answer_key(conv: Hashable, src: str, dst: str) -> Hashable:
+    """The :func:`ask_key` a reply (or a declaration answering a list request) sent on
+    ``conv`` from ``src`` to ``dst`` answers: it comes from the queried address and goes to the
+    querier's address and port, whatever its source port."""
+    if isinstance(conv, tuple) and len(conv) == 5 and conv[0] != "serial":
+        proto, saddr, _sport, daddr, dport = conv
+        return (proto, daddr, dport, saddr, dst, src)
+    return (reverse_conversation(conv), dst, src)
+
+
+class PendingAsks:
+    """Unanswered queries, list requests and declarations, per querier (:func:`ask_key`), at
+    most ``MAX_PENDING`` each (the oldest goes) and ``MAX_CONVERSATIONS`` queriers. What each
+    waits for: ``"R"`` (a reply naming some of its names: a ``Q`` query or a declaration),
+    ``"N"`` (an ``N``k declaration: the answer to ``L?``) or ``"L"`` (to ``N?``)."""
+
+    def __init__(self) -> None:
+        self._by: dict[Hashable, list[tuple[str, frozenset[str], int]]] = {}
+
+    def ask(self, key: Hashable, wants: str, names: frozenset[str], number: int) -> None:
+        asks = self._by.get(key)
+        if asks is None:
+            if len(self._by) >= MAX_CONVERSATIONS:
+                return
+            asks = self._by[key] = []
+        if len(asks) >= MAX_PENDING:
+            del asks[0]
+        asks.append((wants, names, number))
+
+    def answer(self, key: Hashable, kind: str, names: frozenset[str] = frozenset()) -> int | None:
+        """The number of the latest unanswered ask of ``key`` that ``kind`` (``"R"``, ``"N"``,
+        ``"L"``) with ``names`` answers, taken off the list; None when there is none."""
+        asks = self._by.get(key)
+        if not asks:
+            return None
+        for i in range(len(asks) - 1, -1, -1):
+            wants, have, number = asks[i]
+            if wants == kind and names <= have:
+                del asks[i]
+                return number
+        return None
+
+
+def link_response(pending: PendingAsks, conv: Hashable, frame: Frame, kind: str, number: int) -> int | None:
+    """Issue 29's reply rule for a query, declaration or reply (docs/fields-sharedlink.md,
+    "Replies"): a reply (and a declaration answering a list request) is linked to the latest
+    unanswered ask it answers, from the queried address to the querier's address and port, the
+    letters reversed, whatever its source port; returns that ask's frame number. A query or
+    declaration (frame ``number``) is remembered as an ask."""
+    fields = frame.fields
+    if kind == "reply":
+        return pending.answer(answer_key(conv, frame.src, frame.dst), "R",
+                              frozenset(f.text for f in fields if f.letter == "R"))
+    names = frozenset(f.text for f in fields if f.letter == "Q")
+    response_to = None
+    if kind == "declaration":
+        decl = declared_list(fields)
+        if decl is not None:
+            response_to = pending.answer(answer_key(conv, frame.src, frame.dst), decl[0])
+    if names:
+        pending.ask(ask_key(conv, frame.src, frame.dst), "R", names, number)
+    elif kind == "query":
+        req = next((f.letter for f in fields if f.letter in ("N", "L")), None)
+        if req is not None:  # L? is answered by the N list, N? by the L list
+            pending.ask(ask_key(conv, frame.src, frame.dst), "N" if req == "L" else "L", names, number)
+    return response_to
+
+
 @dataclass
 class LinkState:
     """Variable tables for every direction seen on a link, keyed by a conversation key
     (addresses and ports, or a serial direction: see :func:`conversation_key`) plus the
-    (src, dst) letters. A list learnt from a declaration is also remembered for the letter
-    pair alone and used by a new conversation of those letters (as the dissector does)."""
+    (src, dst) letters, and the lists that name their positional frames
+    (docs/fields-sharedlink.md, "Rules for real sessions"). A direction uses, first found:
+
+    1. the list it declared itself (an ``N``k declaration on its conversation);
+    2. its receiver's inbound list (an ``L``k declaration from the receiver's address to the
+       sender's address, whatever the ports: :func:`receiver_key`);
+    3. the latest good declaration for its letter pair, from any conversation;
+    4. the list the user gave for its letter pair (``default_list`` entries ``"B>A:name"``);
+    5. the a-priori list of every pair (``default_list``'s plain entries, the beacon's by
+       default), which names only frames with as many slots as it has.
+
+    Values, carried values and "once filled" marks stay per conversation: two receivers never
+    share them. A direction that takes a new list keeps the values of the names it keeps."""
 
     default_list: Sequence[tuple[str, int | None]] = BEACON_VARIABLES
     tables: dict[tuple[object, str, str], VariableTable] = field(default_factory=dict)
-    pair_lists: dict[tuple[str, str], list[tuple[str, int | None]]] = field(default_factory=dict)
+    pair_lists: dict[tuple[str, str], VarSource] = field(default_factory=dict)  # the letter pair's latest declaration
+    inbound: dict[Hashable, VarSource] = field(default_factory=dict)  # receiver_key -> its inbound (L) list
     limits: LimitCounts = field(default_factory=LimitCounts)  # input dropped at a bound, every table's
 
+    def __post_init__(self) -> None:
+        every, pairs = split(self.default_list)
+        self.apriori = VarSource(tuple(every), by_length=True) if every else None
+        self.user_lists = {k: VarSource(tuple(v)) for k, v in pairs.items()}
+
+    def source(self, src: str, dst: str, conv: Hashable = None) -> VarSource | None:
+        """The list a direction with no list of its own uses (2 to 5 above)."""
+        s = self.inbound.get(receiver_key(conv, src, dst)) if self.inbound else None
+        if s is None:
+            s = self.pair_lists.get((src, dst)) or self.user_lists.get((src, dst)) or self.apriori
+        return s
+
     def table(self, src: str, dst: str, conv: Hashable = None) -> VariableTable:
-        """The table of a direction (made when new). Past ``MAX_CONVERSATIONS`` directions a
-        new one gets a fresh table that is not kept (counted in ``limits.conversations``):
-        its frames are decoded on their own, with no state before them."""
+        """The table of a direction (made when new), its list brought up to date. Past
+        ``MAX_CONVERSATIONS`` directions a new one gets a fresh table that is not kept (counted
+        in ``limits.conversations``): its frames are decoded on their own, with no state before them."""
         key = (conv, src, dst)
         t = self.tables.get(key)
         if t is None:
-            t = VariableTable.with_list(list(self.default_list))
+            t = VariableTable()
             t.limits = self.limits
-            t.list_from = self.default_list
             if len(self.tables) >= MAX_CONVERSATIONS:
                 self.limits.conversations += 1
             else:
                 self.tables[key] = t
-        if t.list_from is not None and self.pair_lists:
-            shared = self.pair_lists.get((src, dst))
-            if shared is not None and t.list_from is not shared:
-                t.declare(0, shared)  # a list declared on another conversation of these letters
-                t.list_from = shared
+        s = t.own or self.source(src, dst, conv)
+        if s is not t.list_from and s is not None:
+            t.use_list(s.names, s.by_length)
+            t.list_from = s
         return t
 
     def apply(self, frame: Frame, number: int = 0, time_ns: int = 0, conv: Hashable = None,
               carried: bool = True) -> list[Update]:
         decl = declared_list(frame.fields)
-        if decl is not None:
-            # N: the sender's outbound list; L: its inbound list, the reverse direction's
-            src, dst = (frame.src, frame.dst) if decl[0] == "N" else (frame.dst, frame.src)
-            rconv = conv if decl[0] == "N" else reverse_conversation(conv)
-            t = self.table(src, dst, rconv)
-            t.declare(decl[1], decl[2])
-            t.list_from = None
-            self.pair_lists[(src, dst)] = [(n, t.types.get(n)) for n in t.names]
+        if decl is None:
+            return self.table(frame.src, frame.dst, conv).apply(frame, number, time_ns, carried)
+        which, ordinal, names = decl
+        if which == "N":  # the sender's outbound list: its own conversation's
+            t = self.table(frame.src, frame.dst, conv)
+            new = VarSource(tuple(extend_list(t.in_use, ordinal, names, self.limits)))
+            t.own = new
+            self.table(frame.src, frame.dst, conv)
+            self.pair_lists[(frame.src, frame.dst)] = new
             return []
-        return self.table(frame.src, frame.dst, conv).apply(frame, number, time_ns, carried)
+        # L: the sender's inbound list, the list of every direction from the declaration's
+        # destination address to the declarer's address
+        src, dst, rconv = frame.dst, frame.src, reverse_conversation(conv)
+        rkey = receiver_key(rconv, src, dst)
+        base = self.source(src, dst, rconv)
+        new = VarSource(tuple(extend_list(base.names if base is not None else (), ordinal, names, self.limits)))
+        if rkey in self.inbound or len(self.inbound) < MAX_CONVERSATIONS:
+            self.inbound[rkey] = new
+        else:
+            self.limits.conversations += 1
+        self.pair_lists[(src, dst)] = new
+        return []
 
 
 def conversation_key(conv: tuple[str, str, int, str, int]) -> Hashable:

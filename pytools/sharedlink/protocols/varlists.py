@@ -113,3 +113,33 @@ def format_varlists(lists: Mapping[str, Iterable[tuple[str, int | None]]], sep: 
     parts = [format_list(lists[ANY_PAIR])] if ANY_PAIR in lists else []
     parts += [f"{pair}: {format_list(names)}" for pair, names in lists.items() if pair != ANY_PAIR]
     return sep.join(parts)
+
+
+#: what a pair-qualified name looks like in a flat list (``"B>A:AutoGpsHead"``)
+PAIR_SEP = ":"
+
+
+def flatten(lists: Mapping[str, Iterable[tuple[str, int | None]]]) -> VarList:
+    """Per-pair lists as one flat list of ``(name, type)``, the shape every API that takes
+    ``--variables`` takes: the every-pair list's names as they are, a pair's as ``"B>A:name"``
+    (a name never holds ``>`` or ``:``). So the lists travel through callers that copy, pickle,
+    hash or print the list unchanged; :func:`split` takes them apart again."""
+    out: VarList = list(lists.get(ANY_PAIR, ()))
+    for pair, names in lists.items():
+        if pair != ANY_PAIR:
+            out += [(f"{pair}{PAIR_SEP}{n}", t) for n, t in names]
+    return out
+
+
+def split(variables: Iterable[tuple[str, int | None]]) -> tuple[VarList | None, dict[tuple[str, str], VarList]]:
+    """A flat list (:func:`flatten`) -> (the every-pair list, None when it has none;
+    ``{(src, dst): list}`` for the pairs given their own list)."""
+    every: VarList = []
+    pairs: dict[tuple[str, str], VarList] = {}
+    for name, type_code in variables:
+        head, sep, rest = name.partition(PAIR_SEP)
+        if sep and len(head) == 3 and head[1] == ">" and head[0] in LETTERS and head[2] in LETTERS:
+            pairs.setdefault((head[0], head[2]), []).append((rest, type_code))
+        else:
+            every.append((name, type_code))
+    return (every or None), pairs
