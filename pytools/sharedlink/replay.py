@@ -38,6 +38,7 @@ from typing import Any, NamedTuple, Optional, Union
 
 from sharedlink.capture.packets import Datagram, PacketDecoder, decode_packet
 from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, LINKTYPE_USER0, NS, CaptureError, read_records
+from sharedlink.defaults import MAX_PPS, MIN_PPS  # noqa: F401 - the steady rates --pps takes
 from sharedlink.errors import UsageError
 
 #: LINKTYPE_USER0 .. LINKTYPE_USER15: records taken as raw serial bytes
@@ -382,11 +383,6 @@ Sink = Union[UdpSink, SerialSink]
 
 
 # -- the replay ---------------------------------------------------------------------------
-
-
-#: the steady rates ``--pps`` takes: a period of at most 1e7 s (about 115 days; a rate like
-#: 1e-300 made the period infinite and the schedule NaN) and, on the command line, at least 1 ns
-MIN_PPS, MAX_PPS = 1e-7, 1e9
 
 
 @dataclass

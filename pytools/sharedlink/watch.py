@@ -41,10 +41,11 @@ from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.packets import PacketDecoder
 from sharedlink.capture.pcapio import LINKTYPE_RAW, CaptureError
 from sharedlink.capture.stream import StreamFrame, iter_frames
+from sharedlink.defaults import WATCH_DEFAULT_PORT
 from sharedlink.protocols.codec import Frame
 from sharedlink.replay import SigintGate
 
-DEFAULT_PORT = 7013
+DEFAULT_PORT = WATCH_DEFAULT_PORT
 #: how long a change (value, failure, late sync, gap) stays highlighted, seconds
 HIGHLIGHT_S = 2.0
 #: the pause after a UDP batch that was not full, seconds: 10,000 frames/s arrive 50 at a time

@@ -94,3 +94,52 @@ def test_ingest_progress_covers_every_capture(tmp_path):
     assert report.ok
     assert calls[-1] == (sum(c.stat().st_size for c in caps), 18000)
     assert [b for b, _ in calls] == sorted(b for b, _ in calls) and len(calls) > 3
+
+
+@pytest.mark.parametrize("command,what", [("compress", "compressing"), ("expand", "expanding")])
+def test_compress_and_expand_get_a_bar_but_not_with_json_or_on_a_pipe(capture, tmp_path, command, what):
+    rc, err = _run([command, capture, "-o", tmp_path / "o.pcap"], tty=True)
+    assert rc == 0 and f"{what}:" in err and "records" in err, err[-2000:]
+    rc, err = _run([command, capture, "-o", tmp_path / "j.pcap", "--json"], tty=True)
+    assert rc == 0 and f"{what}:" not in err
+    rc, err = _run([command, capture, "-o", tmp_path / "p.pcap"], tty=False)
+    assert rc == 0 and f"{what}:" not in err
+
+
+@pytest.mark.parametrize("extra", [[], ["--single-process"]])
+def test_diff_gets_a_bar_but_not_with_json_or_on_a_pipe(capture, extra):
+    rc, err = _run(["diff", capture, capture, *extra], tty=True)
+    assert rc == 0 and "comparing:" in err and "frames" in err, err[-2000:]
+    rc, err = _run(["diff", capture, capture, "--json", *extra], tty=True)
+    assert rc == 0 and "comparing:" not in err
+    rc, err = _run(["diff", capture, capture, *extra], tty=False)
+    assert rc == 0 and "comparing:" not in err
+
+
+def test_transform_progress_counts_bytes_and_records(capture, tmp_path):
+    """The library's progress: records every few thousand, bytes growing towards the size."""
+    from sharedlink.analysis.transform import transform_capture
+
+    calls: list[tuple[int, int]] = []
+    st = transform_capture(capture, tmp_path / "o.pcap", "expand", progress=lambda b, r: calls.append((b, r)))
+    assert len(calls) >= 3 and calls == sorted(calls)
+    assert calls[-1][1] <= st.records and st.records - calls[-1][1] < 5000
+    size = capture.stat().st_size
+    assert 0 < calls[-1][0] <= size and calls[-1][0] / calls[-1][1] * st.records == pytest.approx(size, rel=0.05)
+
+
+@pytest.mark.parametrize("parallel", [True, False])
+def test_diff_progress_counts_both_captures(tmp_path, parallel):
+    """diff's progress, from the parent as chunks arrive: bytes of both files, frames of both."""
+    from sharedlink.analysis.diff import DiffOptions, diff_captures
+
+    caps = []
+    for i, n in enumerate((60_000, 30_000)):
+        caps.append(tmp_path / f"c{i}.pcap")
+        generate_file(GenOptions(frames=n, seed=i + 1), caps[-1])
+    calls: list[tuple[int, int]] = []
+    report = diff_captures(*caps, DiffOptions(parallel=parallel), progress=lambda b, f: calls.append((b, f)))
+    assert len(calls) >= 3 and calls == sorted(calls)
+    assert calls[-1][1] == report.a.frames + report.b.frames == 90_000
+    total = sum(c.stat().st_size for c in caps)
+    assert total * 0.9 < calls[-1][0] <= total

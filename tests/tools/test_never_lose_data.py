@@ -183,7 +183,7 @@ sys.exit(main(sys.argv[2:]))
 @pytest.mark.parametrize("module", [
     "sharedlink.protocols.codec",  # while the package loads
     "sharedlink.commands",  # while the command line loads
-    "sharedlink.analysis.export",  # while the parser is built
+    "sharedlink.defaults",  # while the parser is built
     "sharedlink.analysis.stats",  # while the command runs
 ])
 def test_ctrl_c_while_the_command_loads(capture, module):

@@ -24,7 +24,7 @@ import signal
 import threading
 from array import array
 from collections import Counter, deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from statistics import median
@@ -283,8 +283,11 @@ class _Side:
     """One capture's frames as they arrive: a buffer of the current chunk(s) and the values
     as of ``cur_pos`` (frames the fast path accepted are applied lazily)."""
 
-    def __init__(self, index: int, source: Iterator[Chunk | SideStats]) -> None:
+    def __init__(self, index: int, source: Iterator[Chunk | SideStats],
+                 on_chunk: Callable[[], None] | None = None) -> None:
         self.index = index
+        self.on_chunk = on_chunk  # called after each chunk taken (progress)
+        self.read = 0  # bytes of the capture its reader had read at the last chunk
         self.bit = 1 << index
         self.source = source
         self.ts = array("Q")  # packed timestamps (stream.pack_ts)
@@ -338,7 +341,10 @@ class _Side:
         if isinstance(item, SideStats):
             self.stats = item
             self.done = True
+            if self.on_chunk is not None:
+                self.on_chunk()
             return
+        self.read = item.read
         self.ts.frombytes(item.ts)
         self.num.frombytes(item.numbers)
         self.recs.extend(item.records)
@@ -346,6 +352,8 @@ class _Side:
         self.events.extend(item.events)
         self.snapshot = (self.end, item.snapshot) if item.snapshot is not None else None
         self.keys.update(item.keys)
+        if self.on_chunk is not None:
+            self.on_chunk()
 
     def replay(self, upto: int) -> None:
         """Apply the records from ``cur_pos`` to ``upto`` to the values (no comparisons)."""
@@ -749,9 +757,12 @@ class _BulkAligner(_Aligner):
         return n
 
 
-def diff_captures(a: str | Path, b: str | Path, opts: DiffOptions | None = None) -> DiffReport:
+def diff_captures(a: str | Path, b: str | Path, opts: DiffOptions | None = None,
+                  progress: Callable[[int, int], None] | None = None) -> DiffReport:
     """Compare captures ``a`` and ``b``. A missing or damaged file is reported in the
-    report's ``errors`` (with everything before the damage compared)."""
+    report's ``errors`` (with everything before the damage compared). ``progress(bytes,
+    frames)`` is called as each chunk of either capture arrives (some ten thousand frames):
+    the bytes both readers had read (about; 0 from a pipe) and the value frames they gave."""
     opts = opts or DiffOptions()
     opts.validate()
     gc_was_enabled = gc.isenabled()
@@ -759,7 +770,14 @@ def diff_captures(a: str | Path, b: str | Path, opts: DiffOptions | None = None)
     sources = [_source(str(a), opts), _source(str(b), opts)]
     try:
         aligner = _BulkAligner if opts.bulk else _Aligner
-        al = aligner(_Side(0, sources[0]), _Side(1, sources[1]), opts)
+        sides: list[_Side] = []
+
+        def report() -> None:
+            if progress is not None:
+                progress(sides[0].read + sides[1].read, sides[0].end + sides[1].end)
+
+        sides += [_Side(0, sources[0], report), _Side(1, sources[1], report)]
+        al = aligner(sides[0], sides[1], opts)
         al.run()
         return al.report()
     finally:

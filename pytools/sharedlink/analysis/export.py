@@ -40,13 +40,14 @@ from xml.sax.saxutils import escape as xml_escape
 
 from sharedlink.analysis.decode import VALUE_KINDS, Decoded, format_time, iter_decoded
 from sharedlink.capture.pcapio import CaptureError, atomic_open, display_name
+from sharedlink.defaults import EXPORT_BINARY_FORMATS, EXPORT_FORMATS
 from sharedlink.errors import UsageError
 from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG
 from sharedlink.protocols.state import BEACON_VARIABLES, Variable
 
-FORMATS = ("csv", "jsonl", "geojson", "kml", "mcap")
+FORMATS = EXPORT_FORMATS
 #: formats written as bytes to a file by their own module (not through :func:`export`)
-BINARY_FORMATS = ("mcap",)
+BINARY_FORMATS = EXPORT_BINARY_FORMATS
 LAT, LON, HEADING, VELOCITY = "AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"
 FRAME_COLUMNS = ["number", "time", "ts_ns", "t", "src", "dst", "kind", "checksum"]
 CHANGE_COLUMNS = ["number", "time", "ts_ns", "t", "src", "dst", "name", "type", "value"]

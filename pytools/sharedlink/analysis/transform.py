@@ -19,7 +19,7 @@ byte for byte what ``sharedlink gen --compress`` writes.
 from __future__ import annotations
 
 import struct
-from collections.abc import Hashable, Iterator, Sequence
+from collections.abc import Callable, Hashable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -271,8 +271,10 @@ def transform_capture(
     mode: str,
     sync_interval: float = 1.0,
     variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES,
+    progress: Callable[[int, int], None] | None = None,
 ) -> TransformStats:
-    """Rewrite capture ``src`` into ``dst`` (same format: pcap or pcapng). Raises
+    """Rewrite capture ``src`` into ``dst`` (same format: pcap or pcapng);
+    ``progress(bytes read, records)`` is called every few thousand records. Raises
     :class:`~sharedlink.capture.pcapio.CaptureError` when the input is missing or not a capture
     (``dst`` is then left as it was: the output goes to a temporary file renamed at the end)
     and :class:`TransformError` when the output cannot be written. A capture damaged further
@@ -283,13 +285,15 @@ def transform_capture(
     refuse_overwrite(d, s)
     fmt, records = open_records(s)  # read once: a pipe will do
     with open_output(d) as fh:
-        _transform_records(rw, s, fmt, records, fh)
+        _transform_records(rw, s, fmt, records, fh, progress)
     return st
 
 
-def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record], fh: BinaryIO) -> None:
+def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record], fh: BinaryIO,
+                       progress: Callable[[int, int], None] | None = None) -> None:
     """Rewrite the records of capture ``s`` into ``fh``."""
     st = rw.stats
+    read = 24  # bytes of the input read, about (pcap's headers; pcapng's blocks are a little longer)
     writer: PcapWriter | PcapngWriter | None = None
     linktype = None
     interfaces: dict[tuple[int, int], int] = {}  # (input interface, link type) -> output interface
@@ -306,6 +310,7 @@ def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record]
             st.error = str(exc)
             break
         st.records += 1
+        read += 16 + len(rec.data)
         if writer is None:
             linktype = rec.linktype
             writer = PcapngWriter(fh, linktype) if fmt == "pcapng" else PcapWriter(fh, linktype)
@@ -348,6 +353,8 @@ def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record]
         if len(chunk) >= 4096:
             fh.write(b"".join(chunk))
             chunk.clear()
+            if progress is not None:
+                progress(read, st.records)
     if writer is None:
         writer = PcapngWriter(fh, LINKTYPE_ETHERNET) if fmt == "pcapng" else PcapWriter(fh, LINKTYPE_ETHERNET)
     fh.write(b"".join(chunk))

@@ -32,7 +32,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from sharedlink.capture.change_records import SEP_CHANGE as SEP_CHANGE
 from sharedlink.capture.change_records import SEP_VALUE as SEP_VALUE
@@ -309,9 +309,10 @@ class Chunk:
     keys: list[bytes]  # the keys of this chunk's frames (each once)
     events: list[tuple[int, bytes, bytes, int | None]] = field(default_factory=list)
     snapshot: list[tuple[bytes, bytes, bytes]] | None = field(default_factory=list)
+    read: int = 0  # bytes of the file read so far, about (0: not known, e.g. a pipe); for progress bars
 
     def as_tuple(self) -> tuple:
-        return (self.start, self.ts, self.numbers, self.records, self.keys, self.events, self.snapshot)
+        return (self.start, self.ts, self.numbers, self.records, self.keys, self.events, self.snapshot, self.read)
 
     @classmethod
     def from_tuple(cls, t: Sequence) -> Chunk:
@@ -366,6 +367,7 @@ class ChangeReader:
         self._reset()
         self._last_ts = 0
         self._damage: CaptureError | None = None  # a damaged record _walk stopped at
+        self._fh: Any = None  # the capture being read
 
     def _reset(self) -> None:
         self._ts = array("Q")  # packed timestamps
@@ -383,6 +385,7 @@ class ChangeReader:
             fh = open(p, "rb")  # noqa: SIM115 - closed below
         except OSError as exc:
             raise CaptureError(p, None, exc.strerror or str(exc)) from None
+        self._fh = fh  # (its position: Chunk.read)
         with fh:  # opened once and read front to back: a pipe will do
             head = fh.read(24)
             magic = struct.unpack("<I", head[:4])[0] if len(head) >= 4 else None
@@ -660,12 +663,20 @@ class ChangeReader:
             keys,
             self._events,
             snapshot,
+            self._position(),
         )
         self.stats.frames += len(self._recs)
         self.stats.value_frames += len(self._recs)
         self._base += len(self._recs)
         self._reset()
         return c
+
+    def _position(self) -> int:
+        """Bytes of the capture read so far (0 when not known: a pipe)."""
+        try:
+            return self._fh.tell() if self._fh is not None else 0
+        except (OSError, ValueError):
+            return 0
 
     def finish(self) -> SideStats:
         """Stats after the last chunk: the trailing sync gap (last full set to the end of the

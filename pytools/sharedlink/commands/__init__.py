@@ -16,11 +16,10 @@ import os
 import shutil
 import struct
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
-from sharedlink.analysis.transform import transform_capture
 from sharedlink.capture.pcapio import NS, is_stdout, replacing_links
 from sharedlink.errors import UsageError
 from sharedlink.protocols.state import BEACON_VARIABLES, parse_variables
@@ -443,7 +442,11 @@ def run_transform(args: argparse.Namespace, mode: str) -> int:
     variables = variables_option(args.variables)
     if args.json and is_stdout(args.output):
         raise UsageError("--json needs an output file (the capture goes to standard output)")
-    st = transform_capture(args.input, args.output, mode, args.sync_interval, variables)
+    from sharedlink.analysis.transform import transform_capture  # (when the command runs: quick start-up)
+
+    what = {"compress": "compressing", "expand": "expanding"}[mode]
+    with Progress(args.input, quiet=args.json, what=what) as progress:
+        st = transform_capture(args.input, args.output, mode, args.sync_interval, variables, progress)
     warn_empty(args.input, st.records, "records")
     if args.json:
         json.dump({"input": str(args.input), "output": str(args.output), "mode": mode, **st.to_dict()}, sys.stdout)
@@ -527,7 +530,8 @@ class Progress:
     stderr are both terminals and ``quiet`` is False (never on a pipe, with ``--json`` or
     ``--quiet``). Call it with (bytes read, records read); use it as a context manager."""
 
-    def __init__(self, path: Path | str | None, quiet: bool = False, what: str = "reading", unit: str = "records") -> None:
+    def __init__(self, path: Path | str | Sequence[Path | str] | None, quiet: bool = False, what: str = "reading",
+                 unit: str = "records") -> None:
         import time
 
         self._clock = time.monotonic
@@ -537,9 +541,9 @@ class Progress:
         self.what, self.unit = what, unit
         self.total: int | None = None
         if self.enabled and path is not None:
-            try:
-                p = Path(path)
-                self.total = p.stat().st_size if p.is_file() else None
+            try:  # the total size of the files read (None when one is a pipe)
+                files = [Path(p) for p in ([path] if isinstance(path, (str, Path)) else path)]
+                self.total = sum(p.stat().st_size for p in files) if all(p.is_file() for p in files) else None
             except OSError:
                 self.total = None
         self._bar: Any = None

@@ -15,6 +15,7 @@ from sharedlink.commands import (
     MAX_SECONDS,
     SECONDS,
     STDIN,
+    Progress,
     add_json_option,
     add_variables_option,
     capture_input,
@@ -82,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
     args.a, args.b = capture_input(args.a), capture_input(args.b)
     if STDIN in (args.a, args.b):
         opts.parallel = False  # a reader process has no standard input of its own
-    report = diff_captures(args.a, args.b, opts)
+    with Progress([args.a, args.b], quiet=args.json, what="comparing", unit="frames") as progress:
+        report = diff_captures(args.a, args.b, opts, progress)
     unreadable = [s.error for s in (report.a, report.b) if s.error and s.records == 0]
     if unreadable:  # not a capture at all: nothing to compare
         raise UsageError("; ".join(unreadable))

@@ -7,13 +7,6 @@ import json
 import sys
 from pathlib import Path
 
-from sharedlink.analysis.export import (
-    BINARY_FORMATS,
-    FORMATS,
-    ExportOptions,
-    export,
-    export_file,
-)
 from sharedlink.capture.pcapio import is_stdout, refuse_overwrite
 from sharedlink.commands import (
     EXIT_OK,
@@ -34,6 +27,8 @@ from sharedlink.commands import (
     plural,
     warn_empty,
 )
+from sharedlink.defaults import EXPORT_BINARY_FORMATS as BINARY_FORMATS
+from sharedlink.defaults import EXPORT_FORMATS as FORMATS
 from sharedlink.errors import UsageError
 
 _SUFFIXES = {".csv": "csv", ".jsonl": "jsonl", ".ndjson": "jsonl", ".geojson": "geojson", ".kml": "kml", ".mcap": "mcap"}
@@ -64,6 +59,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 @honours_force
 def run(args: argparse.Namespace) -> int:
+    from sharedlink.analysis.export import (  # (when the command runs: quick start-up)
+        ExportOptions,
+        export,
+        export_file,
+    )
+
     variables, sync = decode_options(args)
     args.capture = capture_input(args.capture)
     given = given_names(args)

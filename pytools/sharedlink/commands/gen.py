@@ -27,7 +27,6 @@ from sharedlink.commands import (
     start_time,
 )
 from sharedlink.errors import UsageError
-from sharedlink.generators.beacon import GenOptions, generate_file
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -70,6 +69,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 @honours_force
 def run(args: argparse.Namespace) -> int:
+    from sharedlink.generators.beacon import (  # (when the command runs: quick start-up)
+        GenOptions,
+        generate_file,
+    )
+
     require_output(args, "out")
     if args.transport == "serial" and args.protocol == "sharedlink":
         return run_gen_serial(args)

@@ -8,7 +8,6 @@ import json
 import sys
 from pathlib import Path
 
-from sharedlink.analysis.lists import capture_lists, render_text
 from sharedlink.commands import EXIT_OK, EXIT_USAGE, check_capture
 
 
@@ -27,6 +26,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sharedlink.analysis.lists import (  # (when the command runs: quick start-up)
+        capture_lists,
+        render_text,
+    )
+
     for path in args.captures:
         check_capture(path)
     results = [capture_lists(path) for path in args.captures]

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sharedlink.capture.pcapio import CaptureError, rereadable
 from sharedlink.commands import (
@@ -24,21 +24,11 @@ from sharedlink.commands import (
     capture_input,
     number,
 )
+from sharedlink.defaults import MAX_PPS, MIN_PPS
 from sharedlink.errors import UsageError
-from sharedlink.replay import (
-    MAX_PPS,
-    MIN_PPS,
-    USER_LINKTYPES,
-    CaptureFrames,
-    FrameFilter,
-    Replayer,
-    ReplayOptions,
-    ReplayStats,
-    SerialSink,
-    UdpSink,
-    first_linktype,
-    split_host_port,
-)
+
+if TYPE_CHECKING:  # (sharedlink.replay loads when the command runs: every command's start-up pays for what is imported here)
+    from sharedlink.replay import ReplayStats, SerialSink, UdpSink
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -87,6 +77,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _sink(args: argparse.Namespace) -> UdpSink | SerialSink:
+    from sharedlink.replay import USER_LINKTYPES, SerialSink, UdpSink, first_linktype, split_host_port
+
     if args.serial:
         if args.to or args.bind or args.broadcast or args.multicast:
             raise UsageError("--serial writes to a serial port: --to, --bind, --broadcast and --multicast do not apply")
@@ -115,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from sharedlink.replay import CaptureFrames, FrameFilter, Replayer, ReplayOptions
+
     opts = ReplayOptions(
         speed=args.speed,
         pps=args.pps,

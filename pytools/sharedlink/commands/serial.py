@@ -8,20 +8,9 @@ import os
 import sys
 from contextlib import ExitStack
 from pathlib import Path
-from typing import BinaryIO
+from typing import TYPE_CHECKING, BinaryIO
 
 from sharedlink.capture.pcapio import DeferredOutput, buffered_stdout, open_output, refuse_overwrite
-from sharedlink.capture.serial_format import (
-    DIR_IN,
-    DIR_OUT,
-    DIR_UNKNOWN,
-    PROTOCOLS,
-    SerialCaptureWriter,
-    StreamReader,
-    parse_linktype,
-)
-from sharedlink.capture.serial_import import FORMATS, MAX_LOG_NS, SerialImportError, read_log
-from sharedlink.capture.serial_port import capture, list_ports
 from sharedlink.commands import (
     BAUD,
     COUNT,
@@ -39,12 +28,19 @@ from sharedlink.commands import (
     require_output,
     start_time,
 )
+from sharedlink.defaults import SERIAL_DIRECTIONS as _DIRECTIONS
+from sharedlink.defaults import SERIAL_LOG_FORMATS as FORMATS
+from sharedlink.defaults import SERIAL_MAX_LOG_NS as MAX_LOG_NS
+from sharedlink.defaults import SERIAL_PROTOCOLS as PROTOCOLS
 from sharedlink.errors import Error, UsageError
 
-_DIRECTIONS = {"in": DIR_IN, "inbound": DIR_IN, "out": DIR_OUT, "outbound": DIR_OUT, "unknown": DIR_UNKNOWN}
+if TYPE_CHECKING:  # (loaded when the command runs: every command's start-up pays for what is imported here)
+    from sharedlink.capture.serial_import import SerialImportError
 
 
 def _linktype(text: str) -> int:
+    from sharedlink.capture.serial_format import parse_linktype
+
     try:
         return parse_linktype(text)
     except ValueError as exc:
@@ -111,6 +107,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 @honours_force
 def run_capture(args: argparse.Namespace) -> int:
+    from sharedlink.capture.serial_format import SerialCaptureWriter
+    from sharedlink.capture.serial_port import capture
+
     if args.tap and args.device:
         raise UsageError("give either DEVICE or --tap DEV_A DEV_B, not both")
     if not args.tap and not args.device:
@@ -164,6 +163,9 @@ def _port_error(exc: BaseException) -> str:
 
 @honours_force
 def run_import(args: argparse.Namespace) -> int:
+    from sharedlink.capture.serial_format import SerialCaptureWriter, StreamReader
+    from sharedlink.capture.serial_import import SerialImportError, read_log
+
     require_output(args, "out")
     args.log = capture_input(args.log)  # one wording for a missing file; -: standard input
     start_ns = args.start
@@ -209,6 +211,8 @@ def run_import(args: argparse.Namespace) -> int:
 
 
 def run_ports(args: argparse.Namespace) -> int:
+    from sharedlink.capture.serial_port import list_ports
+
     ports = list_ports()
     if args.json:
         json.dump([{"device": d, "description": desc} for d, desc in ports], sys.stdout)

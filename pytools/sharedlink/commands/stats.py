@@ -8,7 +8,6 @@ import json
 import sys
 from pathlib import Path
 
-from sharedlink.analysis.stats import capture_stats, render_text, tables
 from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
@@ -36,6 +35,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sharedlink.analysis.stats import (  # (when the command runs: quick start-up)
+        capture_stats,
+        render_text,
+    )
+
     variables, sync = decode_options(args)
     args.capture = capture_input(args.capture)
     with Progress(args.capture, quiet=args.json) as progress:
@@ -67,6 +71,8 @@ def _rich(st) -> None:
     """The tables on a terminal, fitted to its width (numbers never cut); plain text when a
     table cannot fit even with columns left out."""
     from rich.console import Console
+
+    from sharedlink.analysis.stats import tables
 
     console = Console()
     for title, headers, rows in tables(st):

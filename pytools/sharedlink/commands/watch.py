@@ -6,9 +6,8 @@ import argparse
 import errno
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from sharedlink.analysis.decode import Decoded
 from sharedlink.capture.pcapio import buffered_stdout
 from sharedlink.commands import (
     BAUD,
@@ -24,18 +23,12 @@ from sharedlink.commands import (
     capture_input,
     decode_options,
 )
+from sharedlink.defaults import WATCH_DEFAULT_PORT as DEFAULT_PORT
 from sharedlink.errors import UsageError
-from sharedlink.watch import (
-    DEFAULT_PORT,
-    CaptureSource,
-    FastDecoder,
-    LiveView,
-    SerialSource,
-    UdpSniffer,
-    UdpSource,
-    json_line,
-    run_watch,
-)
+
+if TYPE_CHECKING:  # (loaded when the command runs: every command's start-up pays for what is imported here)
+    from sharedlink.analysis.decode import Decoded
+    from sharedlink.watch import FastDecoder
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -77,6 +70,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _source(args: argparse.Namespace) -> Any:
+    from sharedlink.watch import CaptureSource, SerialSource, UdpSniffer, UdpSource
+
     if args.capture is not None and args.serial:
         raise UsageError("--from and --serial: one source at a time")
     if args.capture is not None:
@@ -126,6 +121,8 @@ def _foxglove(args: argparse.Namespace) -> tuple[Any, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sharedlink.watch import FastDecoder, json_line, run_watch
+
     variables, sync = decode_options(args)
     source = _source(args)
     server = None
@@ -168,6 +165,8 @@ def _damage(source: Any) -> int:
 def _live(source: Any, decoder: FastDecoder, outputs: list, sync: float, sessions: list) -> int:
     from rich.console import Console
     from rich.live import Live
+
+    from sharedlink.watch import LiveView, run_watch
 
     view = LiveView(sync, source.description)
     outputs.append(view.update)
