@@ -268,7 +268,14 @@ def _remote(path: str, opts: DiffOptions) -> Iterator[Chunk | SideStats]:
         stop.set()
         if proc.is_alive():
             proc.terminate()
-        proc.join()
+        # A SIGTERM that reaches the child before it resets its handlers (it inherits
+        # _start_quietly's holding handler from the fork) is only held: the child then blocks
+        # writing to a pipe nobody reads, and a bare join() waited for ever (seen under load
+        # after Ctrl-C to the process group). Kill what the SIGTERM did not stop.
+        proc.join(timeout=2.0)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
         thread.join(timeout=1.0)
         recv.close()
 
