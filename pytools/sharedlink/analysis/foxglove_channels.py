@@ -51,6 +51,7 @@ from foxglove.messages import (
 from sharedlink.analysis.decode import VALUE_KINDS, Decoded
 from sharedlink.analysis.sessions import Ack, SessionMessage
 from sharedlink.capture.pcapio import NS
+from sharedlink.errors import UsageError
 from sharedlink.protocols import blackboard, p2os
 from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG
 
@@ -90,6 +91,9 @@ class ChannelOptions:
     heading: str = HEADING  # degrees clockwise from north
     speed: str = SPEED
     speed_unit: str = "mph"  # the speed variable's unit, a key of SPEED_UNITS (BUL-049: AutoGpsVel in mph)
+    #: channels that may be opened, or None for no limit (an MCAP file holds at most 65535: its
+    #: channel id is 16 bits, and foxglove-sdk drops every message of a channel past it)
+    max_channels: int | None = None
 
     def __post_init__(self) -> None:
         if self.speed_unit not in SPEED_UNITS:
@@ -273,6 +277,17 @@ class FoxgloveChannels:
         self._dirs: dict[tuple[object, str, str], _Direction] = {}
         self._pair_convs: dict[str, int] = {}
         self._sessions: dict[tuple[str, int], _Session] = {}
+        self._channels_left = self.opts.max_channels
+
+    def _open(self, n: int) -> None:
+        """Account for ``n`` channels about to be opened; past ``max_channels`` a clear refusal
+        (a UsageError: the export writes no file) instead of messages lost one by one."""
+        if self._channels_left is None:
+            return
+        if self._channels_left < n:
+            raise UsageError(f"more conversations than an MCAP file has channels ({self.opts.max_channels}: three a "
+                             f"direction, one a session topic); export a part of the capture, or as jsonl")
+        self._channels_left -= n
 
     # -- SharedLink ------------------------------------------------------------------------
 
@@ -280,6 +295,7 @@ class FoxgloveChannels:
         key = (d.conv, d.src, d.dst)
         dr = self._dirs.get(key)
         if dr is None:
+            self._open(2)
             name = f"{d.src}_to_{d.dst}"
             n = self._pair_convs[name] = self._pair_convs.get(name, 0) + 1
             base = f"/sharedlink/{name}" + (f"_{n}" if n > 1 else "")
@@ -343,6 +359,7 @@ class FoxgloveChannels:
             fix = self._fix_bytes(dr, typed, ts, dr.pair)
             if fix is not None:
                 if dr.location is None:  # (LocationFixChannel's channel: its schema and encoding, fed bytes)
+                    self._open(1)
                     dr.location = foxglove.Channel(dr.location_topic, schema=_FIX_SCHEMA, message_encoding="protobuf",
                                                    metadata=dr.meta, context=self.ctx)
                     dr.log_location = dr.location.base.log
@@ -442,6 +459,7 @@ class FoxgloveChannels:
             s = self._sessions[key] = _Session(f"/{m.protocol}/{m.session}", {"session": m.label})
         ch = s.channels.get(name)
         if ch is None:
+            self._open(1)
             topic = f"{s.prefix}/{name}"
             if schema is None:
                 ch = PoseInFrameChannel(topic, metadata=s.metadata, context=self.ctx)

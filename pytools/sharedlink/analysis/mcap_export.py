@@ -23,10 +23,13 @@ from sharedlink.capture.pcapio import CaptureError, atomic_open
 from sharedlink.errors import UsageError
 
 PROFILE = "sharedlink"
+#: an MCAP channel id is a uint16 (and foxglove-sdk's writer does not use id 0)
+MCAP_MAX_CHANNELS = 65535
 
 
 def channel_options(opts: ExportOptions) -> ChannelOptions:
-    return ChannelOptions(lat=opts.lat, lon=opts.lon, heading=opts.heading, speed=opts.velocity)
+    return ChannelOptions(lat=opts.lat, lon=opts.lon, heading=opts.heading, speed=opts.velocity,
+                          max_channels=MCAP_MAX_CHANNELS)
 
 
 def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOptions, result: ExportResult) -> None:
