@@ -37,7 +37,8 @@ from sharedlink.capture.pcapio import (
     open_records,
     refuse_overwrite,
 )
-from sharedlink.capture.stream import StreamFrame
+from sharedlink.capture.serial_format import USER_LINKTYPES
+from sharedlink.capture.stream import SerialSplitter, StreamFrame
 from sharedlink.errors import OutputError
 from sharedlink.protocols.codec import Field, Frame, build_frame, frame_kind, iter_segments
 from sharedlink.protocols.state import BEACON_VARIABLES, VariableTable, conversation_key
@@ -299,6 +300,7 @@ def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record]
     interfaces: dict[tuple[int, int], int] = {}  # (input interface, link type) -> output interface
     chunk: list[bytes] = []
     decode = PacketDecoder().decode  # IP fragments reassembled
+    serial = SerialSplitter()  # serial records: copied, their frames followed and counted
     while True:
         try:
             rec = next(records)
@@ -322,7 +324,11 @@ def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record]
             chunk.append(writer.interface(rec.linktype))
             iface = interfaces[(rec.interface, rec.linktype)] = writer.interfaces - 1
         data = rec.data
-        dg = decode(rec.linktype, data)
+        if rec.linktype in USER_LINKTYPES:
+            _follow_serial(rw, serial.feed(rec.number, rec.ts_ns, rec.linktype, data, rec.flags, rec.interface))
+            dg = None
+        else:
+            dg = decode(rec.linktype, data)
         if dg is not None and dg.payload and b"[" in dg.payload:
             conv = (dg.proto, dg.src, dg.sport, dg.dst, dg.dport)
             # UDP in plain headers is rewritten; fragments and IPv6 extension headers copied
@@ -355,9 +361,18 @@ def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record]
             chunk.clear()
             if progress is not None:
                 progress(read, st.records)
+    _follow_serial(rw, serial.flush())
     if writer is None:
         writer = PcapngWriter(fh, LINKTYPE_ETHERNET) if fmt == "pcapng" else PcapWriter(fh, LINKTYPE_ETHERNET)
     fh.write(b"".join(chunk))
+
+
+def _follow_serial(rw: Rewriter, items: list) -> None:
+    """Serial frames are copied as their records are (a record may hold part of a frame, so
+    none is rewritten); both views follow them and they are counted as stats counts them."""
+    for item in items:
+        if isinstance(item, StreamFrame) and item.frame is not None:
+            rw.frame(item.frame, item.raw, item.ts_ns, False, item.conv)
 
 
 def compress_capture(src: str | Path, dst: str | Path, sync_interval: float = 1.0,
