@@ -386,6 +386,24 @@ def test_frames_given_up_at_the_limit_are_those_serial_lua_gives_up(tmp_path, pr
     assert ours == theirs and sum(f for _n, f in ours) == 3 and len(ours) == (5 if protocol == "auto" else 6)
 
 
+def test_stats_counts_the_frames_given_up_at_the_limit(tmp_path):
+    """stats --json's "limits" counts the unfinished serial frames given up at MAX_HELD_BYTES
+    (held), as many as the reader gives up (the records serial.lua warns on), their bytes noise."""
+    good = encode_positional("A", "B", ["1"])
+    cap = tmp_path / "over.pcapng"
+    with open(cap, "wb") as fh:
+        w = SerialCaptureWriter(fh, flush=False)
+        for k in range(3):
+            for c in [b"[:AB|N0|D"] + [b"7" * 1024] * 96 + [good]:
+                w.write(c, DIR_OUT, 10**18 + k * 10**9 + len(c))
+    given_up = sum(p.reason == GIVEN_UP for _r, _d, p in read_capture(cap, "auto"))
+    r = subprocess.run([*CLI, "stats", str(cap), "--json"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    st = json.loads(r.stdout)
+    st = st["captures"][0] if "captures" in st else st
+    assert given_up >= 2 and st["limits"]["held"] == given_up and st["frames"] == 3, st
+
+
 def test_a_hex_dump_whose_repeat_asks_for_terabytes_is_refused_at_once(tmp_path):
     """xxd's '*' repeats the line before up to the next offset: three lines could ask for 64 GB
     (the import allocated until killed). Past MAX_DUMP_BYTES it is one line and exit 2; a real

@@ -29,6 +29,7 @@ from pathlib import Path
 
 from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Counted, Decoded, Decoder
 from sharedlink.capture.pcapio import CaptureError
+from sharedlink.capture.serial_format import GIVEN_UP
 from sharedlink.protocols.codec import _DOUBLE_TEXT, TYPE_DOUBLE, guess_value, typed_value
 from sharedlink.protocols.limits import LimitCounts
 from sharedlink.protocols.state import BEACON_VARIABLES, Update, VariableTable
@@ -440,7 +441,9 @@ def capture_stats(
                     continue
                 st.noise_segments += 1
                 st.noise_bytes += len(item.raw)
-                if item.raw.startswith(b"[:"):  # a frame that is not one: the dissector's "malformed"
+                if item.error == GIVEN_UP:  # an unfinished serial frame past MAX_HELD_BYTES
+                    st.limits.held += 1
+                elif item.raw.startswith(b"[:"):  # a frame that is not one: the dissector's "malformed"
                     st.kinds["malformed"] = st.kinds.get("malformed", 0) + 1
     except CaptureError as exc:
         if exc.record is None and st.frames == 0 and st.other_records == 0 and st.noise_segments == 0:

@@ -31,10 +31,12 @@ class LimitCounts:
     names: int = 0  # new names past MAX_NAMES in one direction
     numbers: int = 0  # N/T/ordinal fields with more than MAX_NUMBER_DIGITS digits
     conversations: int = 0  # frames of a new direction past MAX_CONVERSATIONS
+    held: int = 0  # unfinished serial frames given up at MAX_HELD_BYTES (their bytes counted as noise)
 
     @property
     def total(self) -> int:
-        return self.slots + self.names + self.numbers + self.conversations
+        return self.slots + self.names + self.numbers + self.conversations + self.held
 
     def to_dict(self) -> dict[str, int]:
-        return {"slots": self.slots, "names": self.names, "numbers": self.numbers, "conversations": self.conversations}
+        return {"slots": self.slots, "names": self.names, "numbers": self.numbers, "conversations": self.conversations,
+                "held": self.held}
