@@ -126,7 +126,7 @@ do
     local here = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
     local TOKEN = { sharedlink_module = true }
     for _, name in ipairs({ "util", "wsapi", "fields", "prefs", "records", "parse", "state", "info", "tree",
-        "express" }) do
+        }) do
         M[name] = assert(loadfile(here .. "sharedlink/" .. name .. ".lua"))(TOKEN, M)
     end
 end
@@ -135,7 +135,7 @@ local ei, s_byte, s_sub, s_find = M.fields.ei, string.byte, string.sub, string.f
 local tostring, type, B_LBRACK, B_RBRACK = tostring, type, U.B_LBRACK, U.B_RBRACK
 local B_PIPE, B_COLON, B_CR, B_LF = U.B_PIPE, U.B_COLON, U.B_CR, U.B_LF
 local B_A, B_P, LETTER = U.B_A, U.B_P, U.LETTER
-local Pm, S, I, T, X, R = M.parse, M.state, M.info, M.tree, M.express, M.records
+local Pm, S, I, T, R = M.parse, M.state, M.info, M.tree, M.records
 local P = Pm.P
 local PG, TI = M.wsapi.PG, M.wsapi.TI
 local parse_frame, fast_positions, checksum_verdict, kind_of_fields = Pm.parse_frame, Pm.fast_positions,
@@ -143,7 +143,6 @@ local parse_frame, fast_positions, checksum_verdict, kind_of_fields = Pm.parse_f
 local state_first_pass, state_later_pass = S.state_first_pass, S.state_later_pass
 local info_frame = I.info_frame
 local tree_compact_frame, tree_full, has_experts = T.tree_compact_frame, T.tree_full, T.has_experts
-local express, EXPRESS = X.express, X.enabled
 
 sl.fields = M.fields.register(hf)
 sl.experts = M.fields.register(ei)
@@ -157,12 +156,25 @@ function sl.init()
     cfg.read()
 end
 
+-- The address letters as shown ("?": cut short), and whether both are nodes A-P.
+local function addresses(dstb, srcb)
+    local dst, src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
+    return dst, src, (dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P) or false
+end
+
+-- Without state: a data frame with N0 (or none), no empty positional D and no named variable left
+-- out is full; the state-based verdict is stored when it differs.
+local function full_without_state()
+    local n_ord = P.n_ord
+    return P.nd > 0 and (n_ord == nil or n_ord == 0) and P.n_empty_d == 0
+end
+
 -- f: a string holding the frame at f[1..fl] ('[' .. ']' when terminated, else up to
 -- where it stops; bytes after fl may follow when terminated); a: index of f[1] in the
 -- payload s; e: index in s of the last byte including the line end.  tree: nil when there is
 -- none (see dissect); root: the tree Wireshark gave, for the expert infos of a frame then.
 local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, root)
-    local num = pinfo.number
+    local num = PG.number(pinfo)
 
     -- a tree that is shown (-V, -T fields/json, the GUI's details) gets every range and
     -- label; one nobody sees (-Y, coloring rules, taps) takes the fast paths too.  The
@@ -171,22 +183,17 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
 
     local bodyend, dstb, srcb, malformed_msg = parse_frame(f, fl, terminated, vis, true)
     local cs_val, cs_calc, cs_status = checksum_verdict(f, bodyend)
-    local good = cs_status ~= 0
     local kind, is_data = kind_of_fields(malformed_msg)
-    local dst, src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
-    local addrs_ok = dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P
-    -- without state: a data frame with N0 (or none), no empty positional D and no named
-    -- variable left out is full; the state-based verdict is stored when it differs
-    local full_local = P.nd > 0 and (P.n_ord == nil or P.n_ord == 0) and P.n_empty_d == 0
-
-    local rec, list, d, miss_n
-    local ne, nm = 0
-    if not pinfo.visited then
-        kind, rec, list, d, miss_n, ne, nm = state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src,
-            addrs_ok, full_local, tree ~= nil)
+    local dst, src, addrs_ok = addresses(dstb, srcb)
+    local full_local = full_without_state()
+    local rec, list, d, miss_n, ne, nm
+    if not PG.visited(pinfo) then
+        kind, rec, list, d, miss_n, ne, nm = state_first_pass(pinfo, num, sk, kind, is_data, cs_status ~= 0, dstb,
+            srcb, dst, src, addrs_ok, full_local, tree ~= nil)
     else
         kind, rec, list, d, miss_n, nm = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok,
             full_local, tree ~= nil)
+        ne = 0
     end
     if is_data and not kind then kind = full_local and "full" or "delta" end   -- addresses not A-P
 
@@ -199,12 +206,12 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
             return
         end
         tree = root
-        if P.fast_hit then fast_positions(P.fast_hit.ntext, P.nv, P.fast_sh ~= nil) end
+        if P.layout then fast_positions(P.layout) end
         vis = true
     end
-    if P.fast_hit and not vis then
+    if P.layout and not vis then
         local ti = TI.add(tree, sl, tvb(a - 1, e - a + 1))
-        tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, pinfo.visited, rec, ne, nm,
+        tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, PG.visited(pinfo), rec, ne, nm,
             cs_val, cs_calc, cs_status)
         return
     end
@@ -229,78 +236,84 @@ local function add_noise(s, i, j, tvb, tree, root)
     ti:add(hf.noise, r):add_proto_expert_info(ei.noise, (j - i + 1) .. " bytes outside any frame")
 end
 
+-- The index of the last byte of a frame closed at b, its line end included (CR LF, CR or LF).
+local function line_end(s, b)
+    local c1, c2 = s_byte(s, b + 1, b + 2)
+    if c1 == B_CR then return c2 == B_LF and b + 2 or b + 1 end
+    if c1 == B_LF then return b + 1 end
+    return b
+end
+
+-- A frame at s[a..] that no ']' closes: held for the next TCP segment while within
+-- max_held_bytes (returns nil), else decoded as it is (returns the next position).
+local function unclosed_frame(s, n, a, tvb, pinfo, t, sk, tree)
+    if pinfo.can_desegment > 0 then
+        if (n - a) < cfg.LIM.max_held_bytes then
+            pinfo.desegment_offset = a - 1
+            pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
+            return nil
+        end
+        TI.add_proto_expert_info(tree, ei.limit, "Limit exceeded: an unterminated frame of over " ..
+            cfg.LIM.max_held_bytes .. " bytes (max_held_bytes), decoded as it is")
+    end
+    dissect_frame(s_sub(s, a, n), n - a + 1, a, n, false, tvb, pinfo, t, sk, s, tree)
+    return n + 1
+end
+
+-- The payload's tail from pos on holds no "[:": noise, or a '[' a frame may start with in the
+-- next TCP segment.
+local function tail_noise(s, n, pos, tvb, pinfo, t, tree)
+    if s_byte(s, n) == B_LBRACK and pinfo.can_desegment > 0 then
+        if n > pos then add_noise(s, pos, n - 1, tvb, t, tree) end
+        pinfo.desegment_offset = n - 1
+        pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
+    else
+        add_noise(s, pos, n, tvb, t, tree)
+    end
+end
+
+-- The frames of the payload s (n bytes) from pos on, each through dissect_frame; the next "[:"
+-- and "]" are searched once each (open_at, close_at: false = none left).
+local function scan(s, n, tvb, pinfo, t, tree)
+    local sk_base = n * 1048576   -- a frame's key: the payload's length and the frame's start
+    local pos, open_at, close_at = 1, 0, 0
+    while pos and pos <= n do
+        if open_at ~= false and open_at < pos then open_at = s_find(s, "[:", pos, true) or false end
+        local a = open_at
+        if not a then tail_noise(s, n, pos, tvb, pinfo, t, tree); return end
+        if a > pos then add_noise(s, pos, a - 1, tvb, t, tree) end
+        if close_at ~= false and close_at < a + 2 then close_at = s_find(s, "]", a + 2, true) or false end
+        local b = close_at
+        open_at = s_find(s, "[:", a + 2, true) or false
+        local na = open_at
+        if b and (not na or b < na) then
+            local e = line_end(s, b)
+            -- a payload that starts with the frame is the frame's text itself (no copy)
+            local f = a == 1 and s or s_sub(s, a, b)
+            dissect_frame(f, b - a + 1, a, e, true, tvb, pinfo, t, sk_base + a, s, tree)
+            pos = e + 1
+        elseif na then
+            dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, tvb, pinfo, t, sk_base + a, s, tree)
+            pos = na
+        else
+            pos = unclosed_frame(s, n, a, tvb, pinfo, t, sk_base + a, tree)
+        end
+    end
+end
+
 local function dissect(tvb, pinfo, tree)
     if not wsapi.ready then wsapi.init(pinfo, tree, tvb) end
     local s = wsapi.tvb_raw(tvb)
     local n = #s
     if n <= 0 then return 0 end
     local cols = PG.cols(pinfo)
-
     cols.protocol = "SharedLink"
-
     -- With no tree at all (tshark's summary pass) skip all tree work (wsapi.no_tree); frames with
     -- expert infos still get them (see dissect_frame)
     local t = tree
     if t ~= nil and wsapi.no_tree(t) then t = nil end
-    -- the express lane (the tree's visibility is the whole tree's)
-    if EXPRESS and express(s, n, tvb, pinfo, t, cols, t ~= nil and PG.visible(t)) then return n end
-    -- the phases: the frames' keys, and the Info they build
-    local sk_base = n * 1048576
     I.begin()
-    local pos = 1
-    local open_at, close_at = 0, 0 -- cached search results (false = none left)
-    while pos <= n do
-        if open_at ~= false and open_at < pos then open_at = s_find(s, "[:", pos, true) or false end
-        local a = open_at
-        if not a then
-            if s_byte(s, n) == B_LBRACK and pinfo.can_desegment > 0 then
-                -- a frame may start with this '[' in the next segment
-                if n > pos then add_noise(s, pos, n - 1, tvb, t, tree) end
-                pinfo.desegment_offset = n - 1
-                pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
-            else
-                add_noise(s, pos, n, tvb, t, tree)
-            end
-            break
-        end
-        if a > pos then add_noise(s, pos, a - 1, tvb, t, tree) end
-        if close_at ~= false and close_at < a + 2 then close_at = s_find(s, "]", a + 2, true) or false end
-        local b = close_at
-        open_at = s_find(s, "[:", a + 2, true) or false
-        local na = open_at
-        local sk = sk_base + a
-        if b and (not na or b < na) then
-            local e = b
-            local c1, c2 = s_byte(s, b + 1, b + 2)
-            if c1 == B_CR then
-                if c2 == B_LF then e = b + 2 else e = b + 1 end
-            elseif c1 == B_LF then
-                e = b + 1
-            end
-            if a == 1 then
-                dissect_frame(s, b, a, e, true, tvb, pinfo, t, sk, s, tree)
-            else
-                dissect_frame(s_sub(s, a, b), b - a + 1, a, e, true, tvb, pinfo, t, sk, s, tree)
-            end
-            pos = e + 1
-        elseif na then
-            dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, tvb, pinfo, t, sk, s, tree)
-            pos = na
-        else
-            if pinfo.can_desegment > 0 then
-                if (n - a) < cfg.LIM.max_held_bytes then
-                    pinfo.desegment_offset = a - 1
-                    pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
-                    break
-                end
-                TI.add_proto_expert_info(tree, ei.limit, "Limit exceeded: an unterminated frame of over " ..
-                    cfg.LIM.max_held_bytes .. " bytes (max_held_bytes), decoded as it is")
-            end
-            dissect_frame(s_sub(s, a, n), n - a + 1, a, n, false, tvb, pinfo, t, sk, s, tree)
-            pos = n + 1
-        end
-    end
-
+    scan(s, n, tvb, pinfo, t, tree)
     I.finish(cols)
     return n
 end
@@ -311,34 +324,37 @@ sl.dissector = dissect
 -- Heuristics
 ------------------------------------------------------------------------------
 do
-local function looks_like_sharedlink(tvb, is_tcp)
-    local n = tvb:len()
-    if n < 5 then return false end
-    local head = tvb:raw(0, n < 8 and n or 8)
+-- The head: up to two CR/LF, then "[:", two letters A-P and "|" or "]".  Returns where "[:" is.
+local function heuristic_head(head)
     local o = 1
     -- allow leading CR/LF
     while o <= #head and (s_byte(head, o) == B_CR or s_byte(head, o) == B_LF) do o = o + 1 end
-    if o > 3 then return false end
+    if o > 3 then return nil end
     local b1, b2, b3, b4, b5 = s_byte(head, o, o + 4)
-    if b1 ~= B_LBRACK or b2 ~= B_COLON then return false end
-    if not b3 or b3 < B_A or b3 > B_P or not b4 or b4 < B_A or b4 > B_P then return false end
-    if b5 ~= B_PIPE and b5 ~= B_RBRACK then return false end
+    if b1 ~= B_LBRACK or b2 ~= B_COLON then return nil end
+    if not b3 or b3 < B_A or b3 > B_P or not b4 or b4 < B_A or b4 > B_P then return nil end
+    if b5 ~= B_PIPE and b5 ~= B_RBRACK then return nil end
+    return o
+end
+
+-- What may follow a frame's "]" at close: the end, "[", LF, or CR LF (CR alone at the end).
+local function heuristic_close(s, n, close)
+    local c = s_byte(s, close + 1)
+    return c == nil or c == B_LBRACK or c == B_LF or (c == B_CR and (s_byte(s, close + 2) == B_LF or close + 1 == n))
+end
+
+local function looks_like_sharedlink(tvb, is_tcp)
+    local n = tvb:len()
+    if n < 5 then return false end
+    local o = heuristic_head(tvb:raw(0, n < 8 and n or 8))
+    if not o then return false end
     local s = tvb:raw(0, n)
     local close = s_find(s, "]", o + 4, true)
     -- CR, LF and TAB may occur inside a value (a status text); other control bytes refuse
     local bad = s_find(s, "[^\9\10\13\32-\126]", o)
-    if close then
-        if bad and bad < close then return false end
-        local c = s_byte(s, close + 1)
-        if not (c == nil or c == B_LBRACK or c == B_LF or (c == B_CR and
-            (s_byte(s, close + 2) == B_LF or close + 1 == n))) then
-            return false
-        end
-        return true
-    end
+    if close then return not (bad and bad < close) and heuristic_close(s, n, close) end
     -- no ']' yet: only TCP may wait for the rest of the frame
-    if is_tcp and not bad and n >= 8 then return true end
-    return false
+    return is_tcp and not bad and n >= 8
 end
 
 local function make_heuristic(is_tcp)

@@ -197,136 +197,210 @@ end
 -- state_first_pass and its helpers (a block, as parse_frame)
 local state_first_pass
 do
+    -- The state writer's facts about the current data frame (upvalues, set by data_values):
+    -- dv_stamp marks the names it has (d.seen), dv_present counts them (distinct known names),
+    -- dv_ne the carried values of its empty D fields in CARRY, dv_maxslot its highest positional
+    -- slot, dv_required: a slot that held a value is empty here.
+    local dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = 0, 0, 0, -1, false
+
+    -- A named value: a new name is learnt (good checksum, within max_names), a known one stored.
+    local function named_value(d, name, val, good, num, sk, hist, key)
+        local st = d.seen[name]
+        if not st and good then
+            local names = d.names
+            if #names < cfg.LIM.max_names then
+                names[#names + 1] = name
+                d.npos[name] = #names - 1
+                d.nfirst[name] = num
+                d.nkey[#names] = key or journal.key(num, sk)
+                d.names_is = nil
+                st = 0
+            else
+                -- a new name past max_names: no state
+                cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_names ..
+                    " names in this direction (max_names)"
+            end
+        end
+        if not st then return end
+        if good then
+            d.vals[name], d.from[name] = val, num
+            if hist then journal.set(hist, name, key, val) end
+        end
+        if st ~= dv_stamp then dv_present = dv_present + 1; d.seen[name] = dv_stamp end
+    end
+
+    -- A positional value at slot (named by list): stored, or carried when empty.
+    local function positional_value(d, list, slot, val, good, num)
+        local name = list[slot + 1] or ("#" .. slot)
+        if slot > dv_maxslot then dv_maxslot = slot end
+        if val == "" then
+            local cv = d.vals[name]
+            if cv then dv_required = true end
+            CARRY[dv_ne + 1], CARRY[dv_ne + 2] = cv or false, d.from[name] or false
+            dv_ne = dv_ne + 2
+        elseif good then
+            d.vals[name], d.from[name] = val, num
+            if slot > d.maxslot then d.maxslot = slot end
+        end
+    end
+
+    -- The direction's known names this frame left out, into MISS (name, value, frame, ...); returns
+    -- nm (MISS's entries) and how many.
+    local function missing_names(d)
+        local names, seen, vals, from = d.names, d.seen, d.vals, d.from
+        local nm, miss_n = 0, 0
+        for k = 1, #names do
+            local name = names[k]
+            if seen[name] ~= dv_stamp then
+                MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
+                nm = nm + 3
+                miss_n = miss_n + 1
+            end
+        end
+        return nm, miss_n
+    end
+
+    -- Every value of the frame into the state; returns nm and the number of named variables carried.
+    local function store_values(d, list, num, sk, good, has_tree, hist, key)
+        stamp_ctr = stamp_ctr + 1
+        dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = stamp_ctr, 0, 0, -1, false
+        local max_slots = cfg.LIM.max_slots
+        for v = 1, P.nv do
+            local val = VV[v]
+            if val then
+                local name = VN[v]
+                if name then
+                    named_value(d, name, val, good, num, sk, hist, key)
+                elseif VI[v] < max_slots then
+                    positional_value(d, list, VI[v], val, good, num)
+                end
+            end
+        end
+        if P.n_pos > 0 then
+            -- positional: required slots past the frame's last D
+            local vals = d.vals
+            for slot = dv_maxslot + 1, d.maxslot do
+                if vals[list[slot + 1] or ("#" .. slot)] then dv_required = true; break end
+            end
+            return 0, 0
+        end
+        if #d.names == 0 then return 0, 0 end
+        -- named: known variables missing from this frame (a journal: counted; listed only for a
+        -- tree, kept in no record)
+        if hist then return (has_tree and missing_names(d) or 0), #d.names - dv_present end
+        return missing_names(d)
+    end
+
+    -- The direction's known names a named layout leaves out, in the direction's order (nil: the
+    -- layout names one the direction does not know, or leaves none out), kept per layout until the
+    -- direction learns another name (speed trick, measured: a compressed stream's deltas).
+    local function known_subset(d, named)
+        local names = d.names
+        local cache = d.subsets
+        local sub = cache and cache[named]
+        if sub and sub.count == #names then return sub end
+        local npos, sn, in_layout = d.npos, named.N, {}
+        for k = 1, named.n do
+            if not npos[sn[k]] then return nil end
+            in_layout[sn[k]] = true
+        end
+        local miss = {}
+        for k = 1, #names do
+            if not in_layout[names[k]] then miss[#miss + 1] = names[k] end
+        end
+        if #miss == 0 then return nil end
+        if not cache then cache = {}; d.subsets = cache end
+        sub = { count = #names, names = miss }
+        cache[named] = sub
+        return sub
+    end
+
+    -- The carried names (a known subset's) into MISS: name, value, frame, ...; returns nm.
+    local function carried_subset(d, names)
+        local vals, from, nm = d.vals, d.from, 0
+        for k = 1, #names do
+            local name = names[k]
+            MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
+            nm = nm + 3
+        end
+        return nm
+    end
+
+    -- A named layout's values into the direction (its names are known ones).
+    local function store_layout_values(d, num)
+        local vals, from = d.vals, d.from
+        for v = 1, P.nv do
+            local name = VN[v]
+            vals[name], from[name] = VV[v], num
+        end
+    end
+
     -- State, first pass, a data frame: its values go into the direction's state (good checksum),
     -- what it leaves out is gathered in CARRY (empty D fields: value, frame, ...; ne entries) and
     -- MISS (named variables: name, value, frame, ...; nm entries).  Returns whether it is full,
-    -- ne, nm, the number of named variables carried, and full_local (the verdict without state).
+    -- ne, nm, the number of named variables carried, full_local (the verdict without state), and
+    -- whether the direction keeps a journal.
     local function data_values(d, list, num, sk, good, full_local, has_tree)
-        local fast_sh, n_pos, nd, n_ord = P.fast_sh, P.n_pos, P.nd, P.n_ord
-        local ne, nm, miss_n = 0, 0, 0
-        local full
+        local named = P.named
         local hist, key = d.hist, nil
         if hist or #d.names > JOURNAL_NAMES then
             key = journal.key(num, sk)
             if not hist and not d.over then hist = journal.start(d, key) end
         end
-        if good and fast_sh and d.names_is == fast_sh.N and not hist then
-            -- same layout as the known variable set: nothing can be missing
-            local vals, from = d.vals, d.from
-            for v = 1, P.nv do
-                local name = VN[v]
-                vals[name] = VV[v]
-                from[name] = num
+        if good and named and not hist then
+            -- a layout of known names: its values stored; the direction's other names carried
+            -- (none: the whole known set)
+            if d.names_is == named.N then
+                store_layout_values(d, num)
+                return full_local, 0, 0, 0, full_local, false
             end
-            full = full_local
-        else
-            local vals, from, seen = d.vals, d.from, d.seen
-            local names = d.names
-            stamp_ctr = stamp_ctr + 1
-            local stamp = stamp_ctr
-            local required_missing = false   -- a slot that held a value is empty here
-            local maxslot = -1
-            local present = 0                -- known names present (distinct)
-            local max_slots = cfg.LIM.max_slots
-            ne = 0
-            for v = 1, P.nv do
-                local val = VV[v]
-                if val then
-                    local name = VN[v]
-                    if name then
-                        local st = seen[name]
-                        if not st and good then
-                            if #names < cfg.LIM.max_names then
-                                names[#names + 1] = name
-                                d.npos[name] = #names - 1
-                                d.nfirst[name] = num
-                                d.nkey[#names] = key or journal.key(num, sk)
-                                d.names_is = nil
-                                st = 0
-                            else
-                                -- a new name past max_names: no state
-                                cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_names ..
-                                    " names in this direction (max_names)"
-                            end
-                        end
-                        if st then
-                            if good then
-                                vals[name] = val
-                                from[name] = num
-                                if hist then journal.set(hist, name, key, val) end
-                            end
-                            if st ~= stamp then present = present + 1; seen[name] = stamp end
-                        end
-                    elseif VI[v] < max_slots then
-                        local slot = VI[v]
-                        name = list[slot + 1] or ("#" .. slot)
-                        if slot > maxslot then maxslot = slot end
-                        if val == "" then
-                            local cv = vals[name]
-                            if cv then required_missing = true end
-                            CARRY[ne + 1] = cv or false
-                            CARRY[ne + 2] = from[name] or false
-                            ne = ne + 2
-                        elseif good then
-                            vals[name] = val
-                            from[name] = num
-                            if slot > d.maxslot then d.maxslot = slot end
-                        end
-                    end
-                end
+            local sub = known_subset(d, named)
+            if sub then
+                store_layout_values(d, num)
+                return false, 0, carried_subset(d, sub.names), #sub.names, false, false
             end
-            -- positional: required slots past the frame's last D
-            if n_pos > 0 then
-                for slot = maxslot + 1, d.maxslot do
-                    if vals[list[slot + 1] or ("#" .. slot)] then required_missing = true; break end
-                end
-            end
-            -- named: known variables missing from this frame (a journal: counted; listed only
-            -- for a tree, kept in no record)
-            if n_pos == 0 and #names > 0 and hist then
-                miss_n = #names - present
-                if has_tree then
-                    for k = 1, #names do
-                        local name = names[k]
-                        if seen[name] ~= stamp then
-                            MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
-                            nm = nm + 3
-                        end
-                    end
-                end
-            elseif n_pos == 0 and #names > 0 then
-                for k = 1, #names do
-                    local name = names[k]
-                    if seen[name] ~= stamp then
-                        MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
-                        nm = nm + 3
-                        miss_n = miss_n + 1
-                    end
-                end
-            end
-            if fast_sh and good and miss_n == 0 and #names == fast_sh.n then d.names_is = fast_sh.N end
-            full = nd > 0 and (n_ord == nil or n_ord == 0) and not required_missing and miss_n == 0
-            if n_pos == 0 then full_local = full_local and miss_n == 0 end
         end
-        return full, ne, nm, miss_n, full_local, hist ~= nil
+        local nm, miss_n = store_values(d, list, num, sk, good, has_tree, hist, key)
+        if named and good and miss_n == 0 and #d.names == named.n then d.names_is = named.N end
+        local n_ord = P.n_ord
+        local full = P.nd > 0 and (n_ord == nil or n_ord == 0) and not dv_required and miss_n == 0
+        if P.n_pos == 0 then full_local = full_local and miss_n == 0 end
+        return full, dv_ne, nm, miss_n, full_local, hist ~= nil
     end
 
     -- State, first pass, a data frame: the sync clock, and the record later passes read (late
     -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
-    local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
-        local rec = cfg.LIM.hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
-        local kind
-        local now = pinfo.rel_ts
+    -- The sync clock: a full frame (good checksum) sets it; a delta past the interval is late
+    -- (returns its age, else nil).
+    local function sync_clock(pinfo, d, full, good)
+        local now = PG.rel_ts(pinfo)
         local first = d.first
         if not first then first = now; d.first = now end
         if full then
             if good then d.lastfull = now end
-        else
-            local age = now - (d.lastfull or first)
-            if age > cfg.sync then
-                rec = rec or get_rec(num, sk, true)
-                rec.late = age
-            end
+            return nil
+        end
+        local age = now - (d.lastfull or first)
+        if age > cfg.sync then return age end
+        return nil
+    end
+
+    -- The carried values of empty D fields (CARRY, ne) and named ones (MISS, nm) into a table record.
+    local function carried_record(rec, ne, nm)
+        for k = 1, ne do rec[k] = CARRY[k] end
+        if nm > 0 then
+            local miss = {}
+            for k = 1, nm do miss[k] = MISS[k] end
+            rec.miss = miss
+        end
+    end
+
+    local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
+        local rec = cfg.LIM.hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
+        local late = sync_clock(pinfo, d, full, good)
+        if late then
+            rec = rec or get_rec(num, sk, true)
+            rec.late = late
         end
         local kch = full and "f" or "d"
         -- carried values of empty D fields: a packed text record unless the
@@ -334,19 +408,13 @@ do
         if ne > 0 or nm > 0 then
             if rec or not carried_store(num, sk, ne, nm, kch) then
                 rec = rec or get_rec(num, sk, true)
-                for k = 1, ne do rec[k] = CARRY[k] end
-                if nm > 0 then
-                    local miss = {}
-                    for k = 1, nm do miss[k] = MISS[k] end
-                    rec.miss = miss
-                end
+                carried_record(rec, ne, nm)
             end
         elseif full ~= full_local then
             rec = rec or get_rec(num, sk, true)
         end
         if rec then rec.kind = kch end
-        kind = full and "full" or "delta"
-        return rec, kind
+        return rec, full and "full" or "delta"
     end
 
     -- State, first pass, a declaration with a good checksum: the list it declares.
@@ -429,6 +497,28 @@ do
         return rec
     end
 
+    -- The list in use in direction d (src to dst); when it changes, the change is remembered (read
+    -- back on later passes: list_at).
+    local function list_in_use(d, num, sk, src, dst)
+        local list = d.list
+        if not list then
+            local letters = d.letters   -- src .. dst, made once a direction
+            if not letters then letters = src .. dst; d.letters = letters end
+            list = pair_lists[letters] or cfg.list
+        end
+        if list ~= (d.used_list or cfg.list) then
+            local h = d.uhist
+            if not h then h = {}; d.uhist = h end
+            h[#h + 1] = num
+            h[#h + 1] = sk
+            h[#h + 1] = list
+            d.used_list = list
+        end
+        return list
+    end
+
+    local LINKED = { query = true, reply = true, declaration = true }   -- kinds a query/reply link concerns
+
     -- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
     -- direction state (data frames), the named variables carried, and ne/nm (see data_values).
     function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, addrs_ok, full_local,
@@ -436,23 +526,13 @@ do
         local rec, list, d = nil, cfg.list, nil
         local miss_n, ne, nm = 0, 0, 0
         cfg.LIM.hit = false
-        local letters = src .. dst
         if (is_data or kind == "malformed") and addrs_ok then
             d = get_dir(pinfo, num, dstb, srcb)
             if d.over then
                 cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_conversations .. " directions with state" ..
                     " (max_conversations); this one keeps none"
             end
-            list = d.list or pair_lists[letters] or cfg.list
-            -- remember when the list in use changes (read back on later passes)
-            if list ~= (d.used_list or cfg.list) then
-                local h = d.uhist
-                if not h then h = {}; d.uhist = h end
-                h[#h + 1] = num
-                h[#h + 1] = sk
-                h[#h + 1] = list
-                d.used_list = list
-            end
+            list = list_in_use(d, num, sk, src, dst)
             if is_data then
                 local full, journaled
                 full, ne, nm, miss_n, full_local, journaled = data_values(d, list, num, sk, good, full_local, has_tree)
@@ -460,9 +540,9 @@ do
                 rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm)
             end
         elseif kind == "declaration" and addrs_ok and good then
-            learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
+            learn_declaration(pinfo, num, dstb, srcb, dst, src, src .. dst)
         end
-        if (kind == "query" or kind == "reply" or kind == "declaration") and addrs_ok and good then
+        if LINKED[kind] and addrs_ok and good then
             rec = link_query_reply(pinfo, num, sk, kind, dst, src, rec)
         end
         if cfg.LIM.hit then
@@ -487,6 +567,12 @@ local function list_at(d, num, sk)
     return found and h[3 * found] or cfg.list
 end
 
+-- A data frame's kind on a later pass: the record's, else the verdict without state.
+local function data_kind(rec, full_local, miss_n)
+    if rec and rec.kind then return rec.kind == "f" and "full" or "delta" end
+    return (full_local and miss_n == 0) and "full" or "delta"
+end
+
 -- State on a later pass: the record, and the list in use at this frame on the first pass
 -- (looked up only where it names something: positional values, or a tree to show indexes).
 local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local, has_tree)
@@ -503,18 +589,10 @@ local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs
             if key >= d.jkey then miss_n, nm = journal.missing(d, key, has_tree) end
         end
     end
-    if is_data then
-        if rec and rec.kind then
-            kind = rec.kind == "f" and "full" or "delta"
-        else
-            kind = (full_local and miss_n == 0) and "full" or "delta"
-        end
-    end
+    if is_data then kind = data_kind(rec, full_local, miss_n) end
     return kind, rec, list, d, miss_n, nm
 end
 
 S.get_dir, S.list_at, S.journal, S.JOURNAL_NAMES = get_dir, list_at, journal, JOURNAL_NAMES
 S.state_first_pass, S.state_later_pass = state_first_pass, state_later_pass
--- the list learnt for a letter pair (the express lane)
-function S.pair_list(letters) return pair_lists[letters] end
 return S
