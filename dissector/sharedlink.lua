@@ -44,20 +44,20 @@
 -- Query/reply links: a reply links back to its query in any pass; the query's
 -- "Response in" needs the reply to have been seen, i.e. a second pass (GUI, tshark -2).
 --
--- Performance: with no tree (tshark summary pass) no tree items are built; with a tree
--- nobody sees (-Y, coloring rules, taps) a fast-path frame gets its fields without byte
--- ranges, labels or flags, and a per-variable field no filter references is added once a
--- frame, not once a variable (tree_compact); the fast paths check the checksum as a fixed
--- sum plus the values' sums; a frame with the layout of one of the node pair's recent
--- plain named frames (up to 8: a compressed stream's deltas) is parsed by one anchored
--- pattern, in a shown tree too (the fields' places follow from the layout and the values'
--- lengths), and the express lane (see express) takes such frames in every pass; the shown
--- tree's labels are made once (addresses, protocol line, a correct checksum); every use of
--- Wireshark's internals is in wsapi, checked against the documented API.  Per-frame state
--- is stored only for frames that need it (carried values, late sync, queries/replies);
--- carried-only records are packed as text lines, 256 per Lua string, and the list in use is
--- kept as a per-direction history of changes, so that long compressed captures add few Lua
--- objects (Wireshark runs full Lua garbage collections during a capture).
+-- Performance: every frame goes one route (docs/architecture.md): parse, checksum, state, Info,
+-- tree.  In front of the parser, a layout cache: a frame with the layout of one of the node
+-- pair's recent plain frames (up to 8: a compressed stream's deltas) is matched by one anchored
+-- pattern, its checksum the layout's fixed sum plus the values' sum, in a shown tree too (the
+-- fields' places follow from the layout and the values' lengths).  With no tree (tshark summary
+-- pass) no tree items are built, unless the frame has expert infos; with a tree nobody sees
+-- (-Y, coloring rules, taps) a cached frame gets its fields without byte ranges, labels or
+-- flags, and a per-variable field no filter references is added once a frame (tree_compact);
+-- the shown tree's labels are made once; every use of Wireshark's internals is in wsapi,
+-- checked against the documented API.  Per-frame state is stored only for frames that need it
+-- (carried values, late sync, queries/replies); carried-only records are packed as text lines,
+-- 256 a chunk in one ByteArray, and the list in use is kept as a per-direction history of
+-- changes, so that long compressed captures add few Lua objects (Wireshark runs full Lua
+-- garbage collections during a capture).
 --
 -- Decoding choices (where the bulletins are silent); the full set of rules, shared with
 -- the Python tools, is "Decoding rules" in docs/fields-sharedlink.md:

@@ -64,9 +64,8 @@ local function sk_text(sk)
 end
 
 -- Record lines wait in cr_pend as pieces, each line ending in "\n" (cr_npend lines, cr_npieces
--- pieces), and are packed 256 to a chunk "\n" .. lines.  Speed tricks (measured, compressed
--- capture): the express lane adds a line as pieces, and no string is made for it until the
--- chunk; the chunks are kept in one ByteArray (cr_store), outside the Lua heap, as the
+-- pieces), and are packed 256 to a chunk "\n" .. lines.  Speed trick (measured, compressed
+-- capture): the chunks are kept in one ByteArray (cr_store), outside the Lua heap, as the
 -- collector's pace follows the heap's live size: kept as Lua strings, they made every
 -- collection rarer and each one sweep more garbage, a cost to every allocation of the pass
 -- (-2.6 us a frame).  cr_store.off/len: chunk i's place in it; last/last_text: the chunk read last.
@@ -90,8 +89,7 @@ local function carried_chunk(i)
 end
 
 -- Frame num's record line has been put in cr_pend after the pieces already there, ending with
--- its "\n" at index i (carried_store: the line and "\n"; the express lane: num, "|sk|d|0",
--- a piece a carried variable and "\n").
+-- its "\n" at index i (carried_store: the line and "\n").
 local function carried_line_end(num, i)
     if cr_npend == 0 then cr_pend_first = num end
     cr_npieces, cr_npend = i, cr_npend + 1
@@ -201,9 +199,6 @@ local function get_rec(num, sk, create)
     return rec
 end
 
-R.from_text, R.sk_text, R.carried_store, R.carried_line_end, R.get_rec =
-    from_text, sk_text, carried_store, carried_line_end, get_rec
--- the pieces waiting to be packed and their count (the express lane adds a line as pieces)
-function R.pending() return cr_pend, cr_npieces end
+R.carried_store, R.get_rec = carried_store, get_rec
 
 return R

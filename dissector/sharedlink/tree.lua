@@ -598,7 +598,7 @@ do
     -- The whole of it, for a frame at f[1..fl] (bodyend: its content's last index) that starts at
     -- s[a] and ends with its line end at s[e] (as dissect_frame's arguments), as parsed (the
     -- field and variable arrays, P.cpos, P.ctext), with its kind, state and checksum verdict.
-    -- Called by dissect_frame and by the express lane; what the parts share goes in TC.
+    -- Called by dissect_frame; what the parts share goes in TC.
     function tree_full(tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, kind, dstb, srcb,
                        list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
         local tc = TC
