@@ -402,6 +402,12 @@ local function named_info(sh, dstb, srcb)
     sh.info_len, sh.dinfo_len = ilen, ilen + #dhead - #head
 end
 
+-- Whether a layout's types hold a long (whose values need parse_long to rule out var.badvalue).
+local function has_long(tv)
+    for k = 1, 8 do if tv[k] == 0 then return true end end
+    return false
+end
+
 -- A new layout from the parsed frame f of kind (layout_kind): its head, pattern and sums.
 local function new_layout(f, kind, dstb, srcb)
     local nv = P.nv
@@ -421,7 +427,8 @@ local function new_layout(f, kind, dstb, srcb)
     end
     parts[nv + 1] = CHECKSUM
     local sh = { head = head, at = #head + 1, pat = "^" .. t_concat(parts), n = nv, named = named, T = st, N = sn,
-        TV = named and tv or nil, ord = P.n_ord, ntext = P.n_text, fixed = fixed % 256, sums = SUMS[nv] }
+        TV = named and tv or nil, has_long = named and has_long(tv), ord = P.n_ord, ntext = P.n_text,
+        fixed = fixed % 256, sums = SUMS[nv] }
     sh.key = sh.head .. "\0" .. sh.pat
     if named then named_info(sh, dstb, srcb) end
     return sh
@@ -449,24 +456,24 @@ end
 -- A frame: header, then the layout cache, else the parser (which teaches the cache).
 ------------------------------------------------------------------------------
 -- A closed frame the layout cache has: matched and taken into P.  Its head (addresses A-P, N) is
--- the layout's, so the frame needs no header check.  Returns whether it took the frame.
+-- the layout's, so the frame needs no header check.  Returns its address bytes (nil: not taken).
 local function parse_cached(f, fl, vis)
     local dstb, srcb = s_byte(f, 3, 4)
-    if not srcb or fl < 6 then return false end
+    if not srcb or fl < 6 then return nil end
     local sh, c1, c2, c3, c4, c5, c6, c7, c8, c9 = layout_match(f, fl, dstb * 256 + srcb)
-    if not sh then return false end
+    if not sh then return nil end
     layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
     if vis then fast_positions(sh) end
     if MARKS.fast then MARKS.fast_hit = true end
-    return true
+    return dstb, srcb
 end
 
 -- Parse a frame.  Returns the last index of the content, the address bytes and why it is
 -- malformed (nil: it is not).  vis: a shown tree (it needs the fields' places).
 local function parse_frame(f, fl, terminated, vis)
-    if FAST and terminated and parse_cached(f, fl, vis) then
-        local dstb, srcb = s_byte(f, 3, 4)
-        return fl - 1, dstb, srcb, nil
+    if FAST and terminated then
+        local dstb, srcb = parse_cached(f, fl, vis)
+        if dstb then return fl - 1, dstb, srcb, nil end
     end
     parse_reset()
     local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)

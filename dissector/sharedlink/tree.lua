@@ -7,6 +7,7 @@ local token, M = ...
 if type(token) ~= "table" or token.sharedlink_module ~= true then return end
 
 local U, cfg, wsapi, hf = M.util, M.prefs, M.wsapi, M.fields.hf
+local UHEX = U.UHEX
 local ei, sl, s_byte, s_sub = M.fields.ei, M.proto, string.byte, string.sub
 local s_find, s_format, tonumber, tostring = string.find, string.format, tonumber, tostring
 local floor, ARROW, B_CR, B_LF = math.floor, U.ARROW, U.B_CR, U.B_LF
@@ -632,7 +633,7 @@ end
 
 local function values_have_experts(kind, list)
     local named = P.named
-    if named then return named_values_have_experts(named.TV) end
+    if named then return named.has_long and named_values_have_experts(named.TV) end
     local types = list.t
     for v = 1, P.nv do
         local val = VV[v]
@@ -663,7 +664,7 @@ local function has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kin
     if malformed_msg or not addrs_ok or P.odd or cs_status == 0 or not P.cpos then return true end
     if rec and (rec.limit or rec.late or rec.unmatched) then return true end
     local ctext = P.ctext
-    if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then return true end
+    if not UHEX[ctext] then return true end   -- not two upper-case hex digits
     local b = a + fl - 1
     if terminated and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then return true end
     return values_have_experts(kind, list)

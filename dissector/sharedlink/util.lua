@@ -68,6 +68,13 @@ do
     end
 end
 
+-- Checksum texts of two upper-case hex digits (the form without sharedlink.checksum.format)
+local UHEX = {}
+U.UHEX = UHEX
+for t in pairs(HEXV) do
+    if not s_find(t, "[a-f]") then UHEX[t] = true end
+end
+
 -- The value of a checksum text: two hex digits (either case) or up to 8; nil otherwise.
 function U.checksum_value(ctext)
     local v = HEXV[ctext]
