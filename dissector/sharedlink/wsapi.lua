@@ -90,13 +90,12 @@ end
 -- (and anything that dissects frames out of order, as sharkd does) learns again each frame.
 wsapi.cache_refs = not (gui_enabled and gui_enabled())
 
--- (5) Environment switches, for the tests (docs/architecture.md): SHAREDLINK_NO_FAST=1 (every
--- frame parsed field by field), SHAREDLINK_NO_EXPRESS=1 (no express lane),
--- SHAREDLINK_FAST_MARK=1 / SHAREDLINK_EXPRESS_MARK=1 (mark the Info of the packets those took),
--- SHAREDLINK_PROBE_EACH_FRAME=1 (tshark learns the referenced fields each frame, as the GUI).
+-- (5) Environment switches, for the tests (docs/architecture.md): SHAREDLINK_NO_FAST=1 (the layout
+-- cache off: every frame parsed field by field), SHAREDLINK_FAST_MARK=1 (mark the Info of the
+-- packets the cache parsed), SHAREDLINK_PROBE_EACH_FRAME=1 (tshark learns the referenced fields
+-- each frame, as the GUI).
 local function env(name) return os.getenv("SHAREDLINK_" .. name) == "1" end
-wsapi.env = { no_fast = env("NO_FAST"), no_express = env("NO_EXPRESS"), fast_mark = env("FAST_MARK"),
-    express_mark = env("EXPRESS_MARK"), probe_each_frame = env("PROBE_EACH_FRAME") }
+wsapi.env = { no_fast = env("NO_FAST"), fast_mark = env("FAST_MARK"), probe_each_frame = env("PROBE_EACH_FRAME") }
 if wsapi.env.probe_each_frame then wsapi.cache_refs = false end
 
 return wsapi

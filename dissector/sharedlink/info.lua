@@ -1,0 +1,139 @@
+-- SharedLink dissector module: info, the Info column: the pieces of a packet's frames, cut at INFO_MAX.
+-- Loaded by sharedlink.lua (load_module); Wireshark also runs every .lua file of a plugin folder's
+-- subfolders as a plugin of its own: this file then does nothing.
+
+local token, M = ...
+if type(token) ~= "table" or token.sharedlink_module ~= true then return end
+
+local U, s_sub, s_find, s_gsub = M.util, string.sub, string.find, string.gsub
+local t_concat, ARROW, ELLIPSIS, INFO_MAX = table.concat, U.ARROW, U.ELLIPSIS, U.INFO_MAX
+local CTRL, VN, VV, VI = U.CTRL, M.parse.P.VN, M.parse.P.VV, M.parse.P.VI
+
+local P = M.parse.P
+local MARKS = M.parse.MARKS
+
+------------------------------------------------------------------------------
+-- Info column pieces (reused)
+------------------------------------------------------------------------------
+local INFO = {}
+local ninfo, info_len, info_full = 0, 0, false
+local info_clean = true     -- every piece came from the named fast path
+local frames_in_info, frames_dropped = 0, 0
+
+local function info_add(str)
+    if info_full then return end
+    local l = #str
+    ninfo = ninfo + 1
+    if info_len + l > INFO_MAX then
+        INFO[ninfo] = ELLIPSIS
+        info_full = true
+        return
+    end
+    INFO[ninfo] = str
+    info_len = info_len + l
+end
+
+-- A frame of a named layout, alone in its packet: the layout's Info code makes the same text as
+-- the pieces below, in one concatenation (speed trick, measured).  Returns whether it did.
+local function info_named(named, full, miss_n)
+    local total = (full and named.info_len or named.dinfo_len) + P.vlen
+    local tail = (miss_n > 0) and (" (+" .. miss_n .. " carried)") or nil
+    if tail then total = total + #tail end
+    if total > INFO_MAX then return false end
+    ninfo, info_len = 1, total
+    INFO[1] = (full and named.info or named.dinfo)(VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8])
+    if tail then INFO[1] = INFO[1] .. tail end
+    return true
+end
+
+-- The values (name=value), and how many the frame carried.
+local function info_values(list, miss_n)
+    for v = 1, P.nv do
+        if info_full then break end
+        local val = VV[v]
+        if val and (val ~= "" or VN[v]) then
+            local name = VN[v]
+            if not name then name = list[VI[v] + 1] or ("#" .. VI[v]) end
+            info_add(" " .. name .. "=" .. val)
+        end
+    end
+    local nc = P.n_empty_d + miss_n
+    if nc > 0 then info_add(" (+" .. nc .. " carried)") end
+end
+
+-- The names a query or declaration asks for or declares.
+local function info_names()
+    for v = 1, P.nv do
+        if VN[v] then info_add(" " .. VN[v]) end
+    end
+end
+
+-- The frame's piece, piece by piece.
+local function info_pieces(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
+    info_add(src .. ARROW .. dst .. " " .. kind)
+    if is_data or kind == "reply" or kind == "malformed" then
+        info_values(list, miss_n)
+    elseif kind == "query" then
+        info_names()
+    elseif kind == "declaration" then
+        info_add(P.l_ord and (" L" .. P.l_ord) or (" N" .. (P.n_ord or 0)))
+        info_names()
+    elseif kind == "command" and P.cmd_start then
+        local cpos = P.cpos
+        local cmd = s_gsub(s_sub(f, P.cmd_start, cpos and cpos - 2 or bodyend), "|D?", " ")
+        info_add(" " .. cmd)
+    end
+    if rec and rec.late then info_add(" [sync late]") end
+end
+
+-- Info column: this frame's piece.
+local function info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
+    if frames_in_info > 0 then
+        if info_full then frames_dropped = frames_dropped + 1 else info_add(" ; ") end
+    end
+    frames_in_info = frames_in_info + 1
+    local named = P.named
+    if named and frames_in_info == 1 and (kind == "full" or kind == "delta") and not (rec and rec.late)
+        and info_named(named, kind == "full", miss_n) then
+        return
+    end
+    info_clean = false
+    if not info_full then info_pieces(f, bodyend, kind, is_data, rec, list, src, dst, miss_n) end
+end
+
+-- A packet starts: no pieces yet.
+local I = {}
+function I.begin()
+    ninfo, info_len, info_full, frames_in_info, frames_dropped = 0, 0, false, 0, 0
+    info_clean = true
+end
+
+-- Noise of len bytes between frames, as a piece of its own.
+function I.noise(len)
+    if info_full then
+        frames_dropped = frames_dropped + 1
+    else
+        if frames_in_info > 0 then info_add(" ; ") end
+        info_add("noise (" .. len .. " bytes)")
+        frames_in_info = frames_in_info + 1
+    end
+end
+
+-- The packet's Info, into the column.
+function I.finish(cols)
+    if frames_dropped > 0 then
+        ninfo = ninfo + 1
+        INFO[ninfo] = " (+" .. frames_dropped .. " more)"
+    end
+    if ninfo > 0 then
+        local info = (ninfo == 1) and INFO[1] or t_concat(INFO, "", 1, ninfo)
+        if MARKS.fast_hit then info = "[fast] " .. info; MARKS.fast_hit = false end
+        -- control characters from a damaged frame must not break the column (the
+        -- fast path's text cannot hold any: its patterns exclude them)
+        if not info_clean and s_find(info, CTRL) then info = s_gsub(info, CTRL, "?") end
+        cols.info = info
+    end
+end
+
+I.info_frame = info_frame
+return I

@@ -1,0 +1,524 @@
+-- SharedLink dissector module: parse, one frame's fields and variables into P (its arrays and
+-- facts): the layout cache in front of the field-by-field parser; the checksum verdict and the
+-- kind the fields tell.
+-- Loaded by sharedlink.lua (load_module); Wireshark also runs every .lua file of a plugin folder's
+-- subfolders as a plugin of its own: this file then does nothing.
+
+local token, M = ...
+if type(token) ~= "table" or token.sharedlink_module ~= true then return end
+
+local U, cfg, wsapi = M.util, M.prefs, M.wsapi
+local s_byte, s_find, s_match, s_gsub = string.byte, string.find, string.match, string.gsub
+local tonumber, floor, t_concat = tonumber, math.floor, table.concat
+local ARROW, CTRL, LETTER, B_PIPE, B_A, B_P = U.ARROW, U.CTRL, U.LETTER, U.B_PIPE, U.B_A, U.B_P
+local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = U.L_N, U.L_T, U.L_Q, U.L_R, U.L_D, U.L_C, U.L_L,
+    U.L_E, U.L_M, U.L_P, U.L_G
+local valid_type, byte_sum, str_sum, checksum_value = U.valid_type, U.byte_sum, U.str_sum, U.checksum_value
+local to_ordinal, pat_escape = U.to_ordinal, U.pat_escape
+
+------------------------------------------------------------------------------
+-- What parsing found in the current frame (P; read by state, info and tree), in reused arrays (no
+-- per-frame table churn):
+--   fields (FL letter byte, false = empty; FS/FE its first and last index in the frame), P.nf;
+--   FV/FC (tree: the variable starting at field i / a field a variable covers);
+--   variables: VT type text, VN name (false: positional), VV value (false: no D), VI index, VR is
+--   a reply; VTf/VQf/VDf the field numbers of T, Q/R, D (0: none), P.nv;
+-- and the facts (parse_reset): n_ord/l_ord the N/L ordinals (n_text: N's text); has_e..has_r an
+-- E, M, P, G or R field; nq/nd Q and D fields; n_pos positional D fields, n_empty_d empty ones;
+-- cpos/ctext the checksum field's start and text (vlen: the values' total length, layout frames);
+-- cmd_start the first E/M field; ord_text N? or L? (a list request); layout: the cached layout
+-- that parsed the frame (else false), named: the same when it is a named one (else nil),
+-- fast_sum: the checksum computed with it; odd: a field whose tree item carries an expert info
+-- (an empty field, an unknown letter, an ordinal or type that is not a number); limit: why the
+-- frame is past a limit its fields alone tell (a "Limit exceeded: ..." text), else false.
+------------------------------------------------------------------------------
+local FL, FS, FE, FV, FC = {}, {}, {}, {}, {}
+local VT, VN, VV, VI, VR, VTf, VQf, VDf = {}, {}, {}, {}, {}, {}, {}, {}
+local P = { nv = 0, nf = 0, FL = FL, FS = FS, FE = FE, FV = FV, FC = FC, VT = VT, VN = VN, VV = VV, VI = VI,
+    VR = VR, VTf = VTf, VQf = VQf, VDf = VDf }
+
+-- The layout cache (per capture, reset by Pm.reset): mru: node pair -> its recent layouts, newest
+-- first (up to MAX_LAYOUTS: a compressed stream's deltas cycle through a few subsets of the
+-- variables); bylen: node pair * 65536 + frame length -> the layout that matched last (nbylen
+-- entries).
+local LY = {}
+local MAX_LAYOUTS = 8
+local Pm = { P = P, LY = LY }
+function Pm.reset()
+    LY.mru, LY.bylen, LY.nbylen = {}, {}, 0
+end
+Pm.reset()
+
+-- For tests: SHAREDLINK_NO_FAST=1 turns the layout cache off (every frame parsed field by field),
+-- SHAREDLINK_FAST_MARK=1 marks the Info of the packets it parsed ("[fast] "; fast_hit: one of the
+-- packet's frames).
+local FAST = not wsapi.env.no_fast
+local MARKS = { fast = wsapi.env.fast_mark, fast_hit = false }
+
+local function parse_reset()
+    P.nf, P.nv = 0, 0
+    P.n_ord, P.l_ord, P.n_text = nil, nil, nil
+    P.has_e, P.has_m, P.has_p, P.has_g, P.has_r = false, false, false, false, false
+    P.nq, P.nd, P.n_empty_d, P.n_pos = 0, 0, 0, 0
+    P.cpos, P.ctext, P.cmd_start, P.ord_text = nil, nil, nil, false
+    P.layout, P.named, P.fast_sum, P.filled = false, nil, nil, nil
+    P.odd, P.limit = false, false
+end
+
+-- The header: last index of the content, the address bytes (nil when cut short), the index of
+-- the first field (nil: none), and why the frame is malformed (nil: it is not).
+local function parse_header(f, fl, terminated)
+    local malformed_msg = nil
+    if not terminated then malformed_msg = "Unterminated frame (no closing ])" end
+    local bodyend = terminated and fl - 1 or fl
+    local dstb, srcb = s_byte(f, 3), s_byte(f, 4)
+    if bodyend < 3 then dstb = nil end
+    if bodyend < 4 then srcb = nil end
+    local p
+    if bodyend < 5 then
+        p = nil
+        if not malformed_msg and not srcb then malformed_msg = "Frame too short for a header" end
+    elseif s_byte(f, 5) == B_PIPE then
+        p = 6
+    else
+        local q = s_find(f, "|", 5, true)
+        p = q and q + 1 or nil
+        if not malformed_msg then malformed_msg = "Expected | after the addresses" end
+    end
+    return bodyend, dstb, srcb, p, malformed_msg
+end
+
+------------------------------------------------------------------------------
+-- The parser: every field from p on, in one pass, recorded with its place; variables gathered as
+-- T/Q/R/D come.  The state of the pass (upvalues, reset by general_reset): g_t/g_tf a pending T's
+-- text and field, g_q/g_qf a pending Q or R name and field, g_r: it is an R, g_idx the next
+-- variable's index.
+------------------------------------------------------------------------------
+local g_t, g_tf, g_q, g_qf, g_r, g_idx
+
+-- A variable (type text, name, value, is reply; its T, Q/R and D field numbers).
+local function add_var(t, q, v, r, tf, qf, df)
+    local nv = P.nv + 1
+    P.nv = nv
+    VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = t, q, v, g_idx, r
+    VTf[nv], VQf[nv], VDf[nv] = tf, qf, df
+end
+
+-- A complete T/Q/D triplet at p (t1 |Q t2 |D t3, ending at fe).
+local function take_triplet(p, fe, t1, t2, t3)
+    local nf = P.nf
+    add_var(t1, t2, t3, false, nf + 1, nf + 2, nf + 3)
+    g_idx = g_idx + 1
+    P.nq, P.nd = P.nq + 1, P.nd + 1
+    if not valid_type(t1) then P.odd = true end
+    local q1 = p + #t1 + 2
+    local d1 = q1 + #t2 + 2
+    FL[nf + 1], FS[nf + 1], FE[nf + 1] = L_T, p, q1 - 2
+    FL[nf + 2], FS[nf + 2], FE[nf + 2] = L_Q, q1, d1 - 2
+    FL[nf + 3], FS[nf + 3], FE[nf + 3] = L_D, d1, fe
+    P.nf = nf + 3
+    g_t = false
+end
+
+-- A D field (text t1, field nf): a variable's value, or a command's argument.
+local function take_data(t1, nf)
+    P.nd = P.nd + 1
+    if P.has_e or P.has_m then return end
+    add_var(g_t, g_q, t1, g_r, g_tf, g_qf, nf)
+    if not g_q then
+        P.n_pos = P.n_pos + 1
+        if t1 == "" then P.n_empty_d = P.n_empty_d + 1 end
+    end
+    g_idx = g_idx + 1
+    g_t, g_q, g_r, g_tf, g_qf = false, false, false, 0, 0
+end
+
+-- A pending Q or R with no D (a declared or queried name) before a new Q, R or T.
+local function flush_name()
+    add_var(g_t, g_q, false, g_r, g_tf, g_qf, 0)
+    g_idx = g_idx + 1
+end
+
+-- An N or L field's text as the tree shows it without an expert: a number 0 .. 2^32-1.
+local function ordinal_ok(text)
+    local n = tonumber(text)
+    return n and n >= 0 and n < 4294967296 and n == floor(n)
+end
+
+-- An N or L field: its ordinal sets the next variable's index (the first one of each only).
+local function take_ordinal(c, t1)
+    if not ordinal_ok(t1) then P.odd = true end
+    if #t1 > 9 and not s_find(t1, "[^0-9]") then
+        P.odd, P.limit = true, "Limit exceeded: " .. (c == L_N and "N" or "L") .. " has more than 9 digits"
+    end
+    if c == L_N then
+        if P.n_ord then return end
+        P.n_ord, P.n_text = to_ordinal(t1), t1
+        g_idx = P.n_ord
+    else
+        if P.l_ord then return end
+        P.l_ord = to_ordinal(t1)
+        g_idx = P.l_ord
+    end
+    if not tonumber(t1) then P.ord_text = true end
+end
+
+-- One field other than a triplet: letter c at p, its text t1, ending at fe (field number nf).
+local function take_field(c, p, fe, t1, bodyend, nf)
+    if c == L_D then
+        take_data(t1, nf)
+    elseif c == L_Q or c == L_R then
+        if g_q then flush_name(); g_t, g_tf = false, 0 end
+        g_q, g_qf, g_r = t1, nf, c == L_R
+        if g_r then P.has_r = true else P.nq = P.nq + 1 end
+    elseif c == L_T then
+        if g_q then flush_name(); g_q, g_r, g_qf = false, false, 0 end
+        g_t, g_tf = t1, nf
+        if not valid_type(t1) then P.odd = true end
+    elseif c == L_N or c == L_L then
+        take_ordinal(c, t1)
+    elseif c == L_C and fe == bodyend then
+        P.cpos, P.ctext = p, t1
+    elseif c == L_E or c == L_M then
+        if c == L_E then P.has_e = true else P.has_m = true end
+        if not P.cmd_start then P.cmd_start = p end
+    elseif c == L_P then P.has_p = true
+    elseif c == L_G then P.has_g = true
+    else P.odd = true   -- an unknown letter, or C before the last field
+    end
+end
+
+-- The fields from p to bodyend.
+local function parse_fields(f, p, bodyend)
+    g_t, g_tf, g_q, g_qf, g_r, g_idx = false, 0, false, 0, false, 0
+    while p and p <= bodyend + 1 do
+        local c = s_byte(f, p)
+        local _, fe, t1, t2, t3
+        if c == L_T and not g_q then _, fe, t1, t2, t3 = s_find(f, "^T([^]|]*)|Q([^]|]*)|D([^]|]*)", p) end
+        if fe and fe <= bodyend then
+            take_triplet(p, fe, t1, t2, t3)
+            p = fe + 2
+        else
+            _, fe, t1 = s_find(f, "^[^]|]([^]|]*)", p)
+            if fe and fe > bodyend then fe = nil end
+            local nf = P.nf + 1
+            P.nf = nf
+            if not fe then   -- an empty field
+                FL[nf], FS[nf], FE[nf] = false, p, p - 1
+                P.odd = true
+                p = p + 1
+            else
+                FL[nf], FS[nf], FE[nf] = c, p, fe
+                take_field(c, p, fe, t1, bodyend, nf)
+                p = fe + 2
+            end
+        end
+    end
+    if g_q then add_var(g_t, g_q, false, g_r, g_tf, g_qf, 0) end
+end
+
+------------------------------------------------------------------------------
+-- The layout cache.  A layout is what a plain frame holds besides its values and its checksum
+-- text: addresses, N, and per variable T and Q (named), nothing (positional), or no variable at
+-- all (bare: [:AB|N0|Cxx]).  It is learnt from a frame the parser took whose fields carry no
+-- expert info; a later frame of the node pair with that layout is matched by one anchored
+-- pattern, and its captures go into P as the parser would have put them (the fields' places only
+-- for a shown tree: fast_positions).  A cache: whatever it holds, P is what the parser gives.
+-- Speed tricks (measured, summary pass): the layout's head up to its first value is found as
+-- plain text and the rest matched from there (a pattern matches text one character at a time);
+-- the layout that matched a frame of the same length is tried first (a compressed stream
+-- interleaves layouts of one prefix, and a pattern that fails late costs most of a match); the
+-- checksum is the layout's fixed sum plus one sum over the values joined (SUMS).
+------------------------------------------------------------------------------
+-- The value classes, written as ranges: a value is any byte but '|', ']', the control characters
+-- and DEL.  Speed trick (measured): the matcher tries a class's items in order and a digit is in
+-- the first range, where the negated forms ([^|%]\0-\31\127]) tried every item, escapes costing
+-- most (-1.6 and -2.0 thousand instructions a frame, summary pass).  A double-typed value: a plain
+-- decimal number only, which tonumber always takes (the tree needs no check for var.badvalue;
+-- other doubles, "1e5" or " 2", go to the parser).
+local VALUE = "([ -\\^-{}-~\128-\255]*)"
+local DOUBLE = "([-+]?%d+%.?%d*)"
+local CHECKSUM = "|C([^]|]*)%]"
+
+-- SUMS[n](v1, ..., vn, ctext) -> the values' total length, the sum of their bytes and ctext.
+-- Speed trick (measured): the values are summed as one string, one str_sum instead of one a
+-- value (-2.3 thousand instructions a frame, summary pass).
+local SUMS = { [0] = function(ctext) return 0, 0, ctext end }
+for n = 1, 8 do
+    local args = {}
+    for k = 1, n do args[k] = "v" .. k end
+    SUMS[n] = assert(load("local str_sum = ... return function(" .. t_concat(args, ", ") ..
+        ", ctext) local all = " .. t_concat(args, " .. ") .. " return #all, str_sum(all), ctext end",
+        "=SUMS", "t", {}))(str_sum)
+end
+
+-- The layout matching the frame f (fl: the index of its ']'), and its captures; nil: none.
+local function layout_match(f, fl, key)
+    local lk = key * 65536 + fl
+    local sh = LY.bylen[lk]
+    local c1, c2, c3, c4, c5, c6, c7, c8, c9
+    if sh and s_find(f, sh.head, 1, true) == 1 then
+        c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_match(f, sh.pat, sh.at)
+        if c1 then return sh, c1, c2, c3, c4, c5, c6, c7, c8, c9 end
+    end
+    local mru = LY.mru[key]
+    if not mru then return nil end
+    for k = 1, #mru do
+        sh = mru[k]
+        if s_find(f, sh.head, 1, true) == 1 then c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_match(f, sh.pat, sh.at) end
+        if c1 then
+            if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
+            if LY.nbylen >= 4096 then LY.bylen, LY.nbylen = {}, 0 end
+            if fl < 65536 then LY.bylen[lk], LY.nbylen = sh, LY.nbylen + 1 end
+            return sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
+        end
+    end
+    return nil
+end
+
+-- The fields' places in a frame the layout cache parsed (N, T/Q/D triplets or D fields, C), for
+-- a shown tree: the layout fixes every field but the values, whose lengths place the rest.
+local function fast_positions(sh)
+    local ntext, n, named = sh.ntext, sh.n, sh.named
+    FL[1], FS[1], FE[1] = L_N, 6, 6 + #ntext
+    local p, i = 8 + #ntext, 1
+    for k = 1, n do
+        if named then
+            local t, q = VT[k], VN[k]
+            FL[i + 1], FS[i + 1], FE[i + 1] = L_T, p, p + #t
+            p = p + #t + 2
+            FL[i + 2], FS[i + 2], FE[i + 2] = L_Q, p, p + #q
+            p = p + #q + 2
+            VTf[k], VQf[k] = i + 1, i + 2
+            i = i + 2
+        else
+            VTf[k], VQf[k] = 0, 0
+        end
+        local v = VV[k]
+        FL[i + 1], FS[i + 1], FE[i + 1] = L_D, p, p + #v
+        VDf[k] = i + 1
+        p = p + #v + 2
+        i = i + 1
+    end
+    FL[i + 1], FS[i + 1], FE[i + 1] = L_C, p, p + #P.ctext
+    P.nf = i + 1
+end
+
+-- A matched layout's captures (the values, then the checksum text) into P: its variables and the
+-- facts a layout's frame has (a data frame: N, then T/Q/D triplets or D fields, then C; the facts
+-- only other kinds have, has_e..has_r, l_ord, cmd_start, ord_text, are read for those alone).
+local function layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
+    local n = sh.n
+    VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
+    local vlen, sum, ctext = sh.sums(c1, c2, c3, c4, c5, c6, c7, c8, c9)
+    P.ctext, P.fast_sum, P.n_ord, P.n_text, P.vlen = ctext, (sh.fixed + sum) % 256, sh.ord, sh.ntext, vlen
+    if P.filled ~= sh then
+        -- the layout's names, types and indexes (kept while the next frames have its layout:
+        -- filled, cleared by the parser; speed trick, measured)
+        local st, sn, idx = sh.T, sh.N, sh.ord
+        for k = 1, n do
+            VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], idx, false
+            idx = idx + 1
+        end
+        P.filled = sh
+    end
+    P.nv, P.nd, P.layout, P.odd, P.limit = n, n, sh, false, false
+    if sh.named then
+        P.nq, P.n_pos, P.n_empty_d, P.named = n, 0, 0, sh
+        return
+    end
+    local n_empty_d = 0
+    for k = 1, n do if VV[k] == "" then n_empty_d = n_empty_d + 1 end end
+    P.nq, P.n_pos, P.n_empty_d, P.named = 0, n, n_empty_d, nil
+end
+
+------------------------------------------------------------------------------
+-- Learning a layout (from a frame the parser took).
+------------------------------------------------------------------------------
+-- A named layout's Info code, made once per pattern (kept for 256 patterns): info(v1, ..., vn) /
+-- dinfo(...) make the Info of a full frame / a delta (info_frame).  Speed trick (measured): the
+-- names and the Info's pieces are constants in the code, one concatenation, nothing looked up.
+local INFO_CODE, info_code_n = {}, 0
+local function info_code(pat, sn, pieces, dpieces)
+    local code = INFO_CODE[pat]
+    if not code then
+        local args, info, dinfo = {}, {}, {}
+        for k = 1, #sn do
+            args[k] = "v" .. k
+            info[2 * k - 1], info[2 * k] = string.format("%q", pieces[k]), args[k]
+            dinfo[2 * k - 1], dinfo[2 * k] = string.format("%q", dpieces[k]), args[k]
+        end
+        local vs = t_concat(args, ", ")
+        code = { assert(load("return function(" .. vs .. ") return " .. t_concat(info, " .. ") ..
+            " end, function(" .. vs .. ") return " .. t_concat(dinfo, " .. ") .. " end",
+            "=info_code", "t", {}))() }
+        if info_code_n >= 256 then INFO_CODE, info_code_n = {}, 0 end
+        INFO_CODE[pat], info_code_n = code, info_code_n + 1
+    end
+    return code[1], code[2]
+end
+
+-- Whether every variable of the parsed frame is a T/Q/D triplet with a valid type (named), or a
+-- D alone (positional).
+local function all_named()
+    for k = 1, P.nv do
+        if not (VT[k] and VN[k] and VV[k] and valid_type(VT[k])) or VR[k] then return false end
+    end
+    return true
+end
+local function all_positional()
+    for k = 1, P.nv do
+        if VT[k] or VN[k] or not VV[k] then return false end
+    end
+    return true
+end
+
+-- Which layout the parsed frame has: "named" (N, T/Q/D triplets, C), "positional" (N, D fields,
+-- C), "bare" (N0, C), or nil (none the cache keeps: at most 8 variables).
+local function layout_kind(f)
+    local nv, nf = P.nv, P.nf
+    if not (P.n_text and P.cpos) or P.ord_text or s_byte(f, 6) ~= L_N or nv > 8 then return nil end
+    if nv == 0 then return (nf == 2 and P.n_ord == 0) and "bare" or nil end
+    if nf == 3 * nv + 2 and P.n_pos == 0 and all_named() then return "named" end
+    if nf == nv + 2 and P.n_pos == nv and P.nq == 0 and not P.has_r and all_positional() then return "positional" end
+    return nil
+end
+
+-- The Info pieces of a named layout (sh) for info_code, and its Info's fixed lengths.
+local function named_info(sh, dstb, srcb)
+    local sn, nv = sh.N, sh.n
+    local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
+    local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
+    local first = " " .. s_gsub(sn[1], CTRL, "?") .. "="
+    local pieces, dpieces, ilen = { head .. first }, { dhead .. first }, #head
+    for k = 1, nv do
+        if k > 1 then
+            pieces[k] = " " .. s_gsub(sn[k], CTRL, "?") .. "="
+            dpieces[k] = pieces[k]
+        end
+        ilen = ilen + #sn[k] + 2
+    end
+    sh.info, sh.dinfo = info_code(sh.key, sn, pieces, dpieces)
+    sh.info_len, sh.dinfo_len = ilen, ilen + #dhead - #head
+end
+
+-- Whether a layout's types hold a long (whose values need parse_long to rule out var.badvalue).
+local function has_long(tv)
+    for k = 1, 8 do if tv[k] == 0 then return true end end
+    return false
+end
+
+-- A new layout from the parsed frame f of kind (layout_kind): its head, pattern and sums.
+local function new_layout(f, kind, dstb, srcb)
+    local nv = P.nv
+    local named = kind == "named"
+    local head = "[:" .. LETTER[dstb] .. LETTER[srcb] .. "|N" .. P.n_text
+    local st, sn, tv, parts = {}, {}, {}, {}
+    local fixed = byte_sum(f, 2, P.cpos)
+    for k = 1, nv do
+        local tq = ""
+        if named then
+            st[k], sn[k], tv[k] = VT[k], VN[k], valid_type(VT[k])
+            tq = "|T" .. VT[k] .. "|Q" .. VN[k]
+        end
+        if k == 1 then head = head .. tq .. "|D" else parts[k] = pat_escape(tq .. "|D") end
+        parts[k] = (parts[k] or "") .. (tv[k] == 2 and DOUBLE or VALUE)
+        fixed = fixed - str_sum(VV[k])
+    end
+    parts[nv + 1] = CHECKSUM
+    local sh = { head = head, at = #head + 1, pat = "^" .. t_concat(parts), n = nv, named = named, T = st, N = sn,
+        TV = named and tv or nil, has_long = named and has_long(tv), ord = P.n_ord, ntext = P.n_text,
+        fixed = fixed % 256, sums = SUMS[nv] }
+    sh.key = sh.head .. "\0" .. sh.pat
+    if named then named_info(sh, dstb, srcb) end
+    return sh
+end
+
+-- Remember the parsed frame's layout for the node pair (key); a layout known already comes first
+-- again, the same table (the direction's names_is compares the table's N).
+local function learn_layout(f, key, dstb, srcb)
+    local kind = layout_kind(f)
+    if not kind then return end
+    local sh = new_layout(f, kind, dstb, srcb)
+    local mru = LY.mru[key]
+    if not mru then mru = {}; LY.mru[key] = mru end
+    for k = 1, #mru do
+        if mru[k].key == sh.key then
+            if k > 1 then table.insert(mru, 1, table.remove(mru, k)) end
+            return
+        end
+    end
+    if #mru >= MAX_LAYOUTS then mru[#mru] = nil end
+    table.insert(mru, 1, sh)
+end
+
+------------------------------------------------------------------------------
+-- A frame: header, then the layout cache, else the parser (which teaches the cache).
+------------------------------------------------------------------------------
+-- A closed frame the layout cache has: matched and taken into P.  Its head (addresses A-P, N) is
+-- the layout's, so the frame needs no header check.  Returns its address bytes (nil: not taken).
+local function parse_cached(f, fl, vis)
+    local dstb, srcb = s_byte(f, 3, 4)
+    if not srcb or fl < 6 then return nil end
+    local sh, c1, c2, c3, c4, c5, c6, c7, c8, c9 = layout_match(f, fl, dstb * 256 + srcb)
+    if not sh then return nil end
+    layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
+    if vis then fast_positions(sh) end
+    if MARKS.fast then MARKS.fast_hit = true end
+    return dstb, srcb
+end
+
+-- Parse a frame.  Returns the last index of the content, the address bytes and why it is
+-- malformed (nil: it is not).  vis: a shown tree (it needs the fields' places).
+local function parse_frame(f, fl, terminated, vis)
+    if FAST and terminated then
+        local dstb, srcb = parse_cached(f, fl, vis)
+        if dstb then return fl - 1, dstb, srcb, nil end
+    end
+    parse_reset()
+    local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)
+    if p then parse_fields(f, p, bodyend) end
+    -- positional slots and declared entries at or past max_slots (their state is dropped)
+    local max_slots = cfg.LIM.max_slots
+    if P.nv > 0 and VI[P.nv] >= max_slots and not P.limit then
+        P.odd, P.limit = true, "Limit exceeded: a slot or ordinal at or past " .. max_slots .. " (max_slots)"
+    end
+    -- a node pair's frame whose fields carry no expert info teaches the cache its layout
+    if p == 6 and not malformed_msg and not P.odd and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P then
+        learn_layout(f, dstb * 256 + srcb, dstb, srcb)
+    end
+    return bodyend, dstb, srcb, malformed_msg
+end
+
+-- Checksum verdict, before the state (a frame with a bad checksum changes no state): the
+-- value of the checksum text (nil: not hex), the calculated value, the status (1 good, 0 bad,
+-- 2 unverified; nil: no C field).
+local function checksum_verdict(f, bodyend)
+    local ctext = P.ctext
+    if P.layout then P.cpos = bodyend - #ctext end   -- a layout's pattern ends in |C<ctext>]
+    local cpos = P.cpos
+    if not cpos then return nil, nil, nil end
+    local cs_val = checksum_value(ctext)
+    if not cfg.validate then return cs_val, nil, 2 end
+    local cs_calc = P.fast_sum or byte_sum(f, 2, cpos) % 256
+    return cs_val, cs_calc, (cs_val == cs_calc) and 1 or 0
+end
+
+-- The kind the fields alone tell; a data frame (full or delta, told by the state) gives nil, true.
+local function kind_of_fields(malformed_msg)
+    if P.layout then return nil, true end   -- a layout's frame is a data frame
+    if malformed_msg then return "malformed", false end
+    if P.has_e or P.has_m then return "command", false end
+    if P.has_p then return "ping", false end
+    if P.has_g then return "pong", false end
+    if P.has_r then return "reply", false end
+    local nd, nq, ord_text = P.nd, P.nq, P.ord_text
+    if nd == 0 and nq > 0 and (P.l_ord or P.n_ord) and not ord_text then return "declaration", false end
+    if nd == 0 and (nq > 0 or ord_text) then return "query", false end
+    if nd > 0 or P.n_ord then return nil, true end
+    return "other", false
+end
+
+Pm.parse_frame, Pm.fast_positions, Pm.checksum_verdict, Pm.kind_of_fields, Pm.MARKS =
+    parse_frame, fast_positions, checksum_verdict, kind_of_fields, MARKS
+return Pm

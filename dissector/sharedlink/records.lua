@@ -1,0 +1,204 @@
+-- SharedLink dissector module: records, what the first pass leaves for later passes about a frame
+-- (get_rec), carried-only records packed as text lines (carried_store).  Loaded by sharedlink.lua
+-- (load_module); Wireshark also runs every .lua file of a plugin folder's subfolders as a plugin of
+-- its own: this file then does nothing.
+
+local token = ...
+if type(token) ~= "table" or token.sharedlink_module ~= true then return end
+
+local s_find, s_sub = string.find, string.sub
+local tostring, tonumber = tostring, tonumber
+local floor = math.floor
+local t_concat = table.concat
+
+local R = {}
+local recs          -- frame number -> { [subkey] = record }
+local cr_pend, cr_npend, cr_npieces, cr_pend_first, cr_store, cr_first  -- packed carried records
+local sk_str, sk_str_n       -- frame key -> its text, for them
+
+-- per-capture state (init)
+function R.reset()
+    recs = {}
+    cr_pend, cr_npend, cr_npieces, cr_pend_first, cr_first = {}, 0, 0, 0, {}
+    cr_store = { bytes = nil, size = 0, off = {}, len = {}, last = 0, last_text = nil }
+    sk_str, sk_str_n = {}, 0
+end
+R.reset()
+
+-- Per-frame record, kept only for frames that need one.  recs[num] is the record
+-- itself (rec.sk identifies the frame within the packet) or, when several frames of
+-- one packet have records, a table sk -> record.  A record's array part holds the
+-- carried values of its empty D fields: value, frame, value, frame, ...
+local CARRY = {}
+R.CARRY = CARRY   -- carried values of the current frame: value, frame, value, frame, ...
+local MISS = {}
+R.MISS = MISS    -- named variables missing from the current frame: name, value, frame, ...
+local CPARTS = {}
+
+-- Carried-only records (the bulk of a compressed stream) are kept as text lines
+-- "num|sk|value|frame|value|frame..." (a D value never holds "|" or a line break;
+-- "" = none; a carried named value is stored as "=" .. value, as it may be ""),
+-- packed 256 to a string: Wireshark runs full Lua garbage collections
+-- during a capture, and their cost grows with the number of live Lua objects.
+local FROM_STR, from_str_n = {}, 0   -- frame number -> its text (the carried values' frames)
+local function from_text(fr)
+    if not fr then return "" end
+    local t = FROM_STR[fr]
+    if not t then
+        if from_str_n >= 4096 then FROM_STR, from_str_n = {}, 0 end
+        t = tostring(fr)
+        FROM_STR[fr] = t
+        from_str_n = from_str_n + 1
+    end
+    return t
+end
+
+-- The text of a frame key (sk), kept for the few a capture has.
+local function sk_text(sk)
+    local sks = sk_str[sk]
+    if not sks then
+        sks = tostring(sk)
+        if sk_str_n < 4096 then sk_str[sk] = sks; sk_str_n = sk_str_n + 1 end
+    end
+    return sks
+end
+
+-- Record lines wait in cr_pend as pieces, each line ending in "\n" (cr_npend lines, cr_npieces
+-- pieces), and are packed 256 to a chunk "\n" .. lines.  Speed trick (measured, compressed
+-- capture): the chunks are kept in one ByteArray (cr_store), outside the Lua heap, as the
+-- collector's pace follows the heap's live size: kept as Lua strings, they made every
+-- collection rarer and each one sweep more garbage, a cost to every allocation of the pass
+-- (-2.6 us a frame).  cr_store.off/len: chunk i's place in it; last/last_text: the chunk read last.
+local function carried_flush()
+    if cr_npend == 0 then return end
+    local text = "\n" .. t_concat(cr_pend, "", 1, cr_npieces)
+    local st = cr_store
+    if not st.bytes then st.bytes = ByteArray.new() end
+    st.bytes:append(ByteArray.new(text, true))
+    local i = #st.off + 1
+    st.off[i], st.len[i], st.size = st.size, #text, st.size + #text
+    cr_first[i] = cr_pend_first
+    cr_npend, cr_npieces = 0, 0
+end
+
+-- The text of chunk i.
+local function carried_chunk(i)
+    local st = cr_store
+    if st.last ~= i then st.last, st.last_text = i, st.bytes:raw(st.off[i], st.len[i]) end
+    return st.last_text
+end
+
+-- Frame num's record line has been put in cr_pend after the pieces already there, ending with
+-- its "\n" at index i (carried_store: the line and "\n").
+local function carried_line_end(num, i)
+    if cr_npend == 0 then cr_pend_first = num end
+    cr_npieces, cr_npend = i, cr_npend + 1
+    if cr_npend >= 256 then carried_flush() end
+end
+
+-- The named part of a line: name|value|frame|... for the nm/3 triples in MISS.
+local function carried_names_text(nm, n)
+    for k = 1, nm, 3 do
+        -- a named value can be "" (an empty D, rule 3): present values are stored as
+        -- "=" .. value so that "" still means none
+        local v = MISS[k + 1]
+        CPARTS[n + 1], CPARTS[n + 2], CPARTS[n + 3] = MISS[k], v and ("=" .. v) or "", from_text(MISS[k + 2])
+        n = n + 3
+    end
+    return n
+end
+
+-- Line: num|sk|kind|ne|value|frame|...(ne/2 pairs)|name|value|frame|...(nm/3 triples)
+local function carried_store(num, sk, ne, nm, kind)
+    CPARTS[1], CPARTS[2], CPARTS[3], CPARTS[4] = num, sk_text(sk), kind, ne == 0 and "0" or ne
+    local n = 4
+    for k = 1, ne, 2 do
+        CPARTS[n + 1], CPARTS[n + 2] = CARRY[k] or "", from_text(CARRY[k + 1])
+        n = n + 2
+    end
+    n = carried_names_text(nm, n)
+    local line = t_concat(CPARTS, "|", 1, n)
+    if s_find(line, "\n", 1, true) then return false end   -- a line break in a value: a table record
+    local i = cr_npieces
+    cr_pend[i + 1], cr_pend[i + 2] = line, "\n"
+    carried_line_end(num, i + 2)
+    return true
+end
+
+local function carried_parse(line)
+    local rec = {}
+    local parts, n = CPARTS, 0
+    local p = 1
+    while true do
+        local q = s_find(line, "|", p, true)
+        n = n + 1
+        parts[n] = s_sub(line, p, (q or 0) - 1)
+        if not q then break end
+        p = q + 1
+    end
+    rec.sk = tonumber(parts[2])
+    rec.kind = parts[3]
+    local ne = tonumber(parts[4]) or 0
+    for k = 1, ne, 2 do
+        local v = parts[k + 4]
+        rec[k] = v ~= "" and v or false
+        rec[k + 1] = tonumber(parts[k + 5]) or false
+    end
+    local i = ne + 5
+    if i + 2 <= n then
+        local miss = {}
+        while i + 2 <= n do
+            local v = parts[i + 1]
+            miss[#miss + 1] = parts[i]
+            miss[#miss + 1] = v ~= "" and s_sub(v, 2) or false
+            miss[#miss + 1] = tonumber(parts[i + 2]) or false
+            i = i + 3
+        end
+        rec.miss = miss
+    end
+    return rec
+end
+
+local function carried_lookup(num, sk)
+    if cr_npend > 0 and num >= cr_pend_first then carried_flush() end
+    -- last chunk whose first frame is <= num
+    local lo, hi = 1, #cr_first
+    local found = nil
+    while lo <= hi do
+        local mid = floor((lo + hi) / 2)
+        if cr_first[mid] <= num then found = mid; lo = mid + 1 else hi = mid - 1 end
+    end
+    if not found then return nil end
+    local chunk = carried_chunk(found)
+    local a = s_find(chunk, "\n" .. num .. "|" .. sk .. "|", 1, true)
+    if not a then return nil end
+    local b = s_find(chunk, "\n", a + 1, true)
+    return carried_parse(s_sub(chunk, a + 1, b - 1))
+end
+
+local function get_rec(num, sk, create)
+    local r = recs[num]
+    if r == nil then
+        if not create then return carried_lookup(num, sk) end
+        r = { sk = sk }
+        recs[num] = r
+        return r
+    end
+    if r.sk == sk then return r end
+    if r.sk ~= nil then
+        if not create then return carried_lookup(num, sk) end
+        r = { [r.sk] = r }
+        recs[num] = r
+    end
+    local rec = r[sk]
+    if not rec then
+        if not create then return carried_lookup(num, sk) end
+        rec = { sk = sk }
+        r[sk] = rec
+    end
+    return rec
+end
+
+R.carried_store, R.get_rec = carried_store, get_rec
+
+return R

@@ -1,0 +1,598 @@
+-- SharedLink dissector module: state, what a direction remembers (values, names, lists, the sync clock, pending
+-- queries) and the one place that writes it on the first pass or reads it back on later ones.
+-- Loaded by sharedlink.lua (load_module); Wireshark also runs every .lua file of a plugin folder's
+-- subfolders as a plugin of its own: this file then does nothing.
+
+local token, M = ...
+if type(token) ~= "table" or token.sharedlink_module ~= true then return end
+
+local U, cfg, wsapi, tostring = M.util, M.prefs, M.wsapi, tostring
+local floor, valid_type, VT, VN = math.floor, U.valid_type, M.parse.P.VT, M.parse.P.VN
+local VV, VI, VR = M.parse.P.VV, M.parse.P.VI, M.parse.P.VR
+
+local P = M.parse.P
+local R = M.records
+local PG = wsapi.PG
+local get_rec, carried_store, CARRY, MISS = R.get_rec, R.carried_store, R.CARRY, R.MISS
+
+-- Per-capture state (reset by S.reset)
+local dirs          -- direction key -> direction state
+local pair_lists    -- "SD" letters -> learnt list
+local pending_q     -- query key -> record of the query frame
+local dir_cache_key, dir_cache_num, dir_cache_ports -- cache for the current packet
+local last_asrc, last_adst, last_pdir, last_akey     -- addresses of the last packet and their key
+local stamp_ctr = 0
+local S = {}
+function S.reset()
+    dirs, pair_lists, pending_q = {}, {}, {}
+    dir_cache_key, dir_cache_num, dir_cache_ports = nil, nil, 0
+    last_asrc, last_adst, last_pdir, last_akey = nil, nil, nil, nil
+end
+S.reset()
+
+------------------------------------------------------------------------------
+-- Direction state
+------------------------------------------------------------------------------
+-- vals/from: name -> last good value / its frame; names: named variables in the order first
+-- sent in a good frame, npos: name -> its index there, nfirst: name -> that frame;
+-- seen: name -> stamp of the last frame that had it; maxslot: highest positional slot that
+-- ever held a value; first/lastfull: times of the first frame and of the last good full one.
+local function new_dir()
+    return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, nkey = {}, seen = {}, maxslot = -1,
+        first = nil, lastfull = nil, list = nil }
+end
+
+-- Direction state for (src address, dst address, src port, dst port, letters).
+-- dirs[addresses][ports and letters as one number]; cheap on the per-frame path.
+local function get_dir(pinfo, num, dstb, srcb)
+    local byaddr
+    if dir_cache_num == num then
+        byaddr = dir_cache_key
+    else
+        -- the capture direction keeps the two directions of a serial line apart.  Speed
+        -- trick (measured): Address objects compare cheaper than they print, so the key
+        -- text is rebuilt only when the addresses differ from the previous packet's.
+        local pg = PG
+        local sport, dport = pg.src_port(pinfo), pg.dst_port(pinfo)
+        -- the capture direction only where no port tells the directions apart (a serial line);
+        -- a UDP/TCP flow is one direction whatever direction flags its link layer had
+        local asrc, adst = pg.src(pinfo), pg.dst(pinfo)
+        local pdir = (sport == 0 and dport == 0) and pg.p2p_dir(pinfo) or -1
+        local akey
+        if pdir == last_pdir and asrc == last_asrc and adst == last_adst then
+            akey = last_akey
+        else
+            akey = tostring(asrc) .. ">" .. tostring(adst) .. "/" .. pdir
+            last_asrc, last_adst, last_pdir, last_akey = asrc, adst, pdir, akey
+        end
+        byaddr = dirs[akey]
+        if not byaddr then
+            byaddr = {}
+            dirs[akey] = byaddr
+        end
+        dir_cache_key = byaddr
+        dir_cache_num = num
+        dir_cache_ports = (sport * 65536 + dport) * 65536
+    end
+    local key = dir_cache_ports + dstb * 256 + srcb
+    local d = byaddr[key]
+    if not d then
+        d = new_dir()
+        if cfg.LIM.ndirs >= cfg.LIM.max_conversations then d.over = true; return d end   -- kept nowhere
+        cfg.LIM.ndirs = cfg.LIM.ndirs + 1
+        byaddr[key] = d
+    end
+    return d
+end
+
+-- The same for the reverse direction (dst -> src) of the current packet.
+local function get_rev_dir(pinfo, dstb, srcb)
+    local sport, dport = pinfo.src_port, pinfo.dst_port
+    local pd = -1
+    if sport == 0 and dport == 0 then
+        pd = pinfo.p2p_dir
+        if pd == 0 or pd == 1 then pd = 1 - pd end
+    end
+    local akey = tostring(pinfo.dst) .. ">" .. tostring(pinfo.src) .. "/" .. pd
+    local byaddr = dirs[akey]
+    if not byaddr then
+        byaddr = {}
+        dirs[akey] = byaddr
+    end
+    local key = (dport * 65536 + sport) * 65536 + srcb * 256 + dstb
+    local d = byaddr[key]
+    if not d then
+        d = new_dir()
+        if cfg.LIM.ndirs >= cfg.LIM.max_conversations then d.over = true; return d end   -- kept nowhere
+        cfg.LIM.ndirs = cfg.LIM.ndirs + 1
+        byaddr[key] = d
+    end
+    return d
+end
+-- The journal: linear state for a direction with many names.  A direction with up to
+-- JOURNAL_NAMES names stores, for each frame that leaves some out, their values in the frame's
+-- record (cheap, few objects: see carried_store).  Past that, a copy per frame would grow with
+-- the names (quadratic), so the direction keeps instead, for each name, the values it took and
+-- the frames they came from (d.hist[name] = { key, value, key, value, ... }, a frame's key
+-- num * 2^20 + its offset in the packet: frames in capture order) and d.nkey, the key of the
+-- frame each name was first sent in (in the order of d.names); a later pass finds what a frame
+-- carried from them.  d.jkey: the key of the first frame judged by the journal.
+local JOURNAL_NAMES = 32
+local journal
+do
+    local function fkey(num, sk) return num * 1048576 + sk % 1048576 end
+
+    local function start(d, key)
+        local hist, vals, from = {}, d.vals, d.from
+        for _, name in ipairs(d.names) do
+            hist[name] = { (from[name] or 0) * 1048576, vals[name] or false }
+        end
+        d.hist, d.jkey = hist, key
+        cfg.LIM.journal = true
+        return hist
+    end
+
+    local function set(hist, name, key, val)
+        local h = hist[name]
+        if not h then h = {}; hist[name] = h end
+        local n = #h
+        if n > 0 and h[n - 1] == key then h[n] = val else h[n + 1], h[n + 2] = key, val end
+    end
+
+    -- the value name had before the frame of key (and its frame), false, false when none
+    local function get(h, key)
+        if not h then return false, false end
+        local lo, hi, found = 1, #h / 2, nil
+        while lo <= hi do
+            local mid = floor((lo + hi) / 2)
+            if h[2 * mid - 1] < key then found = mid; lo = mid + 1 else hi = mid - 1 end
+        end
+        if not found then return false, false end
+        return h[2 * found], floor(h[2 * found - 1] / 1048576)
+    end
+
+    -- how many names the direction knew at the frame of key (first sent at or before it)
+    local function known_at(d, key)
+        local nk = d.nkey
+        local lo, hi, found = 1, #nk, 0
+        while lo <= hi do
+            local mid = floor((lo + hi) / 2)
+            if nk[mid] <= key then found = mid; lo = mid + 1 else hi = mid - 1 end
+        end
+        return found
+    end
+
+    -- A later pass, a named data frame the journal judged: the number of names it carried, and
+    -- with fill, the names in MISS (name, value, frame, ...; nm entries) as the first pass had them.
+    local PRESENT, pstamp = {}, 0
+    local function missing(d, key, fill)
+        pstamp = pstamp + 1
+        local npos, nk, present = d.npos, d.nkey, 0
+        for v = 1, P.nv do
+            local name = VN[v]
+            if name and VV[v] and PRESENT[name] ~= pstamp then
+                local i = npos[name]
+                if i and nk[i + 1] <= key then present = present + 1 end
+                PRESENT[name] = pstamp
+            end
+        end
+        local known = known_at(d, key)
+        local nm = 0
+        if fill then
+            local names, hist = d.names, d.hist
+            for k = 1, known do
+                local name = names[k]
+                if PRESENT[name] ~= pstamp then
+                    local cv, cf = get(hist[name], key)
+                    MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, cv, cf
+                    nm = nm + 3
+                end
+            end
+        end
+        return known - present, nm
+    end
+    journal = { key = fkey, start = start, set = set, missing = missing }
+end
+
+-- state_first_pass and its helpers (a block, as parse_frame)
+local state_first_pass
+do
+    -- The state writer's facts about the current data frame (upvalues, set by data_values):
+    -- dv_stamp marks the names it has (d.seen), dv_present counts them (distinct known names),
+    -- dv_ne the carried values of its empty D fields in CARRY, dv_maxslot its highest positional
+    -- slot, dv_required: a slot that held a value is empty here.
+    local dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = 0, 0, 0, -1, false
+
+    -- A named value: a new name is learnt (good checksum, within max_names), a known one stored.
+    local function named_value(d, name, val, good, num, sk, hist, key)
+        local st = d.seen[name]
+        if not st and good then
+            local names = d.names
+            if #names < cfg.LIM.max_names then
+                names[#names + 1] = name
+                d.npos[name] = #names - 1
+                d.nfirst[name] = num
+                d.nkey[#names] = key or journal.key(num, sk)
+                d.names_is = nil
+                st = 0
+            else
+                -- a new name past max_names: no state
+                cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_names ..
+                    " names in this direction (max_names)"
+            end
+        end
+        if not st then return end
+        if good then
+            d.vals[name], d.from[name] = val, num
+            if hist then journal.set(hist, name, key, val) end
+        end
+        if st ~= dv_stamp then dv_present = dv_present + 1; d.seen[name] = dv_stamp end
+    end
+
+    -- A positional value at slot (named by list): stored, or carried when empty.
+    local function positional_value(d, list, slot, val, good, num)
+        local name = list[slot + 1] or ("#" .. slot)
+        if slot > dv_maxslot then dv_maxslot = slot end
+        if val == "" then
+            local cv = d.vals[name]
+            if cv then dv_required = true end
+            CARRY[dv_ne + 1], CARRY[dv_ne + 2] = cv or false, d.from[name] or false
+            dv_ne = dv_ne + 2
+        elseif good then
+            d.vals[name], d.from[name] = val, num
+            if slot > d.maxslot then d.maxslot = slot end
+        end
+    end
+
+    -- The direction's known names this frame left out, into MISS (name, value, frame, ...); returns
+    -- nm (MISS's entries) and how many.
+    local function missing_names(d)
+        local names, seen, vals, from = d.names, d.seen, d.vals, d.from
+        local nm, miss_n = 0, 0
+        for k = 1, #names do
+            local name = names[k]
+            if seen[name] ~= dv_stamp then
+                MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
+                nm = nm + 3
+                miss_n = miss_n + 1
+            end
+        end
+        return nm, miss_n
+    end
+
+    -- Every value of the frame into the state; returns nm and the number of named variables carried.
+    local function store_values(d, list, num, sk, good, has_tree, hist, key)
+        stamp_ctr = stamp_ctr + 1
+        dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = stamp_ctr, 0, 0, -1, false
+        local max_slots = cfg.LIM.max_slots
+        for v = 1, P.nv do
+            local val = VV[v]
+            if val then
+                local name = VN[v]
+                if name then
+                    named_value(d, name, val, good, num, sk, hist, key)
+                elseif VI[v] < max_slots then
+                    positional_value(d, list, VI[v], val, good, num)
+                end
+            end
+        end
+        if P.n_pos > 0 then
+            -- positional: required slots past the frame's last D
+            local vals = d.vals
+            for slot = dv_maxslot + 1, d.maxslot do
+                if vals[list[slot + 1] or ("#" .. slot)] then dv_required = true; break end
+            end
+            return 0, 0
+        end
+        if #d.names == 0 then return 0, 0 end
+        -- named: known variables missing from this frame (a journal: counted; listed only for a
+        -- tree, kept in no record)
+        if hist then return (has_tree and missing_names(d) or 0), #d.names - dv_present end
+        return missing_names(d)
+    end
+
+    -- The direction's known names a named layout leaves out, in the direction's order (nil: the
+    -- layout names one the direction does not know, or leaves none out), kept per layout until the
+    -- direction learns another name (speed trick, measured: a compressed stream's deltas).
+    local function known_subset(d, named)
+        local names = d.names
+        local cache = d.subsets
+        local sub = cache and cache[named]
+        if sub and sub.count == #names then return sub end
+        local npos, sn, in_layout = d.npos, named.N, {}
+        for k = 1, named.n do
+            if not npos[sn[k]] then return nil end
+            in_layout[sn[k]] = true
+        end
+        local miss = {}
+        for k = 1, #names do
+            if not in_layout[names[k]] then miss[#miss + 1] = names[k] end
+        end
+        if #miss == 0 then return nil end
+        if not cache then cache = {}; d.subsets = cache end
+        sub = { count = #names, names = miss }
+        cache[named] = sub
+        return sub
+    end
+
+    -- The carried names (a known subset's) into MISS: name, value, frame, ...; returns nm.
+    local function carried_subset(d, names)
+        local vals, from, nm = d.vals, d.from, 0
+        for k = 1, #names do
+            local name = names[k]
+            MISS[nm + 1], MISS[nm + 2], MISS[nm + 3] = name, vals[name] or false, from[name] or false
+            nm = nm + 3
+        end
+        return nm
+    end
+
+    -- A named layout's values into the direction (its names are known ones).
+    local function store_layout_values(d, num)
+        local vals, from = d.vals, d.from
+        for v = 1, P.nv do
+            local name = VN[v]
+            vals[name], from[name] = VV[v], num
+        end
+    end
+
+    -- State, first pass, a data frame: its values go into the direction's state (good checksum),
+    -- what it leaves out is gathered in CARRY (empty D fields: value, frame, ...; ne entries) and
+    -- MISS (named variables: name, value, frame, ...; nm entries).  Returns whether it is full,
+    -- ne, nm, the number of named variables carried, full_local (the verdict without state), and
+    -- whether the direction keeps a journal.
+    local function data_values(d, list, num, sk, good, full_local, has_tree)
+        local named = P.named
+        local hist, key = d.hist, nil
+        if hist or #d.names > JOURNAL_NAMES then
+            key = journal.key(num, sk)
+            if not hist and not d.over then hist = journal.start(d, key) end
+        end
+        if good and named and not hist then
+            -- a layout of known names: its values stored; the direction's other names carried
+            -- (none: the whole known set)
+            if d.names_is == named.N then
+                store_layout_values(d, num)
+                return full_local, 0, 0, 0, full_local, false
+            end
+            local sub = known_subset(d, named)
+            if sub then
+                store_layout_values(d, num)
+                return false, 0, carried_subset(d, sub.names), #sub.names, false, false
+            end
+        end
+        local nm, miss_n = store_values(d, list, num, sk, good, has_tree, hist, key)
+        if named and good and miss_n == 0 and #d.names == named.n then d.names_is = named.N end
+        local n_ord = P.n_ord
+        local full = P.nd > 0 and (n_ord == nil or n_ord == 0) and not dv_required and miss_n == 0
+        if P.n_pos == 0 then full_local = full_local and miss_n == 0 end
+        return full, dv_ne, nm, miss_n, full_local, hist ~= nil
+    end
+
+    -- State, first pass, a data frame: the sync clock, and the record later passes read (late
+    -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
+    -- The sync clock: a full frame (good checksum) sets it; a delta past the interval is late
+    -- (returns its age, else nil).
+    local function sync_clock(pinfo, d, full, good)
+        local now = PG.rel_ts(pinfo)
+        local first = d.first
+        if not first then first = now; d.first = now end
+        if full then
+            if good then d.lastfull = now end
+            return nil
+        end
+        local age = now - (d.lastfull or first)
+        if age > cfg.sync then return age end
+        return nil
+    end
+
+    -- The carried values of empty D fields (CARRY, ne) and named ones (MISS, nm) into a table record.
+    local function carried_record(rec, ne, nm)
+        for k = 1, ne do rec[k] = CARRY[k] end
+        if nm > 0 then
+            local miss = {}
+            for k = 1, nm do miss[k] = MISS[k] end
+            rec.miss = miss
+        end
+    end
+
+    local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
+        local rec = cfg.LIM.hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
+        local late = sync_clock(pinfo, d, full, good)
+        if late then
+            rec = rec or get_rec(num, sk, true)
+            rec.late = late
+        end
+        local kch = full and "f" or "d"
+        -- carried values of empty D fields: a packed text record unless the
+        -- frame has a table record anyway
+        if ne > 0 or nm > 0 then
+            if rec or not carried_store(num, sk, ne, nm, kch) then
+                rec = rec or get_rec(num, sk, true)
+                carried_record(rec, ne, nm)
+            end
+        elseif full ~= full_local then
+            rec = rec or get_rec(num, sk, true)
+        end
+        if rec then rec.kind = kch end
+        return rec, full and "full" or "delta"
+    end
+
+    -- State, first pass, a declaration with a good checksum: the list it declares.
+    local function learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
+        local l_ord, n_ord = P.l_ord, P.n_ord
+        local dd, rl
+        if l_ord then
+            -- the sender's inbound list = the list used from dst to src
+            dd = get_rev_dir(pinfo, dstb, srcb)
+            rl = dst .. src
+        else
+            dd = get_dir(pinfo, num, dstb, srcb)
+            rl = letters
+        end
+        local base_list = dd.list or pair_lists[rl] or cfg.list
+        local newlist = {}
+        local types = {}
+        newlist.t = types
+        local start = l_ord or n_ord or 0
+        for k = 1, math.min(start, #base_list) do
+            newlist[k] = base_list[k]
+            types[k] = base_list.t and base_list.t[k]
+        end
+        local maxi = #newlist
+        for v = 1, P.nv do
+            if VN[v] and VI[v] < cfg.LIM.max_slots then
+                newlist[VI[v] + 1] = VN[v]
+                types[VI[v] + 1] = VT[v] and valid_type(VT[v]) or nil
+                if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
+            end
+        end
+        for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
+        dd.list = newlist
+        pair_lists[rl] = newlist
+    end
+
+    -- State, first pass: a query or declaration waits for its reply; a reply finds its query.
+    local function link_query_reply(pinfo, num, sk, kind, dst, src, rec)
+        local pa, pb = pinfo.src_port, pinfo.dst_port
+        if pa > pb then pa, pb = pb, pa end
+        local ports = ":" .. pa .. "-" .. pb
+        for v = 1, P.nv do
+            local name = VN[v]
+            if name then
+                if VR[v] then
+                    rec = rec or get_rec(num, sk, true)
+                    local qkey = dst .. ">" .. src .. ":" .. name .. ports
+                    local qrec = pending_q[qkey]
+                    if qrec then
+                        pending_q[qkey] = nil
+                        local ck = dst .. ">" .. src .. ports
+                        cfg.LIM.npend[ck] = (cfg.LIM.npend[ck] or 1) - 1
+                        qrec.resp_in = qrec.resp_in or {}
+                        qrec.resp_in[name] = num
+                        rec.resp_to = rec.resp_to or {}
+                        rec.resp_to[name] = qrec.num
+                        rec.rt = rec.rt or {}
+                        rec.rt[name] = pinfo.rel_ts - qrec.t
+                    else
+                        rec.unmatched = rec.unmatched or {}
+                        rec.unmatched[name] = true
+                    end
+                elseif kind ~= "reply" then
+                    rec = rec or get_rec(num, sk, true)
+                    rec.num = num
+                    rec.t = pinfo.rel_ts
+                    local qkey, ck = src .. ">" .. dst .. ":" .. name .. ports, src .. ">" .. dst .. ports
+                    if pending_q[qkey] then
+                        pending_q[qkey] = rec
+                    elseif (cfg.LIM.npend[ck] or 0) < cfg.LIM.max_pending then
+                        pending_q[qkey] = rec
+                        cfg.LIM.npend[ck] = (cfg.LIM.npend[ck] or 0) + 1
+                    else
+                        cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_pending ..
+                            " unanswered queries in this conversation (max_pending)"
+                    end
+                end
+            end
+        end
+        return rec
+    end
+
+    -- The list in use in direction d (src to dst); when it changes, the change is remembered (read
+    -- back on later passes: list_at).
+    local function list_in_use(d, num, sk, src, dst)
+        local list = d.list
+        if not list then
+            local letters = d.letters   -- src .. dst, made once a direction
+            if not letters then letters = src .. dst; d.letters = letters end
+            list = pair_lists[letters] or cfg.list
+        end
+        if list ~= (d.used_list or cfg.list) then
+            local h = d.uhist
+            if not h then h = {}; d.uhist = h end
+            h[#h + 1] = num
+            h[#h + 1] = sk
+            h[#h + 1] = list
+            d.used_list = list
+        end
+        return list
+    end
+
+    local LINKED = { query = true, reply = true, declaration = true }   -- kinds a query/reply link concerns
+
+    -- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
+    -- direction state (data frames), the named variables carried, and ne/nm (see data_values).
+    function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, addrs_ok, full_local,
+                              has_tree)
+        local rec, list, d = nil, cfg.list, nil
+        local miss_n, ne, nm = 0, 0, 0
+        cfg.LIM.hit = false
+        if (is_data or kind == "malformed") and addrs_ok then
+            d = get_dir(pinfo, num, dstb, srcb)
+            if d.over then
+                cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_conversations .. " directions with state" ..
+                    " (max_conversations); this one keeps none"
+            end
+            list = list_in_use(d, num, sk, src, dst)
+            if is_data then
+                local full, journaled
+                full, ne, nm, miss_n, full_local, journaled = data_values(d, list, num, sk, good, full_local, has_tree)
+                -- a journal's carried names go in no record (see journal)
+                rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm)
+            end
+        elseif kind == "declaration" and addrs_ok and good then
+            learn_declaration(pinfo, num, dstb, srcb, dst, src, src .. dst)
+        end
+        if LINKED[kind] and addrs_ok and good then
+            rec = link_query_reply(pinfo, num, sk, kind, dst, src, rec)
+        end
+        if cfg.LIM.hit then
+            rec = rec or get_rec(num, sk, true)
+            rec.limit = cfg.LIM.hit
+        end
+        return kind, rec, list, d, miss_n, ne, nm
+    end
+end
+
+-- The list in use at frame (num, sk) on the first pass, from the direction's history of changes.
+-- The entries (num, sk, list) are in capture order: a binary search (linear time over a pass).
+local function list_at(d, num, sk)
+    local h = d.uhist
+    if not h then return cfg.list end
+    local lo, hi, found = 1, #h / 3, nil
+    while lo <= hi do
+        local mid = floor((lo + hi) / 2)
+        local hn = h[3 * mid - 2]
+        if hn < num or (hn == num and h[3 * mid - 1] <= sk) then found = mid; lo = mid + 1 else hi = mid - 1 end
+    end
+    return found and h[3 * found] or cfg.list
+end
+
+-- A data frame's kind on a later pass: the record's, else the verdict without state.
+local function data_kind(rec, full_local, miss_n)
+    if rec and rec.kind then return rec.kind == "f" and "full" or "delta" end
+    return (full_local and miss_n == 0) and "full" or "delta"
+end
+
+-- State on a later pass: the record, and the list in use at this frame on the first pass
+-- (looked up only where it names something: positional values, or a tree to show indexes).
+local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local, has_tree)
+    local rec = get_rec(num, sk, false)
+    local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
+    local nm = 0
+    local list, d = cfg.list, nil
+    if (is_data or kind == "malformed") and addrs_ok and (has_tree or P.n_pos > 0 or cfg.LIM.journal) then
+        d = get_dir(pinfo, num, dstb, srcb)
+        list = list_at(d, num, sk)
+        -- a named frame the journal judged: what it carried, from the journal
+        if is_data and d.jkey and P.n_pos == 0 then
+            local key = journal.key(num, sk)
+            if key >= d.jkey then miss_n, nm = journal.missing(d, key, has_tree) end
+        end
+    end
+    if is_data then kind = data_kind(rec, full_local, miss_n) end
+    return kind, rec, list, d, miss_n, nm
+end
+
+S.get_dir, S.list_at, S.journal, S.JOURNAL_NAMES = get_dir, list_at, journal, JOURNAL_NAMES
+S.state_first_pass, S.state_later_pass = state_first_pass, state_later_pass
+return S

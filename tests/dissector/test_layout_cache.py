@@ -1,0 +1,178 @@
+"""The layout cache in front of sharedlink's parser (dissector/sharedlink/parse.lua) stands in
+for it: whatever frames it takes, everything after it comes out as if the parser had taken them.
+
+Every frame goes one route (parse, checksum, state, Info, tree), in any pass: no tree (tshark's
+summary pass), a tree nobody sees (-Y, coloring rules) or a shown tree (-V, -T pdml, the GUI's
+details).  In front of the parser, a frame with the layout of one its node pair sent before
+(named, positional or bare) is matched by that layout's pattern, which fills the same arrays and
+facts, the fields' places included for a shown tree.  SHAREDLINK_NO_FAST=1 turns the cache off
+(every frame parsed field by field); SHAREDLINK_FAST_MARK=1 marks the Info of the packets it
+took, to show that it ran at all.  The state, records, Info and trees, which the frames after it
+and a second pass (-2, -2 -V) read, must be the same both ways.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from sl_captures import write_capture
+from sl_vectors import load_streams, stream_ids, write_stream
+
+import tshark_util as tu
+
+REPO = Path(__file__).resolve().parents[2]
+OTHERS = [a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua"
+          for a in ("-X", f"lua_script:{s}")]
+MARK = "[fast] "
+
+# beacon streams the cache is for, and the ways out of it: bad checksums, dropped frames, late
+# sync (full frames every 3 s), positional values, serial records, TCP segments
+GEN = {
+    "full": ["--frames", "120"],
+    "compressed": ["--frames", "200", "--compress"],
+    "compressed-faults": ["--frames", "300", "--compress", "--bad-checksum", "0.1", "--drop", "0.1"],
+    "late-sync": ["--frames", "150", "--compress", "--sync-interval", "3"],
+    "positional": ["--frames", "100", "--compress", "--form", "positional"],
+    "serial": ["--frames", "80", "--compress", "--transport", "serial", "--noise", "0.05"],
+    "other-pair": ["--frames", "60", "--compress", "--src", "C", "--dst", "D"],
+}
+STREAMS = load_streams()
+# filters on fields of the frame, of its variables and of its carried variables
+FILTERS = ['sharedlink.kind == "delta" && sharedlink.checksum.status == 1',
+           "sharedlink.crlf.missing || sharedlink.sync.is_late",
+           "sharedlink.var.double > 40 && sharedlink.var.index == 1",
+           'sharedlink.var.carried_from > 1 && sharedlink.var.name == "AutoGpsHead"',
+           "count(sharedlink.var) == 4 && sharedlink.checksum.calculated > 0"]
+
+
+def _outputs(cap: Path, monkeypatch: pytest.MonkeyPatch, *, cache: bool, short: bool = False) -> dict[str, str]:
+    with monkeypatch.context() as m:
+        if not cache:
+            m.setenv("SHAREDLINK_NO_FAST", "1")
+        if short:   # the passes that differ most: no tree, a shown one (two passes), a hidden one
+            return {
+                "one pass": tu.tshark(cap, [*OTHERS], two_pass=False).stdout,
+                "two passes, tree": tu.tshark(cap, ["-V", *OTHERS], two_pass=True).stdout,
+                f"filter {FILTERS[0]}": tu.tshark(cap, ["-Y", FILTERS[0], *OTHERS], two_pass=False).stdout,
+            }
+        return {
+            "one pass": tu.tshark(cap, [*OTHERS], two_pass=False).stdout,
+            "two passes": tu.tshark(cap, [*OTHERS], two_pass=True).stdout,
+            "two passes, tree": tu.tshark(cap, ["-V", *OTHERS], two_pass=True).stdout,
+            # a shown tree, every item's place and size (hidden ones too)
+            "one pass, tree": tu.tshark(cap, ["-V", *OTHERS], two_pass=False).stdout,
+            "pdml": "\n".join(x for x in tu.tshark(cap, ["-T", "pdml", *OTHERS], two_pass=False).stdout.splitlines()
+                              if not x.startswith("<pdml ")),   # its line holds the time it ran
+            # a tree nobody sees: the compact form
+            **{f"filter {f}": tu.tshark(cap, ["-Y", f, *OTHERS], two_pass=False).stdout for f in FILTERS},
+            "two passes, filter": tu.tshark(cap, ["-Y", FILTERS[0], *OTHERS], two_pass=True).stdout,
+            "filter, tree": tu.tshark(cap, ["-V", "-Y", FILTERS[2], *OTHERS], two_pass=False).stdout,
+        }
+
+
+def _same_both_ways(cap: Path, monkeypatch: pytest.MonkeyPatch, short: bool = False) -> None:
+    on, off = _outputs(cap, monkeypatch, cache=True, short=short), _outputs(cap, monkeypatch, cache=False, short=short)
+    for how in on:
+        assert on[how] == off[how], how
+    assert on["one pass"] and on["two passes, tree"]
+
+
+def _marked(cap: Path, monkeypatch: pytest.MonkeyPatch, args: list[str], two_pass: bool = False) -> list[str]:
+    with monkeypatch.context() as m:
+        m.setenv("SHAREDLINK_FAST_MARK", "1")
+        out = tu.tshark(cap, [*args, *OTHERS], two_pass=two_pass).stdout
+    return [x for x in out.splitlines() if MARK in x]
+
+
+@pytest.mark.parametrize("name", sorted(GEN))
+def test_cache_leaves_what_the_parser_leaves(name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    cap = tmp_path / f"{name}.pcap"
+    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--seed", "7", *GEN[name], str(cap)],
+                   check=True, capture_output=True)
+    _same_both_ways(cap, monkeypatch)
+    # and it ran: dozens of the packets of a shown tree took it
+    assert len(_marked(cap, monkeypatch, ["-V", "-P"])) >= 20, name
+
+
+@pytest.mark.parametrize("stream", STREAMS, ids=stream_ids(STREAMS))
+def test_cache_on_the_vector_streams(stream: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    _same_both_ways(write_stream(stream, tmp_path / "s.pcap"), monkeypatch, short=True)
+
+
+def test_cache_on_every_line_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """CR LF, CR, LF or nothing may follow the frame (the CR LF expert and the frame's length in
+    the hidden tree must come out as the parser's)."""
+
+    def frame(body: str, end: str) -> bytes:
+        return f"[{body}{sum(body.encode()) % 256:02X}]{end}".encode()
+
+    ends = ["\n", "\r", "\r\n", "", "\n", "\r"] * 4
+    bodies = [":AB|N0|T2|QLat|D1.5|T2|QLon|D2.5|C" if i % 3 == 0 else ":AB|N0|T2|QLat|D1.6|C" for i in range(len(ends))]
+    t0 = 1_767_268_800_000_000_000
+    cap = write_capture(tmp_path / "ends.pcap", [(t0 + i * 200_000_000, frame(b, e))
+                                                  for i, (b, e) in enumerate(zip(bodies, ends))])
+    _same_both_ways(cap, monkeypatch)
+    assert len(_marked(cap, monkeypatch, ["-Y", "sharedlink.crlf.missing"])) > 10
+
+
+def test_cache_takes_the_bulk_of_a_beacon_stream(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Full frames and compressed deltas (bare ones too) take the cache in both passes and with a
+    shown tree; the frames it leaves (the first of each layout, bad checksums) go to the parser."""
+    cap = tmp_path / "c.pcap"
+    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--frames", "300", "--compress",
+                    "--bad-checksum", "0.05", str(cap)], check=True, capture_output=True)
+    for args, two_pass in (([], False), ([], True), (["-V", "-P"], False), (["-V", "-P"], True)):
+        marked = _marked(cap, monkeypatch, args, two_pass)
+        assert len(marked) > 240, (args, two_pass, len(marked))
+        assert any(" full " in x for x in marked) and any("delta (+4 carried)" in x for x in marked)
+        assert any("delta AutoGpsLat" in x for x in marked)
+
+
+def test_records_of_a_long_compressed_stream(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A second pass reads the carried values the first pass kept for each delta, packed 256
+    records to a chunk in one ByteArray: a stream long enough for several chunks, read by the
+    second pass in order, shows the same carried values with the cache as without it."""
+    cap = tmp_path / "long.pcap"
+    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--seed", "11", "--frames", "1400", "--compress",
+                    str(cap)], check=True, capture_output=True)
+    outs = []
+    for cache in (True, False):
+        with monkeypatch.context() as m:
+            if not cache:
+                m.setenv("SHAREDLINK_NO_FAST", "1")
+            outs.append(tu.tshark(cap, ["-V", *OTHERS], two_pass=True).stdout)
+    assert outs[0] == outs[1]
+    # most of the 1400 frames are deltas: well over 256 records, each showing its carried values
+    carried = [x for x in outs[0].splitlines() if "(carried from frame " in x]
+    assert len(carried) > 1000, len(carried)
+    last_frame = max(int(x.rsplit("(carried from frame ", 1)[1].split(")")[0]) for x in carried)
+    assert last_frame > 1200
+
+
+def test_cache_on_every_kind_of_value(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A layout's value pattern is a set of byte ranges (any byte but '|', ']', the control
+    characters and DEL; a double-typed value a plain decimal) and its checksum sums the values as
+    one string: values long and short, UTF-8, punctuation, and the bytes it must leave to the
+    parser come out as the parser makes them, in named and positional layouts; the long and the
+    UTF-8 ones take the cache."""
+    long_text = "x" * 50
+    values = ["1.5", long_text, "Ωμέγα", "%^{}~\\`'\"", "a[b", "a]b", "tab\there", "del\x7f", "", "-0.25",
+              "y" * 30, "7"]
+    bodies = []
+    for i in range(72):
+        v = values[i % len(values)]
+        w = values[(i * 5 + 1) % len(values)]
+        bodies.append(f":AB|N0|T4|QName|D{v}|T4|QNote|D{w}|T2|QLat|D{i}.5|C" if i % 3 else f":CD|N0|D{v}|D{w}|D{i}|C")
+    t0 = 1_767_268_800_000_000_000
+    frames = []
+    for i, body in enumerate(bodies):
+        raw = body.encode()
+        frames.append((t0 + i * 200_000_000, b"[" + raw + f"{sum(raw) % 256:02X}]\r\n".encode()))
+    cap = write_capture(tmp_path / "values.pcap", frames)
+    _same_both_ways(cap, monkeypatch)
+    marked = _marked(cap, monkeypatch, [])
+    assert any(long_text in x for x in marked) and any("Ωμέγα" in x for x in marked)
+    assert not any("tab" in x or "a]b" in x for x in marked)
