@@ -323,6 +323,16 @@ def test_counted_stats_equal_the_reference_on_generated_streams(tmp_path_factory
     _same_stats(_write(tmp_path_factory.mktemp("st") / "s.pcap", stream))
 
 
+def test_a_reply_between_counted_frames_is_not_in_the_full_size(tmp_path):
+    """Found by the test above after issue 29's rules met the counted path: a reply's value is
+    shown, never stored, so the full-set size ('compression') of the frames after it must not
+    take it (stats' size tracker applied the reply's update: 717 against the counted 715)."""
+    bare, lat = b"[:AB|N0|C76]\r\n", encode_named("A", "B", [("Lat", 2, "1")])
+    reply = b"[:AB|RLat|D2.5|CC0]\r\n"
+    path = _write(tmp_path / "r.pcap", _stream(*[bare * 2] * 14, bare + lat, reply + bare, bare))
+    _same_stats(path)
+
+
 @pytest.mark.parametrize("variant", [dict(compress=True, bad_checksum=0.05, drop=0.3, seed=2), dict(jitter_ms=300.0),
                                      dict(form="positional", compress=True)])
 def test_counted_stats_equal_the_reference_on_drives(tmp_path, variant):

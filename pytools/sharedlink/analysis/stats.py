@@ -227,7 +227,7 @@ class CaptureStats:
         if full is not None and (full.table is not d.table or not full.same(d.table)):
             full = None
             del self._full[id(d.table)]
-        if full is not None:
+        if full is not None and kind != "reply":  # a reply's values are shown, never stored (issue 29)
             full.update(d.updates)
         if kind in DATA_KINDS:
             if full is None:
