@@ -143,6 +143,8 @@ local parse_frame, fast_positions, checksum_verdict, kind_of_fields = Pm.parse_f
 local state_first_pass, state_later_pass = S.state_first_pass, S.state_later_pass
 local info_frame = I.info_frame
 local tree_compact_frame, tree_full, has_experts = T.tree_compact_frame, T.tree_full, T.has_experts
+local set_crlf_frames = T.set_crlf_frames
+local PT_UDP = 3   -- pinfo.port_type of a UDP datagram (epan's port_type enum; 4.0 to 4.6)
 
 sl.fields = M.fields.register(hf)
 sl.experts = M.fields.register(ei)
@@ -313,6 +315,7 @@ local function dissect(tvb, pinfo, tree)
     local t = tree
     if t ~= nil and wsapi.no_tree(t) then t = nil end
     I.begin()
+    set_crlf_frames(pinfo.port_type ~= PT_UDP)
     scan(s, n, tvb, pinfo, t, tree)
     I.finish(cols)
     return n

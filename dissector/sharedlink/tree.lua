@@ -21,6 +21,7 @@ local VN, VV, VI, VR = M.parse.P.VN, M.parse.P.VV, M.parse.P.VI, M.parse.P.VR
 local VTf, VQf, VDf = M.parse.P.VTf, M.parse.P.VQf, M.parse.P.VDf
 
 local P = M.parse.P
+local crlf_frames = true   -- see set_crlf_frames
 local R = M.records
 local CARRY, MISS = R.CARRY, R.MISS
 
@@ -229,7 +230,7 @@ local function compact_trailer(ti, ttext, rec, a, e, fl, s, cs_val, cs_calc, cs_
         frame_add(ti, ttext, hf.checksum_status, 2)
     end
     local b = a + fl - 1
-    if not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
+    if crlf_frames and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
         TI.add_proto_expert_info(ti, ei.crlf_missing)
     end
 end
@@ -591,7 +592,8 @@ do
         end
         -- line terminator
         local b = a + fl - 1
-        if terminated and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
+        if terminated and crlf_frames
+            and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
             TI.add_proto_expert_info(ti, ei.crlf_missing)
         end
     end
@@ -666,9 +668,17 @@ local function has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kin
     local ctext = P.ctext
     if not UHEX[ctext] then return true end   -- not two upper-case hex digits
     local b = a + fl - 1
-    if terminated and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then return true end
+    if terminated and crlf_frames and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
+        return true
+    end
     return values_have_experts(kind, list)
 end
 
-local T = { tree_compact_frame = tree_compact_frame, tree_full = tree_full, has_experts = has_experts }
+-- Whether CR LF frames the bytes of the packet being dissected (docs/fields-sharedlink.md, "Rules
+-- for real sessions": serial and TCP, not a UDP datagram, which is one frame or several each
+-- ending at its ']'): sharedlink.crlf.missing is noted only then.  Set once a packet.
+local function set_crlf_frames(v) crlf_frames = v end
+
+local T = { tree_compact_frame = tree_compact_frame, tree_full = tree_full, has_experts = has_experts,
+            set_crlf_frames = set_crlf_frames }
 return T

@@ -307,9 +307,19 @@ def test_positional_past_list(mixed):
 
 
 def test_no_crlf(mixed):
+    """A UDP datagram is one frame: no CR LF is needed and none is noted (issue 29; BUL-110's
+    own session has none). Over TCP, test_no_crlf_over_tcp."""
     r = mixed[23]
-    assert len(r["sharedlink.crlf.missing"]) == 1
+    assert not r["sharedlink.crlf.missing"]
     assert one(r, "sharedlink.checksum.status") == "1"
+
+
+def test_no_crlf_over_tcp(tmp_path):
+    """Over TCP CR LF frames the bytes: a frame followed by anything else is noted."""
+    pk = [Pkt(1.0, frame("A", "B", "N0", "D1", crlf=False) + frame("A", "B", "N0", "D2"), 40000, 7013, "tcp"),
+          Pkt(1.2, frame("A", "B", "N0", "D3"), 40000, 7013, "tcp")]
+    rows = fields(write_pcap(tmp_path / "tcp.pcap", pk), ["sharedlink.crlf.missing", "sharedlink.kind"])
+    assert [len(r["sharedlink.crlf.missing"]) for r in rows] == [1, 0], rows
 
 
 def test_json_and_verbose_render(mixed_pcap):
@@ -555,7 +565,7 @@ def test_truncation_every_byte(damaged_pcap):
         else:
             assert r["sharedlink.kind"] == ["full"], i
             assert r["sharedlink.checksum.status"] == ["1"]
-            assert bool(r["sharedlink.crlf.missing"]) == (i < len(B009))
+            assert not r["sharedlink.crlf.missing"]  # a UDP datagram: no CR LF needed (issue 29)
 
 
 def test_mutations_never_break_lua(damaged_pcap):

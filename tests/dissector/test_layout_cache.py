@@ -102,9 +102,11 @@ def test_cache_on_the_vector_streams(stream: dict, tmp_path: Path, monkeypatch: 
     _same_both_ways(write_stream(stream, tmp_path / "s.pcap"), monkeypatch, short=True)
 
 
-def test_cache_on_every_line_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("proto", ["udp", "tcp"])
+def test_cache_on_every_line_end(proto: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """CR LF, CR, LF or nothing may follow the frame (the CR LF expert and the frame's length in
-    the hidden tree must come out as the parser's)."""
+    the hidden tree must come out as the parser's). The CR LF expert is for TCP (and serial),
+    where CR LF frames the bytes, never for a UDP datagram (issue 29)."""
 
     def frame(body: str, end: str) -> bytes:
         return f"[{body}{sum(body.encode()) % 256:02X}]{end}".encode()
@@ -112,10 +114,17 @@ def test_cache_on_every_line_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     ends = ["\n", "\r", "\r\n", "", "\n", "\r"] * 4
     bodies = [":AB|N0|T2|QLat|D1.5|T2|QLon|D2.5|C" if i % 3 == 0 else ":AB|N0|T2|QLat|D1.6|C" for i in range(len(ends))]
     t0 = 1_767_268_800_000_000_000
-    cap = write_capture(tmp_path / "ends.pcap", [(t0 + i * 200_000_000, frame(b, e))
-                                                  for i, (b, e) in enumerate(zip(bodies, ends))])
+    payloads = [frame(b, e) for b, e in zip(bodies, ends)]
+    if proto == "udp":
+        cap = write_capture(tmp_path / "ends.pcap", [(t0 + i * 200_000_000, p) for i, p in enumerate(payloads)])
+    else:
+        cap = tu.write_pcap(tmp_path / "ends.pcap", [tu.Pkt(t0 / 1e9 + i * 0.2, p, 40000, 7013, "tcp", "10.0.0.2",
+                                                            "10.0.0.1") for i, p in enumerate(payloads)])
     _same_both_ways(cap, monkeypatch)
-    assert len(_marked(cap, monkeypatch, ["-Y", "sharedlink.crlf.missing"])) > 10
+    marked = _marked(cap, monkeypatch, ["-Y", "sharedlink.crlf.missing"])
+    assert len(marked) > 10 if proto == "tcp" else not marked
+    if proto == "udp":
+        assert not tu.fields(cap, ["sharedlink.crlf.missing"], two_pass=False, display_filter="sharedlink.crlf.missing")
 
 
 def test_cache_takes_the_bulk_of_a_beacon_stream(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
