@@ -362,6 +362,17 @@ def test_random_bytes_never_raise():
             assert b"".join(p.data for p in pieces) == data
 
 
+def _past_the_held_limit(cap):
+    """Three unfinished frames of 1.5 MAX_HELD_BYTES in 1 KB records, a good frame after each."""
+    good = encode_positional("A", "B", ["1"])
+    with open(cap, "wb") as fh:
+        w = SerialCaptureWriter(fh, flush=False)
+        for k in range(3):
+            for c in [b"[:AB|N0|D"] + [b"7" * 1024] * 96 + [good]:
+                w.write(c, DIR_OUT, 10**18 + k * 10**9 + len(c))
+    return cap
+
+
 @pytest.mark.parametrize("protocol", ["auto", "sharedlink"])
 def test_frames_given_up_at_the_limit_are_those_serial_lua_gives_up(tmp_path, protocol):
     """Unfinished frames of 1.5 MAX_HELD_BYTES in 1 KB records, a good frame after each: the
@@ -370,13 +381,7 @@ def test_frames_given_up_at_the_limit_are_those_serial_lua_gives_up(tmp_path, pr
     released as unrecognised by both before a frame is seen)."""
     import tshark_util as tu
 
-    good = encode_positional("A", "B", ["1"])
-    cap = tmp_path / "over.pcapng"
-    with open(cap, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        for k in range(3):
-            for c in [b"[:AB|N0|D"] + [b"7" * 1024] * 96 + [good]:
-                w.write(c, DIR_OUT, 10**18 + k * 10**9 + len(c))
+    cap = _past_the_held_limit(tmp_path / "over.pcapng")
     ours = [(r.number, p.is_frame) for r, _d, p in read_capture(cap, protocol) if p.is_frame or p.reason == GIVEN_UP]
     rows = tu.fields(cap, ["frame.number", "sharedlink.kind", "_ws.expert.message"], two_pass=False,
                      prefs={"slserial.protocol": protocol},
@@ -389,13 +394,7 @@ def test_frames_given_up_at_the_limit_are_those_serial_lua_gives_up(tmp_path, pr
 def test_stats_counts_the_frames_given_up_at_the_limit(tmp_path):
     """stats --json's "limits" counts the unfinished serial frames given up at MAX_HELD_BYTES
     (held), as many as the reader gives up (the records serial.lua warns on), their bytes noise."""
-    good = encode_positional("A", "B", ["1"])
-    cap = tmp_path / "over.pcapng"
-    with open(cap, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        for k in range(3):
-            for c in [b"[:AB|N0|D"] + [b"7" * 1024] * 96 + [good]:
-                w.write(c, DIR_OUT, 10**18 + k * 10**9 + len(c))
+    cap = _past_the_held_limit(tmp_path / "over.pcapng")
     given_up = sum(p.reason == GIVEN_UP for _r, _d, p in read_capture(cap, "auto"))
     r = subprocess.run([*CLI, "stats", str(cap), "--json"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
