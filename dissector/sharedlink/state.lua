@@ -42,6 +42,15 @@ local function new_dir()
         first = nil, lastfull = nil, list = nil }
 end
 
+-- A new direction at byaddr[key]; past max_conversations one that is kept nowhere (d.over).
+local function add_dir(byaddr, key)
+    local d = new_dir()
+    if cfg.LIM.ndirs >= cfg.LIM.max_conversations then d.over = true; return d end
+    cfg.LIM.ndirs = cfg.LIM.ndirs + 1
+    byaddr[key] = d
+    return d
+end
+
 -- Direction state for (src address, dst address, src port, dst port, letters).
 -- dirs[addresses][ports and letters as one number]; cheap on the per-frame path.
 local function get_dir(pinfo, num, dstb, srcb)
@@ -75,14 +84,7 @@ local function get_dir(pinfo, num, dstb, srcb)
         dir_cache_ports = (sport * 65536 + dport) * 65536
     end
     local key = dir_cache_ports + dstb * 256 + srcb
-    local d = byaddr[key]
-    if not d then
-        d = new_dir()
-        if cfg.LIM.ndirs >= cfg.LIM.max_conversations then d.over = true; return d end   -- kept nowhere
-        cfg.LIM.ndirs = cfg.LIM.ndirs + 1
-        byaddr[key] = d
-    end
-    return d
+    return byaddr[key] or add_dir(byaddr, key)
 end
 
 -- The same for the reverse direction (dst -> src) of the current packet.
@@ -100,14 +102,7 @@ local function get_rev_dir(pinfo, dstb, srcb)
         dirs[akey] = byaddr
     end
     local key = (dport * 65536 + sport) * 65536 + srcb * 256 + dstb
-    local d = byaddr[key]
-    if not d then
-        d = new_dir()
-        if cfg.LIM.ndirs >= cfg.LIM.max_conversations then d.over = true; return d end   -- kept nowhere
-        cfg.LIM.ndirs = cfg.LIM.ndirs + 1
-        byaddr[key] = d
-    end
-    return d
+    return byaddr[key] or add_dir(byaddr, key)
 end
 -- The journal: linear state for a direction with many names.  A direction with up to
 -- JOURNAL_NAMES names stores, for each frame that leaves some out, their values in the frame's

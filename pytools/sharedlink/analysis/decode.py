@@ -584,22 +584,7 @@ class Decoder(ReferenceDecoder):
                     u = last[name] = _update(v, sent.get(name, table._index(name)), True, v.set_in, False)
                 add(u)
         table.named = True
-        sync = h.sync
-        gap: int | None = None
-        late = False
-        full = lay.full
-        if full:
-            table.last_full_at, table.last_full_in = ts, number
-            if sync[1] is not None:
-                gap = ts - sync[1]
-            sync[1] = ts
-        else:
-            since = sync[1] if sync[1] is not None else sync[0]
-            late = ts - since > self.late_ns
-        self.fast += 1
-        ups = tuple(updates)
-        return Decoded(number, ts, conv, raw, None, "full" if full else "delta", True, ups, table, late, gap, ups, None,
-                       src, dst)
+        return self._fast_decoded(number, ts, conv, raw, h, lay.full, updates, src, dst)
 
     def _fast_positional(self, number: int, ts: int, conv: tuple, raw: bytes, h: _Hot, lay: _Layout, src: str,
                          dst: str, values: list[str]) -> Decoded:
@@ -635,6 +620,13 @@ class Decoder(ReferenceDecoder):
                 u = last[name] = _update(v, i, False, None, changed)
             add(u)
         table.named = False
+        return self._fast_decoded(number, ts, conv, raw, h, full, updates, src, dst)
+
+    def _fast_decoded(self, number: int, ts: int, conv: tuple, raw: bytes, h: _Hot, full: bool, updates: list[Update],
+                      src: str, dst: str) -> Decoded:
+        """A fast frame's ending, named or positional: the sync clock (a full set resets it, a
+        delta past the interval is late) and the :class:`Decoded`."""
+        table = h.table
         sync = h.sync
         gap: int | None = None
         late = False
