@@ -218,7 +218,7 @@ class _Layout:
     while the direction's names stay the same (``stamp``): the names the frame leaves out
     (carried) and whether it is full."""
 
-    __slots__ = ("names", "types", "present", "stamp", "missing", "full", "checked", "full_at", "vars")
+    __slots__ = ("names", "types", "present", "stamp", "missing", "full", "checked", "full_at", "vars", "cols")
 
     def __init__(self, names: tuple[str, ...], types: tuple[int, ...], vars_: tuple = ()) -> None:
         self.names, self.types, self.present = names, types, frozenset(names)
@@ -228,6 +228,10 @@ class _Layout:
         self.stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) the two below hold for
         self.missing: tuple[str, ...] = ()
         self.full = False
+        #: columns only (:meth:`Decoder.column`): what its frames' rows share while the direction's
+        #: version and names stay: (version, stamp), whether a name is not yet in ``sent_names``,
+        #: the carried names' type codes, True and False as many times as names carried and present
+        self.cols: tuple = ()
 
 
 class _Hot:
@@ -288,6 +292,41 @@ class DirCounts:
         return out
 
 
+class DirColumns:
+    """Columns only: what :meth:`Decoder.column` took of one direction's frames since the last
+    batch (every one a good full or delta frame in the named form), as per-column lists. Per
+    frame: ``ordinal`` (its place among the batch's frames, all directions, capture order),
+    ``number``, ``ts_ns``, ``raw``, ``kind`` ("full" or "delta"), ``late`` and ``nvalues`` (its
+    value rows); per value row, frame after frame, as the frame's Updates with a text would say:
+    ``name``, ``text``, ``type_code``, ``carried``, ``changed`` (the values it carries in its
+    layout's order, then, when the decoder keeps carried values, the direction's other values
+    that have one, in the table's order). The table is as the batch's last frame left it."""
+
+    __slots__ = ("conv", "src", "dst", "table", "ordinal", "number", "ts_ns", "raw", "kind", "late", "nvalues",
+                 "name", "text", "type_code", "carried", "changed", "layouts", "last_full")
+
+    def __init__(self, conv: tuple, src: str, dst: str, table: VariableTable) -> None:
+        self.conv, self.src, self.dst, self.table = conv, src, dst, table
+        self.ordinal: list[int] = []
+        self.number: list[int] = []
+        self.ts_ns: list[int] = []
+        self.raw: list[bytes] = []
+        self.kind: list[str] = []
+        self.late: list[bool] = []
+        self.nvalues: list[int] = []
+        self.name: list[str] = []
+        self.text: list[str] = []
+        self.type_code: list[int | None] = []
+        self.carried: list[bool] = []
+        self.changed: list[bool] = []
+        self.layouts: dict[_Layout, list[int]] = {}  # layout -> [number, time] of its last frame
+        self.last_full: tuple[int, int] | None = None
+
+    @property
+    def pair(self) -> str:
+        return f"{self.src}>{self.dst}"
+
+
 class Decoder(ReferenceDecoder):
     """The decoding core: every command that decodes SharedLink goes through it. Same results
     as :class:`ReferenceDecoder` (the tests compare them on generated streams built to catch a
@@ -314,6 +353,8 @@ class Decoder(ReferenceDecoder):
         self._hot: dict[tuple, _Hot] = {}
         self.fast = 0  # frames decoded by the fast path
         self.batch: dict[_Hot, DirCounts] = {}  # counts only: what count() took, per direction
+        self.rows: dict[_Hot, DirColumns] = {}  # columns only: what column() took, per direction
+        self.taken = 0  # columns only: frames in ``rows``
         self.splitter = FrameSplitter()
 
     def decode(self, sf: StreamFrame) -> Decoded:
@@ -341,13 +382,15 @@ class Decoder(ReferenceDecoder):
                 self._learn(d)
                 yield d
 
-    def capture(self, path: str | Path, progress: Callable[[int, int], None] | None = None, counts: bool = False
-                ) -> Iterator[Decoded | StreamFrame | tuple[int, int] | Counted]:
+    def capture(self, path: str | Path, progress: Callable[[int, int], None] | None = None, counts: bool = False,
+                columns: bool = False) -> Iterator[Decoded | StreamFrame | tuple[int, int] | Counted | Columns]:
         """Every item of a capture, as :func:`iter_decoded` gives them. ``progress(bytes, records)`` is
         called every few thousand records with (bytes of the file read so far, records).
         ``counts``: the frames the fast path takes come as :class:`Counted` batches instead of
-        :class:`Decoded` frames (for callers that count: no per-frame objects)."""
-        return _capture_items(self, path, progress, counts)
+        :class:`Decoded` frames (for callers that count: no per-frame objects). ``columns``: they
+        come as :class:`Columns` batches, their values as rows appended to per-column lists
+        (for callers that store rows: no Update, no Decoded)."""
+        return _capture_items(self, path, progress, counts, columns)
 
     def datagram(self, dg) -> Iterator[Decoded | StreamFrame]:
         """:meth:`decode_datagram` of an object with ``number``, ``ts_ns``, ``conv`` and ``data``
@@ -485,6 +528,122 @@ class Decoder(ReferenceDecoder):
             table.named = True
             self.fast += c.frames
         return b
+
+    def column(self, number: int, ts: int, conv: tuple, raw: bytes) -> bool:
+        """Columns only: take a datagram the fast path takes into :attr:`rows` (its frame and
+        value rows appended to its direction's :class:`DirColumns`, no :class:`Decoded`, no
+        Updates) and return True; False when it is not one (decode it). The same values as
+        :meth:`_fast` gives (the tests compare them); the frames that last set each value and
+        the last full set are written to the table by :meth:`take_columns`, which the caller
+        calls before anything else is decoded."""
+        found = self._match(conv, raw)
+        if found is None:
+            return False
+        h, lay, src, dst, values = found
+        c = self.rows.get(h)  # (by direction: one _Hot each)
+        if c is None:
+            c = self.rows[h] = DirColumns(conv, src, dst, h.table)
+        table = h.table
+        vars_ = table.vars
+        sent = table.sent_names
+        stamp = (len(vars_), len(sent))
+        if lay.stamp != stamp:  # as _fast: what the layout leaves out, and the kind before the frame
+            present = lay.present
+            lay.missing = tuple(n for n in vars_ if n not in present)
+            lay.full = bool(present) and sum(1 for n in present if n in sent) == len(sent)
+            lay.stamp = stamp
+        cols = lay.cols
+        key = (h.version, stamp)
+        if not cols or cols[0] != key:
+            miss = lay.missing
+            cols = lay.cols = (key, any(n not in sent for n in lay.names), tuple(vars_[n].type_code for n in miss),
+                               (True,) * len(miss), (False,) * len(miss), (False,) * len(lay.names))
+        full = lay.full
+        if cols[1]:  # a name sent for the first time takes the next index (as _fast)
+            for name in lay.names:
+                if name not in sent:
+                    sent[name] = len(sent)
+            lay.stamp = (-1, -1)
+        c.ordinal.append(self.taken)
+        self.taken += 1
+        c.number.append(number)
+        c.ts_ns.append(ts)
+        c.raw.append(raw)
+        texts = c.text
+        changed = c.changed
+        names = lay.names
+        for name, dval in zip(names, values):
+            text = dval[1:]
+            v = vars_[name]
+            if v.text != text:
+                v.text = text
+                changed.append(True)
+            else:
+                changed.append(False)
+            texts.append(text)
+        c.name += names
+        c.type_code += lay.types
+        c.carried += cols[5]
+        k = len(names)
+        if self.carried:
+            miss = lay.missing
+            if miss:
+                carried = [vars_[n].text for n in miss]
+                if None in carried:  # (a variable with no value yet: no row)
+                    for n, text, tc in zip(miss, carried, cols[2]):
+                        if text is not None:
+                            c.name.append(n)
+                            texts.append(text)
+                            c.type_code.append(tc)
+                            c.carried.append(True)
+                            changed.append(False)
+                            k += 1
+                else:
+                    c.name += miss
+                    texts += carried
+                    c.type_code += cols[2]
+                    c.carried += cols[3]
+                    changed += cols[4]
+                    k += len(miss)
+        c.nvalues.append(k)
+        seen = c.layouts.get(lay)
+        if seen is None:
+            c.layouts[lay] = [number, ts]
+        else:
+            seen[0], seen[1] = number, ts
+        sync = h.sync
+        if full:
+            c.last_full = number, ts
+            sync[1] = ts
+            c.kind.append("full")
+            c.late.append(False)
+        else:
+            since = sync[1] if sync[1] is not None else sync[0]
+            c.kind.append("delta")
+            c.late.append(ts - since > self.late_ns)
+        return True
+
+    def take_columns(self) -> Columns:
+        """What :meth:`column` gathered since the last call (then empty), the tables brought up
+        to date (which frame last set each value, the last full set, the form)."""
+        rows, frames = self.rows, self.taken
+        self.rows, self.taken = {}, 0
+        dirs = {}
+        for h, c in rows.items():
+            table = c.table
+            vars_ = table.vars
+            for lay, (number, ts) in sorted(c.layouts.items(), key=lambda kv: kv[1][0]):
+                for name in lay.names:
+                    v = vars_[name]
+                    v.set_in, v.set_at = number, ts
+            if c.last_full is not None:
+                table.last_full_at, table.last_full_in = c.last_full[1], c.last_full[0]
+            table.named = True
+            h.last.clear()  # (the Updates kept for reuse hold values the batch replaced)
+            self.fast += len(c.number)
+            dirs[(c.conv, c.src, c.dst)] = c
+        return Columns(dirs, frames)
+
     @staticmethod
     def _hot_size(h: _Hot) -> int:
         """Bytes of the values of a full set of the direction (named form, without the frame's
@@ -659,15 +818,25 @@ class Counted(NamedTuple):
     dirs: dict[tuple, DirCounts]
 
 
+class Columns(NamedTuple):
+    """Columns only (:meth:`Decoder.capture` with ``columns``): the frames the fast path took
+    since the previous item, per direction (``frames`` in all: each direction's ``ordinal`` s
+    number them 0 .. frames - 1 in capture order). It comes before the next item of any other
+    kind, so callers see everything in capture order."""
+
+    dirs: dict[tuple, DirColumns]
+    frames: int
+
+
 #: fast frames gathered into one :class:`Counted` at most
 BATCH_FRAMES = 512
 
 
-def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int], None] | None, counting: bool = False
-                   ) -> Iterator[Decoded | StreamFrame | tuple[int, int] | Counted]:
+def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int], None] | None, counting: bool = False,
+                   columns: bool = False) -> Iterator[Decoded | StreamFrame | tuple[int, int] | Counted | Columns]:
     """The record loop of :meth:`Decoder.capture`: plain Ethernet/IPv4/UDP records (not
     fragments) go to :meth:`Decoder.decode_datagram` (``counting``: first to
-    :meth:`Decoder.count`) straight from the record's bytes; every other record through the
+    :meth:`Decoder.count`; ``columns``: to :meth:`Decoder.column`) straight from the record's bytes; every other record through the
     general reader's packet decoder and splitters (as :func:`~sharedlink.capture.stream.iter_frames`)."""
     serial = SerialSplitter()
     packets = PacketDecoder().decode  # IP fragments reassembled
@@ -675,8 +844,11 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
     general = ReferenceDecoder.decode
     addrs: dict[bytes, tuple[str, str, int, str, int]] = {}
     datagram = dec.decode_datagram
-    count = dec.count
-    taken = 0  # frames in dec.batch
+    count = dec.column if columns else dec.count
+    take_batch = dec.take_columns if columns else (lambda: Counted(dec.take_batch()))
+    pending = (lambda: dec.rows) if columns else (lambda: dec.batch)
+    counting = counting or columns
+    taken = 0  # frames in dec.batch (dec.rows)
     unpack = _UDP_HEAD.unpack_from
     read = 24  # bytes of the file read, about (pcap's headers; pcapng's blocks are a little longer)
     try:
@@ -706,16 +878,16 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
                                 if count(number, ts_ns, conv, payload):
                                     taken += 1
                                     if taken >= BATCH_FRAMES:
-                                        yield Counted(dec.take_batch())
+                                        yield take_batch()
                                         taken = 0
                                     continue
                                 if taken:
-                                    yield Counted(dec.take_batch())
+                                    yield take_batch()
                                     taken = 0
                             yield from datagram(number, ts_ns, conv, payload)
                         continue
             if taken:
-                yield Counted(dec.take_batch())
+                yield take_batch()
                 taken = 0
             if linktype in USER_LINKTYPES:
                 for item in serial.feed(number, ts_ns, linktype, data, flags, interface):
@@ -728,13 +900,13 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
             for sf in splitter.split(number, ts_ns, dg):
                 yield _decode_item(dec, general, sf)
     except CaptureError:
-        if dec.batch:
-            yield Counted(dec.take_batch())
+        if pending():
+            yield take_batch()
         for item in serial.flush():
             yield _decode_item(dec, general, item)
         raise
-    if dec.batch:
-        yield Counted(dec.take_batch())
+    if pending():
+        yield take_batch()
     for item in serial.flush():
         yield _decode_item(dec, general, item)
 

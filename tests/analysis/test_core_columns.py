@@ -1,0 +1,202 @@
+"""The decoding core's columns mode (``Decoder.capture(columns=True)``, what ``ingest`` reads)
+against the plain reference decoder, row by row.
+
+In columns mode the frames the fast path takes come as per-column lists (frame rows and value
+rows, no Update, no Decoded), the tables brought up to date when a batch is handed over. Every
+frame must give the rows the reference decoder's frame gives (its Updates with a text: name,
+text, type, carried, changed; its number, time, conversation, letters, kind, checksum verdict,
+late, bytes), in capture order, and the table as the reference leaves it after each direction's
+last frame of a batch and after every frame decoded the other way (whose Updates, carried_from
+included, show any table a batch left wrong). The streams mix fast frames with what changes a
+value, a type or the names behind the fast path's back: two frames in a datagram, replies,
+declarations, positional frames, bad checksums, values the fast pattern does not take, several
+directions and conversations; then the fault captures and the shared vectors.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from sl_captures import captures, write_capture
+from sl_vectors import load_streams, write_stream
+
+from sharedlink.analysis.decode import Columns, Decoded, Decoder, ReferenceDecoder
+from sharedlink.capture.packets import UdpBuilder
+from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.capture.stream import StreamFrame, iter_frames
+from sharedlink.generators.beacon import GenOptions, generate_file
+from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
+from sharedlink.protocols.state import BEACON_VARIABLES, VariableTable, parse_variables
+
+NAMES = ("Lat", "Lon", "Head", "Vel")
+VALUES = ("1", "2", "2.5", "-3", "10", "1e", "+.5")  # few values: unchanged and carried ones are the rule
+
+
+@st.composite
+def _frame(draw, src: str, dst: str) -> bytes:
+    kind = draw(st.sampled_from(("named", "named", "named", "named", "named", "bad", "reply", "declaration",
+                                 "positional", "odd", "long")))
+    if kind in ("named", "bad", "long"):
+        names = draw(st.lists(st.sampled_from(NAMES), unique=True, max_size=4))
+        raw = encode_named(dst, src, [(n, 0 if kind == "long" else 2, draw(st.sampled_from(VALUES))) for n in names])
+        if kind == "bad":
+            raw = raw[:-5] + (b"00" if raw[-5:-3] != b"00" else b"01") + raw[-3:]
+        return raw
+    if kind == "reply":
+        return build_frame(Frame(dst, src, (Field("R", draw(st.sampled_from(NAMES))),
+                                            Field("D", draw(st.sampled_from(VALUES))))))
+    if kind == "declaration":
+        fields = [Field("N", "0")]
+        for n in draw(st.lists(st.sampled_from(NAMES), unique=True, min_size=1, max_size=4)):
+            fields += [Field("T", "2"), Field("Q", n)]
+        return build_frame(Frame(dst, src, tuple(fields)))
+    if kind == "positional":
+        return encode_positional(dst, src, draw(st.lists(st.one_of(st.none(), st.sampled_from(VALUES)), min_size=1,
+                                                         max_size=4)))
+    # a value the fast pattern does not take (a space): the reference path changes it
+    return encode_named(dst, src, [(draw(st.sampled_from(NAMES)), 4, draw(st.sampled_from(VALUES)) + " x")])
+
+
+@st.composite
+def streams(draw, max_datagrams: int = 40) -> list[tuple[int, int, bytes]]:
+    """(sender, ts_ns, payload): mostly one named frame a datagram, sometimes two."""
+    out = []
+    ts = 1_700_000_000 * 10**9
+    for _ in range(draw(st.integers(1, max_datagrams))):
+        sender = draw(st.integers(0, 2))  # two conversations of B>A, and one of C>A
+        src = "C" if sender == 2 else "B"
+        ts += draw(st.sampled_from((200_000_000, 200_000_000, 1_700_000_000)))
+        payload = draw(_frame(src, "A"))
+        if draw(st.integers(0, 5)) == 0:
+            payload += draw(_frame(src, "A"))
+        out.append((sender, ts, payload))
+    return out
+
+
+def _write(path: Path, stream: list[tuple[int, int, bytes]]) -> Path:
+    senders = [UdpBuilder(f"10.0.0.{i + 1}", "10.0.0.9", 7013, 7013) for i in range(3)]
+    with open(path, "wb") as fh:
+        w = PcapWriter(fh)
+        for i, (sender, ts, payload) in enumerate(stream):
+            w.write(ts, senders[sender].frame(payload, i + 1))
+    return path
+
+
+def _table(t: VariableTable) -> tuple:
+    return ({n: (v.text, v.type_code, v.set_in, v.set_at) for n, v in t.vars.items()},
+            (t.last_full_at, t.last_full_in, t.named, dict(t.sent_names), tuple(t.names), sorted(t.filled)))
+
+
+def _decoded(d: Decoded) -> tuple:
+    """(frame row, value rows, what else a Decoded says, the table after it)."""
+    rows = [(u.name, u.text, u.type_code, u.carried, u.changed) for u in d.updates if u.text is not None]
+    return ((d.number, d.ts_ns, d.conv, d.raw, d.src, d.dst, d.kind, d.checksum_ok, d.late), rows,
+            (d.updates, d.shown, d.sync_gap_ns, d.response_to), _table(d.table))
+
+
+def reference(path: Path, carried: bool = True, variables=BEACON_VARIABLES) -> list[tuple]:
+    dec = ReferenceDecoder(variables, carried=carried)
+    return [_decoded(dec.decode(sf)) for sf in iter_frames(path) if isinstance(sf, StreamFrame) and sf.frame is not None]
+
+
+def columns(path: Path, carried: bool = True, variables=BEACON_VARIABLES) -> tuple[list[tuple], int]:
+    """The same tuples from the columns mode (None where a batch has no such thing: the rest of
+    a Decoded, the table after a frame not its direction's last of the batch); frames batched."""
+    dec = Decoder(variables, carried=carried)
+    out: list[tuple] = []
+    batched = 0
+    for item in dec.capture(path, columns=True):
+        if isinstance(item, Decoded):
+            out.append(_decoded(item))
+        elif isinstance(item, Columns):
+            frames: list = [None] * item.frames
+            for (conv, src, dst), c in item.dirs.items():
+                n = len(c.number)
+                assert (conv, src, dst) == (c.conv, c.src, c.dst) and n > 0
+                assert [len(x) for x in (c.ordinal, c.ts_ns, c.raw, c.kind, c.late, c.nvalues)] == [n] * 6
+                m = sum(c.nvalues)
+                assert [len(x) for x in (c.name, c.text, c.type_code, c.carried, c.changed)] == [m] * 5
+                at = 0
+                for i, o in enumerate(c.ordinal):
+                    k = c.nvalues[i]
+                    rows = list(zip(c.name[at:at + k], c.text[at:at + k], c.type_code[at:at + k], c.carried[at:at + k],
+                                    c.changed[at:at + k]))
+                    at += k
+                    assert frames[o] is None
+                    frames[o] = ((c.number[i], c.ts_ns[i], conv, c.raw[i], src, dst, c.kind[i], True, c.late[i]), rows,
+                                 None, _table(c.table) if i == n - 1 else None)
+            assert None not in frames
+            out += frames
+            batched += item.frames
+    return out, batched
+
+
+def compare(path: Path, carried: bool = True, variables=BEACON_VARIABLES) -> int:
+    """Columns and reference give the same rows and tables; returns the frames batched."""
+    got, batched = columns(path, carried, variables)
+    want = reference(path, carried, variables)
+    assert len(got) == len(want)
+    for i, (g, w) in enumerate(zip(got, want)):
+        assert g[0] == w[0], i
+        assert g[1] == w[1], (i, g[0])
+        assert g[2] is None or g[2] == w[2], (i, g[0])
+        assert g[3] is None or g[3] == w[3], (i, g[0])
+    return batched
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+@given(streams(), st.booleans())
+def test_columns_equal_the_reference_on_generated_streams(tmp_path_factory, stream, carried):
+    compare(_write(tmp_path_factory.mktemp("col") / "s.pcap", stream), carried)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
+@given(captures())
+def test_columns_equal_the_reference_on_varied_captures(tmp_path_factory, dgs):
+    compare(write_capture(tmp_path_factory.mktemp("var") / "x.pcap", dgs))
+
+
+def test_a_reference_frame_between_batched_frames_changes_their_values(tmp_path):
+    """A datagram of two frames (reference path) changes Lat between fast frames that carry
+    it; a declaration renames; a bad checksum changes nothing: rows as the reference's."""
+    b = lambda *kv: encode_named("A", "B", [(k, 2, v) for k, v in kv])  # noqa: E731
+    stream = [b(("Lat", "1"), ("Lon", "2")), b(("Lat", "1"), ("Lon", "2")), b(("Lon", "3")), b(("Lon", "3")),
+              b(("Lat", "5")) + b(("Lon", "4")), b(("Lon", "4")), b(("Lon", "5")), b(("Lat", "1"), ("Lon", "2")),
+              b(("Lon", "9"))[:-5] + b"00]\r\n", b(("Lon", "6")),
+              build_frame(Frame("A", "B", (Field("N", "0"), Field("T", "0"), Field("Q", "Lon")))), b(("Lon", "6"))]
+    path = _write(tmp_path / "s.pcap", [(0, (i + 1) * 10**9, p) for i, p in enumerate(stream)])
+    assert compare(path) >= 4
+
+
+def test_a_reference_frame_changes_the_type_of_a_value_batched_frames_carry(tmp_path):
+    """Lat becomes a long (a reference-path frame, a layout of its own) while fast frames of
+    the Lon layout carry it: their Lat rows have the new type."""
+    def b(*kv, t=2):
+        return encode_named("A", "B", [(k, t, v) for k, v in kv])
+    stream = [b(("Lat", "1"), ("Lon", "2")), b(("Lon", "3")), b(("Lon", "4")), b(("Lat", "7"), t=0), b(("Lon", "5")),
+              b(("Lat", "8"), t=0), b(("Lon", "6")), b(("Lat", "2.5")), b(("Lon", "7"))]
+    path = _write(tmp_path / "s.pcap", [(0, (i + 1) * 10**8, p) for i, p in enumerate(stream)])
+    assert compare(path) >= 3
+
+
+@pytest.mark.parametrize("stream", load_streams(), ids=lambda s: s["name"])
+def test_columns_equal_the_reference_on_the_shared_vectors(tmp_path, stream):
+    ext = "pcapng" if stream.get("transport") == "serial" else "pcap"
+    path = write_stream(stream, tmp_path / f"s.{ext}")
+    try:
+        variables = parse_variables(stream["variables"]) if stream.get("variables") else BEACON_VARIABLES
+    except ValueError:  # a per-pair list, which only issue 29's parser reads
+        pytest.skip("a variable list the decoders do not take yet")
+    compare(path, variables=variables)
+
+
+@pytest.mark.parametrize("variant", [dict(compress=True, bad_checksum=0.1, drop=0.3, jitter_ms=300.0, seed=2),
+                                     dict(seed=3), dict(form="positional", compress=True, bad_checksum=0.05, seed=4)])
+def test_columns_equal_the_reference_on_fault_captures(tmp_path, variant):
+    path = tmp_path / "d.pcap"
+    generate_file(GenOptions(duration=40, **variant), path)
+    n = compare(path)
+    assert n > 100 or variant.get("form") == "positional"
