@@ -25,6 +25,9 @@ from sharedlink.fleet.ingest import ingest
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.codec import guess_value, typed_value
 
+#: 2026-01-02T00:00:00Z
+MIDNIGHT_NS = 1_767_312_000 * 10**9
+
 
 def _typed(tc: int | None, text: str) -> tuple:
     x = guess_value(text) if tc is None else typed_value(tc, text)
@@ -91,11 +94,15 @@ def test_rows_equal_the_reference_on_generated_streams(tmp_path_factory, datagra
 
 
 @pytest.mark.parametrize("variant", [dict(compress=True, bad_checksum=0.05, drop=0.3, seed=2),
-                                     dict(form="positional", compress=True, seed=3), dict(jitter_ms=300.0, seed=4)])
+                                     dict(form="positional", compress=True, seed=3), dict(jitter_ms=300.0, seed=4),
+                                     dict(compress=True, jitter_ms=300.0, seed=5, start_ns=MIDNIGHT_NS - 20 * 10**9)])
 def test_rows_equal_the_reference_on_drives(tmp_path, variant):
+    """(the last one crosses midnight inside the decoder's batches: two day partitions)"""
     path = tmp_path / "d.pcap"
     generate_file(GenOptions(duration=40, **variant), path)
     assert _same(path, tmp_path / "ds", batch_rows=333) > 100
+    if "start_ns" in variant:
+        assert len(list((tmp_path / "ds" / "values").iterdir())) == 2
 
 
 @pytest.mark.parametrize("type_code", [None, 0, 2, 4, 7])
@@ -124,6 +131,24 @@ def test_arrow_reads_doubles_as_float_does(xs, form):
 
     texts = [form % x for x in xs]
     rows = _Rows(Path("."), "c", "v", "s", 10)
-    vlong, vdouble, vstring = rows._typed_columns([2] * len(texts), texts, [False] * len(texts), pa.array(texts))
+    vlong, vdouble, vstring = rows._typed_columns([2] * len(texts), texts, pa.array([2] * len(texts), pa.int8()),
+                                                  pa.array(texts))
     assert vdouble.to_pylist() == [float(t) for t in texts]
     assert vlong.null_count == vstring.null_count == len(texts)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.one_of(st.text(alphabet="0123456789+-.eE \n_x\u0663", max_size=8), st.text(max_size=6)), min_size=1,
+                max_size=20))
+def test_arrow_takes_as_doubles_the_texts_that_fit_the_double_type(texts):
+    """The doubles Arrow converts are the texts parse_typed says fit the double type (Arrow's
+    regular expression against codec's): the others are typed one by one, as text."""
+    from sharedlink.fleet.ingest import _Rows
+    from sharedlink.protocols.codec import parse_typed
+
+    rows = _Rows(Path("."), "c", "v", "s", 10)
+    vlong, vdouble, vstring = rows._typed_columns([2] * len(texts), texts, pa.array([2] * len(texts), pa.int8()),
+                                                  pa.array(texts, pa.string()))
+    for t, x, s in zip(texts, vdouble.to_pylist(), vstring.to_pylist()):
+        fits = parse_typed(2, t)[1]
+        assert (x, s) == ((float(t), None) if fits else (None, t)), t

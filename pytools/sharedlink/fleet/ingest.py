@@ -2,8 +2,8 @@
 or a Dask distributed cluster.
 
 A task (:func:`ingest_capture`) hashes its capture, and unless the manifest already holds that
-content with the same decode options, decodes it with :func:`sharedlink.analysis.decode.iter_decoded`
-(the one decoder of the package) and writes its rows to the dataset as it goes: rows are buffered
+content with the same decode options, decodes it with :class:`sharedlink.analysis.decode.Decoder`
+(the one decoder of the package, in its columns mode: no per-value object) and writes its rows to the dataset as it goes: rows are buffered
 up to ``batch_rows`` in all (whatever the capture's size) and each flush is one Parquet row group,
 so a worker's memory does not grow with the capture. The driver (:func:`ingest`) holds the
 dataset's lock, hands out the tasks, and records each result in the manifest as it arrives,
@@ -22,14 +22,14 @@ from array import array
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from itertools import accumulate
-from operator import attrgetter, itemgetter
+from operator import itemgetter
 from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from sharedlink.analysis.decode import NS, Decoded, iter_decoded
+from sharedlink.analysis.decode import NS, Columns, Decoded, Decoder, DirColumns
 from sharedlink.errors import InputError, UsageError
 from sharedlink.fleet import BATCH_ROWS as BATCH_ROWS  # its home is the package (a light import for the CLI)
 from sharedlink.fleet.dataset import (
@@ -112,27 +112,64 @@ def ingest_capture(task: Task, progress: Callable[[int, int], None] | None = Non
 
 def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callable[[int, int], None] | None = None
                  ) -> None:
-    """The capture's frames into ``rows``. Hot path (one pass per frame): the frame is held as
-    it is (its rows are made column by column when its partition is written) and counted."""
+    """The capture's frames into ``rows``. The decoder's columns mode: the frames its fast path
+    takes come as per-column lists (:class:`~sharedlink.analysis.decode.Columns`), appended to
+    their partition's lists a direction at a time; the other frames one by one."""
     parts = rows.parts
     day_start = day_end = 0  # the UTC day of the last frame: [start, end) ns
     day = ""
     seq = records = frames = 0
     first_ns = last_ns = None
-    part: _Part | None = None
-    part_key: tuple = ()
     held = batch = rows.batch_rows
+    dec = Decoder(task.variables, task.sync_interval)
     try:
-        for item in iter_decoded(task.path, task.variables, task.sync_interval, progress=progress):
-            if type(item) is not Decoded:
+        for item in dec.capture(task.path, progress, columns=True):
+            t = type(item)
+            if t is Columns:
+                base = seq
+                n = item.frames  # type: ignore[union-attr]
+                seq += n
+                frames += n
+                for c in item.dirs.values():  # type: ignore[union-attr]
+                    ts = c.ts_ns
+                    if c.ordinal[0] == 0 and first_ns is None:
+                        first_ns = ts[0]
+                    if c.ordinal[-1] == n - 1:
+                        last_ns = ts[-1]
+                    if c.number[-1] > records:
+                        records = c.number[-1]
+                    lo, hi = min(ts), max(ts)
+                    if not (day_start <= lo and hi < day_end):
+                        day_start = lo - lo % DAY_NS
+                        day_end = day_start + DAY_NS
+                        day = _day(lo)
+                    if hi < day_end:
+                        part = parts.get((day, c.src, c.dst))
+                        if part is None:
+                            part = parts[(day, c.src, c.dst)] = _Part(day, c.src, c.dst)
+                        part.add_columns(c, base)
+                    else:  # (the batch crosses midnight: frame by frame)
+                        for i, tsi in enumerate(ts):
+                            d = _day(tsi)
+                            part = parts.get((d, c.src, c.dst))
+                            if part is None:
+                                part = parts[(d, c.src, c.dst)] = _Part(d, c.src, c.dst)
+                            part.add_columns(c, base, i)
+                    held -= len(ts) + len(c.name)
+                if held <= 0:
+                    rows.flush_largest()
+                    held = batch - rows.held()
+                continue
+            if t is not Decoded:
                 n = item[0] if isinstance(item, tuple) else item.number  # type: ignore[union-attr]
                 if n > records:
                     records = n
                 continue
+            d: Decoded = item  # type: ignore[assignment]
             seq += 1
-            ts = item.ts_ns
-            if item.number > records:
-                records = item.number
+            ts = d.ts_ns
+            if d.number > records:
+                records = d.number
             if first_ns is None:
                 first_ns = ts
             last_ns = ts
@@ -140,21 +177,14 @@ def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callabl
                 day_start = ts - ts % DAY_NS
                 day_end = day_start + DAY_NS
                 day = _day(ts)
-            key = (day, item.src, item.dst)
-            if key != part_key:
-                part = parts.get(key)
-                if part is None:
-                    part = parts[key] = _Part(day, item.src, item.dst)
-                part_key = key
-            part.items.append(item)  # type: ignore[union-attr]
-            part.seqs.append(seq)  # type: ignore[union-attr]
-            n = len(item.updates)
-            part.values += n  # type: ignore[union-attr]
-            held -= 1 + n
+            key = (day, d.src, d.dst)
+            part = parts.get(key)
+            if part is None:
+                part = parts[key] = _Part(day, d.src, d.dst)
+            held -= 1 + part.add_decoded(d, seq)
             if held <= 0:
                 rows.flush_largest()
                 held = batch - rows.held()
-                part_key = ()
             frames += 1
     except InputError as exc:  # damage: the rows before it are kept
         entry.error = str(exc)
@@ -208,28 +238,89 @@ def _conversation(conv: tuple) -> tuple[str, str]:
 
 
 class _Part:
-    """The frames of one partition (day, letters) not yet written: the :class:`Decoded` items
-    themselves and their ordinals; ``values``: the Updates they hold (rows to come, at most)."""
+    """The rows of one partition (day, letters) not yet written, as per-column lists: per frame
+    its ordinal, record number, time, conversation, bytes, kind, checksum verdict, late and how
+    many value rows it has; per value row (frame after frame) name, text, type, carried, changed."""
 
-    __slots__ = ("day", "src", "dst", "items", "seqs", "values")
+    __slots__ = ("day", "src", "dst", "seq", "number", "ts", "conv", "raw", "kind", "ok", "late", "nvalues", "name",
+                 "text", "type_code", "carried", "changed")
 
     def __init__(self, day: str, src: str, dst: str) -> None:
         self.day, self.src, self.dst = day, src, dst
-        self.items: list[Decoded] = []
-        self.seqs: list[int] = []
-        self.values = 0
+        self.seq: list[int] = []
+        self.number: list[int] = []
+        self.ts: list[int] = []
+        self.conv: list[tuple] = []
+        self.raw: list[bytes] = []
+        self.kind: list[str] = []
+        self.ok: list[bool | None] = []
+        self.late: list[bool] = []
+        self.nvalues: list[int] = []
+        self.name: list[str] = []
+        self.text: list[str] = []
+        self.type_code: list[int | None] = []
+        self.carried: list[bool] = []
+        self.changed: list[bool] = []
+
+    def held(self) -> int:
+        return len(self.seq) + len(self.name)
+
+    def add_decoded(self, d: Decoded, seq: int) -> int:
+        """One frame decoded the general way; its value rows (its Updates with a text)."""
+        self.seq.append(seq)
+        self.number.append(d.number)
+        self.ts.append(d.ts_ns)
+        self.conv.append(d.conv)
+        self.raw.append(d.raw)
+        self.kind.append(d.kind)
+        self.ok.append(d.checksum_ok)
+        self.late.append(d.late)
+        k = 0
+        for u in d.updates:
+            if u.text is not None:
+                self.name.append(u.name)
+                self.text.append(u.text)
+                self.type_code.append(u.type_code)
+                self.carried.append(u.carried)
+                self.changed.append(u.changed)
+                k += 1
+        self.nvalues.append(k)
+        return k
+
+    def add_columns(self, c: DirColumns, base: int, i: int | None = None) -> None:
+        """A direction's frames of a batch (``base``: the ordinal before the batch's first), or
+        its frame ``i`` alone."""
+        n = len(c.number)
+        if i is not None:
+            at = sum(c.nvalues[:i])
+            v = slice(at, at + c.nvalues[i])
+            f = slice(i, i + 1)
+            n = 1
+        else:
+            v = f = slice(None)
+        self.seq += [base + 1 + o for o in c.ordinal[f]]
+        self.number += c.number[f]
+        self.ts += c.ts_ns[f]
+        self.conv += [c.conv] * n
+        self.raw += c.raw[f]
+        self.kind += c.kind[f]
+        self.ok += [True] * n
+        self.late += c.late[f]
+        self.nvalues += c.nvalues[f]
+        self.name += c.name[v]
+        self.text += c.text[v]
+        self.type_code += c.type_code[v]
+        self.carried += c.carried[v]
+        self.changed += c.changed[v]
 
 
 #: columns Parquet dictionary-encodes (few distinct values; the others are written plain, which
 #: is both faster and, under zstd, smaller for them: measured on 200k compressed beacon frames)
 _DICTIONARY = ["capture", "vehicle", "transport", "conversation", "src", "dst", "pair", "kind", "name", "type"]
-
-
-_CONV, _NUMBER, _TS, _RAW, _KIND, _OK, _LATE, _UPDATES = (
-    attrgetter(a) for a in ("conv", "number", "ts_ns", "raw", "kind", "checksum_ok", "late", "updates"))
 _FIRST, _SECOND, _THIRD = itemgetter(0), itemgetter(1), itemgetter(2)
-#: an Update's fields (it is a NamedTuple: by position)
-_NAME, _TEXT, _CARRIED, _CHANGED, _TYPE, _BAD = (itemgetter(i) for i in (0, 2, 3, 5, 6, 7))
+#: a double's text as :func:`~sharedlink.protocols.codec.parse_typed` takes it (its
+#: ``_DOUBLE_TEXT``, whole text: RE2's ``$`` is the end of the text): the rest is a bad value
+_DOUBLE_RE2 = r"^[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?$"
 
 
 class _Rows:
@@ -249,80 +340,70 @@ class _Rows:
         self.values = 0  # values rows written
 
     def held(self) -> int:
-        return sum(len(p.items) + p.values for p in self.parts.values())
+        return sum(p.held() for p in self.parts.values())
 
     def flush_largest(self) -> None:
-        self._flush(max(self.parts, key=lambda k: len(self.parts[k].items) + self.parts[k].values))
+        self._flush(max(self.parts, key=lambda k: self.parts[k].held()))
 
     def _flush(self, key: tuple[str, str, str]) -> None:
         part = self.parts.pop(key, None)
-        if part is None or not part.items:
+        if part is None or not part.seq:
             return
-        items, n = part.items, len(part.items)
+        n = len(part.seq)
         link = f"{part.src}-{part.dst}"
         convs = self.convs
-        for c in set(map(_CONV, items)):
+        for c in set(part.conv):
             if c not in convs:
                 convs[c] = _conversation(c)
-        conv = [convs[c] for c in map(_CONV, items)]
-        seq = pa.array(part.seqs, pa.int64())
-        number = pa.array(list(map(_NUMBER, items)), pa.int64())
-        time_ns = pa.array(list(map(_TS, items)), pa.int64())
-        raws = list(map(_RAW, items))
-        raw = pa.BinaryArray.from_buffers(pa.binary(), n, [None, pa.py_buffer(array("i", accumulate(map(len, raws), initial=0))),
-                                                           pa.py_buffer(b"".join(raws))])
+        conv = [convs[c] for c in part.conv]
+        seq = pa.array(part.seq, pa.int64())
+        number = pa.array(part.number, pa.int64())
+        time_ns = pa.array(part.ts, pa.int64())
+        raws = part.raw
+        offsets = array("i", accumulate(map(len, raws), initial=0))
+        raw = pa.BinaryArray.from_buffers(pa.binary(), n, [None, pa.py_buffer(offsets), pa.py_buffer(b"".join(raws))])
         frames = {
             **self._fixed(part, n), "seq": seq, "frame": number, "time_ns": time_ns,
             "transport": pa.array(list(map(_FIRST, conv)), pa.string()),
             "conversation": pa.array(list(map(_SECOND, conv)), pa.string()),
-            "kind": pa.array(list(map(_KIND, items)), pa.string()),
-            "checksum_ok": pa.array(list(map(_OK, items)), pa.bool_()),
-            "late": pa.array(list(map(_LATE, items)), pa.bool_()),
-            "size": pa.array(list(map(len, raws)), pa.int32()), "raw": raw,
+            "kind": pa.array(part.kind, pa.string()),
+            "checksum_ok": pa.array(part.ok, pa.bool_()),
+            "late": pa.array(part.late, pa.bool_()),
+            "size": pc.subtract(pa.Array.from_buffers(pa.int32(), n, [None, pa.py_buffer(offsets)], offset=1),
+                                pa.Array.from_buffers(pa.int32(), n, [None, pa.py_buffer(offsets)])),
+            "raw": raw,
         }
         self._write("frames", (part.day, link), frames, n)
-        # values: every Update with a value, its frame's columns taken by the frame's index
-        ups: list = []
-        at: list[int] = []
-        for i, us in enumerate(map(_UPDATES, items)):
-            if us:
-                ups += us
-                at += [i] * len(us)
-        if not ups:
-            return
-        # (columns by itemgetter: zip(*ups) over many rows is far slower)
-        text = list(map(_TEXT, ups))
-        if None in text:  # (a slot without a value: no row)
-            sel = [i for i, t in enumerate(text) if t is not None]
-            ups = [ups[i] for i in sel]
-            at = [at[i] for i in sel]
-            text = list(map(_TEXT, ups))
-        m = len(ups)
+        # values: every value row, its frame's columns taken by the frame's index
+        m = len(part.name)
         if not m:
             return
-        tc = list(map(_TYPE, ups))
-        text_a = pa.array(text, pa.string())
-        vlong, vdouble, vstring = self._typed_columns(tc, text, list(map(_BAD, ups)), text_a)
-        take = pa.array(at, pa.int32())
+        # (each row's frame index: the parents of a list array whose lists are the frames' rows)
+        take = pc.list_parent_indices(pa.ListArray.from_arrays(
+            pa.array(accumulate(part.nvalues, initial=0), pa.int32()), pa.nulls(m)))
+        tc = pa.array(part.type_code, pa.int8())
+        text_a = pa.array(part.text, pa.string())
+        vlong, vdouble, vstring = self._typed_columns(part.type_code, part.text, tc, text_a)
         values = {
             **self._fixed(part, m),
             "seq": seq.take(take), "frame": number.take(take), "time_ns": time_ns.take(take),
-            "name": pa.array(list(map(_NAME, ups)), pa.string()), "type": pa.array(tc, pa.int8()),
+            "name": pa.array(part.name, pa.string()), "type": tc,
             "text": text_a, "value_long": vlong, "value_double": vdouble, "value_string": vstring,
-            "carried": pa.array(list(map(_CARRIED, ups)), pa.bool_()),
-            "changed": pa.array(list(map(_CHANGED, ups)), pa.bool_()),
+            "carried": pa.array(part.carried, pa.bool_()),
+            "changed": pa.array(part.changed, pa.bool_()),
         }
         self._write("values", (part.day, link), values, m)
         self.values += m
 
-    def _typed_columns(self, tc: list, text: list, bad: list, text_a: pa.Array) -> tuple[pa.Array, pa.Array, pa.Array]:
-        """value_long, value_double and value_string of values rows. A double that fits its type
-        (the decoder's ``bad`` False) is converted by Arrow, all such in one cast (Arrow parses
-        the protocol's number forms to the same doubles as ``float``: checked by the tests);
-        every other row by :func:`_typed`, a value met twice kept."""
+    def _typed_columns(self, tc: list, text: list, tc_a: pa.Array, text_a: pa.Array
+                       ) -> tuple[pa.Array, pa.Array, pa.Array]:
+        """value_long, value_double and value_string of values rows. A double whose text fits
+        its type (:func:`~sharedlink.protocols.codec.parse_typed`'s pattern, matched by Arrow)
+        is converted by Arrow, all such in one cast (Arrow parses the protocol's number forms to
+        the same doubles as ``float``: checked by the tests); every other row by
+        :func:`_typed`, a value met twice kept."""
         m = len(text)
-        is_d = pc.fill_null(pc.and_(pc.equal(pa.array(tc, pa.int8()), TYPE_DOUBLE), pc.invert(pa.array(bad, pa.bool_()))),
-                            False)
+        is_d = pc.fill_null(pc.and_(pc.equal(tc_a, TYPE_DOUBLE), pc.match_substring_regex(text_a, _DOUBLE_RE2)), False)
         doubles = pc.cast(pc.filter(text_a, is_d), pa.float64())
         if len(doubles) == m:
             return pa.nulls(m, pa.int64()), doubles, pa.nulls(m, pa.string())
@@ -331,14 +412,14 @@ class _Rows:
             typed.clear()
             repeated.clear()
         rows = []
-        for k in zip(tc, text, bad):
-            if k[0] == TYPE_DOUBLE and not k[2]:
+        for k, d in zip(zip(tc, text), is_d.to_pylist()):
+            if d:
                 continue
-            t = typed.get(k[:2])
+            t = typed.get(k)
             if t is None:
                 t = _typed(k[0], k[1])
                 if k[1] in repeated:  # (a value met twice is likely to come again: carried)
-                    typed[k[:2]] = t
+                    typed[k] = t
                 else:
                     repeated.add(k[1])
             rows.append(t)
