@@ -48,12 +48,12 @@ from foxglove.messages import (
     Vector3,
 )
 
-from sharedlink.analysis.decode import VALUE_KINDS, Decoded
+from sharedlink.analysis.decode import VALUE_KINDS, Columns, Decoded
 from sharedlink.analysis.sessions import Ack, SessionMessage
 from sharedlink.capture.pcapio import NS
 from sharedlink.errors import UsageError
 from sharedlink.protocols import blackboard, p2os
-from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG
+from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG, guess_value, parse_typed
 
 # -- default variable names (the beacon's, BUL-009)
 LAT, LON, HEADING, SPEED = "AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"
@@ -116,21 +116,25 @@ _NAME_JSON: dict[str, str] = {}
 
 
 def _fragment(name: str, v: Any) -> tuple[Any, str]:
-    """A variable's typed value and its ``"name": value`` JSON member. A number whose text is
-    already a JSON number of the same kind (integer text for a long, a fraction or exponent
-    for a double) is written as sent: JSON reads it back as the same value, and the float is
-    not formatted again.
+    """A variable's typed value and its ``"name": value`` JSON member (:func:`_fragment_of`)."""
+    return _fragment_of(name, v.text, v.type_code, v)
+
+
+def _fragment_of(name: str, t: str, tc: int | None, v: Any = None) -> tuple[Any, str]:
+    """The typed value of text ``t`` of type ``tc`` and its ``"name": value`` JSON member. A
+    number whose text is already a JSON number of the same kind (integer text for a long, a
+    fraction or exponent for a double) is written as sent: JSON reads it back as the same
+    value, and the float is not formatted again.
 
     Hot path (each changed variable of each frame): a JSON-number text of an untyped, long or
     double variable is converted here, once (``Variable.value`` would match it against its
-    type's pattern first); anything else takes the general way below."""
-    t = v.text
+    type's pattern first); anything else takes the general way below (``v``: the Variable,
+    whose value is kept on it; else typed as it types it)."""
     key = _NAME_JSON.get(name)
     if key is None:
         key = _jstr(name) + ": "
         if len(_NAME_JSON) < _NAMES_MAX:
             _NAME_JSON[name] = key
-    tc = v.type_code
     if (tc is None or tc == TYPE_LONG or tc == TYPE_DOUBLE) and _JSON_NUMBER.match(t) is not None:
         if t.lstrip("-").isdigit():
             if tc != TYPE_DOUBLE:
@@ -139,7 +143,12 @@ def _fragment(name: str, v: Any) -> tuple[Any, str]:
             x = float(t)
             if math.isfinite(x):
                 return x, key + t
-    x = _typed(v)
+    if v is not None:
+        x = _typed(v)
+    else:  # (as Variable.value, then _typed)
+        x = guess_value(t) if tc is None else parse_typed(tc, t)[0]
+        if isinstance(x, float) and not math.isfinite(x):
+            x = t
     if type(x) is float:
         plain = _JSON_NUMBER.match(t) is not None and ("." in t or "e" in t or "E" in t)
     elif type(x) is int:
@@ -255,6 +264,8 @@ class _Direction:
     nlocations: int = 0
     log_location: Any = None
     pair: str = ""  # "B>A"
+    src: str = ""
+    dst: str = ""
     rows: dict[tuple, str] = field(default_factory=dict)  # (kind, checksum ok, late) -> frames row format
     fix: tuple | None = None  # (heading, speed as typed, frame id, _fix_tail) of the last fix made
 
@@ -307,7 +318,7 @@ class FoxgloveChannels:
                 meta,
             )
             dr.location_topic, dr.values_topic, dr.frames_topic = base + "/location", base + "/values", base + "/frames"
-            dr.pair = d.pair
+            dr.pair, dr.src, dr.dst = d.pair, d.src, d.dst
             # the base channels' log, called with encoded bytes (foxglove.Channel.log's own path
             # for bytes, without its type checks)
             dr.log_frames, dr.log_values = dr.frames.base.log, dr.values.base.log
@@ -336,22 +347,28 @@ class FoxgloveChannels:
         elif changed:
             frags = dr.frags
             for n in changed:
-                typed[n], frags[n] = _fragment(n, vars_[n])
+                v = vars_.get(n)
+                if v is not None and v.text is not None:
+                    typed[n], frags[n] = _fragment(n, v)
+                else:  # (a reply's value stays on the reply: the table has none)
+                    typed.pop(n, None)
+                    frags.pop(n, None)
             dr.values_json = ("{%s}" % ", ".join(frags.values())).encode()
-        ok = d.checksum_ok
-        raw = d.raw
+        self._emit(dr, typed, d.number, d.kind, d.checksum_ok, d.late, d.raw, ts, changed)
+
+    def _emit(self, dr: _Direction, typed: dict[str, Any], number: int, kind: str, ok: bool | None, late: bool,
+              raw: bytes, ts: int, changed: list[str]) -> None:
+        """A frame's frames, values and location messages, its direction's values up to date."""
         names = _NAMES.get(tuple(changed)) if changed else "[]"
         if names is None:
             names = _dumps(changed)
             if len(_NAMES) < _NAMES_MAX:
                 _NAMES[tuple(changed)] = names
-        late = d.late
-        kind = d.kind
         fmt = dr.rows.get((kind, ok, late))
         if fmt is None:  # the row with its letters, kind, checksum and late filled in, once
-            fixed = [_jstr(src), _jstr(dst), kind, "none" if ok is None else ("good" if ok else "bad")]
+            fixed = [_jstr(dr.src), _jstr(dr.dst), kind, "none" if ok is None else ("good" if ok else "bad")]
             fmt = dr.rows[(kind, ok, late)] = _ROW % (*[f.replace("%", "%%") for f in fixed], "true" if late else "false")
-        row = fmt % (d.number, names, _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
+        row = fmt % (number, names, _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
         dr.log_frames(row.encode(), ts)
         dr.log_values(dr.values_json, ts)
         dr.nframes += 1
@@ -365,6 +382,36 @@ class FoxgloveChannels:
                     dr.log_location = dr.location.base.log
                 dr.log_location(fix, ts)
                 dr.nlocations += 1
+
+    def columns(self, b: Columns) -> None:
+        """The messages of a batch of the decoding core's columns mode (named data frames with
+        a good checksum, their value rows without carried values), in capture order: what
+        :meth:`frame` publishes for each of its frames (the tests compare the files)."""
+        dirs = list(b.dirs.values())
+        if len(dirs) == 1:
+            steps = [(0, i) for i in range(b.frames)]
+        else:
+            steps = [(0, 0)] * b.frames
+            for k, c in enumerate(dirs):
+                for i, o in enumerate(c.ordinal):
+                    steps[o] = (k, i)
+        drs = [self._dirs[(c.conv, c.src, c.dst)] for c in dirs]  # (a direction's first frame is never batched)
+        at = [0] * len(dirs)
+        for k, i in steps:
+            c = dirs[k]
+            dr = drs[k]
+            n = c.nvalues[i]
+            a = at[k]
+            e = at[k] = a + n
+            typed = dr.typed
+            changed = [x for x, ch in zip(c.name[a:e], c.changed[a:e]) if ch] if n else []
+            if changed:
+                frags = dr.frags
+                for x, ch, t, tc in zip(c.name[a:e], c.changed[a:e], c.text[a:e], c.type_code[a:e]):
+                    if ch:
+                        typed[x], frags[x] = _fragment_of(x, t, tc)
+                dr.values_json = ("{%s}" % ", ".join(frags.values())).encode()
+            self._emit(dr, typed, c.number[i], c.kind[i], True, c.late[i], c.raw[i], c.ts_ns[i], changed)
 
     def _fix_bytes(self, dr: _Direction, typed: dict[str, Any], ts_ns: int, frame_id: str) -> bytes | None:
         """The direction's LocationFix after a frame, protobuf-encoded (None: no position), as

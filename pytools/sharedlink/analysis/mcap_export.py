@@ -1,7 +1,8 @@
 """``export --format mcap``: a capture as an MCAP file for Foxglove and PlotJuggler.
 
-One streaming pass of :func:`sharedlink.analysis.decode.iter_decoded` publishes every SharedLink
-frame on the channels of :class:`~sharedlink.analysis.foxglove_channels.FoxgloveChannels`, which
+One streaming pass of the decoding core (:class:`sharedlink.analysis.decode.Decoder`, in its
+columns mode: the frames its fast path takes come as rows, no per-frame object) publishes every
+SharedLink frame on the channels of :class:`~sharedlink.analysis.foxglove_channels.FoxgloveChannels`, which
 foxglove-sdk's MCAP writer (zstd chunks, indexed) records with log time = capture time (ns).
 When that pass met traffic that is not SharedLink (noise or other records), a second pass,
 :func:`sharedlink.analysis.sessions.iter_sessions`, adds the P2OS and blackboard sessions (MCAP
@@ -15,7 +16,7 @@ from pathlib import Path
 import foxglove
 from foxglove.mcap import MCAPWriteOptions
 
-from sharedlink.analysis.decode import Decoded, iter_decoded
+from sharedlink.analysis.decode import Columns, Decoded, Decoder
 from sharedlink.analysis.export import ExportOptions, ExportResult
 from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
 from sharedlink.analysis.sessions import iter_sessions
@@ -38,12 +39,20 @@ def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOp
     other = False
     seen = result.seen if opts.require else None
     try:
-        for item in iter_decoded(path, opts.variables, opts.sync_interval, carried=False, progress=opts.progress):
-            if isinstance(item, Decoded):
-                result.frames += 1
-                channels.frame(item)
+        dec = Decoder(opts.variables, opts.sync_interval, carried=False)
+        for item in dec.capture(path, opts.progress, columns=True):
+            t = type(item)
+            if t is Columns:  # (the frames the core's fast path took: rows, no Decoded)
+                result.frames += item.frames  # type: ignore[union-attr]
+                channels.columns(item)  # type: ignore[arg-type]
                 if seen is not None:
-                    seen.update(u.name for u in item.updates if u.text is not None)
+                    for c in item.dirs.values():  # type: ignore[union-attr]
+                        seen.update(c.name)
+            elif t is Decoded:
+                result.frames += 1
+                channels.frame(item)  # type: ignore[arg-type]
+                if seen is not None:
+                    seen.update(u.name for u in item.updates if u.text is not None)  # type: ignore[union-attr]
             else:
                 other = True
     except CaptureError as exc:
