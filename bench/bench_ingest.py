@@ -29,7 +29,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from bench import Result, line, load_now, load_since
-from sharedlink.analysis.decode import iter_decoded
+from sharedlink.analysis.decode import Decoder
 from sharedlink.analysis.stats import capture_stats
 from sharedlink.fleet.dataset import load_manifest, save_manifest
 from sharedlink.fleet.ingest import ingest
@@ -110,8 +110,8 @@ def bench_scaling(work: Path) -> list[Result]:
     out = []
     started = load_now()
     t = time.process_time()
-    for cap in sorted(caps.iterdir()):
-        for _item in iter_decoded(cap):
+    for cap in sorted(caps.iterdir()):  # (as ingest decodes: the core's columns mode)
+        for _item in Decoder().capture(cap, columns=True):
             pass
     decode_cpu = SCALE_CAPTURES * SCALE_FRAMES / (time.process_time() - t)
     wall1, cpu1 = _timed(caps, work / "ds1", own)
