@@ -295,7 +295,7 @@ class _Compiled:
     value`` (so every subset a compressed stream sends, in that order, is one match);
     positional: one ``|D value`` a slot of the table's full set. Each group is a value as bytes,
     compared with ``cur`` (the table's texts, latin-1, kept in step: a changed value is written
-    to both). Made from the table as the reference path leaves it; valid while the direction's
+    to the table at the end of the run that changed it). Made from the table as the reference path leaves it; valid while the direction's
     :class:`_Hot` version is ``version`` (every reference-path frame of the direction moves it)
     and made again when a frame gives a variable its first value.
 
@@ -377,6 +377,8 @@ class _Compiled:
             n = wire = 0
             form = None
             last_full = None
+            dirty: list[int] = []  # the variables whose value changed (written to the table at the end)
+            changed = dirty.append
             while first is None:
                 try:
                     sec, frac, incl, _orig, eth, tl, frag, proto, here, ul = unpack_x(buf, off)
@@ -431,7 +433,7 @@ class _Compiled:
                         if cur[k] is None:
                             first = [vs[k]] if first is None else [*first, vs[k]]
                         cur[k] = v
-                        vs[k].text = v.decode("latin-1")
+                        changed(k)
                         parts += (rec[k], v)
                 ts_app(sec | (frac * mult) << 32)  # (the packed time of a change chunk)
                 num_app(number)
@@ -442,6 +444,9 @@ class _Compiled:
                     full_app(ts)
                     last_full = number
                     sync[1] = ts
+            if dirty:  # the table's texts, once a run
+                for k in set(dirty):
+                    vs[k].text = cur[k].decode("latin-1")
             if form is not None:
                 t.named = not form
                 if last_full is not None:
