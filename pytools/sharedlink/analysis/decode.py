@@ -295,9 +295,10 @@ class _Compiled:
     value`` (so every subset a compressed stream sends, in that order, is one match);
     positional: one ``|D value`` a slot of the table's full set. Each group is a value as bytes,
     compared with ``cur`` (the table's texts, latin-1, kept in step: a changed value is written
-    to the table at the end of the run that changed it). Made from the table as the reference path leaves it; valid while the direction's
-    :class:`_Hot` version is ``version`` (every reference-path frame of the direction moves it)
-    and made again when a frame gives a variable its first value.
+    to the table at the end of the run that changed it). Made from the table as the reference
+    path leaves it; valid while the direction's :class:`_Hot` version is ``version`` (every
+    reference-path frame of the direction moves it) and made again when a frame gives a
+    variable its first value.
 
     ``take(buf, off, number, mult, lane, out)`` decodes a run of records of a classic pcap block
     (``buf`` from ``off``; ``number``: the last record's number; ``mult``: 1 for nanosecond
@@ -368,7 +369,7 @@ class _Compiled:
         swap = _SWAP16
         eth_ipv4 = _ETH_IPV4
 
-        def take(buf: bytes, off: int, number: int, mult: int, lane: bytes, out: list
+        def take(buf: bytes, off: int, number: int, mult: int, lane: bytes, out: tuple
                  ) -> tuple[int, int, int, int, list[Variable] | None]:
             # a run of records, while each is one frame of this direction a layout matches
             end = len(buf)
