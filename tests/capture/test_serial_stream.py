@@ -17,11 +17,12 @@ from pathlib import Path
 
 import pytest
 
+from sharedlink.analysis.changes import read_changes
 from sharedlink.analysis.diff import DiffOptions, diff_captures
 from sharedlink.analysis.stats import capture_stats
 from sharedlink.capture.pcapio import CaptureError, PcapWriter, read_records
 from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWriter
-from sharedlink.capture.stream import Chunk, StreamFrame, iter_frames, read_changes
+from sharedlink.capture.stream import Chunk, StreamFrame, iter_frames
 from sharedlink.generators.serial import SerialGenOptions, generate_serial_file, session_frames
 from sharedlink.protocols.codec import encode_positional
 

@@ -59,6 +59,7 @@ from sharedlink.protocols.state import (
     LinkState,
     PendingAsks,
     Update,
+    Variable,
     VariableTable,
     _update,
     conversation_key,
@@ -241,10 +242,11 @@ class _Hot:
     Update the fast path made for each variable, reused while it still says the same (Updates
     are immutable; forgotten whenever the reference path decodes a frame of the direction)."""
 
-    __slots__ = ("table", "sync", "layouts", "last", "stamp", "version", "pos")
+    __slots__ = ("table", "sync", "layouts", "last", "stamp", "version", "pos", "compiled")
 
     def __init__(self, table: VariableTable, sync: list) -> None:
         self.table, self.sync = table, sync
+        self.compiled: _Compiled | None = None  # changes only: its layouts as compiled patterns
         self.version = 0  # counts the direction's frames through the reference path (types may move)
         self.layouts: dict[tuple[str, ...], _Layout] = {}
         self.pos: dict[int, _Layout] = {}  # positional layouts by slot count
@@ -257,6 +259,215 @@ def _named_size(name: str, type_code: int | None, text: str | None) -> int:
     if text is None:
         return 0
     return 4 + len(name) + len(text) + (2 + len(str(type_code)) if type_code is not None else 0)
+
+
+#: a value as a compiled layout takes it (a frame with any other goes the reference path)
+_CV = rb"[^|\x00-\x1f\[\]]"
+#: checksum digits (bytes) -> what to take from (1 + the byte sum of the whole frame) so that the
+#: rest is 0 mod 256 when the checksum is right (as :data:`_CKSUB`)
+_CKSUB_B = {k.encode(): v for k, v in _CKSUB.items()}
+#: a direction with more variables than this gets no compiled layouts (a steady state is narrow;
+#: a pattern of every name of a wide table, rebuilt as it grows, would cost more than it saves)
+MAX_COMPILED_VARS = 64
+#: compiled patterns, shared by the directions that have the same layouts; emptied at this many
+MAX_PATTERNS = 1024
+_PATTERNS: dict[bytes, Callable] = {}
+
+
+def _fullmatch(pattern: bytes) -> Callable:
+    rx = _PATTERNS.get(pattern)
+    if rx is None:
+        if len(_PATTERNS) >= MAX_PATTERNS:
+            _PATTERNS.clear()
+        rx = _PATTERNS[pattern] = re.compile(pattern).fullmatch
+    return rx
+
+
+#: a classic pcap record header, then from byte 12 of an Ethernet packet: the type and the IP
+#: version and header length (3 bytes), IP total length, flags and fragment offset, protocol,
+#: the addresses and UDP ports (12 bytes: the conversation), UDP length: the 16-bit fields
+#: little-endian, compared through _SWAP16; the fragment field is 0, or 0x40 for "don't fragment"
+_PCAP_UDP = struct.Struct("<IIII12x3sxHxxHxB2x12sH")
+_SWAP16 = [((x & 0xFF) << 8) | (x >> 8) for x in range(65536)]
+
+
+class _Compiled:
+    """Changes only: a direction's layouts as compiled patterns on the frame's bytes, one a
+    form, and :attr:`take`, the function that decodes a frame with them.
+
+    Named: every typed variable of the table, in table order, as an optional ``|T t|Q name|D
+    value`` (so every subset a compressed stream sends, in that order, is one match);
+    positional: one ``|D value`` a slot of the table's full set. Each group is a value as bytes,
+    compared with ``cur`` (the table's texts, latin-1, kept in step: a changed value is written
+    to the table at the end of the run that changed it). Made from the table as the reference
+    path leaves it; valid while the direction's :class:`_Hot` version is ``version`` (every
+    reference-path frame of the direction moves it) and made again when a frame gives a
+    variable its first value.
+
+    ``take(buf, off, number, mult, lane, out)`` decodes a run of records of a classic pcap block
+    (``buf`` from ``off``; ``number``: the last record's number; ``mult``: 1 for nanosecond
+    times, 1000 for microseconds): while a record is a plain Ethernet/IPv4/UDP datagram of
+    ``lane`` (the packet's addresses and ports, as it holds them), its payload one
+    frame of this direction a compiled layout matches, with a right checksum, the table is
+    updated and ``out`` (four appends) gets its packed time, number and change record (the
+    record as :mod:`sharedlink.capture.change_records` makes it: the letters, then each value
+    the frame changed) and, for a full frame, its time. It stops at the first record it does
+    not take (the caller decodes that one with :meth:`Decoder.reference`) or after a frame that
+    gave a variable its first value (then the layouts are made again, with a new ``take``) and
+    returns ``(offset, number, frames taken, their captured bytes, first)``, ``first`` the
+    variables that frame gave a first value, else None. The caller counts what it took in
+    :attr:`Decoder.fast`. No Decoded, no Updates: a frame costs one struct call, one match
+    and a comparison per value it holds; ``set_in``/``set_at`` are not kept. A run of one
+    direction (a capture of one sender) is one call; everything the loop uses is bound in the
+    closure (no attribute look-ups per frame)."""
+
+    __slots__ = ("hot", "version", "key", "vars", "cur", "named", "pos", "take")
+
+    def __init__(self, h: _Hot, key: bytes) -> None:
+        self.hot = h
+        self.key = key  # destination and source letters: a change record's first two bytes
+        self.build(h)
+
+    def build(self, h: _Hot) -> None:
+        from sharedlink.capture.change_records import SEP_CHANGE, SEP_VALUE, escape
+
+        t = h.table
+        self.version = h.version
+        vs = list(t.vars.values())
+        self.vars = vs
+        cur = self.cur = [None if v.text is None else v.text.encode("latin-1", "replace") for v in vs]
+        rec = [SEP_CHANGE + escape(v.name) + SEP_VALUE for v in vs]
+        key = self.key
+        head = rb"\[:" + re.escape(key) + rb"\|N0"
+        tail = rb"\|C([0-9A-F]{2})\]\r\n"
+        valued = {v.name for v in vs if v.text is not None}
+        named = pos = None
+        nslots: list[int] = []
+        pslots: list[int] = []
+        preq: list[int] = []
+        if len(vs) <= MAX_COMPILED_VARS:
+            # named: only when every variable with a value has a type and was sent named (then
+            # "full", every sent name present, is "every variable with a value present")
+            if all(v.type_code is not None or v.text is None for v in vs) and valued == set(t.sent_names):
+                nslots = [i for i, v in enumerate(vs) if v.type_code is not None]
+                named = _fullmatch(head + b"".join(
+                    rb"(?:\|T%d\|Q%s\|D(%s+))?" % (vs[i].type_code, re.escape(vs[i].name.encode("latin-1", "replace")),
+                                                  _CV) for i in nslots) + tail)
+            # positional: the table's full set, each slot named as the reference path names it
+            # in a frame of that many slots, every value held in a slot that has held one
+            names = t.names
+            n = len(names)
+            index = {v.name: i for i, v in enumerate(vs)}
+            if (names and len(set(names)) == n and all(x in index for x in names)
+                    and all(t.slot_name(i, n) == names[i] for i in range(n))
+                    and t.filled == {i for i, x in enumerate(names) if x in valued} and valued <= set(names)):
+                pslots = [index[x] for x in names]
+                preq = sorted(t.filled)
+                pos = _fullmatch(head + (rb"\|D(%s*)" % _CV) * n + tail)
+        self.named, self.pos = named, pos
+        sync = h.sync
+        cksub = _CKSUB_B
+        compiled = self
+        unpack_x = _PCAP_UDP.unpack_from
+        struct_error = struct.error
+        swap = _SWAP16
+        eth_ipv4 = _ETH_IPV4
+
+        def take(buf: bytes, off: int, number: int, mult: int, lane: bytes, out: tuple
+                 ) -> tuple[int, int, int, int, list[Variable] | None]:
+            # a run of records, while each is one frame of this direction a layout matches
+            end = len(buf)
+            ts_app, num_app, rec_app, full_app = out
+            first: list[Variable] | None = None
+            n = wire = 0
+            form = None
+            last_full = None
+            dirty: list[int] = []  # the variables whose value changed (written to the table at the end)
+            changed = dirty.append
+            while first is None:
+                try:
+                    sec, frac, incl, _orig, eth, tl, frag, proto, here, ul = unpack_x(buf, off)
+                except struct_error:
+                    break
+                start = off + 58
+                e = off + 16 + incl
+                if (here != lane or e > end or eth != eth_ipv4 or proto != 17 or frag & 0xFFBF or incl <= 50
+                        or incl > 65000 or tl != swap[incl - 14] or ul != swap[incl - 34]):
+                    break
+                positional = buf[start + 8] == 68  # "[:AB|N0|D"
+                if positional:
+                    if pos is None:
+                        break
+                    m = pos(buf, start, e)
+                    if m is None:
+                        break
+                    g = m.groups()
+                    slots = pslots
+                    # full (as VariableTable.kind, before the frame): every slot that has held a value has one
+                    full = b"" not in g or all(g[i] for i in preq)
+                else:
+                    if named is None or (buf[start + 8] == 67 and t.named is not True):
+                        break  # (a bare N0 takes the direction's form: named only in a named direction)
+                    m = named(buf, start, e)
+                    if m is None:
+                        break
+                    g = m.groups()
+                    slots = nslots
+                    # full: every variable with a value present (all were sent named), and one present
+                    if None not in g:
+                        full = len(g) > 1
+                    elif g.count(None) < len(g) - 1:
+                        full = True
+                        for v, k in zip(g, slots):
+                            if v is None and cur[k] is not None:
+                                full = False
+                                break
+                    else:
+                        full = False
+                frame = buf[start:e]
+                # the checksum: adler32's low half is 1 + the byte sum for up to 256 bytes (C speed)
+                if (((adler32(frame) & 0xFFFF) if e - start <= 256 else sum(frame) + 1) - cksub[g[-1]]) & 0xFF:
+                    break
+                off = e
+                number += 1
+                n += 1
+                wire += incl
+                parts = [key]
+                for v, k in zip(g, slots):
+                    if v and v != cur[k]:
+                        if cur[k] is None:
+                            first = [vs[k]] if first is None else [*first, vs[k]]
+                        cur[k] = v
+                        changed(k)
+                        parts += (rec[k], v)
+                ts_app(sec | (frac * mult) << 32)  # (the packed time of a change chunk)
+                num_app(number)
+                rec_app(b"".join(parts))
+                form = positional
+                if full:
+                    ts = sec * NS + frac * mult
+                    full_app(ts)
+                    last_full = number
+                    sync[1] = ts
+            if dirty:  # the table's texts, once a run
+                for k in set(dirty):
+                    vs[k].text = cur[k].decode("latin-1")
+            if form is not None:
+                t.named = not form
+                if last_full is not None:
+                    t.last_full_at, t.last_full_in = sync[1], last_full
+            if first is not None:  # what the reference path notes of a first value, then build again
+                if positional:
+                    t.filled.update(i for i, v in enumerate(g[:-1]) if v)
+                else:
+                    sent = t.sent_names
+                    for v, k in zip(g, slots):
+                        if v is not None and vs[k].name not in sent:
+                            sent[vs[k].name] = len(sent)
+                compiled.build(h)  # (a new take: the caller looks it up again)
+            return off, number, n, wire, first
+
+        self.take = take
 
 
 class DirCounts:
@@ -659,6 +870,33 @@ class Decoder(ReferenceDecoder):
             lay.full = bool(present) and sum(1 for n in present if n in table.sent_names) == len(table.sent_names)
             lay.stamp = stamp
         return lay.full
+
+    # -- changes only (diff) ------------------------------------------------------------------
+
+    def reference(self, sf: StreamFrame) -> Decoded:
+        """One frame (``sf.frame`` parsed) through the reference path, the core's state following
+        it: what :meth:`decode` does with a frame its fast path does not take. In the changes-only
+        mode every frame :meth:`change_at` does not take comes here (one mode a Decoder: the
+        Decoded fast path would move values under the compiled layouts)."""
+        d = ReferenceDecoder.decode(self, sf)
+        self._learn(d)
+        return d
+
+    def compiled(self, conv: tuple, src: str, dst: str) -> _Compiled | None:
+        """Changes only: the compiled layouts of a direction whose frames the fast path takes
+        (:class:`_Compiled`; its ``take`` decodes a frame), made or brought up to date from its
+        table; None when it has none (its frames go to :meth:`reference`). Valid until the next
+        frame through :meth:`reference`. One mode a Decoder: :meth:`decode` would move values
+        under the compiled layouts."""
+        h = self._hot.get((conv, src, dst))
+        if h is None:
+            return None
+        c = h.compiled
+        if c is None:
+            c = h.compiled = _Compiled(h, (dst + src).encode("latin-1", "replace"))
+        elif c.version != h.version:
+            c.build(h)
+        return c if c.named is not None or c.pos is not None else None
 
     def _learn(self, d: Decoded) -> None:
         if d.kind == "declaration":

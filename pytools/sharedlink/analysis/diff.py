@@ -29,12 +29,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from statistics import median
 
+from sharedlink.analysis.changes import read_changes
 from sharedlink.capture.stream import (
     Chunk,
     SideStats,
     key_label,
     parse_record,
-    read_changes,
     unescape,
     unpack_ts,
 )

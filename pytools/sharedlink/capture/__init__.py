@@ -2,5 +2,6 @@
 integer nanoseconds), :mod:`.packets` takes Ethernet/IP/UDP/TCP apart, :mod:`.serial_format`
 holds the serial capture format and its deframers (``docs/serial-capture-format.md``),
 :mod:`.serial_port` captures a live line, :mod:`.serial_import` converts serial logs, and
-:mod:`.stream` turns records into datagrams, frames and value changes (with its fast tiers
-:mod:`.fast_records`, :mod:`.fast_blocks` and the record format :mod:`.change_records`)."""
+:mod:`.stream` turns records into datagrams and frames (and holds the chunks of change records
+``diff`` reads, whose format is :mod:`.change_records`; their reader decodes through the core,
+:mod:`sharedlink.analysis.changes`)."""

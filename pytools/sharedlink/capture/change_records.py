@@ -1,8 +1,8 @@
-"""Change records: the compact bytes :class:`~sharedlink.capture.stream.ChangeReader` gives
+"""Change records: the compact bytes :class:`~sharedlink.analysis.changes.ChangeReader` gives
 for each value frame (destination and source letters, then ``\\x1f`` name ``\\x1e`` value per
-changed variable, escaped so the separators cannot occur in names or values). Shared by the
-reference path in :mod:`sharedlink.capture.stream` and the fast tiers
-(:mod:`sharedlink.capture.fast_records`, :mod:`sharedlink.capture.fast_blocks`)."""
+changed variable, escaped so the separators cannot occur in names or values). Made by the
+decoding core's changes-only mode (:meth:`sharedlink.analysis.decode.Decoder.change_at`) and by
+the reader for the frames the core's reference path decodes."""
 
 from __future__ import annotations
 
