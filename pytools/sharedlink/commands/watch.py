@@ -121,11 +121,12 @@ def _foxglove(args: argparse.Namespace) -> tuple[Any, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sharedlink.watch import FastDecoder, json_line, run_watch
+    from sharedlink.watch import FastDecoder, WatchStats, json_line, run_watch
 
     variables, sync = decode_options(args)
     source = _source(args)
     server = None
+    stats = WatchStats()
     try:
         decoder = FastDecoder(variables, sync, carried=False)  # the outputs read values from the table
         outputs: list = []
@@ -140,17 +141,19 @@ def run(args: argparse.Namespace) -> int:
                 write = out.write
 
                 def emit(d: Decoded) -> None:
-                    write(json_line(d) + "\n")
+                    write(json_line(d, stats.dropped) + "\n")
 
                 outputs.append(emit)
-                run_watch(source, decoder, outputs, out=out, session_outputs=sessions)
+                run_watch(source, decoder, outputs, out=out, stats=stats, session_outputs=sessions)
             return _damage(source)
-        _live(source, decoder, outputs, sync, sessions)
+        _live(source, decoder, outputs, sync, sessions, stats)
         return _damage(source)
     finally:
         if server is not None:
             server.stop()
         source.close()
+        if stats.summary():  # also after Ctrl-C: what the view or the lines could not show
+            print(f"sharedlink watch: {stats.summary()}", file=sys.stderr, flush=True)
 
 
 def _damage(source: Any) -> int:
@@ -162,18 +165,19 @@ def _damage(source: Any) -> int:
     return EXIT_USAGE
 
 
-def _live(source: Any, decoder: FastDecoder, outputs: list, sync: float, sessions: list) -> int:
+def _live(source: Any, decoder: FastDecoder, outputs: list, sync: float, sessions: list, stats: Any) -> int:
     from rich.console import Console
     from rich.live import Live
 
     from sharedlink.watch import LiveView, run_watch
 
     view = LiveView(sync, source.description)
+    view.stats = stats
     outputs.append(view.update)
     console = Console()
-    with Live(view.render(source.now_ns()), console=console, auto_refresh=False, transient=False) as live:
+    with Live(view.render(source.now_ns(), console.height), console=console, auto_refresh=False, transient=False) as live:
         def tick(now_ns: int) -> None:
-            live.update(view.render(now_ns), refresh=True)
+            live.update(view.render(now_ns, console.height), refresh=True)
 
         run_watch(source, decoder, outputs, tick=tick, stats=view.stats, session_outputs=sessions)
     if not console.is_terminal:  # redirected, rich leaves the last view without its newline
