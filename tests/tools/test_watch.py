@@ -640,3 +640,38 @@ def test_live_view_fits_the_terminal():
     assert len(lines) == 12
     assert lines[-2].strip() == f"... {MAX_NAMES - 6} more variables" and lines[-1] == "... 2 more directions"
     assert "Name5" in lines[-3]
+
+
+def test_hostile_datagrams_neither_stop_nor_swell_the_watch(tmp_path):
+    """Issue 31: one 40-byte datagram declaring a list of 1e8 names took the watch from 111 MB to
+    3.4 GB and stopped it decoding; an N or T field of 5,000 digits killed it. Now each is
+    dropped at its limit and counted (the last stderr line), the frames after them are decoded,
+    and the watch's memory stays small."""
+    from sharedlink.protocols.codec import Field, Frame, build_frame, encode_positional
+
+    digits = "7" * 5000
+    hostile = [
+        build_frame(Frame("A", "B", (Field("N", "100000000"), Field("T", "0"), Field("Q", "x")))),
+        encode_positional("A", "B", ["1"], ordinal=2147483646),
+        build_frame(Frame("A", "B", (Field("N", digits), Field("D", "1")))),
+        build_frame(Frame("A", "B", (Field("N", "0"), Field("T", digits), Field("Q", "y"), Field("D", "1")))),
+    ]
+    port = free_port()
+    w = start_watch("--port", port, "--json")
+    try:
+        wait_line(w, "udp port")
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for dg in hostile * 3:
+                tx.sendto(dg, ("127.0.0.1", port))
+            for i in range(20):
+                tx.sendto(encode_named("A", "B", [("AutoGpsLat", 2, f"38.{i:04d}")]), ("127.0.0.1", port))
+        time.sleep(1.5)
+        peak = _peak_rss_mb(w.pid)
+    finally:
+        out, err = interrupt(w)
+    rows = [json.loads(line) for line in out.splitlines()]
+    assert [r["values"]["AutoGpsLat"] for r in rows if "AutoGpsLat" in r["changed"]] == [float(f"38.{i:04d}") for i in range(20)]
+    assert len(rows) == 32 and all(r["dropped"] == 0 for r in rows)
+    (summary,) = [line for line in err.splitlines() if "past a limit" in line]
+    assert "slots" in summary and "numbers" in summary, summary
+    assert peak < 300, f"peak RSS {peak:.0f} MB"
