@@ -318,7 +318,8 @@ def test_serial_capture_that_cannot_open_its_device_leaves_the_old_file(tmp_path
 
 
 @pytest.mark.parametrize("command", [["export", "/dev/null", "-o", "-"], ["export", "/dev/null", "-o", "-", "--format", "jsonl"],
-                                     ["replay", "/dev/null", "-q"]])
+                                     ["replay", "/dev/null", "-q"], ["stats", "/dev/null"], ["compress", "/dev/null", "-o", "-"],
+                                     ["diff", "/dev/null", "/dev/null"], ["watch", "/dev/null", "--json"]])
 def test_dev_null_is_named_in_the_message(command):
     """Inputs that are not regular files are read once into a spool copy: messages still name
     the user's file, never the spool (before: /tmp/sharedlink-XXXX.spool)."""
