@@ -98,35 +98,77 @@ def _big_receive_buffer(sock: socket.socket) -> None:
 
 
 class Backlog:
-    """The datagrams a live UDP source received and the decoder has not taken yet: at most
-    :data:`BACKLOG_DATAGRAMS` and :data:`BACKLOG_BYTES` (past them the oldest is dropped), none
-    older than ``max_lag_s`` when taken (dropped). ``dropped`` counts both, with what the
-    kernel dropped from a full receive buffer (:meth:`kernel_dropped`)."""
+    """The datagrams a live UDP source received and the decoder has not taken yet, a queue per
+    conversation (sender and receiver address and port) served in turn, so a sender flooding
+    the port delays the others by one datagram a turn, not by its whole flood.
+
+    At most :data:`BACKLOG_DATAGRAMS` and :data:`BACKLOG_BYTES`: past either the oldest datagram
+    of the longest queue is dropped; none older than ``max_lag_s`` is handed out (dropped).
+    ``dropped`` counts both, with what the kernel dropped from a full receive buffer
+    (:meth:`kernel_dropped`)."""
 
     def __init__(self, max_items: int = BACKLOG_DATAGRAMS, max_bytes: int = BACKLOG_BYTES,
                  max_lag_s: float = MAX_LAG_S) -> None:
-        self.items: deque[RawDatagram] = deque()
+        self.queues: dict[tuple, deque[RawDatagram]] = {}  # in turn order: a queue served goes last
+        self.count = 0
         self.bytes = 0
         self.max_items, self.max_bytes, self.max_lag_ns = max_items, max_bytes, round(max_lag_s * NS)
         self.dropped = 0
+        self._longest: tuple | None = None  # the conversation with the longest queue (as of its last put)
+
+    def __len__(self) -> int:
+        return self.count
 
     def put(self, dg: RawDatagram) -> None:
-        items = self.items
-        items.append(dg)
+        queues = self.queues
+        q = queues.get(dg.conv)
+        if q is None:
+            q = queues[dg.conv] = deque()
+        q.append(dg)
+        self.count += 1
         self.bytes += len(dg.data)
-        while len(items) > self.max_items or (self.bytes > self.max_bytes and len(items) > 1):
-            self.bytes -= len(items.popleft().data)
-            self.dropped += 1
+        longest = self._longest
+        if longest is None or longest not in queues or len(q) > len(queues[longest]):
+            self._longest = dg.conv
+        while self.count > self.max_items or (self.bytes > self.max_bytes and self.count > 1):
+            self._drop_longest()
+
+    def _drop_longest(self) -> None:
+        key = self._longest
+        if key is None or key not in self.queues:
+            key = self._longest = max(self.queues, key=lambda k: len(self.queues[k]))
+        q = self.queues[key]
+        self._forget(q.popleft())
+        if not q:
+            del self.queues[key]
+            self._longest = None
+
+    def _forget(self, dg: RawDatagram) -> None:
+        self.count -= 1
+        self.bytes -= len(dg.data)
+        self.dropped += 1
 
     def take(self, n: int, now_ns: int) -> list[RawDatagram]:
-        """Up to ``n`` datagrams, oldest first, after dropping those waiting too long."""
-        items = self.items
+        """Up to ``n`` datagrams, one from each conversation in turn (the datagrams that waited
+        too long dropped first), in the order they arrived."""
+        queues = self.queues
         stale = now_ns - self.max_lag_ns
-        while items and items[0].ts_ns < stale:
-            self.bytes -= len(items.popleft().data)
-            self.dropped += 1
-        out = [items.popleft() for _ in range(min(n, len(items)))]
-        self.bytes -= sum(len(dg.data) for dg in out)
+        out: list[RawDatagram] = []
+        while len(out) < n and queues:
+            for key in list(queues):
+                q = queues.pop(key)
+                while q and q[0].ts_ns < stale:
+                    self._forget(q.popleft())
+                if q:
+                    dg = q.popleft()
+                    self.count -= 1
+                    self.bytes -= len(dg.data)
+                    out.append(dg)
+                    if q:
+                        queues[key] = q  # its next turn comes after the others'
+                if len(out) >= n:
+                    break
+        out.sort()  # (by number: the order of arrival)
         return out
 
     def kernel_dropped(self, n: int) -> None:
@@ -140,8 +182,8 @@ def socket_batches(source: Any, size: int, take: Callable[[bytes, Any], tuple[tu
     ``source.kernel_drops()``). Every ``recvfrom(size)`` is made a :class:`RawDatagram` by
     ``take(data, addr) -> (conv, payload)`` (None: not one) and stamped with its arrival.
 
-    Each round drains the socket without blocking into the backlog, then hands out the oldest
-    datagrams, at most :data:`BATCH`: as many as decode in about :data:`SLICE_S` (the count
+    Each round drains the socket without blocking into the backlog, then hands out datagrams
+    (the oldest of each conversation in turn), at most :data:`BATCH`: as many as decode in about :data:`SLICE_S` (the count
     halves after a slower batch and doubles after a fast one), so the socket is drained again
     soon whatever the frames cost and what the watch cannot decode in time is dropped and
     counted in the backlog, not lost unseen in the kernel. With nothing there, one wait of
@@ -171,7 +213,7 @@ def socket_batches(source: Any, size: int, take: Callable[[bytes, Any], tuple[tu
         if time.monotonic() >= next_count:  # (a system call or a file read: not every round)
             backlog.kernel_dropped(source.kernel_drops())
             next_count = time.monotonic() + timeout
-        if not backlog.items:
+        if not backlog.count:
             if select.select([fd], [], [], timeout)[0]:
                 continue
             yield []
@@ -186,7 +228,7 @@ def socket_batches(source: Any, size: int, take: Callable[[bytes, Any], tuple[tu
             want = max(1, want // 2)
         elif spent < SLICE_S / 4 and want < BATCH:
             want = min(BATCH, want * 2)
-        if len(out) < asked and not backlog.items:
+        if len(out) < asked and not backlog.count:
             time.sleep(GATHER_S)
 
 
@@ -645,7 +687,7 @@ class LiveView:
         if self.unshown:
             head += f" ({self.unshown} of directions past {MAX_CONVERSATIONS} not shown)"
         parts: list[Any] = [Text(head, style="bold")]
-        if self.stats.dropped or self.stats.limits.total:
+        if self.stats.dropped or self.stats.limits.total or self.stats.unserved:
             parts.append(Text(self.stats.summary(), style="bold red"))
         room = (height if height is not None else 1 << 62) - len(parts) - 1  # (one for "more directions")
         hl = round(HIGHLIGHT_S * NS)
@@ -725,6 +767,7 @@ class WatchStats:
     noise: int = 0
     dropped: int = 0
     limits: LimitCounts = field(default_factory=LimitCounts)
+    unserved: int = 0  # frames of directions past the Foxglove server's channels (--foxglove)
 
     def summary(self) -> str:
         """What the watch dropped, for its last line ("" when nothing was)."""
@@ -734,7 +777,29 @@ class WatchStats:
         past = {k: v for k, v in self.limits.to_dict().items() if v}
         if past:
             parts.append("input past a limit dropped: " + ", ".join(f"{k} {v}" for k, v in past.items()))
+        if self.unserved:
+            parts.append(f"{self.unserved} frames of directions past {FOXGLOVE_CHANNELS} Foxglove channels not served")
         return "; ".join(parts)
+
+
+#: channels the live Foxglove server opens at most (three a direction, one a session topic; as
+#: an MCAP file): the frames of a direction past them are counted, not served
+FOXGLOVE_CHANNELS = 65535
+
+
+def served(output: Callable[[Any], None], stats: WatchStats) -> Callable[[Any], None]:
+    """``output`` (a :class:`~sharedlink.analysis.foxglove_channels.FoxgloveChannels` method,
+    its ``max_channels`` set) with what it refuses past its channels counted in
+    ``stats.unserved`` instead of stopping the watch."""
+    from sharedlink.errors import UsageError
+
+    def out(item: Any) -> None:
+        try:
+            output(item)
+        except UsageError:
+            stats.unserved += 1
+
+    return out
 
 
 def run_watch(
@@ -808,6 +873,8 @@ def run_watch(
                 if getattr(source, "done", False):
                     break
     except KeyboardInterrupt:
+        if backlog is not None:  # received, never decoded: dropped too
+            stats.dropped = backlog.dropped + len(backlog)
         if tick is not None:
             tick(source.now_ns())
         raise

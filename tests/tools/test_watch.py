@@ -535,8 +535,9 @@ def test_flood_of_new_names_is_dropped_and_counted_and_later_frames_are_decoded(
     direction's table grows with each, so each frame costs more to show: a --json line holds the
     direction's whole table), then a normal direction sends 50 frames. The watch keeps up: it
     drops what it cannot decode in time and counts it (in every --json line and its last stderr
-    line: decoded + dropped = sent), decodes all 50 later frames within seconds, and its memory
-    stays bounded. Before, it worked through the flood frame by frame (about 10 ms a line with a
+    line: every datagram it received was decoded or counted), decodes all 50 later frames within
+    seconds (the senders are served in turn) and 5 more sent once the flood is over, and its
+    memory stays bounded. Before, it worked through the flood frame by frame (about 10 ms a line with a
     4,000-name table) and showed none of the 50 later frames within a minute."""
     if how == "sniff" and not SNIFF:
         pytest.skip("sniffing needs root or CAP_NET_RAW")
@@ -547,6 +548,7 @@ def test_flood_of_new_names_is_dropped_and_counted_and_later_frames_are_decoded(
                              stdout=out, stderr=subprocess.PIPE, text=True)
     flood = [encode_named("A", "B", [("First", 2, "1"), (f"Name{i}", 2, str(i))]) for i in range(20000)]
     normal = [encode_named("C", "D", [("AutoGpsLat", 2, f"38.{i:04d}")]) for i in range(50)]
+    last = [encode_named("E", "F", [("AutoGpsLon", 2, f"-77.{i}")]) for i in range(5)]
     try:
         wait_line(w, "udp port")
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx, \
@@ -563,7 +565,14 @@ def test_flood_of_new_names_is_dropped_and_counted_and_later_frames_are_decoded(
             time.sleep(0.2)
             shown = out_path.read_text().count('"src": "D"')
         took = time.monotonic() - sent_at
-        time.sleep(0.6)  # the kernel's drop count is read every 0.25 s
+        time.sleep(2.5)  # what is left of the flood has waited past MAX_LAG_S by then
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx3:
+            for dg in last:
+                tx3.sendto(dg, ("127.0.0.1", port))
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and out_path.read_text().count('"src": "F"') < len(last):
+            time.sleep(0.2)
+        time.sleep(0.3)  # the kernel's drop count is read every 0.25 s
         peak = _peak_rss_mb(w.pid)
     finally:
         _out, err = interrupt(w)
@@ -574,26 +583,54 @@ def test_flood_of_new_names_is_dropped_and_counted_and_later_frames_are_decoded(
     (summary,) = [line for line in err.splitlines() if "dropped" in line]
     dropped = int(summary.split("sharedlink watch: ")[1].split()[0])
     assert "datagrams dropped (the watch fell behind)" in summary
-    assert len(rows) + dropped == len(flood) + len(normal), summary
-    assert dropped > 0 and later[-1]["dropped"] > 0
-    assert all(a["dropped"] <= b["dropped"] and a["number"] < b["number"] for a, b in zip(rows, rows[1:]))
+    # every datagram the watch received (numbered) was decoded or counted; the count holds the
+    # kernel's drops at the socket too. (Under load the loopback device itself may drop some
+    # before any socket sees them, netdev_max_backlog: no program on the port gets those.)
+    assert dropped >= max(r["number"] for r in rows) - len(rows) and len(rows) + dropped <= len(flood) + len(normal) + len(last)
+    latest = [r for r in rows if r["src"] == "F"]  # sent once the rest of the flood was dropped: they say so
+    assert [r["values"]["AutoGpsLon"] for r in latest] == [float(f"-77.{i}") for i in range(5)]
+    assert dropped > 1000 and all(r["dropped"] > 1000 for r in latest), summary
+    assert all(a["dropped"] <= b["dropped"] for a, b in zip(rows, rows[1:]))
+    for src in "BD":  # each sender's datagrams in order (the senders are served in turn)
+        numbers = [r["number"] for r in rows if r["src"] == src]
+        assert numbers == sorted(set(numbers))
     assert peak < 400, f"peak RSS {peak:.0f} MB"
 
 
 def test_backlog_is_bounded_and_drops_the_oldest():
-    """The live sources' queue: past its count or bytes the oldest datagram goes, a datagram
-    older than the lag bound is not handed out; each one counted."""
+    """The live sources' queue: past its count or bytes the oldest datagram of the longest
+    queue goes, a datagram older than the lag bound is not handed out; each one counted."""
     from sharedlink.watch import Backlog, RawDatagram
 
     conv = ("udp", "127.0.0.1", 1, "", 2)
     b = Backlog(max_items=4, max_bytes=100, max_lag_s=1.0)
     for i in range(10):
         b.put(RawDatagram(i, i, conv, b"x" * 10))
-    assert [d.number for d in b.items] == [6, 7, 8, 9] and b.dropped == 6 and b.bytes == 40
+    assert [d.number for d in b.queues[conv]] == [6, 7, 8, 9] and b.dropped == 6 and b.bytes == 40
     b.put(RawDatagram(10, 10, conv, b"y" * 90))  # 130 bytes: the three oldest go
-    assert [d.number for d in b.items] == [9, 10] and b.dropped == 9 and b.bytes == 100
+    assert [d.number for d in b.queues[conv]] == [9, 10] and b.dropped == 9 and b.bytes == 100
     assert [d.number for d in b.take(5, now_ns=10**9 + 10)] == [10]  # 9 waited too long
-    assert b.dropped == 10 and b.bytes == 0 and not b.items
+    assert b.dropped == 10 and b.bytes == 0 and len(b) == 0 and not b.queues
+
+
+def test_backlog_serves_each_sender_in_turn():
+    """A flooding sender delays another by one datagram a turn: a batch of 4 from a backlog of
+    1,000 flood datagrams and 3 of another sender holds all 3 of the other's, in arrival order;
+    when full, the flood's oldest go, not the other's."""
+    from sharedlink.watch import Backlog, RawDatagram
+
+    flood, other = ("udp", "127.0.0.1", 1, "", 9), ("udp", "127.0.0.1", 2, "", 9)
+    b = Backlog(max_items=1000)
+    for i in range(1000):
+        b.put(RawDatagram(i, i, flood, b"f"))
+    for i in range(1000, 1003):
+        b.put(RawDatagram(i, i, other, b"o"))
+    assert b.dropped == 3 and len(b.queues[other]) == 3
+    got = b.take(4, now_ns=2000)
+    assert [d.number for d in got] == [3, 4, 1000, 1001] or [d.number for d in got] == [3, 1000, 1001, 1002]
+    assert sum(d.conv == other for d in got) >= 2
+    rest = b.take(10**6, now_ns=2000)
+    assert [d.number for d in rest] == sorted(d.number for d in rest) and len(got) + len(rest) == 1000
 
 
 def test_live_view_holds_at_most_max_names_per_direction():
@@ -675,3 +712,27 @@ def test_hostile_datagrams_neither_stop_nor_swell_the_watch(tmp_path):
     (summary,) = [line for line in err.splitlines() if "past a limit" in line]
     assert "slots" in summary and "numbers" in summary, summary
     assert peak < 300, f"peak RSS {peak:.0f} MB"
+
+
+def test_foxglove_channels_past_the_limit_are_counted_not_fatal():
+    """The live server opens at most FOXGLOVE_CHANNELS channels (two a direction here): a
+    direction past them is counted in ``unserved`` and the watch goes on (before: no limit, a
+    flood of new directions made channels without end)."""
+    import foxglove
+
+    from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
+    from sharedlink.watch import FastDecoder, RawDatagram, WatchStats, served
+
+    stats = WatchStats()
+    channels = FoxgloveChannels(foxglove.Context(), ChannelOptions(max_channels=4))
+    out = served(channels.frame, stats)
+    dec = FastDecoder([], carried=False)
+    n = 0
+    for rnd in range(3):
+        for port in (5001, 5002, 5003):
+            n += 1
+            for d in dec.datagram(RawDatagram(n, n * 1000, ("udp", "127.0.0.1", port, "", 7013),
+                                              encode_named("A", "B", [("Speed", 2, str(rnd))]))):
+                out(d)
+    assert stats.unserved == 3 and "3 frames of directions past" in stats.summary()
+    assert len(channels._dirs) == 2

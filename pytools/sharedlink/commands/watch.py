@@ -109,6 +109,7 @@ def _foxglove(args: argparse.Namespace) -> tuple[Any, Any]:
 
     from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
     from sharedlink.foxglove_server import LiveServer
+    from sharedlink.watch import FOXGLOVE_CHANNELS
 
     ctx = foxglove.Context()
     try:  # both subprotocol names (foxglove.sdk.v1, foxglove.websocket.v1): see foxglove_server
@@ -116,12 +117,13 @@ def _foxglove(args: argparse.Namespace) -> tuple[Any, Any]:
     except Exception as exc:  # OSError, or foxglove's own error type
         raise UsageError(f"--foxglove-port {args.foxglove_port}: {exc}") from None
     print(f"sharedlink watch: Foxglove WebSocket server on ws://{args.foxglove_host}:{server.port}", file=sys.stderr, flush=True)
-    opts = ChannelOptions(lat=args.lat, lon=args.lon, heading=args.heading, speed=args.velocity)
+    opts = ChannelOptions(lat=args.lat, lon=args.lon, heading=args.heading, speed=args.velocity,
+                          max_channels=FOXGLOVE_CHANNELS)
     return server, FoxgloveChannels(ctx, opts)
 
 
 def run(args: argparse.Namespace) -> int:
-    from sharedlink.watch import FastDecoder, WatchStats, json_line, run_watch
+    from sharedlink.watch import FastDecoder, WatchStats, json_line, run_watch, served
 
     variables, sync = decode_options(args)
     source = _source(args)
@@ -133,8 +135,8 @@ def run(args: argparse.Namespace) -> int:
         sessions: list = []
         if args.foxglove:
             server, channels = _foxglove(args)
-            outputs.append(channels.frame)
-            sessions.append(channels.session)
+            outputs.append(served(channels.frame, stats))
+            sessions.append(served(channels.session, stats))
         print(f"sharedlink watch: {source.description}", file=sys.stderr, flush=True)
         if args.json:  # Ctrl-C waits until a batch's lines are written whole (see run_watch)
             with buffered_stdout(binary=False) as out:
