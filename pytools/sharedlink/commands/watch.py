@@ -55,6 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                      "so it refuses a port another program holds")
     src.add_argument("--listen", default="", metavar="ADDR",
                      help="only datagrams to this address (with --bind-port: bind this address; default: all)")
+    src.add_argument("--max-lag", type=float, default=None, metavar="S",
+                     help="UDP: drop (and count) a datagram that waited more than S seconds to be decoded, so a flood "
+                     "cannot leave the watch behind the link (default 10; 0: only the backlog's size bounds it)")
     src.add_argument("--serial", metavar="DEVICE", default=None, help="read a serial port or pty instead")
     src.add_argument("--baud", type=BAUD, default=9600, help="with --serial: baud rate (default 9600)")
     add_old_spelling(src, "--from", "a positional CAPTURE (sharedlink watch CAPTURE)", "capture", type=Path)
@@ -88,18 +91,23 @@ def _source(args: argparse.Namespace) -> Any:
             raise UsageError(f"{args.serial}: {exc}") from None
     if not 0 < args.port < 65536:
         raise UsageError("--port must be 1..65535")
+    from sharedlink.watch import MAX_LAG_S
+
+    lag = MAX_LAG_S if args.max_lag is None else args.max_lag
+    if not 0 <= lag < 1e9:
+        raise UsageError("--max-lag must be 0 or more seconds")
     if args.bind_port:
         if args.interface:
             raise UsageError("--bind-port binds an address, not an interface: give --listen ADDR, or sniff with --interface")
         try:
-            return UdpSource(args.port, args.listen)
+            return UdpSource(args.port, args.listen, max_lag_s=lag)
         except OSError as exc:
             if exc.errno == errno.EADDRINUSE:
                 raise UsageError(f"udp port {args.port}: another program holds it; --bind-port never shares a port (it "
                                  "would take datagrams away from that program): leave out --bind-port to sniff it") from None
             raise UsageError(f"udp port {args.port}: {exc.strerror or exc}") from None
     try:
-        return UdpSniffer(args.port, args.interface, args.listen)
+        return UdpSniffer(args.port, args.interface, args.listen, max_lag_s=lag)
     except OSError as exc:
         raise UsageError(f"udp port {args.port}: {exc.strerror or exc}") from None
 
