@@ -117,7 +117,10 @@ class Backlog:
         self.bytes = 0
         self.max_items, self.max_bytes = max_items, max_bytes
         self.max_lag_ns = round(max_lag_s * NS) if max_lag_s > 0 else 1 << 62
-        self.dropped = 0
+        self.dropped = 0  # the sum of the three below
+        self.full = 0  # dropped at the backlog's bounds
+        self.stale = 0  # dropped having waited past max_lag_s
+        self.kernel = 0  # dropped by the kernel (its receive buffer full)
         self._longest: tuple | None = None  # the conversation with the longest queue (as of its last put)
 
     def __len__(self) -> int:
@@ -143,6 +146,7 @@ class Backlog:
             key = self._longest = max(self.queues, key=lambda k: len(self.queues[k]))
         q = self.queues[key]
         self._forget(q.popleft())
+        self.full += 1
         if not q:
             del self.queues[key]
             self._longest = None
@@ -163,6 +167,7 @@ class Backlog:
                 q = queues.pop(key)
                 while q and q[0].ts_ns < stale:
                     self._forget(q.popleft())
+                    self.stale += 1
                 if q:
                     dg = q.popleft()
                     self.count -= 1
@@ -177,6 +182,11 @@ class Backlog:
 
     def kernel_dropped(self, n: int) -> None:
         self.dropped += n
+        self.kernel += n
+
+    def breakdown(self) -> str:
+        """What ``dropped`` counts, for the last line."""
+        return f"{self.stale} waited too long, {self.full} past the backlog's size, {self.kernel} by the kernel"
 
 
 def socket_batches(source: Any, size: int, take: Callable[[bytes, Any], tuple[tuple, bytes] | None],
@@ -419,6 +429,9 @@ class UdpSniffer:
             raise
         self.number = 0
         self.backlog = Backlog(max_lag_s=max_lag_s)
+        # every interface: the socket took all traffic from its creation to the filter, and the
+        # kernel counted what it dropped meanwhile (other ports' floods, not ours): reset
+        self.kernel_drops()
         self.reassembly = PacketDecoder()
         where = f"interface {interface}" if interface else "every interface"
         self.description = f"udp port {port}{f' to {host}' if host else ''} on {where} (sniffed)"
@@ -775,12 +788,13 @@ class WatchStats:
     dropped: int = 0
     limits: LimitCounts = field(default_factory=LimitCounts)
     unserved: int = 0  # frames of directions past the Foxglove server's channels (--foxglove)
+    detail: str = ""  # what ``dropped`` is made of (a live source's Backlog.breakdown)
 
     def summary(self) -> str:
         """What the watch dropped, for its last line ("" when nothing was)."""
         parts = []
         if self.dropped:
-            parts.append(f"{self.dropped} datagrams dropped (the watch fell behind)")
+            parts.append(f"{self.dropped} datagrams dropped (the watch fell behind{': ' + self.detail if self.detail else ''})")
         past = {k: v for k, v in self.limits.to_dict().items() if v}
         if past:
             parts.append("input past a limit dropped: " + ", ".join(f"{k} {v}" for k, v in past.items()))
@@ -845,8 +859,8 @@ def run_watch(
             for batch in source.batches(interval):
                 gate.held = True  # Ctrl-C waits until this batch is counted, written and flushed
                 try:
-                    if backlog is not None:
-                        stats.dropped = backlog.dropped
+                    if backlog is not None and stats.dropped != backlog.dropped:
+                        stats.dropped, stats.detail = backlog.dropped, backlog.breakdown()
                     for item in batch:
                         if isinstance(item, RawDatagram):
                             for d in datagram(item):  # type: ignore[misc]
@@ -882,6 +896,7 @@ def run_watch(
     except KeyboardInterrupt:
         if backlog is not None:  # received, never decoded: dropped too
             stats.dropped = backlog.dropped + len(backlog)
+            stats.detail = backlog.breakdown() + f", {len(backlog)} left at the end"
         if tick is not None:
             tick(source.now_ns())
         raise
