@@ -736,3 +736,34 @@ def test_foxglove_channels_past_the_limit_are_counted_not_fatal():
                 out(d)
     assert stats.unserved == 3 and "3 frames of directions past" in stats.summary()
     assert len(channels._dirs) == 2
+
+
+def test_json_lines_are_json_line_exactly(capture):
+    """watch --json writes JsonLines' text: the same as json_line's (a drive with bad checksums;
+    new names, declarations replacing a list, strings to escape, inf and nan), the values kept
+    per variable and made again only when they change."""
+    from sharedlink.capture.stream import StreamFrame, iter_frames
+    from sharedlink.protocols.codec import Field, Frame, build_frame, encode_positional
+    from sharedlink.watch import FastDecoder, JsonLines, RawDatagram, json_line
+
+    lines, n = JsonLines(), 0
+    dec = FastDecoder(carried=False)
+    for item in iter_frames(capture):
+        if isinstance(item, StreamFrame) and item.frame is not None:
+            d = dec.decode(item)
+            assert lines(d, 3) == json_line(d, 3)
+            n += 1
+    dec, conv, k = FastDecoder([], carried=False), ("udp", "127.0.0.1", 5555, "", 7013), 0
+    for i in range(600):
+        raws = [encode_named("A", "B", [("First", 2, str(i)), (f"Name{i}", 2, str(i)), ("S", 4, 'x"\\u\x01é'),
+                                        ("Odd", 2, "inf" if i % 2 else "nan"), ("L", 0, str(i // 3))])]
+        if i % 7 == 0:
+            raws += [build_frame(Frame("C", "D", (Field("N", "0"), Field("T", "2"), Field("Q", f"P{i}"), Field("T", "0"),
+                                                  Field("Q", "Q")))), encode_positional("C", "D", [str(i), "x"])]
+        for raw in raws:
+            k += 1
+            for d in dec.datagram(RawDatagram(k, k * 1000, conv, raw)):
+                if not isinstance(d, StreamFrame):
+                    assert lines(d, i) == json_line(d, i)
+                    n += 1
+    assert n > 700

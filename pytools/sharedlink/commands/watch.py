@@ -131,7 +131,7 @@ def _foxglove(args: argparse.Namespace) -> tuple[Any, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sharedlink.watch import FastDecoder, WatchStats, json_line, run_watch, served
+    from sharedlink.watch import FastDecoder, JsonLines, WatchStats, run_watch, served
 
     variables, sync = decode_options(args)
     source = _source(args)
@@ -149,9 +149,10 @@ def run(args: argparse.Namespace) -> int:
         if args.json:  # Ctrl-C waits until a batch's lines are written whole (see run_watch)
             with buffered_stdout(binary=False) as out:
                 write = out.write
+                line = JsonLines()
 
                 def emit(d: Decoded) -> None:
-                    write(json_line(d, stats.dropped) + "\n")
+                    write(line(d, stats.dropped) + "\n")
 
                 outputs.append(emit)
                 run_watch(source, decoder, outputs, out=out, stats=stats, session_outputs=sessions)
