@@ -27,10 +27,12 @@ from __future__ import annotations
 import heapq
 import json
 import math
+import os
 import select
 import socket
 import struct
 import time
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,6 +45,7 @@ from sharedlink.capture.pcapio import LINKTYPE_RAW, CaptureError
 from sharedlink.capture.stream import StreamFrame, iter_frames
 from sharedlink.defaults import WATCH_DEFAULT_PORT
 from sharedlink.protocols.codec import Frame
+from sharedlink.protocols.limits import MAX_CONVERSATIONS, MAX_NAMES, LimitCounts
 from sharedlink.replay import SigintGate
 
 DEFAULT_PORT = WATCH_DEFAULT_PORT
@@ -53,6 +56,21 @@ HIGHLIGHT_S = 2.0
 GATHER_S = 0.005
 #: receive buffer asked for (the kernel caps it at net.core.rmem_max)
 RCVBUF = 8 << 20
+#: datagrams (and their bytes) received and not yet decoded that a live UDP source holds: past
+#: either bound the oldest is dropped and counted (issue 31: the watch's memory stays bounded)
+BACKLOG_DATAGRAMS = 65536
+BACKLOG_BYTES = 32 << 20
+#: a datagram that waited longer than this to be decoded is dropped and counted: under a flood
+#: the watch stays about this far behind the link at most, however slow its frames are to decode
+#: (``watch --max-lag``; 0: never dropped for waiting). Not much shorter: on a busy machine the
+#: watch gets a share of a core, and at 2 s it dropped 6,000 of 30,000 frames sent at 5,000/s
+#: that it showed all of, some seconds late, with no bound
+MAX_LAG_S = 10.0
+#: the time one batch of a live UDP source should take to decode and show: the socket is drained
+#: into the backlog between batches, so a batch of slow frames is made smaller
+SLICE_S = 0.02
+#: most datagrams in one batch
+BATCH = 512
 
 Batch = list[StreamFrame]
 
@@ -82,34 +100,151 @@ def _big_receive_buffer(sock: socket.socket) -> None:
 
 
 
+class Backlog:
+    """The datagrams a live UDP source received and the decoder has not taken yet, a queue per
+    conversation (sender and receiver address and port) served in turn, so a sender flooding
+    the port delays the others by one datagram a turn, not by its whole flood.
+
+    At most :data:`BACKLOG_DATAGRAMS` and :data:`BACKLOG_BYTES`: past either the oldest datagram
+    of the longest queue is dropped; none older than ``max_lag_s`` is handed out (dropped).
+    ``dropped`` counts both, with what the kernel dropped from a full receive buffer
+    (:meth:`kernel_dropped`)."""
+
+    def __init__(self, max_items: int = BACKLOG_DATAGRAMS, max_bytes: int = BACKLOG_BYTES,
+                 max_lag_s: float = MAX_LAG_S) -> None:
+        self.queues: dict[tuple, deque[RawDatagram]] = {}  # in turn order: a queue served goes last
+        self.count = 0
+        self.bytes = 0
+        self.max_items, self.max_bytes = max_items, max_bytes
+        self.max_lag_ns = round(max_lag_s * NS) if max_lag_s > 0 else 1 << 62
+        self.dropped = 0  # the sum of the three below
+        self.full = 0  # dropped at the backlog's bounds
+        self.stale = 0  # dropped having waited past max_lag_s
+        self.kernel = 0  # dropped by the kernel (its receive buffer full)
+        self._longest: tuple | None = None  # the conversation with the longest queue (as of its last put)
+
+    def __len__(self) -> int:
+        return self.count
+
+    def put(self, dg: RawDatagram) -> None:
+        queues = self.queues
+        q = queues.get(dg.conv)
+        if q is None:
+            q = queues[dg.conv] = deque()
+        q.append(dg)
+        self.count += 1
+        self.bytes += len(dg.data)
+        longest = self._longest
+        if longest is None or longest not in queues or len(q) > len(queues[longest]):
+            self._longest = dg.conv
+        while self.count > self.max_items or (self.bytes > self.max_bytes and self.count > 1):
+            self._drop_longest()
+
+    def _drop_longest(self) -> None:
+        key = self._longest
+        if key is None or key not in self.queues:
+            key = self._longest = max(self.queues, key=lambda k: len(self.queues[k]))
+        q = self.queues[key]
+        self._forget(q.popleft())
+        self.full += 1
+        if not q:
+            del self.queues[key]
+            self._longest = None
+
+    def _forget(self, dg: RawDatagram) -> None:
+        self.count -= 1
+        self.bytes -= len(dg.data)
+        self.dropped += 1
+
+    def take(self, n: int, now_ns: int) -> list[RawDatagram]:
+        """Up to ``n`` datagrams, one from each conversation in turn (the datagrams that waited
+        too long dropped first), in the order they arrived."""
+        queues = self.queues
+        stale = now_ns - self.max_lag_ns
+        out: list[RawDatagram] = []
+        while len(out) < n and queues:
+            for key in list(queues):
+                q = queues.pop(key)
+                while q and q[0].ts_ns < stale:
+                    self._forget(q.popleft())
+                    self.stale += 1
+                if q:
+                    dg = q.popleft()
+                    self.count -= 1
+                    self.bytes -= len(dg.data)
+                    out.append(dg)
+                    if q:
+                        queues[key] = q  # its next turn comes after the others'
+                if len(out) >= n:
+                    break
+        out.sort()  # (by number: the order of arrival)
+        return out
+
+    def kernel_dropped(self, n: int) -> None:
+        self.dropped += n
+        self.kernel += n
+
+    def breakdown(self) -> str:
+        """What ``dropped`` counts, for the last line."""
+        return f"{self.stale} waited too long, {self.full} past the backlog's size, {self.kernel} by the kernel"
+
+
 def socket_batches(source: Any, size: int, take: Callable[[bytes, Any], tuple[tuple, bytes] | None],
                    timeout: float) -> Iterator[Batch]:
     """The batches of a non-blocking socket source (``source.sock``, its datagram count
-    ``source.number``): what arrived, up to 512, each ``recvfrom(size)`` made a
-    :class:`RawDatagram` by ``take(data, addr) -> (conv, payload)`` (None: not one), drained
-    without blocking, then (nothing there) one wait of ``timeout``; after a batch that was not
-    full, a pause of :data:`GATHER_S` so the next datagrams arrive together (a wake-up per frame
-    costs more than the frame)."""
+    ``source.number``, its :class:`Backlog` ``source.backlog``, what the kernel dropped
+    ``source.kernel_drops()``). Every ``recvfrom(size)`` is made a :class:`RawDatagram` by
+    ``take(data, addr) -> (conv, payload)`` (None: not one) and stamped with its arrival.
+
+    Each round drains the socket without blocking into the backlog, then hands out datagrams
+    (the oldest of each conversation in turn), at most :data:`BATCH`: as many as decode in about
+    :data:`SLICE_S` of CPU time (the count halves after a slower batch and doubles after a fast
+    one; CPU time, since on a busy machine the wall clock counts other programs' turns and
+    shrank the batches to one datagram), so the socket is drained again
+    soon whatever the frames cost and what the watch cannot decode in time is dropped and
+    counted in the backlog, not lost unseen in the kernel. With nothing there, one wait of
+    ``timeout`` (an empty batch after it); after a batch that was not full, a pause of
+    :data:`GATHER_S` so the next datagrams arrive together (a wake-up per frame costs more
+    than the frame)."""
     recv = source.sock.recvfrom
     fd = source.sock.fileno()
+    backlog: Backlog = source.backlog
+    put = backlog.put
+    clock, cpu = time.time_ns, time.thread_time
+    want = 16  # grows to BATCH while batches are fast
+    next_count = 0.0
     while True:
-        out: list = []
         n = source.number
-        while len(out) < 512:
+        for _ in range(backlog.max_items):
             try:
                 data, addr = recv(size)
             except (BlockingIOError, InterruptedError):
-                if out or not select.select([fd], [], [], timeout)[0]:
-                    break
-                continue
+                break
             got = take(data, addr)
             if got is None:
                 continue
             n += 1
-            out.append(RawDatagram(n, time.time_ns(), got[0], got[1]))
+            put(RawDatagram(n, clock(), got[0], got[1]))
         source.number = n
+        if time.monotonic() >= next_count:  # (a system call or a file read: not every round)
+            backlog.kernel_dropped(source.kernel_drops())
+            next_count = time.monotonic() + timeout
+        if not backlog.count:
+            if select.select([fd], [], [], timeout)[0]:
+                continue
+            yield []
+            time.sleep(GATHER_S)
+            continue
+        asked = want
+        out = backlog.take(asked, clock())
+        t0 = cpu()
         yield out
-        if len(out) < 512:
+        spent = cpu() - t0
+        if spent > SLICE_S:
+            want = max(1, want // 2)
+        elif spent < SLICE_S / 4 and want < BATCH:
+            want = min(BATCH, want * 2)
+        if len(out) < asked and not backlog.count:
             time.sleep(GATHER_S)
 
 
@@ -120,7 +255,7 @@ class UdpSource:
     holds is refused with ``EADDRINUSE`` instead of sharing it (Linux hands a shared unicast
     datagram to one socket only, so the vehicle software would lose it)."""
 
-    def __init__(self, port: int = DEFAULT_PORT, host: str = "") -> None:
+    def __init__(self, port: int = DEFAULT_PORT, host: str = "", max_lag_s: float = MAX_LAG_S) -> None:
         self.port = port
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -132,6 +267,9 @@ class UdpSource:
             self.sock.close()
             raise
         self.number = 0
+        self.backlog = Backlog(max_lag_s=max_lag_s)
+        self._inode = os.fstat(self.sock.fileno()).st_ino
+        self._drops = 0
         self.description = f"udp port {port}{f' on {host}' if host else ''} (bound by the watch)"
 
     def batches(self, timeout: float) -> Iterator[Batch]:
@@ -147,11 +285,33 @@ class UdpSource:
 
         return socket_batches(self, 65535, take, timeout)
 
+    def kernel_drops(self) -> int:
+        """Datagrams the kernel dropped from the full receive buffer since the last call (the
+        socket's ``drops`` in /proc/net/udp; 0 where it cannot be read)."""
+        total = _udp_drops(self._inode)
+        new, self._drops = max(total - self._drops, 0), max(total, self._drops)
+        return new
+
     def now_ns(self) -> int:
         return time.time_ns()
 
     def close(self) -> None:
         self.sock.close()
+
+
+def _udp_drops(inode: int) -> int:
+    """The ``drops`` column of the UDP socket with this inode in /proc/self/net/udp (0 if none)."""
+    key = str(inode)
+    try:
+        with open("/proc/self/net/udp", encoding="ascii", errors="replace") as f:
+            next(f, None)
+            for line in f:
+                cols = line.split()
+                if len(cols) > 12 and cols[9] == key:
+                    return int(cols[-1])
+    except (OSError, ValueError):
+        pass
+    return 0
 
 
 # -- sniffing, as Wireshark's dumpcap does: a packet socket and a kernel filter ---------------------
@@ -160,6 +320,8 @@ ETH_P_ALL, ETH_P_IP, ETH_P_IPV6 = 0x0003, 0x0800, 0x86DD
 PACKET_OUTGOING = 4
 ARPHRD_LOOPBACK = 772
 SO_ATTACH_FILTER = 26
+#: getsockopt(SOL_PACKET, PACKET_STATISTICS): struct tpacket_stats {packets, drops}, reset by reading
+SOL_PACKET, PACKET_STATISTICS = 263, 6
 #: bytes of a packet the filter passes (as dumpcap's default snapshot length)
 SNAPLEN = 262144
 
@@ -236,7 +398,8 @@ class UdpSniffer:
     packet passes the tap twice, going out and coming in: the outgoing copy is skipped, as
     libpcap does. ``host``: only datagrams to this address."""
 
-    def __init__(self, port: int = DEFAULT_PORT, interface: str | None = None, host: str = "") -> None:
+    def __init__(self, port: int = DEFAULT_PORT, interface: str | None = None, host: str = "",
+                 max_lag_s: float = MAX_LAG_S) -> None:
         if not hasattr(socket, "AF_PACKET"):
             raise SniffError("sniffing needs Linux packet sockets: give --bind-port to bind the port instead")
         self.port = port
@@ -265,6 +428,10 @@ class UdpSniffer:
             self.sock.close()
             raise
         self.number = 0
+        self.backlog = Backlog(max_lag_s=max_lag_s)
+        # every interface: the socket took all traffic from its creation to the filter, and the
+        # kernel counted what it dropped meanwhile (other ports' floods, not ours): reset
+        self.kernel_drops()
         self.reassembly = PacketDecoder()
         where = f"interface {interface}" if interface else "every interface"
         self.description = f"udp port {port}{f' to {host}' if host else ''} on {where} (sniffed)"
@@ -300,6 +467,14 @@ class UdpSniffer:
             return None if u is None else (("udp", u[0], u[1], u[2], u[3]), u[4])
 
         return socket_batches(self, SNAPLEN, take, timeout)
+
+    def kernel_drops(self) -> int:
+        """Packets the filter passed that the kernel dropped from the full receive buffer since
+        the last call (PACKET_STATISTICS, which the reading resets)."""
+        try:
+            return struct.unpack("II", self.sock.getsockopt(SOL_PACKET, PACKET_STATISTICS, 8))[1]
+        except OSError:
+            return 0
 
     def now_ns(self) -> int:
         return time.time_ns()
@@ -467,12 +642,16 @@ class LiveView:
         self.gap_ns = round((sync_interval + 0.5) * NS)
         self.title = title
         self.frames = 0
-        self.stats = WatchStats()  # the loop's counts (noise)
+        self.unshown = 0  # frames of directions past MAX_CONVERSATIONS (counted, not shown)
+        self.stats = WatchStats()  # the loop's counts (noise, dropped, limits)
 
     def update(self, d: Decoded) -> None:
         key = (d.conv, d.src, d.dst)
         st = self.dirs.get(key)
         if st is None:
+            if len(self.dirs) >= MAX_CONVERSATIONS:  # as the decoder: a direction past it keeps no state
+                self.unshown += 1
+                return
             st = self.dirs[key] = DirStat(d.pair, d.conv)
         ts = d.ts_ns
         self.frames += 1
@@ -500,6 +679,8 @@ class LiveView:
                 continue
             vs = vars_.get(u.name)
             if vs is None:
+                if len(vars_) >= MAX_NAMES:  # a name the decoder did not store either
+                    continue
                 vs = vars_[u.name] = VarStat()
             vs.updates += 1
             if u.text != vs.text:
@@ -514,14 +695,26 @@ class LiveView:
         st.in_second = 0
         st.second = sec
 
-    def render(self, now_ns: int) -> Any:
+    def render(self, now_ns: int, height: int | None = None) -> Any:
+        """The view at ``now_ns``, in at most about ``height`` lines (the terminal's: rich draws
+        every row it is given, 7 s for a direction of 4,096 names, so a direction's rows past the
+        room left, and the directions past it, are summed up in one line each)."""
         from rich.console import Group
         from rich.table import Table
         from rich.text import Text
 
-        parts: list[Any] = [Text(f"{self.title}: {self.frames} frames, {self.stats.noise} noise", style="bold")]
+        head = f"{self.title}: {self.frames} frames, {self.stats.noise} noise"
+        if self.unshown:
+            head += f" ({self.unshown} of directions past {MAX_CONVERSATIONS} not shown)"
+        parts: list[Any] = [Text(head, style="bold")]
+        if self.stats.dropped or self.stats.limits.total or self.stats.unserved:
+            parts.append(Text(self.stats.summary(), style="bold red"))
+        room = (height if height is not None else 1 << 62) - len(parts) - 1  # (one for "more directions")
         hl = round(HIGHLIGHT_S * NS)
-        for st in self.dirs.values():
+        for i, st in enumerate(self.dirs.values()):
+            if room < 4:  # its two lines, the table's header and one row
+                parts.append(Text(f"... {len(self.dirs) - i} more directions", style="dim"))
+                break
             if now_ns // NS > st.second + 1:
                 self._roll(st, now_ns // NS)
             head = Text(f"{st.pair}  {' '.join(map(str, st.conv))}", style="bold cyan")
@@ -537,11 +730,17 @@ class LiveView:
             t.add_column("value", justify="right")
             t.add_column("changed", justify="right")
             t.add_column("rate", justify="right")
-            for name, vs in st.vars.items():
+            rows = room - 3
+            more = len(st.vars) - rows + 1 if len(st.vars) > rows else 0
+            for j, (name, vs) in enumerate(st.vars.items()):
+                if more and j == rows - 1:
+                    t.add_row(Text(f"... {more} more variables", style="dim"), "", "", "")
+                    break
                 fresh = now_ns - vs.changed_ns < hl
                 t.add_row(name, Text(vs.text or "", style="bold green" if fresh else ""), _age(now_ns - vs.changed_ns) + " ago",
                           f"{vs.rate:.0f}/s")
             parts.append(t)
+            room -= 3 + min(len(st.vars), rows)
         return Group(*parts)
 
 
@@ -562,16 +761,53 @@ def _typed(v: Any) -> Any:
     return v.text if isinstance(x, float) and not math.isfinite(x) else x
 
 
-def json_line(d: Decoded) -> str:
+def json_line(d: Decoded, dropped: int = 0) -> str:
     """One frame as a JSON object (the keys of ``export --format jsonl`` rows, without ``t``,
-    plus ``late``)."""
+    plus ``late`` and ``dropped``: the datagrams the watch has dropped so far, falling behind)."""
     ok = d.checksum_ok
     return json.dumps({
         "number": d.number, "time": format_time(d.ts_ns), "ts_ns": d.ts_ns, "src": d.src, "dst": d.dst,
         "kind": d.kind, "checksum": "none" if ok is None else ("good" if ok else "bad"), "late": d.late,
         "values": {n: _typed(v) for n, v in d.table.vars.items() if v.text is not None},
-        "changed": [u.name for u in d.changes()],
+        "changed": [u.name for u in d.changes()], "dropped": dropped,
     })
+
+
+class JsonLines:
+    """:func:`json_line`, the same text, faster for a direction holding many names: each
+    variable's ``"name": value`` is kept, made again only when its text or type changed (the
+    values object of a 4,096-name table took 11 ms a line, every value typed and encoded again;
+    a line then cost what its table holds, here a lookup a name). Per table at most twice the
+    names it holds (then built anew), so names a table dropped are not kept."""
+
+    def __init__(self) -> None:
+        self._tables: dict[int, tuple[Any, dict[str, tuple[Any, Any, Any, str]]]] = {}
+
+    def __call__(self, d: Decoded, dropped: int = 0) -> str:
+        vars_ = d.table.vars
+        held = self._tables.get(id(d.table))
+        if held is None or held[0] is not d.table or len(held[1]) > 2 * len(vars_) + 64:
+            if len(self._tables) >= MAX_CONVERSATIONS:
+                self._tables.clear()
+            held = self._tables[id(d.table)] = (d.table, {})
+        cache = held[1]
+        dumps = json.dumps
+        parts = []
+        for n, v in vars_.items():
+            text = v.text
+            if text is None:
+                continue
+            c = cache.get(n)
+            if c is None or c[0] is not v or c[1] is not text or c[2] != v.type_code:
+                c = cache[n] = (v, text, v.type_code, dumps(n) + ": " + dumps(_typed(v)))
+            parts.append(c[3])
+        ok = d.checksum_ok
+        head = dumps({
+            "number": d.number, "time": format_time(d.ts_ns), "ts_ns": d.ts_ns, "src": d.src, "dst": d.dst,
+            "kind": d.kind, "checksum": "none" if ok is None else ("good" if ok else "bad"), "late": d.late,
+        })
+        return (head[:-1] + ', "values": {' + ", ".join(parts) + '}, "changed": '
+                + dumps([u.name for u in d.changes()]) + ', "dropped": ' + str(int(dropped)) + "}")
 
 
 # -- the loop --------------------------------------------------------------------------------
@@ -579,8 +815,49 @@ def json_line(d: Decoded) -> str:
 
 @dataclass
 class WatchStats:
+    """The loop's counts: frames decoded, noise (datagrams or records that are no frame),
+    datagrams ``dropped`` because the watch fell behind (its backlog full or too old, or the
+    kernel's receive buffer full: ``number`` skips them), and the decoder's ``limits`` (input
+    past a bound of issue 31, dropped)."""
+
     frames: int = 0
     noise: int = 0
+    dropped: int = 0
+    limits: LimitCounts = field(default_factory=LimitCounts)
+    unserved: int = 0  # frames of directions past the Foxglove server's channels (--foxglove)
+    detail: str = ""  # what ``dropped`` is made of (a live source's Backlog.breakdown)
+
+    def summary(self) -> str:
+        """What the watch dropped, for its last line ("" when nothing was)."""
+        parts = []
+        if self.dropped:
+            parts.append(f"{self.dropped} datagrams dropped (the watch fell behind{': ' + self.detail if self.detail else ''})")
+        past = {k: v for k, v in self.limits.to_dict().items() if v}
+        if past:
+            parts.append("input past a limit dropped: " + ", ".join(f"{k} {v}" for k, v in past.items()))
+        if self.unserved:
+            parts.append(f"{self.unserved} frames of directions past {FOXGLOVE_CHANNELS} Foxglove channels not served")
+        return "; ".join(parts)
+
+
+#: channels the live Foxglove server opens at most (three a direction, one a session topic; as
+#: an MCAP file): the frames of a direction past them are counted, not served
+FOXGLOVE_CHANNELS = 65535
+
+
+def served(output: Callable[[Any], None], stats: WatchStats) -> Callable[[Any], None]:
+    """``output`` (a :class:`~sharedlink.analysis.foxglove_channels.FoxgloveChannels` method,
+    its ``max_channels`` set) with what it refuses past its channels counted in
+    ``stats.unserved`` instead of stopping the watch."""
+    from sharedlink.errors import UsageError
+
+    def out(item: Any) -> None:
+        try:
+            output(item)
+        except UsageError:
+            stats.unserved += 1
+
+    return out
 
 
 def run_watch(
@@ -594,7 +871,9 @@ def run_watch(
     session_outputs: Sequence[Callable[[SessionMessage], None]] = (),
 ) -> WatchStats:
     """Decode ``source`` 's batches into ``outputs`` until it ends (a capture) or Ctrl-C
-    (KeyboardInterrupt propagates: the caller cleans up). ``tick(now_ns)`` is called at most
+    (KeyboardInterrupt propagates: the caller cleans up). ``stats`` counts what was decoded and
+    what was dropped (a live source's :class:`Backlog`, the decoder's limits) as it goes, so an
+    output may read it. ``tick(now_ns)`` is called at most
     every ``interval`` seconds, after every batch when the source is idle, and once more at the
     end (Ctrl-C too: the last view shows every frame counted).
 
@@ -606,6 +885,8 @@ def run_watch(
     A source's P2OS and blackboard messages (:class:`SessionMessage`) go to ``session_outputs``
     (not counted as frames)."""
     stats = stats if stats is not None else WatchStats()
+    stats.limits = decoder.limits
+    backlog: Backlog | None = getattr(source, "backlog", None)
     decode = decoder.decode
     next_tick = time.monotonic()
     datagram = getattr(decoder, "datagram", None)
@@ -615,6 +896,8 @@ def run_watch(
             for batch in source.batches(interval):
                 gate.held = True  # Ctrl-C waits until this batch is counted, written and flushed
                 try:
+                    if backlog is not None and stats.dropped != backlog.dropped:
+                        stats.dropped, stats.detail = backlog.dropped, backlog.breakdown()
                     for item in batch:
                         if isinstance(item, RawDatagram):
                             for d in datagram(item):  # type: ignore[misc]
@@ -648,6 +931,9 @@ def run_watch(
                 if getattr(source, "done", False):
                     break
     except KeyboardInterrupt:
+        if backlog is not None:  # received, never decoded: dropped too
+            stats.dropped = backlog.dropped + len(backlog)
+            stats.detail = backlog.breakdown() + f", {len(backlog)} left at the end"
         if tick is not None:
             tick(source.now_ns())
         raise

@@ -238,6 +238,68 @@ def test_force_replaces_the_link_itself(capture, tmp_path, command):
     assert target.read_bytes() == b"someone else's file"
 
 
+@pytest.mark.parametrize("args, suffix", [
+    (["export", "--format", "jsonl"], ".jsonl"), (["export", "--format", "geojson"], ".geojson"),
+    (["export", "--format", "kml"], ".kml"), (["export", "--format", "mcap"], ".mcap"),
+    (["plot"], ".svg"), (["plot"], ".pdf"),
+])
+@pytest.mark.parametrize("dangling", [False, True])
+def test_every_output_format_refuses_a_link(capture, tmp_path, args, suffix, dangling):
+    """Each format's writer (MCAP through foxglove-sdk, the images through matplotlib) goes
+    through the same check: a link onto another file, or onto nothing, is refused."""
+    target = tmp_path / f"precious{suffix}"
+    if not dangling:
+        target.write_bytes(b"someone else's file")
+    out = tmp_path / f"out{suffix}"
+    out.symlink_to(target)
+    r = cli(args[0], capture, *args[1:], "-o", out)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count(b"\n") == 1 and b"symbolic link" in r.stderr, r.stderr
+    assert out.is_symlink() and (not target.exists() if dangling else target.read_bytes() == b"someone else's file")
+
+
+def test_serial_capture_from_an_open_port_refuses_a_link(tmp_path):
+    """`serial capture` with a device that opens (a pty): its -o link is refused all the same,
+    before a byte is read."""
+    m, s = os.openpty()
+    try:
+        target = tmp_path / "precious.pcapng"
+        target.write_bytes(b"someone else's file")
+        out = tmp_path / "out.pcapng"
+        out.symlink_to(target)
+        r = cli("serial", "capture", os.ttyname(s), "--baud", "9600", "-o", out, "--duration", "1")
+    finally:
+        os.close(m)
+        os.close(s)
+    assert r.returncode == 2 and r.stderr.count(b"\n") == 1 and b"symbolic link" in r.stderr, r.stderr
+    assert target.read_bytes() == b"someone else's file" and out.is_symlink()
+
+
+@pytest.mark.parametrize("command", ["export", "export --format mcap", "export --format kml", "compress", "expand", "plot"])
+@pytest.mark.parametrize("damage", ["not a capture", "no such file", "unknown --select"])
+def test_a_command_that_fails_before_writing_leaves_the_old_output(capture, tmp_path, command, damage):
+    """The input is not a capture, is missing, or an option names a variable the capture lacks:
+    one line, exit 2, and the existing output as it was, nothing else left."""
+    suffix = {"export": ".csv", "plot": ".png", "export --format mcap": ".mcap", "export --format kml": ".kml"}.get(command, ".pcap")
+    if damage == "unknown --select" and command in ("compress", "expand"):
+        pytest.skip("no --select")
+    out = tmp_path / f"old{suffix}"
+    out.write_bytes(b"the previous version")
+    inp = capture
+    if damage == "not a capture":
+        inp = tmp_path / "junk.pcap"
+        inp.write_bytes(b"garbage-not-a-capture" * 10)
+    elif damage == "no such file":
+        inp = tmp_path / "missing.pcap"
+    name, *opts = command.split()
+    extra = ["--select", "NoSuchVariable"] if damage == "unknown --select" else []
+    r = cli(name, inp, *opts, *extra, "-o", out)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count(b"\n") == 1 and b"Traceback" not in r.stderr, r.stderr
+    assert out.read_bytes() == b"the previous version"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({out.name} | ({inp.name} if inp.parent == tmp_path and inp.exists() else set()))
+
+
 def test_serial_capture_that_cannot_open_its_device_leaves_the_old_file(tmp_path):
     """`serial capture` opens its output once its port is open: a missing device is one line and
     exit 2, and the existing --out file stays as it was (before, it was emptied into a pcapng
@@ -256,7 +318,8 @@ def test_serial_capture_that_cannot_open_its_device_leaves_the_old_file(tmp_path
 
 
 @pytest.mark.parametrize("command", [["export", "/dev/null", "-o", "-"], ["export", "/dev/null", "-o", "-", "--format", "jsonl"],
-                                     ["replay", "/dev/null", "-q"]])
+                                     ["replay", "/dev/null", "-q"], ["stats", "/dev/null"], ["compress", "/dev/null", "-o", "-"],
+                                     ["diff", "/dev/null", "/dev/null"], ["watch", "/dev/null", "--json"]])
 def test_dev_null_is_named_in_the_message(command):
     """Inputs that are not regular files are read once into a spool copy: messages still name
     the user's file, never the spool (before: /tmp/sharedlink-XXXX.spool)."""

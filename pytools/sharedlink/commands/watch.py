@@ -55,6 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                      "so it refuses a port another program holds")
     src.add_argument("--listen", default="", metavar="ADDR",
                      help="only datagrams to this address (with --bind-port: bind this address; default: all)")
+    src.add_argument("--max-lag", type=float, default=None, metavar="S",
+                     help="UDP: drop (and count) a datagram that waited more than S seconds to be decoded, so a flood "
+                     "cannot leave the watch behind the link (default 10; 0: only the backlog's size bounds it)")
     src.add_argument("--serial", metavar="DEVICE", default=None, help="read a serial port or pty instead")
     src.add_argument("--baud", type=BAUD, default=9600, help="with --serial: baud rate (default 9600)")
     add_old_spelling(src, "--from", "a positional CAPTURE (sharedlink watch CAPTURE)", "capture", type=Path)
@@ -88,18 +91,23 @@ def _source(args: argparse.Namespace) -> Any:
             raise UsageError(f"{args.serial}: {exc}") from None
     if not 0 < args.port < 65536:
         raise UsageError("--port must be 1..65535")
+    from sharedlink.watch import MAX_LAG_S
+
+    lag = MAX_LAG_S if args.max_lag is None else args.max_lag
+    if not 0 <= lag < 1e9:
+        raise UsageError("--max-lag must be 0 or more seconds")
     if args.bind_port:
         if args.interface:
             raise UsageError("--bind-port binds an address, not an interface: give --listen ADDR, or sniff with --interface")
         try:
-            return UdpSource(args.port, args.listen)
+            return UdpSource(args.port, args.listen, max_lag_s=lag)
         except OSError as exc:
             if exc.errno == errno.EADDRINUSE:
                 raise UsageError(f"udp port {args.port}: another program holds it; --bind-port never shares a port (it "
                                  "would take datagrams away from that program): leave out --bind-port to sniff it") from None
             raise UsageError(f"udp port {args.port}: {exc.strerror or exc}") from None
     try:
-        return UdpSniffer(args.port, args.interface, args.listen)
+        return UdpSniffer(args.port, args.interface, args.listen, max_lag_s=lag)
     except OSError as exc:
         raise UsageError(f"udp port {args.port}: {exc.strerror or exc}") from None
 
@@ -109,6 +117,7 @@ def _foxglove(args: argparse.Namespace) -> tuple[Any, Any]:
 
     from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
     from sharedlink.foxglove_server import LiveServer
+    from sharedlink.watch import FOXGLOVE_CHANNELS
 
     ctx = foxglove.Context()
     try:  # both subprotocol names (foxglove.sdk.v1, foxglove.websocket.v1): see foxglove_server
@@ -116,41 +125,46 @@ def _foxglove(args: argparse.Namespace) -> tuple[Any, Any]:
     except Exception as exc:  # OSError, or foxglove's own error type
         raise UsageError(f"--foxglove-port {args.foxglove_port}: {exc}") from None
     print(f"sharedlink watch: Foxglove WebSocket server on ws://{args.foxglove_host}:{server.port}", file=sys.stderr, flush=True)
-    opts = ChannelOptions(lat=args.lat, lon=args.lon, heading=args.heading, speed=args.velocity)
+    opts = ChannelOptions(lat=args.lat, lon=args.lon, heading=args.heading, speed=args.velocity,
+                          max_channels=FOXGLOVE_CHANNELS)
     return server, FoxgloveChannels(ctx, opts)
 
 
 def run(args: argparse.Namespace) -> int:
-    from sharedlink.watch import FastDecoder, json_line, run_watch
+    from sharedlink.watch import FastDecoder, JsonLines, WatchStats, run_watch, served
 
     variables, sync = decode_options(args)
     source = _source(args)
     server = None
+    stats = WatchStats()
     try:
         decoder = FastDecoder(variables, sync, carried=False)  # the outputs read values from the table
         outputs: list = []
         sessions: list = []
         if args.foxglove:
             server, channels = _foxglove(args)
-            outputs.append(channels.frame)
-            sessions.append(channels.session)
+            outputs.append(served(channels.frame, stats))
+            sessions.append(served(channels.session, stats))
         print(f"sharedlink watch: {source.description}", file=sys.stderr, flush=True)
         if args.json:  # Ctrl-C waits until a batch's lines are written whole (see run_watch)
             with buffered_stdout(binary=False) as out:
                 write = out.write
+                line = JsonLines()
 
                 def emit(d: Decoded) -> None:
-                    write(json_line(d) + "\n")
+                    write(line(d, stats.dropped) + "\n")
 
                 outputs.append(emit)
-                run_watch(source, decoder, outputs, out=out, session_outputs=sessions)
+                run_watch(source, decoder, outputs, out=out, stats=stats, session_outputs=sessions)
             return _damage(source)
-        _live(source, decoder, outputs, sync, sessions)
+        _live(source, decoder, outputs, sync, sessions, stats)
         return _damage(source)
     finally:
         if server is not None:
             server.stop()
         source.close()
+        if stats.summary():  # also after Ctrl-C: what the view or the lines could not show
+            print(f"sharedlink watch: {stats.summary()}", file=sys.stderr, flush=True)
 
 
 def _damage(source: Any) -> int:
@@ -162,18 +176,19 @@ def _damage(source: Any) -> int:
     return EXIT_USAGE
 
 
-def _live(source: Any, decoder: FastDecoder, outputs: list, sync: float, sessions: list) -> int:
+def _live(source: Any, decoder: FastDecoder, outputs: list, sync: float, sessions: list, stats: Any) -> int:
     from rich.console import Console
     from rich.live import Live
 
     from sharedlink.watch import LiveView, run_watch
 
     view = LiveView(sync, source.description)
+    view.stats = stats
     outputs.append(view.update)
     console = Console()
-    with Live(view.render(source.now_ns()), console=console, auto_refresh=False, transient=False) as live:
+    with Live(view.render(source.now_ns(), console.height), console=console, auto_refresh=False, transient=False) as live:
         def tick(now_ns: int) -> None:
-            live.update(view.render(now_ns), refresh=True)
+            live.update(view.render(now_ns, console.height), refresh=True)
 
         run_watch(source, decoder, outputs, tick=tick, stats=view.stats, session_outputs=sessions)
     if not console.is_terminal:  # redirected, rich leaves the last view without its newline
