@@ -237,6 +237,26 @@ def test_unreachable_scheduler_is_a_usage_error(fleet, tmp_path):
     assert r.returncode == 2 and "Dask scheduler" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.parametrize("shape", ["dangling-link", "file"])
+def test_a_dataset_path_that_cannot_be_a_directory_is_one_line(fleet, tmp_path, shape):
+    """--to a link to nothing, or a file: one line and exit 2, nothing made behind the link,
+    the file left as it was (issue 31)."""
+    to = tmp_path / "d"
+    if shape == "dangling-link":
+        to.symlink_to(tmp_path / "nowhere")
+    else:
+        to.write_bytes(b"keep me")
+    r = subprocess.run([*CLI, "ingest", str(fleet / "v1"), "-o", str(to)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert str(to) in r.stderr
+    if shape == "dangling-link":
+        assert to.is_symlink() and not (tmp_path / "nowhere").exists()
+    else:
+        assert to.read_bytes() == b"keep me"
+
+
 def test_memory_does_not_grow_with_the_capture(tmp_path):
     peaks = []
     for n in (1000, 8000):

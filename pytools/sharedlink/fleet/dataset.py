@@ -152,8 +152,16 @@ def require_dataset(root: Path) -> Manifest:
 
 @contextlib.contextmanager
 def locked(root: Path) -> Iterator[None]:
-    """Hold the dataset's ingest lock (one ingest at a time); UsageError if another holds it."""
-    root.mkdir(parents=True, exist_ok=True)
+    """Hold the dataset's ingest lock (one ingest at a time); UsageError if another holds it,
+    or if ``root`` cannot be the dataset's directory (a file, a link to nothing)."""
+    if root.is_symlink() and not root.exists():
+        raise UsageError(f"{root}: a symbolic link to nothing; give the dataset's directory")
+    if root.exists() and not root.is_dir():
+        raise UsageError(f"{root}: not a directory; give the dataset's directory")
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"{root}: cannot make the dataset's directory: {exc.strerror}") from None
     with open(root / LOCK, "a") as fh:
         try:
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
