@@ -20,8 +20,8 @@
 --   sharedlink.heuristic          try the heuristic on other ports (default TRUE)
 --   sharedlink.validate_checksum  compute and check the checksum (default TRUE)
 --   sharedlink.variables          a-priori list naming positional values, NAME or NAME:TYPE
---                                 (0 long, 2 double, 4 string; default
---                                 AutoGpsLat,AutoGpsLon,AutoGpsHead,AutoGpsVel, untyped)
+--                                 (0 long, 2 double, 4 string; default AutoGpsLat:2,AutoGpsLon:2,
+--                                 AutoGpsHead:2,AutoGpsVel:2), and per-pair lists SRC>DST: ...
 --   sharedlink.sync_interval      expected full-frame interval in ms (default 1000)
 --   sharedlink.max_slots, max_names, max_conversations, max_pending, max_held_bytes
 --                                 limits (1024, 4096, 65536, 1024, 65536): input past one is

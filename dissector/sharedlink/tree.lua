@@ -21,6 +21,7 @@ local VN, VV, VI, VR = M.parse.P.VN, M.parse.P.VV, M.parse.P.VI, M.parse.P.VR
 local VTf, VQf, VDf = M.parse.P.VTf, M.parse.P.VQf, M.parse.P.VDf
 
 local P = M.parse.P
+local list_type, VALUE = M.state.list_type, cfg.VALUE
 local crlf_frames = true   -- see set_crlf_frames
 local R = M.records
 local CARRY, MISS = R.CARRY, R.MISS
@@ -44,6 +45,33 @@ local function add_typed_value(vt, range, vtype, text)
     end
     if v then
         if range then TI.set_hidden(TI.add(vt, field, range, v)) else TI.add(vt, field, v) end
+    end
+end
+
+-- A variable's value as its own field, sharedlink.value.<name> (docs/fields-sharedlink.md,
+-- "Filtering by variable"): a data frame's value of a name that has one, sent or carried, typed
+-- as the field (a value that does not read as its type is left out).  Hidden: the Value line
+-- shows it.  add(parent, field, value) adds the item (the compact tree's probe, or TI.add).
+local function value_of(vf, text)
+    local vtype = vf.vtype
+    if vtype == 2 then return tonumber(text) end
+    if vtype == 0 then return parse_long(text) end
+    return text
+end
+
+local function value_item(vt, name, text)
+    local vf = VALUE[name]
+    if not vf or not text then return end
+    local x = value_of(vf, text)
+    if x ~= nil then TI.set_hidden(TI.set_generated(TI.add(vt, vf.field, x))) end
+end
+
+-- The expert of a positional value past a list learnt from a declaration (docs/fields-sharedlink.md,
+-- "Names from an a-priori list": past a user's or the a-priori list a slot is #i, no warning).
+local function past_the_list(vt, v, list)
+    if list.decl then
+        TI.add_proto_expert_info(vt, ei.var_unknown,
+            "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
     end
 end
 
@@ -75,6 +103,7 @@ do
 local REF = {}      -- field -> referenced (nil: not known yet)
 local VAR_FIELDS = { hf.var, hf.ftype, hf.var_name, hf.var_index, hf.var_value, hf.var_double,
     hf.var_long, hf.var_string, hf.var_carried, hf.var_carried_from }
+for _, vf in pairs(VALUE) do VAR_FIELDS[#VAR_FIELDS + 1] = vf.field end
 local CACHE_REFS = wsapi.cache_refs
 local ref_num, ref_visited = -1, nil   -- the frame and pass the cache was last used in
 local UNKNOWN = {}  -- "the parent's text is not read yet"
@@ -127,9 +156,17 @@ local function compact_var(ti, ttext)
     return vt, var_text
 end
 
+-- A value's sharedlink.value.<name> field (value_item) in the compact tree.
+local function compact_value(vt, ptext, name, text)
+    local vf = VALUE[name]
+    if not vf or not text then return end
+    local x = value_of(vf, text)
+    if x ~= nil then ref_add(vt, ptext, vf.field, x) end
+end
+
 -- A carried value's fields: its value and frame when known.
-local function compact_carried(vt, ptext, cv, cf)
-    if cv then ref_add(vt, ptext, hf.var_value, cv) end
+local function compact_carried(vt, ptext, cv, cf, name)
+    if cv then ref_add(vt, ptext, hf.var_value, cv); compact_value(vt, ptext, name, cv) end
     ref_add(vt, ptext, hf.var_carried, true)
     if cf then ref_add(vt, ptext, hf.var_carried_from, cf) end
 end
@@ -173,21 +210,21 @@ local function compact_variable(ti, ttext, v, list, d, num, carry, ke, fast_tv)
     local name, index, vtype = var_name_index(v, list, d, num, fast_tv)
     local val = VV[v]
     if VN[v] then ref_add(vt, ptext, hf.ftype, vtype) end
-    if name then
-        ref_add(vt, ptext, hf.var_name, name)
-    else
-        TI.add_proto_expert_info(vt, ei.var_unknown,
-            "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
+    if not name then
+        name = "#" .. VI[v]
+        past_the_list(vt, v, list)
     end
+    ref_add(vt, ptext, hf.var_name, name)
     if index then ref_add(vt, ptext, hf.var_index, index) end
     if val ~= "" or VN[v] then
         ref_add(vt, ptext, hf.var_value, val)
         if vtype then compact_typed(vt, ptext, vtype, val) end
+        compact_value(vt, ptext, name, val)
         return ke
     end
     local cv, cf = false, false
     if carry then cv, cf = carry[ke + 1], carry[ke + 2] end
-    compact_carried(vt, ptext, cv, cf)
+    compact_carried(vt, ptext, cv, cf, name)
     return ke + 2
 end
 
@@ -207,7 +244,7 @@ local function tree_compact(ti, ttext, dstb, srcb, kind, n_ord, nvars, list, d, 
         ref_add(vt, ptext, hf.var_name, name)
         local index = d and d.npos[name]
         if index then ref_add(vt, ptext, hf.var_index, index) end
-        compact_carried(vt, ptext, miss[k + 1], miss[k + 2])
+        compact_carried(vt, ptext, miss[k + 1], miss[k + 2], name)
     end
 end
 
@@ -340,11 +377,9 @@ do
             local qr = tvb(o + FS[qf] + 1, FE[qf] - FS[qf])
             if VR[v] then TI.add(vt, hf.response, qr, name) end
             TI.set_hidden(TI.add(vt, hf.var_name, qr, name))
-        elseif name then
-            TI.set_hidden(TI.add(vt, hf.var_name, tvb(o + FS[VDf[v]], 1), name))
         else
-            TI.add_proto_expert_info(vt, ei.var_unknown,
-                "Positional value " .. VI[v] .. " is past the known list (" .. #tc.list .. " variables)")
+            TI.set_hidden(TI.add(vt, hf.var_name, tvb(o + FS[VDf[v]], 1), name))
+            if not tc.list[VI[v] + 1] then past_the_list(vt, v, tc.list) end
         end
     end
 
@@ -356,7 +391,10 @@ do
         if csrc then cv, cf = csrc[ke + 1], csrc[ke + 2] end
         tc.ke = ke + 2
         local r0 = tc.tvb(tc.o + FS[VDf[v]], 1)
-        if cv then TI.set_generated(TI.add(vt, hf.var_value, r0, cv)) end
+        if cv then
+            TI.set_generated(TI.add(vt, hf.var_value, r0, cv))
+            value_item(vt, label, cv)
+        end
         TI.set_generated(TI.add(vt, hf.var_carried, r0, true))
         if cf then
             TI.set_generated(TI.add(vt, hf.var_carried_from, r0, cf))
@@ -391,6 +429,7 @@ do
             local vr = tc.tvb(tc.o + FS[df] + 1, FE[df] - FS[df])
             TI.add(vt, hf.var_value, vr, val)
             if vtype then add_typed_value(vt, vr, vtype, val) end
+            if not VR[v] then value_item(vt, name, val) end
             TI.set_text(vt, label .. " = " .. val)
         else
             full_carried(tc, vt, v, label)
@@ -407,8 +446,11 @@ do
         local index = VI[v]
         local vtype = nil
         if not name then
-            name = list[index + 1]
+            name = list[index + 1] or ("#" .. index)
             vtype = list.t and list.t[index + 1]
+        elseif VR[v] then
+            -- a reply's value: typed by its T, else by the list its direction uses
+            vtype = list_type(list, name)
         elseif d then
             -- a named variable's index: its place among the conversation's names
             local first = d.nfirst[name]
@@ -505,6 +547,17 @@ do
         end
     end
 
+    -- A list request's link to the declaration that answers it, and back (docs/fields-sharedlink.md,
+    -- "Replies": L? is answered by an N declaration, N? by an L one).
+    local function tree_request_link(tc)
+        local rec, ti = tc.rec, tc.ti
+        if rec.req_in then TI.set_generated(TI.add(ti, hf.response_in, rec.req_in)) end
+        if rec.req_to then
+            TI.set_generated(TI.add(ti, hf.response_to, rec.req_to))
+            TI.set_generated(TI.add(ti, hf.response_time, nstime_of(rec.req_rt)))
+        end
+    end
+
     -- Named variables this frame left out (carried forward).
     local function tree_carried_names(tc)
         local ti, tvb, o, rec, nm, d, bodyend = tc.ti, tc.tvb, tc.o, tc.rec, tc.nm, tc.d, tc.bodyend
@@ -519,7 +572,10 @@ do
                 TI.set_hidden(TI.add(vt, hf.var_name, name))
                 local index = d and d.npos[name]
                 if index then TI.set_generated(TI.add(vt, hf.var_index, index)) end
-                if cv then TI.set_generated(TI.add(vt, hf.var_value, cv)) end
+                if cv then
+                    TI.set_generated(TI.add(vt, hf.var_value, cv))
+                    value_item(vt, name, cv)
+                end
                 TI.set_generated(TI.add(vt, hf.var_carried, true))
                 if cf then
                     TI.set_generated(TI.add(vt, hf.var_carried_from, cf))
@@ -617,6 +673,7 @@ do
         tc.ke, tc.cmd_item = 0, nil   -- carried values of empty D fields used so far; the E field's item
         tree_head(tc)
         tree_fields(tc)
+        if rec and (rec.req_in or rec.req_to) then tree_request_link(tc) end
         tree_carried_names(tc)
         tree_trailer(tc)
     end
@@ -633,20 +690,24 @@ local function named_values_have_experts(tv)
     return false
 end
 
+-- Variable v's type for has_experts, or true when its name or T already has an expert.
+local function expert_type(v, list)
+    if VN[v] then
+        if VT[v] then return valid_type(VT[v]) or true end
+        return VR[v] and list_type(list, VN[v]) or nil
+    end
+    if not list[VI[v] + 1] and list.decl then return true end
+    return list.t[VI[v] + 1]
+end
+
 local function values_have_experts(kind, list)
     local named = P.named
     if named then return named.has_long and named_values_have_experts(named.TV) end
-    local types = list.t
     for v = 1, P.nv do
         local val = VV[v]
         if val or kind == "declaration" or VR[v] then
-            local vtype
-            if VN[v] then
-                if VT[v] then vtype = valid_type(VT[v]); if not vtype then return true end end
-            else
-                if not list[VI[v] + 1] then return true end
-                vtype = types and types[VI[v] + 1]
-            end
+            local vtype = expert_type(v, list)
+            if vtype == true then return true end
             if val and vtype and (val ~= "" or VN[v]) then
                 if vtype == 2 then
                     if not tonumber(val) then return true end
