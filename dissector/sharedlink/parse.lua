@@ -230,15 +230,17 @@ end
 -- interleaves layouts of one prefix, and a pattern that fails late costs most of a match); the
 -- checksum is the layout's fixed sum plus one sum over the values joined (SUMS).
 ------------------------------------------------------------------------------
--- The value classes, written as ranges: a value is any byte but '|', ']', the control characters
--- and DEL.  Speed trick (measured): the matcher tries a class's items in order and a digit is in
--- the first range, where the negated forms ([^|%]\0-\31\127]) tried every item, escapes costing
--- most (-1.6 and -2.0 thousand instructions a frame, summary pass).  A double-typed value: a plain
--- decimal number only, which tonumber always takes (the tree needs no check for var.badvalue;
--- other doubles, "1e5" or " 2", go to the parser).
-local VALUE = "([ -\\^-{}-~\128-\255]*)"
+-- The value classes, written as ranges: a value is any byte but '|', '[', ']', the control
+-- characters and DEL (no '[': a frame the cache matched then holds no "[:" but its first, the
+-- frame the payload scan finds, see parse_payload; a value with '[' goes to the parser).  Speed
+-- trick (measured): the matcher tries a class's items in order and a digit is in the first range,
+-- where the negated forms ([^|%]\0-\31\127]) tried every item, escapes costing most (-1.6 and
+-- -2.0 thousand instructions a frame, summary pass).  A double-typed value: a plain decimal
+-- number only, which tonumber always takes (the tree needs no check for var.badvalue; other
+-- doubles, "1e5" or " 2", go to the parser).
+local VALUE = "([ -Z\\^-{}-~\128-\255]*)"
 local DOUBLE = "([-+]?%d+%.?%d*)"
-local CHECKSUM = "|C([^]|]*)%]"
+local CHECKSUM = "|C([^]|[]*)%]"
 
 -- SUMS[n](v1, ..., vn, ctext) -> the values' total length, the sum of their bytes and ctext.
 -- Speed trick (measured): the values are summed as one string, one str_sum instead of one a
@@ -252,9 +254,10 @@ for n = 1, 8 do
         "=SUMS", "t", {}))(str_sum)
 end
 
--- The layout matching the frame f (fl: the index of its ']'), and its captures; nil: none.
-local function layout_match(f, fl, key)
-    local lk = key * 65536 + fl
+-- The layout matching the frame f (len: the index of its ']', or the payload's length when f is
+-- the payload), and its captures; nil: none.
+local function layout_match(f, len, key)
+    local lk = key * 65536 + len
     local sh = LY.bylen[lk]
     local c1, c2, c3, c4, c5, c6, c7, c8, c9
     if sh and s_find(f, sh.head, 1, true) == 1 then
@@ -269,7 +272,7 @@ local function layout_match(f, fl, key)
         if c1 then
             if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
             if LY.nbylen >= 4096 then LY.bylen, LY.nbylen = {}, 0 end
-            if fl < 65536 then LY.bylen[lk], LY.nbylen = sh, LY.nbylen + 1 end
+            if len < 65536 then LY.bylen[lk], LY.nbylen = sh, LY.nbylen + 1 end
             return sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
         end
     end
@@ -307,29 +310,34 @@ end
 -- A matched layout's captures (the values, then the checksum text) into P: its variables and the
 -- facts a layout's frame has (a data frame: N, then T/Q/D triplets or D fields, then C; the facts
 -- only other kinds have, has_e..has_r, l_ord, cmd_start, ord_text, are read for those alone).
+-- Returns the values' total length and the checksum text.  Speed trick (measured): the layout's
+-- names, types, indexes and facts stay in P while the next frames have its layout (P.filled,
+-- cleared by the parser): such a frame writes its values and its checksum's facts alone.
 local function layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
     local n = sh.n
     VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
     local vlen, sum, ctext = sh.sums(c1, c2, c3, c4, c5, c6, c7, c8, c9)
-    P.ctext, P.fast_sum, P.n_ord, P.n_text, P.vlen = ctext, (sh.fixed + sum) % 256, sh.ord, sh.ntext, vlen
+    P.ctext, P.fast_sum, P.vlen = ctext, (sh.fixed + sum) % 256, vlen
     if P.filled ~= sh then
-        -- the layout's names, types and indexes (kept while the next frames have its layout:
-        -- filled, cleared by the parser; speed trick, measured)
         local st, sn, idx = sh.T, sh.N, sh.ord
         for k = 1, n do
             VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], idx, false
             idx = idx + 1
         end
+        P.n_ord, P.n_text, P.nv, P.nd, P.layout, P.odd, P.limit = sh.ord, sh.ntext, n, n, sh, false, false
+        if sh.named then
+            P.nq, P.n_pos, P.n_empty_d, P.named = n, 0, 0, sh
+        else
+            P.nq, P.n_pos, P.named = 0, n, nil
+        end
         P.filled = sh
     end
-    P.nv, P.nd, P.layout, P.odd, P.limit = n, n, sh, false, false
-    if sh.named then
-        P.nq, P.n_pos, P.n_empty_d, P.named = n, 0, 0, sh
-        return
+    if not sh.named then
+        local n_empty_d = 0
+        for k = 1, n do if VV[k] == "" then n_empty_d = n_empty_d + 1 end end
+        P.n_empty_d = n_empty_d
     end
-    local n_empty_d = 0
-    for k = 1, n do if VV[k] == "" then n_empty_d = n_empty_d + 1 end end
-    P.nq, P.n_pos, P.n_empty_d, P.named = 0, n, n_empty_d, nil
+    return vlen, ctext
 end
 
 ------------------------------------------------------------------------------
@@ -426,9 +434,13 @@ local function new_layout(f, kind, dstb, srcb)
         fixed = fixed - str_sum(VV[k])
     end
     parts[nv + 1] = CHECKSUM
+    local vlen = 0
+    for k = 1, nv do vlen = vlen + #VV[k] end
     local sh = { head = head, at = #head + 1, pat = "^" .. t_concat(parts), n = nv, named = named, T = st, N = sn,
         TV = named and tv or nil, has_long = named and has_long(tv), ord = P.n_ord, ntext = P.n_text,
-        fixed = fixed % 256, sums = SUMS[nv] }
+        fixed = fixed % 256, sums = SUMS[nv], flen = P.cpos + 1 - vlen }
+    -- quiet: no value of the layout can carry an expert info (var.badvalue; see tree's has_experts)
+    sh.quiet = named and not sh.has_long
     sh.key = sh.head .. "\0" .. sh.pat
     if named then named_info(sh, dstb, srcb) end
     return sh
@@ -457,23 +469,38 @@ end
 ------------------------------------------------------------------------------
 -- A closed frame the layout cache has: matched and taken into P.  Its head (addresses A-P, N) is
 -- the layout's, so the frame needs no header check.  Returns its address bytes (nil: not taken).
-local function parse_cached(f, fl, vis)
+local function parse_cached(f, fl)
     local dstb, srcb = s_byte(f, 3, 4)
     if not srcb or fl < 6 then return nil end
     local sh, c1, c2, c3, c4, c5, c6, c7, c8, c9 = layout_match(f, fl, dstb * 256 + srcb)
     if not sh then return nil end
     layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
-    if vis then fast_positions(sh) end
     if MARKS.fast then MARKS.fast_hit = true end
     return dstb, srcb
 end
 
+-- The frame the payload s (n bytes) starts with, when the layout cache has its layout: taken into P
+-- (then parse_frame with taken).  The entry tries it before scanning the payload (speed trick,
+-- measured: the scan's three string.find): a layout's match proves the frame ends at its first ']'
+-- with no "[:" after its start (its values and checksum text hold no '[' nor ']'), the frame the
+-- scan finds.  Returns the index of its ']' (nil: not cached; the scan takes the payload).
+function Pm.parse_payload(s, n)
+    local dstb, srcb = s_byte(s, 3, 4)
+    if not FAST or not srcb or n < 6 then return nil end
+    local sh, c1, c2, c3, c4, c5, c6, c7, c8, c9 = layout_match(s, n, dstb * 256 + srcb)
+    if not sh then return nil end
+    local vlen, ctext = layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
+    if MARKS.fast then MARKS.fast_hit = true end
+    return sh.flen + vlen + #ctext
+end
+
 -- Parse a frame.  Returns the last index of the content, the address bytes and why it is
--- malformed (nil: it is not).  vis: a shown tree (it needs the fields' places).
-local function parse_frame(f, fl, terminated, vis)
-    if FAST and terminated then
-        local dstb, srcb = parse_cached(f, fl, vis)
-        if dstb then return fl - 1, dstb, srcb, nil end
+-- malformed (nil: it is not).  vis: a shown tree (it needs the fields' places); taken: the frame
+-- is in P already (parse_payload).
+local function parse_frame(f, fl, terminated, vis, taken)
+    if taken or (FAST and terminated and parse_cached(f, fl)) then
+        if vis then fast_positions(P.layout) end
+        return fl - 1, s_byte(f, 3, 4)
     end
     parse_reset()
     local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)
