@@ -138,8 +138,7 @@ local B_A, B_P, LETTER = U.B_A, U.B_P, U.LETTER
 local Pm, S, I, T, R = M.parse, M.state, M.info, M.tree, M.records
 local P = Pm.P
 local PG, TI = M.wsapi.PG, M.wsapi.TI
-local parse_frame, fast_positions, checksum_verdict, kind_of_fields = Pm.parse_frame, Pm.fast_positions,
-    Pm.checksum_verdict, Pm.kind_of_fields
+local parse_frame, fast_positions, kind_of_fields = Pm.parse_frame, Pm.fast_positions, Pm.kind_of_fields
 local parse_payload, UHEX = Pm.parse_payload, U.UHEX
 local state_first_pass, state_later_pass = S.state_first_pass, S.state_later_pass
 local info_frame = I.info_frame
@@ -190,8 +189,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     -- protocol item is added once the frame is known (the full tree: with its text)
     local vis = tree ~= nil and PG.visible(tree)
 
-    local bodyend, dstb, srcb, malformed_msg = parse_frame(f, fl, terminated, vis, taken)
-    local cs_val, cs_calc, cs_status = checksum_verdict(f, bodyend)
+    local bodyend, dstb, srcb, malformed_msg, cs_val, cs_calc, cs_status = parse_frame(f, fl, terminated, vis, taken)
     local layout = P.layout
     local kind, is_data, dst, src, addrs_ok, full_local
     if layout then
