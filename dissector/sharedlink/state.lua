@@ -11,6 +11,7 @@ local floor, valid_type, VT, VN = math.floor, U.valid_type, M.parse.P.VT, M.pars
 local VV, VI, VR = M.parse.P.VV, M.parse.P.VI, M.parse.P.VR
 
 local P = M.parse.P
+local LIM = cfg.LIM   -- the limits and their per-capture facts (prefs; the same table for ever)
 local R = M.records
 local PG = wsapi.PG
 local get_rec, carried_store, CARRY, MISS = R.get_rec, R.carried_store, R.CARRY, R.MISS
@@ -49,8 +50,8 @@ end
 local function add_dir(byaddr, key)
     local d = new_dir()
     d.akey = byaddr.akey   -- its addresses (and serial direction): the receiver's key, with its letters
-    if cfg.LIM.ndirs >= cfg.LIM.max_conversations then d.over = true; return d end
-    cfg.LIM.ndirs = cfg.LIM.ndirs + 1
+    if LIM.ndirs >= LIM.max_conversations then d.over = true; return d end
+    LIM.ndirs = LIM.ndirs + 1
     byaddr[key] = d
     return d
 end
@@ -183,7 +184,7 @@ do
             hist[name] = { (from[name] or 0) * 1048576, vals[name] or false }
         end
         d.hist, d.jkey = hist, key
-        cfg.LIM.journal = true
+        LIM.journal = true
         return hist
     end
 
@@ -263,7 +264,7 @@ do
         local st = d.seen[name]
         if not st and good then
             local names = d.names
-            if #names < cfg.LIM.max_names then
+            if #names < LIM.max_names then
                 names[#names + 1] = name
                 d.npos[name] = #names - 1
                 d.nfirst[name] = num
@@ -272,7 +273,7 @@ do
                 st = 0
             else
                 -- a new name past max_names: no state
-                cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_names ..
+                LIM.hit = "Limit exceeded: more than " .. LIM.max_names ..
                     " names in this direction (max_names)"
             end
         end
@@ -319,7 +320,7 @@ do
     local function store_values(d, list, num, sk, good, has_tree, hist, key)
         stamp_ctr = stamp_ctr + 1
         dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = stamp_ctr, 0, 0, -1, false
-        local max_slots = cfg.LIM.max_slots
+        local max_slots = LIM.max_slots
         for v = 1, P.nv do
             local val = VV[v]
             if val then
@@ -404,7 +405,11 @@ do
             -- a layout of known names: its values stored; the direction's other names carried
             -- (none: the whole known set)
             if d.names_is == named.N then
-                store_layout_values(d, num)
+                local vals, from = d.vals, d.from
+                for v = 1, named.n do
+                    local name = VN[v]
+                    vals[name], from[name] = VV[v], num
+                end
                 return full_local, 0, 0, 0, full_local, false
             end
             local sub = known_subset(d, named)
@@ -421,23 +426,6 @@ do
         return full, dv_ne, nm, miss_n, full_local, hist ~= nil
     end
 
-    -- State, first pass, a data frame: the sync clock, and the record later passes read (late
-    -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
-    -- The sync clock: a full frame (good checksum) sets it; a delta past the interval is late
-    -- (returns its age, else nil).
-    local function sync_clock(pinfo, d, full, good)
-        local now = PG.rel_ts(pinfo)
-        local first = d.first
-        if not first then first = now; d.first = now end
-        if full then
-            if good then d.lastfull = now end
-            return nil
-        end
-        local age = now - (d.lastfull or first)
-        if age > cfg.sync then return age end
-        return nil
-    end
-
     -- The carried values of empty D fields (CARRY, ne) and named ones (MISS, nm) into a table record.
     local function carried_record(rec, ne, nm)
         for k = 1, ne do rec[k] = CARRY[k] end
@@ -448,12 +436,22 @@ do
         end
     end
 
+    -- State, first pass, a data frame: the sync clock, and the record later passes read (late
+    -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
+    -- The sync clock: a full frame (good checksum) sets it; a delta past the interval is late.
     local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
-        local rec = cfg.LIM.hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
-        local late = sync_clock(pinfo, d, full, good)
-        if late then
-            rec = rec or get_rec(num, sk, true)
-            rec.late = late
+        local rec = LIM.hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
+        local now = PG.rel_ts(pinfo)
+        local first = d.first
+        if not first then first = now; d.first = now end
+        if full then
+            if good then d.lastfull = now end
+        else
+            local age = now - (d.lastfull or first)
+            if age > cfg.sync then
+                rec = rec or get_rec(num, sk, true)
+                rec.late = age
+            end
         end
         local kch = full and "f" or "d"
         -- carried values of empty D fields: a packed text record unless the
@@ -497,7 +495,7 @@ do
         end
         local maxi = #newlist
         for v = 1, P.nv do
-            if VN[v] and VI[v] < cfg.LIM.max_slots then
+            if VN[v] and VI[v] < LIM.max_slots then
                 newlist[VI[v] + 1] = VN[v]
                 types[VI[v] + 1] = VT[v] and valid_type(VT[v]) or nil
                 if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
@@ -506,11 +504,11 @@ do
         for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
         if dd then
             dd.list = newlist
-        elseif inbound[rkey] or ninbound < cfg.LIM.max_conversations then
+        elseif inbound[rkey] or ninbound < LIM.max_conversations then
             if not inbound[rkey] then ninbound = ninbound + 1 end
             inbound[rkey] = newlist
         else
-            cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_conversations ..
+            LIM.hit = "Limit exceeded: more than " .. LIM.max_conversations ..
                 " receivers with an inbound list (max_conversations)"
         end
         pair_lists[rl] = newlist
@@ -522,11 +520,11 @@ do
         local qkey = ak .. ":" .. name
         if pending_q[qkey] then
             pending_q[qkey] = rec
-        elseif (cfg.LIM.npend[ak] or 0) < cfg.LIM.max_pending then
+        elseif (LIM.npend[ak] or 0) < LIM.max_pending then
             pending_q[qkey] = rec
-            cfg.LIM.npend[ak] = (cfg.LIM.npend[ak] or 0) + 1
+            LIM.npend[ak] = (LIM.npend[ak] or 0) + 1
         else
-            cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_pending ..
+            LIM.hit = "Limit exceeded: more than " .. LIM.max_pending ..
                 " unanswered queries in this conversation (max_pending)"
         end
     end
@@ -537,7 +535,7 @@ do
         local qrec = pending_q[qkey]
         if qrec then
             pending_q[qkey] = nil
-            cfg.LIM.npend[ak] = (cfg.LIM.npend[ak] or 1) - 1
+            LIM.npend[ak] = (LIM.npend[ak] or 1) - 1
         end
         return qrec
     end
@@ -619,37 +617,49 @@ do
 
     local LINKED = { query = true, reply = true, declaration = true }   -- kinds a query/reply link concerns
 
+    -- The limit text of a direction past max_conversations.
+    local function over_text()
+        return "Limit exceeded: more than " .. LIM.max_conversations .. " directions with state" ..
+            " (max_conversations); this one keeps none"
+    end
+
     -- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
     -- direction state (data frames), the named variables carried, and ne/nm (see data_values).
     function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, addrs_ok, full_local,
                               has_tree)
+        LIM.hit = false
+        if is_data and addrs_ok then
+            -- a data frame (not a kind LINKED)
+            local d = get_dir(pinfo, num, dstb, srcb)
+            if d.over then LIM.hit = over_text() end
+            local list = frame_list(list_in_use(d, num, sk, src, dst))
+            local full, ne, nm, miss_n, journaled
+            full, ne, nm, miss_n, full_local, journaled = data_values(d, list, num, sk, good, full_local, has_tree)
+            -- a journal's carried names go in no record (see journal)
+            local rec
+            rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm)
+            if LIM.hit then
+                rec = rec or get_rec(num, sk, true)
+                rec.limit = LIM.hit
+            end
+            return kind, rec, list, d, miss_n, ne, nm
+        end
         local rec, list, d = nil, cfg.list, nil
-        local miss_n, ne, nm = 0, 0, 0
-        cfg.LIM.hit = false
-        if (is_data or kind == "malformed" or kind == "reply") and addrs_ok then
+        if (kind == "malformed" or kind == "reply") and addrs_ok then
             d = get_dir(pinfo, num, dstb, srcb)
-            if d.over then
-                cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_conversations .. " directions with state" ..
-                    " (max_conversations); this one keeps none"
-            end
+            if d.over then LIM.hit = over_text() end
             list = frame_list(list_in_use(d, num, sk, src, dst))
-            if is_data then
-                local full, journaled
-                full, ne, nm, miss_n, full_local, journaled = data_values(d, list, num, sk, good, full_local, has_tree)
-                -- a journal's carried names go in no record (see journal)
-                rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm)
-            end
         elseif kind == "declaration" and addrs_ok and good then
             learn_declaration(pinfo, num, dstb, srcb, dst, src)
         end
         if LINKED[kind] and addrs_ok and good then
             rec = link_query_reply(pinfo, num, sk, kind, dst, src, rec)
         end
-        if cfg.LIM.hit then
+        if LIM.hit then
             rec = rec or get_rec(num, sk, true)
-            rec.limit = cfg.LIM.hit
+            rec.limit = LIM.hit
         end
-        return kind, rec, list, d, miss_n, ne, nm
+        return kind, rec, list, d, 0, 0, 0
     end
 end
 
@@ -681,7 +691,7 @@ local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs
     local nm = 0
     local list, d = cfg.list, nil
     if (is_data or kind == "malformed" or kind == "reply") and addrs_ok
-        and (has_tree or P.n_pos > 0 or cfg.LIM.journal or kind == "reply") then
+        and (has_tree or P.n_pos > 0 or LIM.journal or kind == "reply") then
         d = get_dir(pinfo, num, dstb, srcb)
         list = frame_list(list_at(d, num, sk))
         -- a named frame the journal judged: what it carried, from the journal
