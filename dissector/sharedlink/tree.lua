@@ -12,10 +12,8 @@ local UHEX = U.UHEX
 local ei, sl, s_byte, s_sub = M.fields.ei, M.proto, string.byte, string.sub
 local s_format, tonumber, tostring = string.format, tonumber, tostring
 local floor, ARROW, B_CR, B_LF = math.floor, U.ARROW, U.B_CR, U.B_LF
-local B_A, B_P, L_N, L_T = U.B_A, U.B_P, U.L_N, U.L_T
-local L_Q, L_R, L_D, L_C = U.L_Q, U.L_R, U.L_D, U.L_C
-local L_L, L_E, L_M, L_P = U.L_L, U.L_E, U.L_M, U.L_P
-local L_G, LETTER, valid_type, parse_long = U.L_G, U.LETTER, U.valid_type, U.parse_long
+local B_A, B_P = U.B_A, U.B_P
+local LETTER, valid_type, parse_long = U.LETTER, U.valid_type, U.parse_long
 local nstime_of, zrange, FL, FS = U.nstime_of, U.zrange, M.parse.P.FL, M.parse.P.FS
 local FE, FV, FC, VT = M.parse.P.FE, M.parse.P.FV, M.parse.P.FC, M.parse.P.VT
 local VN, VV, VI, VR = M.parse.P.VN, M.parse.P.VV, M.parse.P.VI, M.parse.P.VR
@@ -46,7 +44,51 @@ local TI = wsapi.TI   -- see wsapi (2)
 -- Speed trick (measured, -Y): a hidden tree skips what nobody references, and the values of
 -- unreferenced fields are not even computed (a double's tonumber is ~1,150 instructions).
 ------------------------------------------------------------------------------
+-- the fields used most, as upvalues (a table's field is a hash lookup: speed trick, measured)
+local H_var, H_ftype, H_var_name, H_var_index, H_var_value, H_var_double, H_var_carried =
+    hf.var, hf.ftype, hf.var_name, hf.var_index, hf.var_value, hf.var_double, hf.var_carried
+local H_var_carried_from, H_checksum, H_checksum_calc, H_checksum_status, H_ordinal, H_dst, H_src =
+    hf.var_carried_from, hf.checksum, hf.checksum_calc, hf.checksum_status, hf.ordinal, hf.dst, hf.src
+
 local SHOWN, HIDDEN, NONE = 1, 2, 3
+
+-- Whether a variable's value would get var.badvalue or var.unknown (see has_experts).
+-- A frame of a named layout: its types are valid and its doubles plain decimals (the layout's
+-- pattern), so only a long can fail (speed trick, measured: tonumber on a value is ~1,150
+-- instructions).
+local function named_values_have_experts(tv)
+    for v = 1, P.nv do
+        if tv[v] == 0 and not parse_long(VV[v]) then return true end
+    end
+    return false
+end
+
+local function values_have_experts(kind, list)
+    local named = P.named
+    if named then return named.has_long and named_values_have_experts(named.TV) end
+    local types = list.t
+    for v = 1, P.nv do
+        local val = VV[v]
+        if val or kind == "declaration" or VR[v] then
+            local vtype
+            if VN[v] then
+                if VT[v] then vtype = valid_type(VT[v]); if not vtype then return true end end
+            else
+                if not list[VI[v] + 1] then return true end
+                vtype = types and types[VI[v] + 1]
+            end
+            if val and vtype and (val ~= "" or VN[v]) then
+                if vtype == 2 then
+                    if not tonumber(val) then return true end
+                elseif vtype == 0 and not parse_long(val) then
+                    return true
+                end
+            end
+        end
+    end
+    return false
+end
+
 
 -- Which fields somebody references, learnt by the probe (wsapi.referenced, which answers true
 -- when unsure): field -> true/false, nil while not known.  In a tree nobody sees Wireshark adds
@@ -62,8 +104,8 @@ local NO_REF = {}     -- mode NONE: nothing is referenced
 for _, field in pairs(hf) do NO_REF[field] = false end
 local REF = LEARNT    -- the one in use for the frame being built
 local CACHE_REFS = wsapi.cache_refs
-local PER_FRAME = { hf.var, hf.ftype, hf.var_name, hf.var_index, hf.var_value, hf.var_double, hf.var_long,
-    hf.var_string, hf.var_carried, hf.var_carried_from, hf.query, hf.response, hf.response_in, hf.response_to,
+local PER_FRAME = { H_var, H_ftype, H_var_name, H_var_index, H_var_value, H_var_double, hf.var_long,
+    hf.var_string, H_var_carried, H_var_carried_from, hf.query, hf.response, hf.response_in, hf.response_to,
     hf.response_time, hf.command_arg }
 if not CACHE_REFS then
     local per_frame = {}
@@ -110,7 +152,11 @@ local function hitem(parent, ptext, field, value)
     return hadd(parent, ptext, field, value)
 end
 
-local TC = {}   -- the frame being built (reused): see tree_frame
+-- The frame being built (set by tree_frame; upvalues, not a table's fields: speed trick, measured)
+local C = {}   -- the rest of it
+local c_shown
+local c_csrc, c_d, c_f, c_ke, c_list, c_num, c_o, c_places
+local c_ti, c_ttext, c_tv, c_tvb, c_vtext
 
 ------------------------------------------------------------------------------
 -- The head: the protocol item, the addresses, the kind, malformed.
@@ -119,11 +165,11 @@ local TC = {}   -- the frame being built (reused): see tree_frame
 -- kept for filters but hidden; an expert when it is not a letter A-P.  Speed trick (measured, -V):
 -- the labels are made once a letter (ADDR_LABEL[what][b]).
 local ADDR_LABEL = { Destination = {}, Source = {} }
-local function tree_address(tc, off, b, letter, is_node, field, node_field, what)
+local function tree_address(off, b, letter, is_node, field, node_field, what)
     if not b then return end   -- cut short: no byte to point at
-    local ti = tc.ti
-    if tc.mode == SHOWN then
-        local r = tc.tvb(off, 1)
+    local ti = c_ti
+    if c_shown then
+        local r = c_tvb(off, 1)
         if is_node then
             local labels = ADDR_LABEL[what]
             local label = labels[b]
@@ -137,11 +183,11 @@ local function tree_address(tc, off, b, letter, is_node, field, node_field, what
         end
         ti = TI.add(ti, field, r, letter)
     elseif is_node then
-        if REF[field] ~= false then hadd(ti, tc.ttext, field, letter) end
-        if REF[node_field] ~= false then hadd(ti, tc.ttext, node_field, b - B_A + 1) end
+        if REF[field] ~= false then hadd(ti, c_ttext, field, letter) end
+        if REF[node_field] ~= false then hadd(ti, c_ttext, node_field, b - B_A + 1) end
         return
     else
-        ti = hitem(ti, tc.ttext, field, letter) or ti
+        ti = hitem(ti, c_ttext, field, letter) or ti
     end
     TI.add_proto_expert_info(ti, ei.address_invalid, what .. " " .. letter .. " is not a letter A-P")
 end
@@ -168,62 +214,61 @@ local function proto_item_text(kind, dstb, srcb, dst, src, cs_status, nodes)
     return text
 end
 
-local function tree_head(tc)
-    local mode, tvb, kind, dstb, srcb = tc.mode, tc.tvb, tc.kind, tc.dstb, tc.srcb
+local function tree_head()
+    local mode, tvb, kind, dstb, srcb = C.mode, c_tvb, C.kind, C.dstb, C.srcb
     local dnode = dstb and dstb >= B_A and dstb <= B_P
     local snode = srcb and srcb >= B_A and srcb <= B_P
     local ti
     if mode == SHOWN then
-        ti = TI.add(tc.tree, sl, tvb(tc.a - 1, tc.e - tc.a + 1),
-            proto_item_text(kind, dstb, srcb, tc.dst, tc.src, tc.cs_status, dnode and snode))
+        ti = TI.add(C.tree, sl, tvb(C.a - 1, C.e - C.a + 1),
+            proto_item_text(kind, dstb, srcb, C.dst, C.src, C.cs_status, dnode and snode))
     elseif mode == HIDDEN then
-        ti = TI.add(tc.tree, sl, tvb(tc.a - 1, tc.e - tc.a + 1))
+        ti = TI.add(C.tree, sl, tvb(C.a - 1, C.e - C.a + 1))
     else
-        ti = TI.add(tc.tree, sl)
+        ti = TI.add(C.tree, sl)
     end
-    tc.ti = ti
-    tc.ttext = mode == HIDDEN and ref_start(ti, tc.num, tc.visited) or nil
-    tree_address(tc, tc.o + 3, dstb, tc.dst, dnode, hf.dst, hf.dst_node, "Destination")
-    tree_address(tc, tc.o + 4, srcb, tc.src, snode, hf.src, hf.src_node, "Source")
+    c_ti = ti
+    c_ttext = mode == HIDDEN and ref_start(ti, c_num, C.visited) or nil
+    tree_address(c_o + 3, dstb, C.dst, dnode, H_dst, hf.dst_node, "Destination")
+    tree_address(c_o + 4, srcb, C.src, snode, H_src, hf.src_node, "Source")
     if mode == SHOWN then
         TI.set_generated(TI.add(ti, hf.kind, kind))
     elseif REF[hf.kind] ~= false then
-        hadd(ti, tc.ttext, hf.kind, kind)
+        hadd(ti, c_ttext, hf.kind, kind)
     end
-    if tc.malformed_msg then TI.add_proto_expert_info(ti, ei.malformed, tc.malformed_msg) end
+    if C.malformed_msg then TI.add_proto_expert_info(ti, ei.malformed, C.malformed_msg) end
 end
 
 ------------------------------------------------------------------------------
 -- A variable: its subtree and items (tree_variable).
 ------------------------------------------------------------------------------
--- The variable's subtree: the item its items go on, and that item's text (hidden: the
--- protocol item's when nobody references sharedlink.var; none: the protocol item).
-local function var_item(tc, fs, vend)
-    local ti = tc.ti
-    if tc.mode == SHOWN then return TI.add(ti, hf.var, tc.tvb(tc.o + fs, FE[vend] - fs + 1)), nil end
-    if REF[hf.var] == false then return ti, tc.ttext end
-    local vt = hadd(ti, tc.ttext, hf.var)
-    if not vt then return ti, tc.ttext end
-    local vtext = tc.vtext
+-- A hidden variable's subtree: the item its items go on, and that item's text (the protocol
+-- item's when nobody references sharedlink.var; no tree: the protocol item).
+local function var_item()
+    local ti = c_ti
+    if REF[H_var] == false then return ti, c_ttext end
+    local vt = hadd(ti, c_ttext, H_var)
+    if not vt then return ti, c_ttext end
+    local vtext = c_vtext
     if not vtext then   -- a real variable item's text, the same for all (read once a frame)
         vtext = CACHE_REFS and UNKNOWN or vt.text
-        tc.vtext = vtext
+        c_vtext = vtext
     end
     return vt, vtext
 end
 
 -- Its T field (field tf; shown: the type or an expert when it is not a number), hidden: its type.
-local function var_type(tc, vt, vtext, v, tf, vtype)
-    if tc.mode == SHOWN then
-        local tvb, o = tc.tvb, tc.o
+local function var_type(vt, vtext, v, tf, vtype)
+    if c_shown then
+        local tvb, o = c_tvb, c_o
         if vtype then
-            TI.add(vt, hf.ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
+            TI.add(vt, H_ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
         else
             vt:add(tvb(o + FS[tf], FE[tf] - FS[tf] + 1), "Type (T): " .. tostring(VT[v] or ""))
                 :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
         end
     elseif vtype then
-        if REF[hf.ftype] ~= false then hadd(vt, vtext, hf.ftype, vtype) end
+        if REF[H_ftype] ~= false then hadd(vt, vtext, H_ftype, vtype) end
     else
         TI.add_proto_expert_info(vt, ei.var_badvalue, "Type is not a number")
     end
@@ -231,12 +276,12 @@ end
 
 -- Its name: the subtree's label, its field kept for filters, hidden (and a reply's R); an expert
 -- for a positional value past the list.
-local function var_name(tc, vt, vtext, v, name)
-    local shown = tc.mode == SHOWN
+local function var_name(vt, vtext, v, name)
+    local shown = c_shown
     if name then
         local r
         if shown then
-            local tvb, o = tc.tvb, tc.o
+            local tvb, o = c_tvb, c_o
             if VN[v] then
                 local qf = VQf[v]
                 r = tvb(o + FS[qf] + 1, FE[qf] - FS[qf])
@@ -244,24 +289,24 @@ local function var_name(tc, vt, vtext, v, name)
             else
                 r = tvb(o + FS[VDf[v]], 1)
             end
-            TI.set_hidden(TI.add(vt, hf.var_name, r, name))
+            TI.set_hidden(TI.add(vt, H_var_name, r, name))
             return
         end
         if VR[v] and VN[v] and REF[hf.response] ~= false then hadd(vt, vtext, hf.response, name) end
-        if REF[hf.var_name] ~= false then hadd(vt, vtext, hf.var_name, name) end
+        if REF[H_var_name] ~= false then hadd(vt, vtext, H_var_name, name) end
         return
     end
     TI.add_proto_expert_info(vt, ei.var_unknown,
-        "Positional value " .. VI[v] .. " is past the known list (" .. #tc.list .. " variables)")
+        "Positional value " .. VI[v] .. " is past the known list (" .. #c_list .. " variables)")
 end
 
 -- A value's typed field (double, long, string; shown: hidden, at range r) or its var.badvalue.
 -- known: the value is a plain decimal already (a named layout's pattern matched it), so a hidden
 -- tree nobody asks for doubles skips tonumber.
-local function typed_value(tc, vt, vtext, r, vtype, text, known)
+local function typed_value(vt, vtext, r, vtype, text, known)
     local field, v
     if vtype == 2 then
-        field = hf.var_double
+        field = H_var_double
         if known and REF[field] == false then return end
         v = tonumber(text)
         if not v then TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a double: " .. text) end
@@ -272,7 +317,7 @@ local function typed_value(tc, vt, vtext, r, vtype, text, known)
         field, v = hf.var_string, text
     end
     if not v then return end
-    if tc.mode == SHOWN then
+    if c_shown then
         TI.set_hidden(TI.add(vt, field, r, v))
     elseif REF[field] ~= false then
         hadd(vt, vtext, field, v)
@@ -283,31 +328,31 @@ end
 -- carried value with no bytes of its own), for a value in the frame, carried forward, or of a
 -- named variable the frame left out.  The one place a variable's value becomes items: fields per
 -- variable (issue 29) go here.
-local function value_items(tc, vt, vtext, name, value, r, gen)    -- luacheck: no unused args
-    if tc.mode == SHOWN then
-        local it = r and TI.add(vt, hf.var_value, r, value) or TI.add(vt, hf.var_value, value)
+local function value_items(vt, vtext, name, value, r, gen)    -- luacheck: no unused args
+    if c_shown then
+        local it = r and TI.add(vt, H_var_value, r, value) or TI.add(vt, H_var_value, value)
         if gen then TI.set_generated(it) end
-    elseif REF[hf.var_value] ~= false then
-        hadd(vt, vtext, hf.var_value, value)
+    elseif REF[H_var_value] ~= false then
+        hadd(vt, vtext, H_var_value, value)
     end
 end
 
 -- A carried value's items: its value and frame when known (cv, cf: false when not), at range r0
 -- (shown), the subtree's text set to label ... .
-local function carried_items(tc, vt, vtext, name, label, cv, cf, r0)
-    local shown = tc.mode == SHOWN
-    if cv then value_items(tc, vt, vtext, name, cv, r0, true) end
+local function carried_items(vt, vtext, name, label, cv, cf, r0)
+    local shown = c_shown
+    if cv then value_items(vt, vtext, name, cv, r0, true) end
     if shown then
-        TI.set_generated(r0 and TI.add(vt, hf.var_carried, r0, true) or TI.add(vt, hf.var_carried, true))
-    elseif REF[hf.var_carried] ~= false then
-        hadd(vt, vtext, hf.var_carried, true)
+        TI.set_generated(r0 and TI.add(vt, H_var_carried, r0, true) or TI.add(vt, H_var_carried, true))
+    elseif REF[H_var_carried] ~= false then
+        hadd(vt, vtext, H_var_carried, true)
     end
     if cf then
         if shown then
-            TI.set_generated(r0 and TI.add(vt, hf.var_carried_from, r0, cf) or TI.add(vt, hf.var_carried_from, cf))
+            TI.set_generated(r0 and TI.add(vt, H_var_carried_from, r0, cf) or TI.add(vt, H_var_carried_from, cf))
             TI.set_text(vt, label .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
-        elseif REF[hf.var_carried_from] ~= false then
-            hadd(vt, vtext, hf.var_carried_from, cf)
+        elseif REF[H_var_carried_from] ~= false then
+            hadd(vt, vtext, H_var_carried_from, cf)
         end
     elseif shown then
         TI.set_text(vt, label .. " = ? (carried, no earlier value)")
@@ -315,15 +360,15 @@ local function carried_items(tc, vt, vtext, name, label, cv, cf, r0)
 end
 
 -- A reply's link to its query (or the expert of a reply without one).
-local function var_reply(tc, vt, vtext, name)
-    local resp_to, unmatched = tc.resp_to, tc.unmatched
+local function var_reply(vt, vtext, name)
+    local resp_to, unmatched = C.resp_to, C.unmatched
     if resp_to and resp_to[name] then
-        if tc.mode == SHOWN then
+        if c_shown then
             TI.set_generated(TI.add(vt, hf.response_to, resp_to[name]))
-            TI.set_generated(TI.add(vt, hf.response_time, nstime_of(tc.rts[name])))
+            TI.set_generated(TI.add(vt, hf.response_time, nstime_of(C.rts[name])))
         else
             hitem(vt, vtext, hf.response_to, resp_to[name])
-            if REF[hf.response_time] ~= false then hadd(vt, vtext, hf.response_time, nstime_of(tc.rts[name])) end
+            if REF[hf.response_time] ~= false then hadd(vt, vtext, hf.response_time, nstime_of(C.rts[name])) end
         end
     elseif unmatched and unmatched[name] then
         TI.add_proto_expert_info(vt, ei.unanswered)
@@ -331,12 +376,12 @@ local function var_reply(tc, vt, vtext, name)
 end
 
 -- A variable's value (its D), or what a declaration or a reply without value shows.
-local function var_value(tc, vt, vtext, v, name, vtype)
-    local shown = tc.mode == SHOWN
+local function var_value(vt, vtext, v, name, vtype)
+    local shown = c_shown
     local val, label = VV[v], shown and (name or ("#" .. VI[v]))
     if not val then
         if shown then TI.set_text(vt, label .. (VR[v] and " (reply without value)" or " (declared)")) end
-        local resp_in = tc.resp_in
+        local resp_in = C.resp_in
         if resp_in and resp_in[name] then
             if shown then TI.set_generated(TI.add(vt, hf.response_in, resp_in[name]))
             else hitem(vt, vtext, hf.response_in, resp_in[name]) end
@@ -345,107 +390,108 @@ local function var_value(tc, vt, vtext, v, name, vtype)
     end
     if val ~= "" or VN[v] then
         local r = nil
-        if shown then local df = VDf[v]; r = tc.tvb(tc.o + FS[df] + 1, FE[df] - FS[df]) end
-        value_items(tc, vt, vtext, name, val, r, false)
-        if vtype then typed_value(tc, vt, vtext, r, vtype, val, tc.tv ~= nil) end
+        if shown then local df = VDf[v]; r = c_tvb(c_o + FS[df] + 1, FE[df] - FS[df]) end
+        value_items(vt, vtext, name, val, r, false)
+        if vtype then typed_value(vt, vtext, r, vtype, val, c_tv ~= nil) end
         if shown then TI.set_text(vt, label .. " = " .. val) end
     else
         -- an empty positional D: the value carried forward (the frame's next carried pair)
-        local ke, csrc = tc.ke, tc.csrc
+        local ke, csrc = c_ke, c_csrc
         local cv, cf = false, false
         if csrc then cv, cf = csrc[ke + 1], csrc[ke + 2] end
-        tc.ke = ke + 2
-        carried_items(tc, vt, vtext, name, label, cv, cf, shown and tc.tvb(tc.o + FS[VDf[v]], 1))
+        c_ke = ke + 2
+        carried_items(vt, vtext, name, label, cv, cf, shown and c_tvb(c_o + FS[VDf[v]], 1))
     end
-    if VR[v] then var_reply(tc, vt, vtext, name) end
+    if VR[v] then var_reply(vt, vtext, name) end
 end
 
 -- Variable v: its subtree (shown: at its first field fs) and every item of it.  A named
 -- variable's index is its place among the direction's names; a positional one's name and type
 -- come from the list.
-local function tree_variable(tc, v, fs)
+local function tree_variable(v, fs)
     local name, index, vtype = VN[v], VI[v], nil
     -- a T field: its field number where the places are known (the parser may leave a T's number
     -- with VT false: shown as an empty type), else (a layout's frame) its text
     local has_t
-    if tc.places then has_t = VTf[v] ~= 0 else has_t = VT[v] end
+    if c_places then has_t = VTf[v] ~= 0 else has_t = VT[v] end
     if not name then
-        local list = tc.list
+        local list = c_list
         name = list[index + 1]
         vtype = list.t and list.t[index + 1]
     else
-        local d = tc.d
+        local d = c_d
         if d then
             local first = d.nfirst[name]
-            index = (first and first <= tc.num) and d.npos[name] or nil
+            index = (first and first <= c_num) and d.npos[name] or nil
         end
     end
     local vt, vtext
-    if tc.mode == SHOWN then
+    if c_shown then
         local tf, qf, df = VTf[v], VQf[v], VDf[v]
-        vt = var_item(tc, fs, df ~= 0 and df or (qf ~= 0 and qf or tf))
+        local vend = df ~= 0 and df or (qf ~= 0 and qf or tf)
+        vt = TI.add(c_ti, H_var, c_tvb(c_o + fs, FE[vend] - fs + 1))
     else
-        vt, vtext = var_item(tc)
+        vt, vtext = var_item()
     end
     if has_t then
-        local tv = tc.tv
+        local tv = c_tv
         vtype = tv and tv[v] or valid_type(VT[v])
-        var_type(tc, vt, vtext, v, VTf[v], vtype)
+        var_type(vt, vtext, v, VTf[v], vtype)
     end
-    var_name(tc, vt, vtext, v, name)
+    var_name(vt, vtext, v, name)
     if not VR[v] and index then
-        if tc.mode == SHOWN then TI.set_generated(TI.add(vt, hf.var_index, index))
-        elseif REF[hf.var_index] ~= false then hadd(vt, vtext, hf.var_index, index) end
+        if c_shown then TI.set_generated(TI.add(vt, H_var_index, index))
+        elseif REF[H_var_index] ~= false then hadd(vt, vtext, H_var_index, index) end
     end
-    var_value(tc, vt, vtext, v, name, vtype)
+    var_value(vt, vtext, v, name, vtype)
 end
 
 ------------------------------------------------------------------------------
 -- The fields that are not part of a variable.
 ------------------------------------------------------------------------------
 -- An item of field at the text after the letter (shown: range vr), value text; the item or nil.
-local function plain_item(tc, parent, field, vr, text)
-    if tc.mode == SHOWN then return TI.add(parent, field, vr, text) end
-    return hitem(parent, tc.ttext, field, text)
+local function plain_item(parent, field, vr, text)
+    if c_shown then return TI.add(parent, field, vr, text) end
+    return hitem(parent, c_ttext, field, text)
 end
 
 -- An item with no field (shown only: a text at f[fs..fe]) and its expert.
-local function text_item(tc, fs, fe, text, expert, etext)
-    local ti = tc.ti
-    if tc.mode == SHOWN then ti = TI.add(ti, tc.tvb(tc.o + fs, fe - fs + 1), text) end
+local function text_item(fs, fe, text, expert, etext)
+    local ti = c_ti
+    if c_shown then ti = TI.add(ti, c_tvb(c_o + fs, fe - fs + 1), text) end
     TI.add_proto_expert_info(ti, expert, etext)
 end
 
 -- An N, L or T field (letter l, text at f[fs+1..fe]): its number, or an expert when it is none.
-local function number_field(tc, l, fs, fe, text, vr)
-    if l == L_T then
+local function number_field(l, fs, fe, text, vr)
+    if l == U.L_T then
         local t = valid_type(text)
-        if t then plain_item(tc, tc.ti, hf.ftype, vr, t)
-        else text_item(tc, fs, fe, "Type (T): " .. text, ei.var_badvalue, "Type is not a number") end
+        if t then plain_item(c_ti, H_ftype, vr, t)
+        else text_item(fs, fe, "Type (T): " .. text, ei.var_badvalue, "Type is not a number") end
         return
     end
     local n = tonumber(text)
     if n and n >= 0 and n < 4294967296 and n == floor(n) then
-        plain_item(tc, tc.ti, l == L_N and hf.ordinal or hf.inbound_ordinal, vr, floor(n))
+        plain_item(c_ti, l == U.L_N and H_ordinal or hf.inbound_ordinal, vr, floor(n))
     else
-        text_item(tc, fs, fe, (l == L_N and "Ordinal (N): " or "Inbound ordinal (L): ") .. text,
+        text_item(fs, fe, (l == U.L_N and "Ordinal (N): " or "Inbound ordinal (L): ") .. text,
             ei.var_badvalue, "Ordinal is not a number")
     end
 end
 
 -- A field of an unknown letter (or a C that is not the last field).
-local function unknown_field(tc, l, fs, fe)
-    local ti = tc.ti
+local function unknown_field(l, fs, fe)
+    local ti = c_ti
     local ft
-    if tc.mode == SHOWN then
-        local tvb, o = tc.tvb, tc.o
+    if c_shown then
+        local tvb, o = c_tvb, c_o
         ft = TI.add(ti, hf.field_letter, tvb(o + fs, 1), LETTER[l])
-        TI.add(ft, hf.field_text, tvb(o + fs, fe - fs + 1), s_sub(tc.f, fs, fe))
+        TI.add(ft, hf.field_text, tvb(o + fs, fe - fs + 1), s_sub(c_f, fs, fe))
     else
-        ft = hitem(ti, tc.ttext, hf.field_letter, LETTER[l])
-        hitem(ti, tc.ttext, hf.field_text, s_sub(tc.f, fs, fe))
+        ft = hitem(ti, c_ttext, hf.field_letter, LETTER[l])
+        hitem(ti, c_ttext, hf.field_text, s_sub(c_f, fs, fe))
     end
-    if l == L_C then
+    if l == U.L_C then
         TI.add_proto_expert_info(ft or ti, ei.field_unknown, "Checksum field C that is not the last field")
     else
         TI.add_proto_expert_info(ft or ti, ei.field_unknown, "Unknown field letter " .. LETTER[l])
@@ -453,49 +499,49 @@ local function unknown_field(tc, l, fs, fe)
 end
 
 -- the plain fields by letter: their field (E: the command, whose D arguments follow it)
-local PLAIN = { [L_R] = hf.response, [L_E] = hf.command, [L_M] = hf.mode, [L_P] = hf.ping, [L_G] = hf.pong }
+local PLAIN = { [U.L_R] = hf.response, [U.L_E] = hf.command, [U.L_M] = hf.mode, [U.L_P] = hf.ping, [U.L_G] = hf.pong }
 
 -- A field that is not part of a variable (letter l, f[fs..fe]).
-local function tree_plain_field(tc, l, fs, fe)
-    local ti, resp_in, shown = tc.ti, tc.resp_in, tc.mode == SHOWN
-    local text = (l ~= false) and s_sub(tc.f, fs + 1, fe) or ""
-    local vr = shown and tc.tvb(tc.o + fs + 1, fe - fs)     -- the text after the letter
+local function tree_plain_field(l, fs, fe)
+    local ti, resp_in, shown = c_ti, C.resp_in, c_shown
+    local text = (l ~= false) and s_sub(c_f, fs + 1, fe) or ""
+    local vr = shown and c_tvb(c_o + fs + 1, fe - fs)     -- the text after the letter
     if l == false then
-        if shown then ti = TI.add(ti, zrange(tc.tvb, tc.o + fs), "Empty field") end
+        if shown then ti = TI.add(ti, zrange(c_tvb, c_o + fs), "Empty field") end
         TI.add_proto_expert_info(ti, ei.field_empty)
-    elseif l == L_N or l == L_L or l == L_T then
-        number_field(tc, l, fs, fe, text, vr)
-    elseif l == L_Q then
-        local qt = plain_item(tc, ti, hf.query, vr, text)
+    elseif l == U.L_N or l == U.L_L or l == U.L_T then
+        number_field(l, fs, fe, text, vr)
+    elseif l == U.L_Q then
+        local qt = plain_item(ti, hf.query, vr, text)
         if resp_in and resp_in[text] then
             if shown then TI.set_generated(TI.add(qt, hf.response_in, resp_in[text]))
-            else hitem(ti, tc.ttext, hf.response_in, resp_in[text]) end
+            else hitem(ti, c_ttext, hf.response_in, resp_in[text]) end
         end
     elseif PLAIN[l] then
-        local item = plain_item(tc, ti, PLAIN[l], vr, text)
-        if l == L_E then tc.cmd_item = item or ti end
-    elseif l == L_D then
-        plain_item(tc, tc.cmd_item or ti, hf.command_arg, vr, text)
+        local item = plain_item(ti, PLAIN[l], vr, text)
+        if l == U.L_E then C.cmd_item = item or ti end
+    elseif l == U.L_D then
+        plain_item(C.cmd_item or ti, hf.command_arg, vr, text)
     else
-        unknown_field(tc, l, fs, fe)
+        unknown_field(l, fs, fe)
     end
 end
 
 -- The fields in order; a variable is rendered at its first field.  A frame the layout cache
 -- parsed has its fields' places only for a shown tree (parse): for the others its fields are
 -- N, then its variables (the layout's order), then C (the trailer).
-local function layout_fields(tc)
-    if REF[hf.ordinal] ~= false then
+local function layout_fields()
+    if REF[H_ordinal] ~= false then
         local n = P.n_ord   -- 0 also for an N past what to_ordinal keeps
         if n == 0 and P.n_text ~= "0" then n = floor(tonumber(P.n_text)) end
-        hadd(tc.ti, tc.ttext, hf.ordinal, n)
+        hadd(c_ti, c_ttext, H_ordinal, n)
     end
-    for v = 1, P.nv do tree_variable(tc, v) end
+    for v = 1, P.nv do tree_variable(v) end
 end
 
-local function tree_fields(tc)
-    if not tc.places then return layout_fields(tc) end
-    local kind, cpos = tc.kind, P.cpos
+local function tree_fields()
+    if not c_places then return layout_fields() end
+    local kind, cpos = C.kind, P.cpos
     for i = 1, P.nf do FV[i] = 0; FC[i] = false end
     for v = 1, P.nv do
         if VV[v] or kind == "declaration" or VR[v] then
@@ -509,36 +555,36 @@ local function tree_fields(tc)
         local fs = FS[i]
         local v = FV[i]
         if v ~= 0 then
-            tree_variable(tc, v, fs)
+            tree_variable(v, fs)
         elseif not FC[i] and fs ~= cpos then
-            tree_plain_field(tc, FL[i], fs, FE[i])
+            tree_plain_field(FL[i], fs, FE[i])
         end
     end
 end
 
 -- Named variables this frame left out (carried forward): name, value, frame in miss.
-local function tree_carried_names(tc)
-    local rec, nm, d = tc.rec, tc.nm, tc.d
+local function tree_carried_names()
+    local rec, nm, d = C.rec, C.nm, c_d
     local miss = rec and rec.miss
     local miss_len = miss and #miss or 0
     if not miss and nm > 0 then miss, miss_len = MISS, nm end    -- packed on this pass
     if not miss then return end
-    local shown, ti = tc.mode == SHOWN, tc.ti
-    local zr = shown and zrange(tc.tvb, tc.o + tc.bodyend)
+    local shown, ti = c_shown, c_ti
+    local zr = shown and zrange(c_tvb, c_o + C.bodyend)
     for k = 1, miss_len, 3 do
         local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
         local index = d and d.npos[name]
         local vt, vtext
         if shown then
-            vt = TI.add(ti, hf.var, zr)
-            TI.set_hidden(TI.add(vt, hf.var_name, name))
-            if index then TI.set_generated(TI.add(vt, hf.var_index, index)) end
+            vt = TI.add(ti, H_var, zr)
+            TI.set_hidden(TI.add(vt, H_var_name, name))
+            if index then TI.set_generated(TI.add(vt, H_var_index, index)) end
         else
-            vt, vtext = var_item(tc)
-            if REF[hf.var_name] ~= false then hadd(vt, vtext, hf.var_name, name) end
-            if index and REF[hf.var_index] ~= false then hadd(vt, vtext, hf.var_index, index) end
+            vt, vtext = var_item()
+            if REF[H_var_name] ~= false then hadd(vt, vtext, H_var_name, name) end
+            if index and REF[H_var_index] ~= false then hadd(vt, vtext, H_var_index, index) end
         end
-        carried_items(tc, vt, vtext, name, name, cv, cf, nil)
+        carried_items(vt, vtext, name, name, cv, cf, nil)
         if shown then TI.set_generated(vt) end
     end
 end
@@ -548,9 +594,9 @@ end
 ------------------------------------------------------------------------------
 -- The checksum field (at cpos, text ctext), its verdict and experts.
 local CHECKSUM_OK = {}   -- value -> "Checksum: 0x.. [correct]"
-local function shown_checksum(tc, cpos, ctext)
-    local ti, val, cs_status = tc.ti, tc.cs_val, tc.cs_status
-    local cr = tc.tvb(tc.o + cpos, #ctext + 1)
+local function shown_checksum(cpos, ctext)
+    local ti, val, cs_status = c_ti, C.cs_val, C.cs_status
+    local cr = c_tvb(c_o + cpos, #ctext + 1)
     local byte_val = val and val <= 255
     local ct
     if byte_val and cfg.validate and cs_status == 1 then
@@ -560,9 +606,9 @@ local function shown_checksum(tc, cpos, ctext)
             label = s_format("Checksum: 0x%02x [correct]", val)
             CHECKSUM_OK[val] = label
         end
-        ct = TI.add(ti, hf.checksum, cr, val, label)
+        ct = TI.add(ti, H_checksum, cr, val, label)
     elseif byte_val then
-        ct = TI.add(ti, hf.checksum, cr, val)
+        ct = TI.add(ti, H_checksum, cr, val)
     else
         ct = TI.add(ti, hf.checksum_text, cr, ctext)
     end
@@ -571,27 +617,27 @@ local function shown_checksum(tc, cpos, ctext)
             "Checksum \"" .. ctext .. "\" is not two upper-case hex digits")
     end
     if not cfg.validate then
-        TI.set_generated(TI.add(ct, hf.checksum_status, cr, 2))
+        TI.set_generated(TI.add(ct, H_checksum_status, cr, 2))
         return
     end
-    local cs_calc = tc.cs_calc
-    TI.set_generated(TI.add(ct, hf.checksum_calc, cr, cs_calc))
+    local cs_calc = C.cs_calc
+    TI.set_generated(TI.add(ct, H_checksum_calc, cr, cs_calc))
     if cs_status == 1 then
-        TI.set_generated(TI.add(ct, hf.checksum_status, cr, 1))
+        TI.set_generated(TI.add(ct, H_checksum_status, cr, 1))
         if not byte_val then TI.append_text(ct, " [correct]") end
     else
-        TI.set_generated(TI.add(ct, hf.checksum_status, cr, 0))
+        TI.set_generated(TI.add(ct, H_checksum_status, cr, 0))
         TI.append_text(ct, s_format(" [incorrect, should be 0x%02x]", cs_calc))
         TI.add_proto_expert_info(ct, ei.checksum_bad, s_format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
     end
 end
 
 -- The same items in a hidden tree (or none), on the protocol item.
-local function hidden_checksum(tc, ctext)
-    local ti, ttext, val, cs_status = tc.ti, tc.ttext, tc.cs_val, tc.cs_status
+local function hidden_checksum(ctext)
+    local ti, ttext, val, cs_status = c_ti, c_ttext, C.cs_val, C.cs_status
     local ct
     if val and val <= 255 then
-        if REF[hf.checksum] ~= false then ct = hadd(ti, ttext, hf.checksum, val) end
+        if REF[H_checksum] ~= false then ct = hadd(ti, ttext, H_checksum, val) end
     elseif REF[hf.checksum_text] ~= false then
         ct = hadd(ti, ttext, hf.checksum_text, ctext)
     end
@@ -600,36 +646,36 @@ local function hidden_checksum(tc, ctext)
             "Checksum \"" .. ctext .. "\" is not two upper-case hex digits")
     end
     if not cfg.validate then
-        if REF[hf.checksum_status] ~= false then hadd(ti, ttext, hf.checksum_status, 2) end
+        if REF[H_checksum_status] ~= false then hadd(ti, ttext, H_checksum_status, 2) end
         return
     end
-    local cs_calc = tc.cs_calc
-    if REF[hf.checksum_calc] ~= false then hadd(ti, ttext, hf.checksum_calc, cs_calc) end
-    if REF[hf.checksum_status] ~= false then hadd(ti, ttext, hf.checksum_status, cs_status) end
+    local cs_calc = C.cs_calc
+    if REF[H_checksum_calc] ~= false then hadd(ti, ttext, H_checksum_calc, cs_calc) end
+    if REF[H_checksum_status] ~= false then hadd(ti, ttext, H_checksum_status, cs_status) end
     if cs_status ~= 1 then
         TI.add_proto_expert_info(ct or ti, ei.checksum_bad,
             s_format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
     end
 end
 
-local function tree_trailer(tc)
-    local ti, rec, s, a, e, fl = tc.ti, tc.rec, tc.s, tc.a, tc.e, tc.fl
-    local terminated, shown = tc.terminated, tc.mode == SHOWN
+local function tree_trailer()
+    local ti, rec, s, a, e, fl = c_ti, C.rec, C.s, C.a, C.e, C.fl
+    local terminated, shown = C.terminated, c_shown
     if P.limit then TI.add_proto_expert_info(ti, ei.limit, P.limit) end
     if rec and rec.limit then TI.add_proto_expert_info(ti, ei.limit, rec.limit) end
     if rec and rec.late then
         if shown then TI.set_generated(TI.add(ti, hf.sync_is_late, true))
-        else hitem(ti, tc.ttext, hf.sync_is_late, true) end
+        else hitem(ti, c_ttext, hf.sync_is_late, true) end
         TI.add_proto_expert_info(ti, ei.sync_late,
             s_format("No full frame for %.3f s (sync interval %.3f s + %.1f s slack)",
                 rec.late, cfg.sync - U.SYNC_SLACK, U.SYNC_SLACK))
     end
     if P.cpos then
-        if shown then shown_checksum(tc, P.cpos, P.ctext) else hidden_checksum(tc, P.ctext) end
+        if shown then shown_checksum(P.cpos, P.ctext) else hidden_checksum(P.ctext) end
     else
-        if shown then TI.set_generated(TI.add(ti, hf.checksum_status, 2))
-        else hitem(ti, tc.ttext, hf.checksum_status, 2) end
-        if terminated and not tc.malformed_msg then TI.add_proto_expert_info(ti, ei.checksum_missing) end
+        if shown then TI.set_generated(TI.add(ti, H_checksum_status, 2))
+        else hitem(ti, c_ttext, H_checksum_status, 2) end
+        if terminated and not C.malformed_msg then TI.add_proto_expert_info(ti, ei.checksum_missing) end
     end
     -- line terminator
     local b = a + fl - 1
@@ -647,71 +693,34 @@ end
 -- arrays, cpos, ctext; a shown tree needs the fields' places, which parse fills for it), with its
 -- kind, state and checksum verdict.  mode: SHOWN, HIDDEN or NONE (then tree: the tree Wireshark
 -- gave, which keeps no item); visited: pinfo.visited (a hidden tree's cache of referenced fields
--- starts again with each pass).  Called by dissect_frame; what the parts share goes in TC.
+-- starts again with each pass).  Called by dissect_frame; what the parts share goes in the c_ upvalues.
 local function tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, visited, kind,
                           dstb, srcb, list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
-    local tc = TC
     REF = mode == NONE and NO_REF or LEARNT
+    c_shown = mode == SHOWN
     -- tvb offset of f[i] is o + i
-    tc.mode, tc.tree, tc.tvb, tc.o, tc.f, tc.s, tc.a, tc.e, tc.fl = mode, tree, tvb, a - 2, f, s, a, e, fl
-    tc.num, tc.visited, tc.kind, tc.dstb, tc.srcb = num, visited, kind, dstb, srcb
-    tc.dst, tc.src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
-    tc.malformed_msg, tc.terminated, tc.bodyend = malformed_msg, terminated, bodyend
-    tc.list, tc.d, tc.rec, tc.nm = list, d, rec, nm
-    tc.cs_val, tc.cs_calc, tc.cs_status = cs_val, cs_calc, cs_status
-    tc.resp_in, tc.resp_to = rec and rec.resp_in, rec and rec.resp_to
-    tc.rts, tc.unmatched = rec and rec.rt, rec and rec.unmatched
+    C.mode, C.tree, c_tvb, c_o, c_f, C.s, C.a, C.e, C.fl = mode, tree, tvb, a - 2, f, s, a, e, fl
+    c_num, C.visited, C.kind, C.dstb, C.srcb = num, visited, kind, dstb, srcb
+    C.dst, C.src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
+    C.malformed_msg, C.terminated, C.bodyend = malformed_msg, terminated, bodyend
+    c_list, c_d, C.rec, C.nm = list, d, rec, nm
+    C.cs_val, C.cs_calc, C.cs_status = cs_val, cs_calc, cs_status
+    C.resp_in, C.resp_to = rec and rec.resp_in, rec and rec.resp_to
+    C.rts, C.unmatched = rec and rec.rt, rec and rec.unmatched
     -- the carried values of empty D fields (value, frame, ...), ke: how many used so far
-    tc.csrc, tc.ke = rec or (ne > 0 and CARRY), 0
-    tc.cmd_item, tc.vtext = nil, nil   -- the E field's item; a hidden variable item's text
-    tc.tv = P.named and P.named.TV     -- a named layout's types (valid, doubles plain decimals)
-    tc.places = mode == SHOWN or not P.layout   -- the fields' places (FL, FS, FE, VTf...) are known
-    tree_head(tc)
-    tree_fields(tc)
-    tree_carried_names(tc)
-    tree_trailer(tc)
+    c_csrc, c_ke = rec or (ne > 0 and CARRY), 0
+    C.cmd_item, c_vtext = nil, nil   -- the E field's item; a hidden variable item's text
+    c_tv = P.named and P.named.TV     -- a named layout's types (valid, doubles plain decimals)
+    c_places = mode == SHOWN or not P.layout   -- the fields' places (FL, FS, FE, VTf...) are known
+    tree_head()
+    tree_fields()
+    tree_carried_names()
+    tree_trailer()
 end
 
 ------------------------------------------------------------------------------
 -- Whether a frame with no tree needs one for its expert infos.
 ------------------------------------------------------------------------------
--- Whether a variable's value would get var.badvalue or var.unknown (see has_experts).
--- A frame of a named layout: its types are valid and its doubles plain decimals (the layout's
--- pattern), so only a long can fail (speed trick, measured: tonumber on a value is ~1,150
--- instructions).
-local function named_values_have_experts(tv)
-    for v = 1, P.nv do
-        if tv[v] == 0 and not parse_long(VV[v]) then return true end
-    end
-    return false
-end
-
-local function values_have_experts(kind, list)
-    local named = P.named
-    if named then return named.has_long and named_values_have_experts(named.TV) end
-    local types = list.t
-    for v = 1, P.nv do
-        local val = VV[v]
-        if val or kind == "declaration" or VR[v] then
-            local vtype
-            if VN[v] then
-                if VT[v] then vtype = valid_type(VT[v]); if not vtype then return true end end
-            else
-                if not list[VI[v] + 1] then return true end
-                vtype = types and types[VI[v] + 1]
-            end
-            if val and vtype and (val ~= "" or VN[v]) then
-                if vtype == 2 then
-                    if not tonumber(val) then return true end
-                elseif vtype == 0 and not parse_long(val) then
-                    return true
-                end
-            end
-        end
-    end
-    return false
-end
-
 -- With no tree, whether the frame's tree would carry an expert info (true when unsure): then
 -- tree_frame builds it in mode NONE, on the tree Wireshark gave (which keeps no items but reports
 -- the experts to Expert Information and -z expert).  Checks what tree_frame adds experts for.
