@@ -138,11 +138,11 @@ local B_A, B_P, LETTER = U.B_A, U.B_P, U.LETTER
 local Pm, S, I, T, R = M.parse, M.state, M.info, M.tree, M.records
 local P = Pm.P
 local PG, TI = M.wsapi.PG, M.wsapi.TI
-local parse_frame, fast_positions, kind_of_fields = Pm.parse_frame, Pm.fast_positions, Pm.kind_of_fields
+local parse_frame, kind_of_fields = Pm.parse_frame, Pm.kind_of_fields
 local parse_payload, UHEX = Pm.parse_payload, U.UHEX
 local state_first_pass, state_later_pass = S.state_first_pass, S.state_later_pass
 local info_frame = I.info_frame
-local tree_compact_frame, tree_full, has_experts = T.tree_compact_frame, T.tree_full, T.has_experts
+local tree_frame, has_experts, T_SHOWN, T_HIDDEN, T_NONE = T.tree_frame, T.has_experts, T.SHOWN, T.HIDDEN, T.NONE
 local set_crlf_frames = T.set_crlf_frames
 local PT_UDP = 3   -- pinfo.port_type of a UDP datagram (epan's port_type enum; 4.0 to 4.6)
 
@@ -219,8 +219,9 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
         set_crlf_frames(pinfo.port_type ~= PT_UDP)
         crlf_told = true
     end
-    -- Tree (skipped when there is none, e.g. tshark summary pass, unless it has expert infos:
-    -- then built on root, where only the experts stay)
+    -- Tree: shown, hidden (nobody sees it) or none (tshark's summary pass: built only for a frame
+    -- with expert infos, on root, where only the experts stay); one builder (tree.lua)
+    local mode = vis and T_SHOWN or T_HIDDEN
     if not tree then
         if not root then return end
         -- a layout's frame with no possible expert (speed trick, measured): a good upper-case
@@ -232,18 +233,10 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
         if not has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status) then
             return
         end
-        tree = root
-        if layout then fast_positions(layout) end
-        vis = true
+        tree, mode = root, T_NONE
     end
-    if layout and not vis then
-        local ti = TI.add(tree, sl, tvb(a - 1, e - a + 1))
-        tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, PG.visited(pinfo), rec, ne, nm,
-            cs_val, cs_calc, cs_status)
-        return
-    end
-    tree_full(tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, kind, dstb, srcb, list, d, rec,
-        ne, nm, cs_val, cs_calc, cs_status)
+    tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, PG.visited(pinfo), kind,
+        dstb, srcb, list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
 end
 ------------------------------------------------------------------------------
 -- Payload scanning
