@@ -345,7 +345,8 @@ local function dissect(tvb, pinfo, tree)
     -- the layout cache first, for the frame the payload starts with (see Pm.parse_payload)
     local b = s_byte(s, 1) == B_LBRACK and parse_payload(s, n)
     if b then
-        local e = line_end(s, b)
+        local c1, c2 = s_byte(s, b + 1, b + 2)
+        local e = (c1 == B_CR and c2 == B_LF) and b + 2 or line_end(s, b)
         dissect_frame(s, b, 1, e, true, tvb, pinfo, t, n * 1048576 + 1, s, tree, true)
         if e < n then scan(s, n, tvb, pinfo, t, tree, e + 1) end
     else
