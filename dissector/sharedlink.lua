@@ -139,7 +139,7 @@ local Pm, S, I, T, R = M.parse, M.state, M.info, M.tree, M.records
 local P = Pm.P
 local PG, TI = M.wsapi.PG, M.wsapi.TI
 local parse_frame, fast_positions, kind_of_fields = Pm.parse_frame, Pm.fast_positions, Pm.kind_of_fields
-local parse_payload, UHEX = Pm.parse_payload, U.UHEX
+local parse_payload = Pm.parse_payload
 local state_first_pass, state_later_pass = S.state_first_pass, S.state_later_pass
 local info_frame = I.info_frame
 local tree_compact_frame, tree_full, has_experts = T.tree_compact_frame, T.tree_full, T.has_experts
@@ -189,14 +189,14 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     -- protocol item is added once the frame is known (the full tree: with its text)
     local vis = tree ~= nil and PG.visible(tree)
 
-    local bodyend, dstb, srcb, malformed_msg, cs_val, cs_calc, cs_status = parse_frame(f, fl, terminated, vis, taken)
+    local bodyend, dstb, srcb, malformed_msg, cs_val, cs_calc, cs_status, quiet, full_local =
+        parse_frame(f, fl, terminated, vis, taken)
     local layout = P.layout
-    local kind, is_data, dst, src, addrs_ok, full_local
+    local kind, is_data, dst, src, addrs_ok
     if layout then
-        -- a layout's frame: a data frame between nodes A-P (its head is the layout's), full
-        -- without state when N is 0 and no positional D is empty (full_without_state)
+        -- a layout's frame: a data frame between nodes A-P (its head is the layout's); full_local
+        -- from the layout (full_without_state)
         is_data, dst, src, addrs_ok = true, LETTER[dstb], LETTER[srcb], true
-        full_local = layout.n > 0 and layout.ord == 0 and P.n_empty_d == 0
     else
         kind, is_data = kind_of_fields(malformed_msg)
         dst, src, addrs_ok = addresses(dstb, srcb)
@@ -223,12 +223,10 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     -- then built on root, where only the experts stay)
     if not tree then
         if not root then return end
-        -- a layout's frame with no possible expert (speed trick, measured): a good upper-case
-        -- checksum, CR LF after it, no record (late sync, limit) and values its layout proves
-        -- (quiet); otherwise has_experts tells
-        if layout and layout.quiet and cs_status == 1 and not rec and e == a + fl + 1 and UHEX[P.ctext] then
-            return
-        end
+        -- a layout's frame with no possible expert (speed trick, measured): quiet (values its
+        -- layout proves, a good upper-case checksum), CR LF after it, no record (late sync,
+        -- limit); otherwise has_experts tells
+        if quiet and not rec and e == a + fl + 1 then return end
         if not has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status) then
             return
         end

@@ -86,7 +86,7 @@ local function info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n
     end
     frames_in_info = frames_in_info + 1
     local named = P.named
-    if named and frames_in_info == 1 and (kind == "full" or kind == "delta") and not (rec and rec.late) then
+    if named and frames_in_info == 1 and not (rec and rec.late) then   -- a layout's: full or delta
         local full = kind == "full"
         local total = (full and named.info_len or named.dinfo_len) + P.vlen
         local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or nil
