@@ -139,7 +139,7 @@ local Pm, S, I, T, R = M.parse, M.state, M.info, M.tree, M.records
 local P = Pm.P
 local PG, TI = M.wsapi.PG, M.wsapi.TI
 local parse_frame, kind_of_fields = Pm.parse_frame, Pm.kind_of_fields
-local parse_payload, UHEX = Pm.parse_payload, U.UHEX
+local parse_payload = Pm.parse_payload
 local state_first_pass, state_later_pass = S.state_first_pass, S.state_later_pass
 local info_frame = I.info_frame
 local tree_frame, has_experts, T_SHOWN, T_HIDDEN, T_NONE = T.tree_frame, T.has_experts, T.SHOWN, T.HIDDEN, T.NONE
@@ -189,14 +189,14 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     -- protocol item is added once the frame is known (the full tree: with its text)
     local vis = tree ~= nil and PG.visible(tree)
 
-    local bodyend, dstb, srcb, malformed_msg, cs_val, cs_calc, cs_status = parse_frame(f, fl, terminated, vis, taken)
+    local bodyend, dstb, srcb, malformed_msg, cs_val, cs_calc, cs_status, quiet, full_local =
+        parse_frame(f, fl, terminated, vis, taken)
     local layout = P.layout
-    local kind, is_data, dst, src, addrs_ok, full_local
+    local kind, is_data, dst, src, addrs_ok
     if layout then
-        -- a layout's frame: a data frame between nodes A-P (its head is the layout's), full
-        -- without state when N is 0 and no positional D is empty (full_without_state)
+        -- a layout's frame: a data frame between nodes A-P (its head is the layout's); full_local
+        -- from the layout (full_without_state)
         is_data, dst, src, addrs_ok = true, LETTER[dstb], LETTER[srcb], true
-        full_local = layout.n > 0 and layout.ord == 0 and P.n_empty_d == 0
     else
         kind, is_data = kind_of_fields(malformed_msg)
         dst, src, addrs_ok = addresses(dstb, srcb)
@@ -224,12 +224,10 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     local mode = vis and T_SHOWN or T_HIDDEN
     if not tree then
         if not root then return end
-        -- a layout's frame with no possible expert (speed trick, measured): a good upper-case
-        -- checksum, CR LF after it, no record (late sync, limit) and values its layout proves
-        -- (quiet); otherwise has_experts tells
-        if layout and layout.quiet and cs_status == 1 and not rec and e == a + fl + 1 and UHEX[P.ctext] then
-            return
-        end
+        -- a layout's frame with no possible expert (speed trick, measured): quiet (values its
+        -- layout proves, a good upper-case checksum), CR LF after it, no record (late sync,
+        -- limit); otherwise has_experts tells
+        if quiet and not rec and e == a + fl + 1 then return end
         if not has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status) then
             return
         end
@@ -338,7 +336,8 @@ local function dissect(tvb, pinfo, tree)
     -- the layout cache first, for the frame the payload starts with (see Pm.parse_payload)
     local b = s_byte(s, 1) == B_LBRACK and parse_payload(s, n)
     if b then
-        local e = line_end(s, b)
+        local c1, c2 = s_byte(s, b + 1, b + 2)
+        local e = (c1 == B_CR and c2 == B_LF) and b + 2 or line_end(s, b)
         dissect_frame(s, b, 1, e, true, tvb, pinfo, t, n * 1048576 + 1, s, tree, true)
         if e < n then scan(s, n, tvb, pinfo, t, tree, e + 1) end
     else

@@ -14,7 +14,7 @@ local ARROW, CTRL, LETTER, B_PIPE, B_A, B_P = U.ARROW, U.CTRL, U.LETTER, U.B_PIP
 local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = U.L_N, U.L_T, U.L_Q, U.L_R, U.L_D, U.L_C, U.L_L,
     U.L_E, U.L_M, U.L_P, U.L_G
 local valid_type, byte_sum, str_sum, checksum_value = U.valid_type, U.byte_sum, U.str_sum, U.checksum_value
-local HEXV = U.HEXV
+local HEXV, UHEX = U.HEXV, U.UHEX
 local to_ordinal, pat_escape = U.to_ordinal, U.pat_escape
 
 ------------------------------------------------------------------------------
@@ -238,9 +238,10 @@ end
 -- where the negated forms ([^|%]\0-\31\127]) tried every item, escapes costing most (-1.6 and
 -- -2.0 thousand instructions a frame, summary pass).  A double-typed value: a plain decimal
 -- number only, which tonumber always takes (the tree needs no check for var.badvalue; other
--- doubles, "1e5" or " 2", go to the parser).
+-- doubles, "1e5" or " 2", go to the parser); its digits as the range [0-9], where %d cost two
+-- calls into the C library (tolower, isdigit) a character.
 local VALUE = "([ -Z\\^-{}-~\128-\255]*)"
-local DOUBLE = "([-+]?%d+%.?%d*)"
+local DOUBLE = "([-+]?[0-9]+%.?[0-9]*)"
 local CHECKSUM = "|C([^]|[]*)%]"
 
 -- SUMS[n](v1, ..., vn, ctext) -> the values' total length, the sum of their bytes and ctext.
@@ -326,6 +327,9 @@ end
 
 -- The checksum verdict of the frame the layout cache took last (as checksum_verdict's).
 local lv_val, lv_calc, lv_status = nil, nil, nil
+-- and its facts for the entry: lv_quiet, no expert possible (a quiet layout, a good upper-case
+-- checksum); lv_full, full without state (N0, no empty positional D)
+local lv_quiet, lv_full = false, false
 
 -- A matched layout's captures (the values, then the checksum text) into P: its variables and the
 -- facts a layout's frame has (a data frame: N, then T/Q/D triplets or D fields, then C; the facts
@@ -341,10 +345,12 @@ local function layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
     local fl = sh.flen + vlen + #ctext
     P.ctext, P.vlen, P.cpos = ctext, vlen, fl - 1 - #ctext   -- the pattern ends in |C<ctext>]
     if P.filled ~= sh then (sh.fill or layout_fill(sh))(sh) end
+    lv_full = sh.full0
     if not sh.named then
         local n_empty_d = 0
         for k = 1, n do if VV[k] == "" then n_empty_d = n_empty_d + 1 end end
         P.n_empty_d = n_empty_d
+        lv_full = lv_full and n_empty_d == 0
     end
     local cs_val = HEXV[ctext] or checksum_value(ctext)
     if cfg.validate then
@@ -353,6 +359,7 @@ local function layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
     else
         lv_val, lv_calc, lv_status = cs_val, nil, 2
     end
+    lv_quiet = sh.quiet and lv_status == 1 and UHEX[ctext] or false
     return fl
 end
 
@@ -457,6 +464,7 @@ local function new_layout(f, kind, dstb, srcb)
         fixed = fixed % 256, sums = SUMS[nv], flen = P.cpos + 1 - vlen }
     -- quiet: no value of the layout can carry an expert info (var.badvalue; see tree's has_experts)
     sh.quiet = named and not sh.has_long
+    sh.full0 = nv > 0 and P.n_ord == 0   -- full without state, but for empty positional D fields
     sh.key = sh.head .. "\0" .. sh.pat
     if named then named_info(sh, dstb, srcb) end
     return sh
@@ -526,13 +534,15 @@ local function checksum_verdict(f)
 end
 
 -- Parse a frame.  Returns the last index of the content, the address bytes, why it is malformed
--- (nil: it is not) and the checksum verdict (checksum_verdict).  vis: a shown tree (it needs the
--- fields' places); taken: the frame is in P already (parse_payload).
+-- (nil: it is not), the checksum verdict (checksum_verdict) and, for a layout's frame, whether
+-- it can have no expert info (quiet: see the entry) and is full without state (else nil).
+-- vis: a shown tree (it needs the fields' places); taken: the frame is in P already
+-- (parse_payload).
 local function parse_frame(f, fl, terminated, vis, taken)
     if taken or (FAST and terminated and parse_cached(f, fl)) then
         if vis then fast_positions(P.layout) end
         local dstb, srcb = s_byte(f, 3, 4)
-        return fl - 1, dstb, srcb, nil, lv_val, lv_calc, lv_status
+        return fl - 1, dstb, srcb, nil, lv_val, lv_calc, lv_status, lv_quiet, lv_full
     end
     parse_reset()
     local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)

@@ -405,11 +405,7 @@ do
             -- a layout of known names: its values stored; the direction's other names carried
             -- (none: the whole known set)
             if d.names_is == named.N then
-                local vals, from = d.vals, d.from
-                for v = 1, named.n do
-                    local name = VN[v]
-                    vals[name], from[name] = VV[v], num
-                end
+                store_layout_values(d, num)
                 return full_local, 0, 0, 0, full_local, false
             end
             local sub = known_subset(d, named)
@@ -439,8 +435,8 @@ do
     -- State, first pass, a data frame: the sync clock, and the record later passes read (late
     -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
     -- The sync clock: a full frame (good checksum) sets it; a delta past the interval is late.
-    local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
-        local rec = LIM.hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
+    -- rec: a table record made already (a limit's expert), else nil.
+    local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm, rec)
         local now = PG.rel_ts(pinfo)
         local first = d.first
         if not first then first = now; d.first = now end
@@ -617,6 +613,15 @@ do
 
     local LINKED = { query = true, reply = true, declaration = true }   -- kinds a query/reply link concerns
 
+    -- The frame's record with the limit it hit (LIM.hit), if any.
+    local function limit_record(rec, num, sk)
+        if LIM.hit then
+            rec = rec or get_rec(num, sk, true)
+            rec.limit = LIM.hit
+        end
+        return rec
+    end
+
     -- The limit text of a direction past max_conversations.
     local function over_text()
         return "Limit exceeded: more than " .. LIM.max_conversations .. " directions with state" ..
@@ -637,7 +642,8 @@ do
             full, ne, nm, miss_n, full_local, journaled = data_values(d, list, num, sk, good, full_local, has_tree)
             -- a journal's carried names go in no record (see journal)
             local rec
-            rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm)
+            rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm,
+                LIM.hit and get_rec(num, sk, true) or nil)
             if LIM.hit then
                 rec = rec or get_rec(num, sk, true)
                 rec.limit = LIM.hit
@@ -655,11 +661,7 @@ do
         if LINKED[kind] and addrs_ok and good then
             rec = link_query_reply(pinfo, num, sk, kind, dst, src, rec)
         end
-        if LIM.hit then
-            rec = rec or get_rec(num, sk, true)
-            rec.limit = LIM.hit
-        end
-        return kind, rec, list, d, 0, 0, 0
+        return kind, limit_record(rec, num, sk), list, d, 0, 0, 0
     end
 end
 
