@@ -50,8 +50,8 @@
 -- pattern, its checksum the layout's fixed sum plus the values' sum, in a shown tree too (the
 -- fields' places follow from the layout and the values' lengths).  With no tree (tshark summary
 -- pass) no tree items are built, unless the frame has expert infos; with a tree nobody sees
--- (-Y, coloring rules, taps) a cached frame gets its fields without byte ranges, labels or
--- flags, and a per-variable field no filter references is added once a frame (tree_compact);
+-- (-Y, coloring rules, taps) a frame gets its fields' values without byte ranges, labels or
+-- flags, and a field no filter references is left out (tree.lua: one builder for every tree);
 -- the shown tree's labels are made once; every use of Wireshark's internals is in wsapi,
 -- checked against the documented API.  Per-frame state is stored only for frames that need it
 -- (carried values, late sync, queries/replies); carried-only records are packed as text lines,

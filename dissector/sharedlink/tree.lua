@@ -562,12 +562,52 @@ end
 -- The fields in order; a variable is rendered at its first field.  A frame the layout cache
 -- parsed has its fields' places only for a shown tree (parse): for the others its fields are
 -- N, then its variables (the layout's order), then C (the trailer).
+--
+-- Speed device (measured, -Y on a frame's own field): a hidden tree (or none) leaves out the
+-- variables of a layout's frame when they carry no expert info and every field their items would
+-- have is known to be unreferenced (a field made per variable value, issue 29, is checked here too).
+local TYPED = { [0] = hf.var_long, [2] = H_var_double, [4] = hf.var_string }
+
+-- Whether nobody references the value field (sharedlink.value.<name>) of a variable of the
+-- frame (n: P.nv) or, with miss, of a named variable it left out (name, value, frame, ...; n entries).
+local function value_fields_unseen(n, miss)
+    local list = c_list
+    local step = miss and 3 or 1
+    for k = 1, n, step do
+        local name
+        if miss then name = miss[k] else name = VN[k] or list[VI[k] + 1] end
+        local vf = name and VALUE[name]
+        if vf and REF[vf.field] ~= false then return false end
+    end
+    return true
+end
+
+local function layout_vars_unseen()
+    if REF ~= NO_REF then
+        if not value_fields_unseen(P.nv) then return false end
+        if REF[H_var] ~= false or REF[H_var_name] ~= false or REF[H_var_index] ~= false
+            or REF[H_var_value] ~= false or (c_tv and REF[H_ftype] ~= false) then
+            return false
+        end
+        if P.n_empty_d > 0 and (REF[H_var_carried] ~= false or REF[H_var_carried_from] ~= false) then return false end
+        local tv, lt = c_tv, c_list.t
+        if tv or lt then
+            for v = 1, P.nv do
+                local t = tv and tv[v] or (not tv and lt[VI[v] + 1])
+                if t and REF[TYPED[t]] ~= false then return false end
+            end
+        end
+    end
+    return not values_have_experts(C.kind, c_list)
+end
+
 local function layout_fields()
     if REF[H_ordinal] ~= false then
         local n = P.n_ord   -- 0 also for an N past what to_ordinal keeps
         if n == 0 and P.n_text ~= "0" then n = floor(tonumber(P.n_text)) end
         hadd(c_ti, c_ttext, H_ordinal, n)
     end
+    if layout_vars_unseen() then return end
     for v = 1, P.nv do tree_variable(v) end
 end
 
@@ -613,6 +653,14 @@ local function tree_request_link(rec)
     end
 end
 
+-- Whether a hidden tree (or none) may leave out the named variables a frame left out: nobody
+-- references a field of theirs (speed device, as layout_vars_unseen).
+local function carried_unseen(miss, miss_len)
+    return REF == NO_REF or (REF[H_var] == false and REF[H_var_name] == false and REF[H_var_index] == false
+        and REF[H_var_value] == false and REF[H_var_carried] == false and REF[H_var_carried_from] == false
+        and value_fields_unseen(miss_len, miss))
+end
+
 -- Named variables this frame left out (carried forward): name, value, frame in miss.
 local function tree_carried_names()
     local rec, nm, d = C.rec, C.nm, c_d
@@ -621,6 +669,7 @@ local function tree_carried_names()
     if not miss and nm > 0 then miss, miss_len = MISS, nm end    -- packed on this pass
     if not miss then return end
     local shown, ti = c_shown, c_ti
+    if not shown and carried_unseen(miss, miss_len) then return end
     local zr = shown and zrange(c_tvb, c_o + C.bodyend)
     for k = 1, miss_len, 3 do
         local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
