@@ -20,7 +20,6 @@ local VN, VV, VI, VR = M.parse.P.VN, M.parse.P.VV, M.parse.P.VI, M.parse.P.VR
 local VTf, VQf, VDf = M.parse.P.VTf, M.parse.P.VQf, M.parse.P.VDf
 
 local P = M.parse.P
-local list_type, VALUE = M.state.list_type, cfg.VALUE
 local crlf_frames = true   -- see set_crlf_frames
 local R = M.records
 local CARRY, MISS = R.CARRY, R.MISS
@@ -64,19 +63,21 @@ local function named_values_have_experts(tv)
     return false
 end
 
+local values_have_experts
+do
 -- Variable v's type for has_experts, or true when its name or T already has an expert (a T that
 -- is not a number; a positional value past a list learnt from a declaration).  A reply's value is
 -- typed by its T, else by the list its direction uses.
 local function expert_type(v, list)
     if VN[v] then
         if VT[v] then return valid_type(VT[v]) or true end
-        return VR[v] and list_type(list, VN[v]) or nil
+        return VR[v] and M.state.list_type(list, VN[v]) or nil
     end
     if not list[VI[v] + 1] and list.decl then return true end
     return list.t[VI[v] + 1]
 end
 
-local function values_have_experts(kind, list)
+function values_have_experts(kind, list)
     local named = P.named
     if named then return named.has_long and named_values_have_experts(named.TV) end
     for v = 1, P.nv do
@@ -94,6 +95,7 @@ local function values_have_experts(kind, list)
         end
     end
     return false
+end
 end
 
 -- Which fields somebody references, learnt by the probe (wsapi.referenced, which answers true
@@ -113,7 +115,7 @@ local CACHE_REFS = wsapi.cache_refs
 local PER_FRAME = { H_var, H_ftype, H_var_name, H_var_index, H_var_value, H_var_double, hf.var_long,
     hf.var_string, H_var_carried, H_var_carried_from, hf.query, hf.response, hf.response_in, hf.response_to,
     hf.response_time, hf.command_arg }
-for _, vf in pairs(VALUE) do PER_FRAME[#PER_FRAME + 1] = vf.field end   -- sharedlink.value.<name>
+for _, vf in pairs(cfg.VALUE) do PER_FRAME[#PER_FRAME + 1] = vf.field end   -- sharedlink.value.<name>
 if not CACHE_REFS then
     local per_frame = {}
     for _, field in ipairs(PER_FRAME) do per_frame[field] = true end
@@ -348,7 +350,7 @@ local function value_items(vt, vtext, name, value, r, gen)
     end
     -- sharedlink.value.<name> (docs/fields-sharedlink.md, "Filtering by variable"): typed as its
     -- field; a value that does not read as that type is left out.  Hidden: the Value line shows it.
-    local vf = name and VALUE[name]
+    local vf = name and cfg.VALUE[name]
     if not vf then return end
     local field = vf.field
     if not c_shown and REF[field] == false then return end
@@ -439,7 +441,7 @@ local function var_naming(v, name, index)
         local list = c_list
         return list[index + 1] or ("#" .. index), index, list.t[index + 1]
     end
-    if VR[v] then return name, index, list_type(c_list, name) end
+    if VR[v] then return name, index, M.state.list_type(c_list, name) end
     local d = c_d
     if d then
         local first = d.nfirst[name]
@@ -566,25 +568,27 @@ end
 -- Speed device (measured, -Y on a frame's own field): a hidden tree (or none) leaves out the
 -- variables of a layout's frame when they carry no expert info and every field their items would
 -- have is known to be unreferenced (a field made per variable value, issue 29, is checked here too).
+local layout_vars_unseen, carried_unseen
+do
 local TYPED = { [0] = hf.var_long, [2] = H_var_double, [4] = hf.var_string }
 
 -- Whether nobody references the value field (sharedlink.value.<name>) of a variable of the
 -- frame (n: P.nv) or, with miss, of a named variable it left out (name, value, frame, ...; n entries).
-local function value_fields_unseen(n, miss)
+function C.value_fields_unseen(n, miss)
     local list = c_list
     local step = miss and 3 or 1
     for k = 1, n, step do
         local name
         if miss then name = miss[k] else name = VN[k] or list[VI[k] + 1] end
-        local vf = name and VALUE[name]
+        local vf = name and cfg.VALUE[name]
         if vf and REF[vf.field] ~= false then return false end
     end
     return true
 end
 
-local function layout_vars_unseen()
+function layout_vars_unseen()
     if REF ~= NO_REF then
-        if not value_fields_unseen(P.nv) then return false end
+        if not C.value_fields_unseen(P.nv) then return false end
         if REF[H_var] ~= false or REF[H_var_name] ~= false or REF[H_var_index] ~= false
             or REF[H_var_value] ~= false or (c_tv and REF[H_ftype] ~= false) then
             return false
@@ -599,6 +603,15 @@ local function layout_vars_unseen()
         end
     end
     return not values_have_experts(C.kind, c_list)
+end
+
+-- Whether a hidden tree (or none) may leave out the named variables a frame left out: nobody
+-- references a field of theirs (speed device, as layout_vars_unseen).
+function carried_unseen(miss, miss_len)
+    return REF == NO_REF or (REF[H_var] == false and REF[H_var_name] == false and REF[H_var_index] == false
+        and REF[H_var_value] == false and REF[H_var_carried] == false and REF[H_var_carried_from] == false
+        and C.value_fields_unseen(miss_len, miss))
+end
 end
 
 local function layout_fields()
@@ -636,7 +649,7 @@ end
 
 -- A list request's link to the declaration that answers it, and back (docs/fields-sharedlink.md,
 -- "Replies": L? is answered by an N declaration, N? by an L one).
-local function tree_request_link(rec)
+function C.request_link(rec)
     local ti, shown = c_ti, c_shown
     if rec.req_in then
         if shown then TI.set_generated(TI.add(ti, hf.response_in, rec.req_in))
@@ -653,13 +666,6 @@ local function tree_request_link(rec)
     end
 end
 
--- Whether a hidden tree (or none) may leave out the named variables a frame left out: nobody
--- references a field of theirs (speed device, as layout_vars_unseen).
-local function carried_unseen(miss, miss_len)
-    return REF == NO_REF or (REF[H_var] == false and REF[H_var_name] == false and REF[H_var_index] == false
-        and REF[H_var_value] == false and REF[H_var_carried] == false and REF[H_var_carried_from] == false
-        and value_fields_unseen(miss_len, miss))
-end
 
 -- Named variables this frame left out (carried forward): name, value, frame in miss.
 local function tree_carried_names()
@@ -814,7 +820,7 @@ local function tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, 
     c_places = mode == SHOWN or not P.layout   -- the fields' places (FL, FS, FE, VTf...) are known
     tree_head()
     tree_fields()
-    if rec and (rec.req_in or rec.req_to) then tree_request_link(rec) end
+    if rec and (rec.req_in or rec.req_to) then C.request_link(rec) end
     tree_carried_names()
     tree_trailer()
 end
