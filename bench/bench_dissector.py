@@ -1,6 +1,8 @@
 """Benchmark the dissectors the way users run them against tshark's built-in syslog dissector.
 
     python bench/bench_dissector.py [--frames N] [--repeat N] [--no-gui] [--no-count] [--json]
+    python bench/bench_dissector.py --count-only [--passes summary,-2,-V,compressed summary]
+                                    [--dissectors DIR] [--no-syslog]
 
 "The way users run them": every ``dissector/*.lua`` copied into a temporary personal Lua plugin
 folder (``tshark -G folders``: "Personal Lua Plugins", under a temporary HOME), as
@@ -19,10 +21,13 @@ side by side in one run:
 * where Xvfb and the ``wireshark`` GUI exist: Wireshark opening the beacon capture until idle,
   with the plugins installed (and the coloring rules, as ``make install`` leaves them) against
   no plugins and port 7013 as syslog. Skipped with a note elsewhere.
-* where valgrind exists: the summary pass and the compressed capture counted in instructions a
-  frame (callgrind, 10,000 frames minus 1,000, so start-up drops out), ours against syslog's.
-  Counts repeat within about 0.5 % where times wander by several per cent: the line to read
-  when a time ratio sits near its target. Information, no target; skipped with a note elsewhere.
+* where valgrind exists: the summary pass, ``-2``, ``-V`` and the compressed capture counted in
+  instructions a frame (callgrind, 5,000 frames minus 1,000, so start-up drops out), each against
+  ff41cb3's figure (issue 27's limit: within +10 %) and against syslog's (information). Counts
+  repeat within about 0.5 % where times wander by several per cent: the line to read when a time
+  ratio sits near its target. Skipped with a note elsewhere. ``--count-only`` prints these lines
+  alone (``--passes summary,-2`` some of them; ``--dissectors DIR`` another checkout's plugins,
+  e.g. ff41cb3's in a ``git worktree``, to measure both side by side).
 
 Time ratios use CPU time (user + sys of tshark / Wireshark, via getrusage or /proc), which a busy
 machine disturbs much less than wall time (the GUI line shows the wall time until idle in
@@ -257,23 +262,65 @@ def instructions(cmd: list[str], env: dict[str, str]) -> int:
     return int(m.group(1))
 
 
-def run_instructions(work: Path, homes: dict[str, dict[str, str]]) -> dict[str, float]:
-    """Instructions a frame: (count on 10,000 frames - count on 1,000) / 9,000, so that start-up
-    (loading the plugins, registering fields) drops out; two callgrind runs at a time."""
+# Instructions a frame of ff41cb3 (the single file with the express lane), measured the same way
+# (every plugin installed, Wireshark 4.0, 5,000 minus 1,000 frames), and issue 27's limit: the one
+# route within 10 % of them on every pass.  Remeasure with --count-only --dissectors DIR on a
+# `git worktree add /tmp/old ff41cb3` checkout (the figures depend on the Wireshark build).
+FF41CB3 = {"summary": 91_500, "-2": 165_100, "-V": 617_700, "compressed summary": 100_200}   # 27 November 2026
+FF41CB3_LIMIT = 1.10
+# pass name -> (capture kind, tshark options)
+COUNT_PASSES = {
+    "summary": ("beacon", []),
+    "-2": ("beacon", ["-2"]),
+    "-V": ("beacon", ["-V"]),
+    "compressed summary": ("compressed", []),
+}
+
+
+def run_instructions(work: Path, homes: dict[str, dict[str, str]], passes: list[str] | None = None,
+                     syslog: bool = True) -> dict[str, float]:
+    """Instructions a frame: (count on 5,000 frames - count on 1,000) / 4,000, so that start-up
+    (loading the plugins, registering fields) drops out; two callgrind runs at a time.  Keys:
+    "lua <pass>" and (syslog) "syslog <pass>" for each pass of COUNT_PASSES (or ``passes``)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    small, large = 1_000, 10_000
+    small, large = 1_000, 5_000
+    passes = passes or list(COUNT_PASSES)
+    kinds = sorted({COUNT_PASSES[p][0] for p in passes})
     caps = {(kind, n): make_beacon_capture(work / f"instr-{kind}-{n}.pcap", n, compress=kind == "compressed")
-            for kind in ("beacon", "compressed") for n in (small, large)}
-    jobs = {(kind, who, n): ([TSHARK, "-n", "-r", str(caps[kind, n]), *([] if who == "lua" else SYSLOG)],
-                             homes["all" if who == "lua" else "none"])
-            for kind in ("beacon", "compressed") for who in ("lua", "syslog") for n in (small, large)}
+            for kind in kinds for n in (small, large)}
+    whos = ("lua", "syslog") if syslog else ("lua",)
+    jobs = {}
+    for p in passes:
+        kind, opts = COUNT_PASSES[p]
+        for who in whos:
+            for n in (small, large):
+                jobs[p, who, n] = ([TSHARK, "-n", "-r", str(caps[kind, n]), *opts, *([] if who == "lua" else SYSLOG)],
+                                   homes["all" if who == "lua" else "none"])
     with ThreadPoolExecutor(max_workers=2) as pool:
         counts = dict(zip(jobs, pool.map(lambda j: instructions(*j), jobs.values())))
-    for p in caps.values():
-        p.unlink()
-    return {f"{who} {kind}": (counts[kind, who, large] - counts[kind, who, small]) / (large - small)
-            for kind in ("beacon", "compressed") for who in ("lua", "syslog")}
+    for c in caps.values():
+        c.unlink()
+    return {f"{who} {p}": (counts[p, who, large] - counts[p, who, small]) / (large - small)
+            for p in passes for who in whos}
+
+
+def instruction_rows(instr: dict[str, float]) -> list[tuple[str, str, str, float, str, bool]]:
+    """Each pass counted: ours against ff41cb3's figure (issue 27: within +10 %), and against
+    syslog's (information) where counted."""
+    rows = []
+    for p in COUNT_PASSES:
+        ours = instr.get(f"lua {p}")
+        if ours is None:
+            continue
+        ref = FF41CB3[p]
+        rows.append((f"instructions a frame, {p}, vs ff41cb3 (callgrind, 5k-1k frames)", f"{ours:,.0f}",
+                     f"{ref:,.0f}", ours / ref, f"<= {FF41CB3_LIMIT:.2f}x", ours <= ref * FF41CB3_LIMIT))
+        theirs = instr.get(f"syslog {p}")
+        if theirs:
+            rows.append((f"instructions a frame, {p}, vs syslog", f"{ours:,.0f}", f"{theirs:,.0f}",
+                         ours / theirs, "(info)", True))
+    return rows
 
 
 # -- rows ------------------------------------------------------------------------------------
@@ -308,10 +355,7 @@ def rows_for(m: dict[str, Measure], label: str, instr: dict[str, float] | None =
     ratio_row(f"stats tap loaded, not asked: summary with vs without ({label})", m["lua summary"],
               m["lua summary without the stats tap"], STATS_TARGET)
     if instr:
-        for kind, what in (("beacon", "summary"), ("compressed", "compressed summary")):
-            ours_i, theirs_i = instr[f"lua {kind}"], instr[f"syslog {kind}"]
-            rows.append((f"instructions a frame, {what} vs syslog (callgrind, start-up left out)",
-                         f"{ours_i:,.0f}", f"{theirs_i:,.0f}", ours_i / theirs_i, "(info)", True))
+        rows += instruction_rows(instr)
     if "gui with the plugins" in m:
         g, s = m["gui with the plugins"], m["gui syslog"]
         r = g.cpu / s.cpu
@@ -353,6 +397,15 @@ def run_all(work: Path, frames: int = 200_000, repeat: int = 1, gui: bool = True
     return rows, notes
 
 
+def run_counts(work: Path, dissectors: Path, passes: list[str], syslog: bool) -> list:
+    """Only the instruction counts (--count-only): the plugins of ``dissectors`` (a checkout's
+    dissector/ folder: this one, or ff41cb3's in a worktree, to measure both side by side)."""
+    scripts = sorted(dissectors.glob("*.lua"))
+    homes = {"all": make_home(work / "home-all", scripts), "none": make_home(work / "home-none", [])}
+    check_loaded(homes["all"], [s.name for s in scripts])
+    return instruction_rows(run_instructions(work, homes, passes, syslog))
+
+
 def run_bench(work: Path) -> list:
     """`make bench`: every line above on 200,000 frames, the best of 5 interleaved runs (single
     runs of the same code differ by up to 15 % on these shared machines, and best of 3 still
@@ -372,9 +425,26 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-gui", action="store_true", help="skip the Wireshark GUI line")
     ap.add_argument("--no-count", action="store_true", help="skip the instruction-count lines (callgrind)")
     ap.add_argument("--json", action="store_true", help="print the rows as JSON")
+    ap.add_argument("--count-only", action="store_true",
+                    help="only the instruction counts (callgrind), against ff41cb3's figures")
+    ap.add_argument("--passes", default=",".join(COUNT_PASSES),
+                    help=f"with --count-only: the passes to count (default {','.join(COUNT_PASSES)})")
+    ap.add_argument("--dissectors", type=Path, default=REPO / "dissector",
+                    help="with --count-only: the folder of .lua plugins to count (e.g. an old checkout's)")
+    ap.add_argument("--no-syslog", action="store_true", help="with --count-only: do not count syslog too")
     args = ap.parse_args(argv)
+    passes = [p.strip() for p in args.passes.split(",") if p.strip()]
+    unknown = [p for p in passes if p not in COUNT_PASSES]
+    if unknown or not passes:
+        ap.error(f"--passes: unknown {unknown}; choose from {','.join(COUNT_PASSES)}")
+    if args.count_only and not VALGRIND:
+        ap.error("--count-only needs valgrind (Debian package valgrind)")
     with tempfile.TemporaryDirectory(prefix="sharedlink-bench-") as tmp:
-        rows, notes = run_all(Path(tmp), args.frames, args.repeat, gui=not args.no_gui, count=not args.no_count)
+        if args.count_only:
+            rows, notes = run_counts(Path(tmp), args.dissectors.resolve(), passes, not args.no_syslog), []
+        else:
+            rows, notes = run_all(Path(tmp), args.frames, args.repeat, gui=not args.no_gui,
+                                  count=not args.no_count)
     if args.json:
         print(json.dumps({"rows": rows, "skipped": notes}, indent=2))
     else:

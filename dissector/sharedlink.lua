@@ -20,8 +20,8 @@
 --   sharedlink.heuristic          try the heuristic on other ports (default TRUE)
 --   sharedlink.validate_checksum  compute and check the checksum (default TRUE)
 --   sharedlink.variables          a-priori list naming positional values, NAME or NAME:TYPE
---                                 (0 long, 2 double, 4 string; default
---                                 AutoGpsLat,AutoGpsLon,AutoGpsHead,AutoGpsVel, untyped)
+--                                 (0 long, 2 double, 4 string; default AutoGpsLat:2,AutoGpsLon:2,
+--                                 AutoGpsHead:2,AutoGpsVel:2), and per-pair lists SRC>DST: ...
 --   sharedlink.sync_interval      expected full-frame interval in ms (default 1000)
 --   sharedlink.max_slots, max_names, max_conversations, max_pending, max_held_bytes
 --                                 limits (1024, 4096, 65536, 1024, 65536): input past one is
@@ -50,8 +50,8 @@
 -- pattern, its checksum the layout's fixed sum plus the values' sum, in a shown tree too (the
 -- fields' places follow from the layout and the values' lengths).  With no tree (tshark summary
 -- pass) no tree items are built, unless the frame has expert infos; with a tree nobody sees
--- (-Y, coloring rules, taps) a cached frame gets its fields without byte ranges, labels or
--- flags, and a per-variable field no filter references is added once a frame (tree_compact);
+-- (-Y, coloring rules, taps) a frame gets its fields' values without byte ranges, labels or
+-- flags, and a field no filter references is left out (tree.lua: one builder for every tree);
 -- the shown tree's labels are made once; every use of Wireshark's internals is in wsapi,
 -- checked against the documented API.  Per-frame state is stored only for frames that need it
 -- (carried values, late sync, queries/replies); carried-only records are packed as text lines,
@@ -138,11 +138,11 @@ local B_A, B_P, LETTER = U.B_A, U.B_P, U.LETTER
 local Pm, S, I, T, R = M.parse, M.state, M.info, M.tree, M.records
 local P = Pm.P
 local PG, TI = M.wsapi.PG, M.wsapi.TI
-local parse_frame, fast_positions, checksum_verdict, kind_of_fields = Pm.parse_frame, Pm.fast_positions,
-    Pm.checksum_verdict, Pm.kind_of_fields
+local parse_frame, kind_of_fields = Pm.parse_frame, Pm.kind_of_fields
+local parse_payload = Pm.parse_payload
 local state_first_pass, state_later_pass = S.state_first_pass, S.state_later_pass
 local info_frame = I.info_frame
-local tree_compact_frame, tree_full, has_experts = T.tree_compact_frame, T.tree_full, T.has_experts
+local tree_frame, has_experts, T_SHOWN, T_HIDDEN, T_NONE = T.tree_frame, T.has_experts, T.SHOWN, T.HIDDEN, T.NONE
 local set_crlf_frames = T.set_crlf_frames
 local PT_UDP = 3   -- pinfo.port_type of a UDP datagram (epan's port_type enum; 4.0 to 4.6)
 
@@ -171,11 +171,17 @@ local function full_without_state()
     return P.nd > 0 and (n_ord == nil or n_ord == 0) and P.n_empty_d == 0
 end
 
+-- Whether CR LF frames the packet's bytes (tree's set_crlf_frames: sharedlink.crlf.missing is noted
+-- only then), told the tree module before the first frame of the packet that lacks one.  Speed
+-- trick (measured): pinfo.port_type is a call into wslua's __index, read only then.
+local crlf_told = false
+
 -- f: a string holding the frame at f[1..fl] ('[' .. ']' when terminated, else up to
 -- where it stops; bytes after fl may follow when terminated); a: index of f[1] in the
 -- payload s; e: index in s of the last byte including the line end.  tree: nil when there is
 -- none (see dissect); root: the tree Wireshark gave, for the expert infos of a frame then.
-local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, root)
+-- taken: the frame is in P already (the layout cache took it, parse_payload).
+local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, root, taken)
     local num = PG.number(pinfo)
 
     -- a tree that is shown (-V, -T fields/json, the GUI's details) gets every range and
@@ -183,11 +189,19 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     -- protocol item is added once the frame is known (the full tree: with its text)
     local vis = tree ~= nil and PG.visible(tree)
 
-    local bodyend, dstb, srcb, malformed_msg = parse_frame(f, fl, terminated, vis, true)
-    local cs_val, cs_calc, cs_status = checksum_verdict(f, bodyend)
-    local kind, is_data = kind_of_fields(malformed_msg)
-    local dst, src, addrs_ok = addresses(dstb, srcb)
-    local full_local = full_without_state()
+    local bodyend, dstb, srcb, malformed_msg, cs_val, cs_calc, cs_status, quiet, full_local =
+        parse_frame(f, fl, terminated, vis, taken)
+    local layout = P.layout
+    local kind, is_data, dst, src, addrs_ok
+    if layout then
+        -- a layout's frame: a data frame between nodes A-P (its head is the layout's); full_local
+        -- from the layout (full_without_state)
+        is_data, dst, src, addrs_ok = true, LETTER[dstb], LETTER[srcb], true
+    else
+        kind, is_data = kind_of_fields(malformed_msg)
+        dst, src, addrs_ok = addresses(dstb, srcb)
+        full_local = full_without_state()
+    end
     local rec, list, d, miss_n, ne, nm
     if not PG.visited(pinfo) then
         kind, rec, list, d, miss_n, ne, nm = state_first_pass(pinfo, num, sk, kind, is_data, cs_status ~= 0, dstb,
@@ -201,25 +215,28 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
 
     info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
 
-    -- Tree (skipped when there is none, e.g. tshark summary pass, unless it has expert infos:
-    -- then built on root, where only the experts stay)
+    if terminated and not crlf_told and e ~= a + fl + 1 then   -- no CR LF after its ']' (line_end)
+        set_crlf_frames(pinfo.port_type ~= PT_UDP)
+        crlf_told = true
+    end
+    -- Tree: shown, hidden (nobody sees it) or none (tshark's summary pass: built only for a frame
+    -- with expert infos, on root, where only the experts stay); one builder (tree.lua)
+    local mode = vis and T_SHOWN or T_HIDDEN
     if not tree then
-        if not (root and has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status)) then
+        if not root then return end
+        -- a layout's frame with no possible expert (speed trick, measured): quiet (values its
+        -- layout proves, a good upper-case checksum), CR LF after it, no record (late sync,
+        -- limit); otherwise has_experts tells
+        if quiet and not rec and e == a + fl + 1 then return end
+        if not has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status) then
             return
         end
-        tree = root
-        if P.layout then fast_positions(P.layout) end
-        vis = true
+        tree, mode = root, T_NONE
     end
-    if P.layout and not vis then
-        local ti = TI.add(tree, sl, tvb(a - 1, e - a + 1))
-        tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, PG.visited(pinfo), rec, ne, nm,
-            cs_val, cs_calc, cs_status)
-        return
-    end
-    tree_full(tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, kind, dstb, srcb, list, d, rec,
-        ne, nm, cs_val, cs_calc, cs_status)
+    tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, PG.visited(pinfo), kind,
+        dstb, srcb, list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
 end
+------------------------------------------------------------------------------
 -- Payload scanning
 ------------------------------------------------------------------------------
 -- Noise s[i..j] between frames (CR/LF alone is not noise).
@@ -276,9 +293,9 @@ end
 
 -- The frames of the payload s (n bytes) from pos on, each through dissect_frame; the next "[:"
 -- and "]" are searched once each (open_at, close_at: false = none left).
-local function scan(s, n, tvb, pinfo, t, tree)
+local function scan(s, n, tvb, pinfo, t, tree, pos)
     local sk_base = n * 1048576   -- a frame's key: the payload's length and the frame's start
-    local pos, open_at, close_at = 1, 0, 0
+    local open_at, close_at = 0, 0
     while pos and pos <= n do
         if open_at ~= false and open_at < pos then open_at = s_find(s, "[:", pos, true) or false end
         local a = open_at
@@ -315,8 +332,17 @@ local function dissect(tvb, pinfo, tree)
     local t = tree
     if t ~= nil and wsapi.no_tree(t) then t = nil end
     I.begin()
-    set_crlf_frames(pinfo.port_type ~= PT_UDP)
-    scan(s, n, tvb, pinfo, t, tree)
+    crlf_told = false
+    -- the layout cache first, for the frame the payload starts with (see Pm.parse_payload)
+    local b = s_byte(s, 1) == B_LBRACK and parse_payload(s, n)
+    if b then
+        local c1, c2 = s_byte(s, b + 1, b + 2)
+        local e = (c1 == B_CR and c2 == B_LF) and b + 2 or line_end(s, b)
+        dissect_frame(s, b, 1, e, true, tvb, pinfo, t, n * 1048576 + 1, s, tree, true)
+        if e < n then scan(s, n, tvb, pinfo, t, tree, e + 1) end
+    else
+        scan(s, n, tvb, pinfo, t, tree, 1)
+    end
     I.finish(cols)
     return n
 end

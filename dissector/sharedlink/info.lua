@@ -33,19 +33,6 @@ local function info_add(str)
     info_len = info_len + l
 end
 
--- A frame of a named layout, alone in its packet: the layout's Info code makes the same text as
--- the pieces below, in one concatenation (speed trick, measured).  Returns whether it did.
-local function info_named(named, full, miss_n)
-    local total = (full and named.info_len or named.dinfo_len) + P.vlen
-    local tail = (miss_n > 0) and (" (+" .. miss_n .. " carried)") or nil
-    if tail then total = total + #tail end
-    if total > INFO_MAX then return false end
-    ninfo, info_len = 1, total
-    INFO[1] = (full and named.info or named.dinfo)(VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8])
-    if tail then INFO[1] = INFO[1] .. tail end
-    return true
-end
-
 -- The values (name=value), and how many the frame carried.
 local function info_values(list, miss_n)
     for v = 1, P.nv do
@@ -86,16 +73,30 @@ local function info_pieces(f, bodyend, kind, is_data, rec, list, src, dst, miss_
     if rec and rec.late then info_add(" [sync late]") end
 end
 
--- Info column: this frame's piece.
+-- " (+n carried)", made once for n up to 64 (a delta's tail)
+local CARRIED_TAIL = {}
+for k = 1, 64 do CARRIED_TAIL[k] = " (+" .. k .. " carried)" end
+
+-- Info column: this frame's piece.  A full or delta frame of a named layout, alone in its packet
+-- so far: the layout's Info code makes the same text as the pieces, in one concatenation (speed
+-- trick, measured), when it fits INFO_MAX.
 local function info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
     if frames_in_info > 0 then
         if info_full then frames_dropped = frames_dropped + 1 else info_add(" ; ") end
     end
     frames_in_info = frames_in_info + 1
     local named = P.named
-    if named and frames_in_info == 1 and (kind == "full" or kind == "delta") and not (rec and rec.late)
-        and info_named(named, kind == "full", miss_n) then
-        return
+    if named and frames_in_info == 1 and not (rec and rec.late) then   -- a layout's: full or delta
+        local full = kind == "full"
+        local total = (full and named.info_len or named.dinfo_len) + P.vlen
+        local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or nil
+        if tail then total = total + #tail end
+        if total <= INFO_MAX then
+            ninfo, info_len = 1, total
+            local text = (full and named.info or named.dinfo)(VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8])
+            INFO[1] = tail and text .. tail or text
+            return
+        end
     end
     info_clean = false
     if not info_full then info_pieces(f, bodyend, kind, is_data, rec, list, src, dst, miss_n) end

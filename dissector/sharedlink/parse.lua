@@ -14,6 +14,7 @@ local ARROW, CTRL, LETTER, B_PIPE, B_A, B_P = U.ARROW, U.CTRL, U.LETTER, U.B_PIP
 local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = U.L_N, U.L_T, U.L_Q, U.L_R, U.L_D, U.L_C, U.L_L,
     U.L_E, U.L_M, U.L_P, U.L_G
 local valid_type, byte_sum, str_sum, checksum_value = U.valid_type, U.byte_sum, U.str_sum, U.checksum_value
+local HEXV, UHEX = U.HEXV, U.UHEX
 local to_ordinal, pat_escape = U.to_ordinal, U.pat_escape
 
 ------------------------------------------------------------------------------
@@ -28,7 +29,7 @@ local to_ordinal, pat_escape = U.to_ordinal, U.pat_escape
 -- cpos/ctext the checksum field's start and text (vlen: the values' total length, layout frames);
 -- cmd_start the first E/M field; ord_text N? or L? (a list request); layout: the cached layout
 -- that parsed the frame (else false), named: the same when it is a named one (else nil),
--- fast_sum: the checksum computed with it; odd: a field whose tree item carries an expert info
+-- filled: the layout whose facts P holds (layout_take); odd: a field whose tree item carries an expert info
 -- (an empty field, an unknown letter, an ordinal or type that is not a number); limit: why the
 -- frame is past a limit its fields alone tell (a "Limit exceeded: ..." text), else false.
 ------------------------------------------------------------------------------
@@ -61,7 +62,7 @@ local function parse_reset()
     P.has_e, P.has_m, P.has_p, P.has_g, P.has_r = false, false, false, false, false
     P.nq, P.nd, P.n_empty_d, P.n_pos = 0, 0, 0, 0
     P.cpos, P.ctext, P.cmd_start, P.ord_text = nil, nil, nil, false
-    P.layout, P.named, P.fast_sum, P.filled = false, nil, nil, nil
+    P.layout, P.named, P.filled = false, nil, nil
     P.odd, P.limit = false, false
 end
 
@@ -230,15 +231,18 @@ end
 -- interleaves layouts of one prefix, and a pattern that fails late costs most of a match); the
 -- checksum is the layout's fixed sum plus one sum over the values joined (SUMS).
 ------------------------------------------------------------------------------
--- The value classes, written as ranges: a value is any byte but '|', ']', the control characters
--- and DEL.  Speed trick (measured): the matcher tries a class's items in order and a digit is in
--- the first range, where the negated forms ([^|%]\0-\31\127]) tried every item, escapes costing
--- most (-1.6 and -2.0 thousand instructions a frame, summary pass).  A double-typed value: a plain
--- decimal number only, which tonumber always takes (the tree needs no check for var.badvalue;
--- other doubles, "1e5" or " 2", go to the parser).
-local VALUE = "([ -\\^-{}-~\128-\255]*)"
-local DOUBLE = "([-+]?%d+%.?%d*)"
-local CHECKSUM = "|C([^]|]*)%]"
+-- The value classes, written as ranges: a value is any byte but '|', '[', ']', the control
+-- characters and DEL (no '[': a frame the cache matched then holds no "[:" but its first, the
+-- frame the payload scan finds, see parse_payload; a value with '[' goes to the parser).  Speed
+-- trick (measured): the matcher tries a class's items in order and a digit is in the first range,
+-- where the negated forms ([^|%]\0-\31\127]) tried every item, escapes costing most (-1.6 and
+-- -2.0 thousand instructions a frame, summary pass).  A double-typed value: a plain decimal
+-- number only, which tonumber always takes (the tree needs no check for var.badvalue; other
+-- doubles, "1e5" or " 2", go to the parser); its digits as the range [0-9], where %d cost two
+-- calls into the C library (tolower, isdigit) a character.
+local VALUE = "([ -Z\\^-{}-~\128-\255]*)"
+local DOUBLE = "([-+]?[0-9]+%.?[0-9]*)"
+local CHECKSUM = "|C([^]|[]*)%]"
 
 -- SUMS[n](v1, ..., vn, ctext) -> the values' total length, the sum of their bytes and ctext.
 -- Speed trick (measured): the values are summed as one string, one str_sum instead of one a
@@ -247,29 +251,26 @@ local SUMS = { [0] = function(ctext) return 0, 0, ctext end }
 for n = 1, 8 do
     local args = {}
     for k = 1, n do args[k] = "v" .. k end
-    SUMS[n] = assert(load("local str_sum = ... return function(" .. t_concat(args, ", ") ..
-        ", ctext) local all = " .. t_concat(args, " .. ") .. " return #all, str_sum(all), ctext end",
-        "=SUMS", "t", {}))(str_sum)
+    SUMS[n] = assert(load("local SUM_OF, s_byte, byte_sum = ... return function(" .. t_concat(args, ", ") ..
+        ", ctext) local all = " .. t_concat(args, " .. ") .. " local n = #all " ..
+        "if n <= 40 then return n, SUM_OF[n](s_byte(all, 1, n)), ctext end " ..
+        "return n, byte_sum(all, 1, n), ctext end", "=SUMS", "t", {}))(U.SUM_OF, s_byte, byte_sum)
 end
 
--- The layout matching the frame f (fl: the index of its ']'), and its captures; nil: none.
-local function layout_match(f, fl, key)
-    local lk = key * 65536 + fl
-    local sh = LY.bylen[lk]
-    local c1, c2, c3, c4, c5, c6, c7, c8, c9
-    if sh and s_find(f, sh.head, 1, true) == 1 then
-        c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_match(f, sh.pat, sh.at)
-        if c1 then return sh, c1, c2, c3, c4, c5, c6, c7, c8, c9 end
-    end
+-- The node pair's recent layouts (key), newest first, tried on the frame f (len: the index of its
+-- ']', or the payload's length when f is the payload); the one that matches comes first and is
+-- remembered for len.  Returns it and its captures; nil: none.
+local function layout_mru(f, len, key)
     local mru = LY.mru[key]
     if not mru then return nil end
+    local c1, c2, c3, c4, c5, c6, c7, c8, c9
     for k = 1, #mru do
-        sh = mru[k]
+        local sh = mru[k]
         if s_find(f, sh.head, 1, true) == 1 then c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_match(f, sh.pat, sh.at) end
         if c1 then
             if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
             if LY.nbylen >= 4096 then LY.bylen, LY.nbylen = {}, 0 end
-            if fl < 65536 then LY.bylen[lk], LY.nbylen = sh, LY.nbylen + 1 end
+            if len < 65536 then LY.bylen[key * 65536 + len], LY.nbylen = sh, LY.nbylen + 1 end
             return sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
         end
     end
@@ -304,32 +305,62 @@ local function fast_positions(sh)
     P.nf = i + 1
 end
 
+-- A layout's names, types, indexes and facts into P: code made once per layout (speed trick,
+-- measured: a compressed stream's deltas change layout every frame), the names and types
+-- constants in it.  Returns the code, kept in sh.fill.
+local function layout_fill(sh)
+    local n, st, sn, code = sh.n, sh.T, sh.N, {}
+    for k = 1, n do
+        code[k] = string.format("VT[%d], VN[%d], VI[%d], VR[%d] = %s, %s, %d, false", k, k, k, k,
+            st[k] and string.format("%q", st[k]) or "nil", sn[k] and string.format("%q", sn[k]) or "nil",
+            sh.ord + k - 1)
+    end
+    local fill = assert(load("local VT, VN, VI, VR, P = ... return function(sh) " .. t_concat(code, " ") ..
+        " P.n_ord, P.n_text, P.nv, P.nd, P.layout, P.odd, P.limit = sh.ord, sh.ntext, " .. n .. ", " .. n ..
+        ", sh, false, false " ..
+        (sh.named and ("P.nq, P.n_pos, P.n_empty_d, P.named = " .. n .. ", 0, 0, sh ")
+                   or ("P.nq, P.n_pos, P.named = 0, " .. n .. ", nil ")) ..
+        "P.filled = sh end", "=layout_fill", "t", {}))(VT, VN, VI, VR, P)
+    sh.fill = fill
+    return fill
+end
+
+-- The checksum verdict of the frame the layout cache took last (as checksum_verdict's).
+local lv_val, lv_calc, lv_status = nil, nil, nil
+-- and its facts for the entry: lv_quiet, no expert possible (a quiet layout, a good upper-case
+-- checksum); lv_full, full without state (N0, no empty positional D)
+local lv_quiet, lv_full = false, false
+
 -- A matched layout's captures (the values, then the checksum text) into P: its variables and the
 -- facts a layout's frame has (a data frame: N, then T/Q/D triplets or D fields, then C; the facts
--- only other kinds have, has_e..has_r, l_ord, cmd_start, ord_text, are read for those alone).
+-- only other kinds have, has_e..has_r, l_ord, cmd_start, ord_text, are read for those alone), and
+-- its checksum verdict (lv_*: the layout's fixed sum plus the values').  Returns the index of the
+-- frame's ']'.  Speed trick (measured): the layout's names, types, indexes and facts stay in P
+-- while the next frames have its layout (P.filled, cleared by the parser): such a frame writes its
+-- values and its checksum's facts alone.
 local function layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
     local n = sh.n
     VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
     local vlen, sum, ctext = sh.sums(c1, c2, c3, c4, c5, c6, c7, c8, c9)
-    P.ctext, P.fast_sum, P.n_ord, P.n_text, P.vlen = ctext, (sh.fixed + sum) % 256, sh.ord, sh.ntext, vlen
-    if P.filled ~= sh then
-        -- the layout's names, types and indexes (kept while the next frames have its layout:
-        -- filled, cleared by the parser; speed trick, measured)
-        local st, sn, idx = sh.T, sh.N, sh.ord
-        for k = 1, n do
-            VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], idx, false
-            idx = idx + 1
-        end
-        P.filled = sh
+    local fl = sh.flen + vlen + #ctext
+    P.ctext, P.vlen, P.cpos = ctext, vlen, fl - 1 - #ctext   -- the pattern ends in |C<ctext>]
+    if P.filled ~= sh then (sh.fill or layout_fill(sh))(sh) end
+    lv_full = sh.full0
+    if not sh.named then
+        local n_empty_d = 0
+        for k = 1, n do if VV[k] == "" then n_empty_d = n_empty_d + 1 end end
+        P.n_empty_d = n_empty_d
+        lv_full = lv_full and n_empty_d == 0
     end
-    P.nv, P.nd, P.layout, P.odd, P.limit = n, n, sh, false, false
-    if sh.named then
-        P.nq, P.n_pos, P.n_empty_d, P.named = n, 0, 0, sh
-        return
+    local cs_val = HEXV[ctext] or checksum_value(ctext)
+    if cfg.validate then
+        local cs_calc = (sh.fixed + sum) % 256
+        lv_val, lv_calc, lv_status = cs_val, cs_calc, (cs_val == cs_calc) and 1 or 0
+    else
+        lv_val, lv_calc, lv_status = cs_val, nil, 2
     end
-    local n_empty_d = 0
-    for k = 1, n do if VV[k] == "" then n_empty_d = n_empty_d + 1 end end
-    P.nq, P.n_pos, P.n_empty_d, P.named = 0, n, n_empty_d, nil
+    lv_quiet = sh.quiet and lv_status == 1 and UHEX[ctext] or false
+    return fl
 end
 
 ------------------------------------------------------------------------------
@@ -426,9 +457,14 @@ local function new_layout(f, kind, dstb, srcb)
         fixed = fixed - str_sum(VV[k])
     end
     parts[nv + 1] = CHECKSUM
+    local vlen = 0
+    for k = 1, nv do vlen = vlen + #VV[k] end
     local sh = { head = head, at = #head + 1, pat = "^" .. t_concat(parts), n = nv, named = named, T = st, N = sn,
         TV = named and tv or nil, has_long = named and has_long(tv), ord = P.n_ord, ntext = P.n_text,
-        fixed = fixed % 256, sums = SUMS[nv] }
+        fixed = fixed % 256, sums = SUMS[nv], flen = P.cpos + 1 - vlen }
+    -- quiet: no value of the layout can carry an expert info (var.badvalue; see tree's has_experts)
+    sh.quiet = named and not sh.has_long
+    sh.full0 = nv > 0 and P.n_ord == 0   -- full without state, but for empty positional D fields
     sh.key = sh.head .. "\0" .. sh.pat
     if named then named_info(sh, dstb, srcb) end
     return sh
@@ -455,25 +491,58 @@ end
 ------------------------------------------------------------------------------
 -- A frame: header, then the layout cache, else the parser (which teaches the cache).
 ------------------------------------------------------------------------------
--- A closed frame the layout cache has: matched and taken into P.  Its head (addresses A-P, N) is
--- the layout's, so the frame needs no header check.  Returns its address bytes (nil: not taken).
-local function parse_cached(f, fl, vis)
+-- A closed frame the layout cache has, at the start of f (len: the index of its ']', or the
+-- payload's length when f is the payload): matched and taken into P (layout_take).  The layout
+-- that matched the same len last is tried first, then the node pair's recent ones.  Its head
+-- (addresses A-P, N) is the layout's, so the frame needs no header check.  Returns the index of
+-- its ']' (nil: not cached).
+local function parse_cached(f, len)
     local dstb, srcb = s_byte(f, 3, 4)
-    if not srcb or fl < 6 then return nil end
-    local sh, c1, c2, c3, c4, c5, c6, c7, c8, c9 = layout_match(f, fl, dstb * 256 + srcb)
-    if not sh then return nil end
-    layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
-    if vis then fast_positions(sh) end
+    if not srcb or len < 6 then return nil end
+    local key = dstb * 256 + srcb
+    local sh = LY.bylen[key * 65536 + len]
+    local c1, c2, c3, c4, c5, c6, c7, c8, c9
+    if sh and s_find(f, sh.head, 1, true) == 1 then c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_match(f, sh.pat, sh.at) end
+    if not c1 then
+        sh, c1, c2, c3, c4, c5, c6, c7, c8, c9 = layout_mru(f, len, key)
+        if not sh then return nil end
+    end
     if MARKS.fast then MARKS.fast_hit = true end
-    return dstb, srcb
+    return layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
 end
 
--- Parse a frame.  Returns the last index of the content, the address bytes and why it is
--- malformed (nil: it is not).  vis: a shown tree (it needs the fields' places).
-local function parse_frame(f, fl, terminated, vis)
-    if FAST and terminated then
-        local dstb, srcb = parse_cached(f, fl, vis)
-        if dstb then return fl - 1, dstb, srcb, nil end
+-- The frame the payload s (n bytes) starts with, when the layout cache has its layout: taken into P
+-- (then parse_frame with taken).  The entry tries it before scanning the payload (speed trick,
+-- measured: the scan's three string.find): a layout's match proves the frame ends at its first ']'
+-- with no "[:" after its start (its values and checksum text hold no '[' nor ']'), the frame the
+-- scan finds.  Returns the index of its ']' (nil: not cached; the scan takes the payload).
+function Pm.parse_payload(s, n)
+    if FAST then return parse_cached(s, n) end
+    return nil
+end
+
+-- Checksum verdict of a frame the parser took, before the state (a frame with a bad checksum
+-- changes no state): the value of the checksum text (nil: not hex), the calculated value, the
+-- status (1 good, 0 bad, 2 unverified; nil: no C field).
+local function checksum_verdict(f)
+    local cpos = P.cpos
+    if not cpos then return nil, nil, nil end
+    local cs_val = checksum_value(P.ctext)
+    if not cfg.validate then return cs_val, nil, 2 end
+    local cs_calc = byte_sum(f, 2, cpos) % 256
+    return cs_val, cs_calc, (cs_val == cs_calc) and 1 or 0
+end
+
+-- Parse a frame.  Returns the last index of the content, the address bytes, why it is malformed
+-- (nil: it is not), the checksum verdict (checksum_verdict) and, for a layout's frame, whether
+-- it can have no expert info (quiet: see the entry) and is full without state (else nil).
+-- vis: a shown tree (it needs the fields' places); taken: the frame is in P already
+-- (parse_payload).
+local function parse_frame(f, fl, terminated, vis, taken)
+    if taken or (FAST and terminated and parse_cached(f, fl)) then
+        if vis then fast_positions(P.layout) end
+        local dstb, srcb = s_byte(f, 3, 4)
+        return fl - 1, dstb, srcb, nil, lv_val, lv_calc, lv_status, lv_quiet, lv_full
     end
     parse_reset()
     local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)
@@ -487,21 +556,7 @@ local function parse_frame(f, fl, terminated, vis)
     if p == 6 and not malformed_msg and not P.odd and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P then
         learn_layout(f, dstb * 256 + srcb, dstb, srcb)
     end
-    return bodyend, dstb, srcb, malformed_msg
-end
-
--- Checksum verdict, before the state (a frame with a bad checksum changes no state): the
--- value of the checksum text (nil: not hex), the calculated value, the status (1 good, 0 bad,
--- 2 unverified; nil: no C field).
-local function checksum_verdict(f, bodyend)
-    local ctext = P.ctext
-    if P.layout then P.cpos = bodyend - #ctext end   -- a layout's pattern ends in |C<ctext>]
-    local cpos = P.cpos
-    if not cpos then return nil, nil, nil end
-    local cs_val = checksum_value(ctext)
-    if not cfg.validate then return cs_val, nil, 2 end
-    local cs_calc = P.fast_sum or byte_sum(f, 2, cpos) % 256
-    return cs_val, cs_calc, (cs_val == cs_calc) and 1 or 0
+    return bodyend, dstb, srcb, malformed_msg, checksum_verdict(f)
 end
 
 -- The kind the fields alone tell; a data frame (full or delta, told by the state) gives nil, true.
@@ -519,6 +574,5 @@ local function kind_of_fields(malformed_msg)
     return "other", false
 end
 
-Pm.parse_frame, Pm.fast_positions, Pm.checksum_verdict, Pm.kind_of_fields, Pm.MARKS =
-    parse_frame, fast_positions, checksum_verdict, kind_of_fields, MARKS
+Pm.parse_frame, Pm.fast_positions, Pm.kind_of_fields, Pm.MARKS = parse_frame, fast_positions, kind_of_fields, MARKS
 return Pm

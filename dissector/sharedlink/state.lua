@@ -11,20 +11,23 @@ local floor, valid_type, VT, VN = math.floor, U.valid_type, M.parse.P.VT, M.pars
 local VV, VI, VR = M.parse.P.VV, M.parse.P.VI, M.parse.P.VR
 
 local P = M.parse.P
+local LIM = cfg.LIM   -- the limits and their per-capture facts (prefs; the same table for ever)
 local R = M.records
 local PG = wsapi.PG
 local get_rec, carried_store, CARRY, MISS = R.get_rec, R.carried_store, R.CARRY, R.MISS
 
 -- Per-capture state (reset by S.reset)
 local dirs          -- direction key -> direction state
-local pair_lists    -- "SD" letters -> learnt list
-local pending_q     -- query key -> record of the query frame
+local pair_lists    -- "SD" letters -> learnt list (the pair's latest good declaration)
+local inbound       -- receiver key (addresses, "|", letters: see list_in_use) -> its inbound (L) list
+local ninbound      -- receivers with an inbound list (at most max_conversations)
+local pending_q     -- ask key .. ":" .. name (or "#N", "#L": a list request) -> record of the asking frame
 local dir_cache_key, dir_cache_num, dir_cache_ports -- cache for the current packet
 local last_asrc, last_adst, last_pdir, last_akey     -- addresses of the last packet and their key
 local stamp_ctr = 0
 local S = {}
 function S.reset()
-    dirs, pair_lists, pending_q = {}, {}, {}
+    dirs, pair_lists, pending_q, inbound, ninbound = {}, {}, {}, {}, 0
     dir_cache_key, dir_cache_num, dir_cache_ports = nil, nil, 0
     last_asrc, last_adst, last_pdir, last_akey = nil, nil, nil, nil
 end
@@ -35,18 +38,20 @@ S.reset()
 ------------------------------------------------------------------------------
 -- vals/from: name -> last good value / its frame; names: named variables in the order first
 -- sent in a good frame, npos: name -> its index there, nfirst: name -> that frame;
--- seen: name -> stamp of the last frame that had it; maxslot: highest positional slot that
--- ever held a value; first/lastfull: times of the first frame and of the last good full one.
+-- seen: name -> stamp of the last frame that had it; filled: slot -> true once it held a value
+-- (a required slot), maxslot: the highest; first/lastfull: times of the first frame and of the
+-- last good full one.
 local function new_dir()
-    return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, nkey = {}, seen = {}, maxslot = -1,
+    return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, nkey = {}, seen = {}, filled = {}, maxslot = -1,
         first = nil, lastfull = nil, list = nil }
 end
 
 -- A new direction at byaddr[key]; past max_conversations one that is kept nowhere (d.over).
 local function add_dir(byaddr, key)
     local d = new_dir()
-    if cfg.LIM.ndirs >= cfg.LIM.max_conversations then d.over = true; return d end
-    cfg.LIM.ndirs = cfg.LIM.ndirs + 1
+    d.akey = byaddr.akey   -- its addresses (and serial direction): the receiver's key, with its letters
+    if LIM.ndirs >= LIM.max_conversations then d.over = true; return d end
+    LIM.ndirs = LIM.ndirs + 1
     byaddr[key] = d
     return d
 end
@@ -76,7 +81,7 @@ local function get_dir(pinfo, num, dstb, srcb)
         end
         byaddr = dirs[akey]
         if not byaddr then
-            byaddr = {}
+            byaddr = { akey = akey }
             dirs[akey] = byaddr
         end
         dir_cache_key = byaddr
@@ -87,23 +92,79 @@ local function get_dir(pinfo, num, dstb, srcb)
     return byaddr[key] or add_dir(byaddr, key)
 end
 
--- The same for the reverse direction (dst -> src) of the current packet.
-local function get_rev_dir(pinfo, dstb, srcb)
-    local sport, dport = pinfo.src_port, pinfo.dst_port
+-- The address key (as get_dir's) of the reverse direction (dst -> src) of the current packet.
+local function rev_akey(pinfo)
     local pd = -1
-    if sport == 0 and dport == 0 then
+    if pinfo.src_port == 0 and pinfo.dst_port == 0 then
         pd = pinfo.p2p_dir
         if pd == 0 or pd == 1 then pd = 1 - pd end
     end
-    local akey = tostring(pinfo.dst) .. ">" .. tostring(pinfo.src) .. "/" .. pd
-    local byaddr = dirs[akey]
-    if not byaddr then
-        byaddr = {}
-        dirs[akey] = byaddr
-    end
-    local key = (dport * 65536 + sport) * 65536 + srcb * 256 + dstb
-    return byaddr[key] or add_dir(byaddr, key)
+    return tostring(pinfo.dst) .. ">" .. tostring(pinfo.src) .. "/" .. pd
 end
+
+-- The keys of a query sent on the current packet (its querier's address and port, the queried
+-- address, the letters) and of the query a reply sent on it answers (it comes from the queried
+-- address and goes to the querier's address and port, whatever its source port); a serial line
+-- by its capture direction.  docs/fields-sharedlink.md, "Replies".
+local function ask_keys(pinfo, src, dst)
+    local sport, dport = pinfo.src_port, pinfo.dst_port
+    local a, b = tostring(pinfo.src), tostring(pinfo.dst)
+    if sport == 0 and dport == 0 then
+        local pd = pinfo.p2p_dir
+        local rpd = (pd == 0 or pd == 1) and 1 - pd or pd
+        return a .. ">" .. b .. "/" .. pd .. "|" .. src .. dst, b .. ">" .. a .. "/" .. rpd .. "|" .. dst .. src
+    end
+    return a .. ":" .. sport .. ">" .. b .. "|" .. src .. dst, b .. ":" .. dport .. ">" .. a .. "|" .. dst .. src
+end
+
+-- The list a direction with no list of its own uses (docs/fields-sharedlink.md, "Lists by
+-- receiver"): its receiver's inbound list, its letter pair's latest declaration, the user's list
+-- for the pair, the a-priori list (cfg.list, by_length).
+local function source_list(rkey, letters)
+    return inbound[rkey] or pair_lists[letters] or cfg.pairs[letters] or cfg.list
+end
+
+-- The list a positional frame is named by: the a-priori list names only a frame with as many
+-- slots as it has (ordinal + D fields); another frame gets none (#i, no warning).
+local NOLIST = { t = {} }
+local function frame_list(list)
+    if list.by_length and P.n_pos > 0 and (P.n_ord or 0) + P.n_pos ~= #list then return NOLIST end
+    return list
+end
+
+-- A name's type in a list (nil: untyped or not in it); a reply's values are typed by it.
+local function list_type(list, name)
+    local tn = list.tn
+    if not tn then
+        tn = {}
+        local t = list.t
+        for k = #list, 1, -1 do if t[k] then tn[list[k]] = t[k] end end
+        list.tn = tn
+    end
+    return tn[name]
+end
+
+-- A direction takes a new list (docs/fields-sharedlink.md, "A declaration replaces its direction's
+-- list"): the names it keeps keep their values and "once filled" marks (at their new slots), the
+-- others (not sent in named frames) lose them; slots past its end are no longer required.  The
+-- marked names are those of the filled slots as the last stored positional frame named them
+-- (d.eff: the list it was named by, else the old list), as the Python twin does
+-- (VariableTable.use_list).
+local function replace_values(d, old, list)
+    local keep, vals, from, npos = {}, d.vals, d.from, d.npos
+    local eff, marked = d.eff or old, {}
+    for slot in pairs(d.filled) do marked[eff[slot + 1] or ("#" .. slot)] = true end
+    for k = 1, #list do keep[list[k]] = true end
+    for name in pairs(vals) do
+        if not keep[name] and npos[name] == nil then vals[name] = nil; from[name] = nil end
+    end
+    local maxslot, filled = -1, {}
+    for k = 1, #list do
+        if marked[list[k]] then maxslot = k - 1; filled[k - 1] = true end
+    end
+    d.maxslot, d.filled, d.eff = maxslot, filled, nil
+end
+
 -- The journal: linear state for a direction with many names.  A direction with up to
 -- JOURNAL_NAMES names stores, for each frame that leaves some out, their values in the frame's
 -- record (cheap, few objects: see carried_store).  Past that, a copy per frame would grow with
@@ -123,7 +184,7 @@ do
             hist[name] = { (from[name] or 0) * 1048576, vals[name] or false }
         end
         d.hist, d.jkey = hist, key
-        cfg.LIM.journal = true
+        LIM.journal = true
         return hist
     end
 
@@ -203,7 +264,7 @@ do
         local st = d.seen[name]
         if not st and good then
             local names = d.names
-            if #names < cfg.LIM.max_names then
+            if #names < LIM.max_names then
                 names[#names + 1] = name
                 d.npos[name] = #names - 1
                 d.nfirst[name] = num
@@ -212,7 +273,7 @@ do
                 st = 0
             else
                 -- a new name past max_names: no state
-                cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_names ..
+                LIM.hit = "Limit exceeded: more than " .. LIM.max_names ..
                     " names in this direction (max_names)"
             end
         end
@@ -229,12 +290,12 @@ do
         local name = list[slot + 1] or ("#" .. slot)
         if slot > dv_maxslot then dv_maxslot = slot end
         if val == "" then
-            local cv = d.vals[name]
-            if cv then dv_required = true end
-            CARRY[dv_ne + 1], CARRY[dv_ne + 2] = cv or false, d.from[name] or false
+            if d.filled[slot] then dv_required = true end
+            CARRY[dv_ne + 1], CARRY[dv_ne + 2] = d.vals[name] or false, d.from[name] or false
             dv_ne = dv_ne + 2
         elseif good then
             d.vals[name], d.from[name] = val, num
+            d.filled[slot] = true
             if slot > d.maxslot then d.maxslot = slot end
         end
     end
@@ -259,7 +320,7 @@ do
     local function store_values(d, list, num, sk, good, has_tree, hist, key)
         stamp_ctr = stamp_ctr + 1
         dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = stamp_ctr, 0, 0, -1, false
-        local max_slots = cfg.LIM.max_slots
+        local max_slots = LIM.max_slots
         for v = 1, P.nv do
             local val = VV[v]
             if val then
@@ -272,11 +333,9 @@ do
             end
         end
         if P.n_pos > 0 then
-            -- positional: required slots past the frame's last D
-            local vals = d.vals
-            for slot = dv_maxslot + 1, d.maxslot do
-                if vals[list[slot + 1] or ("#" .. slot)] then dv_required = true; break end
-            end
+            if good and dv_maxslot >= 0 then d.eff = list end   -- the names its slots were stored by
+            -- positional: a required slot past the frame's last D (d.maxslot is one)
+            if dv_maxslot < d.maxslot then dv_required = true end
             return 0, 0
         end
         if #d.names == 0 then return 0, 0 end
@@ -363,23 +422,6 @@ do
         return full, dv_ne, nm, miss_n, full_local, hist ~= nil
     end
 
-    -- State, first pass, a data frame: the sync clock, and the record later passes read (late
-    -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
-    -- The sync clock: a full frame (good checksum) sets it; a delta past the interval is late
-    -- (returns its age, else nil).
-    local function sync_clock(pinfo, d, full, good)
-        local now = PG.rel_ts(pinfo)
-        local first = d.first
-        if not first then first = now; d.first = now end
-        if full then
-            if good then d.lastfull = now end
-            return nil
-        end
-        local age = now - (d.lastfull or first)
-        if age > cfg.sync then return age end
-        return nil
-    end
-
     -- The carried values of empty D fields (CARRY, ne) and named ones (MISS, nm) into a table record.
     local function carried_record(rec, ne, nm)
         for k = 1, ne do rec[k] = CARRY[k] end
@@ -390,12 +432,22 @@ do
         end
     end
 
-    local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm)
-        local rec = cfg.LIM.hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
-        local late = sync_clock(pinfo, d, full, good)
-        if late then
-            rec = rec or get_rec(num, sk, true)
-            rec.late = late
+    -- State, first pass, a data frame: the sync clock, and the record later passes read (late
+    -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
+    -- The sync clock: a full frame (good checksum) sets it; a delta past the interval is late.
+    -- rec: a table record made already (a limit's expert), else nil.
+    local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm, rec)
+        local now = PG.rel_ts(pinfo)
+        local first = d.first
+        if not first then first = now; d.first = now end
+        if full then
+            if good then d.lastfull = now end
+        else
+            local age = now - (d.lastfull or first)
+            if age > cfg.sync then
+                rec = rec or get_rec(num, sk, true)
+                rec.late = age
+            end
         end
         local kch = full and "f" or "d"
         -- carried values of empty D fields: a packed text record unless the
@@ -412,22 +464,26 @@ do
         return rec, full and "full" or "delta"
     end
 
-    -- State, first pass, a declaration with a good checksum: the list it declares.
-    local function learn_declaration(pinfo, num, dstb, srcb, dst, src, letters)
+    -- State, first pass, a declaration with a good checksum: the list it declares (a list learnt
+    -- from a declaration: past its end var.unknown).  An N declaration is its own conversation's
+    -- list; an L one the inbound list of the declarer's receiver (the declaration's destination
+    -- address to the declarer's, letters reversed, whatever the ports).  Either is its letter
+    -- pair's latest.  docs/fields-sharedlink.md, "Lists by receiver".
+    local function learn_declaration(pinfo, num, dstb, srcb, dst, src)
         local l_ord, n_ord = P.l_ord, P.n_ord
-        local dd, rl
+        local dd, rkey, rl, base_list
         if l_ord then
-            -- the sender's inbound list = the list used from dst to src
-            dd = get_rev_dir(pinfo, dstb, srcb)
             rl = dst .. src
+            rkey = rev_akey(pinfo) .. "|" .. rl
+            base_list = source_list(rkey, rl)
         else
+            rl = src .. dst
             dd = get_dir(pinfo, num, dstb, srcb)
-            rl = letters
+            base_list = dd.list or source_list((dd.akey or "") .. "|" .. rl, rl)
         end
-        local base_list = dd.list or pair_lists[rl] or cfg.list
         local newlist = {}
         local types = {}
-        newlist.t = types
+        newlist.t, newlist.decl = types, true
         local start = l_ord or n_ord or 0
         for k = 1, math.min(start, #base_list) do
             newlist[k] = base_list[k]
@@ -435,33 +491,79 @@ do
         end
         local maxi = #newlist
         for v = 1, P.nv do
-            if VN[v] and VI[v] < cfg.LIM.max_slots then
+            if VN[v] and VI[v] < LIM.max_slots then
                 newlist[VI[v] + 1] = VN[v]
                 types[VI[v] + 1] = VT[v] and valid_type(VT[v]) or nil
                 if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
             end
         end
         for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
-        dd.list = newlist
+        if dd then
+            dd.list = newlist
+        elseif inbound[rkey] or ninbound < LIM.max_conversations then
+            if not inbound[rkey] then ninbound = ninbound + 1 end
+            inbound[rkey] = newlist
+        else
+            LIM.hit = "Limit exceeded: more than " .. LIM.max_conversations ..
+                " receivers with an inbound list (max_conversations)"
+        end
         pair_lists[rl] = newlist
     end
 
-    -- State, first pass: a query or declaration waits for its reply; a reply finds its query.
+    -- A query waits for its reply (under its ask key and each name it asks for; at most
+    -- max_pending a querier).
+    local function ask(ak, name, rec)
+        local qkey = ak .. ":" .. name
+        if pending_q[qkey] then
+            pending_q[qkey] = rec
+        elseif (LIM.npend[ak] or 0) < LIM.max_pending then
+            pending_q[qkey] = rec
+            LIM.npend[ak] = (LIM.npend[ak] or 0) + 1
+        else
+            LIM.hit = "Limit exceeded: more than " .. LIM.max_pending ..
+                " unanswered queries in this conversation (max_pending)"
+        end
+    end
+
+    -- The query that asked (answer key ak, name) answered: its record, taken off, or nil.
+    local function answered(ak, name)
+        local qkey = ak .. ":" .. name
+        local qrec = pending_q[qkey]
+        if qrec then
+            pending_q[qkey] = nil
+            LIM.npend[ak] = (LIM.npend[ak] or 1) - 1
+        end
+        return qrec
+    end
+
+    -- A list request (L? or N?) and the declaration that answers it (L? the N list, N? the L list).
+    local function link_list_request(pinfo, num, sk, kind, rec, qk, ak)
+        if kind == "query" and P.nq == 0 then
+            rec = rec or get_rec(num, sk, true)
+            rec.num, rec.t = num, pinfo.rel_ts
+            ask(qk, P.l_ord and "#N" or "#L", rec)
+        elseif kind == "declaration" then
+            local qrec = answered(ak, P.l_ord and "#L" or "#N")
+            if qrec then
+                rec = rec or get_rec(num, sk, true)
+                qrec.req_in, rec.req_to, rec.req_rt = num, qrec.num, pinfo.rel_ts - qrec.t
+            end
+        end
+        return rec
+    end
+
+    -- State, first pass: a query or declaration waits for its reply; a reply finds its query
+    -- (docs/fields-sharedlink.md, "Replies").
     local function link_query_reply(pinfo, num, sk, kind, dst, src, rec)
-        local pa, pb = pinfo.src_port, pinfo.dst_port
-        if pa > pb then pa, pb = pb, pa end
-        local ports = ":" .. pa .. "-" .. pb
+        local qk, ak = ask_keys(pinfo, src, dst)
+        if kind ~= "reply" then rec = link_list_request(pinfo, num, sk, kind, rec, qk, ak) end
         for v = 1, P.nv do
             local name = VN[v]
             if name then
                 if VR[v] then
                     rec = rec or get_rec(num, sk, true)
-                    local qkey = dst .. ">" .. src .. ":" .. name .. ports
-                    local qrec = pending_q[qkey]
+                    local qrec = answered(ak, name)
                     if qrec then
-                        pending_q[qkey] = nil
-                        local ck = dst .. ">" .. src .. ports
-                        cfg.LIM.npend[ck] = (cfg.LIM.npend[ck] or 1) - 1
                         qrec.resp_in = qrec.resp_in or {}
                         qrec.resp_in[name] = num
                         rec.resp_to = rec.resp_to or {}
@@ -476,16 +578,7 @@ do
                     rec = rec or get_rec(num, sk, true)
                     rec.num = num
                     rec.t = pinfo.rel_ts
-                    local qkey, ck = src .. ">" .. dst .. ":" .. name .. ports, src .. ">" .. dst .. ports
-                    if pending_q[qkey] then
-                        pending_q[qkey] = rec
-                    elseif (cfg.LIM.npend[ck] or 0) < cfg.LIM.max_pending then
-                        pending_q[qkey] = rec
-                        cfg.LIM.npend[ck] = (cfg.LIM.npend[ck] or 0) + 1
-                    else
-                        cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_pending ..
-                            " unanswered queries in this conversation (max_pending)"
-                    end
+                    ask(qk, name, rec)
                 end
             end
         end
@@ -497,54 +590,78 @@ do
     local function list_in_use(d, num, sk, src, dst)
         local list = d.list
         if not list then
-            local letters = d.letters   -- src .. dst, made once a direction
-            if not letters then letters = src .. dst; d.letters = letters end
-            list = pair_lists[letters] or cfg.list
+            local rkey = d.rkey   -- its receiver's key: addresses, "|", letters src .. dst (made once)
+            if not rkey then
+                d.letters = src .. dst
+                rkey = (d.akey or "") .. "|" .. d.letters
+                d.rkey = rkey
+            end
+            list = inbound[rkey] or pair_lists[d.letters] or cfg.pairs[d.letters] or cfg.list
         end
-        if list ~= (d.used_list or cfg.list) then
+        local old = d.used_list or cfg.list
+        if list ~= old then
             local h = d.uhist
             if not h then h = {}; d.uhist = h end
             h[#h + 1] = num
             h[#h + 1] = sk
             h[#h + 1] = list
             d.used_list = list
+            replace_values(d, old, list)
         end
         return list
     end
 
     local LINKED = { query = true, reply = true, declaration = true }   -- kinds a query/reply link concerns
 
+    -- The frame's record with the limit it hit (LIM.hit), if any.
+    local function limit_record(rec, num, sk)
+        if LIM.hit then
+            rec = rec or get_rec(num, sk, true)
+            rec.limit = LIM.hit
+        end
+        return rec
+    end
+
+    -- The limit text of a direction past max_conversations.
+    local function over_text()
+        return "Limit exceeded: more than " .. LIM.max_conversations .. " directions with state" ..
+            " (max_conversations); this one keeps none"
+    end
+
     -- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
     -- direction state (data frames), the named variables carried, and ne/nm (see data_values).
     function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, addrs_ok, full_local,
                               has_tree)
+        LIM.hit = false
+        if is_data and addrs_ok then
+            -- a data frame (not a kind LINKED)
+            local d = get_dir(pinfo, num, dstb, srcb)
+            if d.over then LIM.hit = over_text() end
+            local list = frame_list(list_in_use(d, num, sk, src, dst))
+            local full, ne, nm, miss_n, journaled
+            full, ne, nm, miss_n, full_local, journaled = data_values(d, list, num, sk, good, full_local, has_tree)
+            -- a journal's carried names go in no record (see journal)
+            local rec
+            rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm,
+                LIM.hit and get_rec(num, sk, true) or nil)
+            if LIM.hit then
+                rec = rec or get_rec(num, sk, true)
+                rec.limit = LIM.hit
+            end
+            return kind, rec, list, d, miss_n, ne, nm
+        end
         local rec, list, d = nil, cfg.list, nil
-        local miss_n, ne, nm = 0, 0, 0
-        cfg.LIM.hit = false
-        if (is_data or kind == "malformed") and addrs_ok then
+        if (kind == "malformed" or kind == "reply") and addrs_ok then
             d = get_dir(pinfo, num, dstb, srcb)
-            if d.over then
-                cfg.LIM.hit = "Limit exceeded: more than " .. cfg.LIM.max_conversations .. " directions with state" ..
-                    " (max_conversations); this one keeps none"
-            end
-            list = list_in_use(d, num, sk, src, dst)
-            if is_data then
-                local full, journaled
-                full, ne, nm, miss_n, full_local, journaled = data_values(d, list, num, sk, good, full_local, has_tree)
-                -- a journal's carried names go in no record (see journal)
-                rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm)
-            end
+            if d.over then LIM.hit = over_text() end
+            list = frame_list(list_in_use(d, num, sk, src, dst))
         elseif kind == "declaration" and addrs_ok and good then
-            learn_declaration(pinfo, num, dstb, srcb, dst, src, src .. dst)
+            learn_declaration(pinfo, num, dstb, srcb, dst, src)
         end
         if LINKED[kind] and addrs_ok and good then
             rec = link_query_reply(pinfo, num, sk, kind, dst, src, rec)
         end
-        if cfg.LIM.hit then
-            rec = rec or get_rec(num, sk, true)
-            rec.limit = cfg.LIM.hit
-        end
-        return kind, rec, list, d, miss_n, ne, nm
+        return kind, limit_record(rec, num, sk), list, d, 0, 0, 0
     end
 end
 
@@ -575,9 +692,10 @@ local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs
     local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
     local nm = 0
     local list, d = cfg.list, nil
-    if (is_data or kind == "malformed") and addrs_ok and (has_tree or P.n_pos > 0 or cfg.LIM.journal) then
+    if (is_data or kind == "malformed" or kind == "reply") and addrs_ok
+        and (has_tree or P.n_pos > 0 or LIM.journal or kind == "reply") then
         d = get_dir(pinfo, num, dstb, srcb)
-        list = list_at(d, num, sk)
+        list = frame_list(list_at(d, num, sk))
         -- a named frame the journal judged: what it carried, from the journal
         if is_data and d.jkey and P.n_pos == 0 then
             local key = journal.key(num, sk)
@@ -589,5 +707,6 @@ local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs
 end
 
 S.get_dir, S.list_at, S.journal, S.JOURNAL_NAMES = get_dir, list_at, journal, JOURNAL_NAMES
+S.list_type = list_type
 S.state_first_pass, S.state_later_pass = state_first_pass, state_later_pass
 return S

@@ -1,5 +1,6 @@
--- SharedLink dissector module: tree, a frame's items: the compact tree nobody sees (its fields, no ranges or labels)
--- and the full one (every range and label).
+-- SharedLink dissector module: tree, a frame's items, one builder for every tree: shown (every range,
+-- label and flag), hidden (a tree nobody sees: the values of the fields somebody references) and none
+-- (no tree at all: the expert infos alone).
 -- Loaded by sharedlink.lua (load_module); Wireshark also runs every .lua file of a plugin folder's
 -- subfolders as a plugin of its own: this file then does nothing.
 
@@ -9,12 +10,10 @@ if type(token) ~= "table" or token.sharedlink_module ~= true then return end
 local U, cfg, wsapi, hf = M.util, M.prefs, M.wsapi, M.fields.hf
 local UHEX = U.UHEX
 local ei, sl, s_byte, s_sub = M.fields.ei, M.proto, string.byte, string.sub
-local s_find, s_format, tonumber, tostring = string.find, string.format, tonumber, tostring
+local s_format, tonumber, tostring = string.format, tonumber, tostring
 local floor, ARROW, B_CR, B_LF = math.floor, U.ARROW, U.B_CR, U.B_LF
-local B_A, B_P, L_N, L_T = U.B_A, U.B_P, U.L_N, U.L_T
-local L_Q, L_R, L_D, L_C = U.L_Q, U.L_R, U.L_D, U.L_C
-local L_L, L_E, L_M, L_P = U.L_L, U.L_E, U.L_M, U.L_P
-local L_G, LETTER, valid_type, parse_long = U.L_G, U.LETTER, U.valid_type, U.parse_long
+local B_A, B_P = U.B_A, U.B_P
+local LETTER, valid_type, parse_long = U.LETTER, U.valid_type, U.parse_long
 local nstime_of, zrange, FL, FS = U.nstime_of, U.zrange, M.parse.P.FL, M.parse.P.FS
 local FE, FV, FC, VT = M.parse.P.FE, M.parse.P.FV, M.parse.P.FC, M.parse.P.VT
 local VN, VV, VI, VR = M.parse.P.VN, M.parse.P.VV, M.parse.P.VI, M.parse.P.VR
@@ -25,602 +24,33 @@ local crlf_frames = true   -- see set_crlf_frames
 local R = M.records
 local CARRY, MISS = R.CARRY, R.MISS
 
--- The typed field is hidden: the Value line above it shows the same fact.  With no range
--- (a tree nobody sees) the item is added with its value only.
 -- TreeItem's methods called through this table (speed trick, measured: -V 16 us a frame
 -- less): ti:add(...) looks the method up through wslua's __index, a call into C, each time.
 local TI = wsapi.TI   -- see wsapi (2)
 
-local function add_typed_value(vt, range, vtype, text)
-    local field, v
-    if vtype == 2 then
-        field, v = hf.var_double, tonumber(text)
-        if not v then TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a double: " .. text) end
-    elseif vtype == 0 then
-        field, v = hf.var_long, parse_long(text)
-        if not v then TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a long (int64): " .. text) end
-    elseif vtype == 4 then
-        field, v = hf.var_string, text
-    end
-    if v then
-        if range then TI.set_hidden(TI.add(vt, field, range, v)) else TI.add(vt, field, v) end
-    end
-end
+------------------------------------------------------------------------------
+-- One builder, three trees.  tree_frame walks the frame's items once, in the order a shown tree
+-- has them: the head (protocol item, addresses, kind), the fields in order (a variable at its
+-- first field: tree_variable, the one place a variable's items are made), the named variables
+-- the frame left out, the trailer (limits, sync, checksum, line end).  Each item is made in one
+-- of three ways, by the mode of the frame's tree:
+--   SHOWN   (-V, PDML, -T fields, the GUI's details): with its byte range, label and flags;
+--   HIDDEN  (a tree nobody sees: -Y, coloring rules, taps): its value alone, no range, label or
+--           flag (each is one more call into C), and not at all when nobody references its
+--           field (REF, below); an item's children go on the nearest item that was made;
+--   NONE    (no tree at all: tshark's summary pass, the GUI opening a file): no item; built only
+--           for a frame with expert infos (has_experts), which are added in every mode, on the
+--           nearest item (Wireshark's convention: Expert Information and -z expert need no tree).
+-- Speed trick (measured, -Y): a hidden tree skips what nobody references, and the values of
+-- unreferenced fields are not even computed (a double's tonumber is ~1,150 instructions).
+------------------------------------------------------------------------------
+-- the fields used most, as upvalues (a table's field is a hash lookup: speed trick, measured)
+local H_var, H_ftype, H_var_name, H_var_index, H_var_value, H_var_double, H_var_carried =
+    hf.var, hf.ftype, hf.var_name, hf.var_index, hf.var_value, hf.var_double, hf.var_carried
+local H_var_carried_from, H_checksum, H_checksum_calc, H_checksum_status, H_ordinal, H_dst, H_src =
+    hf.var_carried_from, hf.checksum, hf.checksum_calc, hf.checksum_status, hf.ordinal, hf.dst, hf.src
 
-local tree_compact_frame
-do
--- Fields of a frame parsed by a fast path, for a tree nobody sees (a display filter,
--- coloring rules, a tap): the fields of the full tree with their values, without byte
--- ranges, labels or flags, which only a visible tree shows.  Speed trick (measured: each
--- TvbRange, label or flag is one more Lua-to-C call).  The full tree is built below.
--- vals: the frame's values; carry: carried values of its empty D fields (value, frame, ...);
--- miss: named variables left out (name, value, frame, ...), nmiss entries.
---
--- Only the fields somebody asked for are repeated per variable.  In a tree nobody sees,
--- Wireshark adds a field only when a filter, coloring rule or tap references it; for any
--- other it hands back the parent item (proto.c, TRY_TO_FAKE_THIS_ITEM), whose text is the
--- parent's text.  So the first item of each per-variable field in a frame tells whether the
--- field is referenced (its text differs from its parent's: a real item has its own label;
--- checked on 4.0, 4.4 and 4.6), and an unreferenced field is not added again for the
--- frame's other variables (about 18 fewer Lua-to-C calls in a beacon frame).  Decided
--- again in every frame, as the referenced fields change when the user changes a filter.
---
--- tshark (no GUI) keeps what it learnt for the whole pass, every field included: its filters,
--- taps and field extractors are all set before the first packet and a field Wireshark once
--- saw referenced stays referenced.  (tshark -2 primes the display filter in its first pass
--- too; the cache starts again with each pass all the same.)  The GUI learns again in
--- every frame: its display filter and coloring rules change while it runs, and it dissects
--- packet-list rows (coloring rules only) in the middle of a filter pass.  The environment
--- variable SHAREDLINK_PROBE_EACH_FRAME makes tshark do as the GUI (for the tests).
-local REF = {}      -- field -> referenced (nil: not known yet)
-local VAR_FIELDS = { hf.var, hf.ftype, hf.var_name, hf.var_index, hf.var_value, hf.var_double,
-    hf.var_long, hf.var_string, hf.var_carried, hf.var_carried_from }
-local CACHE_REFS = wsapi.cache_refs
-local ref_num, ref_visited = -1, nil   -- the frame and pass the cache was last used in
-local UNKNOWN = {}  -- "the parent's text is not read yet"
-
--- Add field = value under parent (whose text is ptext, or UNKNOWN) unless the field is known
--- to be unreferenced; learn that on its first item.  Returns the item or nil.
-local function ref_add(parent, ptext, field, value)
-    local r = REF[field]
-    if r == false then return nil end
-    local it
-    if value == nil then it = TI.add(parent, field) else it = TI.add(parent, field, value) end
-    if r == nil then
-        if ptext == UNKNOWN then ptext = parent.text end
-        r = wsapi.referenced(it, ptext)
-        REF[field] = r
-    end
-    return r and it or nil
-end
-
--- Start a frame's compact tree: the learnt fields kept (tshark, the same pass) or forgotten.
--- Returns the text ref_add compares ti's children with.
-local function ref_start(ti, num, visited)
-    if CACHE_REFS then
-        if visited ~= ref_visited or (num ~= ref_num and num ~= ref_num + 1) then
-            for k in pairs(REF) do REF[k] = nil end
-            ref_visited = visited
-        end
-        ref_num = num
-        return UNKNOWN
-    end
-    for k = 1, #VAR_FIELDS do REF[VAR_FIELDS[k]] = nil end
-    return ti.text
-end
-
--- A field of the frame itself in the compact tree: learnt as the per-variable ones when the
--- cache is on, else always added (once a frame, a probe would cost as much as it saves).
-local function frame_add(ti, ttext, field, value)
-    if CACHE_REFS then return ref_add(ti, ttext, field, value) end
-    return TI.add(ti, field, value)
-end
-
--- A variable's item in the compact tree: its subtree, or ti itself when nobody asked for
--- sharedlink.var; and the text its children are compared with (var_text: a real variable
--- item's text, the same for all; reset each frame).
-local var_text = nil
-local function compact_var(ti, ttext)
-    local vt = ref_add(ti, ttext, hf.var)
-    if not vt then return ti, ttext end
-    var_text = var_text or vt.text
-    return vt, var_text
-end
-
--- A carried value's fields: its value and frame when known.
-local function compact_carried(vt, ptext, cv, cf)
-    if cv then ref_add(vt, ptext, hf.var_value, cv) end
-    ref_add(vt, ptext, hf.var_carried, true)
-    if cf then ref_add(vt, ptext, hf.var_carried_from, cf) end
-end
-
--- A value's typed field (double, long, string) or its var.badvalue.
-local function compact_typed(vt, ptext, vtype, val)
-    if vtype == 2 then
-        local x = tonumber(val)
-        if x then ref_add(vt, ptext, hf.var_double, x)
-        else TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a double: " .. val) end
-    elseif vtype == 0 then
-        local x = parse_long(val)
-        if x then ref_add(vt, ptext, hf.var_long, x)
-        else TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a long (int64): " .. val) end
-    elseif vtype == 4 then
-        ref_add(vt, ptext, hf.var_string, val)
-    end
-end
-
--- Variable v's name and index: a named one's place among the direction's names, a positional
--- one's name and type from the list.
-local function var_name_index(v, list, d, num, fast_tv)
-    local name, index = VN[v], VI[v]
-    local vtype
-    if name then
-        vtype = fast_tv and fast_tv[v] or valid_type(VT[v])
-        if d then
-            local first = d.nfirst[name]
-            index = (first and first <= num) and d.npos[name] or nil
-        end
-    else
-        name = list[index + 1]
-        vtype = list.t and list.t[index + 1]
-    end
-    return name, index, vtype
-end
-
--- Variable v in the compact tree; ke: the carried values used so far (carry: value, frame, ...).
-local function compact_variable(ti, ttext, v, list, d, num, carry, ke, fast_tv)
-    local vt, ptext = compact_var(ti, ttext)
-    local name, index, vtype = var_name_index(v, list, d, num, fast_tv)
-    local val = VV[v]
-    if VN[v] then ref_add(vt, ptext, hf.ftype, vtype) end
-    if name then
-        ref_add(vt, ptext, hf.var_name, name)
-    else
-        TI.add_proto_expert_info(vt, ei.var_unknown,
-            "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
-    end
-    if index then ref_add(vt, ptext, hf.var_index, index) end
-    if val ~= "" or VN[v] then
-        ref_add(vt, ptext, hf.var_value, val)
-        if vtype then compact_typed(vt, ptext, vtype, val) end
-        return ke
-    end
-    local cv, cf = false, false
-    if carry then cv, cf = carry[ke + 1], carry[ke + 2] end
-    compact_carried(vt, ptext, cv, cf)
-    return ke + 2
-end
-
-local function tree_compact(ti, ttext, dstb, srcb, kind, n_ord, nvars, list, d, num, carry, miss, nmiss, fast_tv)
-    frame_add(ti, ttext, hf.dst, LETTER[dstb])
-    frame_add(ti, ttext, hf.dst_node, dstb - B_A + 1)
-    frame_add(ti, ttext, hf.src, LETTER[srcb])
-    frame_add(ti, ttext, hf.src_node, srcb - B_A + 1)
-    frame_add(ti, ttext, hf.kind, kind)
-    frame_add(ti, ttext, hf.ordinal, n_ord)
-    var_text = nil
-    local ke = 0
-    for v = 1, nvars do ke = compact_variable(ti, ttext, v, list, d, num, carry, ke, fast_tv) end
-    for k = 1, nmiss, 3 do
-        local name = miss[k]
-        local vt, ptext = compact_var(ti, ttext)
-        ref_add(vt, ptext, hf.var_name, name)
-        local index = d and d.npos[name]
-        if index then ref_add(vt, ptext, hf.var_index, index) end
-        compact_carried(vt, ptext, miss[k + 1], miss[k + 2])
-    end
-end
-
--- The compact tree's last fields: sync, limits, checksum, line end.
-local function compact_trailer(ti, ttext, rec, a, e, fl, s, cs_val, cs_calc, cs_status)
-    local ctext = P.ctext
-    if rec and rec.late then
-        frame_add(ti, ttext, hf.sync_is_late, true)
-        TI.add_proto_expert_info(ti, ei.sync_late)
-    end
-    if P.limit then TI.add_proto_expert_info(ti, ei.limit, P.limit) end
-    if rec and rec.limit then TI.add_proto_expert_info(ti, ei.limit, rec.limit) end
-    if cs_val then frame_add(ti, ttext, hf.checksum, cs_val) else frame_add(ti, ttext, hf.checksum_text, ctext) end
-    if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then TI.add_proto_expert_info(ti, ei.checksum_format) end
-    if cfg.validate then
-        frame_add(ti, ttext, hf.checksum_calc, cs_calc)
-        frame_add(ti, ttext, hf.checksum_status, cs_status)
-        if cs_status == 0 then TI.add_proto_expert_info(ti, ei.checksum_bad) end
-    else
-        frame_add(ti, ttext, hf.checksum_status, 2)
-    end
-    local b = a + fl - 1
-    if crlf_frames and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
-        TI.add_proto_expert_info(ti, ei.crlf_missing)
-    end
-end
-
--- The compact tree of a frame the layout cache parsed, nobody sees: its fields (tree_compact), the
--- sync and checksum fields and experts, without ranges or labels.
-function tree_compact_frame(ti, a, e, fl, s, dstb, srcb, kind, list, d, num, visited, rec, ne, nm,
-                                  cs_val, cs_calc, cs_status)
-    local carry = rec or (ne > 0 and CARRY)
-    local miss = rec and rec.miss
-    local nmiss = miss and #miss or 0
-    if not miss and nm > 0 then miss, nmiss = MISS, nm end
-    local ttext = ref_start(ti, num, visited)
-    -- the last argument: the types of the named layout, made when it was learnt
-    tree_compact(ti, ttext, dstb, srcb, kind, P.n_ord, P.nv, list, d, num, carry, miss, nmiss,
-        P.named and P.named.TV)
-    compact_trailer(ti, ttext, rec, a, e, fl, s, cs_val, cs_calc, cs_status)
-end
-
-end
-
--- The full tree (shown: every range and label).
-local tree_full
-do
-    local TC = {}   -- what the parts share, for the frame tree_full was given (reused)
-
-    -- An address: "Destination: A (node 1)", the node number folded into the letter's line,
-    -- its field kept for filters but hidden; an expert when it is not a letter A-P.
-    -- Speed trick (measured, -V): the labels are made once a letter (ADDR_LABEL[what][b]).
-    local ADDR_LABEL = { Destination = {}, Source = {} }
-    local function tree_address(ti, tvb, off, b, letter, is_node, field, node_field, what)
-        if not b then return end   -- cut short: no byte to point at
-        local r = tvb(off, 1)
-        if is_node then
-            local labels = ADDR_LABEL[what]
-            local label = labels[b]
-            if not label then
-                label = what .. ": " .. letter .. " (node " .. (b - B_A + 1) .. ")"
-                labels[b] = label
-            end
-            TI.add(ti, field, r, letter, label)
-            TI.set_hidden(TI.add(ti, node_field, r, b - B_A + 1))
-        else
-            TI.add_proto_expert_info(TI.add(ti, field, r, letter), ei.address_invalid,
-                what .. " " .. letter .. " is not a letter A-P")
-        end
-    end
-
-    -- The protocol line: "SharedLink Protocol, B→A full" (", bad checksum").  Speed trick
-    -- (measured, -V): the item is added with its text, one call, and the texts of node pairs
-    -- (both addresses A-P: nodes) are kept (HEAD_TEXT[kind][pair key]).
-    local HEAD_TEXT = {}
-    local function tree_proto_item(tree, range, kind, dstb, srcb, dst, src, cs_status, nodes)
-        local bad = cs_status == 0
-        local byk, hk = HEAD_TEXT[kind], nil
-        if nodes then
-            hk = (dstb * 256 + srcb) * 2 + (bad and 1 or 0)
-            if byk then
-                local text = byk[hk]
-                if text then return TI.add(tree, sl, range, text) end
-            end
-        end
-        local text = "SharedLink Protocol, " .. src .. ARROW .. dst .. " " .. kind .. (bad and ", bad checksum" or "")
-        if hk then
-            if not byk then byk = {}; HEAD_TEXT[kind] = byk end
-            byk[hk] = text
-        end
-        return TI.add(tree, sl, range, text)
-    end
-
-    -- Its first lines: the protocol item, addresses, kind, malformed.
-    local function tree_head(tc)
-        local tvb, o, src, dst, kind = tc.tvb, tc.o, tc.src, tc.dst, tc.kind
-        local dstb, srcb, malformed_msg, cs_status = tc.dstb, tc.srcb, tc.malformed_msg, tc.cs_status
-        local dnode = dstb and dstb >= B_A and dstb <= B_P
-        local snode = srcb and srcb >= B_A and srcb <= B_P
-        local ti = tree_proto_item(tc.tree, tvb(tc.a - 1, tc.e - tc.a + 1), kind, dstb, srcb, dst, src, cs_status,
-            dnode and snode)
-        tc.ti = ti
-
-        tree_address(ti, tvb, o + 3, dstb, dst, dnode, hf.dst, hf.dst_node, "Destination")
-        tree_address(ti, tvb, o + 4, srcb, src, snode, hf.src, hf.src_node, "Source")
-        TI.set_generated(TI.add(ti, hf.kind, kind))
-        if malformed_msg then
-            TI.add_proto_expert_info(ti, ei.malformed, malformed_msg)
-        end
-    end
-
-    -- A variable's T field: its type, or an expert when it is not a number.
-    local function full_type(tc, vt, v, tf)
-        local tvb, o = tc.tvb, tc.o
-        local vtype = valid_type(VT[v])
-        if vtype then
-            TI.add(vt, hf.ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
-        else
-            vt:add(tvb(o + FS[tf], FE[tf] - FS[tf] + 1), "Type (T): " .. tostring(VT[v] or ""))
-                :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
-        end
-        return vtype
-    end
-
-    -- A variable's name: the subtree's label, its field kept for filters, hidden.
-    local function full_name(tc, vt, v, name)
-        local tvb, o = tc.tvb, tc.o
-        if VN[v] then
-            local qf = VQf[v]
-            local qr = tvb(o + FS[qf] + 1, FE[qf] - FS[qf])
-            if VR[v] then TI.add(vt, hf.response, qr, name) end
-            TI.set_hidden(TI.add(vt, hf.var_name, qr, name))
-        elseif name then
-            TI.set_hidden(TI.add(vt, hf.var_name, tvb(o + FS[VDf[v]], 1), name))
-        else
-            TI.add_proto_expert_info(vt, ei.var_unknown,
-                "Positional value " .. VI[v] .. " is past the known list (" .. #tc.list .. " variables)")
-        end
-    end
-
-    -- An empty positional D: the value carried forward (the frame's next carried pair).
-    local function full_carried(tc, vt, v, label)
-        local ke = tc.ke
-        local cv, cf = false, false
-        local csrc = tc.rec or (tc.ne > 0 and CARRY)
-        if csrc then cv, cf = csrc[ke + 1], csrc[ke + 2] end
-        tc.ke = ke + 2
-        local r0 = tc.tvb(tc.o + FS[VDf[v]], 1)
-        if cv then TI.set_generated(TI.add(vt, hf.var_value, r0, cv)) end
-        TI.set_generated(TI.add(vt, hf.var_carried, r0, true))
-        if cf then
-            TI.set_generated(TI.add(vt, hf.var_carried_from, r0, cf))
-            TI.set_text(vt, label .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
-        else
-            TI.set_text(vt, label .. " = ? (carried, no earlier value)")
-        end
-    end
-
-    -- A reply's link to its query (or the expert of a reply without one).
-    local function full_reply(tc, vt, name)
-        local resp_to, unmatched = tc.resp_to, tc.unmatched
-        if resp_to and resp_to[name] then
-            TI.set_generated(TI.add(vt, hf.response_to, resp_to[name]))
-            TI.set_generated(TI.add(vt, hf.response_time, nstime_of(tc.rts[name])))
-        elseif unmatched and unmatched[name] then
-            TI.add_proto_expert_info(vt, ei.unanswered)
-        end
-    end
-
-    -- A variable's value (its D), or what a declaration or a reply without value shows.
-    local function full_value(tc, vt, v, name, label, vtype)
-        local val = VV[v]
-        if not val then
-            TI.set_text(vt, label .. (VR[v] and " (reply without value)" or " (declared)"))
-            local resp_in = tc.resp_in
-            if resp_in and resp_in[name] then TI.set_generated(TI.add(vt, hf.response_in, resp_in[name])) end
-            return
-        end
-        if val ~= "" or VN[v] then
-            local df = VDf[v]
-            local vr = tc.tvb(tc.o + FS[df] + 1, FE[df] - FS[df])
-            TI.add(vt, hf.var_value, vr, val)
-            if vtype then add_typed_value(vt, vr, vtype, val) end
-            TI.set_text(vt, label .. " = " .. val)
-        else
-            full_carried(tc, vt, v, label)
-        end
-        if VR[v] then full_reply(tc, vt, name) end
-    end
-
-    -- A variable's subtree, at its first field fs.
-    local function tree_variable(tc, v, fs)
-        local list, d = tc.list, tc.d
-        local tf, qf, df = VTf[v], VQf[v], VDf[v]
-        local vend = df ~= 0 and df or (qf ~= 0 and qf or tf)
-        local name = VN[v]
-        local index = VI[v]
-        local vtype = nil
-        if not name then
-            name = list[index + 1]
-            vtype = list.t and list.t[index + 1]
-        elseif d then
-            -- a named variable's index: its place among the conversation's names
-            local first = d.nfirst[name]
-            index = (first and first <= tc.num) and d.npos[name] or nil
-        end
-        local vt = TI.add(tc.ti, hf.var, tc.tvb(tc.o + fs, FE[vend] - fs + 1))
-        if tf ~= 0 then vtype = full_type(tc, vt, v, tf) end
-        full_name(tc, vt, v, name)
-        if not VR[v] and index then TI.set_generated(TI.add(vt, hf.var_index, index)) end
-        full_value(tc, vt, v, name, name or ("#" .. VI[v]), vtype)
-    end
-
-    -- An N, L or T field (letter l, text at f[fs+1..fe]): its number, or an expert when it is none.
-    local function full_number_field(tc, l, fs, fe, text, vr)
-        local ti, tvb, o = tc.ti, tc.tvb, tc.o
-        if l == L_T then
-            local t = valid_type(text)
-            if t then
-                TI.add(ti, hf.ftype, vr, t)
-            else
-                ti:add(tvb(o + fs, fe - fs + 1), "Type (T): " .. text)
-                    :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
-            end
-            return
-        end
-        local n = tonumber(text)
-        if n and n >= 0 and n < 4294967296 and n == floor(n) then
-            TI.add(ti, l == L_N and hf.ordinal or hf.inbound_ordinal, vr, floor(n))
-        else
-            ti:add(tvb(o + fs, fe - fs + 1), (l == L_N and "Ordinal (N): " or "Inbound ordinal (L): ") ..
-                text):add_proto_expert_info(ei.var_badvalue, "Ordinal is not a number")
-        end
-    end
-
-    -- A field of an unknown letter (or a C that is not the last field).
-    local function full_unknown_field(tc, l, fs, fe)
-        local tvb, o = tc.tvb, tc.o
-        local ft = TI.add(tc.ti, hf.field_letter, tvb(o + fs, 1), LETTER[l])
-        TI.add(ft, hf.field_text, tvb(o + fs, fe - fs + 1), s_sub(tc.f, fs, fe))
-        if l == L_C then
-            TI.add_proto_expert_info(ft, ei.field_unknown, "Checksum field C that is not the last field")
-        else
-            TI.add_proto_expert_info(ft, ei.field_unknown, "Unknown field letter " .. LETTER[l])
-        end
-    end
-
-    -- the plain fields by letter: their field (E: the command, whose D arguments follow it)
-    local PLAIN = { [L_R] = hf.response, [L_E] = hf.command, [L_M] = hf.mode, [L_P] = hf.ping, [L_G] = hf.pong }
-
-    -- A field that is not part of a variable (letter l, f[fs..fe]).
-    local function tree_plain_field(tc, l, fs, fe)
-        local ti, tvb, o, resp_in = tc.ti, tc.tvb, tc.o, tc.resp_in
-        local text = (l ~= false) and s_sub(tc.f, fs + 1, fe) or ""
-        local vr = tvb(o + fs + 1, fe - fs)     -- the text after the letter
-        if l == false then
-            TI.add_proto_expert_info(TI.add(ti, zrange(tvb, o + fs), "Empty field"), ei.field_empty)
-        elseif l == L_N or l == L_L or l == L_T then
-            full_number_field(tc, l, fs, fe, text, vr)
-        elseif l == L_Q then
-            local qt = TI.add(ti, hf.query, vr, text)
-            if resp_in and resp_in[text] then
-                TI.set_generated(TI.add(qt, hf.response_in, resp_in[text]))
-            end
-        elseif PLAIN[l] then
-            local item = TI.add(ti, PLAIN[l], vr, text)
-            if l == L_E then tc.cmd_item = item end
-        elseif l == L_D then
-            (tc.cmd_item or ti):add(hf.command_arg, vr, text)
-        else
-            full_unknown_field(tc, l, fs, fe)
-        end
-    end
-
-    -- The fields in order; a variable is rendered at its first field.
-    local function tree_fields(tc)
-        local kind, cpos = tc.kind, P.cpos
-        for i = 1, P.nf do FV[i] = 0; FC[i] = false end
-        for v = 1, P.nv do
-            if VV[v] or kind == "declaration" or VR[v] then
-                local first = VTf[v] ~= 0 and VTf[v] or (VQf[v] ~= 0 and VQf[v] or VDf[v])
-                FV[first] = v
-                if VQf[v] ~= 0 and VQf[v] ~= first then FC[VQf[v]] = true end
-                if VDf[v] ~= 0 and VDf[v] ~= first then FC[VDf[v]] = true end
-            end
-        end
-        for i = 1, P.nf do
-            local fs = FS[i]
-            local v = FV[i]
-            if v ~= 0 then
-                tree_variable(tc, v, fs)
-            elseif not FC[i] and fs ~= cpos then
-                tree_plain_field(tc, FL[i], fs, FE[i])
-            end
-        end
-    end
-
-    -- Named variables this frame left out (carried forward).
-    local function tree_carried_names(tc)
-        local ti, tvb, o, rec, nm, d, bodyend = tc.ti, tc.tvb, tc.o, tc.rec, tc.nm, tc.d, tc.bodyend
-        -- carried named variables (left out of this frame)
-        local miss = rec and rec.miss
-        local miss_len = miss and #miss or 0
-        if not miss and nm > 0 then miss, miss_len = MISS, nm end    -- packed on this pass
-        if miss then
-            for k = 1, miss_len, 3 do
-                local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
-                local vt = TI.add(ti, hf.var, zrange(tvb, o + bodyend))
-                TI.set_hidden(TI.add(vt, hf.var_name, name))
-                local index = d and d.npos[name]
-                if index then TI.set_generated(TI.add(vt, hf.var_index, index)) end
-                if cv then TI.set_generated(TI.add(vt, hf.var_value, cv)) end
-                TI.set_generated(TI.add(vt, hf.var_carried, true))
-                if cf then
-                    TI.set_generated(TI.add(vt, hf.var_carried_from, cf))
-                    TI.set_text(vt, name .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
-                else
-                    TI.set_text(vt, name .. " = ? (carried, no earlier value)")
-                end
-                TI.set_generated(vt)
-            end
-        end
-    end
-
-    -- The checksum field (at cpos, text ctext), its verdict and experts.
-    local CHECKSUM_OK = {}   -- value -> "Checksum: 0x.. [correct]"
-    local function full_checksum(tc, cpos, ctext)
-        local ti, cs_val, cs_calc, cs_status = tc.ti, tc.cs_val, tc.cs_calc, tc.cs_status
-        local cr = tc.tvb(tc.o + cpos, #ctext + 1)
-        local val = cs_val
-        local ct
-        local byte_val = val and val <= 255
-        if byte_val and cfg.validate and cs_status == 1 then
-            -- the label with " [correct]", one call (speed trick, measured: -V)
-            local label = CHECKSUM_OK[val]
-            if not label then
-                label = s_format("Checksum: 0x%02x [correct]", val)
-                CHECKSUM_OK[val] = label
-            end
-            ct = TI.add(ti, hf.checksum, cr, val, label)
-        elseif byte_val then
-            ct = TI.add(ti, hf.checksum, cr, val)
-        else
-            ct = TI.add(ti, hf.checksum_text, cr, ctext)
-        end
-        if #ctext ~= 2 or s_find(ctext, "[^0-9A-F]") then
-            TI.add_proto_expert_info(ct, ei.checksum_format, "Checksum \"" .. ctext ..
-                "\" is not two upper-case hex digits")
-        end
-        if not cfg.validate then
-            TI.set_generated(TI.add(ct, hf.checksum_status, cr, 2))
-            return
-        end
-        TI.set_generated(TI.add(ct, hf.checksum_calc, cr, cs_calc))
-        if cs_status == 1 then
-            TI.set_generated(TI.add(ct, hf.checksum_status, cr, 1))
-            if not byte_val then TI.append_text(ct, " [correct]") end
-        else
-            TI.set_generated(TI.add(ct, hf.checksum_status, cr, 0))
-            TI.append_text(ct, s_format(" [incorrect, should be 0x%02x]", cs_calc))
-            TI.add_proto_expert_info(ct, ei.checksum_bad, s_format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
-        end
-    end
-
-    -- Its last lines: limits, sync, checksum, line terminator.
-    local function tree_trailer(tc)
-        local ti, rec, s, a, e, fl = tc.ti, tc.rec, tc.s, tc.a, tc.e, tc.fl
-        local terminated = tc.terminated
-        if P.limit then TI.add_proto_expert_info(ti, ei.limit, P.limit) end
-        if rec and rec.limit then TI.add_proto_expert_info(ti, ei.limit, rec.limit) end
-        if rec and rec.late then
-            TI.set_generated(TI.add(ti, hf.sync_is_late, true))
-            TI.add_proto_expert_info(ti, ei.sync_late,
-                s_format("No full frame for %.3f s (sync interval %.3f s + %.1f s slack)",
-                    rec.late, cfg.sync - U.SYNC_SLACK, U.SYNC_SLACK))
-        end
-        if P.cpos then
-            full_checksum(tc, P.cpos, P.ctext)
-        else
-            TI.set_generated(TI.add(ti, hf.checksum_status, 2))
-            if terminated and not tc.malformed_msg then TI.add_proto_expert_info(ti, ei.checksum_missing) end
-        end
-        -- line terminator
-        local b = a + fl - 1
-        if terminated and crlf_frames
-            and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
-            TI.add_proto_expert_info(ti, ei.crlf_missing)
-        end
-    end
-
-    -- The whole of it, for a frame at f[1..fl] (bodyend: its content's last index) that starts at
-    -- s[a] and ends with its line end at s[e] (as dissect_frame's arguments), as parsed (the
-    -- field and variable arrays, P.cpos, P.ctext), with its kind, state and checksum verdict.
-    -- Called by dissect_frame; what the parts share goes in TC.
-    function tree_full(tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, kind, dstb, srcb,
-                       list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
-        local tc = TC
-        -- tvb offset of f[i] is o + i
-        tc.tree, tc.tvb, tc.o, tc.f, tc.s, tc.a, tc.e, tc.fl = tree, tvb, a - 2, f, s, a, e, fl
-        tc.num, tc.kind, tc.dstb, tc.srcb = num, kind, dstb, srcb
-        tc.dst, tc.src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
-        tc.malformed_msg, tc.terminated, tc.bodyend = malformed_msg, terminated, bodyend
-        tc.list, tc.d, tc.rec, tc.ne, tc.nm = list, d, rec, ne, nm
-        tc.cs_val, tc.cs_calc, tc.cs_status = cs_val, cs_calc, cs_status
-        tc.resp_in, tc.resp_to = rec and rec.resp_in, rec and rec.resp_to
-        tc.rts, tc.unmatched = rec and rec.rt, rec and rec.unmatched
-        tc.ke, tc.cmd_item = 0, nil   -- carried values of empty D fields used so far; the E field's item
-        tree_head(tc)
-        tree_fields(tc)
-        tree_carried_names(tc)
-        tree_trailer(tc)
-    end
-end
+local SHOWN, HIDDEN, NONE = 1, 2, 3
 
 -- Whether a variable's value would get var.badvalue or var.unknown (see has_experts).
 -- A frame of a named layout: its types are valid and its doubles plain decimals (the layout's
@@ -633,20 +63,28 @@ local function named_values_have_experts(tv)
     return false
 end
 
-local function values_have_experts(kind, list)
+local values_have_experts
+do
+-- Variable v's type for has_experts, or true when its name or T already has an expert (a T that
+-- is not a number; a positional value past a list learnt from a declaration).  A reply's value is
+-- typed by its T, else by the list its direction uses.
+local function expert_type(v, list)
+    if VN[v] then
+        if VT[v] then return valid_type(VT[v]) or true end
+        return VR[v] and M.state.list_type(list, VN[v]) or nil
+    end
+    if not list[VI[v] + 1] and list.decl then return true end
+    return list.t[VI[v] + 1]
+end
+
+function values_have_experts(kind, list)
     local named = P.named
     if named then return named.has_long and named_values_have_experts(named.TV) end
-    local types = list.t
     for v = 1, P.nv do
         local val = VV[v]
         if val or kind == "declaration" or VR[v] then
-            local vtype
-            if VN[v] then
-                if VT[v] then vtype = valid_type(VT[v]); if not vtype then return true end end
-            else
-                if not list[VI[v] + 1] then return true end
-                vtype = types and types[VI[v] + 1]
-            end
+            local vtype = expert_type(v, list)
+            if vtype == true then return true end
             if val and vtype and (val ~= "" or VN[v]) then
                 if vtype == 2 then
                     if not tonumber(val) then return true end
@@ -658,10 +96,741 @@ local function values_have_experts(kind, list)
     end
     return false
 end
+end
 
+-- Which fields somebody references, learnt by the probe (wsapi.referenced, which answers true
+-- when unsure): field -> true/false, nil while not known.  In a tree nobody sees Wireshark adds
+-- a field only when a filter, coloring rule, tap or field extractor references it.
+-- tshark keeps what it learnt for a run of consecutive frames of one pass (wsapi.cache_refs:
+-- its filters, taps and field extractors are all set before the first packet; tshark -2
+-- primes the display filter in its first pass too, and the cache starts again with each
+-- pass).  The GUI (and SHAREDLINK_PROBE_EACH_FRAME=1) learns the fields that repeat in a frame
+-- (PER_FRAME) again in every frame, as its display filter and coloring rules change while it
+-- runs; the others are then always added (once a frame, a probe would cost what it saves).
+local LEARNT = {}
+local NO_REF = {}     -- mode NONE: nothing is referenced
+for _, field in pairs(hf) do NO_REF[field] = false end
+local REF = LEARNT    -- the one in use for the frame being built
+local CACHE_REFS = wsapi.cache_refs
+local PER_FRAME = { H_var, H_ftype, H_var_name, H_var_index, H_var_value, H_var_double, hf.var_long,
+    hf.var_string, H_var_carried, H_var_carried_from, hf.query, hf.response, hf.response_in, hf.response_to,
+    hf.response_time, hf.command_arg }
+for _, vf in pairs(cfg.VALUE) do PER_FRAME[#PER_FRAME + 1] = vf.field end   -- sharedlink.value.<name>
+if not CACHE_REFS then
+    local per_frame = {}
+    for _, field in ipairs(PER_FRAME) do per_frame[field] = true end
+    for _, field in pairs(hf) do if not per_frame[field] then LEARNT[field] = true end end
+end
+local ref_num, ref_visited = -1, nil   -- the frame and pass the cache was last used in
+local UNKNOWN = {}  -- "the parent's text is not read yet"
+
+-- Start a hidden tree: forget what may have changed since the last frame.  Returns the text hadd
+-- compares the protocol item's children with (UNKNOWN: read when needed).
+local function ref_start(ti, num, visited)
+    if CACHE_REFS then
+        if visited ~= ref_visited or (num ~= ref_num and num ~= ref_num + 1) then
+            for k in pairs(LEARNT) do LEARNT[k] = nil end
+            ref_visited = visited
+        end
+        ref_num = num
+        return UNKNOWN
+    end
+    for k = 1, #PER_FRAME do LEARNT[PER_FRAME[k]] = nil end
+    return ti.text
+end
+
+-- A hidden item: field = value under parent (whose text is ptext, or UNKNOWN), for a field not
+-- known to be unreferenced (the caller checks REF[field] ~= false first, so an unreferenced
+-- field costs no call); the first item of a field tells whether it is referenced.  Returns the
+-- item, or nil when nobody references the field.
+local function hadd(parent, ptext, field, value)
+    local it
+    if value == nil then it = TI.add(parent, field) else it = TI.add(parent, field, value) end
+    local r = REF[field]
+    if r == nil then
+        if ptext == UNKNOWN then ptext = parent.text end
+        r = wsapi.referenced(it, ptext)
+        REF[field] = r
+    end
+    return r and it or nil
+end
+
+-- A hidden item when its field is not known to be unreferenced (hadd), for the rarer items.
+local function hitem(parent, ptext, field, value)
+    if REF[field] == false then return nil end
+    return hadd(parent, ptext, field, value)
+end
+
+-- The frame being built (set by tree_frame; upvalues, not a table's fields: speed trick, measured)
+local C = {}   -- the rest of it
+local c_shown
+local c_csrc, c_d, c_f, c_ke, c_list, c_num, c_o, c_places
+local c_ti, c_ttext, c_tv, c_tvb, c_vtext
+
+------------------------------------------------------------------------------
+-- The head: the protocol item, the addresses, the kind, malformed.
+------------------------------------------------------------------------------
+-- An address: "Destination: A (node 1)", the node number folded into the letter's line, its field
+-- kept for filters but hidden; an expert when it is not a letter A-P.  Speed trick (measured, -V):
+-- the labels are made once a letter (ADDR_LABEL[what][b]).
+local ADDR_LABEL = { Destination = {}, Source = {} }
+local function tree_address(off, b, letter, is_node, field, node_field, what)
+    if not b then return end   -- cut short: no byte to point at
+    local ti = c_ti
+    if c_shown then
+        local r = c_tvb(off, 1)
+        if is_node then
+            local labels = ADDR_LABEL[what]
+            local label = labels[b]
+            if not label then
+                label = what .. ": " .. letter .. " (node " .. (b - B_A + 1) .. ")"
+                labels[b] = label
+            end
+            TI.add(ti, field, r, letter, label)
+            TI.set_hidden(TI.add(ti, node_field, r, b - B_A + 1))
+            return
+        end
+        ti = TI.add(ti, field, r, letter)
+    elseif is_node then
+        if REF[field] ~= false then hadd(ti, c_ttext, field, letter) end
+        if REF[node_field] ~= false then hadd(ti, c_ttext, node_field, b - B_A + 1) end
+        return
+    else
+        ti = hitem(ti, c_ttext, field, letter) or ti
+    end
+    TI.add_proto_expert_info(ti, ei.address_invalid, what .. " " .. letter .. " is not a letter A-P")
+end
+
+-- The protocol line: "SharedLink Protocol, B→A full" (", bad checksum").  Speed trick (measured,
+-- -V): the item is added with its text, one call, and the texts of node pairs (both addresses
+-- A-P: nodes) are kept (HEAD_TEXT[kind][pair key]).
+local HEAD_TEXT = {}
+local function proto_item_text(kind, dstb, srcb, dst, src, cs_status, nodes)
+    local bad = cs_status == 0
+    local byk, hk = HEAD_TEXT[kind], nil
+    if nodes then
+        hk = (dstb * 256 + srcb) * 2 + (bad and 1 or 0)
+        if byk then
+            local text = byk[hk]
+            if text then return text end
+        end
+    end
+    local text = "SharedLink Protocol, " .. src .. ARROW .. dst .. " " .. kind .. (bad and ", bad checksum" or "")
+    if hk then
+        if not byk then byk = {}; HEAD_TEXT[kind] = byk end
+        byk[hk] = text
+    end
+    return text
+end
+
+local function tree_head()
+    local mode, tvb, kind, dstb, srcb = C.mode, c_tvb, C.kind, C.dstb, C.srcb
+    local dnode = dstb and dstb >= B_A and dstb <= B_P
+    local snode = srcb and srcb >= B_A and srcb <= B_P
+    local ti
+    if mode == SHOWN then
+        ti = TI.add(C.tree, sl, tvb(C.a - 1, C.e - C.a + 1),
+            proto_item_text(kind, dstb, srcb, C.dst, C.src, C.cs_status, dnode and snode))
+    elseif mode == HIDDEN then
+        ti = TI.add(C.tree, sl, tvb(C.a - 1, C.e - C.a + 1))
+    else
+        ti = TI.add(C.tree, sl)
+    end
+    c_ti = ti
+    c_ttext = mode == HIDDEN and ref_start(ti, c_num, C.visited) or nil
+    tree_address(c_o + 3, dstb, C.dst, dnode, H_dst, hf.dst_node, "Destination")
+    tree_address(c_o + 4, srcb, C.src, snode, H_src, hf.src_node, "Source")
+    if mode == SHOWN then
+        TI.set_generated(TI.add(ti, hf.kind, kind))
+    elseif REF[hf.kind] ~= false then
+        hadd(ti, c_ttext, hf.kind, kind)
+    end
+    if C.malformed_msg then TI.add_proto_expert_info(ti, ei.malformed, C.malformed_msg) end
+end
+
+------------------------------------------------------------------------------
+-- A variable: its subtree and items (tree_variable).
+------------------------------------------------------------------------------
+-- A hidden variable's subtree: the item its items go on, and that item's text (the protocol
+-- item's when nobody references sharedlink.var; no tree: the protocol item).
+local function var_item()
+    local ti = c_ti
+    if REF[H_var] == false then return ti, c_ttext end
+    local vt = hadd(ti, c_ttext, H_var)
+    if not vt then return ti, c_ttext end
+    local vtext = c_vtext
+    if not vtext then   -- a real variable item's text, the same for all (read once a frame)
+        vtext = CACHE_REFS and UNKNOWN or vt.text
+        c_vtext = vtext
+    end
+    return vt, vtext
+end
+
+-- Its T field (field tf; shown: the type or an expert when it is not a number), hidden: its type.
+local function var_type(vt, vtext, v, tf, vtype)
+    if c_shown then
+        local tvb, o = c_tvb, c_o
+        if vtype then
+            TI.add(vt, H_ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
+        else
+            vt:add(tvb(o + FS[tf], FE[tf] - FS[tf] + 1), "Type (T): " .. tostring(VT[v] or ""))
+                :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
+        end
+    elseif vtype then
+        if REF[H_ftype] ~= false then hadd(vt, vtext, H_ftype, vtype) end
+    else
+        TI.add_proto_expert_info(vt, ei.var_badvalue, "Type is not a number")
+    end
+end
+
+-- Its name: the subtree's label, its field kept for filters, hidden (and a reply's R); an expert
+-- for a positional value past a list learnt from a declaration (docs/fields-sharedlink.md, "Names
+-- from an a-priori list": past a user's or the a-priori list a slot is #i with no warning).
+local function var_name(vt, vtext, v, name)
+    local shown = c_shown
+    local list = c_list
+    if not VN[v] and not list[VI[v] + 1] and list.decl then
+        TI.add_proto_expert_info(vt, ei.var_unknown,
+            "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
+    end
+    do
+        local r
+        if shown then
+            local tvb, o = c_tvb, c_o
+            if VN[v] then
+                local qf = VQf[v]
+                r = tvb(o + FS[qf] + 1, FE[qf] - FS[qf])
+                if VR[v] then TI.add(vt, hf.response, r, name) end
+            else
+                r = tvb(o + FS[VDf[v]], 1)
+            end
+            TI.set_hidden(TI.add(vt, H_var_name, r, name))
+            return
+        end
+        if VR[v] and VN[v] and REF[hf.response] ~= false then hadd(vt, vtext, hf.response, name) end
+        if REF[H_var_name] ~= false then hadd(vt, vtext, H_var_name, name) end
+    end
+end
+
+-- A value's typed field (double, long, string; shown: hidden, at range r) or its var.badvalue.
+-- known: the value is a plain decimal already (a named layout's pattern matched it), so a hidden
+-- tree nobody asks for doubles skips tonumber.
+local function typed_value(vt, vtext, r, vtype, text, known)
+    local field, v
+    if vtype == 2 then
+        field = H_var_double
+        if known and REF[field] == false then return end
+        v = tonumber(text)
+        if not v then TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a double: " .. text) end
+    elseif vtype == 0 then
+        field, v = hf.var_long, parse_long(text)
+        if not v then TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a long (int64): " .. text) end
+    elseif vtype == 4 then
+        field, v = hf.var_string, text
+    end
+    if not v then return end
+    if c_shown then
+        TI.set_hidden(TI.add(vt, field, r, v))
+    elseif REF[field] ~= false then
+        hadd(vt, vtext, field, v)
+    end
+end
+
+-- A variable's value items: sharedlink.var.value (shown: at range r, or generated when gen, a
+-- carried value with no bytes of its own), for a value in the frame, carried forward, or of a
+-- named variable the frame left out.  The one place a variable's value becomes items: fields per
+-- variable (issue 29) go here.
+-- name: false for a value that is not its direction's (a reply's: it gets no value field).
+local function value_items(vt, vtext, name, value, r, gen)
+    if c_shown then
+        local it = r and TI.add(vt, H_var_value, r, value) or TI.add(vt, H_var_value, value)
+        if gen then TI.set_generated(it) end
+    elseif REF[H_var_value] ~= false then
+        hadd(vt, vtext, H_var_value, value)
+    end
+    -- sharedlink.value.<name> (docs/fields-sharedlink.md, "Filtering by variable"): typed as its
+    -- field; a value that does not read as that type is left out.  Hidden: the Value line shows it.
+    local vf = name and cfg.VALUE[name]
+    if not vf then return end
+    local field = vf.field
+    if not c_shown and REF[field] == false then return end
+    local vtype, x = vf.vtype, value
+    if vtype == 2 then x = tonumber(value) elseif vtype == 0 then x = parse_long(value) end
+    if x == nil then return end
+    if c_shown then
+        local it = r and TI.add(vt, field, r, x) or TI.add(vt, field, x)
+        TI.set_hidden(it)
+        if gen then TI.set_generated(it) end
+    else
+        hadd(vt, vtext, field, x)
+    end
+end
+
+-- A carried value's items: its value and frame when known (cv, cf: false when not), at range r0
+-- (shown), the subtree's text set to label ... .
+local function carried_items(vt, vtext, name, label, cv, cf, r0)
+    local shown = c_shown
+    if cv then value_items(vt, vtext, name, cv, r0, true) end
+    if shown then
+        TI.set_generated(r0 and TI.add(vt, H_var_carried, r0, true) or TI.add(vt, H_var_carried, true))
+    elseif REF[H_var_carried] ~= false then
+        hadd(vt, vtext, H_var_carried, true)
+    end
+    if cf then
+        if shown then
+            TI.set_generated(r0 and TI.add(vt, H_var_carried_from, r0, cf) or TI.add(vt, H_var_carried_from, cf))
+            TI.set_text(vt, label .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
+        elseif REF[H_var_carried_from] ~= false then
+            hadd(vt, vtext, H_var_carried_from, cf)
+        end
+    elseif shown then
+        TI.set_text(vt, label .. " = ? (carried, no earlier value)")
+    end
+end
+
+-- A reply's link to its query (or the expert of a reply without one).
+local function var_reply(vt, vtext, name)
+    local resp_to, unmatched = C.resp_to, C.unmatched
+    if resp_to and resp_to[name] then
+        if c_shown then
+            TI.set_generated(TI.add(vt, hf.response_to, resp_to[name]))
+            TI.set_generated(TI.add(vt, hf.response_time, nstime_of(C.rts[name])))
+        else
+            hitem(vt, vtext, hf.response_to, resp_to[name])
+            if REF[hf.response_time] ~= false then hadd(vt, vtext, hf.response_time, nstime_of(C.rts[name])) end
+        end
+    elseif unmatched and unmatched[name] then
+        TI.add_proto_expert_info(vt, ei.unanswered)
+    end
+end
+
+-- A variable's value (its D), or what a declaration or a reply without value shows.
+local function var_value(vt, vtext, v, name, vtype)
+    local shown = c_shown
+    local val, label = VV[v], shown and (name or ("#" .. VI[v]))
+    if not val then
+        if shown then TI.set_text(vt, label .. (VR[v] and " (reply without value)" or " (declared)")) end
+        local resp_in = C.resp_in
+        if resp_in and resp_in[name] then
+            if shown then TI.set_generated(TI.add(vt, hf.response_in, resp_in[name]))
+            else hitem(vt, vtext, hf.response_in, resp_in[name]) end
+        end
+        return
+    end
+    if val ~= "" or VN[v] then
+        local r = nil
+        if shown then local df = VDf[v]; r = c_tvb(c_o + FS[df] + 1, FE[df] - FS[df]) end
+        value_items(vt, vtext, not VR[v] and name, val, r, false)
+        if vtype then typed_value(vt, vtext, r, vtype, val, c_tv ~= nil) end
+        if shown then TI.set_text(vt, label .. " = " .. val) end
+    else
+        -- an empty positional D: the value carried forward (the frame's next carried pair)
+        local ke, csrc = c_ke, c_csrc
+        local cv, cf = false, false
+        if csrc then cv, cf = csrc[ke + 1], csrc[ke + 2] end
+        c_ke = ke + 2
+        carried_items(vt, vtext, name, label, cv, cf, shown and c_tvb(c_o + FS[VDf[v]], 1))
+    end
+    if VR[v] then var_reply(vt, vtext, name) end
+end
+
+-- Variable v's name, index and type: a positional one's from the list (#i past it), a named one's
+-- index its place among the direction's names, a reply's type (without T) from its direction's list.
+local function var_naming(v, name, index)
+    if not name then
+        local list = c_list
+        return list[index + 1] or ("#" .. index), index, list.t[index + 1]
+    end
+    if VR[v] then return name, index, M.state.list_type(c_list, name) end
+    local d = c_d
+    if d then
+        local first = d.nfirst[name]
+        index = (first and first <= c_num) and d.npos[name] or nil
+    end
+    return name, index, nil
+end
+
+-- Variable v: its subtree (shown: at its first field fs) and every item of it.  A named
+-- variable's index is its place among the direction's names; a positional one's name and type
+-- come from the list.
+local function tree_variable(v, fs)
+    local name, index, vtype = var_naming(v, VN[v], VI[v])
+    -- a T field: its field number where the places are known (the parser may leave a T's number
+    -- with VT false: shown as an empty type), else (a layout's frame) its text
+    local has_t
+    if c_places then has_t = VTf[v] ~= 0 else has_t = VT[v] end
+    local vt, vtext
+    if c_shown then
+        local tf, qf, df = VTf[v], VQf[v], VDf[v]
+        local vend = df ~= 0 and df or (qf ~= 0 and qf or tf)
+        vt = TI.add(c_ti, H_var, c_tvb(c_o + fs, FE[vend] - fs + 1))
+    else
+        vt, vtext = var_item()
+    end
+    if has_t then
+        local tv = c_tv
+        vtype = tv and tv[v] or valid_type(VT[v])
+        var_type(vt, vtext, v, VTf[v], vtype)
+    end
+    var_name(vt, vtext, v, name)
+    if not VR[v] and index then
+        if c_shown then TI.set_generated(TI.add(vt, H_var_index, index))
+        elseif REF[H_var_index] ~= false then hadd(vt, vtext, H_var_index, index) end
+    end
+    var_value(vt, vtext, v, name, vtype)
+end
+
+------------------------------------------------------------------------------
+-- The fields that are not part of a variable.
+------------------------------------------------------------------------------
+-- An item of field at the text after the letter (shown: range vr), value text; the item or nil.
+local function plain_item(parent, field, vr, text)
+    if c_shown then return TI.add(parent, field, vr, text) end
+    return hitem(parent, c_ttext, field, text)
+end
+
+-- An item with no field (shown only: a text at f[fs..fe]) and its expert.
+local function text_item(fs, fe, text, expert, etext)
+    local ti = c_ti
+    if c_shown then ti = TI.add(ti, c_tvb(c_o + fs, fe - fs + 1), text) end
+    TI.add_proto_expert_info(ti, expert, etext)
+end
+
+-- An N, L or T field (letter l, text at f[fs+1..fe]): its number, or an expert when it is none.
+local function number_field(l, fs, fe, text, vr)
+    if l == U.L_T then
+        local t = valid_type(text)
+        if t then plain_item(c_ti, H_ftype, vr, t)
+        else text_item(fs, fe, "Type (T): " .. text, ei.var_badvalue, "Type is not a number") end
+        return
+    end
+    local n = tonumber(text)
+    if n and n >= 0 and n < 4294967296 and n == floor(n) then
+        plain_item(c_ti, l == U.L_N and H_ordinal or hf.inbound_ordinal, vr, floor(n))
+    else
+        text_item(fs, fe, (l == U.L_N and "Ordinal (N): " or "Inbound ordinal (L): ") .. text,
+            ei.var_badvalue, "Ordinal is not a number")
+    end
+end
+
+-- A field of an unknown letter (or a C that is not the last field).
+local function unknown_field(l, fs, fe)
+    local ti = c_ti
+    local ft
+    if c_shown then
+        local tvb, o = c_tvb, c_o
+        ft = TI.add(ti, hf.field_letter, tvb(o + fs, 1), LETTER[l])
+        TI.add(ft, hf.field_text, tvb(o + fs, fe - fs + 1), s_sub(c_f, fs, fe))
+    else
+        ft = hitem(ti, c_ttext, hf.field_letter, LETTER[l])
+        hitem(ti, c_ttext, hf.field_text, s_sub(c_f, fs, fe))
+    end
+    if l == U.L_C then
+        TI.add_proto_expert_info(ft or ti, ei.field_unknown, "Checksum field C that is not the last field")
+    else
+        TI.add_proto_expert_info(ft or ti, ei.field_unknown, "Unknown field letter " .. LETTER[l])
+    end
+end
+
+-- the plain fields by letter: their field (E: the command, whose D arguments follow it)
+local PLAIN = { [U.L_R] = hf.response, [U.L_E] = hf.command, [U.L_M] = hf.mode, [U.L_P] = hf.ping, [U.L_G] = hf.pong }
+
+-- A field that is not part of a variable (letter l, f[fs..fe]).
+local function tree_plain_field(l, fs, fe)
+    local ti, resp_in, shown = c_ti, C.resp_in, c_shown
+    local text = (l ~= false) and s_sub(c_f, fs + 1, fe) or ""
+    local vr = shown and c_tvb(c_o + fs + 1, fe - fs)     -- the text after the letter
+    if l == false then
+        if shown then ti = TI.add(ti, zrange(c_tvb, c_o + fs), "Empty field") end
+        TI.add_proto_expert_info(ti, ei.field_empty)
+    elseif l == U.L_N or l == U.L_L or l == U.L_T then
+        number_field(l, fs, fe, text, vr)
+    elseif l == U.L_Q then
+        local qt = plain_item(ti, hf.query, vr, text)
+        if resp_in and resp_in[text] then
+            if shown then TI.set_generated(TI.add(qt, hf.response_in, resp_in[text]))
+            else hitem(ti, c_ttext, hf.response_in, resp_in[text]) end
+        end
+    elseif PLAIN[l] then
+        local item = plain_item(ti, PLAIN[l], vr, text)
+        if l == U.L_E then C.cmd_item = item or ti end
+    elseif l == U.L_D then
+        plain_item(C.cmd_item or ti, hf.command_arg, vr, text)
+    else
+        unknown_field(l, fs, fe)
+    end
+end
+
+-- The fields in order; a variable is rendered at its first field.  A frame the layout cache
+-- parsed has its fields' places only for a shown tree (parse): for the others its fields are
+-- N, then its variables (the layout's order), then C (the trailer).
+--
+-- Speed device (measured, -Y on a frame's own field): a hidden tree (or none) leaves out the
+-- variables of a layout's frame when they carry no expert info and every field their items would
+-- have is known to be unreferenced (a field made per variable value, issue 29, is checked here too).
+local layout_vars_unseen, carried_unseen
+do
+local TYPED = { [0] = hf.var_long, [2] = H_var_double, [4] = hf.var_string }
+
+-- Whether nobody references the value field (sharedlink.value.<name>) of a variable of the
+-- frame (n: P.nv) or, with miss, of a named variable it left out (name, value, frame, ...; n entries).
+function C.value_fields_unseen(n, miss)
+    local list = c_list
+    local step = miss and 3 or 1
+    for k = 1, n, step do
+        local name
+        if miss then name = miss[k] else name = VN[k] or list[VI[k] + 1] end
+        local vf = name and cfg.VALUE[name]
+        if vf and REF[vf.field] ~= false then return false end
+    end
+    return true
+end
+
+function layout_vars_unseen()
+    if REF ~= NO_REF then
+        if not C.value_fields_unseen(P.nv) then return false end
+        if REF[H_var] ~= false or REF[H_var_name] ~= false or REF[H_var_index] ~= false
+            or REF[H_var_value] ~= false or (c_tv and REF[H_ftype] ~= false) then
+            return false
+        end
+        if P.n_empty_d > 0 and (REF[H_var_carried] ~= false or REF[H_var_carried_from] ~= false) then return false end
+        local tv, lt = c_tv, c_list.t
+        if tv or lt then
+            for v = 1, P.nv do
+                local t = tv and tv[v] or (not tv and lt[VI[v] + 1])
+                if t and REF[TYPED[t]] ~= false then return false end
+            end
+        end
+    end
+    return not values_have_experts(C.kind, c_list)
+end
+
+-- Whether a hidden tree (or none) may leave out the named variables a frame left out: nobody
+-- references a field of theirs (speed device, as layout_vars_unseen).
+function carried_unseen(miss, miss_len)
+    return REF == NO_REF or (REF[H_var] == false and REF[H_var_name] == false and REF[H_var_index] == false
+        and REF[H_var_value] == false and REF[H_var_carried] == false and REF[H_var_carried_from] == false
+        and C.value_fields_unseen(miss_len, miss))
+end
+end
+
+local function layout_fields()
+    if REF[H_ordinal] ~= false then
+        local n = P.n_ord   -- 0 also for an N past what to_ordinal keeps
+        if n == 0 and P.n_text ~= "0" then n = floor(tonumber(P.n_text)) end
+        hadd(c_ti, c_ttext, H_ordinal, n)
+    end
+    if layout_vars_unseen() then return end
+    for v = 1, P.nv do tree_variable(v) end
+end
+
+local function tree_fields()
+    if not c_places then return layout_fields() end
+    local kind, cpos = C.kind, P.cpos
+    for i = 1, P.nf do FV[i] = 0; FC[i] = false end
+    for v = 1, P.nv do
+        if VV[v] or kind == "declaration" or VR[v] then
+            local first = VTf[v] ~= 0 and VTf[v] or (VQf[v] ~= 0 and VQf[v] or VDf[v])
+            FV[first] = v
+            if VQf[v] ~= 0 and VQf[v] ~= first then FC[VQf[v]] = true end
+            if VDf[v] ~= 0 and VDf[v] ~= first then FC[VDf[v]] = true end
+        end
+    end
+    for i = 1, P.nf do
+        local fs = FS[i]
+        local v = FV[i]
+        if v ~= 0 then
+            tree_variable(v, fs)
+        elseif not FC[i] and fs ~= cpos then
+            tree_plain_field(FL[i], fs, FE[i])
+        end
+    end
+end
+
+-- A list request's link to the declaration that answers it, and back (docs/fields-sharedlink.md,
+-- "Replies": L? is answered by an N declaration, N? by an L one).
+function C.request_link(rec)
+    local ti, shown = c_ti, c_shown
+    if rec.req_in then
+        if shown then TI.set_generated(TI.add(ti, hf.response_in, rec.req_in))
+        else hitem(ti, c_ttext, hf.response_in, rec.req_in) end
+    end
+    if rec.req_to then
+        if shown then
+            TI.set_generated(TI.add(ti, hf.response_to, rec.req_to))
+            TI.set_generated(TI.add(ti, hf.response_time, nstime_of(rec.req_rt)))
+        else
+            hitem(ti, c_ttext, hf.response_to, rec.req_to)
+            hitem(ti, c_ttext, hf.response_time, nstime_of(rec.req_rt))
+        end
+    end
+end
+
+
+-- Named variables this frame left out (carried forward): name, value, frame in miss.
+local function tree_carried_names()
+    local rec, nm, d = C.rec, C.nm, c_d
+    local miss = rec and rec.miss
+    local miss_len = miss and #miss or 0
+    if not miss and nm > 0 then miss, miss_len = MISS, nm end    -- packed on this pass
+    if not miss then return end
+    local shown, ti = c_shown, c_ti
+    if not shown and carried_unseen(miss, miss_len) then return end
+    local zr = shown and zrange(c_tvb, c_o + C.bodyend)
+    for k = 1, miss_len, 3 do
+        local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
+        local index = d and d.npos[name]
+        local vt, vtext
+        if shown then
+            vt = TI.add(ti, H_var, zr)
+            TI.set_hidden(TI.add(vt, H_var_name, name))
+            if index then TI.set_generated(TI.add(vt, H_var_index, index)) end
+        else
+            vt, vtext = var_item()
+            if REF[H_var_name] ~= false then hadd(vt, vtext, H_var_name, name) end
+            if index and REF[H_var_index] ~= false then hadd(vt, vtext, H_var_index, index) end
+        end
+        carried_items(vt, vtext, name, name, cv, cf, nil)
+        if shown then TI.set_generated(vt) end
+    end
+end
+
+------------------------------------------------------------------------------
+-- The trailer: limits, sync, checksum, line end.
+------------------------------------------------------------------------------
+-- The checksum field (at cpos, text ctext), its verdict and experts.
+local CHECKSUM_OK = {}   -- value -> "Checksum: 0x.. [correct]"
+local function shown_checksum(cpos, ctext)
+    local ti, val, cs_status = c_ti, C.cs_val, C.cs_status
+    local cr = c_tvb(c_o + cpos, #ctext + 1)
+    local byte_val = val and val <= 255
+    local ct
+    if byte_val and cfg.validate and cs_status == 1 then
+        -- the label with " [correct]", one call (speed trick, measured: -V)
+        local label = CHECKSUM_OK[val]
+        if not label then
+            label = s_format("Checksum: 0x%02x [correct]", val)
+            CHECKSUM_OK[val] = label
+        end
+        ct = TI.add(ti, H_checksum, cr, val, label)
+    elseif byte_val then
+        ct = TI.add(ti, H_checksum, cr, val)
+    else
+        ct = TI.add(ti, hf.checksum_text, cr, ctext)
+    end
+    if not UHEX[ctext] then
+        TI.add_proto_expert_info(ct, ei.checksum_format,
+            "Checksum \"" .. ctext .. "\" is not two upper-case hex digits")
+    end
+    if not cfg.validate then
+        TI.set_generated(TI.add(ct, H_checksum_status, cr, 2))
+        return
+    end
+    local cs_calc = C.cs_calc
+    TI.set_generated(TI.add(ct, H_checksum_calc, cr, cs_calc))
+    if cs_status == 1 then
+        TI.set_generated(TI.add(ct, H_checksum_status, cr, 1))
+        if not byte_val then TI.append_text(ct, " [correct]") end
+    else
+        TI.set_generated(TI.add(ct, H_checksum_status, cr, 0))
+        TI.append_text(ct, s_format(" [incorrect, should be 0x%02x]", cs_calc))
+        TI.add_proto_expert_info(ct, ei.checksum_bad, s_format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
+    end
+end
+
+-- The same items in a hidden tree (or none), on the protocol item.
+local function hidden_checksum(ctext)
+    local ti, ttext, val, cs_status = c_ti, c_ttext, C.cs_val, C.cs_status
+    local ct
+    if val and val <= 255 then
+        if REF[H_checksum] ~= false then ct = hadd(ti, ttext, H_checksum, val) end
+    elseif REF[hf.checksum_text] ~= false then
+        ct = hadd(ti, ttext, hf.checksum_text, ctext)
+    end
+    if not UHEX[ctext] then
+        TI.add_proto_expert_info(ct or ti, ei.checksum_format,
+            "Checksum \"" .. ctext .. "\" is not two upper-case hex digits")
+    end
+    if not cfg.validate then
+        if REF[H_checksum_status] ~= false then hadd(ti, ttext, H_checksum_status, 2) end
+        return
+    end
+    local cs_calc = C.cs_calc
+    if REF[H_checksum_calc] ~= false then hadd(ti, ttext, H_checksum_calc, cs_calc) end
+    if REF[H_checksum_status] ~= false then hadd(ti, ttext, H_checksum_status, cs_status) end
+    if cs_status ~= 1 then
+        TI.add_proto_expert_info(ct or ti, ei.checksum_bad,
+            s_format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
+    end
+end
+
+local function tree_trailer()
+    local ti, rec, s, a, e, fl = c_ti, C.rec, C.s, C.a, C.e, C.fl
+    local terminated, shown = C.terminated, c_shown
+    if P.limit then TI.add_proto_expert_info(ti, ei.limit, P.limit) end
+    if rec and rec.limit then TI.add_proto_expert_info(ti, ei.limit, rec.limit) end
+    if rec and rec.late then
+        if shown then TI.set_generated(TI.add(ti, hf.sync_is_late, true))
+        else hitem(ti, c_ttext, hf.sync_is_late, true) end
+        TI.add_proto_expert_info(ti, ei.sync_late,
+            s_format("No full frame for %.3f s (sync interval %.3f s + %.1f s slack)",
+                rec.late, cfg.sync - U.SYNC_SLACK, U.SYNC_SLACK))
+    end
+    if P.cpos then
+        if shown then shown_checksum(P.cpos, P.ctext) else hidden_checksum(P.ctext) end
+    else
+        if shown then TI.set_generated(TI.add(ti, H_checksum_status, 2))
+        else hitem(ti, c_ttext, H_checksum_status, 2) end
+        if terminated and not C.malformed_msg then TI.add_proto_expert_info(ti, ei.checksum_missing) end
+    end
+    -- line terminator
+    local b = a + fl - 1
+    if terminated and crlf_frames
+        and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
+        TI.add_proto_expert_info(ti, ei.crlf_missing)
+    end
+end
+
+------------------------------------------------------------------------------
+-- The builder.
+------------------------------------------------------------------------------
+-- The tree of a frame at f[1..fl] (bodyend: its content's last index) that starts at s[a] and ends
+-- with its line end at s[e] (as dissect_frame's arguments), as parsed (P: the field and variable
+-- arrays, cpos, ctext; a shown tree needs the fields' places, which parse fills for it), with its
+-- kind, state and checksum verdict.  mode: SHOWN, HIDDEN or NONE (then tree: the tree Wireshark
+-- gave, which keeps no item); visited: pinfo.visited (a hidden tree's cache of referenced fields
+-- starts again with each pass).  Called by dissect_frame; what the parts share goes in the c_ upvalues.
+local function tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, visited, kind,
+                          dstb, srcb, list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
+    REF = mode == NONE and NO_REF or LEARNT
+    c_shown = mode == SHOWN
+    -- tvb offset of f[i] is o + i
+    C.mode, C.tree, c_tvb, c_o, c_f, C.s, C.a, C.e, C.fl = mode, tree, tvb, a - 2, f, s, a, e, fl
+    c_num, C.visited, C.kind, C.dstb, C.srcb = num, visited, kind, dstb, srcb
+    C.dst, C.src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
+    C.malformed_msg, C.terminated, C.bodyend = malformed_msg, terminated, bodyend
+    c_list, c_d, C.rec, C.nm = list, d, rec, nm
+    C.cs_val, C.cs_calc, C.cs_status = cs_val, cs_calc, cs_status
+    C.resp_in, C.resp_to = rec and rec.resp_in, rec and rec.resp_to
+    C.rts, C.unmatched = rec and rec.rt, rec and rec.unmatched
+    -- the carried values of empty D fields (value, frame, ...), ke: how many used so far
+    c_csrc, c_ke = rec or (ne > 0 and CARRY), 0
+    C.cmd_item, c_vtext = nil, nil   -- the E field's item; a hidden variable item's text
+    c_tv = P.named and P.named.TV     -- a named layout's types (valid, doubles plain decimals)
+    c_places = mode == SHOWN or not P.layout   -- the fields' places (FL, FS, FE, VTf...) are known
+    tree_head()
+    tree_fields()
+    if rec and (rec.req_in or rec.req_to) then C.request_link(rec) end
+    tree_carried_names()
+    tree_trailer()
+end
+
+------------------------------------------------------------------------------
+-- Whether a frame with no tree needs one for its expert infos.
+------------------------------------------------------------------------------
 -- With no tree, whether the frame's tree would carry an expert info (true when unsure): then
--- the tree is built all the same, on the tree Wireshark gave (which keeps no items but reports
--- the experts to Expert Information and -z expert).  Checks what tree_full adds experts for.
+-- tree_frame builds it in mode NONE, on the tree Wireshark gave (which keeps no items but reports
+-- the experts to Expert Information and -z expert).  Checks what tree_frame adds experts for.
 local function has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status)
     if malformed_msg or not addrs_ok or P.odd or cs_status == 0 or not P.cpos then return true end
     if rec and (rec.limit or rec.late or rec.unmatched) then return true end
@@ -679,6 +848,6 @@ end
 -- ending at its ']'): sharedlink.crlf.missing is noted only then.  Set once a packet.
 local function set_crlf_frames(v) crlf_frames = v end
 
-local T = { tree_compact_frame = tree_compact_frame, tree_full = tree_full, has_experts = has_experts,
-            set_crlf_frames = set_crlf_frames }
+local T = { tree_frame = tree_frame, has_experts = has_experts, set_crlf_frames = set_crlf_frames,
+            SHOWN = SHOWN, HIDDEN = HIDDEN, NONE = NONE }
 return T

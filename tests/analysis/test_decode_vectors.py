@@ -20,20 +20,18 @@ from sl_vectors import load_streams, stream_params, write_stream
 from sharedlink.analysis.decode import Decoded, iter_decoded, parse_variables
 from sharedlink.capture.stream import StreamFrame
 from sharedlink.protocols.codec import TYPE_NAMES
-from sharedlink.protocols.state import Update
+from sharedlink.protocols.state import BEACON_VARIABLES, Update
 
 STREAMS = load_streams()
-#: the dissector's default variables preference (untyped), which the vectors are written for;
-#: Python's own default (:data:`BEACON_VARIABLES`) types the same four names double, as BUL-009's
-#: beacon does
-DEFAULT_VARIABLES = "AutoGpsLat,AutoGpsLon,AutoGpsHead,AutoGpsVel"
 CHECKSUM_WORD = {True: "good", False: "bad", None: "missing"}
 
 
 def decoded_frames(path: Path, variables: str | None) -> dict[int, list[Decoded | StreamFrame]]:
     """Packet number -> its SharedLink frames in order: :class:`Decoded`, or the noise
     :class:`StreamFrame` of a malformed frame (a ``[:`` that is no frame)."""
-    vs = parse_variables(variables or DEFAULT_VARIABLES)
+    # no list in the stream: Python's default (BEACON_VARIABLES, the four beacon names typed
+    # double), the same as the dissector's preference's default (issue 29)
+    vs = parse_variables(variables) if variables else list(BEACON_VARIABLES)
     out: dict[int, list[Decoded | StreamFrame]] = {}
     for item in iter_decoded(path, vs):
         if isinstance(item, Decoded):

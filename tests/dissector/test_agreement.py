@@ -3,11 +3,10 @@
 Issue 29 decided the disagreements this test used to leave out (docs/fields-sharedlink.md,
 "Rules for real sessions"); the shared vector streams carry them, and
 :func:`test_vector_stream_agrees` runs every stream through both decoders (a strict xfail where
-the stream's "pending" names "agreement"). Drawn here since both sides follow it: replies in a
-direction that carries data (shown, never stored; their values fit every type, as the
-dissector does not type a reply by its direction's list yet). Still left out until the
-dissector follows the rules: declarations that shorten a list under once-filled slots, and
-positional frames shorter than the a-priori list (named #i in Python).
+the stream's "pending" names "agreement"; none is). Drawn here since both sides follow them:
+replies in a direction that carries data (shown, never stored), declarations that shorten a
+list under once-filled slots, positional frames shorter and longer than the list (the a-priori
+list names only a frame of its length; past a declared list var.unknown / Update.unknown).
 
 Hypothesis draws captures of several SharedLink conversations at once (named and positional,
 compressed, typed and badly typed values, declarations, list requests, queries and replies,
@@ -15,7 +14,7 @@ bad and missing checksums, frames lost, the same letters on several source ports
 each as a real pcap and decodes it twice: with ``tshark -T json`` and dissector/sharedlink.lua,
 and with :func:`sharedlink.analysis.decode.iter_decoded`. For every frame the two must agree on
 the kind, the checksum verdict and, for value frames, every variable shown: name, value,
-carried flag and (for sent values) the bad-value flag. Many conversations go in one capture so
+carried flag, (for sent values) the bad-value flag and the typed field, and var.unknown. Many conversations go in one capture so
 that each example costs one tshark run.
 """
 
@@ -34,6 +33,8 @@ import tshark_util as tu
 from sharedlink.analysis.decode import Decoded, iter_decoded, parse_variables
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.protocols.codec import TYPE_NAMES
+from sharedlink.protocols.state import BEACON_VARIABLES
 
 VARIABLES = "P0:2,P1:0,P2:4,P3"
 NAMED = (("Lat", 2), ("Lon", 2), ("Mode", 4), ("Cnt", 0))
@@ -41,6 +42,8 @@ TEXTS = ["1", "-2", "3.5", "0", "x", "None", "1.5e3", "on", "a\r\nb", "a b"]
 T0 = 1_767_268_800 * 1_000_000_000
 CHECKSUM_WORD = {"1": "good", "0": "bad"}
 TRUE = ("1", "True", "true")
+#: the typed field a value shows (issue 29: types agree too, the default list's included)
+TYPED = {"long": "sharedlink.var.long", "double": "sharedlink.var.double", "string": "sharedlink.var.string"}
 
 # -- captures -----------------------------------------------------------------------------
 
@@ -56,10 +59,10 @@ text = st.sampled_from(TEXTS)
 @st.composite
 def positional_body(draw: Any) -> str:
     start = draw(st.sampled_from([0, 0, 0, 1]))
-    # as long as the list (N0 + 4, N1 + 3) or a bare N0: a shorter frame is named by the
-    # a-priori list in the dissector and #i in Python (issue 29's rule, the dissector's side
-    # pending: tests/vectors/sharedlink-real-sessions.json); draw them again once it follows
-    n = draw(st.sampled_from([0, 4])) if start == 0 else 4 - start
+    # as long as the list (N0 + 4, N1 + 3), a bare N0, shorter and longer ones: the a-priori
+    # list names only a frame of its length (else #i), a declared one every frame (past its
+    # end #i with var.unknown / Update.unknown): issue 29
+    n = draw(st.sampled_from([0, 4, 4, 2, 6])) if start == 0 else draw(st.sampled_from([3, 3, 1, 5]))
     vals = [draw(st.one_of(st.just(""), text)) for _ in range(n)]
     return f"N{start}" + "".join(f"|D{v}" for v in vals)
 
@@ -85,11 +88,11 @@ def other_body(draw: Any, named: bool) -> str:
                 # value fits every type (typing a reply by its direction's list, the rule, is
                 # Python's only so far: the dissector shows no bad value on a reply)
                 f"R{names[1]}|D{draw(st.sampled_from(['1', '-2', '0']))}",
-                # declarations: new types for the four positional slots (a list that shrinks
-                # under a conversation's once-filled slots is left out: the rules do not say
-                # whether a slot past the new list stays required)
+                # declarations: new types for the four positional slots, and one that shortens
+                # the list under once-filled slots (slots past it are gone: issue 29)
                 "N0|T0|QP0|T2|QP1|T4|QP2|T2|QP3",
                 "N0|T4|QP0|T4|QP1|T0|QP2|QP3",
+                "N0|T2|QP1|QP0",
                 "Xz",
                 "N0",
             ]
@@ -151,8 +154,10 @@ def _placeholder(name: str | None) -> str | None:
     return name
 
 
-def lua_frames(cap: Path, variables: str = VARIABLES, extra: tuple[str, ...] = ()) -> list[list[dict[str, Any]]]:
-    packets = tu.json_packets(cap, prefs={"sharedlink.variables": variables}, two_pass=True, extra=extra)
+def lua_frames(cap: Path, variables: str | None = VARIABLES, extra: tuple[str, ...] = ()) -> list[list[dict[str, Any]]]:
+    """The dissector's frames (``variables`` None: the preference's default)."""
+    prefs = None if variables is None else {"sharedlink.variables": variables}
+    packets = tu.json_packets(cap, prefs=prefs, two_pass=True, extra=extra)
     out = []
     for p in packets:
         trees = [t for t in _as_list(p["_source"]["layers"].get("sharedlink")) if isinstance(t, dict)]
@@ -170,9 +175,11 @@ def lua_frames(cap: Path, variables: str = VARIABLES, extra: tuple[str, ...] = (
                 experts = {k for e in _walk(v, "_ws.expert") if isinstance(e, dict) for k in e}
                 carried = _one(v, "sharedlink.var.carried") in TRUE
                 value = _one(v, "sharedlink.var.value")
+                typed = None if carried else next((t for t, f in TYPED.items() if f in v), None)
                 variables.append(
                     (_placeholder(_one(v, "sharedlink.var.name")), value, carried,
-                     "sharedlink.var.badvalue" in experts and not carried)
+                     "sharedlink.var.badvalue" in experts and not carried, typed,
+                     "sharedlink.var.unknown" in experts)
                 )
             frames.append({
                 "kind": kind,
@@ -183,12 +190,17 @@ def lua_frames(cap: Path, variables: str = VARIABLES, extra: tuple[str, ...] = (
     return out
 
 
-def python_frames(cap: Path, n: int, variables: str = VARIABLES) -> list[list[dict[str, Any]]]:
+def python_frames(cap: Path, n: int, variables: str | None = VARIABLES) -> list[list[dict[str, Any]]]:
+    """Python's frames (``variables`` None: its default, BEACON_VARIABLES)."""
     out: list[list[dict[str, Any]]] = [[] for _ in range(n)]
-    for d in iter_decoded(cap, parse_variables(variables)):
+    vs = list(BEACON_VARIABLES) if variables is None else parse_variables(variables)
+    for d in iter_decoded(cap, vs):
         if not isinstance(d, Decoded):
             continue
-        variables = [(_placeholder(u.name), u.text, u.carried, u.bad and not u.carried) for u in d.shown]
+        positional = d.frame is not None and not any(f.letter in "QR" for f in d.frame.fields)
+        variables = [(_placeholder(u.name), u.text, u.carried, u.bad and not u.carried,
+                      None if u.carried or u.bad else TYPE_NAMES.get(u.type_code),
+                      positional and u.index is not None and d.table.past_list(u.index)) for u in d.shown]
         out[d.number - 1].append({
             "kind": d.kind,
             "checksum": {True: "good", False: "bad", None: "missing"}[d.checksum_ok],
@@ -219,9 +231,10 @@ def test_dissector_and_python_decoder_agree(tmp_path_factory, packets):
 def test_carried_empty_named_value(tmp_path):
     conv = (("A", "B"), "10.0.0.2", 7013, True)
     cap = write_capture(tmp_path / "e.pcap", [(conv, "N0|T4|QNote|D|T4|QMode|Dx", "good"), (conv, "N0|T4|QMode|Dy", "good")])
-    assert python_frames(cap, 2)[1][0]["vars"] == [("Mode", "y", False, False), ("Note", "", True, False)]
+    assert python_frames(cap, 2)[1][0]["vars"] == [("Mode", "y", False, False, "string", False),
+                                                   ("Note", "", True, False, None, False)]
     note = [v for v in lua_frames(cap)[1][0]["vars"] if v[0] == "Note"]
-    assert note == [("Note", "", True, False)]
+    assert note == [("Note", "", True, False, None, False)]
 
 
 def test_declared_untyped_slot_after_typed_list(tmp_path):
@@ -238,8 +251,8 @@ def test_declared_untyped_slot_after_typed_list(tmp_path):
         (y, "N1|D|D|Dx", "good"),
     ]
     cap = write_capture(tmp_path / "d.pcap", packets)
-    carried = [("P1", None, True, False), ("P2", None, True, False)]
-    want = [carried + [("P3", "x", False, False)], carried + [("P3", "x", False, True)]]
+    carried = [("P1", None, True, False, None, False), ("P2", None, True, False, None, False)]
+    want = [carried + [("P3", "x", False, False, None, False)], carried + [("P3", "x", False, True, None, False)]]
     assert [f[0]["vars"] for f in python_frames(cap, 4)[2:]] == want
     assert [f[0]["vars"] for f in lua_frames(cap)[2:]] == want
 
@@ -247,7 +260,6 @@ def test_declared_untyped_slot_after_typed_list(tmp_path):
 REPO = Path(__file__).resolve().parents[2]
 OTHERS = tuple(a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua"
                for a in ("-X", f"lua_script:{s}"))
-DEFAULT_VARIABLES = "AutoGpsLat,AutoGpsLon,AutoGpsHead,AutoGpsVel"  # the preference's default
 VECTOR_STREAMS = load_streams()
 
 
@@ -258,7 +270,7 @@ def test_vector_stream_agrees(stream: dict[str, Any], tmp_path: Path) -> None:
     frame (noise to Python's reader) is left out of both."""
     ext = "pcapng" if stream.get("transport") == "serial" else "pcap"
     cap = write_stream(stream, tmp_path / f"s.{ext}")
-    variables = stream.get("variables", DEFAULT_VARIABLES)
+    variables = stream.get("variables")   # none: each side's own default (issue 29: the same list)
     lua = [[f for f in p if f["kind"] != "malformed"] for p in lua_frames(cap, variables, OTHERS)]
     py = python_frames(cap, len(stream["packets"]), variables)
     assert len(lua) == len(stream["packets"])

@@ -301,9 +301,20 @@ def test_missing_checksum(mixed):
 
 
 def test_positional_past_list(mixed):
+    """The a-priori list (the default's 4 names) names only a frame of 4 slots: a 5-slot frame
+    is #0..#4, untyped, with no warning (issue 29)."""
     r = mixed[22]
-    assert len(r["sharedlink.var.unknown"]) == 1
+    assert not r["sharedlink.var.unknown"]
     assert r["sharedlink.var.index"] == ["0", "1", "2", "3", "4"]
+    assert r["sharedlink.var.name"] == ["#0", "#1", "#2", "#3", "#4"]
+
+
+def test_positional_past_a_declared_list_is_unknown(tmp_path):
+    """Past a list learnt from a declaration a slot is #i with sharedlink.var.unknown."""
+    pk = [Pkt(1.0, frame("A", "B", "N0", "T2", "QX", "T0", "QY")), Pkt(1.2, frame("A", "B", "N0", "D1", "D2", "D3"))]
+    rows = fields(write_pcap(tmp_path / "decl.pcap", pk), ["sharedlink.var.name", "sharedlink.var.unknown"])
+    assert rows[1]["sharedlink.var.name"] == ["X", "Y", "#2"]
+    assert len(rows[1]["sharedlink.var.unknown"]) == 1
 
 
 def test_no_crlf(mixed):

@@ -330,3 +330,20 @@ def test_a_new_list_keeps_values_by_name_and_drops_the_rest(steps):
                 filled.add(n)
                 want.append((n, text, False, None))
         assert [(u.name, u.text, u.carried, u.carried_from) for u in ups] == want
+
+
+def test_a_slot_past_a_declared_list_is_past_the_list():
+    """Python's twin of the dissector's sharedlink.var.unknown (issue 29): a slot past the end of
+    a list learnt from a declaration; never past a user's or the a-priori list."""
+    link = LinkState()
+    link.apply(frame(declaration_fields([("X", 2), ("Y", 4)])), 1)
+    ups = link.apply(frame(positional_fields(["1.5", "hi", "7"])), 2)
+    t = link.table("B", "A")
+    assert [(u.name, t.past_list(u.index)) for u in ups] == [("X", False), ("Y", False), ("#2", True)]
+    # a user's list for the pair, and the a-priori list: #i past it, not past a declared list
+    user = LinkState(default_list=parse_variables("B>A: Head:2"))
+    ups = user.apply(frame(positional_fields(["1", "2"])), 1)
+    assert [(u.name, user.table("B", "A").past_list(u.index)) for u in ups] == [("Head", False), ("#1", False)]
+    beacon = LinkState()
+    ups = beacon.apply(frame(positional_fields(["1"] * 6)), 1)
+    assert not any(beacon.table("B", "A").past_list(u.index) for u in ups)

@@ -142,6 +142,7 @@ class VarSource:
 
     names: tuple[tuple[str, int | None], ...]
     by_length: bool = False
+    declared: bool = False  # learnt from a declaration: a slot past its end is ``Update.unknown``
 
 
 @dataclass
@@ -163,6 +164,7 @@ class VariableTable:
     by_length: bool = False  # the list names only frames with exactly len(list) slots (the a-priori list)
     unlisted: bool = False  # (by_length) the last positional frame had another length: ``names`` are #i
     own: VarSource | None = None  # the list this conversation declared itself (LinkState)
+    declared: bool = False  # the list in use was learnt from a declaration (slots past it: past_list)
     _shown: dict[str, Variable] | None = field(default=None, repr=False, compare=False)  # preview's values
 
     @classmethod
@@ -175,9 +177,10 @@ class VariableTable:
     def declare(self, ordinal: int, names: Sequence[tuple[str, int | None]]) -> None:
         """Install a declared list (or part of one, from ``ordinal``: the slots before it are
         kept): it replaces the list in use (:meth:`use_list`)."""
-        self.use_list(extend_list(self.in_use, ordinal, names, self.limits))
+        self.use_list(extend_list(self.in_use, ordinal, names, self.limits), declared=True)
 
-    def use_list(self, names: Sequence[tuple[str, int | None]], by_length: bool = False) -> None:
+    def use_list(self, names: Sequence[tuple[str, int | None]], by_length: bool = False,
+                 declared: bool = False) -> None:
         """Replace the list in use (docs/fields-sharedlink.md, "A declaration replaces its
         direction's list"). A name the new list keeps keeps its value, the frame it came from
         and its "once filled" mark, at its new slot (carrying is by name); a name it drops loses
@@ -191,6 +194,7 @@ class VariableTable:
         marked = {old[i] for i in self.filled if i < len(old)}
         self.in_use = list(names)
         self.by_length = by_length and bool(names)
+        self.declared = declared
         self.unlisted = False
         keep = {n for n, _ in names}
         for n in [n for n in self.vars if n not in keep and n not in self.sent_names]:
@@ -222,6 +226,13 @@ class VariableTable:
         if index < len(lst) and not (self.by_length and frame_slots != len(lst)):
             return lst[index][0]
         return placeholder(index)
+
+    def past_list(self, index: int) -> bool:
+        """Whether positional slot ``index`` is past the end of a list learnt from a declaration
+        (the sender sends more than it declared): the twin of the dissector's
+        ``sharedlink.var.unknown``. Never past a user's or the a-priori list (those slots are
+        ``#i`` with no warning: docs/fields-sharedlink.md, "Names from an a-priori list")."""
+        return self.declared and index >= len(self.in_use)
 
     def _widen(self, frame_slots: int) -> None:
         """A positional frame of ``frame_slots`` slots was stored: ``names`` (a full set's slots)
@@ -555,7 +566,7 @@ class LinkState:
                 self.tables[key] = t
         s = t.own or self.source(src, dst, conv)
         if s is not t.list_from and s is not None:
-            t.use_list(s.names, s.by_length)
+            t.use_list(s.names, s.by_length, s.declared)
             t.list_from = s
         return t
 
@@ -567,7 +578,7 @@ class LinkState:
         which, ordinal, names = decl
         if which == "N":  # the sender's outbound list: its own conversation's
             t = self.table(frame.src, frame.dst, conv)
-            new = VarSource(tuple(extend_list(t.in_use, ordinal, names, self.limits)))
+            new = VarSource(tuple(extend_list(t.in_use, ordinal, names, self.limits)), declared=True)
             t.own = new
             self.table(frame.src, frame.dst, conv)
             self.pair_lists[(frame.src, frame.dst)] = new
@@ -577,7 +588,8 @@ class LinkState:
         src, dst, rconv = frame.dst, frame.src, reverse_conversation(conv)
         rkey = receiver_key(rconv, src, dst)
         base = self.source(src, dst, rconv)
-        new = VarSource(tuple(extend_list(base.names if base is not None else (), ordinal, names, self.limits)))
+        new = VarSource(tuple(extend_list(base.names if base is not None else (), ordinal, names, self.limits)),
+                        declared=True)
         if rkey in self.inbound or len(self.inbound) < MAX_CONVERSATIONS:
             self.inbound[rkey] = new
         else:
