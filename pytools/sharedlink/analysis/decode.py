@@ -333,6 +333,11 @@ class _Compiled:
 
         t = h.table
         self.version = h.version
+        if len(t.vars) > MAX_COMPILED_VARS:
+            # too wide to compile: nothing made, so a table that grows by new names every frame
+            # costs nothing a frame here (a build walks every variable: quadratic, issue 31)
+            self.vars, self.cur, self.named, self.pos = [], [], None, None
+            return
         vs = list(t.vars.values())
         self.vars = vs
         cur = self.cur = [None if v.text is None else v.text.encode("latin-1", "replace") for v in vs]
