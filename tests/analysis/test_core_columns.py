@@ -200,3 +200,19 @@ def test_columns_equal_the_reference_on_fault_captures(tmp_path, variant):
     generate_file(GenOptions(duration=40, **variant), path)
     n = compare(path)
     assert n > 100 or variant.get("form") == "positional"
+
+
+def test_one_mode_a_decoder(tmp_path: Path) -> None:
+    """The changes-only mode's compiled layouts hold texts the columns mode moves: a Decoder
+    refuses a second mode (capture in another mode, or compiled after a capture)."""
+    path = tmp_path / "beacon.pcap"
+    generate_file(GenOptions(frames=50, compress=True, seed=1), path)
+    dec = Decoder()
+    for _item in dec.capture(path, columns=True):
+        pass
+    for _item in dec.capture(path, columns=True):  # the same mode again: fine
+        pass
+    with pytest.raises(ValueError, match="columns mode"):
+        dec.capture(path)
+    with pytest.raises(ValueError, match="columns mode"):
+        dec.compiled(("udp", "192.168.1.12", 7013, "255.255.255.255", 7013), "B", "A")
