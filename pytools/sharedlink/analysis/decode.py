@@ -472,11 +472,11 @@ class _Compiled:
 
 class _ColLane:
     """Columns only: one direction's run taker (:meth:`Decoder.column_run`), the compiled-layout
-    technique on rows. Made only for a direction in its steady state: named, every variable of
-    its table typed, holding a value and sent (then a frame is full when it holds every
-    variable, and no frame it takes gives a first value), at most :data:`MAX_COMPILED_VARS`
-    variables; one str pattern on the latin-1 block, every variable in table order as an
-    optional ``|T t|Q name|D value``. ``stamp``: the state it was made for (the direction's
+    technique on rows. Made only for a direction in its steady state: named, every variable
+    with a value typed and sent (then a frame is full when it holds every variable with a
+    value; a frame that would give a first value is left to the other paths), at most
+    :data:`MAX_COMPILED_VARS` variables; one str pattern on the latin-1 block, every typed
+    variable in table order as an optional ``|T t|Q name|D value``. ``stamp``: the state it was made for (the direction's
     version, its variable and sent-name counts); any other state and it is made again."""
 
     __slots__ = ("h", "hkey", "conv", "src", "dst", "stamp", "rx", "names", "types", "vs")
@@ -485,13 +485,15 @@ class _ColLane:
         self.h, self.hkey, self.stamp = h, hkey, stamp
         self.conv, self.src, self.dst = hkey
         t = h.table
-        vs = list(t.vars.values())
+        every = list(t.vars.values())
+        vs = [v for v in every if v.type_code is not None]
         self.vs = vs
         self.names = tuple(v.name for v in vs)
         self.types = tuple(v.type_code for v in vs)
         self.rx: Callable | None = None
-        if (t.named is True and 0 < len(vs) <= MAX_COMPILED_VARS and len(t.sent_names) == len(vs)
-                and all(v.type_code is not None and v.text is not None and v.name in t.sent_names for v in vs)):
+        if (t.named is True and 0 < len(vs) <= MAX_COMPILED_VARS
+                and all(v.type_code is not None for v in every if v.text is not None)
+                and {v.name for v in every if v.text is not None} == set(t.sent_names)):
             rx = r"\[:%s%s\|N0%s\|C([0-9A-F]{2})\]\r\n" % (self.dst, self.src, "".join(
                 r"(?:\|T%d\|Q%s\|D([^|\x00-\x1f\[\]]+))?" % (v.type_code, re.escape(v.name)) for v in vs))
             self.rx = _fullmatch_str(rx)
@@ -932,6 +934,8 @@ class Decoder(ReferenceDecoder):
         sett = [v.set_at for v in vs]
         nv = len(vs)
         rng = range(nv)
+        unvalued = [i for i in rng if cur[i] is None]  # (a frame giving one a value: not taken)
+        nvalued = nv - len(unvalued)
         lane_addr = key[:12]
         end = len(buf)
         unpack_x = _PCAP_UDP.unpack_from
@@ -965,6 +969,8 @@ class Decoder(ReferenceDecoder):
             if m is None:
                 break
             g = m.groups()
+            if unvalued and any(g[i] is not None for i in unvalued):
+                break
             raw = buf[start:e]
             # the checksum: adler32's low half is 1 + the byte sum for up to 256 bytes (C speed)
             if (((adler32(raw) & 0xFFFF) if e - start <= 256 else sum(raw) + 1) - cksub[g[-1]]) & 0xFF:
@@ -973,7 +979,6 @@ class Decoder(ReferenceDecoder):
             number += 1
             wire += incl
             ts = sec * NS + frac * mult
-            k = 0
             held = 0
             for i in rng:
                 v = g[i]
@@ -992,19 +997,19 @@ class Decoder(ReferenceDecoder):
                 setn[i] = number
                 sett[i] = ts
             k = held
-            if held == nv:  # every variable: a full set
+            if held == nvalued and held:  # every variable with a value (every sent name): a full set
                 full = True
             else:
                 full = False
                 if carried_rows:
                     for i in rng:
-                        if g[i] is None:
+                        if g[i] is None and cur[i] is not None:
                             nm_app(names[i])
                             tx_app(cur[i])
                             tc_app(types[i])
                             ca_app(True)
                             ch_app(False)
-                    k = nv
+                    k = nvalued
             o_app(ordinal + n)
             n += 1
             n_app(number)
