@@ -476,8 +476,9 @@ class _ColLane:
     with a value typed and sent (then a frame is full when it holds every variable with a
     value; a frame that would give a first value is left to the other paths), at most
     :data:`MAX_COMPILED_VARS` variables; one str pattern on the latin-1 block, every typed
-    variable in table order as an optional ``|T t|Q name|D value``. ``stamp``: the state it was made for (the direction's
-    version, its variable and sent-name counts); any other state and it is made again."""
+    variable in table order as an optional ``|T t|Q name|D value``. ``stamp``: the state it was
+    made for (the direction's version, its variable and sent-name counts, its form); any other
+    state and it is made again."""
 
     __slots__ = ("h", "hkey", "conv", "src", "dst", "stamp", "rx", "names", "types", "vs")
 
@@ -494,7 +495,7 @@ class _ColLane:
         if (t.named is True and 0 < len(vs) <= MAX_COMPILED_VARS
                 and all(v.type_code is not None for v in every if v.text is not None)
                 and {v.name for v in every if v.text is not None} == set(t.sent_names)):
-            rx = r"\[:%s%s\|N0%s\|C([0-9A-F]{2})\]\r\n" % (self.dst, self.src, "".join(
+            rx = r"\[:%s%s\|N0%s\|C([0-9A-F]{2})\]\r\n" % (re.escape(self.dst), re.escape(self.src), "".join(
                 r"(?:\|T%d\|Q%s\|D([^|\x00-\x1f\[\]]+))?" % (v.type_code, re.escape(v.name)) for v in vs))
             self.rx = _fullmatch_str(rx)
 
