@@ -182,6 +182,36 @@ def test_a_reference_frame_changes_the_type_of_a_value_batched_frames_carry(tmp_
     assert compare(path) >= 3
 
 
+def test_runs_from_the_block_and_single_frames_in_one_batch(tmp_path):
+    """Frames in table order go as runs straight from the pcap block (column_run), a layout in
+    another order frame by frame (column), both in one batch of one direction: which frame last
+    set each value (shown by the carried_from of the reference-path frames after) and the rows
+    are the reference's."""
+    b = lambda *kv: encode_named("A", "B", [(k, 2, v) for k, v in kv])  # noqa: E731
+    stream = [b(("Lat", "1"), ("Lon", "2")), b(("Lat", "1"), ("Lon", "3")), b(("Lon", "4"), ("Lat", "2")),
+              b(("Lon", "5"), ("Lat", "2")), b(("Lat", "7")), b(("Lon", "6")), b(("Lon", "7"), ("Lat", "3")),
+              b(("Lat", "8")), b(("Lon", "9"))[:-5] + b"00]\r\n", b(("Lon", "9")) + b(("Lat", "9")),
+              b(("Lat", "1"), ("Lon", "2")), b(("Lat", "2")),
+              # a first value for a variable of the list (typed, no value yet), in table order
+              b(("AutoGpsVel", "4"), ("Lat", "3")), b(("Lat", "4"), ("Lon", "3")), b(("Lat", "5"))]
+    path = _write(tmp_path / "s.pcap", [(0, (i + 1) * 10**8, p) for i, p in enumerate(stream)])
+    assert compare(path) >= 5
+    dec = Decoder()
+    took: list[int] = []
+    run = dec.column_run
+
+    def spy(*args):
+        r = run(*args)
+        if r is not None:
+            took.append(r[2])
+        return r
+
+    dec.column_run = spy  # type: ignore[method-assign]
+    for _item in dec.capture(path, columns=True):
+        pass
+    assert sum(took) >= 3 and dec.fast > sum(took)  # runs, and frames column() took
+
+
 @pytest.mark.parametrize("stream", load_streams(), ids=lambda s: s["name"])
 def test_columns_equal_the_reference_on_the_shared_vectors(tmp_path, stream):
     ext = "pcapng" if stream.get("transport") == "serial" else "pcap"
@@ -200,3 +230,19 @@ def test_columns_equal_the_reference_on_fault_captures(tmp_path, variant):
     generate_file(GenOptions(duration=40, **variant), path)
     n = compare(path)
     assert n > 100 or variant.get("form") == "positional"
+
+
+def test_one_mode_a_decoder(tmp_path: Path) -> None:
+    """The changes-only mode's compiled layouts hold texts the columns mode moves: a Decoder
+    refuses a second mode (capture in another mode, or compiled after a capture)."""
+    path = tmp_path / "beacon.pcap"
+    generate_file(GenOptions(frames=50, compress=True, seed=1), path)
+    dec = Decoder()
+    for _item in dec.capture(path, columns=True):
+        pass
+    for _item in dec.capture(path, columns=True):  # the same mode again: fine
+        pass
+    with pytest.raises(ValueError, match="columns mode"):
+        dec.capture(path)
+    with pytest.raises(ValueError, match="columns mode"):
+        dec.compiled(("udp", "192.168.1.12", 7013, "255.255.255.255", 7013), "B", "A")
