@@ -272,14 +272,16 @@ MAX_COMPILED_VARS = 64
 #: compiled patterns, shared by the directions that have the same layouts; emptied at this many
 MAX_PATTERNS = 1024
 _PATTERNS: dict[bytes, Callable] = {}
+_STR_PATTERNS: dict[str, Callable] = {}  # the columns lanes' text patterns, bounded the same
 
 
-def _fullmatch(pattern: bytes) -> Callable:
-    rx = _PATTERNS.get(pattern)
+def _fullmatch(pattern: bytes | str) -> Callable:
+    cache: dict = _PATTERNS if isinstance(pattern, bytes) else _STR_PATTERNS
+    rx = cache.get(pattern)
     if rx is None:
-        if len(_PATTERNS) >= MAX_PATTERNS:
-            _PATTERNS.clear()
-        rx = _PATTERNS[pattern] = re.compile(pattern).fullmatch
+        if len(cache) >= MAX_PATTERNS:
+            cache.clear()
+        rx = cache[pattern] = re.compile(pattern).fullmatch
     return rx
 
 
@@ -502,19 +504,7 @@ class _ColLane:
                 and {v.name for v in every if v.text is not None} == set(t.sent_names)):
             rx = r"\[:%s%s\|N0%s\|C([0-9A-F]{2})\]\r\n" % (re.escape(self.dst), re.escape(self.src), "".join(
                 r"(?:\|T%d\|Q%s\|D([^|\x00-\x1f\[\]]+))?" % (v.type_code, re.escape(v.name)) for v in vs))
-            self.rx = _fullmatch_str(rx)
-
-
-_STR_PATTERNS: dict[str, Callable] = {}
-
-
-def _fullmatch_str(pattern: str) -> Callable:
-    rx = _STR_PATTERNS.get(pattern)
-    if rx is None:
-        if len(_STR_PATTERNS) >= MAX_PATTERNS:
-            _STR_PATTERNS.clear()
-        rx = _STR_PATTERNS[pattern] = re.compile(pattern).fullmatch
-    return rx
+            self.rx = _fullmatch(rx)
 
 
 class DirCounts:
