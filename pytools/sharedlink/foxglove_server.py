@@ -33,6 +33,8 @@ WEBSOCKET_PROTOCOL = "foxglove.websocket.v1"
 #: the longest HTTP upgrade request or answer head read, bytes; how long it may take, seconds
 MAX_HEAD = 16384
 HEAD_TIMEOUT_S = 10.0
+#: seconds the relays get, at stop, to pass the SDK's close frames on before they are cut
+CLOSE_GRACE_S = 2.0
 #: clients served at once (a further one is closed at once)
 MAX_CLIENTS = 64
 #: the SDK's log: one line per kind of message in this many seconds
@@ -91,6 +93,7 @@ class SubprotocolFront:
         self.backend = backend
         self._conns: set[socket.socket] = set()
         self._lock = threading.Lock()
+        self._idle = threading.Condition(self._lock)  # notified when a connection is forgotten
         self._closed = False
         self._thread = threading.Thread(target=self._accept, name="foxglove-front", daemon=True)
         self._thread.start()
@@ -112,6 +115,7 @@ class SubprotocolFront:
         with self._lock:
             for s in socks:
                 self._conns.discard(s)
+            self._idle.notify_all()
         for s in socks:
             try:
                 s.close()
@@ -157,9 +161,12 @@ class SubprotocolFront:
             except OSError:
                 pass
 
-    def close(self) -> None:
+    def close(self, grace: float = 0.0) -> None:
+        """Stop accepting; let the relays that are still open end by themselves for up to
+        ``grace`` seconds (the SDK's close frames reach the clients), then cut the rest."""
         with self._lock:
             self._closed = True
+            self._idle.wait_for(lambda: not self._conns, timeout=grace)
             conns = list(self._conns)
         try:
             self.sock.close()
@@ -240,4 +247,4 @@ class LiveServer:
         try:
             self.sdk.stop()
         finally:
-            self.front.close()
+            self.front.close(grace=CLOSE_GRACE_S)

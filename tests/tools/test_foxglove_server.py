@@ -156,10 +156,17 @@ def test_a_flood_of_bad_subscriptions_logs_one_line(drive):
     # could end, and the server with it, before the 10,000 messages were sent)
     w = Watch("--from", drive, "--speed", 0.2)
     try:
-        with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.sdk.v1"]) as ws:
+        # The SDK answers each bad subscription with a status message; its control queue holds
+        # 1024 per client, and a client that falls behind reading them is disconnected (its
+        # documented policy). max_queue=None keeps this client reading; if it is dropped all the
+        # same on a busy machine, the flood ends there and the log must still say it once.
+        with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.sdk.v1"], max_queue=None) as ws:
             advertised(ws, {"/sharedlink/B_to_A/frames"})
-            for i in range(10_000):
-                ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": 999_999}]}))
+            try:
+                for i in range(10_000):
+                    ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": 999_999}]}))
+            except ConnectionClosed:
+                pass
             time.sleep(1.0)
     finally:
         err = w.stop()
