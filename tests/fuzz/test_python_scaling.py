@@ -327,7 +327,7 @@ def test_thousands_of_digits_are_a_count_not_a_traceback(tmp_path, command):
     cli = [sys.executable, "-m", "sharedlink", command[0], str(path), *command[1:]]
     r = subprocess.run(cli, capture_output=True, text=True, timeout=60)
     assert "Traceback" not in r.stderr and r.returncode == 0, r.stderr
-    assert capture_stats(path).limits.numbers == 2
+    assert capture_stats(path).limits.numbers == 1  # the N (a T that long is no type: not a limit hit)
 
 
 def test_an_interceptty_log_of_one_direction_imports_in_linear_time(tmp_path):

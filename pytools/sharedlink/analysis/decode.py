@@ -150,7 +150,7 @@ class ReferenceDecoder:
         self.carried = carried
         self.late_ns = round((sync_interval + SYNC_SLACK_S) * NS)
         self._sync: dict[tuple, list[int | None]] = {}  # table key -> [first data ts, last full ts]
-        self._asks = PendingAsks()  # unanswered queries, list requests and declarations, per querier
+        self._asks = PendingAsks(self.limits)  # unanswered queries, list requests and declarations, per querier
 
     def decode(self, sf: StreamFrame) -> Decoded:
         frame = sf.frame

@@ -30,7 +30,7 @@ from sharedlink.capture.change_records import escape as escape
 from sharedlink.capture.change_records import unescape as unescape
 from sharedlink.capture.packets import Datagram, PacketDecoder
 from sharedlink.capture.pcapio import NS, CaptureError, read_records
-from sharedlink.capture.serial_format import DIRECTION_NAMES, USER_LINKTYPES, Piece, StreamReader
+from sharedlink.capture.serial_format import DIRECTION_NAMES, GIVEN_UP, USER_LINKTYPES, Piece, StreamReader
 from sharedlink.protocols.codec import Frame, iter_segments
 from sharedlink.protocols.limits import MAX_HELD_BYTES
 from sharedlink.protocols.state import parse_variables
@@ -90,7 +90,10 @@ _TCP_BUFFER_MAX = MAX_HELD_BYTES  # an unterminated frame held per TCP conversat
 class FrameSplitter:
     """Cuts datagrams into frames; keeps a buffer per TCP conversation so frames split across
     segments are found (segments are taken in capture order; a retransmitted segment, one
-    that starts before the data already seen, is skipped)."""
+    that starts before the data already seen, is skipped). An unterminated frame is held up to
+    ``MAX_HELD_BYTES``; the segment that takes it past gives it out as noise with the reason
+    :data:`~sharedlink.capture.serial_format.GIVEN_UP` (``stats`` counts it in ``limits.held``),
+    where sharedlink.lua says "Limit exceeded: ... (max_held_bytes)"."""
 
     def __init__(self) -> None:
         self._tcp: dict[tuple[str, str, int, str, int], tuple[int, bytes]] = {}
@@ -102,8 +105,6 @@ class FrameSplitter:
             nxt, buf = self._tcp.get(conv, (None, b""))
             if nxt is not None and data and ((dg.tcp_seq - nxt) & 0xFFFFFFFF) >= 0x80000000:
                 return []  # retransmission of data already seen
-            if len(buf) > _TCP_BUFFER_MAX:  # a '[' that never closes: give up on it as noise
-                buf = b""
             if data or dg.tcp_flags & 0x03:
                 step = len(data) + (1 if dg.tcp_flags & 0x03 else 0)  # SYN and FIN count one
                 nxt = (dg.tcp_seq + step) & 0xFFFFFFFF
@@ -118,7 +119,10 @@ class FrameSplitter:
                     start = data.rfind(b"[", seg.start)
                     if start > seg.start:
                         out.append(StreamFrame(number, ts_ns, conv, data[seg.start : start], None, "noise between frames"))
-                    self._tcp[conv] = (self._tcp[conv][0], data[start:])
+                    if len(data) - start > _TCP_BUFFER_MAX:  # a '[' that never closes: given up as noise
+                        out.append(StreamFrame(number, ts_ns, conv, data[start:], None, GIVEN_UP))
+                    else:
+                        self._tcp[conv] = (self._tcp[conv][0], data[start:])
                     break
             err = seg.error.reason if seg.error is not None else None
             out.append(StreamFrame(number, ts_ns, conv, data[seg.start : seg.end], seg.frame, err))

@@ -359,11 +359,12 @@ def _ordinal(text: str) -> int:
 
 
 def oversized_numbers(fields: Sequence[Field]) -> int:
-    """How many ``N``/``L``/``T`` fields of a frame hold a number longer than
-    :data:`~sharedlink.protocols.limits.MAX_NUMBER_DIGITS` digits (malformed: read as no number)."""
-    return sum(
-        1 for f in fields if f.letter in ("N", "L", "T") and len(f.text) > MAX_NUMBER_DIGITS and f.text.isdigit()
-    )
+    """How many ``N``/``L`` fields of a frame hold an ordinal longer than
+    :data:`~sharedlink.protocols.limits.MAX_NUMBER_DIGITS` digits (malformed: read as no number;
+    a limit hit, as the dissector's "Limit exceeded: N has more than 9 digits"). A ``T`` that
+    long is only a type that is not a number (no type; the dissector's "Type is not a
+    number"), as is any ``T`` :func:`parse_int` does not read."""
+    return sum(1 for f in fields if f.letter in ("N", "L") and len(f.text) > MAX_NUMBER_DIGITS and f.text.isdigit())
 
 
 # -- frame semantics ------------------------------------------------------------------

@@ -29,14 +29,16 @@ class LimitCounts:
 
     slots: int = 0  # values or declared names at a slot >= MAX_SLOTS
     names: int = 0  # new names past MAX_NAMES in one direction
-    numbers: int = 0  # N/T/ordinal fields with more than MAX_NUMBER_DIGITS digits
+    numbers: int = 0  # N/L (ordinal) fields with more than MAX_NUMBER_DIGITS digits (a longer T is no type)
     conversations: int = 0  # frames of a new direction past MAX_CONVERSATIONS
-    held: int = 0  # unfinished serial frames given up at MAX_HELD_BYTES (their bytes counted as noise)
+    #: unfinished serial or TCP frames given up at MAX_HELD_BYTES (their bytes counted as noise)
+    held: int = 0
+    pending: int = 0  # queries (frames) refused because MAX_PENDING asks already wait for an answer
 
     @property
     def total(self) -> int:
-        return self.slots + self.names + self.numbers + self.conversations + self.held
+        return self.slots + self.names + self.numbers + self.conversations + self.held + self.pending
 
     def to_dict(self) -> dict[str, int]:
         return {"slots": self.slots, "names": self.names, "numbers": self.numbers, "conversations": self.conversations,
-                "held": self.held}
+                "held": self.held, "pending": self.pending}

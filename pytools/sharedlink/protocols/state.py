@@ -458,49 +458,62 @@ def answer_key(conv: Hashable, src: str, dst: str) -> Hashable:
 
 
 class PendingAsks:
-    """Unanswered queries, list requests and declarations, per querier (:func:`ask_key`), at
-    most ``MAX_PENDING`` each (the oldest goes) and ``MAX_CONVERSATIONS`` queriers. What each
-    waits for: ``"R"`` (a reply naming some of its names: a ``Q`` query or a declaration),
-    ``"N"`` (an ``N``k declaration: the answer to ``L?``) or ``"L"`` (to ``N?``)."""
+    """Unanswered queries, list requests and declarations, per querier (:func:`ask_key`), kept
+    as the dissector keeps them (``state.lua``, ``ask``/``answered``): one entry per name asked
+    (what it waits for and the name: ``("R", name)`` for a reply naming it, from a ``Q``
+    query or a declaration; ``("N", "")`` for an ``N``k declaration, the answer to ``L?``;
+    ``("L", "")`` for ``N?``), holding the frame that asked last. Asking again for a name
+    that waits replaces it (a querier that polls one name holds one entry). At most
+    ``MAX_PENDING`` entries a querier: a new one past it is refused (not remembered: its answer
+    is unmatched) and the frame counted once in ``limits.pending`` (docs/fields-sharedlink.md,
+    "Limits"). At most ``MAX_CONVERSATIONS`` queriers: a new one past it is not remembered (its
+    direction is counted in ``limits.conversations`` by :meth:`LinkState.table`)."""
 
-    def __init__(self) -> None:
-        self._by: dict[Hashable, list[tuple[str, frozenset[str], int]]] = {}
+    def __init__(self, limits: LimitCounts | None = None) -> None:
+        self._by: dict[Hashable, dict[tuple[str, str], int]] = {}
+        self.limits = limits if limits is not None else LimitCounts()
 
-    def ask(self, key: Hashable, wants: str, names: frozenset[str], number: int) -> None:
+    def ask(self, key: Hashable, wants: str, names: frozenset[str] | Sequence[str], number: int) -> bool:
+        """Frame ``number`` asks ``key``'s peer for ``names`` (``wants`` ``"R"``) or for a list
+        (``"N"``, ``"L"``: no names). False when an entry was refused at ``MAX_PENDING``."""
         asks = self._by.get(key)
         if asks is None:
             if len(self._by) >= MAX_CONVERSATIONS:
-                return
-            asks = self._by[key] = []
-        if len(asks) >= MAX_PENDING:
-            del asks[0]
-        asks.append((wants, names, number))
+                return True
+            asks = self._by[key] = {}
+        refused = False
+        for name in (names if wants == "R" else ("",)):
+            k = (wants, name)
+            if k in asks or len(asks) < MAX_PENDING:
+                asks[k] = number
+            else:
+                refused = True
+        if refused:
+            self.limits.pending += 1
+        return not refused
 
-    def answer(self, key: Hashable, kind: str, names: frozenset[str] = frozenset()) -> int | None:
-        """The number of the latest unanswered ask of ``key`` that ``kind`` (``"R"``, ``"N"``,
-        ``"L"``) with ``names`` answers, taken off the list; None when there is none."""
+    def answer(self, key: Hashable, kind: str, names: frozenset[str] | Sequence[str] = ()) -> int | None:
+        """What ``kind`` (``"R"`` with the reply's ``names``, ``"N"``, ``"L"``) answers of
+        ``key``'s asks, taken off: the latest frame among them; None when none waits."""
         asks = self._by.get(key)
         if not asks:
             return None
-        for i in range(len(asks) - 1, -1, -1):
-            wants, have, number = asks[i]
-            if wants == kind and names <= have:
-                del asks[i]
-                return number
-        return None
+        found = [asks.pop((kind, name), None) for name in (names if kind == "R" else ("",))]
+        return max((n for n in found if n is not None), default=None)
 
 
 def link_response(pending: PendingAsks, conv: Hashable, frame: Frame, kind: str, number: int) -> int | None:
     """Issue 29's reply rule for a query, declaration or reply (docs/fields-sharedlink.md,
     "Replies"): a reply (and a declaration answering a list request) is linked to the latest
-    unanswered ask it answers, from the queried address to the querier's address and port, the
-    letters reversed, whatever its source port; returns that ask's frame number. A query or
-    declaration (frame ``number``) is remembered as an ask."""
+    unanswered ask of each name it answers, from the queried address to the querier's address
+    and port, the letters reversed, whatever its source port; returns the latest of those asks'
+    frame numbers. A query or declaration (frame ``number``) is remembered as an ask of each
+    name (:class:`PendingAsks`)."""
     fields = frame.fields
     if kind == "reply":
         return pending.answer(answer_key(conv, frame.src, frame.dst), "R",
                               frozenset(f.text for f in fields if f.letter == "R"))
-    names = frozenset(f.text for f in fields if f.letter == "Q")
+    names = [f.text for f in fields if f.letter == "Q"]
     response_to = None
     if kind == "declaration":
         decl = declared_list(fields)
@@ -511,7 +524,7 @@ def link_response(pending: PendingAsks, conv: Hashable, frame: Frame, kind: str,
     elif kind == "query":
         req = next((f.letter for f in fields if f.letter in ("N", "L")), None)
         if req is not None:  # L? is answered by the N list, N? by the L list
-            pending.ask(ask_key(conv, frame.src, frame.dst), "N" if req == "L" else "L", names, number)
+            pending.ask(ask_key(conv, frame.src, frame.dst), "N" if req == "L" else "L", (), number)
     return response_to
 
 

@@ -1,0 +1,154 @@
+"""Issue 31: the dissector and the Python tools drop and count the same input at each limit
+(docs/fields-sharedlink.md, "Limits").
+
+Each capture is what a real sender produces past a limit: a querier that asks and asks without
+answer (``max_pending``), a TCP sender that starts a frame and never closes it
+(``max_held_bytes``), ordinals and types of ten digits and more (``MAX_NUMBER_DIGITS``). tshark
+with sharedlink.lua marks each frame where input was dropped with "Limit exceeded: ..."; Python
+counts the same drops in ``stats``'s ``limits`` (:class:`~sharedlink.protocols.limits.LimitCounts`).
+Both must name the same frames (or counts) and link the same replies.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import tshark_util as tu
+from sharedlink.analysis.decode import Decoded, iter_decoded
+from sharedlink.analysis.stats import capture_stats
+from sharedlink.capture.packets import TcpConversation, UdpBuilder
+from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.capture.serial_format import GIVEN_UP
+from sharedlink.capture.stream import iter_frames
+from sharedlink.protocols.limits import MAX_HELD_BYTES, MAX_PENDING
+
+T0_NS = 1_767_268_800 * 1_000_000_000
+OCU, VEHICLE = ("10.0.0.1", 4000), ("10.0.0.2", 7013)
+
+
+def _frame(body: str) -> bytes:
+    """``[:<body>|C<xx>]`` CR LF with the right checksum."""
+    head = f"[:{body}|C".encode("latin-1")
+    return head + b"%02X]\r\n" % (sum(head[1:]) % 256)
+
+
+def _udp(src: tuple[str, int], dst: tuple[str, int]) -> UdpBuilder:
+    return UdpBuilder(src[0], dst[0], src[1], dst[1])
+
+
+def _write(path: Path, frames: list[bytes]) -> Path:
+    with open(path, "wb") as fh:
+        w = PcapWriter(fh)
+        for i, f in enumerate(frames):
+            w.write(T0_NS + i * 1_000_000, f)
+    return path
+
+
+def _lua(cap: Path, names: tuple[str, ...] = ()) -> list[dict[str, list[str]]]:
+    return tu.fields(cap, ["frame.number", *names], two_pass=False)
+
+
+def _limited(rows: list[dict[str, list[str]]], what: str = "") -> list[int]:
+    """The frames the dissector marks "Limit exceeded: ..." (with ``what`` in the text)."""
+    return [int(r["frame.number"][0]) for r in rows
+            if any(m.startswith("Limit exceeded:") and what in m for m in r["_ws.expert.message"])]
+
+
+def _counts(cap: Path) -> dict[str, int]:
+    """``sharedlink stats --json``'s limits (the command as users run it)."""
+    r = subprocess.run([sys.executable, "-m", "sharedlink", "stats", "--json", str(cap)], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    return json.loads(r.stdout)["limits"]
+
+
+# -- max_pending ------------------------------------------------------------------------------
+
+
+def test_a_querier_past_max_pending_is_refused_and_counted_alike(tmp_path: Path) -> None:
+    """An OCU polls one name and the list (``N?``) 520 times each with no answer (a repeated
+    query replaces the one it repeats: no limit), then asks for 1,100 names no one answers:
+    from the one that finds max_pending (1024) already waiting, each new query is refused (not
+    remembered) and counted. A reply to an early name still finds its query; one to a refused
+    name, and the poll's reply, as each side links them."""
+    ask, answer = _udp(OCU, VEHICLE), _udp(VEHICLE, OCU)
+    frames = []
+    for i in range(520):
+        frames += [ask.frame(_frame("BA|Qpoll"), 2 * i + 1), ask.frame(_frame("BA|N?"), 2 * i + 2)]
+    first_q = len(frames) + 1
+    frames += [ask.frame(_frame(f"BA|Qq{i}"), 1300 + i) for i in range(1100)]
+    late = 1100 - (MAX_PENDING - 2)  # the poll and the N? already wait
+    frames += [answer.frame(_frame("AB|Rq5|D1"), 1), answer.frame(_frame("AB|Rq1099|D1"), 2),
+               answer.frame(_frame("AB|Rpoll|D7"), 3)]
+    cap = _write(tmp_path / "queries.pcap", frames)
+
+    rows = _lua(cap, ("sharedlink.response_to",))
+    refused = list(range(first_q + 1100 - late, first_q + 1100))
+    assert _limited(rows, "(max_pending)") == refused
+    assert _limited(rows) == refused
+    lua_links = [r["sharedlink.response_to"] for r in rows[-3:]]
+    assert lua_links == [[str(first_q + 5)], [], [str(first_q - 2)]]
+
+    py = [d for d in iter_decoded(cap) if isinstance(d, Decoded)]
+    assert [d.response_to for d in py[-3:]] == [first_q + 5, None, first_q - 2]
+    assert capture_stats(cap).limits.to_dict() == {"slots": 0, "names": 0, "numbers": 0, "conversations": 0,
+                                                   "held": 0, "pending": len(refused)}
+
+
+# -- max_held_bytes (TCP) ---------------------------------------------------------------------
+
+
+def test_a_tcp_frame_that_never_closes_is_given_up_and_counted_alike(tmp_path: Path) -> None:
+    """A vehicle on TCP sends a frame, then a frame it never closes (a dump of 84 KB with no
+    ``]``, in 1,400-byte segments), twice, then good frames again: each time the held bytes go
+    past max_held_bytes (65536) on the same segment, both sides give the frame up there (Lua:
+    "Limit exceeded" and the frame decoded as it is; Python: noise, counted in ``limits.held``)
+    and decode the frames after it."""
+    tcp = TcpConversation(*OCU, *VEHICLE)
+    frames = tcp.open()
+    good = _frame("AB|N0|T2|QLat|D1.5")
+    frames.append(tcp.send(False, good))
+    for _ in range(2):
+        frames.append(tcp.send(False, b"[:AB|N0|T4|QDump|D"))
+        frames += [tcp.send(False, b"x" * 1400) for _ in range(60)]
+        frames.append(tcp.send(False, b"\r\n" + good))
+    cap = _write(tmp_path / "tcp.pcap", frames)
+
+    rows = _lua(cap, ("sharedlink.kind",))
+    given_up = _limited(rows, "(max_held_bytes)")
+    assert len(given_up) == 2 and _limited(rows) == given_up
+    goods = [i + 1 for i, r in enumerate(rows) if "full" in r["sharedlink.kind"]]
+    assert len(goods) == 3
+
+    ours = [sf.number for sf in iter_frames(cap) if not isinstance(sf, tuple) and sf.error == GIVEN_UP]
+    assert ours == given_up
+    assert [d.number for d in iter_decoded(cap) if isinstance(d, Decoded) and d.kind == "full"] == goods
+    assert capture_stats(cap).limits.held == 2
+    # what was given up went past the limit: the first segment past it, no earlier
+    assert (given_up[0] - 5) * 1400 + len(b"[:AB|N0|T4|QDump|D") > MAX_HELD_BYTES
+
+
+# -- digits of a number field -----------------------------------------------------------------
+
+
+def test_numbers_of_ten_digits_alike(tmp_path: Path) -> None:
+    """A sender that writes an unset 32-bit integer (4294967295) or a wrapped counter where an
+    ordinal or a type goes: an N or L of more than 9 digits is a limit hit on both sides (Lua
+    "Limit exceeded: N has more than 9 digits", Python ``limits.numbers``); a T of more than 9
+    digits is a type that is not a number (Lua "Type is not a number", malformed; Python: no
+    type, not a limit hit)."""
+    b = _udp(VEHICLE, OCU)
+    bodies = ["AB|N0|T4294967295|QVel|D5", "AB|N0|T12345678901234|QVel|D5", "AB|N4294967295|D1",
+              "AB|L4294967295|T2|QLat", "AB|N0|T2|QVel|D6"]
+    cap = _write(tmp_path / "digits.pcap", [b.frame(_frame(x), i + 1) for i, x in enumerate(bodies)])
+    rows = _lua(cap, ("sharedlink.var.name",))
+    assert _limited(rows) == _limited(rows, "more than 9 digits") == [3, 4]
+    not_a_type = [i + 1 for i, r in enumerate(rows) if "Type is not a number" in r["_ws.expert.message"]]
+    assert not_a_type == [1, 2]
+    # one count a long ordinal (Python counts the values it puts past max_slots in "slots" besides)
+    assert _counts(cap)["numbers"] == 2
+    py = {d.number: d for d in iter_decoded(cap) if isinstance(d, Decoded)}
+    assert [u.type_code for u in py[1].shown] == [None] and [u.type_code for u in py[2].shown] == [None]
