@@ -411,11 +411,23 @@ def frame_ordinal(fields: Sequence[Field]) -> int | None:
     return 0
 
 
+#: the largest type code a ``T`` may hold (the dissector's ``valid_type``: 0 to 255)
+MAX_TYPE_CODE = 255
+
+
+def parse_type(text: str) -> int | None:
+    """A ``T`` field's type code: a number 0 to :data:`MAX_TYPE_CODE`, else None (a type that is
+    not a number: the dissector's "Type is not a number"; ten digits and more included)."""
+    n = parse_int(text)
+    return n if n is not None and n <= MAX_TYPE_CODE else None
+
+
 @dataclass(frozen=True)
 class NamedValue:
     name: str
     type_code: int | None
     text: str
+    bad_type: bool = False  # a ``T`` came with it that is not a type (:func:`parse_type`): flagged bad
 
     @property
     def value(self) -> int | float | str:
@@ -426,15 +438,17 @@ def named_values(fields: Sequence[Field]) -> list[NamedValue]:
     """The ``[T t|] Q name|D value`` triplets and ``R name|D value`` replies of a frame."""
     out: list[NamedValue] = []
     type_code: int | None = None
+    bad_type = False
     name: str | None = None
     for f in fields:
         if f.letter == "T":
-            type_code = parse_int(f.text)
+            type_code = parse_type(f.text)
+            bad_type = type_code is None
         elif f.letter in ("Q", "R"):
             name = f.text
         elif f.letter == "D" and name is not None:
-            out.append(NamedValue(name, type_code, f.text))
-            name, type_code = None, None
+            out.append(NamedValue(name, type_code, f.text, bad_type))
+            name, type_code, bad_type = None, None, False
     return out
 
 
@@ -465,7 +479,7 @@ def declared_list(fields: Sequence[Field]) -> tuple[str, int, list[tuple[str, in
         if f.letter in ("N", "L"):
             which, ordinal = f.letter, _ordinal(f.text)
         elif f.letter == "T":
-            type_code = parse_int(f.text)
+            type_code = parse_type(f.text)
         elif f.letter == "Q":
             out.append((f.text, type_code))
             type_code = None

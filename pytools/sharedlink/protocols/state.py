@@ -335,7 +335,8 @@ class VariableTable:
             tc = nv.type_code if nv.type_code is not None else self.types.get(nv.name)
             v = Variable(nv.name, tc, nv.text, number, time_ns)
             changed = (old.text if old is not None else None) != nv.text
-            out.append(_update(v, self._index(nv.name), False, None, changed))
+            u = _update(v, self._index(nv.name), False, None, changed)
+            out.append(u._replace(bad=True) if nv.bad_type else u)
         return out
 
     def _named(self, fields: Sequence, number: int, time_ns: int, carried: bool, store: bool) -> list[Update]:
@@ -356,7 +357,7 @@ class VariableTable:
                 self.types.setdefault(nv.name, nv.type_code)
             u = self._value(nv.name, nv.type_code, nv.text, number, time_ns, pos, store)
             if u is not None:
-                updates.append(u)
+                updates.append(u._replace(bad=True) if nv.bad_type else u)  # "Type is not a number"
         if carried:
             for name, v in self.vars.items():
                 if name not in seen and v.text is not None:
