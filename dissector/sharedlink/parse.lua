@@ -118,7 +118,7 @@ local function take_triplet(p, fe, t1, t2, t3)
     FL[nf + 2], FS[nf + 2], FE[nf + 2] = L_Q, q1, d1 - 2
     FL[nf + 3], FS[nf + 3], FE[nf + 3] = L_D, d1, fe
     P.nf = nf + 3
-    g_t = false
+    g_t, g_tf = false, 0   -- no T pending (a stale g_tf gave a later Q/D variable this triplet's T field)
 end
 
 -- A D field (text t1, field nf): a variable's value, or a command's argument.
