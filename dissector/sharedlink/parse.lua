@@ -328,16 +328,17 @@ end
 -- constants in it.  Returns the code, kept in sh.fill.
 local function layout_fill(sh)
     local n, st, sn, code = sh.n, sh.T, sh.N, {}
+    -- one assignment a field (a multiple one moves every value first), constants where known
     for k = 1, n do
-        code[k] = string.format("VT[%d], VN[%d], VI[%d], VR[%d] = %s, %s, %d, false", k, k, k, k,
-            st[k] and string.format("%q", st[k]) or "nil", sn[k] and string.format("%q", sn[k]) or "nil",
-            sh.ord + k - 1)
+        code[k] = string.format("VT[%d] = %s VN[%d] = %s VI[%d] = %d VR[%d] = false", k,
+            st[k] and string.format("%q", st[k]) or "nil", k, sn[k] and string.format("%q", sn[k]) or "nil",
+            k, sh.ord + k - 1, k)
     end
     local fill = assert(load("local VT, VN, VI, VR, P = ... return function(sh) " .. t_concat(code, " ") ..
-        " P.n_ord, P.n_text, P.nv, P.nd, P.layout, P.odd, P.limit = sh.ord, sh.ntext, " .. n .. ", " .. n ..
-        ", sh, false, false " ..
-        (sh.named and ("P.nq, P.n_pos, P.n_empty_d, P.named = " .. n .. ", 0, 0, sh ")
-                   or ("P.nq, P.n_pos, P.named = 0, " .. n .. ", nil ")) ..
+        " P.n_ord = sh.ord P.n_text = sh.ntext P.nv = " .. n .. " P.nd = " .. n ..
+        " P.layout = sh P.odd = false P.limit = false " ..
+        (sh.named and ("P.nq = " .. n .. " P.n_pos = 0 P.n_empty_d = 0 P.named = sh ")
+                   or ("P.nq = 0 P.n_pos = " .. n .. " P.named = nil ")) ..
         "P.filled = sh end", "=layout_fill", "t", {}))(VT, VN, VI, VR, P)
     sh.fill = fill
     if sh.named then layout_store(sh) end
