@@ -196,7 +196,9 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     if layout then
         -- a layout's frame: a data frame between nodes A-P (its head is the layout's); full_local
         -- from the layout (full_without_state)
-        is_data, dst, src, addrs_ok = true, LETTER[dstb], LETTER[srcb], true
+        is_data, addrs_ok = true, true
+        dst = LETTER[dstb]
+        src = LETTER[srcb]
     else
         kind, is_data = kind_of_fields(malformed_msg)
         dst, src, addrs_ok = addresses(dstb, srcb)
@@ -334,7 +336,7 @@ local function dissect(tvb, pinfo, tree)
     I.begin()
     crlf_told = false
     -- the layout cache first, for the frame the payload starts with (see Pm.parse_payload)
-    local b = s_byte(s, 1) == B_LBRACK and parse_payload(s, n)
+    local b = parse_payload(s, n)
     if b then
         local c1, c2 = s_byte(s, b + 1, b + 2)
         local e = (c1 == B_CR and c2 == B_LF) and b + 2 or line_end(s, b)
@@ -428,6 +430,7 @@ end
 function sl.prefs_changed()
     apply_ports()
     cfg.read()
+    S.lists_changed()
 end
 
 apply_ports()

@@ -93,7 +93,7 @@ local function info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n
         if tail then total = total + #tail end
         if total <= INFO_MAX then
             ninfo, info_len = 1, total
-            local text = (full and named.info or named.dinfo)(VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8])
+            local text = (full and named.info or named.dinfo)()
             INFO[1] = tail and text .. tail or text
             return
         end

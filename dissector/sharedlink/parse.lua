@@ -29,7 +29,7 @@ local to_ordinal, pat_escape = U.to_ordinal, U.pat_escape
 -- cpos/ctext the checksum field's start and text (vlen: the values' total length, layout frames);
 -- cmd_start the first E/M field; ord_text N? or L? (a list request); layout: the cached layout
 -- that parsed the frame (else false), named: the same when it is a named one (else nil),
--- filled: the layout whose facts P holds (layout_take); odd: a field whose tree item carries an expert info
+-- filled: the layout whose facts P holds (parse_cached); odd: a field whose tree item carries an expert info
 -- (an empty field, an unknown letter, an ordinal or type that is not a number); limit: why the
 -- frame is past a limit its fields alone tell (a "Limit exceeded: ..." text), else false.
 ------------------------------------------------------------------------------
@@ -118,7 +118,7 @@ local function take_triplet(p, fe, t1, t2, t3)
     FL[nf + 2], FS[nf + 2], FE[nf + 2] = L_Q, q1, d1 - 2
     FL[nf + 3], FS[nf + 3], FE[nf + 3] = L_D, d1, fe
     P.nf = nf + 3
-    g_t = false
+    g_t, g_tf = false, 0   -- no T pending (a stale g_tf gave a later Q/D variable this triplet's T field)
 end
 
 -- A D field (text t1, field nf): a variable's value, or a command's argument.
@@ -229,7 +229,7 @@ end
 -- plain text and the rest matched from there (a pattern matches text one character at a time);
 -- the layout that matched a frame of the same length is tried first (a compressed stream
 -- interleaves layouts of one prefix, and a pattern that fails late costs most of a match); the
--- checksum is the layout's fixed sum plus one sum over the values joined (SUMS).
+-- checksum is the layout's fixed sum plus one sum over the values joined (TAKE).
 ------------------------------------------------------------------------------
 -- The value classes, written as ranges: a value is any byte but '|', '[', ']', the control
 -- characters and DEL (no '[': a frame the cache matched then holds no "[:" but its first, the
@@ -244,34 +244,41 @@ local VALUE = "([ -Z\\^-{}-~\128-\255]*)"
 local DOUBLE = "([-+]?[0-9]+%.?[0-9]*)"
 local CHECKSUM = "|C([^]|[]*)%]"
 
--- SUMS[n](v1, ..., vn, ctext) -> the values' total length, the sum of their bytes and ctext.
--- Speed trick (measured): the values are summed as one string, one str_sum instead of one a
--- value (-2.3 thousand instructions a frame, summary pass).
-local SUMS = { [0] = function(ctext) return 0, 0, ctext end }
+-- TAKE[n](f, pat, at): a layout's pattern of n values matched on f from at; nil when it does not
+-- match, else its values go into VV[1..n] and it returns their total length, the sum of their
+-- bytes and the checksum text.  Code made once for each n (speed trick, measured: the captures
+-- stay in its locals, no call passes them on); the values are summed as one string, one
+-- SUM_OF call instead of one a value (-2.3 thousand instructions a frame, summary pass).
+local TAKE = { [0] = function(f, pat, at)
+    local ctext = s_match(f, pat, at)
+    if not ctext then return nil end
+    return 0, 0, ctext
+end }
 for n = 1, 8 do
-    local args = {}
-    for k = 1, n do args[k] = "v" .. k end
-    SUMS[n] = assert(load("local SUM_OF, s_byte, byte_sum = ... return function(" .. t_concat(args, ", ") ..
-        ", ctext) local all = " .. t_concat(args, " .. ") .. " local n = #all " ..
+    local args, sets = {}, {}
+    for k = 1, n do args[k], sets[k] = "v" .. k, "VV[" .. k .. "] = v" .. k end
+    TAKE[n] = assert(load("local VV, SUM_OF, s_byte, byte_sum, s_match = ... return function(f, pat, at) local " ..
+        t_concat(args, ", ") .. ", ctext = s_match(f, pat, at) if not ctext then return nil end " ..
+        t_concat(sets, " ") .. " local all = " .. t_concat(args, " .. ") .. " local n = #all " ..
         "if n <= 40 then return n, SUM_OF[n](s_byte(all, 1, n)), ctext end " ..
-        "return n, byte_sum(all, 1, n), ctext end", "=SUMS", "t", {}))(U.SUM_OF, s_byte, byte_sum)
+        "return n, byte_sum(all, 1, n), ctext end", "=TAKE", "t", {}))(VV, U.SUM_OF, s_byte, byte_sum, s_match)
 end
 
 -- The node pair's recent layouts (key), newest first, tried on the frame f (len: the index of its
 -- ']', or the payload's length when f is the payload); the one that matches comes first and is
--- remembered for len.  Returns it and its captures; nil: none.
+-- remembered for len.  Returns it and what its take returned (TAKE); nil: none.
 local function layout_mru(f, len, key)
     local mru = LY.mru[key]
     if not mru then return nil end
-    local c1, c2, c3, c4, c5, c6, c7, c8, c9
+    local vlen, sum, ctext
     for k = 1, #mru do
         local sh = mru[k]
-        if s_find(f, sh.head, 1, true) == 1 then c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_match(f, sh.pat, sh.at) end
-        if c1 then
+        if s_find(f, sh.head, 1, true) == 1 then vlen, sum, ctext = sh.take(f, sh.pat, sh.at) end
+        if vlen then
             if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
             if LY.nbylen >= 4096 then LY.bylen, LY.nbylen = {}, 0 end
             if len < 65536 then LY.bylen[key * 65536 + len], LY.nbylen = sh, LY.nbylen + 1 end
-            return sh, c1, c2, c3, c4, c5, c6, c7, c8, c9
+            return sh, vlen, sum, ctext
         end
     end
     return nil
@@ -305,23 +312,36 @@ local function fast_positions(sh)
     P.nf = i + 1
 end
 
+-- A named layout's values from VV into a direction's vals and from (the state writer's store of a
+-- layout of known names): code made once per layout with its fill code, kept in sh.store (speed trick, measured: the
+-- names constants in it, no loop).
+local function layout_store(sh)
+    local code = {}
+    for k = 1, sh.n do code[k] = string.format("vals[%q], from[%q] = VV[%d], num", sh.N[k], sh.N[k], k) end
+    sh.store = assert(load("local VV = ... return function(vals, from, num) " .. t_concat(code, " ") .. " end",
+        "=layout_store", "t", {}))(VV)
+    return sh.store
+end
+
 -- A layout's names, types, indexes and facts into P: code made once per layout (speed trick,
 -- measured: a compressed stream's deltas change layout every frame), the names and types
 -- constants in it.  Returns the code, kept in sh.fill.
 local function layout_fill(sh)
     local n, st, sn, code = sh.n, sh.T, sh.N, {}
+    -- one assignment a field (a multiple one moves every value first), constants where known
     for k = 1, n do
-        code[k] = string.format("VT[%d], VN[%d], VI[%d], VR[%d] = %s, %s, %d, false", k, k, k, k,
-            st[k] and string.format("%q", st[k]) or "nil", sn[k] and string.format("%q", sn[k]) or "nil",
-            sh.ord + k - 1)
+        code[k] = string.format("VT[%d] = %s VN[%d] = %s VI[%d] = %d VR[%d] = false", k,
+            st[k] and string.format("%q", st[k]) or "nil", k, sn[k] and string.format("%q", sn[k]) or "nil",
+            k, sh.ord + k - 1, k)
     end
     local fill = assert(load("local VT, VN, VI, VR, P = ... return function(sh) " .. t_concat(code, " ") ..
-        " P.n_ord, P.n_text, P.nv, P.nd, P.layout, P.odd, P.limit = sh.ord, sh.ntext, " .. n .. ", " .. n ..
-        ", sh, false, false " ..
-        (sh.named and ("P.nq, P.n_pos, P.n_empty_d, P.named = " .. n .. ", 0, 0, sh ")
-                   or ("P.nq, P.n_pos, P.named = 0, " .. n .. ", nil ")) ..
+        " P.n_ord = sh.ord P.n_text = sh.ntext P.nv = " .. n .. " P.nd = " .. n ..
+        " P.layout = sh P.odd = false P.limit = false " ..
+        (sh.named and ("P.nq = " .. n .. " P.n_pos = 0 P.n_empty_d = 0 P.named = sh ")
+                   or ("P.nq = 0 P.n_pos = " .. n .. " P.named = nil ")) ..
         "P.filled = sh end", "=layout_fill", "t", {}))(VT, VN, VI, VR, P)
     sh.fill = fill
+    if sh.named then layout_store(sh) end
     return fill
 end
 
@@ -330,59 +350,34 @@ local lv_val, lv_calc, lv_status = nil, nil, nil
 -- and its facts for the entry: lv_quiet, no expert possible (a quiet layout, a good upper-case
 -- checksum); lv_full, full without state (N0, no empty positional D)
 local lv_quiet, lv_full = false, false
+local lv_dstb, lv_srcb = 0, 0   -- its address bytes
 
--- A matched layout's captures (the values, then the checksum text) into P: its variables and the
--- facts a layout's frame has (a data frame: N, then T/Q/D triplets or D fields, then C; the facts
--- only other kinds have, has_e..has_r, l_ord, cmd_start, ord_text, are read for those alone), and
--- its checksum verdict (lv_*: the layout's fixed sum plus the values').  Returns the index of the
--- frame's ']'.  Speed trick (measured): the layout's names, types, indexes and facts stay in P
--- while the next frames have its layout (P.filled, cleared by the parser): such a frame writes its
--- values and its checksum's facts alone.
-local function layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
-    local n = sh.n
-    VV[1], VV[2], VV[3], VV[4], VV[5], VV[6], VV[7], VV[8], VV[9] = c1, c2, c3, c4, c5, c6, c7, c8, c9
-    local vlen, sum, ctext = sh.sums(c1, c2, c3, c4, c5, c6, c7, c8, c9)
-    local fl = sh.flen + vlen + #ctext
-    P.ctext, P.vlen, P.cpos = ctext, vlen, fl - 1 - #ctext   -- the pattern ends in |C<ctext>]
-    if P.filled ~= sh then (sh.fill or layout_fill(sh))(sh) end
-    lv_full = sh.full0
-    if not sh.named then
-        local n_empty_d = 0
-        for k = 1, n do if VV[k] == "" then n_empty_d = n_empty_d + 1 end end
-        P.n_empty_d = n_empty_d
-        lv_full = lv_full and n_empty_d == 0
-    end
-    local cs_val = HEXV[ctext] or checksum_value(ctext)
-    if cfg.validate then
-        local cs_calc = (sh.fixed + sum) % 256
-        lv_val, lv_calc, lv_status = cs_val, cs_calc, (cs_val == cs_calc) and 1 or 0
-    else
-        lv_val, lv_calc, lv_status = cs_val, nil, 2
-    end
-    lv_quiet = sh.quiet and lv_status == 1 and UHEX[ctext] or false
-    return fl
+-- A positional layout's frame: its empty D fields (P.n_empty_d; full without state needs none).
+local function positional_empty(n)
+    local n_empty_d = 0
+    for k = 1, n do if VV[k] == "" then n_empty_d = n_empty_d + 1 end end
+    P.n_empty_d = n_empty_d
+    return n_empty_d == 0
 end
 
 ------------------------------------------------------------------------------
 -- Learning a layout (from a frame the parser took).
 ------------------------------------------------------------------------------
--- A named layout's Info code, made once per pattern (kept for 256 patterns): info(v1, ..., vn) /
--- dinfo(...) make the Info of a full frame / a delta (info_frame).  Speed trick (measured): the
--- names and the Info's pieces are constants in the code, one concatenation, nothing looked up.
+-- A named layout's Info code, made once per pattern (kept for 256 patterns): info() / dinfo() make
+-- the Info of a full frame / a delta (info_frame) from the values in VV.  Speed trick (measured):
+-- the names and the Info's pieces are constants in the code, one concatenation, no arguments.
 local INFO_CODE, info_code_n = {}, 0
 local function info_code(pat, sn, pieces, dpieces)
     local code = INFO_CODE[pat]
     if not code then
-        local args, info, dinfo = {}, {}, {}
+        local info, dinfo = {}, {}
         for k = 1, #sn do
-            args[k] = "v" .. k
-            info[2 * k - 1], info[2 * k] = string.format("%q", pieces[k]), args[k]
-            dinfo[2 * k - 1], dinfo[2 * k] = string.format("%q", dpieces[k]), args[k]
+            info[2 * k - 1], info[2 * k] = string.format("%q", pieces[k]), "VV[" .. k .. "]"
+            dinfo[2 * k - 1], dinfo[2 * k] = string.format("%q", dpieces[k]), "VV[" .. k .. "]"
         end
-        local vs = t_concat(args, ", ")
-        code = { assert(load("return function(" .. vs .. ") return " .. t_concat(info, " .. ") ..
-            " end, function(" .. vs .. ") return " .. t_concat(dinfo, " .. ") .. " end",
-            "=info_code", "t", {}))() }
+        code = { assert(load("local VV = ... return function() return " .. t_concat(info, " .. ") ..
+            " end, function() return " .. t_concat(dinfo, " .. ") .. " end",
+            "=info_code", "t", {}))(VV) }
         if info_code_n >= 256 then INFO_CODE, info_code_n = {}, 0 end
         INFO_CODE[pat], info_code_n = code, info_code_n + 1
     end
@@ -461,7 +456,7 @@ local function new_layout(f, kind, dstb, srcb)
     for k = 1, nv do vlen = vlen + #VV[k] end
     local sh = { head = head, at = #head + 1, pat = "^" .. t_concat(parts), n = nv, named = named, T = st, N = sn,
         TV = named and tv or nil, has_long = named and has_long(tv), ord = P.n_ord, ntext = P.n_text,
-        fixed = fixed % 256, sums = SUMS[nv], flen = P.cpos + 1 - vlen }
+        fixed = fixed % 256, take = TAKE[nv], flen = P.cpos + 1 - vlen }
     -- quiet: no value of the layout can carry an expert info (var.badvalue; see tree's has_experts)
     sh.quiet = named and not sh.has_long
     sh.full0 = nv > 0 and P.n_ord == 0   -- full without state, but for empty positional D fields
@@ -492,7 +487,7 @@ end
 -- A frame: header, then the layout cache, else the parser (which teaches the cache).
 ------------------------------------------------------------------------------
 -- A closed frame the layout cache has, at the start of f (len: the index of its ']', or the
--- payload's length when f is the payload): matched and taken into P (layout_take).  The layout
+-- payload's length when f is the payload): matched and taken into P.  The layout
 -- that matched the same len last is tried first, then the node pair's recent ones.  Its head
 -- (addresses A-P, N) is the layout's, so the frame needs no header check.  Returns the index of
 -- its ']' (nil: not cached).
@@ -501,25 +496,42 @@ local function parse_cached(f, len)
     if not srcb or len < 6 then return nil end
     local key = dstb * 256 + srcb
     local sh = LY.bylen[key * 65536 + len]
-    local c1, c2, c3, c4, c5, c6, c7, c8, c9
-    if sh and s_find(f, sh.head, 1, true) == 1 then c1, c2, c3, c4, c5, c6, c7, c8, c9 = s_match(f, sh.pat, sh.at) end
-    if not c1 then
-        sh, c1, c2, c3, c4, c5, c6, c7, c8, c9 = layout_mru(f, len, key)
+    local vlen, sum, ctext
+    if sh and s_find(f, sh.head, 1, true) == 1 then vlen, sum, ctext = sh.take(f, sh.pat, sh.at) end
+    if not vlen then
+        sh, vlen, sum, ctext = layout_mru(f, len, key)
         if not sh then return nil end
     end
     if MARKS.fast then MARKS.fast_hit = true end
-    return layout_take(sh, c1, c2, c3, c4, c5, c6, c7, c8, c9)
+    -- the frame into P (its values are in VV already: TAKE): its variables and the facts a layout's
+    -- frame has (a data frame: N, then T/Q/D triplets or D fields, then C; the facts only other
+    -- kinds have, has_e..has_r, l_ord, cmd_start, ord_text, are read for those alone), and its
+    -- checksum verdict (lv_*: the layout's fixed sum plus the values').  Speed trick (measured):
+    -- the layout's names, types, indexes and facts stay in P while the next frames have its layout
+    -- (P.filled, cleared by the parser): such a frame writes its values and its checksum's facts.
+    lv_dstb, lv_srcb = dstb, srcb
+    local fl = sh.flen + vlen + #ctext
+    P.ctext = ctext   -- (one assignment a field: a multiple one moves each value first)
+    P.vlen = vlen
+    P.cpos = fl - 1 - #ctext   -- the pattern ends in |C<ctext>]
+    if P.filled ~= sh then (sh.fill or layout_fill(sh))(sh) end
+    lv_full = sh.full0
+    if not sh.named then lv_full = positional_empty(sh.n) and lv_full end
+    local cs_val = HEXV[ctext] or checksum_value(ctext)
+    lv_val = cs_val
+    if cfg.validate then
+        local cs_calc = (sh.fixed + sum) % 256
+        lv_calc = cs_calc
+        lv_status = (cs_val == cs_calc) and 1 or 0
+    else
+        lv_calc, lv_status = nil, 2
+    end
+    lv_quiet = sh.quiet and lv_status == 1 and UHEX[ctext] or false
+    return fl
 end
 
--- The frame the payload s (n bytes) starts with, when the layout cache has its layout: taken into P
--- (then parse_frame with taken).  The entry tries it before scanning the payload (speed trick,
--- measured: the scan's three string.find): a layout's match proves the frame ends at its first ']'
--- with no "[:" after its start (its values and checksum text hold no '[' nor ']'), the frame the
--- scan finds.  Returns the index of its ']' (nil: not cached; the scan takes the payload).
-function Pm.parse_payload(s, n)
-    if FAST then return parse_cached(s, n) end
-    return nil
-end
+-- The payload need not start with '[': a layout's head does ("[:" and the addresses).
+Pm.parse_payload = FAST and parse_cached or function() return nil end
 
 -- Checksum verdict of a frame the parser took, before the state (a frame with a bad checksum
 -- changes no state): the value of the checksum text (nil: not hex), the calculated value, the
@@ -541,8 +553,7 @@ end
 local function parse_frame(f, fl, terminated, vis, taken)
     if taken or (FAST and terminated and parse_cached(f, fl)) then
         if vis then fast_positions(P.layout) end
-        local dstb, srcb = s_byte(f, 3, 4)
-        return fl - 1, dstb, srcb, nil, lv_val, lv_calc, lv_status, lv_quiet, lv_full
+        return fl - 1, lv_dstb, lv_srcb, nil, lv_val, lv_calc, lv_status, lv_quiet, lv_full
     end
     parse_reset()
     local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)

@@ -225,7 +225,10 @@ end
 local function get_rec(num, sk, create)
     local r = recs[num]
     if r == nil then
-        if not create then return carried_lookup(num, sk) end
+        if not create then
+            if cr_npend == 0 and cr_first[1] == nil then return nil end   -- no carried-only records at all
+            return carried_lookup(num, sk)
+        end
         r = { sk = sk }
         recs[num] = r
         return r

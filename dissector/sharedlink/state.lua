@@ -25,8 +25,14 @@ local pending_q     -- ask key .. ":" .. name (or "#N", "#L": a list request) ->
 local dir_cache_key, dir_cache_num, dir_cache_ports -- cache for the current packet
 local last_asrc, last_adst, last_pdir, last_akey     -- addresses of the last packet and their key
 local stamp_ctr = 0
+-- lists_gen: bumped whenever a list a direction with none of its own may use changes (a
+-- declaration, a new capture, the preferences); a direction keeps the one it found (d.lsrc) while
+-- d.lgen is the same (speed trick, measured: no three table lookups a frame, list_in_use)
+local lists_gen = 0
 local S = {}
+function S.lists_changed() lists_gen = lists_gen + 1 end
 function S.reset()
+    lists_gen = lists_gen + 1
     dirs, pair_lists, pending_q, inbound, ninbound = {}, {}, {}, {}, 0
     dir_cache_key, dir_cache_num, dir_cache_ports = nil, nil, 0
     last_asrc, last_adst, last_pdir, last_akey = nil, nil, nil, nil
@@ -380,14 +386,8 @@ do
         return nm
     end
 
-    -- A named layout's values into the direction (its names are known ones).
-    local function store_layout_values(d, num)
-        local vals, from = d.vals, d.from
-        for v = 1, P.nv do
-            local name = VN[v]
-            vals[name], from[name] = VV[v], num
-        end
-    end
+    -- A named layout's values go into the direction (its names are known ones) by the layout's
+    -- store code, named.store (parse's layout_store, made with its fill code).
 
     -- State, first pass, a data frame: its values go into the direction's state (good checksum),
     -- what it leaves out is gathered in CARRY (empty D fields: value, frame, ...; ne entries) and
@@ -405,12 +405,12 @@ do
             -- a layout of known names: its values stored; the direction's other names carried
             -- (none: the whole known set)
             if d.names_is == named.N then
-                store_layout_values(d, num)
+                named.store(d.vals, d.from, num)
                 return full_local, 0, 0, 0, full_local, false
             end
             local sub = known_subset(d, named)
             if sub then
-                store_layout_values(d, num)
+                named.store(d.vals, d.from, num)
                 return false, 0, carried_subset(d, sub.names), #sub.names, false, false
             end
         end
@@ -508,6 +508,7 @@ do
                 " receivers with an inbound list (max_conversations)"
         end
         pair_lists[rl] = newlist
+        lists_gen = lists_gen + 1
     end
 
     -- A query waits for its reply (under its ask key and each name it asks for; at most
@@ -589,7 +590,9 @@ do
     -- back on later passes: list_at).
     local function list_in_use(d, num, sk, src, dst)
         local list = d.list
-        if not list then
+        if not list and d.lgen == lists_gen then
+            list = d.lsrc
+        elseif not list then
             local rkey = d.rkey   -- its receiver's key: addresses, "|", letters src .. dst (made once)
             if not rkey then
                 d.letters = src .. dst
@@ -597,6 +600,7 @@ do
                 d.rkey = rkey
             end
             list = inbound[rkey] or pair_lists[d.letters] or cfg.pairs[d.letters] or cfg.list
+            d.lsrc, d.lgen = list, lists_gen
         end
         local old = d.used_list or cfg.list
         if list ~= old then
@@ -628,28 +632,9 @@ do
             " (max_conversations); this one keeps none"
     end
 
-    -- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
-    -- direction state (data frames), the named variables carried, and ne/nm (see data_values).
-    function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, addrs_ok, full_local,
-                              has_tree)
-        LIM.hit = false
-        if is_data and addrs_ok then
-            -- a data frame (not a kind LINKED)
-            local d = get_dir(pinfo, num, dstb, srcb)
-            if d.over then LIM.hit = over_text() end
-            local list = frame_list(list_in_use(d, num, sk, src, dst))
-            local full, ne, nm, miss_n, journaled
-            full, ne, nm, miss_n, full_local, journaled = data_values(d, list, num, sk, good, full_local, has_tree)
-            -- a journal's carried names go in no record (see journal)
-            local rec
-            rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm,
-                LIM.hit and get_rec(num, sk, true) or nil)
-            if LIM.hit then
-                rec = rec or get_rec(num, sk, true)
-                rec.limit = LIM.hit
-            end
-            return kind, rec, list, d, miss_n, ne, nm
-        end
+    -- State on the first pass, a frame of another kind than data (malformed, reply, query,
+    -- declaration, command...): state_first_pass's answers for it.
+    local function state_other(pinfo, num, sk, kind, good, dstb, srcb, dst, src, addrs_ok)
         local rec, list, d = nil, cfg.list, nil
         if (kind == "malformed" or kind == "reply") and addrs_ok then
             d = get_dir(pinfo, num, dstb, srcb)
@@ -663,7 +648,40 @@ do
         end
         return kind, limit_record(rec, num, sk), list, d, 0, 0, 0
     end
+
+    -- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
+    -- direction state (data frames), the named variables carried, and ne/nm (see data_values).
+    function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, addrs_ok, full_local,
+                              has_tree)
+        LIM.hit = false
+        if is_data and addrs_ok then
+            -- a data frame (not a kind LINKED)
+            local d = get_dir(pinfo, num, dstb, srcb)
+            if d.over then LIM.hit = over_text() end
+            local list = list_in_use(d, num, sk, src, dst)
+            if list.by_length and P.n_pos > 0 then list = frame_list(list) end
+            local named, full, ne, nm, miss_n, journaled = P.named, full_local, 0, 0, 0, false
+            if good and named and d.names_is == named.N and not d.hist then
+                -- a layout of the direction's whole known set (data_values' first case, the
+                -- commonest frame): its values stored, nothing carried
+                named.store(d.vals, d.from, num)
+            else
+                full, ne, nm, miss_n, full_local, journaled = data_values(d, list, num, sk, good, full_local, has_tree)
+            end
+            -- a journal's carried names go in no record (see journal)
+            local rec
+            rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm,
+                LIM.hit and get_rec(num, sk, true) or nil)
+            if LIM.hit then
+                rec = rec or get_rec(num, sk, true)
+                rec.limit = LIM.hit
+            end
+            return kind, rec, list, d, miss_n, ne, nm
+        end
+        return state_other(pinfo, num, sk, kind, good, dstb, srcb, dst, src, addrs_ok)
+    end
 end
+
 
 -- The list in use at frame (num, sk) on the first pass, from the direction's history of changes.
 -- The entries (num, sk, list) are in capture order: a binary search (linear time over a pass).
