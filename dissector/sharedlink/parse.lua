@@ -16,6 +16,7 @@ local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = U.L_N, U.L_T, U.L_
 local valid_type, byte_sum, str_sum, checksum_value = U.valid_type, U.byte_sum, U.str_sum, U.checksum_value
 local HEXV, UHEX = U.HEXV, U.UHEX
 local to_ordinal, pat_escape = U.to_ordinal, U.pat_escape
+local HUGE_INDEX = 4294967295   -- the largest index the uint32 sharedlink.var.index holds
 
 ------------------------------------------------------------------------------
 -- What parsing found in the current frame (P; read by state, info and tree), in reused arrays (no
@@ -58,7 +59,7 @@ local MARKS = { fast = wsapi.env.fast_mark, fast_hit = false }
 
 local function parse_reset()
     P.nf, P.nv = 0, 0
-    P.n_ord, P.l_ord, P.n_text = nil, nil, nil
+    P.n_ord, P.l_ord, P.n_text, P.huge_ord = nil, nil, nil, nil
     P.has_e, P.has_m, P.has_p, P.has_g, P.has_r = false, false, false, false, false
     P.nq, P.nd, P.n_empty_d, P.n_pos = 0, 0, 0, 0
     P.cpos, P.ctext, P.cmd_start, P.ord_text = nil, nil, nil, false
@@ -149,7 +150,8 @@ end
 -- An N or L field: its ordinal sets the next variable's index (the first one of each only).
 local function take_ordinal(c, t1)
     if not ordinal_ok(t1) then P.odd = true end
-    if #t1 > 9 and not s_find(t1, "[^0-9]") then
+    local huge = #t1 > 9 and not s_find(t1, "[^0-9]")
+    if huge then
         P.odd, P.limit = true, "Limit exceeded: " .. (c == L_N and "N" or "L") .. " has more than 9 digits"
     end
     if c == L_N then
@@ -161,6 +163,9 @@ local function take_ordinal(c, t1)
         P.l_ord = to_ordinal(t1)
         g_idx = P.l_ord
     end
+    -- past max_slots whatever to_ordinal keeps (an unset 32-bit field, N4294967295): its slots
+    -- are dropped, not stored from 0, and the frame is no full set (P.huge_ord)
+    if huge then g_idx, P.huge_ord = HUGE_INDEX, true end
     if not tonumber(t1) then P.ord_text = true end
 end
 

@@ -417,7 +417,7 @@ do
         local nm, miss_n = store_values(d, list, num, sk, good, has_tree, hist, key)
         if named and good and miss_n == 0 and #d.names == named.n then d.names_is = named.N end
         local n_ord = P.n_ord
-        local full = P.nd > 0 and (n_ord == nil or n_ord == 0) and not dv_required and miss_n == 0
+        local full = P.nd > 0 and (n_ord == nil or n_ord == 0) and not P.huge_ord and not dv_required and miss_n == 0
         if P.n_pos == 0 then full_local = full_local and miss_n == 0 end
         return full, dv_ne, nm, miss_n, full_local, hist ~= nil
     end

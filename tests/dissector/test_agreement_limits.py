@@ -183,9 +183,6 @@ def test_python_drops_the_values_of_a_huge_ordinal(tmp_path: Path) -> None:
     assert capture_stats(tmp_path / "ordinal.pcap").limits.numbers == 2
 
 
-@pytest.mark.xfail(strict=True, reason="sharedlink.lua (not changed here: lspeed2 rewrites it): U.to_ordinal reads "
-                   "an N of 2147483647 or more as 0, and parse.lua skips its max_slots check once 'N has more than 9 "
-                   "digits' is set, so the values land on slots 0.. (slot 0 becomes 1) and a first such frame is 'full'")
 def test_lua_drops_the_values_of_a_huge_ordinal(tmp_path: Path) -> None:
     lua = lua_frames(_huge_ordinal(tmp_path), None)
     assert [f[0]["kind"] for f in lua] == ["delta", "full", "delta", "delta"]
