@@ -231,6 +231,25 @@ def test_dask_local_cluster_gives_the_same_dataset(fleet, dataset, tmp_path):
     assert q(ds, VALUES_SUMMARY) == q(dataset, VALUES_SUMMARY)
 
 
+def test_a_worker_started_with_a_small_trim_threshold_gives_the_same_dataset(fleet, dataset, tmp_path):
+    """Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536; a task then keeps freed
+    heap while it decodes (ingest._heap_kept, glibc's mallopt) and sets it back after: the same
+    rows, in a process started as Dask starts its workers (2 of them: a pool)."""
+    import os
+    import platform
+
+    from sharedlink.fleet.ingest import _glibc
+
+    ds = tmp_path / "ds-trim"
+    code = f"from sharedlink.fleet.ingest import ingest; assert ingest([{str(fleet)!r}], {str(ds)!r}, workers=2).ok"
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=300,
+                   env=dict(os.environ, MALLOC_TRIM_THRESHOLD_="65536"))
+    assert q(ds, SUMMARY) == q(dataset, SUMMARY)
+    assert q(ds, VALUES_SUMMARY) == q(dataset, VALUES_SUMMARY)
+    if sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc":
+        assert _glibc() is not None  # (else the heap is not kept: slower, not wrong)
+
+
 def test_unreachable_scheduler_is_a_usage_error(fleet, tmp_path):
     r = subprocess.run([*CLI, "ingest", str(fleet / "v1"), "--to", str(tmp_path / "d"), "--scheduler", "tcp://127.0.0.1:9"],
                        capture_output=True, text=True, timeout=120)

@@ -34,7 +34,10 @@ import os
 import re
 import socket
 import struct
+from array import array
 from collections.abc import Callable, Iterator, Sequence
+from itertools import compress, repeat
+from operator import is_not, mul, ne, sub
 from pathlib import Path
 from typing import NamedTuple
 from zlib import adler32
@@ -290,7 +293,9 @@ def _fullmatch(pattern: bytes | str) -> Callable:
 #: the addresses and UDP ports (12 bytes: the conversation), UDP length: the 16-bit fields
 #: little-endian, compared through _SWAP16; the fragment field is 0, or 0x40 for "don't fragment"
 _PCAP_UDP = struct.Struct("<IIII12x3sxHxxHxB2x12sH")
-_SWAP16 = [((x & 0xFF) << 8) | (x >> 8) for x in range(65536)]
+_SWAP16 = array("H", range(65536))
+_SWAP16.byteswap()  # x with its two bytes swapped
+_SWAP16 = _SWAP16.tolist()
 
 
 class _Compiled:
@@ -478,19 +483,20 @@ class _Compiled:
 
 
 class _ColLane:
-    """Columns only: one direction's run taker (:meth:`Decoder.column_run`), the compiled-layout
-    technique on rows. Made only for a direction in its steady state: named, every variable
-    with a value typed and sent (then a frame is full when it holds every variable with a
-    value; a frame that would give a first value is left to the other paths), at most
+    """Columns and counts only: one direction's run taker (:meth:`Decoder.column_run`,
+    :meth:`Decoder.count_run`), the compiled-layout technique on rows and on counts. Made only
+    for a direction in its steady state: named, every variable with a value typed and sent
+    (then a frame is full when it holds every variable with a value; a frame that would give a
+    first value is left to the other paths), at most
     :data:`MAX_COMPILED_VARS` variables; one str pattern on the latin-1 block, every typed
     variable in table order as an optional ``|T t|Q name|D value``. ``stamp``: the state it was
     made for (the direction's version, its variable and sent-name counts, its form); any other
     state and it is made again."""
 
-    __slots__ = ("h", "hkey", "conv", "src", "dst", "stamp", "rx", "names", "types", "vs")
+    __slots__ = ("h", "hkey", "key", "conv", "src", "dst", "stamp", "rx", "names", "types", "vs")
 
-    def __init__(self, h: _Hot, hkey: tuple, stamp: tuple) -> None:
-        self.h, self.hkey, self.stamp = h, hkey, stamp
+    def __init__(self, h: _Hot, hkey: tuple, stamp: tuple, key: bytes = b"") -> None:
+        self.h, self.hkey, self.stamp, self.key = h, hkey, stamp, key
         self.conv, self.src, self.dst = hkey
         t = h.table
         every = list(t.vars.values())
@@ -510,12 +516,13 @@ class _ColLane:
 class DirCounts:
     """Counts only: what :meth:`Decoder.count` took of one direction's frames since the last
     batch (every one a good full or delta frame in the named form). ``layouts``: layout ->
-    [frames, number and time of the last one]; ``changed``: name -> the texts it changed to, in
-    order; ``gaps``: the sync gaps of its full frames (ns); ``size``: the bytes of a full set's
-    values now."""
+    [frames, number and time of the last one] (of the frames :meth:`Decoder.count` took);
+    ``held``: name -> values carried in the frames :meth:`Decoder.count_run` took; ``changed``:
+    name -> the texts it changed to, in order; ``gaps``: the sync gaps of its full frames (ns);
+    ``size``: the bytes of a full set's values now."""
 
     __slots__ = ("conv", "src", "dst", "table", "first_ts", "last_ts", "frames", "bytes", "full", "late", "gaps",
-                 "full_bytes", "layouts", "changed", "size", "last_full")
+                 "full_bytes", "layouts", "held", "changed", "size", "last_full")
 
     def __init__(self, conv: tuple, src: str, dst: str, h: _Hot, ts: int, size: int) -> None:
         self.conv, self.src, self.dst, self.table = conv, src, dst, h.table
@@ -523,6 +530,7 @@ class DirCounts:
         self.frames = self.bytes = self.full = self.late = self.full_bytes = 0
         self.gaps: list[int] = []
         self.layouts: dict[_Layout, list[int]] = {}
+        self.held: dict[str, int] = {}
         self.changed: dict[str, list[str]] = {}
         self.size = size
         self.last_full: tuple[int, int] | None = None
@@ -533,7 +541,7 @@ class DirCounts:
 
     def counts(self) -> dict[str, int]:
         """Values carried per name (each frame of a layout carries all its names)."""
-        out: dict[str, int] = {}
+        out = dict(self.held)
         for lay, (n, _number, _ts) in self.layouts.items():
             for name in lay.names:
                 out[name] = out.get(name, 0) + n
@@ -781,7 +789,8 @@ class Decoder(ReferenceDecoder):
             for lay, (_n, number, ts) in sorted(c.layouts.items(), key=lambda kv: kv[1][1]):
                 for name in lay.names:
                     v = vars_[name]
-                    v.set_in, v.set_at = number, ts
+                    if v.set_in is None or number > v.set_in:  # (a run of count_run may have set it since)
+                        v.set_in, v.set_at = number, ts
             if c.last_full is not None:
                 table.last_full_at, table.last_full_in = c.last_full[1], c.last_full[0]
             table.named = True
@@ -882,16 +891,11 @@ class Decoder(ReferenceDecoder):
             c.late.append(ts - since > self.late_ns)
         return True
 
-    def column_run(self, buf: bytes, sbuf: str, off: int, number: int, mult: int) -> tuple[int, int, int, int] | None:
-        """Columns only: take a run of a classic little-endian pcap block's Ethernet records
-        (``buf`` from ``off``, ``sbuf`` the block as latin-1; ``number``: the last record's
-        number; ``mult``: 1 for nanosecond times, 1000 for microseconds) into :attr:`rows`
-        while each is a plain IPv4/UDP datagram of one direction holding one frame its
-        :class:`_ColLane` pattern matches with a right checksum, at most until :attr:`taken`
-        reaches :data:`BATCH_FRAMES`. The rows are those :meth:`column` makes (the tests compare
-        them with the reference); the texts, the frames that set them and the sync state are
-        written to the table at the end of the run. Returns ``(offset, number, frames taken,
-        bytes)``, or None when the record at ``off`` is not one (decode it the usual way)."""
+    def _lane(self, buf: bytes, off: int) -> _ColLane | None:
+        """The run taker of the direction of the record at ``off`` of a classic pcap block (its
+        addresses, ports and letters, read where a plain Ethernet/IPv4/UDP frame has them), made
+        again when the direction's state moved since; None when the direction has no fast state
+        or no pattern (the record goes the usual way)."""
         if len(buf) < off + 62:
             return None
         start = off + 58
@@ -914,10 +918,24 @@ class Decoder(ReferenceDecoder):
         if lane is None or lane.h is not h or lane.stamp != stamp:
             if len(self._lanes) >= MAX_CONVERSATIONS:
                 self._lanes.clear()
-            lane = self._lanes[key] = _ColLane(h, hkey, stamp)
-        rx = lane.rx
-        if rx is None:
+            lane = self._lanes[key] = _ColLane(h, hkey, stamp, key)
+        return lane if lane.rx is not None else None
+
+    def column_run(self, buf: bytes, sbuf: str, off: int, number: int, mult: int) -> tuple[int, int, int, int] | None:
+        """Columns only: take a run of a classic little-endian pcap block's Ethernet records
+        (``buf`` from ``off``, ``sbuf`` the block as latin-1; ``number``: the last record's
+        number; ``mult``: 1 for nanosecond times, 1000 for microseconds) into :attr:`rows`
+        while each is a plain IPv4/UDP datagram of one direction holding one frame its
+        :class:`_ColLane` pattern matches with a right checksum, at most until :attr:`taken`
+        reaches :data:`BATCH_FRAMES`. The rows are those :meth:`column` makes (the tests compare
+        them with the reference); the texts, the frames that set them and the sync state are
+        written to the table at the end of the run. Returns ``(offset, number, frames taken,
+        bytes)``, or None when the record at ``off`` is not one (decode it the usual way)."""
+        lane = self._lane(buf, off)
+        if lane is None:
             return None
+        rx = lane.rx
+        key = lane.key
         h = lane.h
         c = self.rows.get(h)
         fresh = c is None
@@ -1031,6 +1049,139 @@ class Decoder(ReferenceDecoder):
         if last_full is not None:
             c.last_full = last_full
         h.last.clear()
+        return off, number, n, wire
+
+    def count_run(self, buf: bytes, sbuf: str, off: int, number: int, mult: int) -> tuple[int, int, int, int] | None:
+        """Counts only: take a run of a classic little-endian pcap block's Ethernet records into
+        :attr:`batch` (arguments and result as :meth:`column_run`: the same records, the same
+        :class:`_ColLane` pattern, at most :data:`BATCH_FRAMES` a run), the sums
+        :meth:`count` makes of each frame. A frame costs one struct call, one match, its
+        checksum and its sync clock; its values are kept as the match's groups and summed per
+        variable once a run, at C speed (how many, which changed, to what, and the full-set size after each
+        frame). The texts, the frames that last set them and the sync state are written to the
+        table at the end of the run."""
+        lane = self._lane(buf, off)
+        if lane is None:
+            return None
+        rx = lane.rx
+        h = lane.h
+        vs = lane.vs
+        nv = len(vs)
+        cur = [v.text for v in vs]
+        unvalued = [i for i in range(nv) if cur[i] is None]  # (a frame giving one a value: not taken)
+        # a full set holds every variable with a value (every sent name): its groups' Nones are
+        # the variables without one (and a direction with no value has no full set)
+        full_nones = len(unvalued) if len(unvalued) < nv else -1
+        lane_addr = lane.key[:12]
+        end = len(buf)
+        unpack_x = _PCAP_UDP.unpack_from
+        struct_error = struct.error
+        swap = _SWAP16
+        eth_ipv4 = _ETH_IPV4
+        cksub = _CKSUB
+        late_ns = self.late_ns
+        sync = h.sync
+        full_ts = sync[1]
+        since = full_ts if full_ts is not None else sync[0]
+        groups: list[tuple] = []
+        g_app = groups.append
+        stamps: list[int] = []
+        t_app = stamps.append
+        gaps: list[int] = []
+        n = wire = late = nfull = 0
+        last_full = -1
+        while n < BATCH_FRAMES:
+            try:
+                sec, frac, incl, _orig, eth, tl, frag, proto, here, ul = unpack_x(buf, off)
+            except struct_error:
+                break
+            start = off + 58
+            e = off + 16 + incl
+            if (here != lane_addr or e > end or eth != eth_ipv4 or proto != 17 or frag & 0xFFBF or incl <= 50
+                    or incl > 65000 or tl != swap[incl - 14] or ul != swap[incl - 34]):
+                break
+            m = rx(sbuf, start, e)
+            if m is None:
+                break
+            g = m.groups()
+            if unvalued and any(g[i] is not None for i in unvalued):
+                break
+            # the checksum: adler32's low half is 1 + the byte sum for up to 256 bytes (C speed)
+            raw = buf[start:e]
+            if (((adler32(raw) & 0xFFFF) if e - start <= 256 else sum(raw) + 1) - cksub[g[-1]]) & 0xFF:
+                break
+            off = e
+            wire += incl
+            ts = sec * NS + frac * mult
+            g_app(g)
+            t_app(ts)
+            if g.count(None) == full_nones:
+                if full_ts is not None:
+                    gaps.append(ts - full_ts)
+                full_ts = since = ts
+                nfull += 1
+                last_full = n
+            elif ts - since > late_ns:
+                late += 1
+            n += 1
+        if not n:
+            return None
+        first = number + 1  # the run's records are numbered first, first + 1, ...
+        number += n
+        sync[1] = full_ts
+        c = self.batch.get(h)
+        if c is None:
+            c = self.batch[h] = DirCounts(lane.conv, lane.src, lane.dst, h, stamps[0], self._hot_size(h))
+        c.frames += n
+        c.bytes += wire - 42 * n  # (the frames: the records less their Ethernet, IP and UDP headers)
+        c.full += nfull
+        c.late += late
+        c.gaps += gaps
+        lo, hi = min(stamps), max(stamps)
+        if lo < c.first_ts:
+            c.first_ts = lo
+        if hi > c.last_ts:
+            c.last_ts = hi
+        # per variable, over the run's frames: where it is present, its values, which of them
+        # changed it; the full-set size after frame j is the size before the run plus the
+        # length changes at frames <= j, so the run's sum of sizes takes each change
+        # (n - where it happened) times
+        size = c.size
+        full_bytes = n * (size + 14)  # "[:AB|N0" ... "|CXX]" CR LF around the values
+        held, changed = c.held, c.changed
+        frames = range(n)
+        for i, col in enumerate(zip(*groups)):
+            if i == nv:
+                break  # (the checksums)
+            present = list(map(is_not, col, repeat(None)))
+            at = list(compress(frames, present))
+            if not at:
+                continue
+            v = vs[i]
+            name = v.name
+            vals = list(compress(col, present))
+            held[name] = held.get(name, 0) + len(vals)
+            old = cur[i]
+            moved = list(map(ne, vals, [old, *vals[:-1]]))
+            if True in moved:
+                texts = list(compress(vals, moved))
+                lens = list(map(len, texts))
+                full_bytes += sum(map(mul, map(sub, lens, [len(old), *lens[:-1]]),  # type: ignore[arg-type]
+                                      map(sub, repeat(n), compress(at, moved))))
+                size += lens[-1] - len(old)  # type: ignore[arg-type]
+                known = changed.get(name)
+                if known is None:
+                    changed[name] = texts
+                else:
+                    known += texts
+                v.text = texts[-1]
+            j = at[-1]
+            v.set_in, v.set_at = first + j, stamps[j]
+        c.size = size
+        c.full_bytes += full_bytes
+        if last_full >= 0:
+            c.last_full = first + last_full, stamps[last_full]
+        h.last.clear()  # (the Updates kept for reuse hold values the run replaced)
         return off, number, n, wire
 
     def take_columns(self) -> Columns:
@@ -1267,7 +1418,8 @@ class Columns(NamedTuple):
     frames: int
 
 
-#: fast frames gathered into one :class:`Counted` at most
+#: fast frames gathered into one :class:`Columns` at most, into one :class:`Counted` about (at
+#: most twice as many: a run of :meth:`Decoder.count_run` takes up to as many)
 BATCH_FRAMES = 512
 
 
@@ -1286,18 +1438,19 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
     count = dec.column if columns else dec.count
     take_batch = dec.take_columns if columns else (lambda: Counted(dec.take_batch()))
     pending = (lambda: dec.rows) if columns else (lambda: dec.batch)
+    runs = dec.column_run if columns else dec.count_run if counting else None
     counting = counting or columns
     taken = 0  # frames in dec.batch (dec.rows)
     unpack = _UDP_HEAD.unpack_from
     read = 24  # bytes of the file read, about (pcap's headers; pcapng's blocks are a little longer)
     try:
-        for number, ts_ns, linktype, data, flags, interface in _records(path, dec.column_run if columns else None):
-            if linktype == _RUN:  # column_run took ts_ns frames (flags: their bytes) into dec.rows
+        for number, ts_ns, linktype, data, flags, interface in _records(path, runs):
+            if linktype == _RUN:  # a run taker took ts_ns frames (flags: their bytes) into dec.rows (dec.batch)
                 if progress is not None:
                     read += flags + 16 * ts_ns
                     if number >> 12 != (number - ts_ns) >> 12:
                         progress(read, number)
-                taken = dec.taken
+                taken = dec.taken if columns else taken + ts_ns
                 if taken >= BATCH_FRAMES:
                     yield take_batch()
                     taken = 0
@@ -1375,8 +1528,8 @@ def _records(path: str | Path, fast: Callable | None = None) -> Iterator[tuple[i
     little-endian pcap file read in blocks here (no Record object, one read a block), anything
     else through :func:`~sharedlink.capture.pcapio.read_records`. The same records and the
     same :class:`~sharedlink.capture.pcapio.CaptureError` s either way. ``fast``
-    (:meth:`Decoder.column_run`, for Ethernet pcap files): offered each record of a block
-    first; a run it takes comes as one item with link type :data:`_RUN`."""
+    (:meth:`Decoder.column_run` or :meth:`Decoder.count_run`, for Ethernet pcap files): offered
+    each record of a block first; a run it takes comes as one item with link type :data:`_RUN`."""
     p = str(path)
     fh = None
     if os.path.isfile(p):
@@ -1407,7 +1560,9 @@ def _records(path: str | Path, fast: Callable | None = None) -> Iterator[tuple[i
         skip = miss = 0  # records not offered to fast (after misses in a row: 0, 1, 3, 7 ... 63)
         while True:
             block = fh.read(PCAP_BLOCK)
+            eof = not block
             buf = rest + block if rest else block
+            block = b""  # (at most two blocks' worth held: this one's bytes and text)
             end = len(buf)
             off = 0
             if fast is not None:
@@ -1435,7 +1590,9 @@ def _records(path: str | Path, fast: Callable | None = None) -> Iterator[tuple[i
                 yield number, sec * NS + frac * mult, linktype, buf[off + 16 : e], 0, 0
                 off = e
             rest = buf[off:]
-            if not block:
+            buf = b""
+            sbuf = ""
+            if eof:
                 break
         if rest:
             if len(rest) < 16:

@@ -30,7 +30,7 @@ from pathlib import Path
 from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Counted, Decoded, Decoder
 from sharedlink.capture.pcapio import CaptureError
 from sharedlink.capture.serial_format import GIVEN_UP
-from sharedlink.protocols.codec import _DOUBLE_TEXT, TYPE_DOUBLE, guess_value, typed_value
+from sharedlink.protocols.codec import TYPE_DOUBLE, guess_value, typed_value
 from sharedlink.protocols.limits import LimitCounts
 from sharedlink.protocols.state import BEACON_VARIABLES, Update, VariableTable
 
@@ -313,11 +313,23 @@ class CaptureStats:
                     _min_max(v, set(texts))
 
 
+#: the characters of a double's text as the protocol writes it (:data:`_DOUBLE_TEXT`)
+_NUMBER_CHARS = re.compile(r"[0-9.eE+-]*").fullmatch
+
+
 def _min_max(v: VarStats, texts: set[str]) -> None:
     """Take ``texts`` (values ``v`` took) into its min and max; numbers only, NaN left out."""
     tc = v.type_code
-    if tc == TYPE_DOUBLE and all(map(_DOUBLE_TEXT.fullmatch, texts)):  # the common case, at C speed
-        xs = list(map(float, texts))
+    # the common case, at C speed: doubles whose texts hold only the characters of the protocol's
+    # numbers (one match over them all); float() then takes exactly the texts _DOUBLE_TEXT takes
+    # (no space, "_", "inf" or "nan" left for it to read otherwise) and refuses the others
+    xs = None
+    if tc == TYPE_DOUBLE and _NUMBER_CHARS("".join(texts)):
+        try:
+            xs = list(map(float, texts))
+        except ValueError:
+            xs = None
+    if xs is not None:
         lo, hi = min(xs), max(xs)
         if v.min is None or lo < v.min:
             v.min = lo
