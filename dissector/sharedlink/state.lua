@@ -262,7 +262,7 @@ do
     -- The state writer's facts about the current data frame (upvalues, set by data_values):
     -- dv_stamp marks the names it has (d.seen), dv_present counts them (distinct known names),
     -- dv_ne the carried values of its empty D fields in CARRY, dv_maxslot its highest positional
-    -- slot, dv_required: a slot that held a value is empty here.
+    -- slot, dv_required: a slot that held a value is empty here (or the frame's N is past range).
     local dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = 0, 0, 0, -1, false
 
     -- A named value: a new name is learnt (good checksum, within max_names), a known one stored.
@@ -325,7 +325,8 @@ do
     -- Every value of the frame into the state; returns nm and the number of named variables carried.
     local function store_values(d, list, num, sk, good, has_tree, hist, key)
         stamp_ctr = stamp_ctr + 1
-        dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = stamp_ctr, 0, 0, -1, false
+        -- an N past to_ordinal's range (P.huge_ord) stores nothing and is never a full set
+        dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = stamp_ctr, 0, 0, -1, P.huge_ord or false
         local max_slots = LIM.max_slots
         for v = 1, P.nv do
             local val = VV[v]
@@ -417,7 +418,7 @@ do
         local nm, miss_n = store_values(d, list, num, sk, good, has_tree, hist, key)
         if named and good and miss_n == 0 and #d.names == named.n then d.names_is = named.N end
         local n_ord = P.n_ord
-        local full = P.nd > 0 and (n_ord == nil or n_ord == 0) and not P.huge_ord and not dv_required and miss_n == 0
+        local full = P.nd > 0 and (n_ord == nil or n_ord == 0) and not dv_required and miss_n == 0
         if P.n_pos == 0 then full_local = full_local and miss_n == 0 end
         return full, dv_ne, nm, miss_n, full_local, hist ~= nil
     end
