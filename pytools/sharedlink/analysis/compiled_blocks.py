@@ -9,8 +9,8 @@ frames), no Python code per frame. It takes the records from the window's start 
 the per-record loop would take with the same result, and stops before the first it would not
 (that one goes back to the per-record loop, which takes it or hands it to the reference path).
 
-It is used only while every variable of the direction has a value (so no frame of the block can
-give a first value: the per-record loop reports those and makes the layouts again), and it keeps
+A frame that gives a variable its first value ends the block before it (the per-record loop
+reports first values and makes the layouts again), and the block tier keeps
 the same state as the per-record loop (``cur``, the variables changed, the sync clock), so a run
 may go from one to the other at any record: the results are the same.
 """
@@ -22,7 +22,7 @@ import sys
 from array import array
 from collections import deque
 from collections.abc import Callable
-from itertools import chain, compress, repeat
+from itertools import chain, compress, count, repeat
 from operator import add, and_, lshift, mul, ne, or_, setitem
 from struct import pack
 from zlib import adler32
@@ -125,6 +125,7 @@ def block_taker(key: bytes, frame_named: bytes | None, frame_pos: bytes | None, 
         # the first row that fails one ends the block (found the slow way).
         sizes = list(map(len, frames))
         hj = b"".join(heads)  # 58 bytes a row
+        n = k
         if not (max(sizes) <= 256 and buf.startswith(b"".join(chain.from_iterable(zip(heads, frames))), off)
                 and _lengths(hj) == b"".join(map(_LENGTHS.__getitem__, sizes))
                 and (positional or bare_ok or 14 not in sizes)
@@ -132,23 +133,31 @@ def block_taker(key: bytes, frame_named: bytes | None, frame_pos: bytes | None, 
                 == bytes(map(_CKLOW.__getitem__, array("H", b"".join(cks))))
                 and all(len(j) == len(j.translate(None, _NOT_VALUE)) for j in map(b"".join, vals))):
             k = _first_bad(buf, off, rows, hj, not positional and not bare_ok)
-            if not k:
-                window[0] = BLOCK_MIN
-                return None
+        # a first value (a variable without one present) ends the block before its frame: the
+        # per-record loop reports it and the layouts are made again
+        slots = pslots if positional else nslots
+        valued = [cur[s] is not None for s in slots]
+        for col, v in zip(vals, valued):
+            if not v:
+                k = min(k, next(compress(count(), col), k))
+        if not k or True not in valued:
+            window[0] = BLOCK_MIN
+            return None
+        whole = k == n
+        if whole:
+            window[0] = min(BLOCK_MAX, window[0] * 2)
+        else:
             window[0] = max(BLOCK_MIN, 2 * (sum(sizes[:k]) + 58 * k))
-            whole = False
             vals = [c[:k] for c in vals]
             hj = hj[: 58 * k]
             del sizes[k:]
-        else:
-            window[0] = min(BLOCK_MAX, window[0] * 2)
-            whole = True
         # the change records: for each variable a column of what a record holds of it (b"" when
-        # the frame did not change it)
+        # the frame did not change it); the variables that have a value only (the others have
+        # none in the block)
         pieces: list = []
-        slots = pslots if positional else nslots
         dense = 0
-        for col, s in zip(vals, slots):
+        vals = list(compress(vals, valued))
+        for col, s in zip(vals, compress(slots, valued)):
             if b"" not in col:  # every frame has it (a full stream)
                 dense += 1
                 present, where = col, None
@@ -178,20 +187,19 @@ def block_taker(key: bytes, frame_named: bytes | None, frame_pos: bytes | None, 
         else:
             ts_ext(map(or_, hdr[0::2], map(lshift, map(mul, hdr[1::2], repeat(mult)), repeat(32))))
         num_ext(array("q", pack("<%dq" % k, *range(number + 1, number + k + 1))))
-        # full frames: every value present (every variable has a value, as this tier requires)
+        # full frames: every variable that has a value present (there is one: see above)
         last_full = None
-        if vals:
-            if dense == len(vals):
-                secs, fracs = hdr[0::2], hdr[1::2]
-                last = k - 1
-            else:
-                mask = list(map(all, zip(*vals)))
-                last = k - 1 - mask[::-1].index(True) if True in mask else -1
-                secs, fracs = compress(hdr[0::2], mask), compress(hdr[1::2], mask)
-            if last >= 0:
-                full_ext(map(add, map(mul, secs, repeat(NS)), map(mul, fracs, repeat(mult))))
-                sync[1] = hdr[2 * last] * NS + hdr[2 * last + 1] * mult
-                last_full = number + last + 1
+        if dense == len(vals):
+            secs, fracs = hdr[0::2], hdr[1::2]
+            last = k - 1
+        else:
+            mask = list(map(all, zip(*vals)))
+            last = k - 1 - mask[::-1].index(True) if True in mask else -1
+            secs, fracs = compress(hdr[0::2], mask), compress(hdr[1::2], mask)
+        if last >= 0:
+            full_ext(map(add, map(mul, secs, repeat(NS)), map(mul, fracs, repeat(mult))))
+            sync[1] = hdr[2 * last] * NS + hdr[2 * last + 1] * mult
+            last_full = number + last + 1
         wire = sum(sizes) + 42 * k
         return off + wire + 16 * k, number + k, k, wire, last_full, whole
 

@@ -396,9 +396,8 @@ class _Compiled:
             last_full = None
             dirty: list[int] = []  # the variables whose value changed (written to the table at the end)
             changed = dirty.append
-            # the block tier: once BLOCK_AFTER records in a row were taken here, while every
-            # variable has a value (no first value to report)
-            run = 0 if bulk is not None and None not in cur else -(1 << 62)
+            # the block tier: once BLOCK_AFTER records in a row were taken here
+            run = 0 if bulk is not None else -(1 << 62)
             while first is None:
                 if run >= BLOCK_AFTER and off + 67 <= end:
                     bpos = buf[off + 66] == 68  # positional: "[:AB|N0|D" (after 16 + 42 bytes of headers)
