@@ -101,7 +101,7 @@ def test_a_carried_value_a_reference_frame_changed_in_a_compressed_run(tmp_path,
 
 
 @pytest.mark.parametrize("odd", ["bad_checksum", "other_sender", "control_byte", "bracket", "long_frame", "padding",
-                                 "declaration", "first_value", "type", "positional", "bare"])
+                                 "declaration", "first_value", "apriori_first_value", "type", "positional", "bare"])
 def test_the_block_tier_stops_at_a_record_it_must_not_take(tmp_path, block_frames, odd):
     """A long run, a record of each kind in its middle, the run again: the same chunks as the
     reference decoder (the odd record and every value after it)."""
@@ -124,6 +124,8 @@ def test_the_block_tier_stops_at_a_record_it_must_not_take(tmp_path, block_frame
                                                Field("T", "2"), Field("Q", "Lat")))), b"")
     elif odd == "first_value":
         row = (0, encode_named("A", "B", [("Lat", 2, "1"), ("Lon", 2, "3"), ("Vel", 2, "0"), ("Head", 2, "9")]), b"")
+    elif odd == "apriori_first_value":  # a name of the a-priori list (typed, in the layouts) gets its first value
+        row = (0, encode_named("A", "B", [("AutoGpsHead", 2, "9"), ("Lat", 2, "1"), ("Lon", 2, "3"), ("Vel", 2, "0")]), b"")
     elif odd == "type":
         row = (0, encode_named("A", "B", [("Lat", 0, "1"), ("Lon", 2, "3"), ("Vel", 2, "0")]), b"")
     elif odd == "positional":
@@ -201,7 +203,7 @@ def _block_streams(draw) -> list[tuple[int, bytes, bytes]]:
         elif odd == "positional":
             out.append((0, encode_positional("A", "B", [v, None, v]), b""))
         else:
-            out.append((0, encode_named("A", "B", [("Lat", 2, v), ("Head", 2, v)]), b""))
+            out.append((0, encode_named("A", "B", [("AutoGpsVel", 2, v), ("Lat", 2, v)]), b""))  # a first value
     return out
 
 
