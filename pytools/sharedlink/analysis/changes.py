@@ -224,6 +224,7 @@ class ChangeReader:
         recs, tsarr = self._recs, self._ts
         fulls: list[int] = []
         out = (self._ts.append, self._num.append, recs.append, fulls.append)
+        bulk = (self._ts.extend, self._num.extend, recs.extend, fulls.extend)  # (the block tier's)
         general = self._general
         st = self.stats
         sync_ns = self.sync_ns
@@ -250,7 +251,7 @@ class ChangeReader:
                 if lane is None:
                     lane = self._lane(letters, addr)
                 if lane is not None:
-                    off, number, n, w, first = lane[0](buf, off, number, mult, addr, out)
+                    off, number, n, w, first = lane[0](buf, off, number, mult, addr, out, bulk)
                     if n:
                         taken += n
                         nrec += n

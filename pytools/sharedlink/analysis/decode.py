@@ -336,6 +336,7 @@ class _Compiled:
         self.build(h)
 
     def build(self, h: _Hot) -> None:
+        from sharedlink.analysis.compiled_blocks import BLOCK_AFTER, block_taker
         from sharedlink.capture.change_records import SEP_CHANGE, SEP_VALUE, escape
 
         t = h.table
@@ -354,6 +355,7 @@ class _Compiled:
         tail = rb"\|C([0-9A-F]{2})\]\r\n"
         valued = {v.name for v in vs if v.text is not None}
         named = pos = None
+        named_rx = pos_rx = None  # (their patterns, for the block tier)
         nslots: list[int] = []
         pslots: list[int] = []
         preq: list[int] = []
@@ -362,9 +364,10 @@ class _Compiled:
             # "full", every sent name present, is "every variable with a value present")
             if all(v.type_code is not None or v.text is None for v in vs) and valued == set(t.sent_names):
                 nslots = [i for i, v in enumerate(vs) if v.type_code is not None]
-                named = _fullmatch(head + b"".join(
+                named_rx = head + b"".join(
                     rb"(?:\|T%d\|Q%s\|D(%s+))?" % (vs[i].type_code, re.escape(vs[i].name.encode("latin-1", "replace")),
-                                                  _CV) for i in nslots) + tail)
+                                                  _CV) for i in nslots) + tail
+                named = _fullmatch(named_rx)
             # positional: the table's full set, each slot named as the reference path names it
             # in a frame of that many slots, every value held in a slot that has held one
             names = t.names
@@ -375,7 +378,8 @@ class _Compiled:
                     and t.filled == {i for i, x in enumerate(names) if x in valued} and valued <= set(names)):
                 pslots = [index[x] for x in names]
                 preq = sorted(t.filled)
-                pos = _fullmatch(head + (rb"\|D(%s*)" % _CV) * n + tail)
+                pos_rx = head + (rb"\|D(%s*)" % _CV) * n + tail
+                pos = _fullmatch(pos_rx)
         self.named, self.pos = named, pos
         sync = h.sync
         cksub = _CKSUB_B
@@ -384,8 +388,9 @@ class _Compiled:
         struct_error = struct.error
         swap = _SWAP16
         eth_ipv4 = _ETH_IPV4
+        block = block_taker(key, named_rx, pos_rx, _CV, nslots, pslots, cur, rec, sync)
 
-        def take(buf: bytes, off: int, number: int, mult: int, lane: bytes, out: tuple
+        def take(buf: bytes, off: int, number: int, mult: int, lane: bytes, out: tuple, bulk: tuple | None = None
                  ) -> tuple[int, int, int, int, list[Variable] | None]:
             # a run of records, while each is one frame of this direction a layout matches
             end = len(buf)
@@ -396,7 +401,24 @@ class _Compiled:
             last_full = None
             dirty: list[int] = []  # the variables whose value changed (written to the table at the end)
             changed = dirty.append
+            # the block tier: once BLOCK_AFTER records in a row were taken here
+            run = 0 if bulk is not None else -(1 << 62)
             while first is None:
+                if run >= BLOCK_AFTER and off + 67 <= end:
+                    bpos = buf[off + 66] == 68  # positional: "[:AB|N0|D" (after 16 + 42 bytes of headers)
+                    got = block(buf, off, number, mult, lane, bulk, bpos, t.named is True, changed)
+                    if got is None:
+                        run = 0
+                    else:
+                        off, number, k, w, lf, whole = got
+                        n += k
+                        wire += w
+                        form = bpos
+                        if lf is not None:
+                            last_full = lf
+                        if not whole:
+                            run = 0
+                        continue
                 try:
                     sec, frac, incl, _orig, eth, tl, frag, proto, here, ul = unpack_x(buf, off)
                 except struct_error:
@@ -456,6 +478,7 @@ class _Compiled:
                 num_app(number)
                 rec_app(b"".join(parts))
                 form = positional
+                run += 1
                 if full:
                     ts = sec * NS + frac * mult
                     full_app(ts)
