@@ -15,82 +15,16 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from core_streams import one_sender, positional_streams, streams, vector_capture, write_udp
 from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
 from sl_captures import captures, write_capture
-from sl_vectors import load_streams, write_stream
+from sl_vectors import load_streams
 
 from sharedlink.analysis.decode import Decoded, Decoder, ReferenceDecoder, iter_decoded
-from sharedlink.capture.packets import UdpBuilder
-from sharedlink.capture.pcapio import PcapWriter
 from sharedlink.capture.stream import StreamFrame, iter_frames
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
-from sharedlink.protocols.state import BEACON_VARIABLES, parse_variables
-
-NAMES = ("Lat", "Lon", "Head", "Vel")
-VALUES = ("1", "2", "2.5", "-3", "10")  # few values: unchanged and carried values are the rule
-
-
-def _named(draw, src: str, dst: str, bad: bool = False) -> bytes:
-    names = draw(st.lists(st.sampled_from(NAMES), unique=True, max_size=4))
-    triplets = [(n, 2, draw(st.sampled_from(VALUES))) for n in names]
-    raw = encode_named(dst, src, triplets)
-    if bad:  # the same frame with a wrong checksum
-        raw = raw[:-5] + (b"00" if raw[-5:-3] != b"00" else b"01") + raw[-3:]
-    return raw
-
-
-@st.composite
-def _frame(draw, src: str, dst: str) -> bytes:
-    kind = draw(st.sampled_from(("named", "named", "named", "named", "bad", "reply", "declaration", "positional",
-                                 "odd", "query")))
-    if kind == "named":
-        return _named(draw, src, dst)
-    if kind == "bad":
-        return _named(draw, src, dst, bad=True)
-    if kind == "reply":
-        return build_frame(Frame(dst, src, (Field("R", draw(st.sampled_from(NAMES))),
-                                            Field("D", draw(st.sampled_from(VALUES))))))
-    if kind == "query":
-        return build_frame(Frame(dst, src, (Field("Q", draw(st.sampled_from(NAMES))),)))
-    if kind == "declaration":
-        names = draw(st.lists(st.sampled_from(NAMES), unique=True, min_size=1, max_size=4))
-        fields = [Field("N", "0")]
-        for n in names:
-            fields += [Field("T", "2"), Field("Q", n)]
-        return build_frame(Frame(dst, src, tuple(fields)))
-    if kind == "positional":
-        texts = draw(st.lists(st.one_of(st.none(), st.sampled_from(VALUES)), min_size=1, max_size=4))
-        return encode_positional(dst, src, texts)
-    # a named frame the fast path's pattern does not take (a value with a space): reference path
-    n = draw(st.sampled_from(NAMES))
-    return encode_named(dst, src, [(n, 4, draw(st.sampled_from(VALUES)) + " x")])
-
-
-@st.composite
-def streams(draw, max_datagrams: int = 40) -> list[tuple[int, int, bytes]]:
-    """(sender, ts_ns, payload): mostly one named frame a datagram, sometimes two frames."""
-    out = []
-    ts = 1_700_000_000 * 10**9
-    for _ in range(draw(st.integers(1, max_datagrams))):
-        sender = draw(st.integers(0, 2))  # two conversations of B>A, and one of C>A
-        src = "C" if sender == 2 else "B"
-        ts += draw(st.sampled_from((200_000_000, 200_000_000, 1_700_000_000)))
-        payload = draw(_frame(src, "A"))
-        if draw(st.integers(0, 4)) == 0:
-            payload += draw(_frame(src, "A"))  # two frames in one datagram
-        out.append((sender, ts, payload))
-    return out
-
-
-def _write(path: Path, stream: list[tuple[int, int, bytes]]) -> Path:
-    senders = [UdpBuilder(f"10.0.0.{i + 1}", "10.0.0.9", 7013, 7013) for i in range(3)]
-    with open(path, "wb") as fh:
-        w = PcapWriter(fh)
-        for i, (sender, ts, payload) in enumerate(stream):
-            w.write(ts, senders[sender].frame(payload, i + 1))
-    return path
+from sharedlink.protocols.state import BEACON_VARIABLES
 
 
 def _key(item) -> tuple:
@@ -138,7 +72,7 @@ def test_two_frames_in_a_datagram_change_a_value_between_fast_frames(tmp_path):
     lon_changed = encode_named("A", B, [("Lon", 2, "5")])
     stream = [(0, 10**18 + i * 200_000_000, p) for i, p in enumerate(
         [full, lat_only, full, lat_only, lat_only2, lat_only + lon_changed, lat_only2, lat_only])]
-    path = _write(tmp_path / "reuse.pcap", stream)
+    path = write_udp(tmp_path / "reuse.pcap", stream)
     assert compare(path) >= 3
     last = [d for d in iter_decoded(path) if isinstance(d, Decoded)]
     lon = [u for u in last[-1].updates if u.name == "Lon"]
@@ -149,10 +83,6 @@ def _decoded(path: Path) -> list[Decoded]:
     return [d for d in iter_decoded(path) if isinstance(d, Decoded)]
 
 
-def _stream(*payloads: bytes, sender: int = 0) -> list[tuple[int, int, bytes]]:
-    return [(sender, 10**18 + i * 200_000_000, p) for i, p in enumerate(payloads)]
-
-
 def test_positional_fast_frames_carry_a_value_a_reference_frame_changed(tmp_path):
     """The positional form of the reuse case: Lon is carried (empty slot) by fast frames before
     and after a datagram of two frames (reference path) whose second sets it; the later carried
@@ -160,7 +90,7 @@ def test_positional_fast_frames_carry_a_value_a_reference_frame_changed(tmp_path
     full = encode_positional("A", "B", ["1", "1"])
     lat, lat3 = encode_positional("A", "B", ["2", None]), encode_positional("A", "B", ["3", None])
     lon5 = encode_positional("A", "B", [None, "5"])
-    path = _write(tmp_path / "pos.pcap", _stream(full, lat, full, lat, lat3, lat + lon5, lat3, lat))
+    path = write_udp(tmp_path / "pos.pcap", one_sender(full, lat, full, lat, lat3, lat + lon5, lat3, lat))
     assert compare(path) >= 4
     d = _decoded(path)
     assert d[-1].kind == "delta" and d[-1].frame.fields[0].letter == "N"
@@ -172,7 +102,7 @@ def test_a_type_a_reference_frame_changed_is_not_reused(tmp_path):
     """A named frame with another type (a layout learnt anew) moves the variable's type: the
     fast frames after it, in either layout, must not reuse the Update of the old type."""
     t2, t0 = encode_named("A", "B", [("Lat", 2, "1")]), encode_named("A", "B", [("Lat", 0, "1")])
-    path = _write(tmp_path / "type.pcap", _stream(t2, t2, t0, t2, t0, t0))
+    path = write_udp(tmp_path / "type.pcap", one_sender(t2, t2, t0, t2, t0, t0))
     assert compare(path) >= 1
     assert [d.updates[0].type_code for d in _decoded(path)] == [2, 2, 0, 2, 0, 0]
 
@@ -183,7 +113,7 @@ def test_a_declaration_renames_the_slots_of_fast_positional_frames(tmp_path):
     decl = build_frame(Frame("A", "B", (Field("N", "0"), Field("T", "2"), Field("Q", "AutoGpsLon"),
                                         Field("T", "2"), Field("Q", "AutoGpsLat"))))
     a, b = encode_positional("A", "B", ["1", "2"]), encode_positional("A", "B", ["1", None])
-    path = _write(tmp_path / "decl.pcap", _stream(a, b, a, b, decl, a, b, a, b))
+    path = write_udp(tmp_path / "decl.pcap", one_sender(a, b, a, b, decl, a, b, a, b))
     assert compare(path) >= 4
     last = _decoded(path)[-1]
     assert [(u.name, u.text, u.carried) for u in last.updates] == [("AutoGpsLon", "1", False), ("AutoGpsLat", "2", True)]
@@ -196,7 +126,7 @@ def test_a_bare_n0_follows_the_form_the_direction_uses_now(tmp_path):
     bare = build_frame(Frame("A", "B", (Field("N", "0"),)))
     named = encode_named("A", "B", [("Lat", 2, "1")])
     pos = encode_positional("A", "B", [None])
-    path = _write(tmp_path / "bare.pcap", _stream(named, bare, bare, pos, bare, bare, named, bare, bare))
+    path = write_udp(tmp_path / "bare.pcap", one_sender(named, bare, bare, pos, bare, bare, named, bare, bare))
     assert compare(path) >= 2
     assert [len(d.updates) for d in _decoded(path)] == [1, 1, 1, 1, 0, 0, 1, 1, 1]
 
@@ -206,7 +136,7 @@ def test_positional_fast_frames_fill_slots_for_the_full_rule(tmp_path):
     makes later frames without it deltas (the fast path keeps ``filled`` as the table does)."""
     one = encode_positional("A", "B", ["1", None, None])
     two = encode_positional("A", "B", ["1", "2", None])
-    path = _write(tmp_path / "fill.pcap", _stream(one, one, two, one, two, one))
+    path = write_udp(tmp_path / "fill.pcap", one_sender(one, one, two, one, two, one))
     assert compare(path) >= 3
     assert [d.kind for d in _decoded(path)] == ["full", "full", "full", "delta", "full", "delta"]
 
@@ -214,40 +144,15 @@ def test_positional_fast_frames_fill_slots_for_the_full_rule(tmp_path):
 @settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
 @given(streams())
 def test_core_equals_reference_on_generated_streams(tmp_path_factory, stream):
-    path = _write(tmp_path_factory.mktemp("core") / "s.pcap", stream)
+    path = write_udp(tmp_path_factory.mktemp("core") / "s.pcap", stream)
     compare(path)
     compare(path, carried=False)
-
-
-@st.composite
-def positional_streams(draw) -> list[tuple[int, int, bytes]]:
-    """Mostly positional frames of a few slot counts (the fast path takes a count its direction's
-    last reference-path frame had), with what can move the slots' names or values between them:
-    declarations, named frames, two frames in a datagram, bad checksums."""
-    out = []
-    ts = 1_700_000_000 * 10**9
-    sizes = draw(st.lists(st.integers(1, 5), min_size=1, max_size=2))
-    for _ in range(draw(st.integers(1, 40))):
-        sender = draw(st.integers(0, 1))
-        ts += draw(st.sampled_from((200_000_000, 200_000_000, 1_700_000_000)))
-        n = draw(st.sampled_from(sizes))
-        texts = [draw(st.one_of(st.none(), st.sampled_from(VALUES))) for _ in range(n)]
-        payload = encode_positional("A", "B", texts)
-        what = draw(st.integers(0, 9))
-        if what == 0:
-            payload += draw(_frame("B", "A"))  # a second frame: the reference path
-        elif what == 1:
-            payload = draw(_frame("B", "A"))  # a declaration, a named frame, a reply...
-        elif what == 2:
-            payload = payload[:-5] + (b"00" if payload[-5:-3] != b"00" else b"01") + payload[-3:]
-        out.append((sender, ts, payload))
-    return out
 
 
 @settings(max_examples=100, deadline=None, suppress_health_check=list(HealthCheck))
 @given(positional_streams())
 def test_core_equals_reference_on_positional_streams(tmp_path_factory, stream):
-    path = _write(tmp_path_factory.mktemp("pos") / "s.pcap", stream)
+    path = write_udp(tmp_path_factory.mktemp("pos") / "s.pcap", stream)
     compare(path)
     compare(path, carried=False)
 
@@ -263,12 +168,7 @@ def test_core_equals_reference_on_varied_captures(tmp_path_factory, dgs):
 def test_core_equals_reference_on_the_shared_vectors(tmp_path, stream):
     """Every stream of the shared vectors (issue 29's pending ones too: whatever rule the
     reference follows, the core follows it), with its variable list."""
-    ext = "pcapng" if stream.get("transport") == "serial" else "pcap"
-    path = write_stream(stream, tmp_path / f"s.{ext}")
-    try:
-        variables = parse_variables(stream["variables"]) if stream.get("variables") else BEACON_VARIABLES
-    except ValueError:  # a per-pair list (B>A: ...), which only issue 29's parser reads
-        pytest.skip("a variable list the decoders do not take yet")
+    path, variables = vector_capture(stream, tmp_path)
     compare(path, variables=variables)
 
 
@@ -320,7 +220,7 @@ def _same_stats(path: Path) -> None:
 def test_counted_stats_equal_the_reference_on_generated_streams(tmp_path_factory, stream):
     """stats takes the fast path's frames as counted batches (no Decoded, no Updates): the same
     statistics as every frame through the reference decoder and CaptureStats.add."""
-    _same_stats(_write(tmp_path_factory.mktemp("st") / "s.pcap", stream))
+    _same_stats(write_udp(tmp_path_factory.mktemp("st") / "s.pcap", stream))
 
 
 def test_a_reply_between_counted_frames_is_not_in_the_full_size(tmp_path):
@@ -329,7 +229,7 @@ def test_a_reply_between_counted_frames_is_not_in_the_full_size(tmp_path):
     take it (stats' size tracker applied the reply's update: 717 against the counted 715)."""
     bare, lat = b"[:AB|N0|C76]\r\n", encode_named("A", "B", [("Lat", 2, "1")])
     reply = b"[:AB|RLat|D2.5|CC0]\r\n"
-    path = _write(tmp_path / "r.pcap", _stream(*[bare * 2] * 14, bare + lat, reply + bare, bare))
+    path = write_udp(tmp_path / "r.pcap", one_sender(*[bare * 2] * 14, bare + lat, reply + bare, bare))
     _same_stats(path)
 
 
@@ -361,7 +261,7 @@ def _same_jsonl(path: Path) -> int:
 @settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
 @given(streams())
 def test_jsonl_lines_equal_json_dumps_on_generated_streams(tmp_path_factory, stream):
-    _same_jsonl(_write(tmp_path_factory.mktemp("js") / "s.pcap", stream))
+    _same_jsonl(write_udp(tmp_path_factory.mktemp("js") / "s.pcap", stream))
 
 
 def test_jsonl_lines_equal_json_dumps_on_a_drive(tmp_path):

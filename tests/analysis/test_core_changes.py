@@ -15,16 +15,16 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from core_streams import one_sender, positional_streams, streams, vector_capture, write_udp
 from hypothesis import HealthCheck, given, settings
 from sl_captures import captures, write_capture
-from sl_vectors import load_streams, write_stream
-from test_core import _stream, _write, positional_streams, streams
+from sl_vectors import load_streams
 
 from sharedlink.analysis.changes import ChangeReader, read_changes
 from sharedlink.capture.stream import Chunk
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
-from sharedlink.protocols.state import BEACON_VARIABLES, parse_variables
+from sharedlink.protocols.state import BEACON_VARIABLES
 
 
 def _flat(path: Path, fast: bool, block: int = 1 << 20, variables=BEACON_VARIABLES) -> tuple:
@@ -63,7 +63,7 @@ def test_a_value_a_reference_frame_changed_is_not_reported_again(tmp_path):
     lat2 = encode_named("A", "B", [("Lat", 2, "2")])
     full5 = encode_named("A", "B", [("Lat", 2, "2"), ("Lon", 2, "5")])
     lon5 = encode_named("A", "B", [("Lon", 2, "5")])
-    path = _write(tmp_path / "v.pcap", _stream(full, full, lat2, lat2 + lon5, full5, full5, lat2))
+    path = write_udp(tmp_path / "v.pcap", one_sender(full, full, lat2, lat2 + lon5, full5, full5, lat2))
     assert same_changes(path) >= 4
     assert _records(path)[4:] == [b"AB\x1fLon\x1e5", b"AB", b"AB", b"AB"]
 
@@ -73,7 +73,7 @@ def test_positional_slot_values_a_reference_frame_changed(tmp_path):
     lat = encode_positional("A", "B", ["2", None])
     lon5 = encode_positional("A", "B", [None, "5"])
     full5 = encode_positional("A", "B", ["2", "5"])
-    path = _write(tmp_path / "p.pcap", _stream(full, full, lat, lat + lon5, full5, lat, full5))
+    path = write_udp(tmp_path / "p.pcap", one_sender(full, full, lat, lat + lon5, full5, lat, full5))
     assert same_changes(path) >= 4
     assert _records(path)[4:] == [b"AB\x1f#1\x1e5", b"AB", b"AB", b"AB"]
 
@@ -83,7 +83,7 @@ def test_a_type_a_reference_frame_changed_makes_new_layouts(tmp_path):
     variable's type; the type-2 frames after it are matched by layouts made again."""
     a, b = (encode_named("A", "B", [("Lat", 2, x)]) for x in ("1", "2"))
     t0 = encode_named("A", "B", [("Lat", 0, "3")])
-    path = _write(tmp_path / "t.pcap", _stream(a, b, a, t0, a, b, t0, t0, a))
+    path = write_udp(tmp_path / "t.pcap", one_sender(a, b, a, t0, a, b, t0, t0, a))
     assert same_changes(path) >= 3
 
 
@@ -94,7 +94,7 @@ def test_a_first_value_in_a_fast_frame_changes_the_full_rule(tmp_path):
     two = encode_named("A", "B", [("Lat", 2, "1"), ("Lon", 2, "1")])
     three = encode_named("A", "B", [("Lat", 2, "1"), ("Lon", 2, "2"), ("Vel", 2, "7")])
     three_b = encode_named("A", "B", [("Lat", 2, "1"), ("Lon", 2, "3"), ("Vel", 2, "8")])
-    path = _write(tmp_path / "f.pcap", _stream(two, two, three, two, three_b, two))
+    path = write_udp(tmp_path / "f.pcap", one_sender(two, two, three, two, three_b, two))
     assert same_changes(path) >= 4
     st = _flat(path, True)[5]
     assert st["full"] == 4  # two, two, three, three_b (the last two-name frame is a delta)
@@ -103,7 +103,7 @@ def test_a_first_value_in_a_fast_frame_changes_the_full_rule(tmp_path):
 def test_positional_first_values_fill_slots(tmp_path):
     one = encode_positional("A", "B", ["1", None, None])
     two = encode_positional("A", "B", ["1", "2", None])
-    path = _write(tmp_path / "s.pcap", _stream(one, one, two, one, two, one))
+    path = write_udp(tmp_path / "s.pcap", one_sender(one, one, two, one, two, one))
     assert same_changes(path) >= 3
     assert _flat(path, True)[5]["full"] == 4
 
@@ -112,7 +112,7 @@ def test_a_declaration_renames_the_slots_of_compiled_positional_frames(tmp_path)
     decl = build_frame(Frame("A", "B", (Field("N", "0"), Field("T", "2"), Field("Q", "AutoGpsLon"),
                                         Field("T", "2"), Field("Q", "AutoGpsLat"))))
     a, b = encode_positional("A", "B", ["1", "2"]), encode_positional("A", "B", ["1", None])
-    path = _write(tmp_path / "d.pcap", _stream(a, b, a, b, decl, a, b, a, b))
+    path = write_udp(tmp_path / "d.pcap", one_sender(a, b, a, b, decl, a, b, a, b))
     assert same_changes(path) >= 4
 
 
@@ -120,7 +120,7 @@ def test_a_bare_n0_follows_the_form_of_the_direction(tmp_path):
     bare = build_frame(Frame("A", "B", (Field("N", "0"),)))
     named = encode_named("A", "B", [("Lat", 2, "1")])
     pos = encode_positional("A", "B", [None])
-    path = _write(tmp_path / "b.pcap", _stream(named, bare, bare, pos, bare, bare, named, bare, bare))
+    path = write_udp(tmp_path / "b.pcap", one_sender(named, bare, bare, pos, bare, bare, named, bare, bare))
     assert same_changes(path) >= 2
 
 
@@ -133,19 +133,19 @@ def test_two_senders_interleaved_keep_their_own_layouts(tmp_path):
     for i in range(12):
         stream.append((0, 10**18 + i * 200_000_000, (a1, a2)[i % 2]))
         stream.append((1, 10**18 + i * 200_000_000 + 1000, (b1, b2)[i // 3 % 2]))
-    assert same_changes(_write(tmp_path / "i.pcap", stream)) >= 18
+    assert same_changes(write_udp(tmp_path / "i.pcap", stream)) >= 18
 
 
 @settings(max_examples=120, deadline=None, suppress_health_check=list(HealthCheck))
 @given(streams())
 def test_core_changes_equal_the_reference_on_generated_streams(tmp_path_factory, stream):
-    same_changes(_write(tmp_path_factory.mktemp("ch") / "s.pcap", stream))
+    same_changes(write_udp(tmp_path_factory.mktemp("ch") / "s.pcap", stream))
 
 
 @settings(max_examples=100, deadline=None, suppress_health_check=list(HealthCheck))
 @given(positional_streams())
 def test_core_changes_equal_the_reference_on_positional_streams(tmp_path_factory, stream):
-    same_changes(_write(tmp_path_factory.mktemp("chp") / "s.pcap", stream))
+    same_changes(write_udp(tmp_path_factory.mktemp("chp") / "s.pcap", stream))
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
@@ -156,12 +156,7 @@ def test_core_changes_equal_the_reference_on_varied_captures(tmp_path_factory, d
 
 @pytest.mark.parametrize("stream", load_streams(), ids=lambda s: s["name"])
 def test_core_changes_equal_the_reference_on_the_shared_vectors(tmp_path, stream):
-    ext = "pcapng" if stream.get("transport") == "serial" else "pcap"
-    path = write_stream(stream, tmp_path / f"s.{ext}")
-    try:
-        variables = parse_variables(stream["variables"]) if stream.get("variables") else BEACON_VARIABLES
-    except ValueError:  # a per-pair list (B>A: ...), which only issue 29's parser reads
-        pytest.skip("a variable list the decoders do not take yet")
+    path, variables = vector_capture(stream, tmp_path)
     same_changes(path, variables)
 
 

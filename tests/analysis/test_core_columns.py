@@ -17,72 +17,27 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import core_streams
 import pytest
+from core_streams import vector_capture, write_udp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sl_captures import captures, write_capture
-from sl_vectors import load_streams, write_stream
+from sl_vectors import load_streams
 
 from sharedlink.analysis.decode import Columns, Decoded, Decoder, ReferenceDecoder
-from sharedlink.capture.packets import UdpBuilder
-from sharedlink.capture.pcapio import PcapWriter
 from sharedlink.capture.stream import StreamFrame, iter_frames
 from sharedlink.generators.beacon import GenOptions, generate_file
-from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
-from sharedlink.protocols.state import BEACON_VARIABLES, VariableTable, parse_variables
+from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named
+from sharedlink.protocols.state import BEACON_VARIABLES, VariableTable
 
-NAMES = ("Lat", "Lon", "Head", "Vel")
-VALUES = ("1", "2", "2.5", "-3", "10", "1e", "+.5")  # few values: unchanged and carried ones are the rule
-
-
-@st.composite
-def _frame(draw, src: str, dst: str) -> bytes:
-    kind = draw(st.sampled_from(("named", "named", "named", "named", "named", "bad", "reply", "declaration",
-                                 "positional", "odd", "long")))
-    if kind in ("named", "bad", "long"):
-        names = draw(st.lists(st.sampled_from(NAMES), unique=True, max_size=4))
-        raw = encode_named(dst, src, [(n, 0 if kind == "long" else 2, draw(st.sampled_from(VALUES))) for n in names])
-        if kind == "bad":
-            raw = raw[:-5] + (b"00" if raw[-5:-3] != b"00" else b"01") + raw[-3:]
-        return raw
-    if kind == "reply":
-        return build_frame(Frame(dst, src, (Field("R", draw(st.sampled_from(NAMES))),
-                                            Field("D", draw(st.sampled_from(VALUES))))))
-    if kind == "declaration":
-        fields = [Field("N", "0")]
-        for n in draw(st.lists(st.sampled_from(NAMES), unique=True, min_size=1, max_size=4)):
-            fields += [Field("T", "2"), Field("Q", n)]
-        return build_frame(Frame(dst, src, tuple(fields)))
-    if kind == "positional":
-        return encode_positional(dst, src, draw(st.lists(st.one_of(st.none(), st.sampled_from(VALUES)), min_size=1,
-                                                         max_size=4)))
-    # a value the fast pattern does not take (a space): the reference path changes it
-    return encode_named(dst, src, [(draw(st.sampled_from(NAMES)), 4, draw(st.sampled_from(VALUES)) + " x")])
+VALUES = core_streams.VALUES + ("1e", "+.5")  # few values: unchanged and carried ones are the rule
+KINDS = ("named", "named", "named", "named", "named", "bad", "reply", "declaration", "positional", "odd", "long")
 
 
-@st.composite
-def streams(draw, max_datagrams: int = 40) -> list[tuple[int, int, bytes]]:
+def streams():
     """(sender, ts_ns, payload): mostly one named frame a datagram, sometimes two."""
-    out = []
-    ts = 1_700_000_000 * 10**9
-    for _ in range(draw(st.integers(1, max_datagrams))):
-        sender = draw(st.integers(0, 2))  # two conversations of B>A, and one of C>A
-        src = "C" if sender == 2 else "B"
-        ts += draw(st.sampled_from((200_000_000, 200_000_000, 1_700_000_000)))
-        payload = draw(_frame(src, "A"))
-        if draw(st.integers(0, 5)) == 0:
-            payload += draw(_frame(src, "A"))
-        out.append((sender, ts, payload))
-    return out
-
-
-def _write(path: Path, stream: list[tuple[int, int, bytes]]) -> Path:
-    senders = [UdpBuilder(f"10.0.0.{i + 1}", "10.0.0.9", 7013, 7013) for i in range(3)]
-    with open(path, "wb") as fh:
-        w = PcapWriter(fh)
-        for i, (sender, ts, payload) in enumerate(stream):
-            w.write(ts, senders[sender].frame(payload, i + 1))
-    return path
+    return core_streams.streams(values=VALUES, kinds=KINDS, two_in=6)
 
 
 def _table(t: VariableTable) -> tuple:
@@ -150,7 +105,7 @@ def compare(path: Path, carried: bool = True, variables=BEACON_VARIABLES) -> int
 @settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
 @given(streams(), st.booleans())
 def test_columns_equal_the_reference_on_generated_streams(tmp_path_factory, stream, carried):
-    compare(_write(tmp_path_factory.mktemp("col") / "s.pcap", stream), carried)
+    compare(write_udp(tmp_path_factory.mktemp("col") / "s.pcap", stream), carried)
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
@@ -167,7 +122,7 @@ def test_a_reference_frame_between_batched_frames_changes_their_values(tmp_path)
               b(("Lat", "5")) + b(("Lon", "4")), b(("Lon", "4")), b(("Lon", "5")), b(("Lat", "1"), ("Lon", "2")),
               b(("Lon", "9"))[:-5] + b"00]\r\n", b(("Lon", "6")),
               build_frame(Frame("A", "B", (Field("N", "0"), Field("T", "0"), Field("Q", "Lon")))), b(("Lon", "6"))]
-    path = _write(tmp_path / "s.pcap", [(0, (i + 1) * 10**9, p) for i, p in enumerate(stream)])
+    path = write_udp(tmp_path / "s.pcap", [(0, (i + 1) * 10**9, p) for i, p in enumerate(stream)])
     assert compare(path) >= 4
 
 
@@ -178,7 +133,7 @@ def test_a_reference_frame_changes_the_type_of_a_value_batched_frames_carry(tmp_
         return encode_named("A", "B", [(k, t, v) for k, v in kv])
     stream = [b(("Lat", "1"), ("Lon", "2")), b(("Lon", "3")), b(("Lon", "4")), b(("Lat", "7"), t=0), b(("Lon", "5")),
               b(("Lat", "8"), t=0), b(("Lon", "6")), b(("Lat", "2.5")), b(("Lon", "7"))]
-    path = _write(tmp_path / "s.pcap", [(0, (i + 1) * 10**8, p) for i, p in enumerate(stream)])
+    path = write_udp(tmp_path / "s.pcap", [(0, (i + 1) * 10**8, p) for i, p in enumerate(stream)])
     assert compare(path) >= 3
 
 
@@ -194,7 +149,7 @@ def test_runs_from_the_block_and_single_frames_in_one_batch(tmp_path):
               b(("Lat", "1"), ("Lon", "2")), b(("Lat", "2")),
               # a first value for a variable of the list (typed, no value yet), in table order
               b(("AutoGpsVel", "4"), ("Lat", "3")), b(("Lat", "4"), ("Lon", "3")), b(("Lat", "5"))]
-    path = _write(tmp_path / "s.pcap", [(0, (i + 1) * 10**8, p) for i, p in enumerate(stream)])
+    path = write_udp(tmp_path / "s.pcap", [(0, (i + 1) * 10**8, p) for i, p in enumerate(stream)])
     assert compare(path) >= 5
     dec = Decoder()
     took: list[int] = []
@@ -214,12 +169,7 @@ def test_runs_from_the_block_and_single_frames_in_one_batch(tmp_path):
 
 @pytest.mark.parametrize("stream", load_streams(), ids=lambda s: s["name"])
 def test_columns_equal_the_reference_on_the_shared_vectors(tmp_path, stream):
-    ext = "pcapng" if stream.get("transport") == "serial" else "pcap"
-    path = write_stream(stream, tmp_path / f"s.{ext}")
-    try:
-        variables = parse_variables(stream["variables"]) if stream.get("variables") else BEACON_VARIABLES
-    except ValueError:  # a per-pair list, which only issue 29's parser reads
-        pytest.skip("a variable list the decoders do not take yet")
+    path, variables = vector_capture(stream, tmp_path)
     compare(path, variables=variables)
 
 

@@ -16,10 +16,11 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 import pytest
+from core_streams import vector_capture
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sl_captures import BEACON, captures, reference, write_capture
-from sl_vectors import load_streams, write_stream
+from sl_vectors import load_streams
 
 import tshark_util as tu
 from sharedlink.generators.beacon import GenOptions, generate_file
@@ -370,14 +371,7 @@ def test_columns_mode_messages_equal_the_reference_frames_on_varied_captures(tmp
 @pytest.mark.parametrize("stream", load_streams(), ids=lambda s: s["name"])
 def test_columns_mode_messages_equal_the_reference_frames_on_the_shared_vectors(tmp_path, stream):
     """(replies whose value stays on the reply included: their name is in no table)"""
-    from sharedlink.protocols.state import parse_variables
-
-    ext = "pcapng" if stream.get("transport") == "serial" else "pcap"
-    cap = write_stream(stream, tmp_path / f"s.{ext}")
-    try:
-        variables = parse_variables(stream["variables"]) if stream.get("variables") else BEACON_VARIABLES
-    except ValueError:
-        pytest.skip("a variable list the decoders do not take yet")
+    cap, variables = vector_capture(stream, tmp_path)
     _same_as_reference(tmp_path, cap, variables)
 
 

@@ -26,6 +26,15 @@ def capture(tmp_path_factory) -> Path:
     return p
 
 
+@pytest.fixture(scope="module")
+def transform_capture(tmp_path_factory) -> Path:
+    """Compress and expand give progress every 4096 records: 9,000 frames give it twice (the
+    20,000 of ``capture`` timed each of their three runs at about 3 s on a loaded machine)."""
+    p = tmp_path_factory.mktemp("progress") / "t.pcap"
+    generate_file(GenOptions(frames=9_000, compress=True, seed=1), p)
+    return p
+
+
 def _run(args: list, tty: bool, after: str = "0") -> tuple[int, str]:
     """Run the CLI with stdout and stderr on a pseudo-terminal (``tty``) or pipes; its stderr."""
     env = dict(os.environ, SHAREDLINK_PROGRESS_AFTER=after, COLUMNS="120")
@@ -97,7 +106,8 @@ def test_ingest_progress_covers_every_capture(tmp_path):
 
 
 @pytest.mark.parametrize("command,what", [("compress", "compressing"), ("expand", "expanding")])
-def test_compress_and_expand_get_a_bar_but_not_with_json_or_on_a_pipe(capture, tmp_path, command, what):
+def test_compress_and_expand_get_a_bar_but_not_with_json_or_on_a_pipe(transform_capture, tmp_path, command, what):
+    capture = transform_capture
     rc, err = _run([command, capture, "-o", tmp_path / "o.pcap"], tty=True)
     assert rc == 0 and f"{what}:" in err and "records" in err, err[-2000:]
     rc, err = _run([command, capture, "-o", tmp_path / "j.pcap", "--json"], tty=True)
