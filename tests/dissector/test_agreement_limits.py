@@ -16,7 +16,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 from test_agreement import lua_frames, python_frames
 
 import tshark_util as tu
