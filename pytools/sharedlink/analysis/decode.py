@@ -522,12 +522,17 @@ class _ColLane:
         self.h, self.hkey, self.stamp, self.key = h, hkey, stamp, key
         self.conv, self.src, self.dst = hkey
         t = h.table
+        self.rx: Callable | None = None
+        if len(t.vars) > MAX_COMPILED_VARS:
+            # too wide for a lane: nothing listed, so a table that grows by new names every frame
+            # costs nothing a frame here (a lane walks every variable: quadratic, issue 31)
+            self.vs, self.names, self.types = [], (), ()
+            return
         every = list(t.vars.values())
         vs = [v for v in every if v.type_code is not None]
         self.vs = vs
         self.names = tuple(v.name for v in vs)
         self.types = tuple(v.type_code for v in vs)
-        self.rx: Callable | None = None
         if (t.named is True and 0 < len(vs) <= MAX_COMPILED_VARS
                 and all(v.type_code is not None for v in every if v.text is not None)
                 and {v.name for v in every if v.text is not None} == set(t.sent_names)):
