@@ -692,13 +692,18 @@ def _run_local(tasks: list[Task], workers: int, progress: Callable[[int, int], N
             raise
 
 
+#: seconds to reach a Dask scheduler (Dask retries a refused connection until then); a reachable
+#: one answers in milliseconds, so an unreachable one is a usage error soon
+SCHEDULER_TIMEOUT_S = 10
+
+
 def _run_dask(tasks: list[Task], address: str) -> Iterator[Outcome]:
     try:
         from distributed import Client, as_completed
     except ImportError:  # pragma: no cover - dask is a dependency
         raise UsageError("--scheduler needs dask[distributed] installed") from None
     try:
-        client = Client(address, timeout=30)
+        client = Client(address, timeout=SCHEDULER_TIMEOUT_S)
     except (OSError, TimeoutError, ValueError) as exc:
         raise UsageError(f"--scheduler {address}: cannot reach the Dask scheduler ({exc})") from None
     with client:
