@@ -11,8 +11,11 @@ import pytest
 from hypothesis import strategies as st
 from sl_vectors import write_stream
 
+from sharedlink.analysis.decode import ReferenceDecoder
+from sharedlink.analysis.stats import CaptureStats
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.capture.stream import StreamFrame, iter_frames
 from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
 from sharedlink.protocols.state import BEACON_VARIABLES, parse_variables
 
@@ -120,3 +123,36 @@ def vector_capture(stream: dict, tmp_path: Path) -> tuple[Path, Sequence[tuple[s
     except ValueError:
         pytest.skip("a variable list the decoders do not take yet")
     return path, variables
+
+
+def stats_by_reference(path: Path, variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES) -> CaptureStats:
+    """``stats`` the plain way: every frame through ReferenceDecoder and CaptureStats.add."""
+    st_ = CaptureStats(path=str(path))
+    dec = ReferenceDecoder(variables, carried=False)
+    for item in iter_frames(path):
+        if isinstance(item, StreamFrame) and item.frame is not None:
+            st_.add(dec.decode(item))
+        elif isinstance(item, tuple):
+            st_.other_records += 1
+        else:
+            st_.noise_segments += 1
+            st_.noise_bytes += len(item.raw)
+            if item.raw.startswith(b"[:"):
+                st_.kinds["malformed"] = st_.kinds.get("malformed", 0) + 1
+    return st_
+
+
+def spy_runs(dec: object, method: str) -> list[int]:
+    """Wraps ``dec``'s run taker ``method`` (``column_run``, ``count_run``): the list it returns
+    gets the number of frames of each run taken."""
+    run = getattr(dec, method)
+    took: list[int] = []
+
+    def spy(*args):
+        r = run(*args)
+        if r is not None:
+            took.append(r[2])
+        return r
+
+    setattr(dec, method, spy)
+    return took

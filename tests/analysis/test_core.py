@@ -15,7 +15,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from core_streams import one_sender, positional_streams, streams, vector_capture, write_udp
+from core_streams import (
+    one_sender,
+    positional_streams,
+    stats_by_reference,
+    streams,
+    vector_capture,
+    write_udp,
+)
 from hypothesis import HealthCheck, given, settings
 from sl_captures import captures, write_capture
 from sl_vectors import load_streams
@@ -189,29 +196,10 @@ def test_core_takes_the_compressed_beacon_fast(tmp_path):
     assert n == 2000 and dec.fast >= 1990  # only the first frames of each layout go the reference way
 
 
-def _stats_by_reference(path: Path):
-    """``stats`` as the plain path gives it: every frame through ReferenceDecoder and CaptureStats.add."""
-    from sharedlink.analysis.stats import CaptureStats
-
-    st = CaptureStats(path=str(path))
-    dec = ReferenceDecoder(carried=False)
-    for item in iter_frames(path):
-        if isinstance(item, StreamFrame) and item.frame is not None:
-            st.add(dec.decode(item))
-        elif isinstance(item, tuple):
-            st.other_records += 1
-        else:
-            st.noise_segments += 1
-            st.noise_bytes += len(item.raw)
-            if item.raw.startswith(b"[:"):
-                st.kinds["malformed"] = st.kinds.get("malformed", 0) + 1
-    return st
-
-
 def _same_stats(path: Path) -> None:
     from sharedlink.analysis.stats import capture_stats
 
-    got, want = capture_stats(path).to_dict(), _stats_by_reference(path).to_dict()
+    got, want = capture_stats(path).to_dict(), stats_by_reference(path).to_dict()
     assert got == want
 
 

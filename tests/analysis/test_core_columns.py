@@ -19,7 +19,7 @@ from pathlib import Path
 
 import core_streams
 import pytest
-from core_streams import vector_capture, write_udp
+from core_streams import spy_runs, vector_capture, write_udp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sl_captures import captures, write_capture
@@ -152,16 +152,7 @@ def test_runs_from_the_block_and_single_frames_in_one_batch(tmp_path):
     path = write_udp(tmp_path / "s.pcap", [(0, (i + 1) * 10**8, p) for i, p in enumerate(stream)])
     assert compare(path) >= 5
     dec = Decoder()
-    took: list[int] = []
-    run = dec.column_run
-
-    def spy(*args):
-        r = run(*args)
-        if r is not None:
-            took.append(r[2])
-        return r
-
-    dec.column_run = spy  # type: ignore[method-assign]
+    took = spy_runs(dec, "column_run")
     for _item in dec.capture(path, columns=True):
         pass
     assert sum(took) >= 3 and dec.fast > sum(took)  # runs, and frames column() took

@@ -20,15 +20,14 @@ from collections import defaultdict
 from pathlib import Path
 
 import pytest
+from core_streams import spy_runs, stats_by_reference, write_udp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sl_captures import captures, write_capture
 from sl_vectors import load_streams, write_stream
 
 from sharedlink.analysis.decode import Counted, Decoded, Decoder, ReferenceDecoder
-from sharedlink.analysis.stats import CaptureStats, capture_stats
-from sharedlink.capture.packets import UdpBuilder
-from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.analysis.stats import capture_stats
 from sharedlink.capture.stream import StreamFrame, iter_frames
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
@@ -92,15 +91,6 @@ def streams(draw, max_datagrams: int = 60) -> list[tuple[int, int, bytes]]:
     return out
 
 
-def _write(path: Path, stream: list[tuple[int, int, bytes]]) -> Path:
-    senders = [UdpBuilder(f"10.0.0.{i + 1}", "10.0.0.9", 7013, 7013) for i in range(3)]
-    with open(path, "wb") as fh:
-        w = PcapWriter(fh)
-        for i, (sender, ts, payload) in enumerate(stream):
-            w.write(ts, senders[sender].frame(payload, i + 1))
-    return path
-
-
 def _table(t) -> tuple:
     return ({n: (v.text, v.type_code, v.set_in, v.set_at) for n, v in t.vars.items()},
             (t.last_full_at, t.last_full_in, t.named, dict(t.sent_names), tuple(t.names), sorted(t.filled)))
@@ -112,38 +102,12 @@ def _key(d: Decoded) -> tuple:
             d.sync_gap_ns, d.shown, d.response_to, _table(d.table))
 
 
-def _stats_by_reference(path: Path, variables=BEACON_VARIABLES) -> dict:
-    """``stats`` the plain way: every frame through ReferenceDecoder and CaptureStats.add."""
-    st_ = CaptureStats(path=str(path))
-    dec = ReferenceDecoder(variables, carried=False)
-    for item in iter_frames(path):
-        if isinstance(item, StreamFrame) and item.frame is not None:
-            st_.add(dec.decode(item))
-        elif isinstance(item, tuple):
-            st_.other_records += 1
-        else:
-            st_.noise_segments += 1
-            st_.noise_bytes += len(item.raw)
-            if item.raw.startswith(b"[:"):
-                st_.kinds["malformed"] = st_.kinds.get("malformed", 0) + 1
-    return st_.to_dict()
-
-
 def compare(path: Path, variables=BEACON_VARIABLES) -> tuple[int, int]:
     """The counts mode against the reference and the full mode (see the module doc); returns
     (frames the runs took, frames counted in all)."""
-    assert capture_stats(path, variables).to_dict() == _stats_by_reference(path, variables)
+    assert capture_stats(path, variables).to_dict() == stats_by_reference(path, variables).to_dict()
     dec = Decoder(variables)  # (carried values kept: the Decoded after a batch show its table)
-    took: list[int] = []
-    run = dec.count_run
-
-    def spy(*args):
-        r = run(*args)
-        if r is not None:
-            took.append(r[2])
-        return r
-
-    dec.count_run = spy  # type: ignore[method-assign]
+    took = spy_runs(dec, "count_run")
     decoded, counted = [], 0
     for item in dec.capture(path, counts=True):
         if isinstance(item, Decoded):
@@ -171,7 +135,7 @@ def compare(path: Path, variables=BEACON_VARIABLES) -> tuple[int, int]:
 @settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
 @given(streams())
 def test_counts_equal_the_reference_on_generated_streams(tmp_path_factory, stream):
-    compare(_write(tmp_path_factory.mktemp("cnt") / "s.pcap", stream))
+    compare(write_udp(tmp_path_factory.mktemp("cnt") / "s.pcap", stream))
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
@@ -197,7 +161,7 @@ def test_a_reference_frame_between_runs_changes_what_they_sum(tmp_path):
               b((lat, "2")), b((lon, "2"), (lat, "2")), b((lon, "3"), (lat, "2")), b((lat, "4"))]
     times = [(i + 1) * 2 * 10**8 + (2 * 10**9 if i >= 12 else 0) + (3 * 10**9 if i >= 15 else 0)
              for i in range(len(stream))]
-    path = _write(tmp_path / "s.pcap", [(0, ts, p) for ts, p in zip(times, stream)])
+    path = write_udp(tmp_path / "s.pcap", [(0, ts, p) for ts, p in zip(times, stream)])
     runs, counted = compare(path)
     assert runs >= 8 and counted > runs  # runs, and frames count() took one at a time
 
