@@ -27,6 +27,7 @@ from operator import add, and_, lshift, mul, ne, or_, setitem
 from struct import pack
 from zlib import adler32
 
+from sharedlink.analysis.decode import cached_pattern
 from sharedlink.capture.pcapio import NS
 
 #: records a direction's per-record loop takes in a row before its block taker is asked
@@ -58,12 +59,7 @@ _LENGTHS = [pack("<I", n + 42) + pack(">HH", n + 28, n + 8) for n in range(257)]
 
 
 def _findall(pattern: bytes) -> Callable:
-    rx = _BLOCK_PATTERNS.get(pattern)
-    if rx is None:
-        if len(_BLOCK_PATTERNS) >= MAX_BLOCK_PATTERNS:
-            _BLOCK_PATTERNS.clear()
-        rx = _BLOCK_PATTERNS[pattern] = re.compile(pattern).findall
-    return rx
+    return cached_pattern(_BLOCK_PATTERNS, MAX_BLOCK_PATTERNS, pattern, "findall")
 
 
 def block_taker(key: bytes, frame_named: bytes | None, frame_pos: bytes | None, value: bytes, nslots: list[int],

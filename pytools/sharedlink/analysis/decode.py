@@ -278,14 +278,19 @@ _PATTERNS: dict[bytes, Callable] = {}
 _STR_PATTERNS: dict[str, Callable] = {}  # the columns lanes' text patterns, bounded the same
 
 
-def _fullmatch(pattern: bytes | str) -> Callable:
-    cache: dict = _PATTERNS if isinstance(pattern, bytes) else _STR_PATTERNS
+def cached_pattern(cache: dict, bound: int, pattern: bytes | str, method: str) -> Callable:
+    """``re.compile(pattern).<method>``, kept in ``cache`` (emptied once it holds ``bound``)."""
     rx = cache.get(pattern)
     if rx is None:
-        if len(cache) >= MAX_PATTERNS:
+        if len(cache) >= bound:
             cache.clear()
-        rx = cache[pattern] = re.compile(pattern).fullmatch
+        rx = cache[pattern] = getattr(re.compile(pattern), method)
     return rx
+
+
+def _fullmatch(pattern: bytes | str) -> Callable:
+    return cached_pattern(_PATTERNS if isinstance(pattern, bytes) else _STR_PATTERNS, MAX_PATTERNS, pattern,
+                          "fullmatch")
 
 
 #: a classic pcap record header, then from byte 12 of an Ethernet packet: the type and the IP
