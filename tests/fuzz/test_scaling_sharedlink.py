@@ -109,23 +109,12 @@ PATTERNS: dict[str, tuple[Callable[[int], list[bytes]], int, tuple[str, ...]]] =
 }
 
 
-#: patterns known to sit at the bound: run and reported, not failing the suite (non-strict xfail)
-BORDERLINE = {
-    # since the one route (issue 27), -2 with new names reads 5.1-5.5x on 4.4 (passes on 4.0 and
-    # 4.6, and on a second look); with max_names raised past what 4N sends (so both runs keep every
-    # name) it read 4.0-7.4x.  Counted with callgrind (27 November 2026, -2, max_names raised) the
-    # instructions are linear: 1.526 and 1.522 thousand million a 1,000 frames from 1,000 to 2,000
-    # and from 2,000 to 4,000 frames, and the VM instructions a frame of the second pass 3,382 at
-    # 500 frames, 3,514 at 2,000 (nothing loops over the names a direction holds): the growth is
-    # in time alone (4.8x CPU at load 15, default limits; presumably the heap the kept names make,
-    # not found).  Kept until a run of the matrix shows it under the bound.
-    "new-names-2": "issue 27/31: -2 with new names near the 5x time bound (4.0-7.4x with every name kept; "
-                   "instructions linear)",
-}
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(reason=BORDERLINE[n], strict=False))
-                                  if n in BORDERLINE else n for n in sorted(PATTERNS)])
+# -2 with new names read 4.0-7.4x in time with every name kept, its instructions linear (callgrind,
+# 27 November 2026: 1.526 and 1.522 thousand million a 1,000 frames from 1,000 to 2,000 and from
+# 2,000 to 4,000 frames): within scaling.TIME_LIMIT, the room time gets for the memory hierarchy
+@pytest.mark.parametrize("name", sorted(PATTERNS))
 def test_sharedlink_scales_linearly(name: str, tmp_path: Path) -> None:
     gen, n, args = PATTERNS[name]
 
