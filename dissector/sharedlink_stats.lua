@@ -22,14 +22,16 @@
 -- Counts the same way as `sharedlink stats` (pytools/sharedlink/analysis/stats.py), and the
 -- way Expert Information counts:
 --  * frames per kind (sharedlink.kind) and per node pair, written as the packet list writes it:
---    "B→A" (from B to A);
+--    "B→A" (from B to A); a malformed frame (a "[:" that starts no well-formed frame) is a frame
+--    of the pair its header names ("?" for a letter it lacks);
+--  * noise: the "sharedlink" items with sharedlink.noise (bytes outside any frame), never frames;
 --  * checksum failures: frames with sharedlink.checksum.status == 0 (Bad), one per
 --    sharedlink.checksum.bad expert;
 --  * sync late: frames with the sharedlink.sync.is_late field, which sharedlink.lua adds exactly
 --    where it adds the sharedlink.sync.late expert (so one per expert), whatever the checksum;
 --  * per node pair and variable: the number of values carried in frames with a good (or no)
---    checksum -- a value carried forward (sharedlink.var.carried) is not counted -- and the last
---    such value.
+--    checksum -- a value carried forward (sharedlink.var.carried) is not counted, nor the values
+--    a malformed frame shows -- and the last such value.
 
 -- luacheck: read globals report_failure all_field_infos register_stat_cmd_arg gui_enabled TextWindow
 -- luacheck: read globals retap_packets register_menu MENU_STAT_UNSORTED set_plugin_info Dissector Listener
@@ -48,7 +50,7 @@ end
 local COUNTED = {
     "sharedlink", "sharedlink.kind", "sharedlink.src", "sharedlink.dst", "sharedlink.var",
     "sharedlink.var.name", "sharedlink.var.value", "sharedlink.var.carried",
-    "sharedlink.checksum.status", "sharedlink.sync.is_late",
+    "sharedlink.checksum.status", "sharedlink.sync.is_late", "sharedlink.noise",
 }
 local ARROW = "\226\134\146" -- U+2192, as in the packet list's "B→A"
 local TAP_FILTER = table.concat(COUNTED, " || ")
@@ -69,7 +71,7 @@ end
 
 local function new_stats()
     return {
-        frames = 0, bad = 0, late = 0,
+        frames = 0, bad = 0, late = 0, noise = 0,
         kinds = {},      -- kind -> frames
         pairs = {},      -- "B→A" -> { frames, bad, late, kinds = {} }
         vars = {},       -- "B→A\tname" -> { pair, name, count, last }
@@ -103,10 +105,17 @@ local function add_values(st, pair, vars)
     end
 end
 
--- Fold one frame (collected by the field walk) into the statistics.
+-- Fold one frame (collected by the field walk) into the statistics. A "sharedlink" item with
+-- sharedlink.noise is bytes outside any frame (the packet list's "noise"): counted apart, never a
+-- frame. A malformed frame is a frame of the pair its header names; its values, shown as sent,
+-- are no state (docs/fields-sharedlink.md, "Counts"), so not counted.
 local function add_frame(st, fr)
     if not fr then return end
-    local kind = fr.kind or "unknown"
+    if fr.noise then
+        st.noise = st.noise + 1
+        return
+    end
+    local kind = fr.kind or "?"
     local pair = (fr.src or "?") .. ARROW .. (fr.dst or "?")
     local p = pair_stats(st, pair)
     st.frames = st.frames + 1
@@ -118,7 +127,7 @@ local function add_frame(st, fr)
     if fr.bad then
         st.bad = st.bad + 1
         p.bad = p.bad + 1
-    else
+    elseif kind ~= "malformed" then
         add_values(st, pair, fr.vars)
     end
 end
@@ -154,6 +163,8 @@ local function collect(st)
                 fr.bad = (fi.value == 0)
             elseif name == "sharedlink.sync.is_late" then
                 fr.late = fr.late + 1
+            elseif name == "sharedlink.noise" then
+                fr.noise = true
             end
         end
     end
@@ -194,6 +205,13 @@ local function table_lines(out, rows, align)
     end
 end
 
+-- a value as the packet details show it, on one line: CR, LF, TAB and a backslash escaped as
+-- \r, \n, \t, \\, any other control byte as \xhh (so a value holding "\r\n" keeps its row)
+local ESCAPE = { ["\r"] = "\\r", ["\n"] = "\\n", ["\t"] = "\\t", ["\\"] = "\\\\" }
+local function one_line(v)
+    return (v:gsub("[%c\\]", function(c) return ESCAPE[c] or s_format("\\x%02x", c:byte()) end))
+end
+
 local function render(st, filter)
     local out = {}
     local function line(...) out[#out + 1] = s_format(...) end
@@ -203,6 +221,7 @@ local function render(st, filter)
     line("Frames: %d", st.frames)
     line("Checksum failures: %d", st.bad)
     line("Sync late: %d", st.late)
+    line("Noise: %d", st.noise)
     line("")
     line("Frames per kind")
     local rows = { { "Kind", "Frames" } }
@@ -228,7 +247,7 @@ local function render(st, filter)
     rows = { { "Pair", "Variable", "Count", "Last value" } }
     for _, k in ipairs(sorted_keys(st.vars)) do
         local v = st.vars[k]
-        rows[#rows + 1] = { v.pair, v.name, tostring(v.count), v.last or "" }
+        rows[#rows + 1] = { v.pair, v.name, tostring(v.count), one_line(v.last or "") }
     end
     table_lines(out, rows, { "l", "l", "r", "l" })
     line("===================================================================")

@@ -135,10 +135,7 @@ def stats_by_reference(path: Path, variables: Sequence[tuple[str, int | None]] =
         elif isinstance(item, tuple):
             st_.other_records += 1
         else:
-            st_.noise_segments += 1
-            st_.noise_bytes += len(item.raw)
-            if item.raw.startswith(b"[:"):
-                st_.kinds["malformed"] = st_.kinds.get("malformed", 0) + 1
+            st_.add_unframed(item)
     return st_
 
 

@@ -18,9 +18,10 @@ import tracemalloc
 from pathlib import Path
 
 import pytest
+from core_streams import stats_by_reference
 from sl_captures import BEACON, reference
 
-from sharedlink.analysis.stats import capture_stats
+from sharedlink.analysis.stats import capture_stats, one_line
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.state import BEACON_VARIABLES
 from tshark_util import REPO, TSHARK_CMD, check_stderr, fields, tshark
@@ -146,7 +147,7 @@ def tap_stats(path: Path, flt: str = "", prefs: dict | None = None) -> dict:
     section = None
     header: list[str] = []
     for line in text.splitlines():
-        if m := re.match(r"(Frames|Checksum failures|Sync late): (\d+)$", line):
+        if m := re.match(r"(Frames|Checksum failures|Sync late|Noise): (\d+)$", line):
             out[m.group(1)] = int(m.group(2))
         elif line in ("Frames per kind", "Frames per node pair", "Variables"):
             section = line
@@ -187,15 +188,6 @@ def test_tap_matches_python_stats(captures, variant):
     }
 
 
-#: vector streams where `stats` and the tap disagree, and why (Python side, not fixed yet)
-_MALFORMED = ("stats counts a '[:' that is no frame as kind 'malformed' and as noise, not in its frame total "
-              "nor under a pair; the tap counts it as a frame of the pair its header names (issue 28)")
-_NOISE = ("Lua side (sharedlink_stats.lua): the tap counts the 2 packets of modem noise (no frame in them) as "
-          "frames of kind 'unknown', pair ?->?; 'unknown' is not a kind of docs/fields-sharedlink.md, stats counts "
-          "them as noise")
-_KNOWN = {"crlf-inside-a-value-and-modem-noise": _NOISE, "frame-kinds-other-and-malformed": _MALFORMED}
-
-
 def _vector_streams() -> list:
     from sl_vectors import load_streams, pending
 
@@ -205,17 +197,18 @@ def _vector_streams() -> list:
             continue
         # a rule the two decoders do not both follow yet (issue 29): they differ until both do
         # (not strict for those: the counts compared here need not depend on the rule)
-        known, rule = _KNOWN.get(s["name"]), pending(s, "agreement")
-        marks = [pytest.mark.xfail(reason=known, strict=True)] if known else \
-            [pytest.mark.xfail(reason=rule, strict=False)] if rule else []
+        rule = pending(s, "agreement")
+        marks = [pytest.mark.xfail(reason=rule, strict=False)] if rule else []
         out.append(pytest.param(s, id=s["name"], marks=marks))
     return out
 
 
 @pytest.mark.parametrize("stream", _vector_streams())
 def test_tap_matches_python_stats_on_the_shared_vectors(tmp_path, stream):
-    """Every count the tap has (frames, checksum failures, sync late, kinds, per pair) on the
-    shared vector streams, as `stats` counts it."""
+    """Every count the tap has (frames, checksum failures, sync late, noise, kinds, per pair, per
+    variable) on the shared vector streams, as `stats` counts it (docs/fields-sharedlink.md,
+    "Counts": a malformed frame is a frame of its header's pair, noise never is), and as `stats`
+    counts them the plain way (every frame through the reference decoder)."""
     from sl_vectors import write_stream
 
     from sharedlink.protocols.state import parse_variables
@@ -225,10 +218,15 @@ def test_tap_matches_python_stats_on_the_shared_vectors(tmp_path, stream):
     variables = parse_variables(stream["variables"]) if "variables" in stream else list(BEACON_VARIABLES)
     st = capture_stats(path, variables)
     tap = tap_stats(path, prefs=prefs)
-    assert (tap["Frames"], tap["Checksum failures"], tap["Sync late"]) == (st.frames, st.checksum_failures,
-                                                                         st.sync_late)
+    assert (tap["Frames"], tap["Checksum failures"], tap["Sync late"], tap["Noise"]) == (
+        st.frames, st.checksum_failures, st.sync_late, st.noise_segments)
     assert tap["kinds"] == st.kinds
     assert tap["pairs"] == {p.pair: (p.frames, p.checksum_failures, p.sync_late, p.kinds) for p in st.pairs.values()}
+    assert tap["vars"] == {k: (v.count, one_line(v.last or "")) for k, v in st.variables.items()}
+    ref = stats_by_reference(path, variables)
+    assert (ref.frames, ref.bytes, ref.kinds, ref.noise_segments, ref.noise_bytes) == (
+        st.frames, st.bytes, st.kinds, st.noise_segments, st.noise_bytes)
+    assert {k: p.to_dict() for k, p in ref.pairs.items()} == {k: p.to_dict() for k, p in st.pairs.items()}
 
 
 def test_tap_filter_argument(captures):

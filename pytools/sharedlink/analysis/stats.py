@@ -23,13 +23,14 @@ Definitions (the Lua tap ``dissector/sharedlink_stats.lua`` counts the same way)
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Counted, Decoded, Decoder
 from sharedlink.capture.pcapio import CaptureError
 from sharedlink.capture.serial_format import GIVEN_UP
+from sharedlink.capture.stream import StreamFrame
 from sharedlink.protocols.codec import TYPE_DOUBLE, guess_value, typed_value
 from sharedlink.protocols.limits import LimitCounts
 from sharedlink.protocols.state import BEACON_VARIABLES, Update, VariableTable
@@ -259,6 +260,40 @@ class CaptureStats:
                     v.max = xf
 
 
+    def add_unframed(self, item: StreamFrame) -> None:
+        """Bytes of a record that hold no well-formed frame (a noise :class:`StreamFrame`): on
+        UDP and TCP each ``[:`` in them is a frame of kind ``malformed``, as sharedlink.lua shows it
+        (:func:`unframed_pieces`), the rest noise; on a serial link all noise (serial.lua hands
+        sharedlink.lua only the frames its deframer finds)."""
+        raw = item.raw
+        if item.error == GIVEN_UP:  # an unfinished frame past MAX_HELD_BYTES: given up as noise
+            self.limits.held += 1
+        if item.conv[0] == "serial" or item.error == GIVEN_UP or b"[:" not in raw:
+            self.noise_segments += 1
+            self.noise_bytes += len(raw)
+            return
+        ts = item.ts_ns
+        for pair, size in unframed_pieces(raw):
+            if pair is None:
+                self.noise_segments += 1
+                self.noise_bytes += size
+                continue
+            self.frames += 1
+            self.bytes += size
+            self.kinds["malformed"] = self.kinds.get("malformed", 0) + 1
+            if self.first_ns is None or ts < self.first_ns:
+                self.first_ns = ts
+            if self.last_ns is None or ts > self.last_ns:
+                self.last_ns = ts
+            p = self.pairs.get(pair)
+            if p is None:
+                p = self.pairs[pair] = PairStats(pair, first_ns=ts, last_ns=ts)
+            p.frames += 1
+            p.bytes += size
+            p.kinds["malformed"] = p.kinds.get("malformed", 0) + 1
+            p.first_ns = min(p.first_ns, ts)  # type: ignore[type-var]
+            p.last_ns = max(p.last_ns, ts)  # type: ignore[type-var]
+
     def add_counts(self, batch: Counted) -> None:
         """Frames the decoder's fast path counted (:class:`~sharedlink.analysis.decode.Counted`):
         good full and delta frames in the named form, the same sums as :meth:`add` of each."""
@@ -451,17 +486,48 @@ def capture_stats(
                     counts[0] += 1
                     counts[1] += len(item.raw)
                     continue
-                st.noise_segments += 1
-                st.noise_bytes += len(item.raw)
-                if item.error == GIVEN_UP:  # an unfinished serial frame past MAX_HELD_BYTES
-                    st.limits.held += 1
-                elif item.raw.startswith(b"[:"):  # a frame that is not one: the dissector's "malformed"
-                    st.kinds["malformed"] = st.kinds.get("malformed", 0) + 1
+                st.add_unframed(item)
     except CaptureError as exc:
         if exc.record is None and st.frames == 0 and st.other_records == 0 and st.noise_segments == 0:
             raise
         st.error = str(exc)
     return st
+
+
+def _line_end(raw: bytes, b: int) -> int:
+    """The index just past a frame closed at ``raw[b]`` and its line end (CR LF, CR or LF)."""
+    c = raw[b + 1 : b + 3]
+    if c[:1] == b"\r":
+        return b + 3 if c == b"\r\n" else b + 2
+    return b + 2 if c[:1] == b"\n" else b + 1
+
+
+def unframed_pieces(raw: bytes) -> Iterator[tuple[str | None, int]]:
+    """The pieces of UDP/TCP bytes that hold no well-formed frame, as sharedlink.lua's ``scan``
+    cuts them (docs/fields-sharedlink.md, "Counts"): ``(pair, size)`` for each ``[:``, a frame
+    of kind ``malformed`` running to the first ``]`` (and its line end) when no other ``[:``
+    comes first, else up to that ``[:`` (or the end); its pair ``"B>A"`` from the two bytes after
+    ``[:`` (destination, source; ``?`` for a byte it lacks). ``(None, size)`` for the noise
+    between them, bytes other than CR and LF (CR and LF alone are no noise, as in the dissector)."""
+    n = len(raw)
+    pos = 0
+    while pos < n:
+        a = raw.find(b"[:", pos)
+        end = n if a < 0 else a
+        if end > pos and raw[pos:end].strip(b"\r\n"):
+            yield None, end - pos
+        if a < 0:
+            return
+        b = raw.find(b"]", a + 2)
+        na = raw.find(b"[:", a + 2)
+        if b >= 0 and (na < 0 or b < na):
+            body, pos = raw[a:b], _line_end(raw, b)
+        else:
+            body = raw[a:na] if na >= 0 else raw[a:]
+            pos = na if na >= 0 else n
+        dst = chr(body[2]) if len(body) > 2 else "?"
+        src = chr(body[3]) if len(body) > 3 else "?"
+        yield f"{src}>{dst}", pos - a
 
 
 #: a Holland blackboard message (set ``:`` or request ``;``, ASCII hex, CR), as blackboard.lua's heuristic
@@ -478,6 +544,17 @@ def other_protocol(raw: bytes) -> str | None:
     if _BLACKBOARD.match(raw):
         return "blackboard"
     return None
+
+
+_ESCAPES = {"\r": "\\r", "\n": "\\n", "\t": "\\t", "\\": "\\\\"}
+_CONTROL = re.compile(r"[\x00-\x1f\x7f\\]")
+
+
+def one_line(text: str) -> str:
+    """A value on one table row, as the packet details and the tap's report show it: CR, LF, TAB
+    and a backslash escaped (``\\r``, ``\\n``, ``\\t``, ``\\\\``), any other control
+    character as ``\\xhh``."""
+    return _CONTROL.sub(lambda m: _ESCAPES.get(m.group(), "\\x%02x" % ord(m.group())), text)
 
 
 def tables(st: CaptureStats) -> list[tuple[str, list[str], list[list[str]]]]:
@@ -523,7 +600,7 @@ def tables(st: CaptureStats) -> list[tuple[str, list[str], list[list[str]]]]:
         for _, p in sorted(st.pairs.items())
     ]
     variables = [
-        [v.pair, v.name, str(v.count), str(v.changes), whole(v.min), whole(v.max), v.last or ""]
+        [v.pair, v.name, str(v.count), str(v.changes), whole(v.min), whole(v.max), one_line(v.last or "")]
         for _, v in sorted(st.variables.items())
     ]
     return [
