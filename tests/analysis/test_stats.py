@@ -381,3 +381,38 @@ def test_noise_that_is_no_related_protocol_stays_noise(tmp_path):
             w.write(1_700_000_000 * 10**9 + i, b.frame(payload, i + 1))
     st = capture_stats(tmp_path / "n.pcap")
     assert st.noise_segments == 3 and st.other_protocols == {}
+
+
+@pytest.mark.parametrize("transport", ["udp", "tcp"])
+def test_malformed_frames_and_noise_count_as_the_dissector_shows_them(tmp_path, transport):
+    """docs/fields-sharedlink.md, "Counts": every '[:' the codec cannot read is a frame of kind
+    malformed under the pair its header names ('?' for a missing letter), noise is counted apart
+    and is never a frame; the tap and `stats` (fast and reference paths) agree on each count."""
+    from tshark_util import Pkt, frame, write_pcap
+
+    good = frame("A", "B", "N0", "D1")
+    payloads = [
+        b"[:AB|N0|D1" + good,  # unterminated: the next '[:' ends it
+        b"junk\r\n" + b"[:C]\r\n" + good,  # noise, then a header too short (no source letter)
+        b"[:]" + good + b"NO CARRIER\r\n",  # no letters at all; noise after the frame
+        b"[:CDx|N0|D2|C00]\r\n" + good,  # no '|' after the letters; its checksum is checked (bad)
+        b"[:AB|N0|D1|C5A\r\n" + good,  # unterminated, its last field a checksum ("5A\r\n": bad)
+        b"[:AB|N0|D1|C" + frame("A", "B", "N0", "D", crlf=False),  # an empty checksum text: bad
+        b"\r\n\r\n" + good + b"\r\n",  # CR LF alone: no noise
+        good + b"[:DC|N0|D3",  # unterminated at the end of the payload
+    ]
+    if transport == "tcp":  # (an unterminated tail waits for the next segment: a frame closes it)
+        payloads.append(b"|C00]\r\n")
+    pkts = [Pkt(0.1 * i, p, 4000, 4000, transport, "10.0.0.2", "10.0.0.1") for i, p in enumerate(payloads)]
+    path = write_pcap(tmp_path / f"malformed-{transport}.pcap", pkts)
+    st = capture_stats(path)
+    ref = stats_by_reference(path)
+    tap = tap_stats(path)
+    assert st.kinds.get("malformed", 0) >= 6 and st.noise_segments >= 2 and st.checksum_failures >= 3
+    assert "?>C" in st.pairs and "?>?" in st.pairs
+    assert (tap["Frames"], tap["Checksum failures"], tap["Sync late"], tap["Noise"]) == (
+        st.frames, st.checksum_failures, st.sync_late, st.noise_segments)
+    assert tap["kinds"] == st.kinds
+    assert tap["pairs"] == {p.pair: (p.frames, p.checksum_failures, p.sync_late, p.kinds) for p in st.pairs.values()}
+    assert tap["vars"] == {k: (v.count, one_line(v.last or "")) for k, v in st.variables.items()}
+    assert (ref.frames, ref.bytes, ref.kinds, ref.noise_segments) == (st.frames, st.bytes, st.kinds, st.noise_segments)

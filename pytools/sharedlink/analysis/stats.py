@@ -269,17 +269,20 @@ class CaptureStats:
         if item.error == GIVEN_UP:  # an unfinished frame past MAX_HELD_BYTES: given up as noise
             self.limits.held += 1
         if item.conv[0] == "serial" or item.error == GIVEN_UP or b"[:" not in raw:
-            self.noise_segments += 1
-            self.noise_bytes += len(raw)
+            if raw.strip(b"\r\n"):  # (CR and LF alone are no noise)
+                self.noise_segments += 1
+                self.noise_bytes += len(raw)
             return
         ts = item.ts_ns
-        for pair, size in unframed_pieces(raw):
+        for pair, size, bad in unframed_pieces(raw):
             if pair is None:
                 self.noise_segments += 1
                 self.noise_bytes += size
                 continue
             self.frames += 1
             self.bytes += size
+            if bad:
+                self.checksum_failures += 1
             self.kinds["malformed"] = self.kinds.get("malformed", 0) + 1
             if self.first_ns is None or ts < self.first_ns:
                 self.first_ns = ts
@@ -291,6 +294,8 @@ class CaptureStats:
             p.frames += 1
             p.bytes += size
             p.kinds["malformed"] = p.kinds.get("malformed", 0) + 1
+            if bad:
+                p.checksum_failures += 1
             p.first_ns = min(p.first_ns, ts)  # type: ignore[type-var]
             p.last_ns = max(p.last_ns, ts)  # type: ignore[type-var]
 
@@ -502,20 +507,21 @@ def _line_end(raw: bytes, b: int) -> int:
     return b + 2 if c[:1] == b"\n" else b + 1
 
 
-def unframed_pieces(raw: bytes) -> Iterator[tuple[str | None, int]]:
+def unframed_pieces(raw: bytes) -> Iterator[tuple[str | None, int, bool]]:
     """The pieces of UDP/TCP bytes that hold no well-formed frame, as sharedlink.lua's ``scan``
     cuts them (docs/fields-sharedlink.md, "Counts"): ``(pair, size)`` for each ``[:``, a frame
     of kind ``malformed`` running to the first ``]`` (and its line end) when no other ``[:``
     comes first, else up to that ``[:`` (or the end); its pair ``"B>A"`` from the two bytes after
-    ``[:`` (destination, source; ``?`` for a byte it lacks). ``(None, size)`` for the noise
-    between them, bytes other than CR and LF (CR and LF alone are no noise, as in the dissector)."""
+    ``[:`` (destination, source; ``?`` for a byte it lacks), and ``bad`` when its checksum is
+    wrong (:func:`_malformed_checksum_bad`). ``(None, size, False)`` for the noise between them,
+    bytes other than CR and LF (CR and LF alone are no noise, as in the dissector)."""
     n = len(raw)
     pos = 0
     while pos < n:
         a = raw.find(b"[:", pos)
         end = n if a < 0 else a
         if end > pos and raw[pos:end].strip(b"\r\n"):
-            yield None, end - pos
+            yield None, end - pos, False
         if a < 0:
             return
         b = raw.find(b"]", a + 2)
@@ -527,7 +533,28 @@ def unframed_pieces(raw: bytes) -> Iterator[tuple[str | None, int]]:
             pos = na if na >= 0 else n
         dst = chr(body[2]) if len(body) > 2 else "?"
         src = chr(body[3]) if len(body) > 3 else "?"
-        yield f"{src}>{dst}", pos - a
+        yield f"{src}>{dst}", pos - a, _malformed_checksum_bad(body)
+
+
+_HEX_DIGITS = re.compile(rb"[0-9A-Fa-f]{1,8}").fullmatch
+
+
+def _malformed_checksum_bad(body: bytes) -> bool:
+    """Whether sharedlink.lua finds a malformed frame's checksum wrong (``body``: its bytes from
+    ``[`` on, without the closing ``]``): a last field starting with ``C``, after the first ``|``
+    behind the letters, is checked as in a good frame (the byte sum from ``:`` to that ``C``,
+    mod 256, against 1 to 8 hex digits); no such field, no verdict."""
+    if len(body) < 5:
+        return False  # no field at all
+    p = 5 if body[4] == 0x7C else body.find(b"|", 5) + 1
+    if p == 0:
+        return False
+    last = body[p:].rsplit(b"|", 1)[-1]
+    if last[:1] != b"C":
+        return False
+    cpos = len(body) - len(last)
+    text = last[1:]
+    return not (_HEX_DIGITS(text) and int(text, 16) == sum(body[1 : cpos + 1]) % 256)
 
 
 #: a Holland blackboard message (set ``:`` or request ``;``, ASCII hex, CR), as blackboard.lua's heuristic
