@@ -274,7 +274,8 @@ class CaptureStats:
                 self.noise_bytes += len(raw)
             return
         ts = item.ts_ns
-        for pair, size, bad in unframed_pieces(raw):
+        for pair, start, end, bad in unframed_pieces(raw):
+            size = end - start
             if pair is None:
                 self.noise_segments += 1
                 self.noise_bytes += size
@@ -507,21 +508,22 @@ def _line_end(raw: bytes, b: int) -> int:
     return b + 2 if c[:1] == b"\n" else b + 1
 
 
-def unframed_pieces(raw: bytes) -> Iterator[tuple[str | None, int, bool]]:
+def unframed_pieces(raw: bytes) -> Iterator[tuple[str | None, int, int, bool]]:
     """The pieces of UDP/TCP bytes that hold no well-formed frame, as sharedlink.lua's ``scan``
-    cuts them (docs/fields-sharedlink.md, "Counts"): ``(pair, size)`` for each ``[:``, a frame
-    of kind ``malformed`` running to the first ``]`` (and its line end) when no other ``[:``
-    comes first, else up to that ``[:`` (or the end); its pair ``"B>A"`` from the two bytes after
-    ``[:`` (destination, source; ``?`` for a byte it lacks), and ``bad`` when its checksum is
-    wrong (:func:`_malformed_checksum_bad`). ``(None, size, False)`` for the noise between them,
-    bytes other than CR and LF (CR and LF alone are no noise, as in the dissector)."""
+    cuts them (docs/fields-sharedlink.md, "Counts"): ``(pair, start, end, bad)`` for each ``[:``
+    (``raw[start:end]`` its bytes), a frame of kind ``malformed`` running to the first ``]`` (and
+    its line end) when no other ``[:`` comes first, else up to that ``[:`` (or the end); its pair
+    ``"B>A"`` from the two bytes after ``[:`` (destination, source; ``?`` for a byte it lacks),
+    and ``bad`` when its checksum is wrong (:func:`_malformed_checksum_bad`).
+    ``(None, start, end, False)`` for the noise between them, bytes other than CR and LF (CR and
+    LF alone are no noise, as in the dissector)."""
     n = len(raw)
     pos = 0
     while pos < n:
         a = raw.find(b"[:", pos)
         end = n if a < 0 else a
         if end > pos and raw[pos:end].strip(b"\r\n"):
-            yield None, end - pos, False
+            yield None, pos, end, False
         if a < 0:
             return
         b = raw.find(b"]", a + 2)
@@ -533,7 +535,7 @@ def unframed_pieces(raw: bytes) -> Iterator[tuple[str | None, int, bool]]:
             pos = na if na >= 0 else n
         dst = chr(body[2]) if len(body) > 2 else "?"
         src = chr(body[3]) if len(body) > 3 else "?"
-        yield f"{src}>{dst}", pos - a, _malformed_checksum_bad(body)
+        yield f"{src}>{dst}", a, pos, _malformed_checksum_bad(body)
 
 
 _HEX_DIGITS = re.compile(rb"[0-9A-Fa-f]{1,8}").fullmatch
