@@ -263,13 +263,14 @@ class CaptureStats:
     def add_unframed(self, item: StreamFrame) -> None:
         """Bytes of a record that hold no well-formed frame (a noise :class:`StreamFrame`): on
         UDP and TCP each ``[:`` in them is a frame of kind ``malformed``, as sharedlink.lua shows it
-        (:func:`unframed_pieces`), the rest noise; on a serial link all noise (serial.lua hands
-        sharedlink.lua only the frames its deframer finds)."""
+        (:func:`unframed_pieces`), the rest noise (CR and LF alone are none); on a serial link all
+        noise (serial.lua hands sharedlink.lua only the frames its deframer finds)."""
         raw = item.raw
         if item.error == GIVEN_UP:  # an unfinished frame past MAX_HELD_BYTES: given up as noise
             self.limits.held += 1
-        if item.conv[0] == "serial" or item.error == GIVEN_UP or b"[:" not in raw:
-            if raw.strip(b"\r\n"):  # (CR and LF alone are no noise)
+        serial = item.conv[0] == "serial"
+        if serial or item.error == GIVEN_UP or b"[:" not in raw:
+            if serial or raw.strip(b"\r\n"):  # (CR and LF alone are no noise to sharedlink.lua)
                 self.noise_segments += 1
                 self.noise_bytes += len(raw)
             return
