@@ -11,7 +11,8 @@ back and forth, and a pcapng file with three interfaces of three link types. On 
   failures, late frames, noise, kinds, pairs and per-variable counts (docs/fields-sharedlink.md,
   "Counts");
 * `diff`'s change records through the compiled layouts and the block tier equal the reference
-  decoder's (test_core_changes.same_changes), and `ingest` keeps as many frames.
+  decoder's (test_core_changes.same_changes), `ingest` keeps as many frames and `export` (jsonl)
+  as many of each kind.
 
 What Wireshark does and we follow: fragments are reassembled (ip.defragment on by default), the
 frame counted in the record that completes the datagram, in any order; a datagram missing a
@@ -22,6 +23,8 @@ file order.
 
 from __future__ import annotations
 
+import io
+import json
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -34,6 +37,7 @@ from test_stats import tap_stats
 
 import sharedlink.analysis.compiled_blocks as compiled_blocks
 from sharedlink.analysis.decode import Decoder
+from sharedlink.analysis.export import ExportOptions, export
 from sharedlink.analysis.stats import CaptureStats, capture_stats, one_line
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
@@ -126,7 +130,7 @@ def tiers(monkeypatch) -> dict[str, int]:
 
 def agree(path: Path, took: dict[str, int]) -> CaptureStats:
     """stats (counts mode) == stats by reference == the tap; diff's tiers == the reference;
-    ingest keeps the same number of frames. Returns the statistics."""
+    ingest keeps as many frames, export (jsonl) as many of each kind. Returns the statistics."""
     from sharedlink.fleet.ingest import ingest  # noqa: PLC0415
 
     st = capture_stats(path)
@@ -142,6 +146,13 @@ def agree(path: Path, took: dict[str, int]) -> CaptureStats:
     assert tap["vars"] == {k: (v.count, one_line(v.last or "")) for k, v in st.variables.items()}
     took["compiled"] += same_changes(path)
     assert ingest([path], path.parent / (path.stem + "-ds")).frames == st.frames
+    out = io.StringIO()
+    assert export(path, out, ExportOptions(fmt="jsonl")).frames == st.frames
+    kinds: dict[str, int] = {}
+    for line in out.getvalue().splitlines():
+        kind = json.loads(line)["kind"]
+        kinds[kind] = kinds.get(kind, 0) + 1
+    assert kinds == st.kinds
     return st
 
 

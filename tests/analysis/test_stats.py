@@ -418,12 +418,12 @@ def test_malformed_frames_and_noise_count_as_the_dissector_shows_them(tmp_path, 
     assert (ref.frames, ref.bytes, ref.kinds, ref.noise_segments) == (st.frames, st.bytes, st.kinds, st.noise_segments)
 
 
-#: vector streams whose counts `ingest` does not yet follow (docs/fields-sharedlink.md, "Counts")
+#: vector streams whose counts `ingest` and `export` do not yet follow (docs/fields-sharedlink.md, "Counts")
 _INGEST_PENDING = {
     "frame-kinds-other-and-malformed": (
-        "fleet/ingest.py keeps no row for a malformed frame (it skips every noise StreamFrame): 6 frames "
-        "against the 7 stats and the tap count; it needs a frames row (kind 'malformed', its pair, "
-        "checksum_ok False when analysis.stats.unframed_pieces says bad, else null) per malformed piece"),
+        "fleet/ingest.py and analysis/export.py keep no row for a malformed frame (they skip every noise "
+        "StreamFrame): 6 frames against the 7 stats and the tap count; each needs a frame row (kind 'malformed', "
+        "its pair, checksum False when analysis.stats.unframed_pieces says bad, else none) per malformed piece"),
 }
 
 
@@ -433,11 +433,15 @@ def _ingest_streams() -> list:
 
 
 @pytest.mark.parametrize("stream", _ingest_streams())
-def test_ingest_counts_as_stats_on_the_shared_vectors(tmp_path, stream):
-    """`ingest`'s manifest and frames table count what `stats` (and so the tap) counts: frames,
-    and per pair and kind, checksum failures and late frames (docs/fields-sharedlink.md, "Counts")."""
+def test_ingest_and_export_count_as_stats_on_the_shared_vectors(tmp_path, stream):
+    """`ingest`'s manifest and frames table, and `export --format jsonl`'s rows, count what `stats`
+    (and so the tap) counts: frames, and per pair and kind, checksum failures and late frames
+    (docs/fields-sharedlink.md, "Counts")."""
+    import io
+
     from sl_vectors import write_stream
 
+    from sharedlink.analysis.export import ExportOptions, export
     from sharedlink.fleet.ingest import ingest
     from sharedlink.fleet.query import connect
     from sharedlink.protocols.state import parse_variables
@@ -457,4 +461,15 @@ def test_ingest_counts_as_stats_on_the_shared_vectors(tmp_path, stream):
         p[1] += bad
         p[2] += late
         p[3][kind] = n
-    assert got == {p.pair: [p.frames, p.checksum_failures, p.sync_late, p.kinds] for p in st.pairs.values()}
+    want = {p.pair: [p.frames, p.checksum_failures, p.sync_late, p.kinds] for p in st.pairs.values()}
+    assert got == want
+    out = io.StringIO()
+    assert export(path, out, ExportOptions(fmt="jsonl", variables=variables)).frames == st.frames
+    got = {}
+    for line in out.getvalue().splitlines():
+        row = json.loads(line)
+        p = got.setdefault(f"{row['src']}>{row['dst']}", [0, 0, 0, {}])
+        p[0] += 1
+        p[1] += row["checksum"] == "bad"
+        p[3][row["kind"]] = p[3].get(row["kind"], 0) + 1
+    assert got == {k: [n, bad, 0, kinds] for k, (n, bad, _late, kinds) in want.items()}
