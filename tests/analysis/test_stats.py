@@ -473,3 +473,21 @@ def test_ingest_and_export_count_as_stats_on_the_shared_vectors(tmp_path, stream
         p[1] += row["checksum"] == "bad"
         p[3][row["kind"]] = p[3].get(row["kind"], 0) + 1
     assert got == {k: [n, bad, 0, kinds] for k, (n, bad, _late, kinds) in want.items()}
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "Python side, protocols/codec.iter_segments (not stats): a '[' inside a frame restarts the frame there, so "
+    "'[:AB|N0|D1[x|C..]' is no frame to the codec (stats: one malformed frame) while sharedlink.lua, as "
+    "docs/fields-sharedlink.md says ('a frame runs from [: to the first ] after it'), decodes a full frame "
+    "whose value is '1[x'; frames and pairs agree, kinds do not"))
+def test_a_bracket_inside_a_value(tmp_path):
+    from sharedlink.protocols.codec import checksum
+    from tshark_util import Pkt, frame, write_pcap
+
+    body = b":AB|N0|D1[x|C"
+    raw = b"[" + body + b"%02X" % checksum(body) + b"]\r\n"
+    path = write_pcap(tmp_path / "bracket.pcap", [Pkt(0.0, raw), Pkt(0.2, frame("A", "B", "N0", "D2"))])
+    st = capture_stats(path)
+    tap = tap_stats(path)
+    assert (tap["Frames"], tap["Noise"]) == (st.frames, st.noise_segments) == (2, 0)
+    assert tap["kinds"] == st.kinds
