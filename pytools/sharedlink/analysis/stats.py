@@ -520,6 +520,7 @@ def unframed_pieces(raw: bytes) -> Iterator[tuple[str | None, int, int, bool]]:
     LF alone are no noise, as in the dissector)."""
     n = len(raw)
     pos = 0
+    b = 0  # the next "]" (searched again only once passed, as the dissector does: linear; -1: none left)
     while pos < n:
         a = raw.find(b"[:", pos)
         end = n if a < 0 else a
@@ -527,7 +528,8 @@ def unframed_pieces(raw: bytes) -> Iterator[tuple[str | None, int, int, bool]]:
             yield None, pos, end, False
         if a < 0:
             return
-        b = raw.find(b"]", a + 2)
+        if 0 <= b < a + 2:
+            b = raw.find(b"]", a + 2)
         na = raw.find(b"[:", a + 2)
         if b >= 0 and (na < 0 or b < na):
             body, pos = raw[a:b], _line_end(raw, b)
