@@ -7,7 +7,9 @@ node pairs and variables, never with the number of frames.
 Definitions (the Lua tap ``dissector/sharedlink_stats.lua`` counts the same way):
 
 * frames per kind and per node pair ``"B>A"`` (from B to A), bytes of the frames (CR LF
-  included);
+  included); a ``[:`` that starts no well-formed frame is a frame of kind ``malformed`` under the
+  pair its header names, noise is never a frame (docs/fields-sharedlink.md, "Counts";
+  :func:`unframed_pieces`);
 * checksum failures: frames whose checksum field does not match their bytes (their values are
   not used, see :mod:`sharedlink.analysis.decode`); frames with no checksum field are counted apart;
 * per variable (and node pair): ``count`` values carried in frames with a good checksum (a
