@@ -19,7 +19,7 @@ import datetime as _dt
 import decimal
 import json
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -31,6 +31,8 @@ from sharedlink.fleet.dataset import SCHEMAS, TABLES, CaptureEntry, require_data
 #: rows fetched from DuckDB at a time
 FETCH_ROWS = 10_000
 _CAPTURE_COLUMNS = ("path", "vehicle", "size", "hash", "frames", "values", "records", "first_ns", "last_ns", "error")
+_CAPTURE_TYPES = {"size": pa.int64(), "frames": pa.int64(), "values": pa.int64(), "records": pa.int64(),
+                  "first_ns": pa.int64(), "last_ns": pa.int64()}
 
 
 def connect(root: str | Path) -> Any:
@@ -64,10 +66,10 @@ def _empty(table: str) -> pa.Table:
 
 
 def _captures(entries: list[CaptureEntry]) -> pa.Table:
-    rows = [asdict(e) for e in entries]
-    types = {"size": pa.int64(), "frames": pa.int64(), "values": pa.int64(), "records": pa.int64(),
-             "first_ns": pa.int64(), "last_ns": pa.int64()}
-    return pa.table({c: pa.array([r[c] for r in rows], type=types.get(c, pa.string())) for c in _CAPTURE_COLUMNS})
+    """The manifest's entries as a table (read field by field: ``asdict`` would copy every
+    entry's file list, a millisecond per 6 captures)."""
+    return pa.table({c: pa.array([getattr(e, c) for e in entries], type=_CAPTURE_TYPES.get(c, pa.string()))
+                     for c in _CAPTURE_COLUMNS})
 
 
 @dataclass
