@@ -94,6 +94,15 @@ def test_rising_integers_are_delta_encoded(dataset):
                 assert "DELTA_BINARY_PACKED" in col.encodings, (f, name, col.encodings)
 
 
+def test_readers_see_the_tables_types(dataset):
+    """(the fixed columns and names are written from dictionary arrays; the files do not carry
+    an Arrow schema, so every reader takes the Parquet types: strings)"""
+    for table in ("frames", "values"):
+        for f in sorted((dataset / table).rglob("*.parquet")):
+            assert pq.read_schema(f).equals(SCHEMAS[table]), f
+            assert pq.read_table(f).schema.equals(SCHEMAS[table])
+
+
 def test_the_layout_before_reads_the_same(dataset, tmp_path):
     """The same rows as ingest wrote them before (frame order, one row group, plain encodings;
     the manifest unchanged): every query answers the same."""
@@ -113,8 +122,11 @@ def test_the_layout_before_reads_the_same(dataset, tmp_path):
 @given(st.lists(st.sampled_from(["b", "a", "AutoGpsVel", "", "é", "Z", "a\x00"]), max_size=60))
 def test_by_name_is_a_stable_sort_by_the_bytes(names):
     """(Parquet's statistics order strings by their UTF-8 bytes)"""
-    order = by_name(pa.array(names, pa.string())).to_pylist()
-    assert order == sorted(range(len(names)), key=lambda i: names[i].encode())
+    order, sorted_names = by_name(pa.array(names, pa.string()))
+    assert order.to_pylist() == sorted(range(len(names)), key=lambda i: names[i].encode())
+    assert sorted_names.to_pylist() == [names[i] for i in order.to_pylist()]
+    if names:
+        assert name_groups(sorted_names, 1) == name_groups(pa.array(sorted_names.to_pylist(), pa.string()), 1)
 
 
 @given(st.lists(st.integers(1, 40), max_size=12), st.integers(1, 50))
