@@ -133,7 +133,8 @@ def _after_fork() -> None:
         _kept = None
 
 
-os.register_at_fork(after_in_child=_after_fork)
+if hasattr(os, "register_at_fork"):  # (POSIX)
+    os.register_at_fork(after_in_child=_after_fork)
 
 
 def _single_select(con: Any, sql: str) -> bool:
