@@ -12,7 +12,8 @@ Sizes are parameters (environment, or this script's options when run alone)::
     SHAREDLINK_BENCH_SCALE_FRAMES=50000                           frames per capture (4 captures): 1 vs 2 workers, Dask
 
 The defaults are the issue's figures (a 1 GB capture takes a while to decode); on a shared
-machine e.g. ``python bench/bench_ingest.py --big-mb 100 --small-mb 10 --query-rows 1000000``.
+machine e.g. ``python bench/bench_ingest.py --big-mb 100 --small-mb 10 --query-rows 1000000``;
+``--only query`` runs the query line alone (``--only`` repeatable: scaling, query, memory).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from sharedlink.analysis.decode import Decoder
 from sharedlink.analysis.stats import capture_stats
 from sharedlink.fleet.dataset import load_manifest, save_manifest
 from sharedlink.fleet.ingest import ingest
-from sharedlink.fleet.query import run_query
+from sharedlink.fleet.query import forget, run_query
 from sharedlink.generators.beacon import GenOptions, generate_file
 
 BIG_MB = float(os.environ.get("SHAREDLINK_BENCH_BIG_MB", 1024))
@@ -175,17 +176,24 @@ def bench_query(work: Path) -> Result:
     save_manifest(ds, manifest)
     rows = list(run_query(ds, "SELECT count(*) FROM values").rows())[0][0]
     started = load_now()
-    best_q = best_s = float("inf")
+    best_q = best_again = best_s = float("inf")
     for _ in range(2):
+        # the ratio's figure: the first query of a process, as `sharedlink query` runs it (run_query
+        # keeps the snapshot's database for the next query: that one is in the line's name)
+        forget()
         t = time.perf_counter()
         list(run_query(ds, TOP_SPEED).rows())
         best_q = min(best_q, time.perf_counter() - t)
         t = time.perf_counter()
+        list(run_query(ds, TOP_SPEED).rows())
+        best_again = min(best_again, time.perf_counter() - t)
+        t = time.perf_counter()
         capture_stats(src)
         best_s = min(best_s, (time.perf_counter() - t) * copies)
     ratio = best_s / best_q
-    return Result(f"query top speed on {rows:,} value rows vs stats on the captures", f"{best_q:.2f} s",
-                  f"{best_s:.0f} s", ratio, ">= 100x", ratio >= 100, load_since(started))
+    return Result(f"query top speed on {rows:,} value rows vs stats on the captures (first query of a process; "
+                  f"again {best_again:.3f} s)", f"{best_q:.3f} s", f"{best_s:.1f} s", ratio, ">= 100x", ratio >= 100,
+                  load_since(started))
 
 
 def bench_memory(work: Path) -> Result:
@@ -208,11 +216,16 @@ def bench_memory(work: Path) -> Result:
                   load_since(started))
 
 
-def run(work: Path) -> list[Result]:
+PARTS = ("scaling", "query", "memory")
+
+
+def run(work: Path, parts: tuple[str, ...] = PARTS) -> list[Result]:
     work = work / "ingest"
     work.mkdir(exist_ok=True)
     try:
-        return [*bench_scaling(work), bench_query(work), bench_memory(work)]
+        return [*(bench_scaling(work) if "scaling" in parts else []),
+                *([bench_query(work)] if "query" in parts else []),
+                *([bench_memory(work)] if "memory" in parts else [])]
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
@@ -224,12 +237,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--small-mb", type=float, default=SMALL_MB)
     ap.add_argument("--query-rows", type=int, default=QUERY_ROWS)
     ap.add_argument("--scale-frames", type=int, default=SCALE_FRAMES)
+    ap.add_argument("--only", choices=PARTS, action="append",
+                    help="run only this part (scaling: the 1-worker, 2-worker and Dask lines); repeatable")
     args = ap.parse_args(argv)
     BIG_MB, SMALL_MB, QUERY_ROWS, SCALE_FRAMES = args.big_mb, args.small_mb, args.query_rows, args.scale_frames
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="sharedlink-bench-") as tmp:
-        for r in run(Path(tmp)):
+        for r in run(Path(tmp), tuple(args.only or PARTS)):
             print(line(r))
     return 0
 

@@ -27,8 +27,6 @@ from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import pyarrow as pa
-
 from sharedlink.capture.pcapio import atomic_open
 from sharedlink.errors import UsageError
 
@@ -42,48 +40,61 @@ VERSION = 1
 PARTITION_KEYS = ("day", "link")
 
 # -- tables --------------------------------------------------------------------------------------
+# (Arrow types by name: the schemas are made on first use, so that ``sharedlink query``, which
+# reads through DuckDB, does not import pyarrow, a tenth of a second and more)
 #: one row per SharedLink frame
-FRAMES_SCHEMA = pa.schema(
-    [
-        ("capture", pa.string()),  # the capture's path as ingested
-        ("vehicle", pa.string()),
-        ("seq", pa.int64()),  # the frame's ordinal in its capture, from 1 (several frames may share a record)
-        ("frame", pa.int64()),  # record number (Wireshark's frame.number)
-        ("time_ns", pa.int64()),  # UTC, ns since 1970
-        ("transport", pa.string()),  # udp, tcp or serial
-        ("conversation", pa.string()),  # "udp 10.0.0.2:7013 > 255.255.255.255:7013", "serial outbound if0"
-        ("src", pa.string()),
-        ("dst", pa.string()),
-        ("pair", pa.string()),  # "B>A": from B to A
-        ("kind", pa.string()),  # full, delta, reply, query, declaration, ... (as the dissector)
-        ("checksum_ok", pa.bool_()),  # null: the frame has no checksum field
-        ("late", pa.bool_()),  # sharedlink.sync.late
-        ("size", pa.int32()),  # bytes of the frame, CR LF included
-        ("raw", pa.binary()),  # the frame's bytes
-    ]
+FRAMES_COLUMNS = (
+    ("capture", "string"),  # the capture's path as ingested
+    ("vehicle", "string"),
+    ("seq", "int64"),  # the frame's ordinal in its capture, from 1 (several frames may share a record)
+    ("frame", "int64"),  # record number (Wireshark's frame.number)
+    ("time_ns", "int64"),  # UTC, ns since 1970
+    ("transport", "string"),  # udp, tcp or serial
+    ("conversation", "string"),  # "udp 10.0.0.2:7013 > 255.255.255.255:7013", "serial outbound if0"
+    ("src", "string"),
+    ("dst", "string"),
+    ("pair", "string"),  # "B>A": from B to A
+    ("kind", "string"),  # full, delta, reply, query, declaration, ... (as the dissector)
+    ("checksum_ok", "bool_"),  # null: the frame has no checksum field
+    ("late", "bool_"),  # sharedlink.sync.late
+    ("size", "int32"),  # bytes of the frame, CR LF included
+    ("raw", "binary"),  # the frame's bytes
 )
 #: one row per variable value a frame with a good (or no) checksum leaves
-VALUES_SCHEMA = pa.schema(
-    [
-        ("capture", pa.string()),
-        ("vehicle", pa.string()),
-        ("seq", pa.int64()),  # joins frames.seq (with capture)
-        ("frame", pa.int64()),
-        ("time_ns", pa.int64()),
-        ("src", pa.string()),
-        ("dst", pa.string()),
-        ("pair", pa.string()),
-        ("name", pa.string()),
-        ("type", pa.int8()),  # the T code (0 long, 2 double, 4 string); null when none was declared
-        ("text", pa.string()),  # the value as written
-        ("value_long", pa.int64()),  # integers
-        ("value_double", pa.float64()),  # every numeric value (integers too)
-        ("value_string", pa.string()),  # values that are not numbers
-        ("carried", pa.bool_()),  # not in the frame: carried forward from an earlier one (compression)
-        ("changed", pa.bool_()),  # differs from the value before this frame
-    ]
+VALUES_COLUMNS = (
+    ("capture", "string"),
+    ("vehicle", "string"),
+    ("seq", "int64"),  # joins frames.seq (with capture)
+    ("frame", "int64"),
+    ("time_ns", "int64"),
+    ("src", "string"),
+    ("dst", "string"),
+    ("pair", "string"),
+    ("name", "string"),
+    ("type", "int8"),  # the T code (0 long, 2 double, 4 string); null when none was declared
+    ("text", "string"),  # the value as written
+    ("value_long", "int64"),  # integers
+    ("value_double", "float64"),  # every numeric value (integers too)
+    ("value_string", "string"),  # values that are not numbers
+    ("carried", "bool_"),  # not in the frame: carried forward from an earlier one (compression)
+    ("changed", "bool_"),  # differs from the value before this frame
 )
-SCHEMAS = {"frames": FRAMES_SCHEMA, "values": VALUES_SCHEMA}
+COLUMNS = {"frames": FRAMES_COLUMNS, "values": VALUES_COLUMNS}
+#: DuckDB's names of the Arrow types above
+DUCKDB_TYPES = {"string": "VARCHAR", "int64": "BIGINT", "int32": "INTEGER", "int8": "TINYINT", "float64": "DOUBLE",
+                "bool_": "BOOLEAN", "binary": "BLOB"}
+
+
+def __getattr__(name: str) -> object:
+    """``FRAMES_SCHEMA``, ``VALUES_SCHEMA`` and ``SCHEMAS`` (table -> schema): the tables as
+    pyarrow schemas, made when first asked for."""
+    if name in ("FRAMES_SCHEMA", "VALUES_SCHEMA", "SCHEMAS"):
+        import pyarrow as pa
+
+        schemas = {t: pa.schema([(c, getattr(pa, kind)()) for c, kind in cols]) for t, cols in COLUMNS.items()}
+        globals().update(FRAMES_SCHEMA=schemas["frames"], VALUES_SCHEMA=schemas["values"], SCHEMAS=schemas)
+        return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def partition_dir(day: str, link: str) -> str:
