@@ -8,9 +8,9 @@ this process; the test fails when the peak memory (tracemalloc) of the 4N run is
 is measured without tracemalloc (whose own tables made the traced runs superlinear: 5.0x on a
 linear pattern), the N run best of three and the 4N run once (timed again only when the ratio
 fails: noise only ever makes a run slower, so this is as strict as best of three of each), and
-memory in a separate traced run. N is the smallest size at which the quadratic each test was
-written for still fails it (the N run 0.05-0.3 s of CPU, above the timer floor); the bigger
-sizes are ``make fuzz``'s (scaling_python.py). Each pattern's capture is written once a module
+memory in a separate traced run. N is small (the N run 0.05-0.35 s of CPU, above the timer
+floor) where the quadratic a check was written for is known to fail it there (the sizes'
+comments); the bigger sizes are ``make fuzz``'s (scaling_python.py). Each pattern's capture is written once a module
 (a worker). Past a bound of ``sharedlink.protocols.limits`` the input is dropped and counted,
 never allocated.
 """
