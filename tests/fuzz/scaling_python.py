@@ -35,16 +35,16 @@ def make(pattern: Callable[[int], Sequence], *command: str,
 # name -> (make, n in make test, n in make fuzz, growth limit)
 PATTERNS: dict[str, tuple[Callable[[int, Path], list[str]], int, int, float]] = {
     # 4N = 48000 frames: 16000 new names per direction, past MAX_NAMES (dropped and counted)
-    "stats-new-names": (make(tps.new_names, "stats", "{}"), 3000, 12000, 5.0),
-    "export-new-names": (make(tps.new_names, "export", "{}", "--format", "jsonl", "--changes", "-o", "-"), 3000, 12000, 5.0),
-    "diff-new-names": (make(tps.new_names, "diff", "{}", "{}"), 3000, 12000, 5.0),
+    "stats-new-names": (make(tps.new_names, "stats", "{}"), 1000, 12000, 5.0),
+    "export-new-names": (make(tps.new_names, "export", "{}", "--format", "jsonl", "--changes", "-o", "-"), 1000, 12000, 5.0),
+    "diff-new-names": (make(tps.new_names, "diff", "{}", "{}"), 1000, 12000, 5.0),
     "stats-bad-checksums": (make(tps.bad_checksums, "stats", "{}"), 300, 1200, 5.0),
     "stats-replies-big-list": (make(tps.replies_in_a_big_list, "stats", "{}"), 8000, 32000, 5.0),
-    "stats-conversations": (make(tps.conversations, "stats", "{}"), 2000, 10000, 5.0),
+    "stats-conversations": (make(tps.conversations, "stats", "{}"), 1000, 10000, 5.0),
     # three MCAP channels a conversation: 4N = 20000 stays under MCAP's 65535 channels (past them
     # every message is an error line: test_mcap_of_more_conversations..., an xfail)
     "mcap-conversations": (make(tps.conversations, "export", "{}", "--format", "mcap", "-o", "/dev/null"), 2000, 5000, 5.0),
-    "diff-conversations": (make(tps.conversations, "diff", "{}", "{}"), 2000, 10000, 5.0),
-    "stats-serial-unterminated": (make(tps.sl_unterminated, "stats", "{}", writer=tps.write_serial), 15000, 15000, 5.0),
+    "diff-conversations": (make(tps.conversations, "diff", "{}", "{}"), 1000, 10000, 5.0),
+    "stats-serial-unterminated": (make(tps.sl_unterminated, "stats", "{}", writer=tps.write_serial), 4000, 15000, 5.0),
     "stats-serial-past-the-limit": (make(tps.past_the_limit, "stats", "{}", writer=tps.write_serial), 200, 4000, 5.0),
 }

@@ -967,65 +967,33 @@ class Decoder(ReferenceDecoder):
         lane = self._lane(buf, off)
         if lane is None:
             return None
-        rx = lane.rx
-        key = lane.key
         h = lane.h
-        c = self.rows.get(h)
-        fresh = c is None
-        if fresh:
-            c = DirColumns(lane.conv, lane.src, lane.dst, h.table)
         vs = lane.vs
-        names, types = lane.names, lane.types
         cur = [v.text for v in vs]
+        rng = range(len(vs))
+        unvalued = [i for i in rng if cur[i] is None]  # (a frame giving one a value: not taken)
+        ordinal = self.taken
+        off, groups, stamps, raws, wire = _walk(lane, buf, sbuf, off, BATCH_FRAMES - ordinal, mult, unvalued)
+        if not groups:
+            return None
+        nvalued = len(vs) - len(unvalued)
+        c = self.rows.get(h)
+        if c is None:
+            c = self.rows[h] = DirColumns(lane.conv, lane.src, lane.dst, h.table)
+        names, types = lane.names, lane.types
         setn = [v.set_in for v in vs]
         sett = [v.set_at for v in vs]
-        nv = len(vs)
-        rng = range(nv)
-        unvalued = [i for i in rng if cur[i] is None]  # (a frame giving one a value: not taken)
-        nvalued = nv - len(unvalued)
-        lane_addr = key[:12]
-        end = len(buf)
-        unpack_x = _PCAP_UDP.unpack_from
-        struct_error = struct.error
-        swap = _SWAP16
-        eth_ipv4 = _ETH_IPV4
-        cksub = _CKSUB
         carried_rows = self.carried
         sync = h.sync
         late_ns = self.late_ns
-        ordinal = self.taken
-        room = BATCH_FRAMES - ordinal
         o_app, n_app, t_app, r_app, k_app, l_app, v_app = (c.ordinal.append, c.number.append, c.ts_ns.append,
                                                            c.raw.append, c.kind.append, c.late.append,
                                                            c.nvalues.append)
         nm_app, tx_app, tc_app, ca_app, ch_app = (c.name.append, c.text.append, c.type_code.append,
                                                  c.carried.append, c.changed.append)
-        n = wire = 0
         last_full = None
-        while n < room:
-            try:
-                sec, frac, incl, _orig, eth, tl, frag, proto, here, ul = unpack_x(buf, off)
-            except struct_error:
-                break
-            start = off + 58
-            e = off + 16 + incl
-            if (here != lane_addr or e > end or eth != eth_ipv4 or proto != 17 or frag & 0xFFBF or incl <= 50
-                    or incl > 65000 or tl != swap[incl - 14] or ul != swap[incl - 34]):
-                break
-            m = rx(sbuf, start, e)
-            if m is None:
-                break
-            g = m.groups()
-            if unvalued and any(g[i] is not None for i in unvalued):
-                break
-            raw = buf[start:e]
-            # the checksum: adler32's low half is 1 + the byte sum for up to 256 bytes (C speed)
-            if (((adler32(raw) & 0xFFFF) if e - start <= 256 else sum(raw) + 1) - cksub[g[-1]]) & 0xFF:
-                break
-            off = e
+        for n, (g, ts, raw) in enumerate(zip(groups, stamps, raws), ordinal):
             number += 1
-            wire += incl
-            ts = sec * NS + frac * mult
             held = 0
             for i in rng:
                 v = g[i]
@@ -1057,8 +1025,7 @@ class Decoder(ReferenceDecoder):
                             ca_app(True)
                             ch_app(False)
                     k = nvalued
-            o_app(ordinal + n)
-            n += 1
+            o_app(n)
             n_app(number)
             t_app(ts)
             r_app(raw)
@@ -1072,10 +1039,7 @@ class Decoder(ReferenceDecoder):
                 since = sync[1] if sync[1] is not None else sync[0]
                 k_app("delta")
                 l_app(ts - since > late_ns)
-        if not n:
-            return None
-        if fresh:
-            self.rows[h] = c
+        n = len(groups)
         self.taken = ordinal + n
         for v, text, sn, st in zip(vs, cur, setn, sett):
             v.text, v.set_in, v.set_at = text, sn, st
@@ -1096,69 +1060,35 @@ class Decoder(ReferenceDecoder):
         lane = self._lane(buf, off)
         if lane is None:
             return None
-        rx = lane.rx
         h = lane.h
         vs = lane.vs
         nv = len(vs)
         cur = [v.text for v in vs]
         unvalued = [i for i in range(nv) if cur[i] is None]  # (a frame giving one a value: not taken)
+        off, groups, stamps, _raws, wire = _walk(lane, buf, sbuf, off, BATCH_FRAMES, mult, unvalued)
+        n = len(groups)
+        if not n:
+            return None
         # a full set holds every variable with a value (every sent name): its groups' Nones are
         # the variables without one (and a direction with no value has no full set)
         full_nones = len(unvalued) if len(unvalued) < nv else -1
-        lane_addr = lane.key[:12]
-        end = len(buf)
-        unpack_x = _PCAP_UDP.unpack_from
-        struct_error = struct.error
-        swap = _SWAP16
-        eth_ipv4 = _ETH_IPV4
-        cksub = _CKSUB
         late_ns = self.late_ns
         sync = h.sync
         full_ts = sync[1]
         since = full_ts if full_ts is not None else sync[0]
-        groups: list[tuple] = []
-        g_app = groups.append
-        stamps: list[int] = []
-        t_app = stamps.append
         gaps: list[int] = []
-        n = wire = late = nfull = 0
-        last_full = -1
-        while n < BATCH_FRAMES:
-            try:
-                sec, frac, incl, _orig, eth, tl, frag, proto, here, ul = unpack_x(buf, off)
-            except struct_error:
-                break
-            start = off + 58
-            e = off + 16 + incl
-            if (here != lane_addr or e > end or eth != eth_ipv4 or proto != 17 or frag & 0xFFBF or incl <= 50
-                    or incl > 65000 or tl != swap[incl - 14] or ul != swap[incl - 34]):
-                break
-            m = rx(sbuf, start, e)
-            if m is None:
-                break
-            g = m.groups()
-            if unvalued and any(g[i] is not None for i in unvalued):
-                break
-            # the checksum: adler32's low half is 1 + the byte sum for up to 256 bytes (C speed)
-            raw = buf[start:e]
-            if (((adler32(raw) & 0xFFFF) if e - start <= 256 else sum(raw) + 1) - cksub[g[-1]]) & 0xFF:
-                break
-            off = e
-            wire += incl
-            ts = sec * NS + frac * mult
-            g_app(g)
-            t_app(ts)
-            if g.count(None) == full_nones:
+        late = nfull = 0
+        # (the Nones of each frame's groups counted at C speed, the clock walked after the run)
+        nones = list(map(tuple.count, groups, repeat(None)))
+        for k, ts in zip(nones, stamps):
+            if k == full_nones:
                 if full_ts is not None:
                     gaps.append(ts - full_ts)
                 full_ts = since = ts
                 nfull += 1
-                last_full = n
             elif ts - since > late_ns:
                 late += 1
-            n += 1
-        if not n:
-            return None
+        last_full = n - 1 - nones[::-1].index(full_nones) if nfull else -1
         first = number + 1  # the run's records are numbered first, first + 1, ...
         number += n
         sync[1] = full_ts
@@ -1431,6 +1361,57 @@ class Decoder(ReferenceDecoder):
 #: Ethernet II, IPv4 without options (IHL 5), UDP: bytes 12..14 of the packet, and byte 23
 _ETH_IPV4 = b"\x08\x00\x45"
 _UDP = 17
+
+
+def _walk(lane: _ColLane, buf: bytes, sbuf: str, off: int, room: int, mult: int, unvalued: list[int]
+          ) -> tuple[int, list[tuple], list[int], list[bytes], int]:
+    """The records a run of :meth:`Decoder.column_run` or :meth:`Decoder.count_run` takes, from
+    ``off`` of a classic little-endian pcap block (``sbuf``: the block as latin-1; ``mult``: 1
+    for nanosecond times, 1000 for microseconds), at most ``room``: while each is a plain
+    IPv4/UDP datagram of the lane's direction holding one frame its pattern matches, with a
+    right checksum and no value for a variable of ``unvalued`` (a first value is left to the
+    other paths). Returns the offset after the last one taken, each one's match groups (the
+    values, then the checksum), time (ns) and frame bytes, and the records' bytes in all."""
+    rx = lane.rx
+    lane_addr = lane.key[:12]
+    end = len(buf)
+    unpack_x = _PCAP_UDP.unpack_from
+    struct_error = struct.error
+    swap = _SWAP16
+    eth_ipv4 = _ETH_IPV4
+    cksub = _CKSUB
+    groups: list[tuple] = []
+    stamps: list[int] = []
+    raws: list[bytes] = []
+    g_app, t_app, r_app = groups.append, stamps.append, raws.append
+    n = wire = 0
+    while n < room:
+        try:
+            sec, frac, incl, _orig, eth, tl, frag, proto, here, ul = unpack_x(buf, off)
+        except struct_error:
+            break
+        start = off + 58
+        e = off + 16 + incl
+        if (here != lane_addr or e > end or eth != eth_ipv4 or proto != 17 or frag & 0xFFBF or incl <= 50
+                or incl > 65000 or tl != swap[incl - 14] or ul != swap[incl - 34]):
+            break
+        m = rx(sbuf, start, e)
+        if m is None:
+            break
+        g = m.groups()
+        if unvalued and any(g[i] is not None for i in unvalued):
+            break
+        raw = buf[start:e]
+        # the checksum: adler32's low half is 1 + the byte sum for up to 256 bytes (C speed)
+        if (((adler32(raw) & 0xFFFF) if e - start <= 256 else sum(raw) + 1) - cksub[g[-1]]) & 0xFF:
+            break
+        off = e
+        wire += incl
+        g_app(g)
+        t_app(sec * NS + frac * mult)
+        r_app(raw)
+        n += 1
+    return off, groups, stamps, raws, wire
 
 
 class Counted(NamedTuple):
