@@ -207,7 +207,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
         if not bodyend then return nil end
         fl = bodyend + 1
         local c1, c2 = s_byte(s, fl + 1, fl + 2)
-        e = (c1 == B_CR and c2 == B_LF) and fl + 2 or line_end(s, fl)
+        e = (c1 == 13 and c2 == 10) and fl + 2 or line_end(s, fl)   -- (CR LF, as constants)
     end
     local num = pg_number(pinfo)
     -- a layout's frame: a data frame between nodes A-P (its head is the layout's); full_local
@@ -225,8 +225,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
             full_local, tree ~= nil)
         ne = 0
     elseif is_data and addrs_ok then
-        kind, rec, list, d, miss_n, ne, nm = state_data(pinfo, num, sk, cs_status ~= 0, dstb, srcb, full_local,
-            tree ~= nil)
+        kind, rec, list, d, miss_n, ne, nm = state_data(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
     else
         kind, rec, list, d, miss_n, ne, nm = state_other(pinfo, num, sk, kind, cs_status ~= 0, dstb, srcb, addrs_ok,
             full_local)
@@ -234,7 +233,8 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
 
     info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n)
 
-    if terminated and not crlf_told and e ~= a + fl + 1 then   -- no CR LF after its ']' (line_end)
+    local crlf = e == a + fl + 1   -- CR LF after its ']' (line_end)
+    if not crlf and terminated and not crlf_told then
         set_crlf_frames(pinfo.port_type ~= PT_UDP)
         crlf_told = true
     end
@@ -248,7 +248,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
         -- a layout's frame with no possible expert (speed trick, measured): quiet (values its
         -- layout proves, a good upper-case checksum), CR LF after it, no record (late sync,
         -- limit); otherwise has_experts tells
-        if quiet and not rec and e == a + fl + 1 then return e end
+        if quiet and crlf and not rec then return e end
         if not has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status) then
             return e
         end

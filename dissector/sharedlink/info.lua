@@ -82,13 +82,9 @@ for k = 1, 64 do CARRIED_TAIL[k] = " (+" .. k .. " carried)" end
 -- so far: the layout's Info code makes the same text as the pieces, in one concatenation (speed
 -- trick, measured), when it fits INFO_MAX.
 local function info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n)
-    if frames_in_info > 0 then
-        if info_full then frames_dropped = frames_dropped + 1 else info_add(" ; ") end
-    end
-    frames_in_info = frames_in_info + 1
     local named = P.named
-    if named and frames_in_info == 1 and not (rec and rec.late) then   -- a layout's: full or delta
-        local full = kind == "full"
+    if frames_in_info == 0 and named and not (rec and rec.late) then   -- a layout's: full or delta
+        frames_in_info = 1        local full = kind == "full"
         local total = (full and named.info_len or named.dinfo_len) + P.vlen
         local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or nil
         if tail then total = total + #tail end
@@ -98,7 +94,12 @@ local function info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss
             INFO[1] = tail and text .. tail or text
             return
         end
+        frames_in_info = 0
     end
+    if frames_in_info > 0 then
+        if info_full then frames_dropped = frames_dropped + 1 else info_add(" ; ") end
+    end
+    frames_in_info = frames_in_info + 1
     info_clean = false
     if not info_full then info_pieces(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n) end
 end
@@ -125,6 +126,14 @@ end
 -- The packet's Info, into the column; then no pieces (as I.begin: speed trick, measured, no call
 -- a packet to start one).
 function I.finish(cols)
+    if ninfo == 1 and frames_in_info == 1 and info_clean and not info_full then
+        -- one frame's piece (the commonest packet): nothing dropped, no control character
+        local info = INFO[1]
+        if FAST_MARK and MARKS.fast_hit then info = "[fast] " .. info; MARKS.fast_hit = false end
+        cols.info = info
+        ninfo, info_len, frames_in_info = 0, 0, 0
+        return
+    end
     if frames_dropped > 0 then
         ninfo = ninfo + 1
         INFO[ninfo] = " (+" .. frames_dropped .. " more)"

@@ -136,13 +136,13 @@ local function named_head(sk, kind)
     return t
 end
 
--- The line of a frame that carries named values alone, those of names (a list of names) whose
+-- The line of a delta that carries named values alone, those of names (a list of names) whose
 -- values and frames are in vals and from (a direction's: the state writer's known subset), as
 -- carried_store makes it from MISS (speed trick, measured: no MISS filled and read back).
 -- Returns false when a value holds a line break (then the caller makes a table record).
-local function carried_names(num, sk, names, vals, from, kind)
+local function carried_names(num, sk, names, vals, from)
     local pend, i = cr_pend, cr_npieces
-    pend[i + 1], pend[i + 2] = num, HEAD[kind == "f" and -sk or sk] or named_head(sk, kind)
+    pend[i + 1], pend[i + 2] = num, HEAD[sk] or named_head(sk, "d")   -- (a delta's head: key sk)
     i = i + 2
     for k = 1, #names do
         local name = names[k]

@@ -368,6 +368,7 @@ do
     -- direction learns another name (speed trick, measured: a compressed stream's deltas).
     local function known_subset(d, named)
         local names = d.names
+        if #names > JOURNAL_NAMES and not d.over then return nil end   -- a journal's (data_values)
         local cache = d.subsets
         local sub = cache and cache[named]
         if sub and sub.count == #names then return sub end
@@ -385,6 +386,16 @@ do
         sub = { count = #names, names = miss }
         cache[named] = sub
         return sub
+    end
+
+    -- Whether a named layout's names are the direction's whole known set (true) or a subset of
+    -- them (known_subset's answer, kept in d.subsets), else nil.
+    local function known_set(d, named)
+        if d.names_is == named.N then return true end
+        local sub = d.subsets
+        sub = sub and sub[named]
+        if sub and sub.count == #d.names then return sub end
+        return known_subset(d, named)
     end
 
     -- The carried names (a known subset's) into MISS: name, value, frame, ...; returns nm.
@@ -415,8 +426,8 @@ do
     -- State, first pass, a data frame: its values go into the direction's state (good checksum),
     -- what it leaves out is gathered in CARRY (empty D fields: value, frame, ...; ne entries) and
     -- MISS (named variables: name, value, frame, ...; nm entries).  Returns whether it is full,
-    -- ne, nm, the number of named variables carried, full_local (the verdict without state),
-    -- whether the direction keeps a journal, and for a layout of known names, the names it carries
+    -- ne, nm, the number of named variables carried, full_local (the verdict without state), nm for
+    -- the record (0 for a journal's), and for a layout of known names, the names it carries
     -- (known_subset; nm is 0 then without a tree).
     local function data_values(d, list, num, sk, good, full_local, has_tree)
         local named = P.named
@@ -425,24 +436,11 @@ do
             key = journal.key(num, sk)
             if not hist and not d.over then hist = journal.start(d, key) end
         end
-        if good and named and not hist then
-            -- a layout of known names: its values stored; the direction's other names carried (the
-            -- whole known set: state_data stores it).  The carried names go into MISS only for a
-            -- tree (data_record reads them from the direction itself: speed trick, measured)
-            local sub = d.subsets   -- (known_subset's cache, read here: one call a delta less)
-            sub = sub and sub[named]
-            if not (sub and sub.count == #d.names) then sub = known_subset(d, named) end
-            if sub then
-                named.store(d.vals, d.from, num)
-                local names, nm = sub.names, 0
-                if has_tree then nm = carried_subset(d, names) end
-                return false, 0, nm, #names, false, false, names
-            end
-        end
         local nm, miss_n = store_values(d, list, num, sk, good, has_tree, hist, key)
         local full
         full, full_local = stored_verdict(d, named, good, miss_n, full_local)
-        return full, dv_ne, nm, miss_n, full_local, hist ~= nil, nil
+        -- a journal's carried names go in no record (see journal)
+        return full, dv_ne, nm, miss_n, full_local, hist and 0 or nm, nil
     end
 
     -- The carried values of empty D fields (CARRY, ne) and named ones (MISS, nm) into a table record.
@@ -460,7 +458,7 @@ do
     -- record anyway.  Returns the record (nil: a line).
     local function data_carried(rec, d, num, sk, ne, nm, sub, kch)
         if sub then
-            if rec or not carried_names(num, sk, sub, d.vals, d.from, kch) then
+            if rec or not carried_names(num, sk, sub, d.vals, d.from) then   -- (kch: "d", a delta)
                 if nm == 0 then nm = carried_subset(d, sub) end
                 rec = rec or get_rec(num, sk, true)
                 carried_record(rec, ne, nm)
@@ -477,16 +475,19 @@ do
     end
 
     -- State, first pass, a data frame: the sync clock, and the record later passes read (late
-    -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
+    -- sync, carried values, a kind the fields alone do not tell).  Returns state_data's answers (the
+    -- kind, the record, and list, d, miss_n, ne and tree_nm as given: a tail call).
     -- The sync clock: a full frame (good checksum) sets it; a delta past the interval is late.
-    -- rec: a table record made already (a limit's expert), else nil.  sub: the names a layout of
-    -- known names carries (data_values), their values in the direction, else nil.
-    local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm, rec, sub)
+    -- nm: MISS's entries for the record (0: none, or a journal's, which go in no record).  sub: the
+    -- names a layout of known names carries (data_values), their values in the direction, else
+    -- nil.  A frame past a limit (lim_hit) gets a table record with it.
+    local function data_record(pinfo, d, num, sk, full, full_local, cs_status, ne, nm, sub, list, miss_n, tree_nm)
+        local rec = lim_hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
         local now = g_rel_ts(pinfo)   -- (get_dir has taken the getters)
         local first = d.first
         if not first then first = now; d.first = now end
         if full then
-            if good then d.lastfull = now end
+            if cs_status ~= 0 then d.lastfull = now end   -- a good checksum (or none)
         else
             local age = now - (d.lastfull or first)
             if age > cfg.sync then
@@ -496,8 +497,11 @@ do
         end
         local kch = full and "f" or "d"
         if sub or ne > 0 or nm > 0 or full ~= full_local then rec = data_carried(rec, d, num, sk, ne, nm, sub, kch) end
-        if rec then rec.kind = kch end
-        return rec, full and "full" or "delta"
+        if rec then
+            rec.kind = kch
+            if lim_hit then rec.limit = lim_hit end
+        end
+        return full and "full" or "delta", rec, list, d, miss_n, ne, tree_nm
     end
 
     -- State, first pass, a declaration with a good checksum: the list it declares (a list learnt
@@ -690,30 +694,34 @@ do
         return kind, limit_record(rec, num, sk), list, d, 0, 0, 0
     end
 
-    -- State on the first pass, a data frame between nodes A-P (good: its checksum is not bad).
-    -- Returns the kind, the record (nil: none), the list in use, the direction state, the named
-    -- variables carried, and ne/nm (see data_values).
-    function state_data(pinfo, num, sk, good, dstb, srcb, full_local, has_tree)
+    -- State on the first pass, a data frame between nodes A-P (cs_status: its checksum verdict, 0
+    -- bad; tree: nil when there is none).  Returns the kind, the record (nil: none), the list in
+    -- use, the direction state, the named variables carried, and ne/nm (see data_values).
+    function state_data(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
         lim_hit = false
         local d = get_dir(pinfo, num, dstb, srcb)
         if d.over then lim_hit = over_text() end
         local list = d.lcur
         if d.lgen ~= lists_gen then list = list_in_use(d, num, sk, dstb, srcb) end
-        if list.by_length and P.n_pos > 0 then list = frame_list(list) end
-        local named, full, ne, nm, miss_n, journaled, sub = P.named, full_local, 0, 0, 0, false, nil
-        if good and named and d.names_is == named.N and not d.hist then
-            -- a layout of the direction's whole known set (data_values' first case, the
-            -- commonest frame): its values stored, nothing carried
+        if P.n_pos > 0 and list.by_length then list = frame_list(list) end
+        local named, full, ne, nm, miss_n, rec_nm, sub = P.named, full_local, 0, 0, 0, 0, nil
+        -- a layout of known names (good checksum, no journal): its values stored; with the
+        -- direction's whole known set nothing is carried (the commonest frame), with a subset the
+        -- direction's other names are, into MISS only for a tree (data_record reads them from the
+        -- direction itself: speed trick, measured)
+        local known = cs_status ~= 0 and named and not d.hist and (d.names_is == named.N or known_set(d, named))
+        if known then
             named.store(d.vals, d.from, num)
+            if known ~= true then
+                sub = known.names
+                full, full_local, miss_n = false, false, #sub
+                if tree then nm = carried_subset(d, sub); rec_nm = nm end
+            end
         else
-            full, ne, nm, miss_n, full_local, journaled, sub = data_values(d, list, num, sk, good, full_local,
-                has_tree)
+            full, ne, nm, miss_n, full_local, rec_nm, sub = data_values(d, list, num, sk, cs_status ~= 0,
+                full_local, tree ~= nil)
         end
-        -- a journal's carried names go in no record (see journal)
-        local rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm,
-            lim_hit and get_rec(num, sk, true) or nil, sub)
-        if lim_hit then rec = limit_record(rec, num, sk) end
-        return kind, rec, list, d, miss_n, ne, nm
+        return data_record(pinfo, d, num, sk, full, full_local, cs_status, ne, rec_nm, sub, list, miss_n, nm)
     end
 end
 
