@@ -140,7 +140,7 @@ local P = Pm.P
 local PG, TI = M.wsapi.PG, M.wsapi.TI
 local parse_frame, kind_of_fields = Pm.parse_frame, Pm.kind_of_fields
 local state_data, state_other, state_later_pass = S.state_data, S.state_other, S.state_later_pass
-local info_frame = I.info_frame
+local info_frame, info_layout = I.info_frame, I.info_layout
 local tree_frame, has_experts, T_SHOWN, T_HIDDEN, T_NONE = T.tree_frame, T.has_experts, T.SHOWN, T.HIDDEN, T.NONE
 local set_crlf_frames = T.set_crlf_frames
 local PT_UDP = 3   -- pinfo.port_type of a UDP datagram (epan's port_type enum; 4.0 to 4.6)
@@ -158,16 +158,17 @@ function sl.init()
     cfg.read()
 end
 
--- Whether both address bytes are nodes A-P (nil: cut short).
-local function nodes(dstb, srcb)
-    return (dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P) or false
-end
-
--- Without state: a data frame with N0 (or none), no empty positional D and no named variable left
--- out is full; the state-based verdict is stored when it differs.
-local function full_without_state()
+-- A frame the parser took (not a layout's): the kind its fields tell (nil: a data frame, full or
+-- delta as the state tells), whether it is a data frame, whether both address bytes are nodes A-P
+-- (nil: cut short), whether it is full without state (a data frame with N0 or none, no empty
+-- positional D and no named variable left out; the state-based verdict is stored when it
+-- differs), and whether state_data takes it (a data frame between nodes).
+local function fields_facts(malformed_msg, dstb, srcb)
+    local kind, is_data = kind_of_fields(malformed_msg)
+    local nodes = (dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P) or false
     local n_ord = P.n_ord
-    return P.nd > 0 and (n_ord == nil or n_ord == 0) and P.n_empty_d == 0
+    local full_local = P.nd > 0 and (n_ord == nil or n_ord == 0) and P.n_empty_d == 0
+    return kind, is_data, nodes, full_local, is_data and nodes
 end
 
 -- Whether CR LF frames the packet's bytes (tree's set_crlf_frames: sharedlink.crlf.missing is noted
@@ -212,26 +213,22 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     local num = pg_number(pinfo)
     -- a layout's frame: a data frame between nodes A-P (its head is the layout's); full_local
     -- from the layout (full_without_state)
-    local kind, is_data, addrs_ok = nil, true, true
-    if not P.layout then
-        kind, is_data = kind_of_fields(malformed_msg)
-        addrs_ok = nodes(dstb, srcb)
-        full_local = full_without_state()
-    end
+    local kind, is_data, addrs_ok, data_ok = nil, true, true, true
+    if not P.layout then kind, is_data, addrs_ok, full_local, data_ok = fields_facts(malformed_msg, dstb, srcb) end
     local rec, list, d, miss_n, ne, nm
     local visited = pg_visited(pinfo)
     if visited then
         kind, rec, list, d, miss_n, nm = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok,
             full_local, tree ~= nil)
         ne = 0
-    elseif is_data and addrs_ok then
+    elseif data_ok then
         kind, rec, list, d, miss_n, ne, nm = state_data(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
     else
         kind, rec, list, d, miss_n, ne, nm = state_other(pinfo, num, sk, kind, cs_status ~= 0, dstb, srcb, addrs_ok,
             full_local)
     end
 
-    info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n)
+    if not info_layout(kind, rec, miss_n) then info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n) end
 
     local crlf = e == a + fl + 1   -- CR LF after its ']' (line_end)
     if not crlf and terminated and not crlf_told then
@@ -344,6 +341,7 @@ local function dissect(tvb, pinfo, tree)
         wsapi.init(pinfo, tree, tvb)
         tvb_raw, has_tree, pg_cols = wsapi.tvb_raw, wsapi.has_tree, PG.cols
         pg_number, pg_visited, pg_visible = PG.number, PG.visited, PG.visible
+        S.take_getters()
     end
     local s = tvb_raw(tvb)
     local n = #s

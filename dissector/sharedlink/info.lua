@@ -78,24 +78,26 @@ end
 local CARRIED_TAIL = {}
 for k = 1, 64 do CARRIED_TAIL[k] = " (+" .. k .. " carried)" end
 
--- Info column: this frame's piece.  A full or delta frame of a named layout, alone in its packet
--- so far: the layout's Info code makes the same text as the pieces, in one concatenation (speed
--- trick, measured), when it fits INFO_MAX.
-local function info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n)
+-- Info column: this frame's piece, a full or delta frame of a named layout alone in its packet so
+-- far: the layout's Info code makes the same text as info_frame's pieces, in one concatenation
+-- (speed trick, measured), when it fits INFO_MAX.  Returns whether it did (else the entry calls
+-- info_frame: three arguments, not nine, for the commonest frame).
+local function info_layout(kind, rec, miss_n)
     local named = P.named
-    if frames_in_info == 0 and named and not (rec and rec.late) then   -- a layout's: full or delta
-        frames_in_info = 1        local full = kind == "full"
-        local total = (full and named.info_len or named.dinfo_len) + P.vlen
-        local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or nil
-        if tail then total = total + #tail end
-        if total <= INFO_MAX then
-            ninfo, info_len = 1, total
-            local text = (full and named.info or named.dinfo)()
-            INFO[1] = tail and text .. tail or text
-            return
-        end
-        frames_in_info = 0
-    end
+    if frames_in_info ~= 0 or not named or (rec and rec.late) then return false end
+    local full = kind == "full"
+    local total = (full and named.info_len or named.dinfo_len) + P.vlen
+    local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or nil
+    if tail then total = total + #tail end
+    if total > INFO_MAX then return false end
+    frames_in_info, ninfo, info_len = 1, 1, total
+    local text = (full and named.info or named.dinfo)()
+    INFO[1] = tail and text .. tail or text
+    return true
+end
+
+-- Info column: this frame's piece, piece by piece (what info_layout does not make).
+local function info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n)
     if frames_in_info > 0 then
         if info_full then frames_dropped = frames_dropped + 1 else info_add(" ; ") end
     end
@@ -150,5 +152,5 @@ function I.finish(cols)
     info_clean = true
 end
 
-I.info_frame = info_frame
+I.info_frame, I.info_layout = info_frame, info_layout
 return I

@@ -558,7 +558,7 @@ local function parse_frame(f, fl, terminated, vis, payload)
     if not cfg.validate then return fl - 1, dstb, srcb, nil, cs_val, nil, 2, false, full end
     local cs_calc = (sh.fixed + sum) % 256
     if cs_val ~= cs_calc then return fl - 1, dstb, srcb, nil, cs_val, cs_calc, 0, false, full end
-    return fl - 1, dstb, srcb, nil, cs_val, cs_calc, 1, sh.quiet and UHEX[ctext] or false, full
+    return fl - 1, dstb, srcb, nil, cs_val, cs_calc, 1, sh.quiet and UHEX[ctext], full
 end
 
 -- The kind the fields alone tell; a data frame (full or delta, told by the state) gives nil, true.

@@ -64,9 +64,10 @@ local function add_dir(byaddr, key)
 end
 
 -- wsapi's getters (PG) of the attributes read each packet, as upvalues (a table's field is a hash
--- lookup: speed trick, measured), taken on the first packet (wsapi.init has chosen them then).
+-- lookup: speed trick, measured), taken by the entry on the first packet, once wsapi.init has
+-- chosen them (S.take_getters).
 local g_sport, g_dport, g_src, g_dst, g_p2p_dir, g_rel_ts
-local function take_getters()
+function S.take_getters()
     g_sport, g_dport, g_src, g_dst, g_p2p_dir, g_rel_ts = PG.src_port, PG.dst_port, PG.src, PG.dst, PG.p2p_dir,
         PG.rel_ts
 end
@@ -81,7 +82,6 @@ local function get_dir(pinfo, num, dstb, srcb)
         -- the capture direction keeps the two directions of a serial line apart.  Speed
         -- trick (measured): Address objects compare cheaper than they print, so the key
         -- text is rebuilt only when the addresses differ from the previous packet's.
-        if not g_sport then take_getters() end
         local sport, dport = g_sport(pinfo), g_dport(pinfo)
         -- the capture direction only where no port tells the directions apart (a serial line);
         -- a UDP/TCP flow is one direction whatever direction flags its link layer had
@@ -388,16 +388,6 @@ do
         return sub
     end
 
-    -- Whether a named layout's names are the direction's whole known set (true) or a subset of
-    -- them (known_subset's answer, kept in d.subsets), else nil.
-    local function known_set(d, named)
-        if d.names_is == named.N then return true end
-        local sub = d.subsets
-        sub = sub and sub[named]
-        if sub and sub.count == #d.names then return sub end
-        return known_subset(d, named)
-    end
-
     -- The carried names (a known subset's) into MISS: name, value, frame, ...; returns nm.
     local function carried_subset(d, names)
         local vals, from, nm = d.vals, d.from, 0
@@ -483,7 +473,7 @@ do
     -- nil.  A frame past a limit (lim_hit) gets a table record with it.
     local function data_record(pinfo, d, num, sk, full, full_local, cs_status, ne, nm, sub, list, miss_n, tree_nm)
         local rec = lim_hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
-        local now = g_rel_ts(pinfo)   -- (get_dir has taken the getters)
+        local now = g_rel_ts(pinfo)
         local first = d.first
         if not first then first = now; d.first = now end
         if full then
@@ -709,7 +699,13 @@ do
         -- direction's whole known set nothing is carried (the commonest frame), with a subset the
         -- direction's other names are, into MISS only for a tree (data_record reads them from the
         -- direction itself: speed trick, measured)
-        local known = cs_status ~= 0 and named and not d.hist and (d.names_is == named.N or known_set(d, named))
+        local known = cs_status ~= 0 and named and not d.hist   -- true: the whole known set
+        if known and d.names_is ~= named.N then
+            -- else a subset? (known_subset's cache read here: one call a delta less)
+            known = d.subsets
+            known = known and known[named]
+            if not (known and known.count == #d.names) then known = known_subset(d, named) end
+        end
         if known then
             named.store(d.vals, d.from, num)
             if known ~= true then
