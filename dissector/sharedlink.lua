@@ -134,14 +134,13 @@ local U, cfg, wsapi, hf = M.util, M.prefs, M.wsapi, M.fields.hf
 local ei, s_byte, s_sub, s_find = M.fields.ei, string.byte, string.sub, string.find
 local tostring, type, B_LBRACK, B_RBRACK = tostring, type, U.B_LBRACK, U.B_RBRACK
 local B_PIPE, B_COLON, B_CR, B_LF = U.B_PIPE, U.B_COLON, U.B_CR, U.B_LF
-local B_A, B_P, LETTER = U.B_A, U.B_P, U.LETTER
+local B_A, B_P = U.B_A, U.B_P
 local Pm, S, I, T, R = M.parse, M.state, M.info, M.tree, M.records
 local P = Pm.P
 local PG, TI = M.wsapi.PG, M.wsapi.TI
 local parse_frame, kind_of_fields = Pm.parse_frame, Pm.kind_of_fields
-local parse_payload = Pm.parse_payload
-local state_first_pass, state_later_pass = S.state_first_pass, S.state_later_pass
-local info_frame = I.info_frame
+local state_data, state_other, state_later_pass = S.state_data, S.state_other, S.state_later_pass
+local info_frame, info_layout = I.info_frame, I.info_layout
 local tree_frame, has_experts, T_SHOWN, T_HIDDEN, T_NONE = T.tree_frame, T.has_experts, T.SHOWN, T.HIDDEN, T.NONE
 local set_crlf_frames = T.set_crlf_frames
 local PT_UDP = 3   -- pinfo.port_type of a UDP datagram (epan's port_type enum; 4.0 to 4.6)
@@ -151,6 +150,7 @@ sl.experts = M.fields.register(ei)
 
 -- per-capture state, and the preferences in use
 function sl.init()
+    I.begin()
     R.reset()
     S.reset()
     Pm.reset()
@@ -158,17 +158,17 @@ function sl.init()
     cfg.read()
 end
 
--- The address letters as shown ("?": cut short), and whether both are nodes A-P.
-local function addresses(dstb, srcb)
-    local dst, src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
-    return dst, src, (dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P) or false
-end
-
--- Without state: a data frame with N0 (or none), no empty positional D and no named variable left
--- out is full; the state-based verdict is stored when it differs.
-local function full_without_state()
+-- A frame the parser took (not a layout's): the kind its fields tell (nil: a data frame, full or
+-- delta as the state tells), whether it is a data frame, whether both address bytes are nodes A-P
+-- (nil: cut short), whether it is full without state (a data frame with N0 or none, no empty
+-- positional D and no named variable left out; the state-based verdict is stored when it
+-- differs), and whether state_data takes it (a data frame between nodes).
+local function fields_facts(malformed_msg, dstb, srcb)
+    local kind, is_data = kind_of_fields(malformed_msg)
+    local nodes = (dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P) or false
     local n_ord = P.n_ord
-    return P.nd > 0 and (n_ord == nil or n_ord == 0) and P.n_empty_d == 0
+    local full_local = P.nd > 0 and (n_ord == nil or n_ord == 0) and P.n_empty_d == 0
+    return kind, is_data, nodes, full_local, is_data and nodes
 end
 
 -- Whether CR LF frames the packet's bytes (tree's set_crlf_frames: sharedlink.crlf.missing is noted
@@ -176,67 +176,84 @@ end
 -- trick (measured): pinfo.port_type is a call into wslua's __index, read only then.
 local crlf_told = false
 
+-- The index of the last byte of a frame closed at b, its line end included (CR LF, CR or LF).
+local function line_end(s, b)
+    local c1, c2 = s_byte(s, b + 1, b + 2)
+    if c1 == B_CR then return c2 == B_LF and b + 2 or b + 1 end
+    if c1 == B_LF then return b + 1 end
+    return b
+end
+
+-- wslua attributes the entry reads each frame, through wsapi's getters (PG), as upvalues once
+-- wsapi.init has chosen them on the first packet (set by dissect)
+local pg_number, pg_visited, pg_visible
+local MODE = { [true] = T_SHOWN, [false] = T_HIDDEN }   -- a tree's mode by whether it is shown
+
 -- f: a string holding the frame at f[1..fl] ('[' .. ']' when terminated, else up to
 -- where it stops; bytes after fl may follow when terminated); a: index of f[1] in the
 -- payload s; e: index in s of the last byte including the line end.  tree: nil when there is
 -- none (see dissect); root: the tree Wireshark gave, for the expert infos of a frame then.
--- taken: the frame is in P already (the layout cache took it, parse_payload).
-local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, root, taken)
-    local num = PG.number(pinfo)
-
+-- payload: f is the payload s, fl its length, and the frame it starts with is taken only when the
+-- layout cache has it (parse_frame); then fl and e are found here, and nil returned when it does
+-- not.  Returns e.
+local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, root, payload)
     -- a tree that is shown (-V, -T fields/json, the GUI's details) gets every range and
     -- label; one nobody sees (-Y, coloring rules, taps) takes the fast paths too.  The
     -- protocol item is added once the frame is known (the full tree: with its text)
-    local vis = tree ~= nil and PG.visible(tree)
+    local vis = tree ~= nil and pg_visible(tree)
 
     local bodyend, dstb, srcb, malformed_msg, cs_val, cs_calc, cs_status, quiet, full_local =
-        parse_frame(f, fl, terminated, vis, taken)
-    local layout = P.layout
-    local kind, is_data, dst, src, addrs_ok
-    if layout then
-        -- a layout's frame: a data frame between nodes A-P (its head is the layout's); full_local
-        -- from the layout (full_without_state)
-        is_data, addrs_ok = true, true
-        dst = LETTER[dstb]
-        src = LETTER[srcb]
-    else
-        kind, is_data = kind_of_fields(malformed_msg)
-        dst, src, addrs_ok = addresses(dstb, srcb)
-        full_local = full_without_state()
+        parse_frame(f, fl, terminated, vis, payload)
+    if payload then
+        if not bodyend then return nil end
+        fl = bodyend + 1
+        local c1, c2 = s_byte(s, fl + 1, fl + 2)
+        e = (c1 == 13 and c2 == 10) and fl + 2 or line_end(s, fl)   -- (CR LF, as constants)
     end
+    local num = pg_number(pinfo)
+    -- a layout's frame: a data frame between nodes A-P (its head is the layout's); full_local
+    -- from the layout (full_without_state)
+    local kind, is_data, addrs_ok, data_ok = nil, true, true, true
+    if not P.layout then kind, is_data, addrs_ok, full_local, data_ok = fields_facts(malformed_msg, dstb, srcb) end
     local rec, list, d, miss_n, ne, nm
-    if not PG.visited(pinfo) then
-        kind, rec, list, d, miss_n, ne, nm = state_first_pass(pinfo, num, sk, kind, is_data, cs_status ~= 0, dstb,
-            srcb, dst, src, addrs_ok, full_local, tree ~= nil)
-    else
+    local visited = pg_visited(pinfo)
+    if visited then
         kind, rec, list, d, miss_n, nm = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok,
             full_local, tree ~= nil)
         ne = 0
+    elseif data_ok then
+        kind, rec, list, d, miss_n, ne, nm = state_data(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
+    else
+        kind, rec, list, d, miss_n, ne, nm = state_other(pinfo, num, sk, kind, cs_status ~= 0, dstb, srcb, addrs_ok,
+            full_local)
     end
-    if is_data and not kind then kind = full_local and "full" or "delta" end   -- addresses not A-P
 
-    info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
+    if not info_layout(kind, rec, miss_n) then info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n) end
 
-    if terminated and not crlf_told and e ~= a + fl + 1 then   -- no CR LF after its ']' (line_end)
+    local crlf = e == a + fl + 1   -- CR LF after its ']' (line_end)
+    if not crlf and terminated and not crlf_told then
         set_crlf_frames(pinfo.port_type ~= PT_UDP)
         crlf_told = true
     end
     -- Tree: shown, hidden (nobody sees it) or none (tshark's summary pass: built only for a frame
     -- with expert infos, on root, where only the experts stay); one builder (tree.lua)
-    local mode = vis and T_SHOWN or T_HIDDEN
-    if not tree then
-        if not root then return end
+    local mode = T_NONE
+    if tree then
+        mode = MODE[vis]
+    else
+        if not root then return e end
         -- a layout's frame with no possible expert (speed trick, measured): quiet (values its
         -- layout proves, a good upper-case checksum), CR LF after it, no record (late sync,
         -- limit); otherwise has_experts tells
-        if quiet and not rec and e == a + fl + 1 then return end
+        if quiet and crlf and not rec then return e end
         if not has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status) then
-            return
+            return e
         end
-        tree, mode = root, T_NONE
+        tree = root
     end
-    tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, PG.visited(pinfo), kind,
+    tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, visited, kind,
         dstb, srcb, list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
+    return e
 end
 ------------------------------------------------------------------------------
 -- Payload scanning
@@ -255,14 +272,6 @@ local function add_noise(s, i, j, tvb, tree, root)
     local ti = tree:add(sl, r)
     ti:append_text(", noise")
     ti:add(hf.noise, r):add_proto_expert_info(ei.noise, (j - i + 1) .. " bytes outside any frame")
-end
-
--- The index of the last byte of a frame closed at b, its line end included (CR LF, CR or LF).
-local function line_end(s, b)
-    local c1, c2 = s_byte(s, b + 1, b + 2)
-    if c1 == B_CR then return c2 == B_LF and b + 2 or b + 1 end
-    if c1 == B_LF then return b + 1 end
-    return b
 end
 
 -- A frame at s[a..] that no ']' closes: held for the next TCP segment while within
@@ -322,30 +331,40 @@ local function scan(s, n, tvb, pinfo, t, tree, pos)
     end
 end
 
+-- wsapi's functions the entry calls each packet, as upvalues once wsapi.init has chosen them on
+-- the first packet (a table's field is a hash lookup: speed trick, measured)
+local tvb_raw, has_tree, pg_cols
+local in_packet = false   -- between a packet's first frame and its Info (I.finish)
+
 local function dissect(tvb, pinfo, tree)
-    if not wsapi.ready then wsapi.init(pinfo, tree, tvb) end
-    local s = wsapi.tvb_raw(tvb)
+    if not tvb_raw then
+        wsapi.init(pinfo, tree, tvb)
+        tvb_raw, has_tree, pg_cols = wsapi.tvb_raw, wsapi.has_tree, PG.cols
+        pg_number, pg_visited, pg_visible = PG.number, PG.visited, PG.visible
+        S.take_getters()
+    end
+    local s = tvb_raw(tvb)
     local n = #s
     if n <= 0 then return 0 end
-    local cols = PG.cols(pinfo)
+    local cols = pg_cols(pinfo)
     cols.protocol = "SharedLink"
-    -- With no tree at all (tshark's summary pass) skip all tree work (wsapi.no_tree); frames with
+    -- With no tree at all (tshark's summary pass) skip all tree work (wsapi.has_tree); frames with
     -- expert infos still get them (see dissect_frame)
     local t = tree
-    if t ~= nil and wsapi.no_tree(t) then t = nil end
-    I.begin()
+    if t ~= nil and not has_tree(t) then t = nil end
+    -- the Info starts empty (I.finish leaves it so) unless the last packet stopped short of it
+    if in_packet then I.begin() end
+    in_packet = true
     crlf_told = false
-    -- the layout cache first, for the frame the payload starts with (see Pm.parse_payload)
-    local b = parse_payload(s, n)
-    if b then
-        local c1, c2 = s_byte(s, b + 1, b + 2)
-        local e = (c1 == B_CR and c2 == B_LF) and b + 2 or line_end(s, b)
-        dissect_frame(s, b, 1, e, true, tvb, pinfo, t, n * 1048576 + 1, s, tree, true)
-        if e < n then scan(s, n, tvb, pinfo, t, tree, e + 1) end
-    else
+    -- the layout cache first, for the frame the payload starts with (dissect_frame's payload)
+    local e = dissect_frame(s, n, 1, nil, true, tvb, pinfo, t, n * 1048576 + 1, s, tree, true)
+    if not e then
         scan(s, n, tvb, pinfo, t, tree, 1)
+    elseif e < n then
+        scan(s, n, tvb, pinfo, t, tree, e + 1)
     end
     I.finish(cols)
+    in_packet = false
     return n
 end
 

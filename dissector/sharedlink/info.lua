@@ -7,10 +7,11 @@ if type(token) ~= "table" or token.sharedlink_module ~= true then return end
 
 local U, s_sub, s_find, s_gsub = M.util, string.sub, string.find, string.gsub
 local t_concat, ARROW, ELLIPSIS, INFO_MAX = table.concat, U.ARROW, U.ELLIPSIS, U.INFO_MAX
-local CTRL, VN, VV, VI = U.CTRL, M.parse.P.VN, M.parse.P.VV, M.parse.P.VI
+local CTRL, VN, VV, VI, LETTER = U.CTRL, M.parse.P.VN, M.parse.P.VV, M.parse.P.VI, U.LETTER
 
 local P = M.parse.P
 local MARKS = M.parse.MARKS
+local FAST_MARK = MARKS.fast   -- (SHAREDLINK_FAST_MARK=1: a switch read once, at load)
 
 ------------------------------------------------------------------------------
 -- Info column pieces (reused)
@@ -55,9 +56,9 @@ local function info_names()
     end
 end
 
--- The frame's piece, piece by piece.
-local function info_pieces(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
-    info_add(src .. ARROW .. dst .. " " .. kind)
+-- The frame's piece, piece by piece (dstb, srcb: its address bytes; "?": cut short).
+local function info_pieces(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n)
+    info_add(LETTER[srcb] .. ARROW .. LETTER[dstb] .. " " .. kind)
     if is_data or kind == "reply" or kind == "malformed" then
         info_values(list, miss_n)
     elseif kind == "query" then
@@ -77,32 +78,36 @@ end
 local CARRIED_TAIL = {}
 for k = 1, 64 do CARRIED_TAIL[k] = " (+" .. k .. " carried)" end
 
--- Info column: this frame's piece.  A full or delta frame of a named layout, alone in its packet
--- so far: the layout's Info code makes the same text as the pieces, in one concatenation (speed
--- trick, measured), when it fits INFO_MAX.
-local function info_frame(f, bodyend, kind, is_data, rec, list, src, dst, miss_n)
+-- Info column: this frame's piece, a full or delta frame of a named layout alone in its packet so
+-- far: the layout's Info code makes the same text as info_frame's pieces, in one concatenation
+-- (speed trick, measured), when it fits INFO_MAX.  Returns whether it did (else the entry calls
+-- info_frame: three arguments, not nine, for the commonest frame).
+local function info_layout(kind, rec, miss_n)
+    local named = P.named
+    if frames_in_info ~= 0 or not named or (rec and rec.late) then return false end
+    local full = kind == "full"
+    local total = (full and named.info_len or named.dinfo_len) + P.vlen
+    local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or nil
+    if tail then total = total + #tail end
+    if total > INFO_MAX then return false end
+    frames_in_info, ninfo, info_len = 1, 1, total
+    local text = (full and named.info or named.dinfo)()
+    INFO[1] = tail and text .. tail or text
+    return true
+end
+
+-- Info column: this frame's piece, piece by piece (what info_layout does not make).
+local function info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n)
     if frames_in_info > 0 then
         if info_full then frames_dropped = frames_dropped + 1 else info_add(" ; ") end
     end
     frames_in_info = frames_in_info + 1
-    local named = P.named
-    if named and frames_in_info == 1 and not (rec and rec.late) then   -- a layout's: full or delta
-        local full = kind == "full"
-        local total = (full and named.info_len or named.dinfo_len) + P.vlen
-        local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or nil
-        if tail then total = total + #tail end
-        if total <= INFO_MAX then
-            ninfo, info_len = 1, total
-            local text = (full and named.info or named.dinfo)()
-            INFO[1] = tail and text .. tail or text
-            return
-        end
-    end
     info_clean = false
-    if not info_full then info_pieces(f, bodyend, kind, is_data, rec, list, src, dst, miss_n) end
+    if not info_full then info_pieces(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n) end
 end
 
--- A packet starts: no pieces yet.
+-- No pieces yet: at the start of a capture, after each packet's Info (I.finish), and before a
+-- packet whose previous one did not reach I.finish (a Lua error; see the entry's dissect).
 local I = {}
 function I.begin()
     ninfo, info_len, info_full, frames_in_info, frames_dropped = 0, 0, false, 0, 0
@@ -120,21 +125,32 @@ function I.noise(len)
     end
 end
 
--- The packet's Info, into the column.
+-- The packet's Info, into the column; then no pieces (as I.begin: speed trick, measured, no call
+-- a packet to start one).
 function I.finish(cols)
+    if ninfo == 1 and frames_in_info == 1 and info_clean and not info_full then
+        -- one frame's piece (the commonest packet): nothing dropped, no control character
+        local info = INFO[1]
+        if FAST_MARK and MARKS.fast_hit then info = "[fast] " .. info; MARKS.fast_hit = false end
+        cols.info = info
+        ninfo, info_len, frames_in_info = 0, 0, 0
+        return
+    end
     if frames_dropped > 0 then
         ninfo = ninfo + 1
         INFO[ninfo] = " (+" .. frames_dropped .. " more)"
     end
     if ninfo > 0 then
         local info = (ninfo == 1) and INFO[1] or t_concat(INFO, "", 1, ninfo)
-        if MARKS.fast_hit then info = "[fast] " .. info; MARKS.fast_hit = false end
+        if FAST_MARK and MARKS.fast_hit then info = "[fast] " .. info; MARKS.fast_hit = false end
         -- control characters from a damaged frame must not break the column (the
         -- fast path's text cannot hold any: its patterns exclude them)
         if not info_clean and s_find(info, CTRL) then info = s_gsub(info, CTRL, "?") end
         cols.info = info
     end
+    ninfo, info_len, info_full, frames_in_info, frames_dropped = 0, 0, false, 0, 0
+    info_clean = true
 end
 
-I.info_frame = info_frame
+I.info_frame, I.info_layout = info_frame, info_layout
 return I

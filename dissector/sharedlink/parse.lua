@@ -30,7 +30,7 @@ local HUGE_INDEX = 4294967295   -- the largest index the uint32 sharedlink.var.i
 -- cpos/ctext the checksum field's start and text (vlen: the values' total length, layout frames);
 -- cmd_start the first E/M field; ord_text N? or L? (a list request); layout: the cached layout
 -- that parsed the frame (else false), named: the same when it is a named one (else nil),
--- filled: the layout whose facts P holds (parse_cached); odd: a field whose tree item carries an expert info
+-- filled: the layout whose facts P holds (parse_frame); odd: a field whose tree item carries an expert info
 -- (an empty field, an unknown letter, an ordinal or type that is not a number); limit: why the
 -- frame is past a limit its fields alone tell (a "Limit exceeded: ..." text), else false.
 ------------------------------------------------------------------------------
@@ -238,7 +238,7 @@ end
 ------------------------------------------------------------------------------
 -- The value classes, written as ranges: a value is any byte but '|', '[', ']', the control
 -- characters and DEL (no '[': a frame the cache matched then holds no "[:" but its first, the
--- frame the payload scan finds, see parse_payload; a value with '[' goes to the parser).  Speed
+-- frame the payload scan finds, see parse_frame's payload; a value with '[' goes to the parser).  Speed
 -- trick (measured): the matcher tries a class's items in order and a digit is in the first range,
 -- where the negated forms ([^|%]\0-\31\127]) tried every item, escapes costing most (-1.6 and
 -- -2.0 thousand instructions a frame, summary pass).  A double-typed value: a plain decimal
@@ -349,13 +349,6 @@ local function layout_fill(sh)
     if sh.named then layout_store(sh) end
     return fill
 end
-
--- The checksum verdict of the frame the layout cache took last (as checksum_verdict's).
-local lv_val, lv_calc, lv_status = nil, nil, nil
--- and its facts for the entry: lv_quiet, no expert possible (a quiet layout, a good upper-case
--- checksum); lv_full, full without state (N0, no empty positional D)
-local lv_quiet, lv_full = false, false
-local lv_dstb, lv_srcb = 0, 0   -- its address bytes
 
 -- A positional layout's frame: its empty D fields (P.n_empty_d; full without state needs none).
 local function positional_empty(n)
@@ -489,55 +482,8 @@ local function learn_layout(f, key, dstb, srcb)
 end
 
 ------------------------------------------------------------------------------
--- A frame: header, then the layout cache, else the parser (which teaches the cache).
+-- A frame: the layout cache, else the header and the parser (which teaches the cache).
 ------------------------------------------------------------------------------
--- A closed frame the layout cache has, at the start of f (len: the index of its ']', or the
--- payload's length when f is the payload): matched and taken into P.  The layout
--- that matched the same len last is tried first, then the node pair's recent ones.  Its head
--- (addresses A-P, N) is the layout's, so the frame needs no header check.  Returns the index of
--- its ']' (nil: not cached).
-local function parse_cached(f, len)
-    local dstb, srcb = s_byte(f, 3, 4)
-    if not srcb or len < 6 then return nil end
-    local key = dstb * 256 + srcb
-    local sh = LY.bylen[key * 65536 + len]
-    local vlen, sum, ctext
-    if sh and s_find(f, sh.head, 1, true) == 1 then vlen, sum, ctext = sh.take(f, sh.pat, sh.at) end
-    if not vlen then
-        sh, vlen, sum, ctext = layout_mru(f, len, key)
-        if not sh then return nil end
-    end
-    if MARKS.fast then MARKS.fast_hit = true end
-    -- the frame into P (its values are in VV already: TAKE): its variables and the facts a layout's
-    -- frame has (a data frame: N, then T/Q/D triplets or D fields, then C; the facts only other
-    -- kinds have, has_e..has_r, l_ord, cmd_start, ord_text, are read for those alone), and its
-    -- checksum verdict (lv_*: the layout's fixed sum plus the values').  Speed trick (measured):
-    -- the layout's names, types, indexes and facts stay in P while the next frames have its layout
-    -- (P.filled, cleared by the parser): such a frame writes its values and its checksum's facts.
-    lv_dstb, lv_srcb = dstb, srcb
-    local fl = sh.flen + vlen + #ctext
-    P.ctext = ctext   -- (one assignment a field: a multiple one moves each value first)
-    P.vlen = vlen
-    P.cpos = fl - 1 - #ctext   -- the pattern ends in |C<ctext>]
-    if P.filled ~= sh then (sh.fill or layout_fill(sh))(sh) end
-    lv_full = sh.full0
-    if not sh.named then lv_full = positional_empty(sh.n) and lv_full end
-    local cs_val = HEXV[ctext] or checksum_value(ctext)
-    lv_val = cs_val
-    if cfg.validate then
-        local cs_calc = (sh.fixed + sum) % 256
-        lv_calc = cs_calc
-        lv_status = (cs_val == cs_calc) and 1 or 0
-    else
-        lv_calc, lv_status = nil, 2
-    end
-    lv_quiet = sh.quiet and lv_status == 1 and UHEX[ctext] or false
-    return fl
-end
-
--- The payload need not start with '[': a layout's head does ("[:" and the addresses).
-Pm.parse_payload = FAST and parse_cached or function() return nil end
-
 -- Checksum verdict of a frame the parser took, before the state (a frame with a bad checksum
 -- changes no state): the value of the checksum text (nil: not hex), the calculated value, the
 -- status (1 good, 0 bad, 2 unverified; nil: no C field).
@@ -550,16 +496,8 @@ local function checksum_verdict(f)
     return cs_val, cs_calc, (cs_val == cs_calc) and 1 or 0
 end
 
--- Parse a frame.  Returns the last index of the content, the address bytes, why it is malformed
--- (nil: it is not), the checksum verdict (checksum_verdict) and, for a layout's frame, whether
--- it can have no expert info (quiet: see the entry) and is full without state (else nil).
--- vis: a shown tree (it needs the fields' places); taken: the frame is in P already
--- (parse_payload).
-local function parse_frame(f, fl, terminated, vis, taken)
-    if taken or (FAST and terminated and parse_cached(f, fl)) then
-        if vis then fast_positions(P.layout) end
-        return fl - 1, lv_dstb, lv_srcb, nil, lv_val, lv_calc, lv_status, lv_quiet, lv_full
-    end
+-- A frame the layout cache does not have: the header, then the fields (parse_frame's answers).
+local function parse_fields_of(f, fl, terminated)
     parse_reset()
     local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)
     if p then parse_fields(f, p, bodyend) end
@@ -573,6 +511,54 @@ local function parse_frame(f, fl, terminated, vis, taken)
         learn_layout(f, dstb * 256 + srcb, dstb, srcb)
     end
     return bodyend, dstb, srcb, malformed_msg, checksum_verdict(f)
+end
+
+local FAST_MARK = MARKS.fast
+
+-- Parse a frame.  Returns the last index of the content, the address bytes, why it is malformed
+-- (nil: it is not), the checksum verdict (checksum_verdict) and, for a layout's frame, whether
+-- it can have no expert info (quiet: see the entry) and is full without state (else nil).
+-- vis: a shown tree (it needs the fields' places).  payload: f is the whole payload and fl its
+-- length, and only the layout cache is tried, for the frame the payload starts with (nil when
+-- it has none; a layout's head starts with "[:" and the addresses, so the frame needs no header
+-- check).
+--
+-- The layout cache: the layout that matched the same length last is tried first (fl: the index of
+-- the frame's ']', or the payload's length), then the node pair's recent ones.  A frame it has
+-- goes into P (its values are in VV already: TAKE): its variables and the facts a layout's frame
+-- has (a data frame: N, then T/Q/D triplets or D fields, then C; the facts only other kinds have,
+-- has_e..has_r, l_ord, cmd_start, ord_text, are read for those alone), and its checksum verdict
+-- is the layout's fixed sum plus the values'.  Speed tricks (measured): the layout's names, types,
+-- indexes and facts stay in P while the next frames have its layout (P.filled, cleared by the
+-- parser): such a frame writes its values and its checksum's facts; the cache is tried here, not
+-- in a function of its own (one call a frame less).
+local function parse_frame(f, fl, terminated, vis, payload)
+    local dstb, srcb = s_byte(f, 3, 4)
+    local sh, vlen, sum, ctext
+    if FAST and terminated and fl >= 6 then   -- (f holds fl bytes at least: srcb is a byte)
+        local key = dstb * 256 + srcb
+        sh = LY.bylen[key * 65536 + fl]
+        if sh and s_find(f, sh.head, 1, true) == 1 then vlen, sum, ctext = sh.take(f, sh.pat, sh.at) end
+        if not vlen then sh, vlen, sum, ctext = layout_mru(f, fl, key) end
+    end
+    if not vlen then
+        if payload then return nil end
+        return parse_fields_of(f, fl, terminated)
+    end
+    if FAST_MARK then MARKS.fast_hit = true end
+    fl = sh.flen + vlen + #ctext
+    P.ctext = ctext   -- (one assignment a field: a multiple one moves each value first)
+    P.vlen = vlen
+    P.cpos = fl - 1 - #ctext   -- the pattern ends in |C<ctext>]
+    if P.filled ~= sh then (sh.fill or layout_fill(sh))(sh) end
+    local full = sh.full0
+    if not sh.named then full = positional_empty(sh.n) and full end
+    if vis then fast_positions(sh) end
+    local cs_val = HEXV[ctext] or checksum_value(ctext)
+    if not cfg.validate then return fl - 1, dstb, srcb, nil, cs_val, nil, 2, false, full end
+    local cs_calc = (sh.fixed + sum) % 256
+    if cs_val ~= cs_calc then return fl - 1, dstb, srcb, nil, cs_val, cs_calc, 0, false, full end
+    return fl - 1, dstb, srcb, nil, cs_val, cs_calc, 1, sh.quiet and UHEX[ctext], full
 end
 
 -- The kind the fields alone tell; a data frame (full or delta, told by the state) gives nil, true.

@@ -130,9 +130,9 @@ end
 -- The values in use: list (the parsed variable list), validate, heuristic, sync (the interval plus
 -- the slack, in seconds), and LIM: the limits and the per-capture facts they need: journal (a
 -- direction keeps a journal, see state's journal), ndirs (directions with state), npend
--- (unanswered queries a conversation), hit (the current frame's limit text, else false)
+-- (unanswered queries a conversation)
 local cfg = { list = EMPTY, pairs = {}, validate = true, heuristic = true, sync = 1.0 + U.SYNC_SLACK,
-    LIM = { journal = false, ndirs = 0, npend = {}, hit = false } }
+    LIM = { journal = false, ndirs = 0, npend = {} } }
 
 local function read_limits()
     local LIM = cfg.LIM
@@ -225,7 +225,7 @@ end
 -- the per-capture facts the limits keep (init)
 function cfg.reset()
     local LIM = cfg.LIM
-    LIM.journal, LIM.ndirs, LIM.npend, LIM.hit = false, 0, {}, false
+    LIM.journal, LIM.ndirs, LIM.npend = false, 0, {}
 end
 
 return cfg

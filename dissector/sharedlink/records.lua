@@ -136,6 +136,31 @@ local function named_head(sk, kind)
     return t
 end
 
+-- The line of a delta that carries named values alone, those of names (a list of names) whose
+-- values and frames are in vals and from (a direction's: the state writer's known subset), as
+-- carried_store makes it from MISS (speed trick, measured: no MISS filled and read back).
+-- Returns false when a value holds a line break (then the caller makes a table record).
+local function carried_names(num, sk, names, vals, from)
+    local pend, i = cr_pend, cr_npieces
+    pend[i + 1], pend[i + 2] = num, HEAD[sk] or named_head(sk, "d")   -- (a delta's head: key sk)
+    i = i + 2
+    for k = 1, #names do
+        local name = names[k]
+        local v, fr = vals[name] or false, from[name] or false
+        local t = PIECE[name]
+        if t == nil or PV[name] ~= v or PF[name] ~= fr then t = name_piece(name, v, fr) end
+        if not t then return false end
+        pend[i + k] = t
+    end
+    i = i + #names + 1
+    pend[i] = "\n"
+    -- (carried_line_end, written out: one call a delta less)
+    if cr_npend == 0 then cr_pend_first = num end
+    cr_npieces, cr_npend = i, cr_npend + 1
+    if cr_npend >= 256 then carried_flush() end
+    return true
+end
+
 -- Line: num|sk|kind|ne|value|frame|...(ne/2 pairs)|name|value|frame|...(nm/3 triples).  Returns
 -- false when a value holds a line break (then the caller makes a table record).
 local function carried_store(num, sk, ne, nm, kind)
@@ -248,6 +273,6 @@ local function get_rec(num, sk, create)
     return rec
 end
 
-R.carried_store, R.get_rec = carried_store, get_rec
+R.carried_store, R.carried_names, R.get_rec = carried_store, carried_names, get_rec
 
 return R

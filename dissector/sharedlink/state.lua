@@ -9,12 +9,13 @@ if type(token) ~= "table" or token.sharedlink_module ~= true then return end
 local U, cfg, wsapi, tostring = M.util, M.prefs, M.wsapi, tostring
 local floor, valid_type, VT, VN = math.floor, U.valid_type, M.parse.P.VT, M.parse.P.VN
 local VV, VI, VR = M.parse.P.VV, M.parse.P.VI, M.parse.P.VR
+local LETTER = U.LETTER
 
 local P = M.parse.P
 local LIM = cfg.LIM   -- the limits and their per-capture facts (prefs; the same table for ever)
 local R = M.records
 local PG = wsapi.PG
-local get_rec, carried_store, CARRY, MISS = R.get_rec, R.carried_store, R.CARRY, R.MISS
+local get_rec, carried_store, carried_names, CARRY, MISS = R.get_rec, R.carried_store, R.carried_names, R.CARRY, R.MISS
 
 -- Per-capture state (reset by S.reset)
 local dirs          -- direction key -> direction state
@@ -26,7 +27,7 @@ local dir_cache_key, dir_cache_num, dir_cache_ports -- cache for the current pac
 local last_asrc, last_adst, last_pdir, last_akey     -- addresses of the last packet and their key
 local stamp_ctr = 0
 -- lists_gen: bumped whenever a list a direction with none of its own may use changes (a
--- declaration, a new capture, the preferences); a direction keeps the one it found (d.lsrc) while
+-- declaration, a new capture, the preferences); a direction keeps the one it found (d.lcur) while
 -- d.lgen is the same (speed trick, measured: no three table lookups a frame, list_in_use)
 local lists_gen = 0
 local S = {}
@@ -62,6 +63,15 @@ local function add_dir(byaddr, key)
     return d
 end
 
+-- wsapi's getters (PG) of the attributes read each packet, as upvalues (a table's field is a hash
+-- lookup: speed trick, measured), taken by the entry on the first packet, once wsapi.init has
+-- chosen them (S.take_getters).
+local g_sport, g_dport, g_src, g_dst, g_p2p_dir, g_rel_ts
+function S.take_getters()
+    g_sport, g_dport, g_src, g_dst, g_p2p_dir, g_rel_ts = PG.src_port, PG.dst_port, PG.src, PG.dst, PG.p2p_dir,
+        PG.rel_ts
+end
+
 -- Direction state for (src address, dst address, src port, dst port, letters).
 -- dirs[addresses][ports and letters as one number]; cheap on the per-frame path.
 local function get_dir(pinfo, num, dstb, srcb)
@@ -72,12 +82,11 @@ local function get_dir(pinfo, num, dstb, srcb)
         -- the capture direction keeps the two directions of a serial line apart.  Speed
         -- trick (measured): Address objects compare cheaper than they print, so the key
         -- text is rebuilt only when the addresses differ from the previous packet's.
-        local pg = PG
-        local sport, dport = pg.src_port(pinfo), pg.dst_port(pinfo)
+        local sport, dport = g_sport(pinfo), g_dport(pinfo)
         -- the capture direction only where no port tells the directions apart (a serial line);
         -- a UDP/TCP flow is one direction whatever direction flags its link layer had
-        local asrc, adst = pg.src(pinfo), pg.dst(pinfo)
-        local pdir = (sport == 0 and dport == 0) and pg.p2p_dir(pinfo) or -1
+        local asrc, adst = g_src(pinfo), g_dst(pinfo)
+        local pdir = (sport == 0 and dport == 0) and g_p2p_dir(pinfo) or -1
         local akey
         if pdir == last_pdir and asrc == last_asrc and adst == last_adst then
             akey = last_akey
@@ -256,9 +265,11 @@ do
     journal = { key = fkey, start = start, set = set, missing = missing }
 end
 
--- state_first_pass and its helpers (a block, as parse_frame)
-local state_first_pass
+-- state_data, state_other and their helpers (a block).  lim_hit: the limit the frame being
+-- stored hit ("Limit exceeded: ..." text; false: none), for its record.
+local state_data, state_other
 do
+    local lim_hit = false
     -- The state writer's facts about the current data frame (upvalues, set by data_values):
     -- dv_stamp marks the names it has (d.seen), dv_present counts them (distinct known names),
     -- dv_ne the carried values of its empty D fields in CARRY, dv_maxslot its highest positional
@@ -279,7 +290,7 @@ do
                 st = 0
             else
                 -- a new name past max_names: no state
-                LIM.hit = "Limit exceeded: more than " .. LIM.max_names ..
+                lim_hit = "Limit exceeded: more than " .. LIM.max_names ..
                     " names in this direction (max_names)"
             end
         end
@@ -357,6 +368,7 @@ do
     -- direction learns another name (speed trick, measured: a compressed stream's deltas).
     local function known_subset(d, named)
         local names = d.names
+        if #names > JOURNAL_NAMES and not d.over then return nil end   -- a journal's (data_values)
         local cache = d.subsets
         local sub = cache and cache[named]
         if sub and sub.count == #names then return sub end
@@ -390,11 +402,23 @@ do
     -- A named layout's values go into the direction (its names are known ones) by the layout's
     -- store code, named.store (parse's layout_store, made with its fill code).
 
+    -- After store_values (miss_n named variables carried): whether the direction's names are now
+    -- the whole set of the frame's named layout (d.names_is), and the frame's verdicts, full and
+    -- full_local (see data_values).
+    local function stored_verdict(d, named, good, miss_n, full_local)
+        if named and good and miss_n == 0 and #d.names == named.n then d.names_is = named.N end
+        local n_ord = P.n_ord
+        local full = P.nd > 0 and (n_ord == nil or n_ord == 0) and not dv_required and miss_n == 0
+        if P.n_pos == 0 then full_local = full_local and miss_n == 0 end
+        return full, full_local
+    end
+
     -- State, first pass, a data frame: its values go into the direction's state (good checksum),
     -- what it leaves out is gathered in CARRY (empty D fields: value, frame, ...; ne entries) and
     -- MISS (named variables: name, value, frame, ...; nm entries).  Returns whether it is full,
-    -- ne, nm, the number of named variables carried, full_local (the verdict without state), and
-    -- whether the direction keeps a journal.
+    -- ne, nm, the number of named variables carried, full_local (the verdict without state), nm for
+    -- the record (0 for a journal's), and for a layout of known names, the names it carries
+    -- (known_subset; nm is 0 then without a tree).
     local function data_values(d, list, num, sk, good, full_local, has_tree)
         local named = P.named
         local hist, key = d.hist, nil
@@ -402,25 +426,11 @@ do
             key = journal.key(num, sk)
             if not hist and not d.over then hist = journal.start(d, key) end
         end
-        if good and named and not hist then
-            -- a layout of known names: its values stored; the direction's other names carried
-            -- (none: the whole known set)
-            if d.names_is == named.N then
-                named.store(d.vals, d.from, num)
-                return full_local, 0, 0, 0, full_local, false
-            end
-            local sub = known_subset(d, named)
-            if sub then
-                named.store(d.vals, d.from, num)
-                return false, 0, carried_subset(d, sub.names), #sub.names, false, false
-            end
-        end
         local nm, miss_n = store_values(d, list, num, sk, good, has_tree, hist, key)
-        if named and good and miss_n == 0 and #d.names == named.n then d.names_is = named.N end
-        local n_ord = P.n_ord
-        local full = P.nd > 0 and (n_ord == nil or n_ord == 0) and not dv_required and miss_n == 0
-        if P.n_pos == 0 then full_local = full_local and miss_n == 0 end
-        return full, dv_ne, nm, miss_n, full_local, hist ~= nil
+        local full
+        full, full_local = stored_verdict(d, named, good, miss_n, full_local)
+        -- a journal's carried names go in no record (see journal)
+        return full, dv_ne, nm, miss_n, full_local, hist and 0 or nm, nil
     end
 
     -- The carried values of empty D fields (CARRY, ne) and named ones (MISS, nm) into a table record.
@@ -433,16 +443,41 @@ do
         end
     end
 
+    -- The record of a data frame that carries values (or whose kind the fields alone do not tell:
+    -- a record with its kind; see data_record): a packed text line unless the frame has a table
+    -- record anyway.  Returns the record (nil: a line).
+    local function data_carried(rec, d, num, sk, ne, nm, sub, kch)
+        if sub then
+            if rec or not carried_names(num, sk, sub, d.vals, d.from) then   -- (kch: "d", a delta)
+                if nm == 0 then nm = carried_subset(d, sub) end
+                rec = rec or get_rec(num, sk, true)
+                carried_record(rec, ne, nm)
+            end
+        elseif ne > 0 or nm > 0 then
+            if rec or not carried_store(num, sk, ne, nm, kch) then
+                rec = rec or get_rec(num, sk, true)
+                carried_record(rec, ne, nm)
+            end
+        else
+            rec = rec or get_rec(num, sk, true)
+        end
+        return rec
+    end
+
     -- State, first pass, a data frame: the sync clock, and the record later passes read (late
-    -- sync, carried values, a kind the fields alone do not tell).  Returns the record and kind.
+    -- sync, carried values, a kind the fields alone do not tell).  Returns state_data's answers (the
+    -- kind, the record, and list, d, miss_n, ne and tree_nm as given: a tail call).
     -- The sync clock: a full frame (good checksum) sets it; a delta past the interval is late.
-    -- rec: a table record made already (a limit's expert), else nil.
-    local function data_record(pinfo, d, num, sk, full, full_local, good, ne, nm, rec)
-        local now = PG.rel_ts(pinfo)
+    -- nm: MISS's entries for the record (0: none, or a journal's, which go in no record).  sub: the
+    -- names a layout of known names carries (data_values), their values in the direction, else
+    -- nil.  A frame past a limit (lim_hit) gets a table record with it.
+    local function data_record(pinfo, d, num, sk, full, full_local, cs_status, ne, nm, sub, list, miss_n, tree_nm)
+        local rec = lim_hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
+        local now = g_rel_ts(pinfo)
         local first = d.first
         if not first then first = now; d.first = now end
         if full then
-            if good then d.lastfull = now end
+            if cs_status ~= 0 then d.lastfull = now end   -- a good checksum (or none)
         else
             local age = now - (d.lastfull or first)
             if age > cfg.sync then
@@ -451,18 +486,12 @@ do
             end
         end
         local kch = full and "f" or "d"
-        -- carried values of empty D fields: a packed text record unless the
-        -- frame has a table record anyway
-        if ne > 0 or nm > 0 then
-            if rec or not carried_store(num, sk, ne, nm, kch) then
-                rec = rec or get_rec(num, sk, true)
-                carried_record(rec, ne, nm)
-            end
-        elseif full ~= full_local then
-            rec = rec or get_rec(num, sk, true)
+        if sub or ne > 0 or nm > 0 or full ~= full_local then rec = data_carried(rec, d, num, sk, ne, nm, sub, kch) end
+        if rec then
+            rec.kind = kch
+            if lim_hit then rec.limit = lim_hit end
         end
-        if rec then rec.kind = kch end
-        return rec, full and "full" or "delta"
+        return full and "full" or "delta", rec, list, d, miss_n, ne, tree_nm
     end
 
     -- State, first pass, a declaration with a good checksum: the list it declares (a list learnt
@@ -505,7 +534,7 @@ do
             if not inbound[rkey] then ninbound = ninbound + 1 end
             inbound[rkey] = newlist
         else
-            LIM.hit = "Limit exceeded: more than " .. LIM.max_conversations ..
+            lim_hit = "Limit exceeded: more than " .. LIM.max_conversations ..
                 " receivers with an inbound list (max_conversations)"
         end
         pair_lists[rl] = newlist
@@ -522,7 +551,7 @@ do
             pending_q[qkey] = rec
             LIM.npend[ak] = (LIM.npend[ak] or 0) + 1
         else
-            LIM.hit = "Limit exceeded: more than " .. LIM.max_pending ..
+            lim_hit = "Limit exceeded: more than " .. LIM.max_pending ..
                 " unanswered queries in this conversation (max_pending)"
         end
     end
@@ -587,21 +616,19 @@ do
         return rec
     end
 
-    -- The list in use in direction d (src to dst); when it changes, the change is remembered (read
-    -- back on later passes: list_at).
-    local function list_in_use(d, num, sk, src, dst)
+    -- The list in use in direction d (src to dst: the address bytes); when it changes, the change
+    -- is remembered (read back on later passes: list_at).  Kept in d.lcur while d.lgen is lists_gen
+    -- (speed trick, measured: a data frame reads two fields, see state_data).
+    local function list_in_use(d, num, sk, dstb, srcb)
         local list = d.list
-        if not list and d.lgen == lists_gen then
-            list = d.lsrc
-        elseif not list then
+        if not list then
             local rkey = d.rkey   -- its receiver's key: addresses, "|", letters src .. dst (made once)
             if not rkey then
-                d.letters = src .. dst
+                d.letters = LETTER[srcb] .. LETTER[dstb]
                 rkey = (d.akey or "") .. "|" .. d.letters
                 d.rkey = rkey
             end
             list = inbound[rkey] or pair_lists[d.letters] or cfg.pairs[d.letters] or cfg.list
-            d.lsrc, d.lgen = list, lists_gen
         end
         local old = d.used_list or cfg.list
         if list ~= old then
@@ -613,16 +640,17 @@ do
             d.used_list = list
             replace_values(d, old, list)
         end
+        d.lcur, d.lgen = list, lists_gen
         return list
     end
 
     local LINKED = { query = true, reply = true, declaration = true }   -- kinds a query/reply link concerns
 
-    -- The frame's record with the limit it hit (LIM.hit), if any.
+    -- The frame's record with the limit it hit (lim_hit), if any.
     local function limit_record(rec, num, sk)
-        if LIM.hit then
+        if lim_hit then
             rec = rec or get_rec(num, sk, true)
-            rec.limit = LIM.hit
+            rec.limit = lim_hit
         end
         return rec
     end
@@ -633,53 +661,63 @@ do
             " (max_conversations); this one keeps none"
     end
 
-    -- State on the first pass, a frame of another kind than data (malformed, reply, query,
-    -- declaration, command...): state_first_pass's answers for it.
-    local function state_other(pinfo, num, sk, kind, good, dstb, srcb, dst, src, addrs_ok)
+    -- State on the first pass, a frame of another kind than data between nodes A-P (malformed,
+    -- reply, query, declaration, command..., or a data frame whose addresses are not nodes A-P:
+    -- kind nil, full or delta as full_local tells; addrs_ok: both addresses are nodes A-P).  Returns
+    -- the kind, the record (nil: none), the list in use, the direction state (malformed, reply),
+    -- and 0, 0, 0 (as state_data's).
+    function state_other(pinfo, num, sk, kind, good, dstb, srcb, addrs_ok, full_local)
+        lim_hit = false
         local rec, list, d = nil, cfg.list, nil
-        if (kind == "malformed" or kind == "reply") and addrs_ok then
+        if not kind then kind = full_local and "full" or "delta" end   -- a data frame, addresses not A-P
+        if not addrs_ok then return kind, nil, list, nil, 0, 0, 0 end
+        if kind == "malformed" or kind == "reply" then
             d = get_dir(pinfo, num, dstb, srcb)
-            if d.over then LIM.hit = over_text() end
-            list = frame_list(list_in_use(d, num, sk, src, dst))
-        elseif kind == "declaration" and addrs_ok and good then
-            learn_declaration(pinfo, num, dstb, srcb, dst, src)
+            if d.over then lim_hit = over_text() end
+            list = frame_list(list_in_use(d, num, sk, dstb, srcb))
+        elseif kind == "declaration" and good then
+            learn_declaration(pinfo, num, dstb, srcb, LETTER[dstb], LETTER[srcb])
         end
-        if LINKED[kind] and addrs_ok and good then
-            rec = link_query_reply(pinfo, num, sk, kind, dst, src, rec)
+        if LINKED[kind] and good then
+            rec = link_query_reply(pinfo, num, sk, kind, LETTER[dstb], LETTER[srcb], rec)
         end
         return kind, limit_record(rec, num, sk), list, d, 0, 0, 0
     end
 
-    -- State on the first pass.  Returns the kind, the record (nil: none), the list in use, the
-    -- direction state (data frames), the named variables carried, and ne/nm (see data_values).
-    function state_first_pass(pinfo, num, sk, kind, is_data, good, dstb, srcb, dst, src, addrs_ok, full_local,
-                              has_tree)
-        LIM.hit = false
-        if is_data and addrs_ok then
-            -- a data frame (not a kind LINKED)
-            local d = get_dir(pinfo, num, dstb, srcb)
-            if d.over then LIM.hit = over_text() end
-            local list = list_in_use(d, num, sk, src, dst)
-            if list.by_length and P.n_pos > 0 then list = frame_list(list) end
-            local named, full, ne, nm, miss_n, journaled = P.named, full_local, 0, 0, 0, false
-            if good and named and d.names_is == named.N and not d.hist then
-                -- a layout of the direction's whole known set (data_values' first case, the
-                -- commonest frame): its values stored, nothing carried
-                named.store(d.vals, d.from, num)
-            else
-                full, ne, nm, miss_n, full_local, journaled = data_values(d, list, num, sk, good, full_local, has_tree)
-            end
-            -- a journal's carried names go in no record (see journal)
-            local rec
-            rec, kind = data_record(pinfo, d, num, sk, full, full_local, good, ne, journaled and 0 or nm,
-                LIM.hit and get_rec(num, sk, true) or nil)
-            if LIM.hit then
-                rec = rec or get_rec(num, sk, true)
-                rec.limit = LIM.hit
-            end
-            return kind, rec, list, d, miss_n, ne, nm
+    -- State on the first pass, a data frame between nodes A-P (cs_status: its checksum verdict, 0
+    -- bad; tree: nil when there is none).  Returns the kind, the record (nil: none), the list in
+    -- use, the direction state, the named variables carried, and ne/nm (see data_values).
+    function state_data(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
+        lim_hit = false
+        local d = get_dir(pinfo, num, dstb, srcb)
+        if d.over then lim_hit = over_text() end
+        local list = d.lcur
+        if d.lgen ~= lists_gen then list = list_in_use(d, num, sk, dstb, srcb) end
+        if P.n_pos > 0 and list.by_length then list = frame_list(list) end
+        local named, full, ne, nm, miss_n, rec_nm, sub = P.named, full_local, 0, 0, 0, 0, nil
+        -- a layout of known names (good checksum, no journal): its values stored; with the
+        -- direction's whole known set nothing is carried (the commonest frame), with a subset the
+        -- direction's other names are, into MISS only for a tree (data_record reads them from the
+        -- direction itself: speed trick, measured)
+        local known = cs_status ~= 0 and named and not d.hist   -- true: the whole known set
+        if known and d.names_is ~= named.N then
+            -- else a subset? (known_subset's cache read here: one call a delta less)
+            known = d.subsets
+            known = known and known[named]
+            if not (known and known.count == #d.names) then known = known_subset(d, named) end
         end
-        return state_other(pinfo, num, sk, kind, good, dstb, srcb, dst, src, addrs_ok)
+        if known then
+            named.store(d.vals, d.from, num)
+            if known ~= true then
+                sub = known.names
+                full, full_local, miss_n = false, false, #sub
+                if tree then nm = carried_subset(d, sub); rec_nm = nm end
+            end
+        else
+            full, ne, nm, miss_n, full_local, rec_nm, sub = data_values(d, list, num, sk, cs_status ~= 0,
+                full_local, tree ~= nil)
+        end
+        return data_record(pinfo, d, num, sk, full, full_local, cs_status, ne, rec_nm, sub, list, miss_n, nm)
     end
 end
 
@@ -727,5 +765,5 @@ end
 
 S.get_dir, S.list_at, S.journal, S.JOURNAL_NAMES = get_dir, list_at, journal, JOURNAL_NAMES
 S.list_type = list_type
-S.state_first_pass, S.state_later_pass = state_first_pass, state_later_pass
+S.state_data, S.state_other, S.state_later_pass = state_data, state_other, state_later_pass
 return S

@@ -117,8 +117,8 @@ function U.nstime_of(d)
     return NSTime.new(secs, ns)
 end
 
--- byte -> its letter as the tree and Info show it (a control byte as \xNN)
-local LETTER = {}
+-- byte -> its letter as the tree and Info show it (a control byte as \xNN; no byte: "?")
+local LETTER = setmetatable({}, { __index = function() return "?" end })   -- nil (cut short): "?"
 U.LETTER = LETTER
 for b = 0, 255 do
     if b >= 32 and b <= 126 then LETTER[b] = string.char(b) else LETTER[b] = s_format("\\x%02x", b) end

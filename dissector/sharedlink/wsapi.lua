@@ -49,19 +49,6 @@ end
 for _, m in ipairs(TI_METHODS) do TI[m] = method(TreeItem, m) end
 wsapi.tvb_raw = method(Tvb, "raw")
 
-function wsapi.init(pinfo, tree, tvb)
-    for _, name in ipairs({ "number", "visited", "rel_ts", "src_port", "dst_port", "src", "dst", "cols",
-        "p2p_dir" }) do
-        PG[name] = getter(pinfo, name)
-    end
-    for _, name in ipairs({ "hidden", "visible" }) do PG[name] = getter(tree, name) end
-    for _, m in ipairs(TI_METHODS) do
-        if tree[m] ~= TI[m] then TI[m] = function(o, ...) return o[m](o, ...) end end
-    end
-    if tvb.raw ~= wsapi.tvb_raw then wsapi.tvb_raw = function(t, ...) return t:raw(...) end end
-    wsapi.ready = true
-end
-
 -- (3) "No tree at all" (tshark's summary pass): a TreeItem does not say so directly.  Its text
 -- is nil both with no tree and with the sparse tree of -T fields / -Y on 4.6, but its
 -- tostring() tells "has subtree=false" only when there is no tree (4.0 to 4.6).  Speed trick
@@ -73,6 +60,23 @@ local hidden_tells = major ~= nil and (major < 4 or (major == 4 and minor < 6))
 function wsapi.no_tree(tree)
     if hidden_tells then return not PG.hidden(tree) end
     return s_find(tostring(tree), "has subtree=false", 1, true) ~= nil
+end
+-- wsapi.has_tree(tree), not no_tree(tree), set by init: before 4.6 the getter of "hidden" itself
+-- (speed trick, measured: no Lua call between the entry and it).
+local function has_tree(tree) return not wsapi.no_tree(tree) end
+
+function wsapi.init(pinfo, tree, tvb)
+    for _, name in ipairs({ "number", "visited", "rel_ts", "src_port", "dst_port", "src", "dst", "cols",
+        "p2p_dir" }) do
+        PG[name] = getter(pinfo, name)
+    end
+    for _, name in ipairs({ "hidden", "visible" }) do PG[name] = getter(tree, name) end
+    for _, m in ipairs(TI_METHODS) do
+        if tree[m] ~= TI[m] then TI[m] = function(o, ...) return o[m](o, ...) end end
+    end
+    if tvb.raw ~= wsapi.tvb_raw then wsapi.tvb_raw = function(t, ...) return t:raw(...) end end
+    wsapi.has_tree = hidden_tells and PG.hidden or has_tree
+    wsapi.ready = true
 end
 
 -- (4) The referenced-field probe.  In a tree nobody sees, Wireshark adds a field only when a
