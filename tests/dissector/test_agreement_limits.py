@@ -186,3 +186,31 @@ def test_lua_drops_the_values_of_a_huge_ordinal(tmp_path: Path) -> None:
     lua = lua_frames(_huge_ordinal(tmp_path), None)
     assert [f[0]["kind"] for f in lua] == ["delta", "full", "delta", "delta"]
     assert lua[3][0]["vars"] == [(None, "5", True, False, None, False), (None, "6", True, False, None, False)]
+
+
+# -- a named value without T -------------------------------------------------------------------
+
+#: a vehicle declares Vel double and Lat long, then sends named values with and without T: a
+#: value is typed by the T of its own triplet (BUL-009: "Ttype|Qname|Ddata"), untyped (never
+#: bad) without one, whatever an earlier triplet or the list said; a positional slot by its list
+UNTYPED_AFTER_TYPED = ["AB|N0|T2|QVel|T0|QLat", "AB|N0|QVel|D5", "AB|N0|T4|QVel|D6", "AB|N0|QVel|D7",
+                       "AB|N0|D1|D2", "AB|N0|QLat|D1.5", "AB|N0|T2|QHead|D1|QHead|D2", "BA|QHead", "AB|RHead|D5",
+                       "BA|QLat", "AB|RLat|D1.5"]
+
+
+def test_a_named_value_without_t_is_untyped_alike(tmp_path: Path) -> None:
+    frames = [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
+              for i, x in enumerate(UNTYPED_AFTER_TYPED)]
+    cap = _write(tmp_path / "untyped.pcap", frames)
+    lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
+    assert lua == py
+
+    def sent(i: int) -> list[tuple]:
+        return [v for v in py[i][0]["vars"] if not v[2]]
+    assert sent(1) == [("Vel", "5", False, False, None, False)]
+    assert sent(3) == [("Vel", "7", False, False, None, False)]
+    assert sent(4) == [("Lat", "2", False, False, "long", False), ("Vel", "1", False, False, "double", False)]
+    assert sent(5) == [("Lat", "1.5", False, False, None, False)]
+    assert sent(6) == [("Head", "1", False, False, "double", False), ("Head", "2", False, False, None, False)]
+    assert sent(8) == [("Head", "5", False, False, None, False)]  # a reply: the list's type, Head has none
+    assert sent(10) == [("Lat", "1.5", False, True, None, False)]  # ... Lat's is long: a bad value

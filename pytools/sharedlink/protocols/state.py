@@ -353,8 +353,6 @@ class VariableTable:
                     self.limits.names += 1
                     continue
                 pos = sent[nv.name] = len(sent)
-            if store and nv.name not in self.names and nv.type_code is not None:
-                self.types.setdefault(nv.name, nv.type_code)
             u = self._value(nv.name, nv.type_code, nv.text, number, time_ns, pos, store)
             if u is not None:
                 updates.append(u._replace(bad=True) if nv.bad_type else u)  # "Type is not a number"
@@ -385,7 +383,7 @@ class VariableTable:
                 continue
             if store:
                 self.filled.add(idx)
-            u = self._value(name, None, text, number, time_ns, idx, store)
+            u = self._value(name, self.types.get(name), text, number, time_ns, idx, store)
             if u is not None:
                 updates.append(u)
         if store and vals:
@@ -394,18 +392,22 @@ class VariableTable:
 
     def _value(self, name: str, type_code: int | None, text: str, number: int, time_ns: int, index: int | None,
                store: bool) -> Update | None:
-        """Set (or, not ``store``, show) one value; None when the name is past ``MAX_NAMES``."""
+        """Set (or, not ``store``, show) one value of type ``type_code``; None when the name is
+        past ``MAX_NAMES``. A value's type is what its frame gives it: a named value's the ``T``
+        of its triplet (untyped without one, whatever an earlier triplet of the name said), a
+        positional value's its list's (docs/fields-sharedlink.md, "Values")."""
         if store:
             v = self._var(name, type_code)
             if v is None:
                 return None
+            v.type_code = type_code
             changed = v.text != text
             v.text, v.set_in, v.set_at = text, number, time_ns
         else:
             shown = self._shown
             assert shown is not None
             old = shown.get(name) or self.vars.get(name)
-            tc = type_code if type_code is not None else (old.type_code if old is not None else self.types.get(name))
+            tc = type_code
             changed = (old.text if old is not None else None) != text
             v = shown[name] = Variable(name, tc, text, number, time_ns)
         return _update(v, self._index(name) if index is None else index, False, None, changed)
@@ -467,8 +469,9 @@ class PendingAsks:
     that waits replaces it (a querier that polls one name holds one entry). At most
     ``MAX_PENDING`` entries a querier: a new one past it is refused (not remembered: its answer
     is unmatched) and the frame counted once in ``limits.pending`` (docs/fields-sharedlink.md,
-    "Limits"). At most ``MAX_CONVERSATIONS`` queriers: a new one past it is not remembered (its
-    direction is counted in ``limits.conversations`` by :meth:`LinkState.table`)."""
+    "Limits"). At most ``MAX_CONVERSATIONS`` queriers: a new one past it is refused the same way
+    (nothing of it remembered, the frame counted in ``limits.pending``; its direction may be
+    counted besides in ``limits.conversations`` by :meth:`LinkState.table`, a bound of its own)."""
 
     def __init__(self, limits: LimitCounts | None = None) -> None:
         self._by: dict[Hashable, dict[tuple[str, str], int]] = {}
@@ -476,11 +479,13 @@ class PendingAsks:
 
     def ask(self, key: Hashable, wants: str, names: frozenset[str] | Sequence[str], number: int) -> bool:
         """Frame ``number`` asks ``key``'s peer for ``names`` (``wants`` ``"R"``) or for a list
-        (``"N"``, ``"L"``: no names). False when an entry was refused at ``MAX_PENDING``."""
+        (``"N"``, ``"L"``: no names). False when an entry was refused at ``MAX_PENDING``, or
+        the querier is new past ``MAX_CONVERSATIONS`` queriers (both counted in ``limits.pending``)."""
         asks = self._by.get(key)
         if asks is None:
             if len(self._by) >= MAX_CONVERSATIONS:
-                return True
+                self.limits.pending += 1
+                return False
             asks = self._by[key] = {}
         refused = False
         for name in (names if wants == "R" else ("",)):
