@@ -563,10 +563,19 @@ local function parse_frame(f, fl, terminated, vis, taken)
     parse_reset()
     local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)
     if p then parse_fields(f, p, bodyend) end
-    -- positional slots and declared entries at or past max_slots (their state is dropped)
+    -- positional slots and declared entries at or past max_slots (their state is dropped); a
+    -- named value (a name and its D) is no slot, whatever its index (indexes only grow: the loop
+    -- walks the variables past max_slots only)
     local max_slots = cfg.LIM.max_slots
     if P.nv > 0 and VI[P.nv] >= max_slots and not P.limit then
-        P.odd, P.limit = true, "Limit exceeded: a slot or ordinal at or past " .. max_slots .. " (max_slots)"
+        local decl = P.n_ord or P.l_ord
+        for v = P.nv, 1, -1 do
+            if VI[v] < max_slots then break end
+            if not VN[v] or (decl and not VV[v]) then
+                P.odd, P.limit = true, "Limit exceeded: a slot or ordinal at or past " .. max_slots .. " (max_slots)"
+                break
+            end
+        end
     end
     -- a node pair's frame whose fields carry no expert info teaches the cache its layout
     if p == 6 and not malformed_msg and not P.odd and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P then

@@ -214,3 +214,23 @@ def test_a_named_value_without_t_is_untyped_alike(tmp_path: Path) -> None:
     assert sent(6) == [("Head", "1", False, False, "double", False), ("Head", "2", False, False, None, False)]
     assert sent(8) == [("Head", "5", False, False, None, False)]  # a reply: the list's type, Head has none
     assert sent(10) == [("Lat", "1.5", False, True, None, False)]  # ... Lat's is long: a bad value
+
+
+# -- max_slots: named values are no slots ------------------------------------------------------
+
+
+def test_named_values_past_the_1024th_are_no_slot_limit_hit(tmp_path: Path) -> None:
+    """A beacon of 1,100 named triplets, and one at ordinal 1023 or 2000: a named value has no
+    slot, so neither side calls it past max_slots (the dissector did: its variables' running
+    index passed 1024); every value is shown and stored alike. A positional value and a declared
+    name at slot 1024 still are (frames 4 and 5)."""
+    big = "AB|N0|" + "|".join(f"T2|Qv{i}|D{i}" for i in range(1100))
+    bodies = [big, "AB|N1023|T2|Qv0|D1|T2|Qv1|D2", "AB|N2000|T2|Qv2|D3", "AB|N1023|D1|D2", "BA|N1023|Qa|Qb"]
+    frames = [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
+              for i, x in enumerate(bodies)]
+    cap = _write(tmp_path / "named.pcap", frames)
+    assert _limited(_lua(cap)) == [4, 5]
+    assert capture_stats(cap).limits.to_dict()["slots"] == 2
+    lua, py = lua_frames(cap, None), python_frames(cap, len(bodies), None)
+    assert lua[:3] == py[:3]
+    assert len(py[0][0]["vars"]) == 1100
