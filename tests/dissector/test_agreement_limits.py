@@ -25,7 +25,7 @@ from sharedlink.capture.packets import TcpConversation, UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
 from sharedlink.capture.serial_format import GIVEN_UP
 from sharedlink.capture.stream import iter_frames
-from sharedlink.protocols.limits import MAX_HELD_BYTES, MAX_PENDING
+from sharedlink.protocols.limits import MAX_HELD_BYTES, MAX_NAMES, MAX_PENDING
 
 T0_NS = 1_767_268_800 * 1_000_000_000
 OCU, VEHICLE = ("10.0.0.1", 4000), ("10.0.0.2", 7013)
@@ -154,11 +154,10 @@ def test_numbers_of_ten_digits_alike(tmp_path: Path) -> None:
     # one count a long ordinal (Python counts the values it puts past max_slots in "slots" besides)
     assert _counts(cap)["numbers"] == 2
     # the values with a T that is no type: shown alike (bad, untyped), and the declaration's
-    # slot P0 untyped after it; the frames with a long ordinal are left out (past max_slots Lua
-    # shows the values, Python drops them: see docs/fields-sharedlink.md, "Limits")
-    keep = [i for i in range(len(bodies)) if i not in (2, 3)]
+    # slot P0 untyped after it; the value after a long ordinal shown as sent, stored nowhere
     lua, py = lua_frames(cap, None), python_frames(cap, len(bodies), None)
-    assert [lua[i] for i in keep] == [py[i] for i in keep]
+    assert lua == py
+    assert py[2][0]["vars"] == [(None, "1", False, False, None, False)]
     assert py[0][0]["vars"] == [("Vel", "5", False, True, None, False)]
     assert py[-1][0]["vars"] == [("P0", "5", False, False, None, False), ("P1", "6", False, False, "double", False)]
 
@@ -186,6 +185,47 @@ def test_lua_drops_the_values_of_a_huge_ordinal(tmp_path: Path) -> None:
     lua = lua_frames(_huge_ordinal(tmp_path), None)
     assert [f[0]["kind"] for f in lua] == ["delta", "full", "delta", "delta"]
     assert lua[3][0]["vars"] == [(None, "5", True, False, None, False), (None, "6", True, False, None, False)]
+
+
+# -- max_slots and max_names: shown as sent, stored nowhere -------------------------------------
+
+
+def test_values_past_max_slots_are_shown_as_sent_and_stored_nowhere_alike(tmp_path: Path) -> None:
+    """A vehicle sends slots 1022 to 1025 (two past max_slots), then a full set, then the same
+    slots empty: both sides show the values past the limit as the frame sends them (``#1024``:
+    a value, not carried; an empty one: carried with no value, as no slot holds one), flag the
+    frame, store nothing for them, and carry only the two slots within the limit."""
+    bodies = ["AB|N1022|D1|D2|D3|D4", "AB|N0|D5", "AB|N1022|D|D|D|D", "AB|N0|D6|D7"]
+    cap = _write(tmp_path / "slots.pcap", [_udp(VEHICLE, OCU).frame(_frame(x), i + 1) for i, x in enumerate(bodies)])
+    assert _limited(_lua(cap), "(max_slots)") == [1, 3]
+    assert capture_stats(cap).limits.slots == 4
+    lua, py = lua_frames(cap, None), python_frames(cap, len(bodies), None)
+    assert lua == py
+    assert py[0][0]["vars"] == [(None, x, False, False, None, False) for x in "1234"]
+    assert py[2][0]["vars"] == sorted([(None, None, True, False, None, False)] * 2 + [
+        (None, "1", True, False, None, False), (None, "2", True, False, None, False)], key=repr)
+    ours = [d for d in iter_decoded(cap) if isinstance(d, Decoded)]
+    assert [u.name for u in ours[0].updates] == ["#1022", "#1023"]  # what commands report: the stored slots
+    assert [u.name for u in ours[0].shown] == ["#1022", "#1023", "#1024", "#1025"]
+
+
+def test_a_new_name_past_max_names_is_shown_as_sent_and_stored_nowhere_alike(tmp_path: Path) -> None:
+    """A direction that has sent max_names (4096) names sends two more, one with a T and one
+    without, and a known one: the new names are shown once, typed by their own T, never
+    carried after, and the frame flagged (Lua) / counted (Python, one a value)."""
+    big = "AB|N0|" + "|".join(f"T2|Qn{i}|D1" for i in range(MAX_NAMES))
+    bodies = [big, "AB|N0|T2|QZ|D5|T2|Qn0|D2", "AB|N0|QY|D6", "AB|N0|T2|Qn1|D3"]
+    cap = _write(tmp_path / "names.pcap", [_udp(VEHICLE, OCU).frame(_frame(x), i + 1) for i, x in enumerate(bodies)])
+    assert _limited(_lua(cap)) == _limited(_lua(cap), "(max_names)") == [2, 3]
+    assert capture_stats(cap).limits.names == 2
+    lua, py = lua_frames(cap, None), python_frames(cap, len(bodies), None)
+    assert lua == py
+    assert [v for v in py[1][0]["vars"] if not v[2]] == [("Z", "5", False, False, "double", False),
+                                                         ("n0", "2", False, False, "double", False)]
+    assert [v for v in py[2][0]["vars"] if not v[2]] == [("Y", "6", False, False, None, False)]
+    assert not any(v[0] in ("Y", "Z") for v in py[3][0]["vars"])
+    ours = [d for d in iter_decoded(cap) if isinstance(d, Decoded)]
+    assert not any(u.name in ("Y", "Z") for d in ours for u in d.updates)
 
 
 # -- a named value without T -------------------------------------------------------------------
@@ -234,3 +274,4 @@ def test_named_values_past_the_1024th_are_no_slot_limit_hit(tmp_path: Path) -> N
     lua, py = lua_frames(cap, None), python_frames(cap, len(bodies), None)
     assert lua[:3] == py[:3]
     assert len(py[0][0]["vars"]) == 1100
+

@@ -165,6 +165,9 @@ class VariableTable:
     unlisted: bool = False  # (by_length) the last positional frame had another length: ``names`` are #i
     own: VarSource | None = None  # the list this conversation declared itself (LinkState)
     declared: bool = False  # the list in use was learnt from a declaration (slots past it: past_list)
+    #: the values the last apply or preview dropped at a limit (a slot past MAX_SLOTS, a new name
+    #: past MAX_NAMES), as the frame shows them (never stored, never in the returned updates)
+    dropped: list[Update] = field(default_factory=list, repr=False, compare=False)
     _shown: dict[str, Variable] | None = field(default=None, repr=False, compare=False)  # preview's values
 
     @classmethod
@@ -258,7 +261,7 @@ class VariableTable:
         """The variable ``name`` (made when new); None for a new name past ``MAX_NAMES``."""
         v = self.vars.get(name)
         if v is None:
-            if len(self.vars) >= MAX_NAMES:
+            if len(self.vars) >= MAX_NAMES + MAX_SLOTS:  # (named names are bounded in _named, list names by MAX_SLOTS)
                 self.limits.names += 1
                 return None
             v = self.vars[name] = Variable(name, type_code if type_code is not None else self.types.get(name))
@@ -305,6 +308,8 @@ class VariableTable:
 
     def _apply(self, frame: Frame, number: int, time_ns: int, carried: bool, store: bool) -> list[Update]:
         self._shown = None if store else {}  # a preview: the values shown so far, over the table
+        if self.dropped:
+            self.dropped = []
         kind = self.kind(frame)
         fields = frame.fields
         if kind == "declaration":
@@ -349,8 +354,9 @@ class VariableTable:
             seen.add(nv.name)
             pos = sent.get(nv.name)
             if pos is None:
-                if store and nv.name not in self.vars and len(self.vars) >= MAX_NAMES:
+                if store and len(sent) >= MAX_NAMES:
                     self.limits.names += 1
+                    self._drop(nv.name, None, nv.text, nv.type_code, nv.bad_type)
                     continue
                 pos = sent[nv.name] = len(sent)
             u = self._value(nv.name, nv.type_code, nv.text, number, time_ns, pos, store)
@@ -373,6 +379,8 @@ class VariableTable:
             if idx >= MAX_SLOTS:
                 if store:
                     self.limits.slots += len(vals) - i
+                for j, past in enumerate(vals[i:], idx):
+                    self._drop(placeholder(j), j, past, None, False)
                 break
             name = self.slot_name(idx, frame_slots)
             if text is None:
@@ -411,6 +419,15 @@ class VariableTable:
             changed = (old.text if old is not None else None) != text
             v = shown[name] = Variable(name, tc, text, number, time_ns)
         return _update(v, self._index(name) if index is None else index, False, None, changed)
+
+    def _drop(self, name: str, index: int | None, text: str | None, type_code: int | None, bad_type: bool) -> None:
+        """A value dropped at a limit, as its frame shows it (:attr:`dropped`): sent (an empty
+        positional ``D``: carried with no value), never stored."""
+        if text is None:
+            self.dropped.append(Update(name, index, None, True, None, False))
+            return
+        bad = bad_type or not parse_typed(type_code, text)[1]
+        self.dropped.append(Update(name, index, text, False, None, True, type_code, bad))
 
     def _index(self, name: str) -> int | None:
         return self.slot_of.get(name)
@@ -557,6 +574,8 @@ class LinkState:
     pair_lists: dict[tuple[str, str], VarSource] = field(default_factory=dict)  # the letter pair's latest declaration
     inbound: dict[Hashable, VarSource] = field(default_factory=dict)  # receiver_key -> its inbound (L) list
     limits: LimitCounts = field(default_factory=LimitCounts)  # input dropped at a bound, every table's
+    #: the values the last :meth:`apply` dropped at a limit, as the frame shows them (VariableTable.dropped)
+    dropped: list[Update] = field(default_factory=list, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         every, pairs = split(self.default_list)
@@ -593,7 +612,11 @@ class LinkState:
               carried: bool = True) -> list[Update]:
         decl = declared_list(frame.fields)
         if decl is None:
-            return self.table(frame.src, frame.dst, conv).apply(frame, number, time_ns, carried)
+            t = self.table(frame.src, frame.dst, conv)
+            ups = t.apply(frame, number, time_ns, carried)
+            self.dropped = t.dropped
+            return ups
+        self.dropped = []
         which, ordinal, names = decl
         if which == "N":  # the sender's outbound list: its own conversation's
             t = self.table(frame.src, frame.dst, conv)
