@@ -275,3 +275,26 @@ def test_named_values_past_the_1024th_are_no_slot_limit_hit(tmp_path: Path) -> N
     assert lua[:3] == py[:3]
     assert len(py[0][0]["vars"]) == 1100
 
+
+# -- an ordinal that is not decimal digits ---------------------------------------------------------
+
+#: ordinals Lua's tonumber reads and a decimal reading does not (hex, exponent, sign, fraction),
+#: and ones that are no number: each is no ordinal (its values from slot 0, never a full set),
+#: so 1e9 and 1023.0 are no slot past max_slots, and 0x1 declares from slot 0
+ODD_ORDINALS = ["AB|N0|T2|QA|T2|QB", "AB|N?|D1|D2", "AB|N|D1|D2", "AB|Nx|D1|D2", "AB|N+0|D1|D2", "AB|N00|D3|D4",
+                "AB|N1023.0|D5|D6", "AB|N?|T2|QA|D1|T2|QB|D2", "AB|N1e9|D7", "AB|N0x1|T2|QY", "AB|N0|D1|D2",
+                "BA|L+1|T2|QZ", "BA|N5.5|D1"]
+
+
+def test_an_ordinal_that_is_not_decimal_digits_is_no_number_alike(tmp_path: Path) -> None:
+    frames = [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
+              for i, x in enumerate(ODD_ORDINALS)]
+    cap = _write(tmp_path / "ordinals.pcap", frames)
+    rows = _lua(cap)
+    assert _limited(rows) == []
+    assert capture_stats(cap).limits.total == 0
+    lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
+    assert lua == py
+    assert [f[0]["kind"] for f in py[1:9]] == ["delta", "delta", "delta", "delta", "full", "delta", "delta", "delta"]
+    assert py[8][0]["vars"][0] == ("A", "7", False, False, "double", False)  # 1e9 is no slot 10^9
+    assert [v[0] for v in py[10][0]["vars"]] == ["Y", None]  # 0x1 declared Y at slot 0
