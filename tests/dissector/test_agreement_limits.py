@@ -298,3 +298,27 @@ def test_an_ordinal_that_is_not_decimal_digits_is_no_number_alike(tmp_path: Path
     assert [f[0]["kind"] for f in py[1:9]] == ["delta", "delta", "delta", "delta", "full", "delta", "delta", "delta"]
     assert py[8][0]["vars"][0] == ("A", "7", False, False, "double", False)  # 1e9 is no slot 10^9
     assert [v[0] for v in py[10][0]["vars"]] == ["Y", None]  # 0x1 declared Y at slot 0
+
+
+
+# -- a declaration that shortens the list under waiting asks -----------------------------------
+
+#: an OCU declares a, b, c, fills them, shortens its list to a before the vehicle's reply to both
+#: declarations comes (the reply links to the latest ask of each name), then declares z at slot 1
+#: and x, y at 1023 and 1024 (y past max_slots: not in the list, its ask still waits)
+SHORTENED = ["BA|N0|T2|Qa|T2|Qb|T2|Qc", "BA|N0|D1|D2|D3", "BA|N0|T2|Qa", "AB|N0|Ra|D1|Rb|D2|Rc|D3", "BA|N0|D4",
+             "BA|N0|D|D|D", "BA|N1|T0|Qz", "BA|N0|D|D|D", "AB|Rz|D5", "BA|L0|T2|Qq", "AB|N0|D9|D8",
+             "BA|N1023|T2|Qx|T2|Qy", "BA|N0|D|D", "AB|Rx|D1|Ry|D2"]
+
+
+def test_a_shortened_list_under_waiting_asks_alike(tmp_path: Path) -> None:
+    frames = [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
+              for i, x in enumerate(SHORTENED)]
+    cap = _write(tmp_path / "shortened.pcap", frames)
+    lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
+    assert lua == py
+    rows = _lua(cap, ("sharedlink.response_to",))
+    ours = [d.response_to for d in iter_decoded(cap) if isinstance(d, Decoded)]
+    assert [max(map(int, r["sharedlink.response_to"]), default=None) for r in rows] == ours
+    assert _limited(rows) == [12]
+    assert ours[3] == 3 and ours[8] == 7 and ours[13] == 12

@@ -408,9 +408,14 @@ class VariableTable:
             v = self._var(name, type_code)
             if v is None:
                 return None
-            v.type_code = type_code
+            # a listed name's Variable keeps its list's type (what its positional values and the
+            # fast paths read); a named value of it gets its triplet's type on its Update only
+            v.type_code = self.types.get(name) if name in self.slot_of else type_code
             changed = v.text != text
             v.text, v.set_in, v.set_at = text, number, time_ns
+            if v.type_code != type_code:
+                u = _update(v, self._index(name) if index is None else index, False, None, changed)
+                return u._replace(type_code=type_code, bad=not parse_typed(type_code, text)[1])
         else:
             shown = self._shown
             assert shown is not None
