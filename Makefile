@@ -25,7 +25,8 @@ help:
 	@echo "make install   put the dissectors, the serial extcap and the coloring rules into your personal Wireshark folders"
 	@echo "make uninstall remove them again"
 	@echo "make test-matrix  the tshark tests on Wireshark 4.0, 4.4 and 4.6 (root filesystems built once)"
-	@echo "make fuzz      the long fuzz run of the dissectors and the Python parsers"
+	@echo "make fuzz      the long fuzz run of the dissectors and the Python parsers (about 3.5 h on 2 busy cores;"
+	@echo "               FUZZ_ARGS=\"--seeds 5 --random 500 --codec-runs 5000 --jobs 1\": 50 min; docs/testing.md)"
 	@echo "make mutate    mutation testing of the core modules (share of mutants killed)"
 
 # --- set-up ------------------------------------------------------------------------------

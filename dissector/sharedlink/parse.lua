@@ -59,7 +59,7 @@ local MARKS = { fast = wsapi.env.fast_mark, fast_hit = false }
 
 local function parse_reset()
     P.nf, P.nv = 0, 0
-    P.n_ord, P.l_ord, P.n_text, P.huge_ord = nil, nil, nil, nil
+    P.n_ord, P.l_ord, P.n_text, P.huge_ord, P.n_nan = nil, nil, nil, nil, nil
     P.has_e, P.has_m, P.has_p, P.has_g, P.has_r = false, false, false, false, false
     P.nq, P.nd, P.n_empty_d, P.n_pos = 0, 0, 0, 0
     P.cpos, P.ctext, P.cmd_start, P.ord_text = nil, nil, nil, false
@@ -147,6 +147,18 @@ local function ordinal_ok(text)
     return n and n >= 0 and n < 4294967296 and n == floor(n)
 end
 
+-- An ordinal as the state reads it: decimal digits only (as a T, and as Python's
+-- codec.parse_int: +5, 1e3, 0x10 or 5.5 are no number: 0, the field odd, and an N that is no
+-- number makes no full set, P.n_nan), else to_ordinal's.
+local function state_ordinal(text, c)
+    if text == "" or s_find(text, "[^0-9]") then
+        P.odd = true
+        if c == L_N then P.n_nan = true end
+        return 0
+    end
+    return to_ordinal(text)
+end
+
 -- An N or L field: its ordinal sets the next variable's index (the first one of each only).
 local function take_ordinal(c, t1)
     if not ordinal_ok(t1) then P.odd = true end
@@ -156,11 +168,11 @@ local function take_ordinal(c, t1)
     end
     if c == L_N then
         if P.n_ord then return end
-        P.n_ord, P.n_text = to_ordinal(t1), t1
+        P.n_ord, P.n_text = state_ordinal(t1, c), t1
         g_idx = P.n_ord
     else
         if P.l_ord then return end
-        P.l_ord = to_ordinal(t1)
+        P.l_ord = state_ordinal(t1, c)
         g_idx = P.l_ord
     end
     -- past max_slots whatever to_ordinal keeps (an unset 32-bit field, N4294967295): its slots
@@ -501,10 +513,19 @@ local function parse_fields_of(f, fl, terminated)
     parse_reset()
     local bodyend, dstb, srcb, p, malformed_msg = parse_header(f, fl, terminated)
     if p then parse_fields(f, p, bodyend) end
-    -- positional slots and declared entries at or past max_slots (their state is dropped)
+    -- positional slots and declared entries at or past max_slots (their state is dropped); a
+    -- named value (a name and its D) is no slot, whatever its index (indexes only grow: the loop
+    -- walks the variables past max_slots only)
     local max_slots = cfg.LIM.max_slots
     if P.nv > 0 and VI[P.nv] >= max_slots and not P.limit then
-        P.odd, P.limit = true, "Limit exceeded: a slot or ordinal at or past " .. max_slots .. " (max_slots)"
+        local decl = P.n_ord or P.l_ord
+        for v = P.nv, 1, -1 do
+            if VI[v] < max_slots then break end
+            if not VN[v] or (decl and not VV[v]) then
+                P.odd, P.limit = true, "Limit exceeded: a slot or ordinal at or past " .. max_slots .. " (max_slots)"
+                break
+            end
+        end
     end
     -- a node pair's frame whose fields carry no expert info teaches the cache its layout
     if p == 6 and not malformed_msg and not P.odd and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P then

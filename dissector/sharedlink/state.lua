@@ -336,8 +336,9 @@ do
     -- Every value of the frame into the state; returns nm and the number of named variables carried.
     local function store_values(d, list, num, sk, good, has_tree, hist, key)
         stamp_ctr = stamp_ctr + 1
-        -- an N past to_ordinal's range (P.huge_ord) stores nothing and is never a full set
-        dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = stamp_ctr, 0, 0, -1, P.huge_ord or false
+        -- an N past to_ordinal's range (P.huge_ord) stores nothing and is never a full set; nor is
+        -- one that is no number (P.n_nan: N?, Nx, N+0; its values stored from slot 0)
+        dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = stamp_ctr, 0, 0, -1, P.huge_ord or P.n_nan or false
         local max_slots = LIM.max_slots
         for v = 1, P.nv do
             local val = VV[v]

@@ -25,7 +25,7 @@ from sharedlink.capture.packets import TcpConversation, UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
 from sharedlink.capture.serial_format import GIVEN_UP
 from sharedlink.capture.stream import iter_frames
-from sharedlink.protocols.limits import MAX_HELD_BYTES, MAX_PENDING
+from sharedlink.protocols.limits import MAX_HELD_BYTES, MAX_NAMES, MAX_PENDING
 
 T0_NS = 1_767_268_800 * 1_000_000_000
 OCU, VEHICLE = ("10.0.0.1", 4000), ("10.0.0.2", 7013)
@@ -154,11 +154,10 @@ def test_numbers_of_ten_digits_alike(tmp_path: Path) -> None:
     # one count a long ordinal (Python counts the values it puts past max_slots in "slots" besides)
     assert _counts(cap)["numbers"] == 2
     # the values with a T that is no type: shown alike (bad, untyped), and the declaration's
-    # slot P0 untyped after it; the frames with a long ordinal are left out (past max_slots Lua
-    # shows the values, Python drops them: see docs/fields-sharedlink.md, "Limits")
-    keep = [i for i in range(len(bodies)) if i not in (2, 3)]
+    # slot P0 untyped after it; the value after a long ordinal shown as sent, stored nowhere
     lua, py = lua_frames(cap, None), python_frames(cap, len(bodies), None)
-    assert [lua[i] for i in keep] == [py[i] for i in keep]
+    assert lua == py
+    assert py[2][0]["vars"] == [(None, "1", False, False, None, False)]
     assert py[0][0]["vars"] == [("Vel", "5", False, True, None, False)]
     assert py[-1][0]["vars"] == [("P0", "5", False, False, None, False), ("P1", "6", False, False, "double", False)]
 
@@ -186,3 +185,140 @@ def test_lua_drops_the_values_of_a_huge_ordinal(tmp_path: Path) -> None:
     lua = lua_frames(_huge_ordinal(tmp_path), None)
     assert [f[0]["kind"] for f in lua] == ["delta", "full", "delta", "delta"]
     assert lua[3][0]["vars"] == [(None, "5", True, False, None, False), (None, "6", True, False, None, False)]
+
+
+# -- max_slots and max_names: shown as sent, stored nowhere -------------------------------------
+
+
+def test_values_past_max_slots_are_shown_as_sent_and_stored_nowhere_alike(tmp_path: Path) -> None:
+    """A vehicle sends slots 1022 to 1025 (two past max_slots), then a full set, then the same
+    slots empty: both sides show the values past the limit as the frame sends them (``#1024``:
+    a value, not carried; an empty one: carried with no value, as no slot holds one), flag the
+    frame, store nothing for them, and carry only the two slots within the limit."""
+    bodies = ["AB|N1022|D1|D2|D3|D4", "AB|N0|D5", "AB|N1022|D|D|D|D", "AB|N0|D6|D7"]
+    cap = _write(tmp_path / "slots.pcap", [_udp(VEHICLE, OCU).frame(_frame(x), i + 1) for i, x in enumerate(bodies)])
+    assert _limited(_lua(cap), "(max_slots)") == [1, 3]
+    assert capture_stats(cap).limits.slots == 4
+    lua, py = lua_frames(cap, None), python_frames(cap, len(bodies), None)
+    assert lua == py
+    assert py[0][0]["vars"] == [(None, x, False, False, None, False) for x in "1234"]
+    assert py[2][0]["vars"] == sorted([(None, None, True, False, None, False)] * 2 + [
+        (None, "1", True, False, None, False), (None, "2", True, False, None, False)], key=repr)
+    ours = [d for d in iter_decoded(cap) if isinstance(d, Decoded)]
+    assert [u.name for u in ours[0].updates] == ["#1022", "#1023"]  # what commands report: the stored slots
+    assert [u.name for u in ours[0].shown] == ["#1022", "#1023", "#1024", "#1025"]
+
+
+def test_a_new_name_past_max_names_is_shown_as_sent_and_stored_nowhere_alike(tmp_path: Path) -> None:
+    """A direction that has sent max_names (4096) names sends two more, one with a T and one
+    without, and a known one: the new names are shown once, typed by their own T, never
+    carried after, and the frame flagged (Lua) / counted (Python, one a value)."""
+    big = "AB|N0|" + "|".join(f"T2|Qn{i}|D1" for i in range(MAX_NAMES))
+    bodies = [big, "AB|N0|T2|QZ|D5|T2|Qn0|D2", "AB|N0|QY|D6", "AB|N0|T2|Qn1|D3"]
+    cap = _write(tmp_path / "names.pcap", [_udp(VEHICLE, OCU).frame(_frame(x), i + 1) for i, x in enumerate(bodies)])
+    assert _limited(_lua(cap)) == _limited(_lua(cap), "(max_names)") == [2, 3]
+    assert capture_stats(cap).limits.names == 2
+    lua, py = lua_frames(cap, None), python_frames(cap, len(bodies), None)
+    assert lua == py
+    assert [v for v in py[1][0]["vars"] if not v[2]] == [("Z", "5", False, False, "double", False),
+                                                         ("n0", "2", False, False, "double", False)]
+    assert [v for v in py[2][0]["vars"] if not v[2]] == [("Y", "6", False, False, None, False)]
+    assert not any(v[0] in ("Y", "Z") for v in py[3][0]["vars"])
+    ours = [d for d in iter_decoded(cap) if isinstance(d, Decoded)]
+    assert not any(u.name in ("Y", "Z") for d in ours for u in d.updates)
+
+
+# -- a named value without T -------------------------------------------------------------------
+
+#: a vehicle declares Vel double and Lat long, then sends named values with and without T: a
+#: value is typed by the T of its own triplet (BUL-009: "Ttype|Qname|Ddata"), untyped (never
+#: bad) without one, whatever an earlier triplet or the list said; a positional slot by its list
+UNTYPED_AFTER_TYPED = ["AB|N0|T2|QVel|T0|QLat", "AB|N0|QVel|D5", "AB|N0|T4|QVel|D6", "AB|N0|QVel|D7",
+                       "AB|N0|D1|D2", "AB|N0|QLat|D1.5", "AB|N0|T2|QHead|D1|QHead|D2", "BA|QHead", "AB|RHead|D5",
+                       "BA|QLat", "AB|RLat|D1.5"]
+
+
+def test_a_named_value_without_t_is_untyped_alike(tmp_path: Path) -> None:
+    frames = [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
+              for i, x in enumerate(UNTYPED_AFTER_TYPED)]
+    cap = _write(tmp_path / "untyped.pcap", frames)
+    lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
+    assert lua == py
+
+    def sent(i: int) -> list[tuple]:
+        return [v for v in py[i][0]["vars"] if not v[2]]
+    assert sent(1) == [("Vel", "5", False, False, None, False)]
+    assert sent(3) == [("Vel", "7", False, False, None, False)]
+    assert sent(4) == [("Lat", "2", False, False, "long", False), ("Vel", "1", False, False, "double", False)]
+    assert sent(5) == [("Lat", "1.5", False, False, None, False)]
+    assert sent(6) == [("Head", "1", False, False, "double", False), ("Head", "2", False, False, None, False)]
+    assert sent(8) == [("Head", "5", False, False, None, False)]  # a reply: the list's type, Head has none
+    assert sent(10) == [("Lat", "1.5", False, True, None, False)]  # ... Lat's is long: a bad value
+
+
+# -- max_slots: named values are no slots ------------------------------------------------------
+
+
+def test_named_values_past_the_1024th_are_no_slot_limit_hit(tmp_path: Path) -> None:
+    """A beacon of 1,100 named triplets, and one at ordinal 1023 or 2000: a named value has no
+    slot, so neither side calls it past max_slots (the dissector did: its variables' running
+    index passed 1024); every value is shown and stored alike. A positional value and a declared
+    name at slot 1024 still are (frames 4 and 5)."""
+    big = "AB|N0|" + "|".join(f"T2|Qv{i}|D{i}" for i in range(1100))
+    bodies = [big, "AB|N1023|T2|Qv0|D1|T2|Qv1|D2", "AB|N2000|T2|Qv2|D3", "AB|N1023|D1|D2", "BA|N1023|Qa|Qb"]
+    frames = [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
+              for i, x in enumerate(bodies)]
+    cap = _write(tmp_path / "named.pcap", frames)
+    assert _limited(_lua(cap)) == [4, 5]
+    assert capture_stats(cap).limits.to_dict()["slots"] == 2
+    lua, py = lua_frames(cap, None), python_frames(cap, len(bodies), None)
+    assert lua[:3] == py[:3]
+    assert len(py[0][0]["vars"]) == 1100
+
+
+# -- an ordinal that is not decimal digits ---------------------------------------------------------
+
+#: ordinals Lua's tonumber reads and a decimal reading does not (hex, exponent, sign, fraction),
+#: and ones that are no number: each is no ordinal (its values from slot 0, never a full set),
+#: so 1e9 and 1023.0 are no slot past max_slots, and 0x1 declares from slot 0
+ODD_ORDINALS = ["AB|N0|T2|QA|T2|QB", "AB|N?|D1|D2", "AB|N|D1|D2", "AB|Nx|D1|D2", "AB|N+0|D1|D2", "AB|N00|D3|D4",
+                "AB|N1023.0|D5|D6", "AB|N?|T2|QA|D1|T2|QB|D2", "AB|N1e9|D7", "AB|N0x1|T2|QY", "AB|N0|D1|D2",
+                "BA|L+1|T2|QZ", "BA|N5.5|D1"]
+
+
+def test_an_ordinal_that_is_not_decimal_digits_is_no_number_alike(tmp_path: Path) -> None:
+    frames = [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
+              for i, x in enumerate(ODD_ORDINALS)]
+    cap = _write(tmp_path / "ordinals.pcap", frames)
+    rows = _lua(cap)
+    assert _limited(rows) == []
+    assert capture_stats(cap).limits.total == 0
+    lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
+    assert lua == py
+    assert [f[0]["kind"] for f in py[1:9]] == ["delta", "delta", "delta", "delta", "full", "delta", "delta", "delta"]
+    assert py[8][0]["vars"][0] == ("A", "7", False, False, "double", False)  # 1e9 is no slot 10^9
+    assert [v[0] for v in py[10][0]["vars"]] == ["Y", None]  # 0x1 declared Y at slot 0
+
+
+
+# -- a declaration that shortens the list under waiting asks -----------------------------------
+
+#: an OCU declares a, b, c, fills them, shortens its list to a before the vehicle's reply to both
+#: declarations comes (the reply links to the latest ask of each name), then declares z at slot 1
+#: and x, y at 1023 and 1024 (y past max_slots: not in the list, its ask still waits)
+SHORTENED = ["BA|N0|T2|Qa|T2|Qb|T2|Qc", "BA|N0|D1|D2|D3", "BA|N0|T2|Qa", "AB|N0|Ra|D1|Rb|D2|Rc|D3", "BA|N0|D4",
+             "BA|N0|D|D|D", "BA|N1|T0|Qz", "BA|N0|D|D|D", "AB|Rz|D5", "BA|L0|T2|Qq", "AB|N0|D9|D8",
+             "BA|N1023|T2|Qx|T2|Qy", "BA|N0|D|D", "AB|Rx|D1|Ry|D2"]
+
+
+def test_a_shortened_list_under_waiting_asks_alike(tmp_path: Path) -> None:
+    frames = [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
+              for i, x in enumerate(SHORTENED)]
+    cap = _write(tmp_path / "shortened.pcap", frames)
+    lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
+    assert lua == py
+    rows = _lua(cap, ("sharedlink.response_to",))
+    ours = [d.response_to for d in iter_decoded(cap) if isinstance(d, Decoded)]
+    assert [max(map(int, r["sharedlink.response_to"]), default=None) for r in rows] == ours
+    assert _limited(rows) == [12]
+    assert ours[3] == 3 and ours[8] == 7 and ours[13] == 12

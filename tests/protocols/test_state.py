@@ -15,7 +15,7 @@ from sharedlink.protocols.codec import (
     query_fields,
     reply_fields,
 )
-from sharedlink.protocols.limits import MAX_PENDING
+from sharedlink.protocols.limits import MAX_CONVERSATIONS, MAX_PENDING
 from sharedlink.protocols.state import (
     BEACON_VARIABLES,
     LinkState,
@@ -291,6 +291,52 @@ def test_pending_asks_are_bounded_per_conversation():
     # room again: a new name is remembered
     link_response(pending, udp(OCU, VEH), frame(query_fields("new"), dst="B", src="A"), "query", 7)
     assert link_response(pending, udp(VEH, OCU), frame(reply_fields("new", "1"), dst="A", src="B"), "reply", 0) == 7
+
+
+
+def test_pending_asks_past_max_conversations_queriers_are_refused_and_counted():
+    """Issue 31: a new querier past MAX_CONVERSATIONS queriers is refused as a new name past
+    MAX_PENDING is (nothing remembered, its reply unmatched) and counted in ``limits.pending``
+    (it was neither remembered nor counted anywhere); the queriers already there keep asking."""
+    pending = PendingAsks()
+    q = frame(query_fields("Vel"), dst="B", src="A")
+    for port in range(MAX_CONVERSATIONS):
+        assert pending.ask(("udp", "10.0.0.1", port, "10.0.0.2", "A", "B"), "R", ["Vel"], port + 1)
+    assert pending.limits.pending == 0
+    late = ("10.0.0.3", 4104)
+    link_response(pending, udp(late, VEH), q, "query", 70000)
+    link_response(pending, udp(late, VEH), frame([Field("N", "?")], dst="B", src="A"), "query", 70001)
+    assert pending.limits.pending == 2
+    assert pending.limits.total == 2
+    r = frame(reply_fields("Vel", "1"), dst="A", src="B")
+    assert link_response(pending, udp(VEH, late), r, "reply", 0) is None
+    assert link_response(pending, udp(VEH, ("10.0.0.1", 7)), r, "reply", 0) == 8
+    assert pending.ask(("udp", "10.0.0.1", 7, "10.0.0.2", "A", "B"), "R", ["Vel"], 9)  # a known querier asks again
+
+
+def test_a_named_value_is_typed_by_its_own_t_only():
+    """Issue 31 (agreement with the dissector): a named value's type is the ``T`` of its
+    triplet. Without one it is untyped (never a bad value), whatever an earlier triplet of the
+    same name or the list said; a positional slot keeps its list's type whatever a named
+    triplet of the same name said; a reply with no ``T`` is typed by the list only."""
+    link = LinkState(default_list=[])
+    link.apply(frame(declaration_fields([("Vel", 2), ("Lat", 0)])), 1)
+    ups = link.apply(frame([Field("N", "0"), Field("Q", "Vel"), Field("D", "5")]), 2)
+    assert [(u.name, u.type_code, u.bad) for u in ups if not u.carried] == [("Vel", None, False)]
+    link.apply(frame(named_fields([("Vel", 4, "x")])), 3)
+    ups = link.apply(frame([Field("N", "0"), Field("Q", "Vel"), Field("D", "7"), Field("Q", "Lat"),
+                            Field("D", "1.5")]), 4)
+    assert [(u.name, u.type_code, u.bad) for u in ups if not u.carried] == [("Vel", None, False), ("Lat", None, False)]
+    ups = link.apply(frame(positional_fields(["1", "2"])), 5)
+    assert [(u.name, u.type_code) for u in ups] == [("Vel", 2), ("Lat", 0)]
+    # a name the list does not have: typed by one triplet, untyped in the next without T
+    link.apply(frame(named_fields([("Head", 2, "1.5")])), 6)
+    ups = link.apply(frame([Field("N", "0"), Field("Q", "Head"), Field("D", "x"), Field("T", "2"), Field("Q", "Head"),
+                            Field("D", "2.5")]), 7)
+    assert [(u.type_code, u.bad) for u in ups if u.name == "Head"] == [(None, False), (2, False)]
+    reply = link.apply(frame(reply_fields("Head", "9")), 8)
+    assert [(u.name, u.type_code) for u in reply] == [("Head", None)]
+    assert [(u.name, u.type_code) for u in link.apply(frame(reply_fields("Lat", "9")), 9)] == [("Lat", 0)]
 
 
 POOL = ["a", "b", "c", "d", "e"]

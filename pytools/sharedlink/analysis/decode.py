@@ -168,8 +168,12 @@ class ReferenceDecoder:
         if ok is False:
             updates: tuple[Update, ...] = ()
             shown = tuple(table.preview(frame, sf.number, sf.ts_ns, self.carried)) if kind in VALUE_KINDS else ()
+            dropped = table.dropped if kind in VALUE_KINDS else ()
         else:
             updates = shown = tuple(self.link.apply(frame, sf.number, sf.ts_ns, conv, self.carried))
+            dropped = self.link.dropped
+        if dropped:  # values past a limit: shown as the dissector shows them, in no update
+            shown = (*shown, *dropped)
         if kind in DATA_KINDS:
             skey = (conv, frame.src, frame.dst)
             sync = self._sync.get(skey)

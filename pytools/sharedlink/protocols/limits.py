@@ -33,7 +33,9 @@ class LimitCounts:
     conversations: int = 0  # frames of a new direction past MAX_CONVERSATIONS
     #: unfinished serial or TCP frames given up at MAX_HELD_BYTES (their bytes counted as noise)
     held: int = 0
-    pending: int = 0  # queries (frames) refused because MAX_PENDING asks already wait for an answer
+    #: queries (frames) refused because MAX_PENDING asks already wait for an answer, or from a new
+    #: querier past MAX_CONVERSATIONS queriers
+    pending: int = 0
 
     @property
     def total(self) -> int:

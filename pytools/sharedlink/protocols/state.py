@@ -165,6 +165,9 @@ class VariableTable:
     unlisted: bool = False  # (by_length) the last positional frame had another length: ``names`` are #i
     own: VarSource | None = None  # the list this conversation declared itself (LinkState)
     declared: bool = False  # the list in use was learnt from a declaration (slots past it: past_list)
+    #: the values the last apply or preview dropped at a limit (a slot past MAX_SLOTS, a new name
+    #: past MAX_NAMES), as the frame shows them (never stored, never in the returned updates)
+    dropped: list[Update] = field(default_factory=list, repr=False, compare=False)
     _shown: dict[str, Variable] | None = field(default=None, repr=False, compare=False)  # preview's values
 
     @classmethod
@@ -258,7 +261,7 @@ class VariableTable:
         """The variable ``name`` (made when new); None for a new name past ``MAX_NAMES``."""
         v = self.vars.get(name)
         if v is None:
-            if len(self.vars) >= MAX_NAMES:
+            if len(self.vars) >= MAX_NAMES + MAX_SLOTS:  # (named names are bounded in _named, list names by MAX_SLOTS)
                 self.limits.names += 1
                 return None
             v = self.vars[name] = Variable(name, type_code if type_code is not None else self.types.get(name))
@@ -305,6 +308,8 @@ class VariableTable:
 
     def _apply(self, frame: Frame, number: int, time_ns: int, carried: bool, store: bool) -> list[Update]:
         self._shown = None if store else {}  # a preview: the values shown so far, over the table
+        if self.dropped:
+            self.dropped = []
         kind = self.kind(frame)
         fields = frame.fields
         if kind == "declaration":
@@ -349,12 +354,11 @@ class VariableTable:
             seen.add(nv.name)
             pos = sent.get(nv.name)
             if pos is None:
-                if store and nv.name not in self.vars and len(self.vars) >= MAX_NAMES:
+                if store and len(sent) >= MAX_NAMES:
                     self.limits.names += 1
+                    self._drop(nv.name, None, nv.text, nv.type_code, nv.bad_type)
                     continue
                 pos = sent[nv.name] = len(sent)
-            if store and nv.name not in self.names and nv.type_code is not None:
-                self.types.setdefault(nv.name, nv.type_code)
             u = self._value(nv.name, nv.type_code, nv.text, number, time_ns, pos, store)
             if u is not None:
                 updates.append(u._replace(bad=True) if nv.bad_type else u)  # "Type is not a number"
@@ -375,6 +379,8 @@ class VariableTable:
             if idx >= MAX_SLOTS:
                 if store:
                     self.limits.slots += len(vals) - i
+                for j, past in enumerate(vals[i:], idx):
+                    self._drop(placeholder(j), j, past, None, False)
                 break
             name = self.slot_name(idx, frame_slots)
             if text is None:
@@ -385,7 +391,7 @@ class VariableTable:
                 continue
             if store:
                 self.filled.add(idx)
-            u = self._value(name, None, text, number, time_ns, idx, store)
+            u = self._value(name, self.types.get(name), text, number, time_ns, idx, store)
             if u is not None:
                 updates.append(u)
         if store and vals:
@@ -394,21 +400,39 @@ class VariableTable:
 
     def _value(self, name: str, type_code: int | None, text: str, number: int, time_ns: int, index: int | None,
                store: bool) -> Update | None:
-        """Set (or, not ``store``, show) one value; None when the name is past ``MAX_NAMES``."""
+        """Set (or, not ``store``, show) one value of type ``type_code``; None when the name is
+        past ``MAX_NAMES``. A value's type is what its frame gives it: a named value's the ``T``
+        of its triplet (untyped without one, whatever an earlier triplet of the name said), a
+        positional value's its list's (docs/fields-sharedlink.md, "Values")."""
         if store:
             v = self._var(name, type_code)
             if v is None:
                 return None
+            # a listed name's Variable keeps its list's type (what its positional values and the
+            # fast paths read); a named value of it gets its triplet's type on its Update only
+            v.type_code = self.types.get(name) if name in self.slot_of else type_code
             changed = v.text != text
             v.text, v.set_in, v.set_at = text, number, time_ns
+            if v.type_code != type_code:
+                u = _update(v, self._index(name) if index is None else index, False, None, changed)
+                return u._replace(type_code=type_code, bad=not parse_typed(type_code, text)[1])
         else:
             shown = self._shown
             assert shown is not None
             old = shown.get(name) or self.vars.get(name)
-            tc = type_code if type_code is not None else (old.type_code if old is not None else self.types.get(name))
+            tc = type_code
             changed = (old.text if old is not None else None) != text
             v = shown[name] = Variable(name, tc, text, number, time_ns)
         return _update(v, self._index(name) if index is None else index, False, None, changed)
+
+    def _drop(self, name: str, index: int | None, text: str | None, type_code: int | None, bad_type: bool) -> None:
+        """A value dropped at a limit, as its frame shows it (:attr:`dropped`): sent (an empty
+        positional ``D``: carried with no value), never stored."""
+        if text is None:
+            self.dropped.append(Update(name, index, None, True, None, False))
+            return
+        bad = bad_type or not parse_typed(type_code, text)[1]
+        self.dropped.append(Update(name, index, text, False, None, True, type_code, bad))
 
     def _index(self, name: str) -> int | None:
         return self.slot_of.get(name)
@@ -467,8 +491,9 @@ class PendingAsks:
     that waits replaces it (a querier that polls one name holds one entry). At most
     ``MAX_PENDING`` entries a querier: a new one past it is refused (not remembered: its answer
     is unmatched) and the frame counted once in ``limits.pending`` (docs/fields-sharedlink.md,
-    "Limits"). At most ``MAX_CONVERSATIONS`` queriers: a new one past it is not remembered (its
-    direction is counted in ``limits.conversations`` by :meth:`LinkState.table`)."""
+    "Limits"). At most ``MAX_CONVERSATIONS`` queriers: a new one past it is refused the same way
+    (nothing of it remembered, the frame counted in ``limits.pending``; its direction may be
+    counted besides in ``limits.conversations`` by :meth:`LinkState.table`, a bound of its own)."""
 
     def __init__(self, limits: LimitCounts | None = None) -> None:
         self._by: dict[Hashable, dict[tuple[str, str], int]] = {}
@@ -476,11 +501,13 @@ class PendingAsks:
 
     def ask(self, key: Hashable, wants: str, names: frozenset[str] | Sequence[str], number: int) -> bool:
         """Frame ``number`` asks ``key``'s peer for ``names`` (``wants`` ``"R"``) or for a list
-        (``"N"``, ``"L"``: no names). False when an entry was refused at ``MAX_PENDING``."""
+        (``"N"``, ``"L"``: no names). False when an entry was refused at ``MAX_PENDING``, or
+        the querier is new past ``MAX_CONVERSATIONS`` queriers (both counted in ``limits.pending``)."""
         asks = self._by.get(key)
         if asks is None:
             if len(self._by) >= MAX_CONVERSATIONS:
-                return True
+                self.limits.pending += 1
+                return False
             asks = self._by[key] = {}
         refused = False
         for name in (names if wants == "R" else ("",)):
@@ -552,6 +579,8 @@ class LinkState:
     pair_lists: dict[tuple[str, str], VarSource] = field(default_factory=dict)  # the letter pair's latest declaration
     inbound: dict[Hashable, VarSource] = field(default_factory=dict)  # receiver_key -> its inbound (L) list
     limits: LimitCounts = field(default_factory=LimitCounts)  # input dropped at a bound, every table's
+    #: the values the last :meth:`apply` dropped at a limit, as the frame shows them (VariableTable.dropped)
+    dropped: list[Update] = field(default_factory=list, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         every, pairs = split(self.default_list)
@@ -588,7 +617,11 @@ class LinkState:
               carried: bool = True) -> list[Update]:
         decl = declared_list(frame.fields)
         if decl is None:
-            return self.table(frame.src, frame.dst, conv).apply(frame, number, time_ns, carried)
+            t = self.table(frame.src, frame.dst, conv)
+            ups = t.apply(frame, number, time_ns, carried)
+            self.dropped = t.dropped
+            return ups
+        self.dropped = []
         which, ordinal, names = decl
         if which == "N":  # the sender's outbound list: its own conversation's
             t = self.table(frame.src, frame.dst, conv)
