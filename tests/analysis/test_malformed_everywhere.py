@@ -23,6 +23,7 @@ from test_stats import tap_stats
 from sharedlink.analysis.decode import Decoded, Decoder
 from sharedlink.analysis.diff import DiffOptions, diff_captures
 from sharedlink.analysis.export import ExportOptions, export, export_file
+from sharedlink.analysis.stats import capture_stats
 from sharedlink.fleet.ingest import ingest
 from sharedlink.fleet.query import connect
 from tshark_util import Pkt, frame, write_pcap
@@ -148,3 +149,29 @@ def test_the_fast_tiers_never_take_a_malformed_frame(tmp_path, tiers):
     # 13 near misses, three of them with a '[:' inside (two malformed frames: the second names other letters)
     assert st.kinds["malformed"] == 16 and st.pairs["B>A"].kinds["malformed"] == 13
     assert tiers["counts"] > 60 and tiers["compiled"] + tiers["block"] > 60
+
+
+def test_checksum_texts_and_a_bar_letter_as_the_dissector_reads_them(tmp_path):
+    """The codec follows sharedlink.lua (util.lua checksum_value, parse.lua parse_header): a
+    checksum of 1 to 8 hex digits in either case ("0067" is 67; no sign, no space, no "0x"), and
+    '|' as a letter ("[:|B|..." is a frame from B to '|'; "[:A||..." from '|' to A). Each frame
+    alone in a datagram; stats counts what the tap counts (kinds, pairs, checksum failures)."""
+    from sharedlink.protocols.codec import checksum
+
+    def framed(body: str, ck: str) -> bytes:
+        return b"[" + body.encode() + ck.encode() + b"]\r\n"
+
+    body = ":AB|N0|D1|C"
+    c = checksum(body.encode())
+    payloads = [framed(body, t % c) for t in ("%02X", "%04X", "%03x", "%08X", "%09X", "+%X", " %X", "1%02X")]
+    for letters in ("|B", "A|"):
+        b = f":{letters}|N0|D2|C"
+        payloads.append(framed(b, "%02X" % checksum(b.encode())))
+    path = write_pcap(tmp_path / "texts.pcap", [Pkt(0.1 * i, p) for i, p in enumerate(payloads)])
+    st = capture_stats(path)
+    tap = tap_stats(path)
+    assert (tap["Frames"], tap["Checksum failures"], tap["Noise"]) == (st.frames, st.checksum_failures,
+                                                                       st.noise_segments) == (10, 4, 0)
+    assert tap["kinds"] == st.kinds and "malformed" not in st.kinds
+    assert tap["pairs"] == {p.pair: (p.frames, p.checksum_failures, p.sync_late, p.kinds) for p in st.pairs.values()}
+    assert {"B>|", "|>A"} <= set(st.pairs)

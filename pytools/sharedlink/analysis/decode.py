@@ -120,9 +120,14 @@ class Decoded:
 
     @property
     def frame(self) -> Frame:
+        """The parsed frame; a ``malformed`` one's: its letters, no fields, no checksum field."""
         f = self._frame
         if f is None:
-            f = self._frame = parse_frame(self.raw)
+            if self.kind == "malformed":
+                f = Frame(self.dst, self.src, (), self.raw.endswith(b"\r\n"), None, ("malformed",))
+            else:
+                f = parse_frame(self.raw)
+            self._frame = f
         return f
 
     @property

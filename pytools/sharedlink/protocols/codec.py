@@ -71,6 +71,10 @@ class Field:
         return self.letter + self.text
 
 
+#: a checksum text the dissector reads: 1 to 8 hex digits (util.lua's checksum_value)
+_CHECKSUM_TEXT = re.compile(r"[0-9A-Fa-f]{1,8}").fullmatch
+
+
 @dataclass(frozen=True)
 class Checksum:
     """What the checksum field said and what the bytes add up to."""
@@ -80,12 +84,12 @@ class Checksum:
 
     @property
     def value(self) -> int | None:
-        if self.text is None:
+        """The text's value: 1 to 8 hex digits, either case (as sharedlink.lua reads it: "00A5"
+        is A5, no sign, space or "0x"); None otherwise."""
+        t = self.text
+        if t is None or not _CHECKSUM_TEXT(t):
             return None
-        try:
-            return int(self.text, 16) if self.text and len(self.text) <= 2 else None
-        except ValueError:
-            return None
+        return int(t, 16)
 
     @property
     def ok(self) -> bool | None:
@@ -201,7 +205,7 @@ def _parse_inner(data: bytes, start: int, end: int, crlf: bool, deviations: list
     except Exception as exc:  # pragma: no cover - latin-1 decodes any bytes
         raise SharedLinkError(start, "undecodable bytes") from exc
     dst, src = text[1], text[2]
-    if dst in "|]" or src in "|]":
+    if dst == "]" or src == "]":  # (a '|' is a letter, as sharedlink.lua reads the two bytes after ':')
         raise SharedLinkError(start + 1, "header too short: need destination and source letters")
     if address_node(dst) is None:
         deviations.append(f"destination {dst!r} is not a node letter A-P")
