@@ -23,7 +23,7 @@ from test_stats import tap_stats
 from sharedlink.analysis.decode import Decoded, Decoder
 from sharedlink.analysis.diff import DiffOptions, diff_captures
 from sharedlink.analysis.export import ExportOptions, export, export_file
-from sharedlink.analysis.stats import capture_stats
+from sharedlink.analysis.stats import capture_stats, one_line
 from sharedlink.fleet.ingest import ingest
 from sharedlink.fleet.query import connect
 from tshark_util import Pkt, frame, write_pcap
@@ -175,3 +175,28 @@ def test_checksum_texts_and_a_bar_letter_as_the_dissector_reads_them(tmp_path):
     assert tap["kinds"] == st.kinds and "malformed" not in st.kinds
     assert tap["pairs"] == {p.pair: (p.frames, p.checksum_failures, p.sync_late, p.kinds) for p in st.pairs.values()}
     assert {"B>|", "|>A"} <= set(st.pairs)
+
+
+@pytest.mark.parametrize("transport", ["udp", "tcp"])
+def test_a_bracket_inside_a_value_across_segments(tmp_path, transport):
+    """A '[' inside a value is part of it (a frame runs from '[:' to the first ']'), also when a
+    TCP segment ends inside the frame, right after that '[', or on a '[' that starts the next
+    frame: stats counts what the tap counts, no malformed frame."""
+    from sharedlink.protocols.codec import checksum
+
+    def framed(body: bytes) -> bytes:
+        return b"[" + body + b"%02X" % checksum(body) + b"]\r\n"
+
+    one, two = framed(b":AB|N0|D1[x|C"), framed(b":AB|N0|D[[2|C")
+    if transport == "tcp":
+        payloads = [one[:11], one[11:] + two[:10], two[10:] + b"[", GOOD[1:]]
+    else:
+        payloads = [one, two, GOOD]
+    path = write_pcap(tmp_path / f"bracket-{transport}.pcap",
+                      [Pkt(0.1 * i, p, 4000, 4000, transport, "10.0.0.2", "10.0.0.1") for i, p in enumerate(payloads)])
+    st = capture_stats(path)
+    tap = tap_stats(path)
+    assert (tap["Frames"], tap["Checksum failures"], tap["Noise"]) == (st.frames, st.checksum_failures,
+                                                                       st.noise_segments) == (3, 0, 0)
+    assert tap["kinds"] == st.kinds and "malformed" not in st.kinds
+    assert tap["vars"] == {k: (v.count, one_line(v.last or "")) for k, v in st.variables.items()}

@@ -461,12 +461,9 @@ def test_ingest_and_export_count_as_stats_on_the_shared_vectors(tmp_path, stream
     assert got == {k: [n, bad, 0, kinds] for k, (n, bad, _late, kinds) in want.items()}
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "Python side, protocols/codec.iter_segments (not stats): a '[' inside a frame restarts the frame there, so "
-    "'[:AB|N0|D1[x|C..]' is no frame to the codec (stats: one malformed frame) while sharedlink.lua, as "
-    "docs/fields-sharedlink.md says ('a frame runs from [: to the first ] after it'), decodes a full frame "
-    "whose value is '1[x'; frames and pairs agree, kinds do not"))
 def test_a_bracket_inside_a_value(tmp_path):
+    """'[:AB|N0|D1[x|C..]' is a full frame whose value is '1[x' (a frame runs from '[:' to the
+    first ']' after it), as sharedlink.lua decodes it: stats and the tap agree."""
     from sharedlink.protocols.codec import checksum
     from tshark_util import Pkt, frame, write_pcap
 

@@ -262,15 +262,71 @@ def split_frames(data: bytes) -> list[Segment]:
     return list(iter_segments(data))
 
 
-def iter_segments(data: bytes) -> Iterator[Segment]:
+def iter_segments(data: bytes, restart_at_bracket: bool = False) -> Iterator[Segment]:
     """Yield frames and noise segments of ``data`` in order; linear in ``len(data)``.
 
-    A frame runs from ``[`` to the first ``]`` and takes a CR LF after it. A ``[`` inside a
-    would-be frame restarts the frame there (the earlier bytes become noise), so garbage
-    before a real frame cannot swallow it. An unterminated tail is reported as noise with
-    the error "unterminated frame".
+    As sharedlink.lua's scan (docs/fields-sharedlink.md): a frame starts at ``[:`` and runs to
+    the first ``]`` after it (a ``[`` inside a value is part of the value), taking a CR LF after
+    it; a ``[:`` before that ``]`` means the first is unterminated: its bytes stay noise (a
+    malformed frame to the decoding core, :mod:`sharedlink.analysis.malformed`). An
+    unterminated tail (its last ``[:`` with no ``]`` after it, or a ``[`` at the very end) is
+    reported as noise with the error "unterminated frame".
+
+    ``restart_at_bracket``: the serial wrapper's rule (serial.lua, :mod:`sharedlink.capture.serial_format`):
+    any ``[`` inside a would-be frame restarts the frame there (the earlier bytes become noise).
     """
+    if restart_at_bracket:
+        yield from _segments_restarting(bytes(data))
+        return
     data = bytes(data)
+    n = len(data)
+    pos = 0
+    noise_start = 0
+    while pos < n:
+        o = data.find(b"[:", pos)
+        if o < 0:
+            break
+        c = data.find(b"]", o + 2)
+        if c < 0:
+            break
+        na = data.find(b"[:", o + 2)
+        if 0 <= na < c:
+            pos = na  # unterminated: the next '[:' starts again
+            continue
+        end = c + 1
+        crlf = data[end : end + 2] == CRLF
+        if crlf:
+            end += 2
+        try:
+            devs: list[str] = [] if crlf else ["no CR LF after ']'"]
+            frame = _parse_inner(data, o + 1, c, crlf, devs)
+        except SharedLinkError:
+            pos = c + 1  # not a frame: it stays part of the noise; scan on after its ']'
+            continue
+        if o > noise_start:
+            yield Segment(noise_start, o, error=SharedLinkError(noise_start, "noise between frames"))
+        yield Segment(o, end, frame=frame)
+        noise_start = pos = end
+    if noise_start < n:
+        tail = data[noise_start:]
+        k = tail.rfind(b"[:")
+        open_tail = (k >= 0 and tail.find(b"]", k) < 0) or tail.endswith(b"[")
+        reason = "unterminated frame" if open_tail else "noise between frames"
+        yield Segment(noise_start, n, error=SharedLinkError(noise_start, reason))
+
+
+def unterminated_start(data: bytes, start: int) -> int:
+    """Where the unterminated frame of an "unterminated frame" tail ``data[start:]`` (from
+    :func:`iter_segments`) starts: its last ``[:`` with no ``]`` after it, else the ``[`` at
+    the very end (as sharedlink.lua holds a TCP tail for the next segment)."""
+    k = data.rfind(b"[:", start)
+    if k >= 0 and data.find(b"]", k) < 0:
+        return k
+    return len(data) - 1
+
+
+def _segments_restarting(data: bytes) -> Iterator[Segment]:
+    """:func:`iter_segments` with ``restart_at_bracket`` (the serial wrapper's rule)."""
     n = len(data)
     pos = 0
     noise_start = 0
