@@ -280,18 +280,15 @@ def iter_segments(data: bytes, restart_at_bracket: bool = False) -> Iterator[Seg
         return
     data = bytes(data)
     n = len(data)
-    pos = 0
     noise_start = 0
-    while pos < n:
-        o = data.find(b"[:", pos)
-        if o < 0:
-            break
+    o = data.find(b"[:")
+    while o >= 0:
         c = data.find(b"]", o + 2)
         if c < 0:
             break
-        na = data.find(b"[:", o + 2)
+        na = data.find(b"[:", o + 2)  # (past this frame's end when it closes: the next one's start)
         if 0 <= na < c:
-            pos = na  # unterminated: the next '[:' starts again
+            o = na  # unterminated: the next '[:' starts again
             continue
         end = c + 1
         crlf = data[end : end + 2] == CRLF
@@ -301,12 +298,13 @@ def iter_segments(data: bytes, restart_at_bracket: bool = False) -> Iterator[Seg
             devs: list[str] = [] if crlf else ["no CR LF after ']'"]
             frame = _parse_inner(data, o + 1, c, crlf, devs)
         except SharedLinkError:
-            pos = c + 1  # not a frame: it stays part of the noise; scan on after its ']'
+            o = na  # not a frame: it stays part of the noise; scan on from the next '[:'
             continue
         if o > noise_start:
             yield Segment(noise_start, o, error=SharedLinkError(noise_start, "noise between frames"))
         yield Segment(o, end, frame=frame)
-        noise_start = pos = end
+        noise_start = end
+        o = na
     if noise_start < n:
         tail = data[noise_start:]
         k = tail.rfind(b"[:")
