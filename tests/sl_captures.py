@@ -145,7 +145,7 @@ def chunked(data: bytes, cuts: list[int]) -> list[bytes]:
 
 
 def reference_frames(data: bytes) -> list[bytes]:
-    return [data[s.start : s.end] for s in iter_segments(data) if s.is_frame]
+    return [data[s.start : s.end] for s in iter_segments(data, restart_at_bracket=True) if s.is_frame]  # (serial)
 
 
 # -- an independent reader of gen captures (test_export, test_stats) -------------------------

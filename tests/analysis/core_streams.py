@@ -4,14 +4,14 @@ pcap writer for them, and the shared vectors as captures with their variable lis
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import pytest
 from hypothesis import strategies as st
 from sl_vectors import write_stream
 
-from sharedlink.analysis.decode import ReferenceDecoder
+from sharedlink.analysis.decode import Decoded, ReferenceDecoder
 from sharedlink.analysis.stats import CaptureStats
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
@@ -123,6 +123,20 @@ def vector_capture(stream: dict, tmp_path: Path) -> tuple[Path, Sequence[tuple[s
     except ValueError:
         pytest.skip("a variable list the decoders do not take yet")
     return path, variables
+
+
+def reference_items(dec: ReferenceDecoder, path: Path) -> Iterator[Decoded | StreamFrame | tuple[int, int]]:
+    """:func:`iter_frames`' items through the plain decoder ``dec``: each frame decoded, the bytes
+    that hold none cut into malformed frames and noise (:meth:`ReferenceDecoder.unframed`, as the
+    core cuts them), other records as they come."""
+    for item in iter_frames(path):
+        if isinstance(item, StreamFrame):
+            if item.frame is not None:
+                yield dec.decode(item)
+            else:
+                yield from dec.unframed(item)
+        else:
+            yield item
 
 
 def stats_by_reference(path: Path, variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES) -> CaptureStats:

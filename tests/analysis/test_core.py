@@ -18,6 +18,7 @@ import pytest
 from core_streams import (
     one_sender,
     positional_streams,
+    reference_items,
     stats_by_reference,
     streams,
     vector_capture,
@@ -28,7 +29,7 @@ from sl_captures import captures, write_capture
 from sl_vectors import load_streams
 
 from sharedlink.analysis.decode import Decoded, Decoder, ReferenceDecoder, iter_decoded
-from sharedlink.capture.stream import StreamFrame, iter_frames
+from sharedlink.capture.stream import StreamFrame
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
 from sharedlink.protocols.state import BEACON_VARIABLES
@@ -39,7 +40,8 @@ def _key(item) -> tuple:
     if isinstance(item, Decoded):
         t = item.table
         return (item.number, item.ts_ns, item.conv, item.raw, item.src, item.dst, item.pair, item.kind,
-                item.checksum_ok, item.updates, item.late, item.sync_gap_ns, item.shown, item.response_to, item.frame,
+                item.checksum_ok, item.updates, item.late, item.sync_gap_ns, item.shown, item.response_to,
+                item.frame if item.kind != "malformed" else None,
                 {n: (v.text, v.type_code, v.set_in, v.set_at) for n, v in t.vars.items()},
                 (t.last_full_at, t.last_full_in, t.named, dict(t.sent_names), tuple(t.names), sorted(t.filled)))
     if isinstance(item, StreamFrame):
@@ -49,12 +51,7 @@ def _key(item) -> tuple:
 
 def _reference(path: Path, carried: bool = True, variables=BEACON_VARIABLES) -> list[tuple]:
     dec = ReferenceDecoder(variables, carried=carried)
-    out = []
-    for item in iter_frames(path):
-        if isinstance(item, StreamFrame) and item.frame is not None:
-            item = dec.decode(item)
-        out.append(_key(item))
-    return out
+    return [_key(item) for item in reference_items(dec, path)]  # (keys taken item by item: tables are live)
 
 
 def compare(path: Path, carried: bool = True, variables=BEACON_VARIABLES) -> int:

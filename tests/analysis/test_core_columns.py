@@ -19,14 +19,13 @@ from pathlib import Path
 
 import core_streams
 import pytest
-from core_streams import spy_runs, vector_capture, write_udp
+from core_streams import reference_items, spy_runs, vector_capture, write_udp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sl_captures import captures, write_capture
 from sl_vectors import load_streams
 
 from sharedlink.analysis.decode import Columns, Decoded, Decoder, ReferenceDecoder
-from sharedlink.capture.stream import StreamFrame, iter_frames
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named
 from sharedlink.protocols.state import BEACON_VARIABLES, VariableTable
@@ -54,7 +53,7 @@ def _decoded(d: Decoded) -> tuple:
 
 def reference(path: Path, carried: bool = True, variables=BEACON_VARIABLES) -> list[tuple]:
     dec = ReferenceDecoder(variables, carried=carried)
-    return [_decoded(dec.decode(sf)) for sf in iter_frames(path) if isinstance(sf, StreamFrame) and sf.frame is not None]
+    return [_decoded(d) for d in reference_items(dec, path) if isinstance(d, Decoded)]
 
 
 def columns(path: Path, carried: bool = True, variables=BEACON_VARIABLES) -> tuple[list[tuple], int]:

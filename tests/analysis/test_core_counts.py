@@ -20,7 +20,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import pytest
-from core_streams import spy_runs, stats_by_reference, write_udp
+from core_streams import reference_items, spy_runs, stats_by_reference, write_udp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sl_captures import captures, write_capture
@@ -28,7 +28,6 @@ from sl_vectors import load_streams, write_stream
 
 from sharedlink.analysis.decode import Counted, Decoded, Decoder, ReferenceDecoder
 from sharedlink.analysis.stats import capture_stats
-from sharedlink.capture.stream import StreamFrame, iter_frames
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
 from sharedlink.protocols.state import BEACON_VARIABLES, parse_variables
@@ -117,7 +116,7 @@ def compare(path: Path, variables=BEACON_VARIABLES) -> tuple[int, int]:
                 assert (conv, src, dst) == (c.conv, c.src, c.dst) and c.frames > 0
                 counted += c.frames
     ref = ReferenceDecoder(variables)
-    want = [_key(ref.decode(sf)) for sf in iter_frames(path) if isinstance(sf, StreamFrame) and sf.frame is not None]
+    want = [_key(d) for d in reference_items(ref, path) if isinstance(d, Decoded)]
     full = Decoder(variables)
     every = [_key(d) for d in full.capture(path) if isinstance(d, Decoded)]
     assert every == want

@@ -320,19 +320,19 @@ def _reference_mcap(cap: Path, out: Path, variables) -> dict[str, int]:
     """The SharedLink messages of ``cap`` published frame by frame (FoxgloveChannels.frame) from
     the plain reference decoder's frames."""
     import foxglove
+    from core_streams import reference_items
 
-    from sharedlink.analysis.decode import ReferenceDecoder
+    from sharedlink.analysis.decode import Decoded, ReferenceDecoder
     from sharedlink.analysis.foxglove_channels import FoxgloveChannels
-    from sharedlink.capture.stream import StreamFrame, iter_frames
 
     ctx = foxglove.Context()
     with open(out, "wb") as fh:
         writer = foxglove.open_mcap(fh, context=ctx)
         channels = FoxgloveChannels(ctx)
         dec = ReferenceDecoder(variables, carried=False)
-        for sf in iter_frames(cap):
-            if isinstance(sf, StreamFrame) and sf.frame is not None:
-                channels.frame(dec.decode(sf))
+        for d in reference_items(dec, cap):
+            if isinstance(d, Decoded):
+                channels.frame(d)
         writer.close()
     return channels.counts
 

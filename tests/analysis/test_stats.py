@@ -418,21 +418,7 @@ def test_malformed_frames_and_noise_count_as_the_dissector_shows_them(tmp_path, 
     assert (ref.frames, ref.bytes, ref.kinds, ref.noise_segments) == (st.frames, st.bytes, st.kinds, st.noise_segments)
 
 
-#: vector streams whose counts `ingest` and `export` do not yet follow (docs/fields-sharedlink.md, "Counts")
-_INGEST_PENDING = {
-    "frame-kinds-other-and-malformed": (
-        "fleet/ingest.py and analysis/export.py keep no row for a malformed frame (they skip every noise "
-        "StreamFrame): 6 frames against the 7 stats and the tap count; each needs a frame row (kind 'malformed', "
-        "its pair, checksum False when analysis.stats.unframed_pieces says bad, else none) per malformed piece"),
-}
-
-
-def _ingest_streams() -> list:
-    return [pytest.param(p.values[0], id=p.id, marks=[pytest.mark.xfail(reason=_INGEST_PENDING[p.id], strict=True)]
-                         if p.id in _INGEST_PENDING else []) for p in _vector_streams()]
-
-
-@pytest.mark.parametrize("stream", _ingest_streams())
+@pytest.mark.parametrize("stream", _vector_streams())
 def test_ingest_and_export_count_as_stats_on_the_shared_vectors(tmp_path, stream):
     """`ingest`'s manifest and frames table, and `export --format jsonl`'s rows, count what `stats`
     (and so the tap) counts: frames, and per pair and kind, checksum failures and late frames
@@ -475,12 +461,9 @@ def test_ingest_and_export_count_as_stats_on_the_shared_vectors(tmp_path, stream
     assert got == {k: [n, bad, 0, kinds] for k, (n, bad, _late, kinds) in want.items()}
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "Python side, protocols/codec.iter_segments (not stats): a '[' inside a frame restarts the frame there, so "
-    "'[:AB|N0|D1[x|C..]' is no frame to the codec (stats: one malformed frame) while sharedlink.lua, as "
-    "docs/fields-sharedlink.md says ('a frame runs from [: to the first ] after it'), decodes a full frame "
-    "whose value is '1[x'; frames and pairs agree, kinds do not"))
 def test_a_bracket_inside_a_value(tmp_path):
+    """'[:AB|N0|D1[x|C..]' is a full frame whose value is '1[x' (a frame runs from '[:' to the
+    first ']' after it), as sharedlink.lua decodes it: stats and the tap agree."""
     from sharedlink.protocols.codec import checksum
     from tshark_util import Pkt, frame, write_pcap
 

@@ -195,7 +195,7 @@ def python_frames(cap: Path, n: int, variables: str | None = VARIABLES) -> list[
     out: list[list[dict[str, Any]]] = [[] for _ in range(n)]
     vs = list(BEACON_VARIABLES) if variables is None else parse_variables(variables)
     for d in iter_decoded(cap, vs):
-        if not isinstance(d, Decoded):
+        if not isinstance(d, Decoded) or d.kind == "malformed":  # (left out of both, see test_vector_stream_agrees)
             continue
         positional = d.frame is not None and not any(f.letter in "QR" for f in d.frame.fields)
         variables = [(_placeholder(u.name), u.text, u.carried, u.bad and not u.carried,

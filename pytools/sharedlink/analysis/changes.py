@@ -329,16 +329,30 @@ class ChangeReader:
             return
         for sf in self._splitter.split(number, ts, dg):
             if sf.frame is None:
-                self.stats.undecodable += 1
+                self._unframed(sf)
             else:
                 self._frame(sf)
+
+    def _unframed(self, sf: StreamFrame) -> None:
+        """Bytes that hold no well-formed frame: the core's malformed frames (counted as frames
+        that carry no values, a wrong checksum a failure: docs/fields-sharedlink.md, "Counts")
+        and noise (:meth:`~sharedlink.analysis.decode.ReferenceDecoder.unframed`)."""
+        st = self.stats
+        for item in self.dec.unframed(sf):
+            if isinstance(item, StreamFrame):
+                st.undecodable += 1
+                continue
+            st.frames += 1
+            st.payload_bytes += len(item.raw)
+            if item.checksum_ok is False:
+                st.checksum_failures += 1
 
     def _serial_items(self, items: list[StreamFrame | tuple[int, int]]) -> None:
         for item in items:
             if isinstance(item, tuple):  # a record of another protocol (P2OS, blackboard)
                 self.stats.other_packets += 1
             elif item.frame is None:
-                self.stats.undecodable += 1
+                self.stats.undecodable += 1  # (a serial link's noise stays noise: serial.lua's wrapper cuts its frames)
             else:
                 self._frame(item)
 

@@ -6,9 +6,12 @@ deframed per direction, as :func:`sharedlink.capture.stream.iter_frames`) and ke
 :class:`~sharedlink.protocols.state.LinkState`, so every SharedLink frame comes out as a
 :class:`Decoded`: its kind in stream context, its checksum verdict, the variables it set and the
 direction's whole table as the frame leaves it. :class:`ReferenceDecoder` is the plain path the
-core is checked against (and hands what its fast path does not take). Noise and records that are neither UDP/TCP nor
-serial SharedLink pass through unchanged (a :class:`~sharedlink.capture.stream.StreamFrame` with
-``frame`` None, or a ``(number, ts_ns)`` tuple) so callers can count them.
+core is checked against (and hands what its fast path does not take). On UDP and TCP each ``[:``
+of bytes that hold no well-formed frame is a :class:`Decoded` of kind ``malformed``
+(:mod:`sharedlink.analysis.malformed`: cut and checked as the dissector does; no updates, never
+late). Noise and records that are neither UDP/TCP nor serial SharedLink pass through (a
+:class:`~sharedlink.capture.stream.StreamFrame` with ``frame`` None, or a ``(number, ts_ns)``
+tuple) so callers can count them.
 
 Choices (shared with the dissector, see ``docs/protocol.md``):
 
@@ -42,6 +45,7 @@ from pathlib import Path
 from typing import NamedTuple
 from zlib import adler32
 
+from sharedlink.analysis.malformed import PIECE, Unframed
 from sharedlink.capture.packets import Datagram, PacketDecoder
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
@@ -116,9 +120,14 @@ class Decoded:
 
     @property
     def frame(self) -> Frame:
+        """The parsed frame; a ``malformed`` one's: its letters, no fields, no checksum field."""
         f = self._frame
         if f is None:
-            f = self._frame = parse_frame(self.raw)
+            if self.kind == "malformed":
+                f = Frame(self.dst, self.src, (), self.raw.endswith(b"\r\n"), None, ("malformed",))
+            else:
+                f = parse_frame(self.raw)
+            self._frame = f
         return f
 
     @property
@@ -138,6 +147,10 @@ class Decoded:
         return f"Decoded(number={self.number}, pair={self.pair!r}, kind={self.kind!r}, checksum_ok={self.checksum_ok})"
 
 
+#: the table a malformed frame shows: none (it sets nothing, shows no values)
+_NO_TABLE = VariableTable()
+
+
 class ReferenceDecoder:
     """The plain decoder, frame by frame through :class:`~sharedlink.protocols.state.LinkState`:
     obviously right, slow. The tests' oracle, and the path :class:`Decoder` hands every frame
@@ -154,6 +167,7 @@ class ReferenceDecoder:
         self.late_ns = round((sync_interval + SYNC_SLACK_S) * NS)
         self._sync: dict[tuple, list[int | None]] = {}  # table key -> [first data ts, last full ts]
         self._asks = PendingAsks(self.limits)  # unanswered queries, list requests and declarations, per querier
+        self._unframed = Unframed()  # malformed frames cut from the bytes that hold no frame
 
     def decode(self, sf: StreamFrame) -> Decoded:
         frame = sf.frame
@@ -197,6 +211,26 @@ class ReferenceDecoder:
         """Remember a query or declaration; for a reply (or a declaration answering a list
         request), the one it answers (:func:`sharedlink.protocols.state.link_response`)."""
         return link_response(self._asks, conversation_key(sf.conv), frame, kind, sf.number)
+
+    def unframed(self, sf: StreamFrame) -> Iterator[Decoded | StreamFrame]:
+        """Bytes that hold no well-formed frame (``sf.frame`` None): on UDP and TCP a
+        :class:`Decoded` of kind ``malformed`` for each ``[:`` in them (its letters from its
+        header, ``?`` for one it lacks; ``raw`` its bytes; ``checksum_ok`` False when its checksum
+        is wrong, else None; no updates, an empty table, never late) and the noise between them
+        (a :class:`~sharedlink.capture.stream.StreamFrame` of reason
+        :data:`~sharedlink.analysis.malformed.PIECE`); ``sf`` itself when it is left whole
+        (:meth:`sharedlink.analysis.malformed.Unframed.pieces`)."""
+        pieces = self._unframed.pieces(sf)
+        if pieces is None:
+            yield sf
+            return
+        raw, number, ts, conv = sf.raw, sf.number, sf.ts_ns, sf.conv
+        for src, dst, a, e, bad in pieces:
+            if src is None:
+                yield StreamFrame(number, ts, conv, raw[a:e], None, PIECE)
+            else:
+                yield Decoded(number, ts, conv, raw[a:e], None, "malformed", False if bad else None, (), _NO_TABLE,
+                              False, None, (), None, src, dst)
 
 
 # -- the core: the reference decoder with a fast path for frames in a layout already seen -----------
@@ -671,7 +705,7 @@ class Decoder(ReferenceDecoder):
         proto, src, sport, dst, dport = conv
         for sf in self.splitter.split(number, ts_ns, Datagram(proto, src, dst, sport, dport, data)):
             if sf.frame is None:
-                yield sf
+                yield from self.unframed(sf)
             else:
                 d = ReferenceDecoder.decode(self, sf)
                 self._learn(d)
@@ -1511,24 +1545,24 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
                 taken = 0
             if linktype in USER_LINKTYPES:
                 for item in serial.feed(number, ts_ns, linktype, data, flags, interface):
-                    yield _decode_item(dec, general, item)
+                    yield from _decode_item(dec, general, item)
                 continue
             dg = packets(linktype, data)
             if dg is None:
                 yield number, ts_ns
                 continue
             for sf in splitter.split(number, ts_ns, dg):
-                yield _decode_item(dec, general, sf)
+                yield from _decode_item(dec, general, sf)
     except CaptureError:
         if pending():
             yield take_batch()
         for item in serial.flush():
-            yield _decode_item(dec, general, item)
+            yield from _decode_item(dec, general, item)
         raise
     if pending():
         yield take_batch()
     for item in serial.flush():
-        yield _decode_item(dec, general, item)
+        yield from _decode_item(dec, general, item)
 
 
 #: a classic little-endian pcap record header
@@ -1620,12 +1654,16 @@ def _records(path: str | Path, fast: Callable | None = None) -> Iterator[tuple[i
 
 
 def _decode_item(dec: Decoder, general: Callable, item: StreamFrame | tuple[int, int]
-                 ) -> Decoded | StreamFrame | tuple[int, int]:
-    if isinstance(item, StreamFrame) and item.frame is not None:
-        d = general(dec, item)
-        dec._learn(d)
-        return d
-    return item
+                 ) -> Iterator[Decoded | StreamFrame | tuple[int, int]]:
+    if isinstance(item, StreamFrame):
+        if item.frame is not None:
+            d = general(dec, item)
+            dec._learn(d)
+            yield d
+            return
+        yield from dec.unframed(item)
+        return
+    yield item
 
 
 #: from byte 12 of an Ethernet/IPv4 packet: the type and the IP version and header length (3

@@ -262,6 +262,7 @@ class _Direction:
     frames_topic: str = ""
     nframes: int = 0
     nlocations: int = 0
+    nmalformed: int = 0  # frames of kind malformed: a frames message, no values message
     log_location: Any = None
     pair: str = ""  # "B>A"
     src: str = ""
@@ -334,6 +335,9 @@ class FoxgloveChannels:
         src, dst = d.src, d.dst   # (not d.frame: watch's fast path parses it only when asked)
         dr = self._dirs.get((d.conv, src, dst)) or self._direction(d)
         ts = d.ts_ns
+        if d.kind == "malformed":  # a frame that sets and shows nothing: its frames message only
+            self._emit(dr, dr.typed, d.number, d.kind, d.checksum_ok, False, d.raw, ts, [], False)
+            return
         vars_ = d.table.vars
         changed = [u.name for u in d.updates if u.changed and not u.carried and u.text is not None]
         typed = dr.typed
@@ -357,8 +361,8 @@ class FoxgloveChannels:
         self._emit(dr, typed, d.number, d.kind, d.checksum_ok, d.late, d.raw, ts, changed)
 
     def _emit(self, dr: _Direction, typed: dict[str, Any], number: int, kind: str, ok: bool | None, late: bool,
-              raw: bytes, ts: int, changed: list[str]) -> None:
-        """A frame's frames, values and location messages, its direction's values up to date."""
+              raw: bytes, ts: int, changed: list[str], values: bool = True) -> None:
+        """A frame's frames, values (``values``) and location messages, its direction's values up to date."""
         names = _NAMES.get(tuple(changed)) if changed else "[]"
         if names is None:
             names = _dumps(changed)
@@ -370,7 +374,10 @@ class FoxgloveChannels:
             fmt = dr.rows[(kind, ok, late)] = _ROW % (*[f.replace("%", "%%") for f in fixed], "true" if late else "false")
         row = fmt % (number, names, _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
         dr.log_frames(row.encode(), ts)
-        dr.log_values(dr.values_json, ts)
+        if values:
+            dr.log_values(dr.values_json, ts)
+        else:
+            dr.nmalformed += 1
         dr.nframes += 1
         if ok is not False and kind in VALUE_KINDS:
             fix = self._fix_bytes(dr, typed, ts, dr.pair)
@@ -514,7 +521,8 @@ class FoxgloveChannels:
         """Messages logged per topic."""
         out = dict(self._counts)
         for dr in self._dirs.values():
-            out[dr.frames_topic] = out[dr.values_topic] = dr.nframes
+            out[dr.frames_topic] = dr.nframes
+            out[dr.values_topic] = dr.nframes - dr.nmalformed
             if dr.location is not None:
                 out[dr.location_topic] = dr.nlocations
         return out

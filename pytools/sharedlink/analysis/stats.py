@@ -8,8 +8,8 @@ Definitions (the Lua tap ``dissector/sharedlink_stats.lua`` counts the same way)
 
 * frames per kind and per node pair ``"B>A"`` (from B to A), bytes of the frames (CR LF
   included); a ``[:`` that starts no well-formed frame is a frame of kind ``malformed`` under the
-  pair its header names, noise is never a frame (docs/fields-sharedlink.md, "Counts";
-  :func:`unframed_pieces`);
+  pair its header names, noise is never a frame (docs/fields-sharedlink.md, "Counts"; the core
+  gives each as a ``Decoded``: :mod:`sharedlink.analysis.malformed`);
 * checksum failures: frames whose checksum field does not match their bytes (their values are
   not used, see :mod:`sharedlink.analysis.decode`); frames with no checksum field are counted apart;
 * per variable (and node pair): ``count`` values carried in frames with a good checksum (a
@@ -25,11 +25,12 @@ Definitions (the Lua tap ``dissector/sharedlink_stats.lua`` counts the same way)
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Counted, Decoded, Decoder
+from sharedlink.analysis.malformed import PIECE, other_protocol, talk_key, unframed_pieces
 from sharedlink.capture.pcapio import CaptureError
 from sharedlink.capture.serial_format import GIVEN_UP
 from sharedlink.capture.stream import StreamFrame
@@ -208,6 +209,11 @@ class CaptureStats:
             p.first_ns = ts
         if ts > p.last_ns:  # type: ignore[operator]
             p.last_ns = ts
+        if kind == "malformed":  # no state, no values, never late; a checksum verdict only when wrong
+            if d.checksum_ok is False:
+                self.checksum_failures += 1
+                p.checksum_failures += 1
+            return
         if d.late:  # whatever the checksum, as the dissector's expert and its tap count it
             self.sync_late += 1
             p.sync_late += 1
@@ -263,10 +269,13 @@ class CaptureStats:
 
 
     def add_unframed(self, item: StreamFrame) -> None:
-        """Bytes of a record that hold no well-formed frame (a noise :class:`StreamFrame`): on
+        """Bytes of a record that hold no well-formed frame (a noise :class:`StreamFrame`, as
+        :func:`~sharedlink.capture.stream.iter_frames` gives them: the tests' plain path; the
+        core cuts them itself, :meth:`~sharedlink.analysis.decode.ReferenceDecoder.unframed`): on
         UDP and TCP each ``[:`` in them is a frame of kind ``malformed``, as sharedlink.lua shows it
-        (:func:`unframed_pieces`), the rest noise (CR and LF alone are none); on a serial link all
-        noise (serial.lua hands sharedlink.lua only the frames its deframer finds)."""
+        (:func:`~sharedlink.analysis.malformed.unframed_pieces`), the rest noise (CR and LF alone
+        are none); on a serial link all noise (serial.lua hands sharedlink.lua only the frames its
+        deframer finds)."""
         raw = item.raw
         if item.error == GIVEN_UP:  # an unfinished frame past MAX_HELD_BYTES: given up as noise
             self.limits.held += 1
@@ -276,32 +285,13 @@ class CaptureStats:
                 self.noise_segments += 1
                 self.noise_bytes += len(raw)
             return
-        ts = item.ts_ns
-        for pair, start, end, bad in unframed_pieces(raw):
-            size = end - start
-            if pair is None:
+        for src, dst, start, end, bad in unframed_pieces(raw):
+            if src is None:
                 self.noise_segments += 1
-                self.noise_bytes += size
-                continue
-            self.frames += 1
-            self.bytes += size
-            if bad:
-                self.checksum_failures += 1
-            self.kinds["malformed"] = self.kinds.get("malformed", 0) + 1
-            if self.first_ns is None or ts < self.first_ns:
-                self.first_ns = ts
-            if self.last_ns is None or ts > self.last_ns:
-                self.last_ns = ts
-            p = self.pairs.get(pair)
-            if p is None:
-                p = self.pairs[pair] = PairStats(pair, first_ns=ts, last_ns=ts)
-            p.frames += 1
-            p.bytes += size
-            p.kinds["malformed"] = p.kinds.get("malformed", 0) + 1
-            if bad:
-                p.checksum_failures += 1
-            p.first_ns = min(p.first_ns, ts)  # type: ignore[type-var]
-            p.last_ns = max(p.last_ns, ts)  # type: ignore[type-var]
+                self.noise_bytes += end - start
+            else:
+                self.add(Decoded(item.number, item.ts_ns, item.conv, raw[start:end], None, "malformed",
+                                 False if bad else None, (), _NO_VALUES, False, None, src=src, dst=dst))
 
     def add_counts(self, batch: Counted) -> None:
         """Frames the decoder's fast path counted (:class:`~sharedlink.analysis.decode.Counted`):
@@ -482,9 +472,11 @@ def capture_stats(
                 st.add_counts(item)
             elif isinstance(item, tuple):
                 st.other_records += 1
+            elif item.error == PIECE:  # noise beside a malformed frame the core cut
+                st.noise_segments += 1
+                st.noise_bytes += len(item.raw)
             else:
-                proto, src, sport, dst, dport = item.conv
-                key = (proto, *sorted(((src, sport), (dst, dport))))
+                key = talk_key(item.conv)
                 other = other_protocol(item.raw)
                 if other is not None:
                     talks[key] = other
@@ -503,81 +495,8 @@ def capture_stats(
     return st
 
 
-def _line_end(raw: bytes, b: int) -> int:
-    """The index just past a frame closed at ``raw[b]`` and its line end (CR LF, CR or LF)."""
-    c = raw[b + 1 : b + 3]
-    if c[:1] == b"\r":
-        return b + 3 if c == b"\r\n" else b + 2
-    return b + 2 if c[:1] == b"\n" else b + 1
-
-
-def unframed_pieces(raw: bytes) -> Iterator[tuple[str | None, int, int, bool]]:
-    """The pieces of UDP/TCP bytes that hold no well-formed frame, as sharedlink.lua's ``scan``
-    cuts them (docs/fields-sharedlink.md, "Counts"): ``(pair, start, end, bad)`` for each ``[:``
-    (``raw[start:end]`` its bytes), a frame of kind ``malformed`` running to the first ``]`` (and
-    its line end) when no other ``[:`` comes first, else up to that ``[:`` (or the end); its pair
-    ``"B>A"`` from the two bytes after ``[:`` (destination, source; ``?`` for a byte it lacks),
-    and ``bad`` when its checksum is wrong (:func:`_malformed_checksum_bad`).
-    ``(None, start, end, False)`` for the noise between them, bytes other than CR and LF (CR and
-    LF alone are no noise, as in the dissector)."""
-    n = len(raw)
-    pos = 0
-    b = 0  # the next "]" (searched again only once passed, as the dissector does: linear; -1: none left)
-    while pos < n:
-        a = raw.find(b"[:", pos)
-        end = n if a < 0 else a
-        if end > pos and raw[pos:end].strip(b"\r\n"):
-            yield None, pos, end, False
-        if a < 0:
-            return
-        if 0 <= b < a + 2:
-            b = raw.find(b"]", a + 2)
-        na = raw.find(b"[:", a + 2)
-        if b >= 0 and (na < 0 or b < na):
-            body, pos = raw[a:b], _line_end(raw, b)
-        else:
-            body = raw[a:na] if na >= 0 else raw[a:]
-            pos = na if na >= 0 else n
-        dst = chr(body[2]) if len(body) > 2 else "?"
-        src = chr(body[3]) if len(body) > 3 else "?"
-        yield f"{src}>{dst}", a, pos, _malformed_checksum_bad(body)
-
-
-_HEX_DIGITS = re.compile(rb"[0-9A-Fa-f]{1,8}").fullmatch
-
-
-def _malformed_checksum_bad(body: bytes) -> bool:
-    """Whether sharedlink.lua finds a malformed frame's checksum wrong (``body``: its bytes from
-    ``[`` on, without the closing ``]``): a last field starting with ``C``, after the first ``|``
-    behind the letters, is checked as in a good frame (the byte sum from ``:`` to that ``C``,
-    mod 256, against 1 to 8 hex digits); no such field, no verdict."""
-    if len(body) < 5:
-        return False  # no field at all
-    p = 5 if body[4] == 0x7C else body.find(b"|", 5) + 1
-    if p == 0:
-        return False
-    last = body[p:].rsplit(b"|", 1)[-1]
-    if last[:1] != b"C":
-        return False
-    cpos = len(body) - len(last)
-    text = last[1:]
-    return not (_HEX_DIGITS(text) and int(text, 16) == sum(body[1 : cpos + 1]) % 256)
-
-
-#: a Holland blackboard message (set ``:`` or request ``;``, ASCII hex, CR), as blackboard.lua's heuristic
-_BLACKBOARD = re.compile(rb"[:;][0-9A-Fa-f]{8,}\r")
-
-
-def other_protocol(raw: bytes) -> str | None:
-    """The related robot protocol a segment that holds no SharedLink frame starts with, as the
-    dissectors' heuristics see it: ``p2os`` (``FA FB``), ``blackboard`` (``:``/``;`` then hex and
-    CR), else None (noise; :func:`capture_stats` also counts the binary replies on a conversation
-    that carried one of these as that protocol)."""
-    if raw.startswith(b"\xfa\xfb"):
-        return "p2os"
-    if _BLACKBOARD.match(raw):
-        return "blackboard"
-    return None
+#: a malformed frame's table: none (it sets nothing)
+_NO_VALUES = VariableTable()
 
 
 _ESCAPES = {"\r": "\\r", "\n": "\\n", "\t": "\\t", "\\": "\\\\"}

@@ -118,7 +118,7 @@ def scan_sharedlink(buf: bytes, final: bool) -> tuple[list[tuple[int, int, Decod
     """SharedLink pieces of ``buf`` and where the unfinished tail starts (``len(buf)`` when
     nothing is held). Built on :func:`codec.iter_segments`: a frame that might still grow (no
     ``]`` yet, or ``]`` with its CR LF not yet seen) is held from its last ``[``."""
-    segs = list(iter_segments(buf))
+    segs = list(iter_segments(buf, restart_at_bracket=True))  # (serial.lua: any '[' restarts a frame)
     n = len(buf)
     hold = n
     if not final and segs:

@@ -31,7 +31,7 @@ from sharedlink.capture.change_records import unescape as unescape
 from sharedlink.capture.packets import Datagram, PacketDecoder
 from sharedlink.capture.pcapio import NS, CaptureError, read_records
 from sharedlink.capture.serial_format import DIRECTION_NAMES, GIVEN_UP, USER_LINKTYPES, Piece, StreamReader
-from sharedlink.protocols.codec import Frame, iter_segments
+from sharedlink.protocols.codec import Frame, iter_segments, unterminated_start
 from sharedlink.protocols.limits import MAX_HELD_BYTES
 from sharedlink.protocols.state import parse_variables
 
@@ -116,7 +116,7 @@ class FrameSplitter:
         for seg in iter_segments(data):
             if seg.frame is None and dg.proto == "tcp" and seg.end == len(data) and seg.error is not None:
                 if seg.error.reason == "unterminated frame":
-                    start = data.rfind(b"[", seg.start)
+                    start = unterminated_start(data, seg.start)
                     if start > seg.start:
                         out.append(StreamFrame(number, ts_ns, conv, data[seg.start : start], None, "noise between frames"))
                     if len(data) - start > _TCP_BUFFER_MAX:  # a '[' that never closes: given up as noise

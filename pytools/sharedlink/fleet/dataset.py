@@ -26,6 +26,7 @@ import os
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from urllib.parse import quote
 
 from sharedlink.capture.pcapio import atomic_open
 from sharedlink.errors import UsageError
@@ -98,8 +99,10 @@ def __getattr__(name: str) -> object:
 
 
 def partition_dir(day: str, link: str) -> str:
-    """``day=2026-01-01/link=B-A``: a partition's directory below a table's."""
-    return f"day={day}/link={link}"
+    """``day=2026-01-01/link=B-A``: a partition's directory below a table's. The link is
+    percent-encoded past letters, digits and ``-_.~`` (a malformed frame's ``?``, any byte a
+    header names: no glob, no ``/``), as Hive readers (DuckDB, pyarrow) decode it."""
+    return f"day={day}/link={quote(link, safe='-')}"
 
 
 # -- manifest ------------------------------------------------------------------------------------

@@ -71,6 +71,10 @@ class Field:
         return self.letter + self.text
 
 
+#: a checksum text the dissector reads: 1 to 8 hex digits (util.lua's checksum_value)
+_CHECKSUM_TEXT = re.compile(r"[0-9A-Fa-f]{1,8}").fullmatch
+
+
 @dataclass(frozen=True)
 class Checksum:
     """What the checksum field said and what the bytes add up to."""
@@ -80,12 +84,12 @@ class Checksum:
 
     @property
     def value(self) -> int | None:
-        if self.text is None:
+        """The text's value: 1 to 8 hex digits, either case (as sharedlink.lua reads it: "00A5"
+        is A5, no sign, space or "0x"); None otherwise."""
+        t = self.text
+        if t is None or not _CHECKSUM_TEXT(t):
             return None
-        try:
-            return int(self.text, 16) if self.text and len(self.text) <= 2 else None
-        except ValueError:
-            return None
+        return int(t, 16)
 
     @property
     def ok(self) -> bool | None:
@@ -201,7 +205,7 @@ def _parse_inner(data: bytes, start: int, end: int, crlf: bool, deviations: list
     except Exception as exc:  # pragma: no cover - latin-1 decodes any bytes
         raise SharedLinkError(start, "undecodable bytes") from exc
     dst, src = text[1], text[2]
-    if dst in "|]" or src in "|]":
+    if dst == "]" or src == "]":  # (a '|' is a letter, as sharedlink.lua reads the two bytes after ':')
         raise SharedLinkError(start + 1, "header too short: need destination and source letters")
     if address_node(dst) is None:
         deviations.append(f"destination {dst!r} is not a node letter A-P")
@@ -258,15 +262,69 @@ def split_frames(data: bytes) -> list[Segment]:
     return list(iter_segments(data))
 
 
-def iter_segments(data: bytes) -> Iterator[Segment]:
+def iter_segments(data: bytes, restart_at_bracket: bool = False) -> Iterator[Segment]:
     """Yield frames and noise segments of ``data`` in order; linear in ``len(data)``.
 
-    A frame runs from ``[`` to the first ``]`` and takes a CR LF after it. A ``[`` inside a
-    would-be frame restarts the frame there (the earlier bytes become noise), so garbage
-    before a real frame cannot swallow it. An unterminated tail is reported as noise with
-    the error "unterminated frame".
+    As sharedlink.lua's scan (docs/fields-sharedlink.md): a frame starts at ``[:`` and runs to
+    the first ``]`` after it (a ``[`` inside a value is part of the value), taking a CR LF after
+    it; a ``[:`` before that ``]`` means the first is unterminated: its bytes stay noise (a
+    malformed frame to the decoding core, :mod:`sharedlink.analysis.malformed`). An
+    unterminated tail (its last ``[:`` with no ``]`` after it, or a ``[`` at the very end) is
+    reported as noise with the error "unterminated frame".
+
+    ``restart_at_bracket``: the serial wrapper's rule (serial.lua, :mod:`sharedlink.capture.serial_format`):
+    any ``[`` inside a would-be frame restarts the frame there (the earlier bytes become noise).
     """
+    if restart_at_bracket:
+        yield from _segments_restarting(bytes(data))
+        return
     data = bytes(data)
+    n = len(data)
+    noise_start = 0
+    o = data.find(b"[:")
+    while o >= 0:
+        c = data.find(b"]", o + 2)
+        if c < 0:
+            break
+        na = data.find(b"[:", o + 2)  # (past this frame's end when it closes: the next one's start)
+        if 0 <= na < c:
+            o = na  # unterminated: the next '[:' starts again
+            continue
+        end = c + 1
+        crlf = data[end : end + 2] == CRLF
+        if crlf:
+            end += 2
+        try:
+            devs: list[str] = [] if crlf else ["no CR LF after ']'"]
+            frame = _parse_inner(data, o + 1, c, crlf, devs)
+        except SharedLinkError:
+            o = na  # not a frame: it stays part of the noise; scan on from the next '[:'
+            continue
+        if o > noise_start:
+            yield Segment(noise_start, o, error=SharedLinkError(noise_start, "noise between frames"))
+        yield Segment(o, end, frame=frame)
+        noise_start = end
+        o = na
+    if noise_start < n:
+        tail = data[noise_start:]
+        k = tail.rfind(b"[:")
+        open_tail = (k >= 0 and tail.find(b"]", k) < 0) or tail.endswith(b"[")
+        reason = "unterminated frame" if open_tail else "noise between frames"
+        yield Segment(noise_start, n, error=SharedLinkError(noise_start, reason))
+
+
+def unterminated_start(data: bytes, start: int) -> int:
+    """Where the unterminated frame of an "unterminated frame" tail ``data[start:]`` (from
+    :func:`iter_segments`) starts: its last ``[:`` with no ``]`` after it, else the ``[`` at
+    the very end (as sharedlink.lua holds a TCP tail for the next segment)."""
+    k = data.rfind(b"[:", start)
+    if k >= 0 and data.find(b"]", k) < 0:
+        return k
+    return len(data) - 1
+
+
+def _segments_restarting(data: bytes) -> Iterator[Segment]:
+    """:func:`iter_segments` with ``restart_at_bracket`` (the serial wrapper's rule)."""
     n = len(data)
     pos = 0
     noise_start = 0
