@@ -106,6 +106,12 @@ def test_readme_command_runs(place, command):
     if command in SKIP and SKIP[command]:
         pytest.skip(SKIP[command])
     cwd = ROOT if command.startswith("make ") else place
+    if command.startswith("sharedlink query fleet.parquet") and not (place / "fleet.parquet").exists():
+        # the README ingests first; under pytest -n 2 the ingest command may run on the other
+        # worker (its own folder) or later: run it here (ingest is incremental, so a later run
+        # of the ingest command still succeeds, finding the captures unchanged)
+        (ingest,) = [c for c in COMMANDS if c.startswith("sharedlink ingest fleet/ -o fleet.parquet")]
+        subprocess.run(ingest, shell=True, cwd=place, env=_env(place), check=True, capture_output=True, timeout=600)
     if command == "sharedlink watch --foxglove":
         return _run_until_serving(place, command)
     r = subprocess.run(command, shell=True, cwd=cwd, env=_env(place), capture_output=True, text=True, timeout=600)
