@@ -262,6 +262,18 @@ def split_frames(data: bytes) -> list[Segment]:
     return list(iter_segments(data))
 
 
+def _frame_between(data: bytes, o: int, c: int) -> tuple[int, Frame]:
+    """The frame of ``data[o:c + 1]`` (its ``[`` at ``o``, its ``]`` at ``c``) and where it ends:
+    past the CR LF right after ``]``, when there is one. Raises :class:`SharedLinkError` when
+    those bytes are no frame (both scanners of :func:`iter_segments` read frames this way)."""
+    end = c + 1
+    crlf = data[end : end + 2] == CRLF
+    if crlf:
+        end += 2
+    devs: list[str] = [] if crlf else ["no CR LF after ']'"]
+    return end, _parse_inner(data, o + 1, c, crlf, devs)
+
+
 def iter_segments(data: bytes, restart_at_bracket: bool = False) -> Iterator[Segment]:
     """Yield frames and noise segments of ``data`` in order; linear in ``len(data)``.
 
@@ -290,13 +302,8 @@ def iter_segments(data: bytes, restart_at_bracket: bool = False) -> Iterator[Seg
         if 0 <= na < c:
             o = na  # unterminated: the next '[:' starts again
             continue
-        end = c + 1
-        crlf = data[end : end + 2] == CRLF
-        if crlf:
-            end += 2
         try:
-            devs: list[str] = [] if crlf else ["no CR LF after ']'"]
-            frame = _parse_inner(data, o + 1, c, crlf, devs)
+            end, frame = _frame_between(data, o, c)
         except SharedLinkError:
             o = na  # not a frame: it stays part of the noise; scan on from the next '[:'
             continue
@@ -336,13 +343,8 @@ def _segments_restarting(data: bytes) -> Iterator[Segment]:
         if c < 0:
             break
         o2 = data.rfind(b"[", o, c)  # the last '[' before ']' starts the frame
-        end = c + 1
-        crlf = data[end : end + 2] == CRLF
-        if crlf:
-            end += 2
         try:
-            devs: list[str] = [] if crlf else ["no CR LF after ']'"]
-            frame = _parse_inner(data, o2 + 1, c, crlf, devs)
+            end, frame = _frame_between(data, o2, c)
         except SharedLinkError:
             pos = c + 1  # not a frame: it stays part of the noise; scan on after its ']'
             continue
