@@ -41,6 +41,13 @@ def _udp(src: tuple[str, int], dst: tuple[str, int]) -> UdpBuilder:
     return UdpBuilder(src[0], dst[0], src[1], dst[1])
 
 
+def _session(bodies: list[str]) -> list[bytes]:
+    """Each body a frame between the OCU and the vehicle: ``BA|...`` from the OCU, any other
+    from the vehicle (as ``_frame`` writes it, numbered from 1)."""
+    return [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
+            for i, x in enumerate(bodies)]
+
+
 def _write(path: Path, frames: list[bytes]) -> Path:
     with open(path, "wb") as fh:
         w = PcapWriter(fh)
@@ -239,8 +246,7 @@ UNTYPED_AFTER_TYPED = ["AB|N0|T2|QVel|T0|QLat", "AB|N0|QVel|D5", "AB|N0|T4|QVel|
 
 
 def test_a_named_value_without_t_is_untyped_alike(tmp_path: Path) -> None:
-    frames = [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
-              for i, x in enumerate(UNTYPED_AFTER_TYPED)]
+    frames = _session(UNTYPED_AFTER_TYPED)
     cap = _write(tmp_path / "untyped.pcap", frames)
     lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
     assert lua == py
@@ -266,8 +272,7 @@ def test_named_values_past_the_1024th_are_no_slot_limit_hit(tmp_path: Path) -> N
     name at slot 1024 still are (frames 4 and 5)."""
     big = "AB|N0|" + "|".join(f"T2|Qv{i}|D{i}" for i in range(1100))
     bodies = [big, "AB|N1023|T2|Qv0|D1|T2|Qv1|D2", "AB|N2000|T2|Qv2|D3", "AB|N1023|D1|D2", "BA|N1023|Qa|Qb"]
-    frames = [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
-              for i, x in enumerate(bodies)]
+    frames = _session(bodies)
     cap = _write(tmp_path / "named.pcap", frames)
     assert _limited(_lua(cap)) == [4, 5]
     assert capture_stats(cap).limits.to_dict()["slots"] == 2
@@ -287,8 +292,7 @@ ODD_ORDINALS = ["AB|N0|T2|QA|T2|QB", "AB|N?|D1|D2", "AB|N|D1|D2", "AB|Nx|D1|D2",
 
 
 def test_an_ordinal_that_is_not_decimal_digits_is_no_number_alike(tmp_path: Path) -> None:
-    frames = [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
-              for i, x in enumerate(ODD_ORDINALS)]
+    frames = _session(ODD_ORDINALS)
     cap = _write(tmp_path / "ordinals.pcap", frames)
     rows = _lua(cap)
     assert _limited(rows) == []
@@ -312,8 +316,7 @@ SHORTENED = ["BA|N0|T2|Qa|T2|Qb|T2|Qc", "BA|N0|D1|D2|D3", "BA|N0|T2|Qa", "AB|N0|
 
 
 def test_a_shortened_list_under_waiting_asks_alike(tmp_path: Path) -> None:
-    frames = [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
-              for i, x in enumerate(SHORTENED)]
+    frames = _session(SHORTENED)
     cap = _write(tmp_path / "shortened.pcap", frames)
     lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
     assert lua == py
