@@ -54,6 +54,14 @@ def load(path: Path):
 
 
 def main(argv: list[str]) -> int:
+    names = sorted(path.stem[len("bench_") :] for path in HERE.glob("bench_*.py"))
+    if {"-h", "--help"} & set(argv):
+        print(f"usage: bench.py [MODULE ...]\n\n{__doc__.strip()}\n\nmodules: {' '.join(names)}")
+        return 0
+    unknown = set(argv) - set(names)
+    if unknown:
+        print(f"bench.py: no such module: {' '.join(sorted(unknown))} (modules: {' '.join(names)})", file=sys.stderr)
+        return 2
     only = set(argv)
     sys.path.insert(0, str(HERE))
     results: list[Result] = []
