@@ -559,7 +559,7 @@ class _ColLane:
     made for (the direction's version, its variable and sent-name counts, its form); any other
     state and it is made again."""
 
-    __slots__ = ("h", "hkey", "key", "conv", "src", "dst", "stamp", "rx", "names", "types", "vs")
+    __slots__ = ("h", "hkey", "key", "conv", "src", "dst", "stamp", "rx", "names", "types", "vs", "carry")
 
     def __init__(self, h: _Hot, hkey: tuple, stamp: tuple, key: bytes = b"") -> None:
         self.h, self.hkey, self.stamp, self.key = h, hkey, stamp, key
@@ -569,13 +569,16 @@ class _ColLane:
         if len(t.vars) > MAX_COMPILED_VARS:
             # too wide for a lane: nothing listed, so a table that grows by new names every frame
             # costs nothing a frame here (a lane walks every variable: quadratic, issue 31)
-            self.vs, self.names, self.types = [], (), ()
+            self.vs, self.names, self.types, self.carry = [], (), (), ()
             return
         every = list(t.vars.values())
         vs = [v for v in every if v.type_code is not None]
         self.vs = vs
         self.names = tuple(v.name for v in vs)
         self.types = tuple(v.type_code for v in vs)
+        # carried values go in the order the direction sent their names first (as the reference's)
+        sent = t.sent_names
+        self.carry = tuple(sorted(range(len(vs)), key=lambda i: sent.get(vs[i].name, len(sent) + i)))
         if (t.named is True and 0 < len(vs) <= MAX_COMPILED_VARS
                 and all(v.type_code is not None for v in every if v.text is not None)
                 and {v.name for v in every if v.text is not None} == set(t.sent_names)):
@@ -888,7 +891,7 @@ class Decoder(ReferenceDecoder):
         stamp = (len(vars_), len(sent))
         if lay.stamp != stamp:  # as _fast: what the layout leaves out, and the kind before the frame
             present = lay.present
-            lay.missing = tuple(n for n in vars_ if n not in present)
+            lay.missing = tuple(n for n in sent if n not in present)
             lay.full = bool(present) and sum(1 for n in present if n in sent) == len(sent)
             lay.stamp = stamp
         cols = lay.cols
@@ -1018,7 +1021,7 @@ class Decoder(ReferenceDecoder):
         c = self.rows.get(h)
         if c is None:
             c = self.rows[h] = DirColumns(lane.conv, lane.src, lane.dst, h.table)
-        names, types = lane.names, lane.types
+        names, types, carry = lane.names, lane.types, lane.carry
         setn = [v.set_in for v in vs]
         sett = [v.set_at for v in vs]
         carried_rows = self.carried
@@ -1055,7 +1058,7 @@ class Decoder(ReferenceDecoder):
             else:
                 full = False
                 if carried_rows:
-                    for i in rng:
+                    for i in carry:
                         if g[i] is None and cur[i] is not None:
                             nm_app(names[i])
                             tx_app(cur[i])
@@ -1218,7 +1221,7 @@ class Decoder(ReferenceDecoder):
         stamp = (len(table.vars), len(table.sent_names))
         if lay.stamp != stamp:
             present = lay.present
-            lay.missing = tuple(n for n in table.vars if n not in present)
+            lay.missing = tuple(n for n in table.sent_names if n not in present)
             lay.full = bool(present) and sum(1 for n in present if n in table.sent_names) == len(table.sent_names)
             lay.stamp = stamp
         return lay.full
@@ -1305,7 +1308,7 @@ class Decoder(ReferenceDecoder):
             h.stamp = stamp
         if lay.stamp != stamp:  # the direction's names changed: what the layout leaves out, again
             present = lay.present
-            lay.missing = tuple(n for n in vars_ if n not in present)
+            lay.missing = tuple(n for n in sent if n not in present)
             # the kind before the frame, as VariableTable.kind (a bare N0 is a delta)
             lay.full = bool(present) and sum(1 for n in present if n in sent) == len(sent)
             lay.stamp = stamp

@@ -362,10 +362,11 @@ class VariableTable:
             u = self._value(nv.name, nv.type_code, nv.text, number, time_ns, pos, store)
             if u is not None:
                 updates.append(u._replace(bad=True) if nv.bad_type else u)  # "Type is not a number"
-        if carried:
-            for name, v in self.vars.items():
-                if name not in seen and v.text is not None:
-                    updates.append(_update(v, sent.get(name, self._index(name)), True, v.set_in, False))
+        if carried:  # the names this direction sent by name, in the order it sent them first
+            for name, pos in sent.items():
+                v = self.vars.get(name)
+                if name not in seen and v is not None and v.text is not None:
+                    updates.append(_update(v, pos, True, v.set_in, False))
         return updates
 
     def _positional(self, fields: Sequence, number: int, time_ns: int, store: bool) -> list[Update]:
