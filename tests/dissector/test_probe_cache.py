@@ -46,6 +46,10 @@ def home(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     plugins.mkdir(parents=True)
     shutil.copy(tu.DISSECTOR, plugins / "sharedlink.lua")
     shutil.copytree(tu.DISSECTOR.parent / "sharedlink", plugins / "sharedlink")
+    conf = re.search(r"^Personal configuration:\s*(.+)$", folders, re.M)
+    assert conf, folders
+    Path(conf.group(1).strip()).mkdir(parents=True, exist_ok=True)
+    shutil.copy(tu.DISSECTOR.parent / "sharedlink.colorfilters", Path(conf.group(1).strip()) / "colorfilters")
     return env
 
 
@@ -55,6 +59,15 @@ def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     path = tmp_path_factory.mktemp("sharkd-cap") / "beacon.pcap"
     generate_file(GenOptions(frames=40), path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def faults(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from sharedlink.generators.beacon import GenOptions, generate_file
+
+    path = tmp_path_factory.mktemp("sharkd-faults") / "faults.pcap"
+    generate_file(GenOptions(frames=300, compress=True, bad_checksum=0.05, drop=0.2, seed=2), path)
     return path
 
 
@@ -109,3 +122,15 @@ def test_a_shown_tree_ends_the_run(home: dict[str, str], capture: Path) -> None:
 def test_a_field_never_referenced_before_from_the_next_frame_on(home: dict[str, str], capture: Path) -> None:
     out = sharkd_session(home, capture, [frames(0, NUMBER), frames(3, VALUE, NUMBER)])
     assert all(re.fullmatch(r"-?\d+\.\d+", v) for v in column(out[1], 0)), out[1]
+
+
+def test_the_coloring_rules_colour_every_bad_checksum_over_a_run(home: dict[str, str], faults: Path) -> None:
+    # the packet list's way: every row in frame order, primed with the coloring rules (the run keeps
+    # what the probe learnt); the rows sharkd colours as "SharedLink bad checksum" (background
+    # 4718,10030,11796 = #12272e) are the frames tshark's -Y on the same field matches
+    bad = {int(r["frame.number"][0]) for r in tu.fields(faults, ["frame.number"], two_pass=False,
+                                                       display_filter="sharedlink.checksum.status == 0")}
+    assert bad, "no bad checksum in the capture: the test tests nothing"
+    out = sharkd_session(home, faults, [("frames", {"column0": NUMBER})])
+    coloured = {int(row["c"][0]) for row in out[0] if row.get("bg") == "12272e"}
+    assert coloured == bad
