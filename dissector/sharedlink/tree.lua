@@ -100,44 +100,45 @@ end
 
 -- Which fields somebody references, learnt by the probe (wsapi.referenced, which answers true
 -- when unsure): field -> true/false, nil while not known.  In a tree nobody sees Wireshark adds
--- a field only when a filter, coloring rule, tap or field extractor references it.
--- tshark keeps what it learnt for a run of consecutive frames of one pass (wsapi.cache_refs:
--- its filters, taps and field extractors are all set before the first packet; tshark -2
--- primes the display filter in its first pass too, and the cache starts again with each
--- pass).  The GUI (and SHAREDLINK_PROBE_EACH_FRAME=1) learns the fields that repeat in a frame
--- (PER_FRAME) again in every frame, as its display filter and coloring rules change while it
--- runs; the others are then always added (once a frame, a probe would cost what it saves).
+-- a field only when the filters, coloring rules, custom columns, taps or field extractors primed
+-- for that dissection reference it (docs/architecture.md, "The referenced-field cache").
+-- What was learnt is kept over a run of consecutive frames (frame n + 1 after frame n, the same
+-- pass: pinfo.visited) with no shown tree in between, the way tshark's passes and the GUI's
+-- background colouring of the packet list go; a field ever found referenced (SEEN) and learnt
+-- unreferenced since is asked again in each dissection, so a run that references it again is
+-- seen (a field learnt referenced that no longer is only costs its item: shown, never lost).
+-- Anything else (another frame, another pass, a shown tree; SHAREDLINK_PROBE_EACH_FRAME=1: every
+-- frame) starts again.
 local LEARNT = {}
 local NO_REF = {}     -- mode NONE: nothing is referenced
 for _, field in pairs(hf) do NO_REF[field] = false end
 local REF = LEARNT    -- the one in use for the frame being built
-local CACHE_REFS = wsapi.cache_refs
-local PER_FRAME = { H_var, H_ftype, H_var_name, H_var_index, H_var_value, H_var_double, hf.var_long,
-    hf.var_string, H_var_carried, H_var_carried_from, hf.query, hf.response, hf.response_in, hf.response_to,
-    hf.response_time, hf.command_arg }
-for _, vf in pairs(cfg.VALUE) do PER_FRAME[#PER_FRAME + 1] = vf.field end   -- sharedlink.value.<name>
-if not CACHE_REFS then
-    local per_frame = {}
-    for _, field in ipairs(PER_FRAME) do per_frame[field] = true end
-    for _, field in pairs(hf) do if not per_frame[field] then LEARNT[field] = true end end
-end
-local ref_num, ref_visited = -1, nil   -- the frame and pass the cache was last used in
+local EACH_FRAME = wsapi.env.probe_each_frame
+local SEEN, IS_SEEN, n_seen = {}, {}, 0   -- the fields ever found referenced, in a list and a set
+local ref_num, ref_visited, ref_tvb = -1, nil, nil   -- the last hidden dissection: frame, pass, Tvb
 local UNKNOWN = {}  -- "the parent's text is not read yet"
 
--- Start a hidden tree: forget what may have changed since the last frame.  Returns the text hadd
--- compares the protocol item's children with (UNKNOWN: read when needed).
-local function ref_start(ti, num, visited)
-    if CACHE_REFS then
-        if visited ~= ref_visited or (num ~= ref_num and num ~= ref_num + 1) then
-            for k in pairs(LEARNT) do LEARNT[k] = nil end
-            ref_visited = visited
+-- Start a hidden tree: forget what may have changed since the last frame.  tvb: the packet's Tvb,
+-- the same object for the frames of one packet (one dissection).  Returns the text hadd compares
+-- the protocol item's children with (UNKNOWN: read when needed).
+local function ref_start(tvb, num, visited)
+    if rawequal(tvb, ref_tvb) and not EACH_FRAME then return UNKNOWN end   -- the packet's next frame
+    ref_tvb = tvb
+    if EACH_FRAME or visited ~= ref_visited or num ~= ref_num + 1 then
+        for k in pairs(LEARNT) do LEARNT[k] = nil end
+        ref_visited = visited
+    else
+        for k = 1, n_seen do   -- a field found referenced before, learnt unreferenced: ask again
+            local field = SEEN[k]
+            if LEARNT[field] == false then LEARNT[field] = nil end
         end
-        ref_num = num
-        return UNKNOWN
     end
-    for k = 1, #PER_FRAME do LEARNT[PER_FRAME[k]] = nil end
-    return ti.text
+    ref_num = num
+    return UNKNOWN
 end
+
+-- A shown tree (the GUI's packet details, -V) ends a run: what follows learns again.
+local function ref_break() ref_num, ref_tvb = -1, nil end
 
 -- A hidden item: field = value under parent (whose text is ptext, or UNKNOWN), for a field not
 -- known to be unreferenced (the caller checks REF[field] ~= false first, so an unreferenced
@@ -148,9 +149,13 @@ local function hadd(parent, ptext, field, value)
     if value == nil then it = TI.add(parent, field) else it = TI.add(parent, field, value) end
     local r = REF[field]
     if r == nil then
-        if ptext == UNKNOWN then ptext = parent.text end
-        r = wsapi.referenced(it, ptext)
+        r = wsapi.referenced(it, parent, ptext ~= UNKNOWN and ptext or nil)
         REF[field] = r
+        if r and not IS_SEEN[field] then
+            IS_SEEN[field] = true
+            n_seen = n_seen + 1
+            SEEN[n_seen] = field
+        end
     end
     return r and it or nil
 end
@@ -165,7 +170,7 @@ end
 local C = {}   -- the rest of it
 local c_shown
 local c_csrc, c_d, c_f, c_ke, c_list, c_num, c_o, c_places
-local c_ti, c_ttext, c_tv, c_tvb, c_vtext
+local c_ti, c_ttext, c_tv, c_tvb
 
 ------------------------------------------------------------------------------
 -- The head: the protocol item, the addresses, the kind, malformed.
@@ -237,7 +242,7 @@ local function tree_head()
         ti = TI.add(C.tree, sl)
     end
     c_ti = ti
-    c_ttext = mode == HIDDEN and ref_start(ti, c_num, C.visited) or nil
+    c_ttext = mode == HIDDEN and ref_start(tvb, c_num, C.visited) or nil
     tree_address(c_o + 3, dstb, C.dst, dnode, H_dst, hf.dst_node, "Destination")
     tree_address(c_o + 4, srcb, C.src, snode, H_src, hf.src_node, "Source")
     if mode == SHOWN then
@@ -258,12 +263,7 @@ local function var_item()
     if REF[H_var] == false then return ti, c_ttext end
     local vt = hadd(ti, c_ttext, H_var)
     if not vt then return ti, c_ttext end
-    local vtext = c_vtext
-    if not vtext then   -- a real variable item's text, the same for all (read once a frame)
-        vtext = CACHE_REFS and UNKNOWN or vt.text
-        c_vtext = vtext
-    end
-    return vt, vtext
+    return vt, UNKNOWN   -- a real variable item: its text is read when a probe needs it
 end
 
 -- Its T field (field tf; shown: the type or an expert when it is not a number), hidden: its type.
@@ -804,6 +804,7 @@ local function tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, 
                           dstb, srcb, list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
     REF = mode == NONE and NO_REF or LEARNT
     c_shown = mode == SHOWN
+    if c_shown then ref_break() end
     -- tvb offset of f[i] is o + i
     C.mode, C.tree, c_tvb, c_o, c_f, C.s, C.a, C.e, C.fl = mode, tree, tvb, a - 2, f, s, a, e, fl
     c_num, C.visited, C.kind, C.dstb, C.srcb = num, visited, kind, dstb, srcb
@@ -815,7 +816,7 @@ local function tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, 
     C.rts, C.unmatched = rec and rec.rt, rec and rec.unmatched
     -- the carried values of empty D fields (value, frame, ...), ke: how many used so far
     c_csrc, c_ke = rec or (ne > 0 and CARRY), 0
-    C.cmd_item, c_vtext = nil, nil   -- the E field's item; a hidden variable item's text
+    C.cmd_item = nil   -- the E field's item
     c_tv = P.named and P.named.TV     -- a named layout's types (valid, doubles plain decimals)
     c_places = mode == SHOWN or not P.layout   -- the fields' places (FL, FS, FE, VTf...) are known
     tree_head()

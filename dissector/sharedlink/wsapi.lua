@@ -2,7 +2,6 @@
 -- Loaded by sharedlink.lua (load_module); Wireshark also runs every .lua file it finds in a
 -- plugin folder's subfolders as a plugin of its own (4.0 with no arguments, 4.4 and later with
 -- the file's name and path): this file then does nothing.
--- luacheck: read globals gui_enabled
 
 local token = ...
 if type(token) ~= "table" or token.sharedlink_module ~= true then return end
@@ -84,22 +83,21 @@ end
 -- (proto.c, TRY_TO_FAKE_THIS_ITEM), whose text is the parent's text.  So an item whose text
 -- differs from its parent's is a real one (checked on 4.0, 4.4 and 4.6).  When either text
 -- is missing (a release whose items carry none) the probe cannot tell: referenced.
-function wsapi.referenced(item, parent_text)
+-- parent_text: the parent's text, or nil (read here).
+function wsapi.referenced(item, parent, parent_text)
     local t = item.text
+    if parent_text == nil then parent_text = parent.text end
     if type(t) ~= "string" or type(parent_text) ~= "string" then return true end
     return t ~= parent_text
 end
--- What the probe learnt may be kept over a run of consecutive frames of one pass in tshark,
--- whose filters, taps and field extractors are all set before the first packet; the GUI
--- (and anything that dissects frames out of order, as sharkd does) learns again each frame.
-wsapi.cache_refs = not (gui_enabled and gui_enabled())
+-- What the probe learnt is kept over a run of consecutive frames (tree.lua, ref_start; the
+-- argument in docs/architecture.md, "The referenced-field cache"), in tshark and the GUI alike.
 
 -- (5) Environment switches, for the tests (docs/architecture.md): SHAREDLINK_NO_FAST=1 (the layout
 -- cache off: every frame parsed field by field), SHAREDLINK_FAST_MARK=1 (mark the Info of the
--- packets the cache parsed), SHAREDLINK_PROBE_EACH_FRAME=1 (tshark learns the referenced fields
--- each frame, as the GUI).
+-- packets the cache parsed), SHAREDLINK_PROBE_EACH_FRAME=1 (the referenced fields learnt again in
+-- every frame: no run of frames keeps them).
 local function env(name) return os.getenv("SHAREDLINK_" .. name) == "1" end
 wsapi.env = { no_fast = env("NO_FAST"), fast_mark = env("FAST_MARK"), probe_each_frame = env("PROBE_EACH_FRAME") }
-if wsapi.env.probe_each_frame then wsapi.cache_refs = false end
 
 return wsapi

@@ -5,8 +5,9 @@ and label) and the hidden one (``-Y`` alone, coloring rules, taps: values only, 
 references is not added at all, as the referenced-field probe tells).  For each display filter
 below, over every capture of captures/, the golden inputs, the fuzz regressions and freshly
 generated fault captures (concatenated into one file), the frames ``-Y F`` matches with a hidden
-tree must be the frames ``-V -Y F`` matches with a shown one: in one pass, in the GUI's way (the
-probe asked again each frame, ``SHAREDLINK_PROBE_EACH_FRAME=1``) and with two passes (``-2``).
+tree must be the frames ``-V -Y F`` matches with a shown one: in one pass (what the probe learnt
+kept over the run of frames), with the probe asked again each frame
+(``SHAREDLINK_PROBE_EACH_FRAME=1``) and with two passes (``-2``).
 """
 
 from __future__ import annotations
@@ -120,7 +121,7 @@ def test_hidden_tree_matches_the_frames_a_shown_one_matches(flt: str, merged: Pa
     shown = _shown(merged, flt)
     assert shown, f"{flt!r} matches no frame: it tests nothing"
     assert _hidden(merged, flt) == shown, flt
-    with monkeypatch.context() as m:   # the GUI's way: referenced fields asked again each frame
+    with monkeypatch.context() as m:   # referenced fields asked again each frame
         m.setenv("SHAREDLINK_PROBE_EACH_FRAME", "1")
         assert _hidden(merged, flt) == shown, f"{flt} (probe each frame)"
 

@@ -173,8 +173,8 @@ def _matched_shown(cap: Path, flt: str, prefs: dict | None) -> set[int]:
     return {int(r["frame.number"][0]) for r in rows}
 
 
-# tshark keeps the referenced fields it learnt for a whole pass; the GUI learns them again in
-# every frame (SHAREDLINK_PROBE_EACH_FRAME makes tshark do the same): both must match.
+# The referenced fields learnt are kept over a run of consecutive frames; with
+# SHAREDLINK_PROBE_EACH_FRAME they are learnt again in every frame: both must match.
 @pytest.mark.parametrize("each_frame", [False, True], ids=["pass-cache", "each-frame"])
 @pytest.mark.parametrize("form", ["named", "positional"])
 def test_hidden_tree_matches_shown_tree(form: str, each_frame: bool, tmp_path: Path,
