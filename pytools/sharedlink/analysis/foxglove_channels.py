@@ -48,7 +48,7 @@ from foxglove.messages import (
     Vector3,
 )
 
-from sharedlink.analysis.decode import VALUE_KINDS, Columns, Decoded
+from sharedlink.analysis.decode import VALUE_KINDS, Columns, Decoded, DirColumns
 from sharedlink.analysis.sessions import Ack, SessionMessage
 from sharedlink.capture.pcapio import NS
 from sharedlink.errors import UsageError
@@ -130,11 +130,7 @@ def _fragment_of(name: str, t: str, tc: int | None, v: Any = None) -> tuple[Any,
     double variable is converted here, once (``Variable.value`` would match it against its
     type's pattern first); anything else takes the general way below (``v``: the Variable,
     whose value is kept on it; else typed as it types it)."""
-    key = _NAME_JSON.get(name)
-    if key is None:
-        key = _jstr(name) + ": "
-        if len(_NAME_JSON) < _NAMES_MAX:
-            _NAME_JSON[name] = key
+    key = _member_key(name)
     if (tc is None or tc == TYPE_LONG or tc == TYPE_DOUBLE) and _JSON_NUMBER.match(t) is not None:
         if t.lstrip("-").isdigit():
             if tc != TYPE_DOUBLE:
@@ -156,6 +152,48 @@ def _fragment_of(name: str, t: str, tc: int | None, v: Any = None) -> tuple[Any,
     else:
         plain = False
     return x, key + (t if plain else _dumps(x))
+
+
+#: texts that are all JSON numbers with a fraction or an exponent, one a line (see _rows_typed)
+_PLAIN_DOUBLES = re.compile(r"(?:-?(?:0|[1-9][0-9]*)(?:\.[0-9]+(?:[eE][+-]?[0-9]+)?|[eE][+-]?[0-9]+)\n)*\Z")
+
+
+def _rows_typed(names: list[str], texts: list[str], tcs: list[int | None], changed: list[bool], a0: int,
+                a1: int) -> tuple[list[Any], list[str]]:
+    """The typed values and JSON members (:func:`_fragment_of`) of value rows ``a0 .. a1 - 1``
+    (those of rows not ``changed`` are not used: they may be anything). Hot path: when every row
+    is a double sent as a finite JSON number with a fraction or exponent (a beacon's), all at
+    once: one pattern over the texts, ``float`` mapped, the members name and text as sent."""
+    tx = texts[a0:a1]
+    n = a1 - a0
+    if n and tcs[a0:a1].count(TYPE_DOUBLE) == n:
+        lines = "\n".join(tx) + "\n"
+        if lines.count("\n") == n and _PLAIN_DOUBLES.match(lines) is not None:
+            values = list(map(float, tx))
+            if math.isfinite(sum(values)):  # (an infinite sum of finite values: the way below)
+                nm = names[a0:a1]
+                keys = {x: _member_key(x) for x in set(nm)}
+                return values, list(map(str.__add__, map(keys.__getitem__, nm), tx))
+    typed: list[Any] = []
+    frags: list[str] = []
+    for j in range(a0, a1):
+        if changed[j]:
+            x, f = _fragment_of(names[j], texts[j], tcs[j])
+        else:
+            x, f = None, ""
+        typed.append(x)
+        frags.append(f)
+    return typed, frags
+
+
+def _member_key(name: str) -> str:
+    """``"name": `` (a JSON member's start), kept for a few names a capture."""
+    key = _NAME_JSON.get(name)
+    if key is None:
+        key = _jstr(name) + ": "
+        if len(_NAME_JSON) < _NAMES_MAX:
+            _NAME_JSON[name] = key
+    return key
 
 
 #: the types of a number among typed values (compared by type(): a bool is not one)
@@ -200,7 +238,13 @@ _pack_double = struct.Struct("<d").pack
 _pack_lat_lon = struct.Struct("<BdBd").pack
 
 
+#: _tail's cache per direction, at most
+_TAILS_MAX = 8192
+
+
 def _varint(n: int) -> bytes:
+    if 0 <= n < 0x4000:  # (lengths, and counts of a few thousand)
+        return _BYTE[n] if n < 0x80 else bytes(((n & 0x7F) | 0x80, n >> 7))
     n &= 0xFFFFFFFFFFFFFFFF  # (a negative int64: ten bytes, two's complement)
     out = bytearray()
     while n >= 0x80:
@@ -230,9 +274,14 @@ def _timestamp_field(ts_ns: int) -> bytes:
     return b"\x32" + _LENGTH[len(body)] + body
 
 
+def _set_last_seconds(sec: int | None, field: bytes) -> None:
+    global _last_seconds
+    _last_seconds = (sec, field)
+
+
 #: nanos of a second -> their field; a one-byte length
 _NANOS: dict[int, bytes] = {}
-_LENGTH = [bytes((n,)) for n in range(128)]
+_LENGTH = _BYTE = [bytes((n,)) for n in range(128)]
 
 
 def _stamp(ts_ns: int) -> Timestamp:
@@ -269,6 +318,7 @@ class _Direction:
     dst: str = ""
     rows: dict[tuple, str] = field(default_factory=dict)  # (kind, checksum ok, late) -> frames row format
     fix: tuple | None = None  # (heading, speed as typed, frame id, _fix_tail) of the last fix made
+    tails: dict[tuple[Any, Any], bytes] = field(default_factory=dict)  # (heading, speed) -> _fix_tail (_tail)
 
 
 @dataclass
@@ -368,10 +418,7 @@ class FoxgloveChannels:
             names = _dumps(changed)
             if len(_NAMES) < _NAMES_MAX:
                 _NAMES[tuple(changed)] = names
-        fmt = dr.rows.get((kind, ok, late))
-        if fmt is None:  # the row with its letters, kind, checksum and late filled in, once
-            fixed = [_jstr(dr.src), _jstr(dr.dst), kind, "none" if ok is None else ("good" if ok else "bad")]
-            fmt = dr.rows[(kind, ok, late)] = _ROW % (*[f.replace("%", "%%") for f in fixed], "true" if late else "false")
+        fmt = dr.rows.get((kind, ok, late)) or self._row_format(dr, kind, ok, late)
         row = fmt % (number, names, _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
         dr.log_frames(row.encode(), ts)
         if values:
@@ -382,13 +429,26 @@ class FoxgloveChannels:
         if ok is not False and kind in VALUE_KINDS:
             fix = self._fix_bytes(dr, typed, ts, dr.pair)
             if fix is not None:
-                if dr.location is None:  # (LocationFixChannel's channel: its schema and encoding, fed bytes)
-                    self._open(1)
-                    dr.location = foxglove.Channel(dr.location_topic, schema=_FIX_SCHEMA, message_encoding="protobuf",
-                                                   metadata=dr.meta, context=self.ctx)
-                    dr.log_location = dr.location.base.log
+                if dr.location is None:
+                    self._open_location(dr)
                 dr.log_location(fix, ts)
                 dr.nlocations += 1
+
+    @staticmethod
+    def _row_format(dr: _Direction, kind: str, ok: bool | None, late: bool) -> str:
+        """The direction's frames row with its letters, kind, checksum and late filled in (made once)."""
+        fmt = dr.rows.get((kind, ok, late))
+        if fmt is None:
+            fixed = [_jstr(dr.src), _jstr(dr.dst), kind, "none" if ok is None else ("good" if ok else "bad")]
+            fmt = dr.rows[(kind, ok, late)] = _ROW % (*[f.replace("%", "%%") for f in fixed], "true" if late else "false")
+        return fmt
+
+    def _open_location(self, dr: _Direction) -> None:
+        """The direction's location channel (LocationFixChannel's schema and encoding, fed bytes)."""
+        self._open(1)
+        dr.location = foxglove.Channel(dr.location_topic, schema=_FIX_SCHEMA, message_encoding="protobuf",
+                                       metadata=dr.meta, context=self.ctx)
+        dr.log_location = dr.location.base.log
 
     def columns(self, b: Columns) -> None:
         """The messages of a batch of the decoding core's columns mode (named data frames with
@@ -417,30 +477,89 @@ class FoxgloveChannels:
                 start[k] += e - o
                 o = e
         at = [0] * len(dirs)
-        emit = self._emit
         for k, i0, i1 in runs:
             c = dirs[k]
-            dr = self._dirs[(c.conv, c.src, c.dst)]  # (a direction's first frame is never batched)
-            typed, frags = dr.typed, dr.frags
-            nv, nm, chg, tx, tcs = c.nvalues, c.name, c.changed, c.text, c.type_code
-            num, kind, late, raw, ts = c.number, c.kind, c.late, c.raw, c.ts_ns
-            a = at[k]
-            for i in range(i0, i1):
-                n = nv[i]
-                changed = []
-                if n:
-                    e = a + n
-                    chs = chg[a:e]
-                    if True in chs:
-                        names = nm[a:e]
-                        for x, ch, t, tc in zip(names, chs, tx[a:e], tcs[a:e]):
-                            if ch:
-                                changed.append(x)
-                                typed[x], frags[x] = _fragment_of(x, t, tc)
-                        dr.values_json = ("{%s}" % ", ".join(frags.values())).encode()
-                    a = e
-                emit(dr, typed, num[i], kind[i], True, late[i], raw[i], ts[i], changed)
-            at[k] = a
+            a0 = at[k]
+            at[k] = self._run(c, i0, i1, a0)
+
+    def _run(self, c: DirColumns, i0: int, i1: int, a0: int) -> int:
+        """The messages of frames ``i0 .. i1 - 1`` of ``c`` (one direction's run), whose value
+        rows start at ``a0``; returns where the next run's rows start. What :meth:`_emit` does
+        for each frame, inline: the changed rows' typed values and JSON members made for the
+        whole run at once (:func:`_rows_typed`), the frames' texts as JSON in one pass, the
+        location's fields packed here while the position is two doubles (else :meth:`_fix_bytes`)."""
+        dr = self._dirs[(c.conv, c.src, c.dst)]  # (a direction's first frame is never batched)
+        typed, frags = dr.typed, dr.frags
+        nv, nm, chg = c.nvalues, c.name, c.changed
+        num, kind, late, ts = c.number, c.kind, c.late, c.ts_ns
+        a1 = a0 + sum(nv[i0:i1])
+        tv, fv = _rows_typed(nm, c.text, c.type_code, chg, a0, a1)
+        texts = [_jstr((r[:-2] if r[-2:] == b"\r\n" else r).decode("latin-1")) for r in c.raw[i0:i1]]
+        o = self.opts
+        olat, olon, ohead, ospeed, pair = o.lat, o.lon, o.heading, o.speed, dr.pair
+        log_frames, log_values = dr.log_frames, dr.log_values
+        values_json = dr.values_json
+        spliced = _splice[0] is True
+        rows: dict[tuple[str, bool], str] = {}
+        sec0, secf = _last_seconds
+        nanos_f, length = _NANOS, _LENGTH
+        nloc = 0
+        a = a0
+        for i in range(i0, i1):
+            n = nv[i]
+            names = "[]"
+            changed: list[str] = []
+            if n:
+                e = a + n
+                if True in chg[a:e]:
+                    for j in range(a, e):
+                        if chg[j]:
+                            x = nm[j]
+                            changed.append(x)
+                            typed[x] = tv[j - a0]
+                            frags[x] = fv[j - a0]
+                    values_json = dr.values_json = ("{%s}" % ", ".join(frags.values())).encode()
+                    names = _NAMES.get(tuple(changed))  # type: ignore[assignment]
+                    if names is None:
+                        names = _dumps(changed)
+                        if len(_NAMES) < _NAMES_MAX:
+                            _NAMES[tuple(changed)] = names
+                a = e
+            k, lt = kind[i], late[i]
+            fmt = rows.get((k, lt))
+            if fmt is None:
+                fmt = rows[(k, lt)] = self._row_format(dr, k, True, lt)
+            t = ts[i]
+            log_frames((fmt % (num[i], names, texts[i - i0])).encode(), t)
+            log_values(values_json, t)
+            lat, lon = typed.get(olat), typed.get(olon)
+            if (spliced and type(lat) is float and type(lon) is float and lat != 0.0 and lon != 0.0
+                    and -90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+                head, speed = typed.get(ohead), typed.get(ospeed)
+                fx = dr.fix
+                if fx is None or fx[0] is not head or fx[1] is not speed or fx[2] != pair:
+                    fx = dr.fix = (head, speed, pair, self._tail(dr, head, speed))
+                sec, nanos = divmod(t, NS)
+                if sec != sec0:
+                    sec0, secf = sec, (b"\x08" + _varint(sec) if sec else b"")
+                frac = nanos_f.get(nanos)
+                if frac is None:
+                    if len(nanos_f) >= 4096:
+                        nanos_f.clear()
+                    frac = nanos_f[nanos] = b"\x10" + _varint(nanos) if nanos else b""
+                fix: bytes | None = b"".join((_pack_lat_lon(9, lat, 0x11, lon), _COVARIANCE_FIELD, b"\x32",
+                                             length[len(secf) + len(frac)], secf, frac, fx[3]))
+            else:
+                fix = self._fix_bytes(dr, typed, t, pair)
+            if fix is not None:
+                if dr.location is None:
+                    self._open_location(dr)
+                dr.log_location(fix, t)
+                nloc += 1
+        _set_last_seconds(sec0, secf)
+        dr.nframes += i1 - i0
+        dr.nlocations += nloc
+        return a1
 
     def _fix_bytes(self, dr: _Direction, typed: dict[str, Any], ts_ns: int, frame_id: str) -> bytes | None:
         """The direction's LocationFix after a frame, protobuf-encoded (None: no position), as
@@ -471,6 +590,20 @@ class FoxgloveChannels:
                 _splice[0] = msg == whole
             return whole
         return msg
+
+    def _tail(self, dr: _Direction, head: Any, speed: Any) -> bytes:
+        """:meth:`_fix_tail` for the direction, kept per heading and speed value while both are
+        not zero (equal non-zero numbers encode alike, 0.0 and -0.0 do not): a vehicle's
+        headings and speeds repeat."""
+        if not head or not speed:
+            return self._fix_tail(head, speed, dr.pair)
+        tails = dr.tails
+        tail = tails.get((head, speed))
+        if tail is None:
+            if len(tails) >= _TAILS_MAX:
+                tails.clear()
+            tail = tails[(head, speed)] = self._fix_tail(head, speed, dr.pair)
+        return tail
 
     def _fix_tail(self, head: Any, speed: Any, frame_id: str) -> bytes:
         """LocationFix's fields after the timestamp: frame_id (7), heading (10, radians) and
