@@ -154,26 +154,40 @@ def _fragment_of(name: str, t: str, tc: int | None, v: Any = None) -> tuple[Any,
     return x, key + (t if plain else _dumps(x))
 
 
-#: texts that are all JSON numbers with a fraction or an exponent, one a line (see _rows_typed)
-_PLAIN_DOUBLES = re.compile(r"(?:-?(?:0|[1-9][0-9]*)(?:\.[0-9]+(?:[eE][+-]?[0-9]+)?|[eE][+-]?[0-9]+)\n)*\Z")
+def _plain_decimals(texts: list[str]) -> list[float] | None:
+    """The floats of ``texts`` when every one is a JSON number with a fraction and no exponent
+    (``-?(0|[1-9][0-9]*)\\.[0-9]+``, a beacon's doubles) and finite, else None. Checked on all
+    of them at once by counting in the joined lines (C speed; a pattern over them costs three
+    times as much): only digits, ``.``, ``-`` and newlines; one ``.`` a line (as many as lines,
+    and ``float`` refuses a line with two), a digit on both sides of it, a leading 0 only
+    right before the ``.`` (``float`` refuses a ``-`` but first)."""
+    n = len(texts)
+    h = "\n" + "\n".join(texts) + "\n"
+    if (h.count(".") != n or h.count("\n") != n + 1 or not h.isascii()
+            or h.encode().translate(None, b"0123456789.-\n") or "\n." in h or "\n-." in h or ".\n" in h
+            or h.count("\n0") + h.count("\n-0") != h.count("\n0.") + h.count("\n-0.")):
+        return None
+    try:
+        values = list(map(float, texts))
+    except ValueError:  # (a line with two points, another with none)
+        return None
+    return values if math.isfinite(sum(values)) else None  # (an infinite sum of finite values: None too)
 
 
 def _rows_typed(names: list[str], texts: list[str], tcs: list[int | None], changed: list[bool], a0: int,
                 a1: int) -> tuple[list[Any], list[str]]:
     """The typed values and JSON members (:func:`_fragment_of`) of value rows ``a0 .. a1 - 1``
     (those of rows not ``changed`` are not used: they may be anything). Hot path: when every row
-    is a double sent as a finite JSON number with a fraction or exponent (a beacon's), all at
-    once: one pattern over the texts, ``float`` mapped, the members name and text as sent."""
+    is a double sent as a plain decimal (:func:`_plain_decimals`), all at once: the members are
+    the name and the text as sent."""
     tx = texts[a0:a1]
     n = a1 - a0
     if n and tcs[a0:a1].count(TYPE_DOUBLE) == n:
-        lines = "\n".join(tx) + "\n"
-        if lines.count("\n") == n and _PLAIN_DOUBLES.match(lines) is not None:
-            values = list(map(float, tx))
-            if math.isfinite(sum(values)):  # (an infinite sum of finite values: the way below)
-                nm = names[a0:a1]
-                keys = {x: _member_key(x) for x in set(nm)}
-                return values, list(map(str.__add__, map(keys.__getitem__, nm), tx))
+        values = _plain_decimals(tx)
+        if values is not None:
+            nm = names[a0:a1]
+            keys = {x: _member_key(x) for x in set(nm)}
+            return values, list(map(str.__add__, map(keys.__getitem__, nm), tx))
     typed: list[Any] = []
     frags: list[str] = []
     for j in range(a0, a1):
