@@ -404,7 +404,7 @@ def test_columns_mode_messages_equal_the_reference_frames_for_values_of_every_ki
     from sharedlink.protocols.codec import encode_named
 
     rng = random.Random(5)
-    plain = {"AutoGpsLat": ["38.5", "38.25", "-0.5", "10.0", "0.0025"], "AutoGpsLon": ["-77.5", "-77.25", "0.5"],
+    plain = {"AutoGpsLat": ["38.5", "38.25", "-0.5", "10.0", "0.0025"], "AutoGpsLon": ["-77.5", "-77.25", "0.5", "0.0", "-0.0"],
              "AutoGpsHead": ["57.0", "-0.0", "0.0", "359.5", "90.25"], "AutoGpsVel": ["0.0", "12.5", "3.25", "-0.0"]}
     odd = {"AutoGpsLat": ["38", "007.5", "1e999", "-0", "1e1"], "AutoGpsLon": ["-77", "-1e999", "2.5E-3"],
            "AutoGpsHead": ["57", "0", "1.", ".5"], "AutoGpsVel": ["0", "12", "+3.5"]}

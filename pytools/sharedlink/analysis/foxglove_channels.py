@@ -34,6 +34,8 @@ import math
 import re
 import struct
 from dataclasses import dataclass, field
+from itertools import repeat
+from operator import itemgetter
 from typing import Any
 
 import foxglove
@@ -259,6 +261,8 @@ _TAILS_MAX = 8192
 def _varint(n: int) -> bytes:
     if 0 <= n < 0x4000:  # (lengths, and counts of a few thousand)
         return _BYTE[n] if n < 0x80 else bytes(((n & 0x7F) | 0x80, n >> 7))
+    if 0x10000000 <= n < 0x800000000:  # (five bytes: the seconds of times from 1978 to 3058, most nanos)
+        return bytes(((n & 0x7F) | 0x80, (n >> 7 & 0x7F) | 0x80, (n >> 14 & 0x7F) | 0x80, (n >> 21 & 0x7F) | 0x80, n >> 28))
     n &= 0xFFFFFFFFFFFFFFFF  # (a negative int64: ten bytes, two's complement)
     out = bytearray()
     while n >= 0x80:
@@ -288,11 +292,18 @@ def _timestamp_field(ts_ns: int) -> bytes:
     return b"\x32" + _LENGTH[len(body)] + body
 
 
-def _set_last_seconds(sec: int | None, field: bytes) -> None:
-    global _last_seconds
-    _last_seconds = (sec, field)
+def _timestamp_bodies(ts: list[int]) -> list[bytes]:
+    """The insides of :func:`_timestamp_field` for each of a run's times (a few seconds, a few
+    fractions of one: each made once), in passes over the run."""
+    sn = list(map(divmod, ts, repeat(NS)))
+    secs, nanos = list(map(itemgetter(0), sn)), list(map(itemgetter(1), sn))
+    sf = {s: b"\x08" + _varint(s) if s else b"" for s in set(secs)}
+    nf = {n: b"\x10" + _varint(n) if n else b"" for n in set(nanos)}
+    return list(map(bytes.__add__, map(sf.__getitem__, secs), map(nf.__getitem__, nanos)))
 
 
+#: the timestamp field's tag and one-byte length, by length
+_STAMP_HEAD = [b"\x32" + bytes((n,)) for n in range(128)]
 #: nanos of a second -> their field; a one-byte length
 _NANOS: dict[int, bytes] = {}
 _LENGTH = _BYTE = [bytes((n,)) for n in range(128)]
@@ -499,81 +510,107 @@ class FoxgloveChannels:
     def _run(self, c: DirColumns, i0: int, i1: int, a0: int) -> int:
         """The messages of frames ``i0 .. i1 - 1`` of ``c`` (one direction's run), whose value
         rows start at ``a0``; returns where the next run's rows start. What :meth:`_emit` does
-        for each frame, inline: the changed rows' typed values and JSON members made for the
-        whole run at once (:func:`_rows_typed`), the frames' texts as JSON in one pass, the
-        location's fields packed here while the position is two doubles (else :meth:`_fix_bytes`)."""
+        for each frame, in three passes: the direction's state walked frame by frame (the
+        changed rows' typed values and JSON members made for the whole run at once by
+        :func:`_rows_typed`; each frame's changed names, values message and position kept),
+        then the frames rows and the locations made for the whole run (:meth:`_locations`),
+        then the messages logged, frame after frame."""
         dr = self._dirs[(c.conv, c.src, c.dst)]  # (a direction's first frame is never batched)
         typed, frags = dr.typed, dr.frags
         nv, nm, chg = c.nvalues, c.name, c.changed
-        num, kind, late, ts = c.number, c.kind, c.late, c.ts_ns
         a1 = a0 + sum(nv[i0:i1])
         tv, fv = _rows_typed(nm, c.text, c.type_code, chg, a0, a1)
-        texts = [_jstr((r[:-2] if r[-2:] == b"\r\n" else r).decode("latin-1")) for r in c.raw[i0:i1]]
         o = self.opts
-        olat, olon, ohead, ospeed, pair = o.lat, o.lon, o.heading, o.speed, dr.pair
-        log_frames, log_values = dr.log_frames, dr.log_values
+        olat, olon, ohead, ospeed = o.lat, o.lon, o.heading, o.speed
         values_json = dr.values_json
-        spliced = _splice[0] is True
-        rows: dict[tuple[str, bool], str] = {}
-        sec0, secf = _last_seconds
-        nanos_f, length = _NANOS, _LENGTH
-        nloc = 0
+        names_l: list[str] = []
+        values_l: list[bytes] = []
+        lats: list[Any] = []
+        lons: list[Any] = []
+        heads: list[Any] = []
+        speeds: list[Any] = []
+        get = typed.get
         a = a0
-        for i in range(i0, i1):
-            n = nv[i]
+        for n in nv[i0:i1]:
             names = "[]"
-            changed: list[str] = []
             if n:
                 e = a + n
                 if True in chg[a:e]:
+                    changed = []
                     for j in range(a, e):
                         if chg[j]:
                             x = nm[j]
                             changed.append(x)
                             typed[x] = tv[j - a0]
                             frags[x] = fv[j - a0]
-                    values_json = dr.values_json = ("{%s}" % ", ".join(frags.values())).encode()
-                    names = _NAMES.get(tuple(changed))  # type: ignore[assignment]
+                    values_json = ("{%s}" % ", ".join(frags.values())).encode()
+                    key = tuple(changed)
+                    names = _NAMES.get(key)  # type: ignore[assignment]
                     if names is None:
                         names = _dumps(changed)
                         if len(_NAMES) < _NAMES_MAX:
-                            _NAMES[tuple(changed)] = names
+                            _NAMES[key] = names
                 a = e
-            k, lt = kind[i], late[i]
-            fmt = rows.get((k, lt))
-            if fmt is None:
-                fmt = rows[(k, lt)] = self._row_format(dr, k, True, lt)
-            t = ts[i]
-            log_frames((fmt % (num[i], names, texts[i - i0])).encode(), t)
-            log_values(values_json, t)
-            lat, lon = typed.get(olat), typed.get(olon)
-            if (spliced and type(lat) is float and type(lon) is float and lat != 0.0 and lon != 0.0
-                    and -90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
-                head, speed = typed.get(ohead), typed.get(ospeed)
-                fx = dr.fix
-                if fx is None or fx[0] is not head or fx[1] is not speed or fx[2] != pair:
-                    fx = dr.fix = (head, speed, pair, self._tail(dr, head, speed))
-                sec, nanos = divmod(t, NS)
-                if sec != sec0:
-                    sec0, secf = sec, (b"\x08" + _varint(sec) if sec else b"")
-                frac = nanos_f.get(nanos)
-                if frac is None:
-                    if len(nanos_f) >= 4096:
-                        nanos_f.clear()
-                    frac = nanos_f[nanos] = b"\x10" + _varint(nanos) if nanos else b""
-                fix: bytes | None = b"".join((_pack_lat_lon(9, lat, 0x11, lon), _COVARIANCE_FIELD, b"\x32",
-                                             length[len(secf) + len(frac)], secf, frac, fx[3]))
-            else:
-                fix = self._fix_bytes(dr, typed, t, pair)
-            if fix is not None:
-                if dr.location is None:
-                    self._open_location(dr)
-                dr.log_location(fix, t)
-                nloc += 1
-        _set_last_seconds(sec0, secf)
+            names_l.append(names)
+            values_l.append(values_json)
+            lats.append(get(olat))
+            lons.append(get(olon))
+            heads.append(get(ohead))
+            speeds.append(get(ospeed))
+        dr.values_json = values_json
+        fmts = {k: (self._row_format(dr, k, True, False), self._row_format(dr, k, True, True))
+                for k in set(c.kind[i0:i1])}
+        rows = [(fmts[k][lt] % (number, names, _jstr((r[:-2] if r[-2:] == b"\r\n" else r).decode("latin-1")))).encode()
+                for k, lt, number, names, r in zip(c.kind[i0:i1], c.late[i0:i1], c.number[i0:i1], names_l, c.raw[i0:i1])]
+        ts = c.ts_ns[i0:i1]
+        fixes = self._locations(dr, ts, lats, lons, heads, speeds)
+        log_frames, log_values = dr.log_frames, dr.log_values
+        if fixes is None:
+            for row, vj, t in zip(rows, values_l, ts):
+                log_frames(row, t)
+                log_values(vj, t)
+        else:
+            if dr.location is None:
+                self._open_location(dr)
+            log_location = dr.log_location
+            for row, vj, fix, t in zip(rows, values_l, fixes, ts):
+                log_frames(row, t)
+                log_values(vj, t)
+                if fix is not None:
+                    log_location(fix, t)
+            dr.nlocations += len(fixes) - fixes.count(None)
         dr.nframes += i1 - i0
-        dr.nlocations += nloc
         return a1
+
+    def _locations(self, dr: _Direction, ts: list[int], lats: list[Any], lons: list[Any], heads: list[Any],
+                   speeds: list[Any]) -> list[bytes | None] | None:
+        """The run's LocationFix messages (None for a frame without a position; None for the
+        whole run when no frame has one), as :meth:`_fix_bytes` makes each. Hot path, when
+        every position is two non-zero doubles in range: the fields packed for the whole run,
+        the tails looked up per (heading, speed) (:meth:`_tail`; a pair with a zero in it is
+        never kept, so it is made as :meth:`_fix_bytes` does)."""
+        pair = dr.pair
+        if (_splice[0] is not True or set(map(type, lats)) != {float} or set(map(type, lons)) != {float}
+                or 0.0 in lats or 0.0 in lons or min(lats) < -90.0 or max(lats) > 90.0 or min(lons) < -180.0
+                or max(lons) > 180.0):
+            typed: dict[str, Any] = {}
+            o = self.opts
+            out: list[bytes | None] = []
+            for t, typed[o.lat], typed[o.lon], typed[o.heading], typed[o.speed] in zip(ts, lats, lons, heads, speeds):
+                out.append(self._fix_bytes(dr, typed, t, pair))
+            return None if out.count(None) == len(out) else out
+        tails = list(map(dr.tails.get, zip(heads, speeds)))
+        if None in tails:
+            for k, tail in enumerate(tails):
+                if tail is None:
+                    head, speed = heads[k], speeds[k]
+                    fx = dr.fix
+                    if fx is None or fx[0] is not head or fx[1] is not speed or fx[2] != pair:
+                        fx = dr.fix = (head, speed, pair, self._tail(dr, head, speed))
+                    tails[k] = fx[3]
+        stamps = _timestamp_bodies(ts)
+        return list(map(b"".join, zip(map(_pack_lat_lon, repeat(9), lats, repeat(0x11), lons), repeat(_COVARIANCE_FIELD),
+                                      map(_STAMP_HEAD.__getitem__, map(len, stamps)), stamps, tails)))  # type: ignore[arg-type]
 
     def _fix_bytes(self, dr: _Direction, typed: dict[str, Any], ts_ns: int, frame_id: str) -> bytes | None:
         """The direction's LocationFix after a frame, protobuf-encoded (None: no position), as
