@@ -254,7 +254,7 @@ _pack_double = struct.Struct("<d").pack
 _pack_lat_lon = struct.Struct("<BdBd").pack
 
 
-#: _tail's cache per direction, at most
+#: _tail's cache (all directions), at most
 _TAILS_MAX = 8192
 
 
@@ -343,7 +343,6 @@ class _Direction:
     dst: str = ""
     rows: dict[tuple, str] = field(default_factory=dict)  # (kind, checksum ok, late) -> frames row format
     fix: tuple | None = None  # (heading, speed as typed, frame id, _fix_tail) of the last fix made
-    tails: dict[tuple[Any, Any], bytes] = field(default_factory=dict)  # (heading, speed) -> _fix_tail (_tail)
 
 
 @dataclass
@@ -365,6 +364,8 @@ class FoxgloveChannels:
         self._pair_convs: dict[str, int] = {}
         self._sessions: dict[tuple[str, int], _Session] = {}
         self._channels_left = self.opts.max_channels
+        #: (frame id, heading, speed) -> _fix_tail, for all directions (_tail), at most _TAILS_MAX
+        self._tails: dict[tuple[str, Any, Any], bytes] = {}
 
     def _open(self, n: int) -> None:
         """Account for ``n`` channels about to be opened; past ``max_channels`` a clear refusal
@@ -599,7 +600,7 @@ class FoxgloveChannels:
             for t, typed[o.lat], typed[o.lon], typed[o.heading], typed[o.speed] in zip(ts, lats, lons, heads, speeds):
                 out.append(self._fix_bytes(dr, typed, t, pair))
             return None if out.count(None) == len(out) else out
-        tails = list(map(dr.tails.get, zip(heads, speeds)))
+        tails = list(map(self._tails.get, zip(repeat(pair), heads, speeds)))
         if None in tails:
             for k, tail in enumerate(tails):
                 if tail is None:
@@ -648,12 +649,12 @@ class FoxgloveChannels:
         headings and speeds repeat."""
         if not head or not speed:
             return self._fix_tail(head, speed, dr.pair)
-        tails = dr.tails
-        tail = tails.get((head, speed))
+        tails, key = self._tails, (dr.pair, head, speed)
+        tail = tails.get(key)
         if tail is None:
             if len(tails) >= _TAILS_MAX:
                 tails.clear()
-            tail = tails[(head, speed)] = self._fix_tail(head, speed, dr.pair)
+            tail = tails[key] = self._fix_tail(head, speed, dr.pair)
         return tail
 
     def _fix_tail(self, head: Any, speed: Any, frame_id: str) -> bytes:
