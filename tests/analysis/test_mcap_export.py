@@ -391,3 +391,53 @@ def test_columns_mode_keeps_the_order_of_frames_of_two_directions_in_a_batch(tmp
         for ts, data in sorted(records, key=lambda r: r[0]):
             w.write(ts, data)
     assert _same_as_reference(tmp_path, cap) > 300
+
+
+def test_columns_mode_messages_equal_the_reference_frames_for_values_of_every_kind(tmp_path):
+    """Runs of named frames the columns mode takes, with values that take every way of
+    ``_fragment_of`` (a double sent as an integer or an overflowing exponent, longs, strings
+    with a quote, a backslash or a ``%``), so the run-wide typing of ``FoxgloveChannels._run``
+    falls back row by row; runs where every value is a double as JSON writes it (its run-wide
+    path); headings and speeds of 0, -0.0 and repeated values (the kept LocationFix tails)."""
+    import random
+
+    from sharedlink.protocols.codec import encode_named
+
+    rng = random.Random(5)
+    plain = {"AutoGpsLat": ["38.5", "38.25", "-0.5", "10.0", "0.0025"], "AutoGpsLon": ["-77.5", "-77.25", "0.5", "0.0", "-0.0"],
+             "AutoGpsHead": ["57.0", "-0.0", "0.0", "359.5", "90.25"], "AutoGpsVel": ["0.0", "12.5", "3.25", "-0.0"]}
+    odd = {"AutoGpsLat": ["38", "007.5", "1e999", "-0", "1e1"], "AutoGpsLon": ["-77", "-1e999", "2.5E-3"],
+           "AutoGpsHead": ["57", "0", "1.", ".5"], "AutoGpsVel": ["0", "12", "+3.5"]}
+    others = [("Count", 0, ["0", "7", "-3", "007", "1.5", "99999999999999999999"]),
+              ("Mode", 4, ["on", 'say "hi"', "back\\slash", "100%", ""])]
+    datagrams, ts = [], 1_700_000_000_000_000_000
+    for block in range(12):
+        mixed = block % 2 == 1
+        for _ in range(120):
+            values = [(n, 2, rng.choice(plain[n] + (odd[n] if mixed else []))) for n in plain if rng.random() < 0.8]
+            if mixed:
+                values += [(n, t, rng.choice(texts)) for n, t, texts in others if rng.random() < 0.5]
+            ts += 100_000_000 + rng.choice([0, 1, 250_000])
+            datagrams.append((ts, encode_named("A", "B", values or [("AutoGpsLat", 2, "38.5")])))
+    cap = write_capture(tmp_path / "kinds.pcap", datagrams)
+    assert _same_as_reference(tmp_path, cap) > 3 * 1000
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(st.one_of(st.sampled_from(["38.34698779", "-77.0573", "0.0", "-0.0", "10.25", "0.5"]),
+                          st.text("0123456789.-+eE_ ", max_size=7)), min_size=1, max_size=6))
+def test_run_wide_doubles_take_only_what_the_row_by_row_typing_writes_as_sent(texts):
+    """``_plain_decimals`` (the columns mode's run-wide typing of doubles) gives values only
+    when every text is one ``_fragment_of`` writes as sent, and the same values; it takes a
+    beacon's decimals."""
+    from sharedlink.analysis.foxglove_channels import _fragment_of, _plain_decimals
+    from sharedlink.protocols.codec import TYPE_DOUBLE
+
+    got = _plain_decimals(texts)
+    if got is not None:
+        for t, x in zip(texts, got):
+            assert _fragment_of("V", t, TYPE_DOUBLE) == (x, '"V": ' + t), t
+            assert type(x) is float and json.loads(t) == x
+    assert _plain_decimals(["38.34698779", "-77.05734791", "0.0", "-0.5", "57.0"]) is not None
+    for bad in (["12"], ["1.2.3", "45"], ["007.5"], ["-.5"], ["1."], ["1e5"], ["+1.5"], ["1" * 400 + ".0"]):
+        assert _plain_decimals(["38.5", *bad]) is None, bad

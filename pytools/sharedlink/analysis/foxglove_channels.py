@@ -34,6 +34,8 @@ import math
 import re
 import struct
 from dataclasses import dataclass, field
+from itertools import repeat
+from operator import itemgetter
 from typing import Any
 
 import foxglove
@@ -48,7 +50,7 @@ from foxglove.messages import (
     Vector3,
 )
 
-from sharedlink.analysis.decode import VALUE_KINDS, Columns, Decoded
+from sharedlink.analysis.decode import VALUE_KINDS, Columns, Decoded, DirColumns
 from sharedlink.analysis.sessions import Ack, SessionMessage
 from sharedlink.capture.pcapio import NS
 from sharedlink.errors import UsageError
@@ -130,11 +132,7 @@ def _fragment_of(name: str, t: str, tc: int | None, v: Any = None) -> tuple[Any,
     double variable is converted here, once (``Variable.value`` would match it against its
     type's pattern first); anything else takes the general way below (``v``: the Variable,
     whose value is kept on it; else typed as it types it)."""
-    key = _NAME_JSON.get(name)
-    if key is None:
-        key = _jstr(name) + ": "
-        if len(_NAME_JSON) < _NAMES_MAX:
-            _NAME_JSON[name] = key
+    key = _member_key(name)
     if (tc is None or tc == TYPE_LONG or tc == TYPE_DOUBLE) and _JSON_NUMBER.match(t) is not None:
         if t.lstrip("-").isdigit():
             if tc != TYPE_DOUBLE:
@@ -156,6 +154,62 @@ def _fragment_of(name: str, t: str, tc: int | None, v: Any = None) -> tuple[Any,
     else:
         plain = False
     return x, key + (t if plain else _dumps(x))
+
+
+def _plain_decimals(texts: list[str]) -> list[float] | None:
+    """The floats of ``texts`` when every one is a JSON number with a fraction and no exponent
+    (``-?(0|[1-9][0-9]*)\\.[0-9]+``, a beacon's doubles) and finite, else None. Checked on all
+    of them at once by counting in the joined lines (C speed; a pattern over them costs three
+    times as much): only digits, ``.``, ``-`` and newlines; one ``.`` a line (as many as lines,
+    and ``float`` refuses a line with two), a digit on both sides of it, a leading 0 only
+    right before the ``.`` (``float`` refuses a ``-`` but first)."""
+    n = len(texts)
+    h = "\n" + "\n".join(texts) + "\n"
+    if (h.count(".") != n or h.count("\n") != n + 1 or not h.isascii()
+            or h.encode().translate(None, b"0123456789.-\n") or "\n." in h or "\n-." in h or ".\n" in h
+            or h.count("\n0") + h.count("\n-0") != h.count("\n0.") + h.count("\n-0.")):
+        return None
+    try:
+        values = list(map(float, texts))
+    except ValueError:  # (a line with two points, another with none)
+        return None
+    return values if math.isfinite(sum(values)) else None  # (an infinite sum of finite values: None too)
+
+
+def _rows_typed(names: list[str], texts: list[str], tcs: list[int | None], changed: list[bool], a0: int,
+                a1: int) -> tuple[list[Any], list[str]]:
+    """The typed values and JSON members (:func:`_fragment_of`) of value rows ``a0 .. a1 - 1``
+    (those of rows not ``changed`` are not used: they may be anything). Hot path: when every row
+    is a double sent as a plain decimal (:func:`_plain_decimals`), all at once: the members are
+    the name and the text as sent."""
+    tx = texts[a0:a1]
+    n = a1 - a0
+    if n and tcs[a0:a1].count(TYPE_DOUBLE) == n:
+        values = _plain_decimals(tx)
+        if values is not None:
+            nm = names[a0:a1]
+            keys = {x: _member_key(x) for x in set(nm)}
+            return values, list(map(str.__add__, map(keys.__getitem__, nm), tx))
+    typed: list[Any] = []
+    frags: list[str] = []
+    for j in range(a0, a1):
+        if changed[j]:
+            x, f = _fragment_of(names[j], texts[j], tcs[j])
+        else:
+            x, f = None, ""
+        typed.append(x)
+        frags.append(f)
+    return typed, frags
+
+
+def _member_key(name: str) -> str:
+    """``"name": `` (a JSON member's start), kept for a few names a capture."""
+    key = _NAME_JSON.get(name)
+    if key is None:
+        key = _jstr(name) + ": "
+        if len(_NAME_JSON) < _NAMES_MAX:
+            _NAME_JSON[name] = key
+    return key
 
 
 #: the types of a number among typed values (compared by type(): a bool is not one)
@@ -200,7 +254,15 @@ _pack_double = struct.Struct("<d").pack
 _pack_lat_lon = struct.Struct("<BdBd").pack
 
 
+#: _tail's cache (all directions), at most
+_TAILS_MAX = 8192
+
+
 def _varint(n: int) -> bytes:
+    if 0 <= n < 0x4000:  # (lengths, and counts of a few thousand)
+        return _BYTE[n] if n < 0x80 else bytes(((n & 0x7F) | 0x80, n >> 7))
+    if 0x10000000 <= n < 0x800000000:  # (five bytes: the seconds of times from 1978 to 3058, most nanos)
+        return bytes(((n & 0x7F) | 0x80, (n >> 7 & 0x7F) | 0x80, (n >> 14 & 0x7F) | 0x80, (n >> 21 & 0x7F) | 0x80, n >> 28))
     n &= 0xFFFFFFFFFFFFFFFF  # (a negative int64: ten bytes, two's complement)
     out = bytearray()
     while n >= 0x80:
@@ -230,9 +292,21 @@ def _timestamp_field(ts_ns: int) -> bytes:
     return b"\x32" + _LENGTH[len(body)] + body
 
 
+def _timestamp_bodies(ts: list[int]) -> list[bytes]:
+    """The insides of :func:`_timestamp_field` for each of a run's times (a few seconds, a few
+    fractions of one: each made once), in passes over the run."""
+    sn = list(map(divmod, ts, repeat(NS)))
+    secs, nanos = list(map(itemgetter(0), sn)), list(map(itemgetter(1), sn))
+    sf = {s: b"\x08" + _varint(s) if s else b"" for s in set(secs)}
+    nf = {n: b"\x10" + _varint(n) if n else b"" for n in set(nanos)}
+    return list(map(bytes.__add__, map(sf.__getitem__, secs), map(nf.__getitem__, nanos)))
+
+
+#: the timestamp field's tag and one-byte length, by length
+_STAMP_HEAD = [b"\x32" + bytes((n,)) for n in range(128)]
 #: nanos of a second -> their field; a one-byte length
 _NANOS: dict[int, bytes] = {}
-_LENGTH = [bytes((n,)) for n in range(128)]
+_LENGTH = _BYTE = [bytes((n,)) for n in range(128)]
 
 
 def _stamp(ts_ns: int) -> Timestamp:
@@ -290,6 +364,8 @@ class FoxgloveChannels:
         self._pair_convs: dict[str, int] = {}
         self._sessions: dict[tuple[str, int], _Session] = {}
         self._channels_left = self.opts.max_channels
+        #: (frame id, heading, speed) -> _fix_tail, for all directions (_tail), at most _TAILS_MAX
+        self._tails: dict[tuple[str, Any, Any], bytes] = {}
 
     def _open(self, n: int) -> None:
         """Account for ``n`` channels about to be opened; past ``max_channels`` a clear refusal
@@ -368,10 +444,7 @@ class FoxgloveChannels:
             names = _dumps(changed)
             if len(_NAMES) < _NAMES_MAX:
                 _NAMES[tuple(changed)] = names
-        fmt = dr.rows.get((kind, ok, late))
-        if fmt is None:  # the row with its letters, kind, checksum and late filled in, once
-            fixed = [_jstr(dr.src), _jstr(dr.dst), kind, "none" if ok is None else ("good" if ok else "bad")]
-            fmt = dr.rows[(kind, ok, late)] = _ROW % (*[f.replace("%", "%%") for f in fixed], "true" if late else "false")
+        fmt = dr.rows.get((kind, ok, late)) or self._row_format(dr, kind, ok, late)
         row = fmt % (number, names, _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
         dr.log_frames(row.encode(), ts)
         if values:
@@ -382,13 +455,26 @@ class FoxgloveChannels:
         if ok is not False and kind in VALUE_KINDS:
             fix = self._fix_bytes(dr, typed, ts, dr.pair)
             if fix is not None:
-                if dr.location is None:  # (LocationFixChannel's channel: its schema and encoding, fed bytes)
-                    self._open(1)
-                    dr.location = foxglove.Channel(dr.location_topic, schema=_FIX_SCHEMA, message_encoding="protobuf",
-                                                   metadata=dr.meta, context=self.ctx)
-                    dr.log_location = dr.location.base.log
+                if dr.location is None:
+                    self._open_location(dr)
                 dr.log_location(fix, ts)
                 dr.nlocations += 1
+
+    @staticmethod
+    def _row_format(dr: _Direction, kind: str, ok: bool | None, late: bool) -> str:
+        """The direction's frames row with its letters, kind, checksum and late filled in (made once)."""
+        fmt = dr.rows.get((kind, ok, late))
+        if fmt is None:
+            fixed = [_jstr(dr.src), _jstr(dr.dst), kind, "none" if ok is None else ("good" if ok else "bad")]
+            fmt = dr.rows[(kind, ok, late)] = _ROW % (*[f.replace("%", "%%") for f in fixed], "true" if late else "false")
+        return fmt
+
+    def _open_location(self, dr: _Direction) -> None:
+        """The direction's location channel (LocationFixChannel's schema and encoding, fed bytes)."""
+        self._open(1)
+        dr.location = foxglove.Channel(dr.location_topic, schema=_FIX_SCHEMA, message_encoding="protobuf",
+                                       metadata=dr.meta, context=self.ctx)
+        dr.log_location = dr.location.base.log
 
     def columns(self, b: Columns) -> None:
         """The messages of a batch of the decoding core's columns mode (named data frames with
@@ -417,30 +503,115 @@ class FoxgloveChannels:
                 start[k] += e - o
                 o = e
         at = [0] * len(dirs)
-        emit = self._emit
         for k, i0, i1 in runs:
             c = dirs[k]
-            dr = self._dirs[(c.conv, c.src, c.dst)]  # (a direction's first frame is never batched)
-            typed, frags = dr.typed, dr.frags
-            nv, nm, chg, tx, tcs = c.nvalues, c.name, c.changed, c.text, c.type_code
-            num, kind, late, raw, ts = c.number, c.kind, c.late, c.raw, c.ts_ns
-            a = at[k]
-            for i in range(i0, i1):
-                n = nv[i]
-                changed = []
-                if n:
-                    e = a + n
-                    chs = chg[a:e]
-                    if True in chs:
-                        names = nm[a:e]
-                        for x, ch, t, tc in zip(names, chs, tx[a:e], tcs[a:e]):
-                            if ch:
-                                changed.append(x)
-                                typed[x], frags[x] = _fragment_of(x, t, tc)
-                        dr.values_json = ("{%s}" % ", ".join(frags.values())).encode()
-                    a = e
-                emit(dr, typed, num[i], kind[i], True, late[i], raw[i], ts[i], changed)
-            at[k] = a
+            a0 = at[k]
+            at[k] = self._run(c, i0, i1, a0)
+
+    def _run(self, c: DirColumns, i0: int, i1: int, a0: int) -> int:
+        """The messages of frames ``i0 .. i1 - 1`` of ``c`` (one direction's run), whose value
+        rows start at ``a0``; returns where the next run's rows start. What :meth:`_emit` does
+        for each frame, in three passes: the direction's state walked frame by frame (the
+        changed rows' typed values and JSON members made for the whole run at once by
+        :func:`_rows_typed`; each frame's changed names, values message and position kept),
+        then the frames rows and the locations made for the whole run (:meth:`_locations`),
+        then the messages logged, frame after frame."""
+        dr = self._dirs[(c.conv, c.src, c.dst)]  # (a direction's first frame is never batched)
+        typed, frags = dr.typed, dr.frags
+        nv, nm, chg = c.nvalues, c.name, c.changed
+        a1 = a0 + sum(nv[i0:i1])
+        tv, fv = _rows_typed(nm, c.text, c.type_code, chg, a0, a1)
+        o = self.opts
+        olat, olon, ohead, ospeed = o.lat, o.lon, o.heading, o.speed
+        values_json = dr.values_json
+        names_l: list[str] = []
+        values_l: list[bytes] = []
+        lats: list[Any] = []
+        lons: list[Any] = []
+        heads: list[Any] = []
+        speeds: list[Any] = []
+        get = typed.get
+        a = a0
+        for n in nv[i0:i1]:
+            names = "[]"
+            if n:
+                e = a + n
+                if True in chg[a:e]:
+                    changed = []
+                    for j in range(a, e):
+                        if chg[j]:
+                            x = nm[j]
+                            changed.append(x)
+                            typed[x] = tv[j - a0]
+                            frags[x] = fv[j - a0]
+                    values_json = ("{%s}" % ", ".join(frags.values())).encode()
+                    key = tuple(changed)
+                    names = _NAMES.get(key)  # type: ignore[assignment]
+                    if names is None:
+                        names = _dumps(changed)
+                        if len(_NAMES) < _NAMES_MAX:
+                            _NAMES[key] = names
+                a = e
+            names_l.append(names)
+            values_l.append(values_json)
+            lats.append(get(olat))
+            lons.append(get(olon))
+            heads.append(get(ohead))
+            speeds.append(get(ospeed))
+        dr.values_json = values_json
+        fmts = {k: (self._row_format(dr, k, True, False), self._row_format(dr, k, True, True))
+                for k in set(c.kind[i0:i1])}
+        rows = [(fmts[k][lt] % (number, names, _jstr((r[:-2] if r[-2:] == b"\r\n" else r).decode("latin-1")))).encode()
+                for k, lt, number, names, r in zip(c.kind[i0:i1], c.late[i0:i1], c.number[i0:i1], names_l, c.raw[i0:i1])]
+        ts = c.ts_ns[i0:i1]
+        fixes = self._locations(dr, ts, lats, lons, heads, speeds)
+        log_frames, log_values = dr.log_frames, dr.log_values
+        if fixes is None:
+            for row, vj, t in zip(rows, values_l, ts):
+                log_frames(row, t)
+                log_values(vj, t)
+        else:
+            if dr.location is None:
+                self._open_location(dr)
+            log_location = dr.log_location
+            for row, vj, fix, t in zip(rows, values_l, fixes, ts):
+                log_frames(row, t)
+                log_values(vj, t)
+                if fix is not None:
+                    log_location(fix, t)
+            dr.nlocations += len(fixes) - fixes.count(None)
+        dr.nframes += i1 - i0
+        return a1
+
+    def _locations(self, dr: _Direction, ts: list[int], lats: list[Any], lons: list[Any], heads: list[Any],
+                   speeds: list[Any]) -> list[bytes | None] | None:
+        """The run's LocationFix messages (None for a frame without a position; None for the
+        whole run when no frame has one), as :meth:`_fix_bytes` makes each. Hot path, when
+        every position is two non-zero doubles in range: the fields packed for the whole run,
+        the tails looked up per (heading, speed) (:meth:`_tail`; a pair with a zero in it is
+        never kept, so it is made as :meth:`_fix_bytes` does)."""
+        pair = dr.pair
+        if (_splice[0] is not True or set(map(type, lats)) != {float} or set(map(type, lons)) != {float}
+                or 0.0 in lats or 0.0 in lons or min(lats) < -90.0 or max(lats) > 90.0 or min(lons) < -180.0
+                or max(lons) > 180.0):
+            typed: dict[str, Any] = {}
+            o = self.opts
+            out: list[bytes | None] = []
+            for t, typed[o.lat], typed[o.lon], typed[o.heading], typed[o.speed] in zip(ts, lats, lons, heads, speeds):
+                out.append(self._fix_bytes(dr, typed, t, pair))
+            return None if out.count(None) == len(out) else out
+        tails = list(map(self._tails.get, zip(repeat(pair), heads, speeds)))
+        if None in tails:
+            for k, tail in enumerate(tails):
+                if tail is None:
+                    head, speed = heads[k], speeds[k]
+                    fx = dr.fix
+                    if fx is None or fx[0] is not head or fx[1] is not speed or fx[2] != pair:
+                        fx = dr.fix = (head, speed, pair, self._tail(dr, head, speed))
+                    tails[k] = fx[3]
+        stamps = _timestamp_bodies(ts)
+        return list(map(b"".join, zip(map(_pack_lat_lon, repeat(9), lats, repeat(0x11), lons), repeat(_COVARIANCE_FIELD),
+                                      map(_STAMP_HEAD.__getitem__, map(len, stamps)), stamps, tails)))  # type: ignore[arg-type]
 
     def _fix_bytes(self, dr: _Direction, typed: dict[str, Any], ts_ns: int, frame_id: str) -> bytes | None:
         """The direction's LocationFix after a frame, protobuf-encoded (None: no position), as
@@ -471,6 +642,20 @@ class FoxgloveChannels:
                 _splice[0] = msg == whole
             return whole
         return msg
+
+    def _tail(self, dr: _Direction, head: Any, speed: Any) -> bytes:
+        """:meth:`_fix_tail` for the direction, kept per heading and speed value while both are
+        not zero (equal non-zero numbers encode alike, 0.0 and -0.0 do not): a vehicle's
+        headings and speeds repeat."""
+        if not head or not speed:
+            return self._fix_tail(head, speed, dr.pair)
+        tails, key = self._tails, (dr.pair, head, speed)
+        tail = tails.get(key)
+        if tail is None:
+            if len(tails) >= _TAILS_MAX:
+                tails.clear()
+            tail = tails[key] = self._fix_tail(head, speed, dr.pair)
+        return tail
 
     def _fix_tail(self, head: Any, speed: Any, frame_id: str) -> bytes:
         """LocationFix's fields after the timestamp: frame_id (7), heading (10, radians) and
