@@ -212,9 +212,9 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     end
     local num = pg_number(pinfo)
     -- a layout's frame: a data frame between nodes A-P (its head is the layout's); full_local
-    -- from the layout; any other frame from fields_facts
+    -- from the layout (nil from the parser); any other frame from fields_facts
     local kind, is_data, addrs_ok, data_ok = nil, true, true, true
-    if not P.layout then kind, is_data, addrs_ok, full_local, data_ok = fields_facts(malformed_msg, dstb, srcb) end
+    if full_local == nil then kind, is_data, addrs_ok, full_local, data_ok = fields_facts(malformed_msg, dstb, srcb) end
     local rec, list, d, miss_n, ne, nm
     local visited = pg_visited(pinfo)
     if visited then
