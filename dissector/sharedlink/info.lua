@@ -21,7 +21,7 @@ local ninfo, info_len, info_full = 0, 0, false
 local info_clean = true     -- every piece came from the named fast path
 -- single: the packet's one piece so far, when info_layout made it (speed trick, measured: I.finish
 -- writes it with no test of the pieces; spill puts it in INFO when another piece follows)
-local single, single_len = nil, 0
+local single = nil
 local frames_in_info, frames_dropped = 0, 0
 
 local function info_add(str)
@@ -93,7 +93,7 @@ local function info_layout(kind, rec, miss_n)
     local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or nil
     if tail then total = total + #tail end
     if total > INFO_MAX then return false end
-    frames_in_info, single_len = 1, total
+    frames_in_info = 1
     local text = (full and named.info or named.dinfo)()
     single = tail and text .. tail or text
     return true
@@ -101,7 +101,7 @@ end
 
 -- The single piece info_layout made goes into INFO, before another piece joins it.
 local function spill()
-    ninfo, info_len, INFO[1], single = 1, single_len, single, nil
+    ninfo, info_len, INFO[1], single = 1, #single, single, nil
 end
 
 -- Info column: this frame's piece, piece by piece (what info_layout does not make).

@@ -763,30 +763,38 @@ local function list_at(d, num, sk)
     return found and h[3 * found] or cfg.list
 end
 
--- A data frame's kind on a later pass: the record's, else the verdict without state.
-local function data_kind(rec, full_local, miss_n)
-    if rec and rec.kind then return rec.kind == "f" and "full" or "delta" end
-    return (full_local and miss_n == 0) and "full" or "delta"
+-- A later pass, a frame whose state needs its direction: the list in use there on the first pass
+-- and, for a named frame the journal judged, what it carried (miss_n, nm), from the journal.
+local function later_dir(pinfo, num, sk, is_data, dstb, srcb, has_tree, miss_n)
+    local d = get_dir(pinfo, num, dstb, srcb)
+    local list = frame_list(list_at(d, num, sk))
+    local nm = 0
+    if is_data and d.jkey and P.n_pos == 0 then
+        local key = journal.key(num, sk)
+        if key >= d.jkey then miss_n, nm = journal.missing(d, key, has_tree) end
+    end
+    return list, d, miss_n, nm
 end
 
 -- State on a later pass: the record, and the list in use at this frame on the first pass
--- (looked up only where it names something: positional values, or a tree to show indexes).
+-- (looked up only where it names something: positional values, or a tree to show indexes).  A
+-- data frame's kind: the record's, else the verdict without state.
 local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local, has_tree)
     local rec = get_rec(num, sk, false)
     local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
-    local nm = 0
-    local list, d = cfg.list, nil
+    local nm, list, d = 0, cfg.list, nil
     if (is_data or kind == "malformed" or kind == "reply") and addrs_ok
         and (has_tree or P.n_pos > 0 or LIM.journal or kind == "reply") then
-        d = get_dir(pinfo, num, dstb, srcb)
-        list = frame_list(list_at(d, num, sk))
-        -- a named frame the journal judged: what it carried, from the journal
-        if is_data and d.jkey and P.n_pos == 0 then
-            local key = journal.key(num, sk)
-            if key >= d.jkey then miss_n, nm = journal.missing(d, key, has_tree) end
+        list, d, miss_n, nm = later_dir(pinfo, num, sk, is_data, dstb, srcb, has_tree, miss_n)
+    end
+    if is_data then
+        local rk = rec and rec.kind
+        if rk then
+            kind = rk == "f" and "full" or "delta"
+        else
+            kind = (full_local and miss_n == 0) and "full" or "delta"
         end
     end
-    if is_data then kind = data_kind(rec, full_local, miss_n) end
     return kind, rec, list, d, miss_n, nm
 end
 
