@@ -25,8 +25,8 @@ side by side in one run:
 * where valgrind exists: the summary pass, ``-2``, ``-V`` and the compressed capture counted in
   instructions a frame (callgrind, 5,000 frames minus 1,000, so start-up drops out), each against
   ff41cb3's figure (issue 27's limit: within +10 %) and against syslog's (information). Counts
-  repeat within about 0.5 % where times wander by several per cent: the line to read when a time
-  ratio sits near its target. Skipped with a note elsewhere. ``--count-only`` prints these lines
+  repeat within about 0.5-1.6 % (Lua seeds its string hash per run) where times wander by several
+  per cent: the line to read when a time ratio sits near its target. Skipped with a note elsewhere. ``--count-only`` prints these lines
   alone (``--passes summary,-2`` some of them; ``--dissectors DIR`` another checkout's plugins,
   e.g. ff41cb3's in a ``git worktree``, to measure both side by side).
 

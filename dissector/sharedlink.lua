@@ -140,7 +140,7 @@ local P = Pm.P
 local PG, TI = M.wsapi.PG, M.wsapi.TI
 local parse_frame, kind_of_fields = Pm.parse_frame, Pm.kind_of_fields
 local state_data, state_other, state_later_pass = S.state_data, S.state_other, S.state_later_pass
-local info_frame, info_layout = I.info_frame, I.info_layout
+local info_frame, info_layout, info_finish = I.info_frame, I.info_layout, I.finish
 local tree_frame, has_experts, T_SHOWN, T_HIDDEN, T_NONE = T.tree_frame, T.has_experts, T.SHOWN, T.HIDDEN, T.NONE
 local set_crlf_frames = T.set_crlf_frames
 local PT_UDP = 3   -- pinfo.port_type of a UDP datagram (epan's port_type enum; 4.0 to 4.6)
@@ -202,19 +202,18 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     -- protocol item is added once the frame is known (the full tree: with its text)
     local vis = tree ~= nil and pg_visible(tree)
 
-    local bodyend, dstb, srcb, malformed_msg, cs_val, cs_calc, cs_status, quiet, full_local =
+    local bodyend, dstb, srcb, malformed_msg, cs_val, cs_calc, cs_status, quiet, full_local, le =
         parse_frame(f, fl, terminated, vis, payload)
     if payload then
         if not bodyend then return nil end
         fl = bodyend + 1
-        local c1, c2 = s_byte(s, fl + 1, fl + 2)
-        e = (c1 == 13 and c2 == 10) and fl + 2 or line_end(s, fl)   -- (CR LF, as constants)
+        e = fl + #le   -- (the layout's pattern took the line end: as line_end's)
     end
     local num = pg_number(pinfo)
     -- a layout's frame: a data frame between nodes A-P (its head is the layout's); full_local
-    -- from the layout; any other frame from fields_facts
+    -- from the layout (nil from the parser); any other frame from fields_facts
     local kind, is_data, addrs_ok, data_ok = nil, true, true, true
-    if not P.layout then kind, is_data, addrs_ok, full_local, data_ok = fields_facts(malformed_msg, dstb, srcb) end
+    if full_local == nil then kind, is_data, addrs_ok, full_local, data_ok = fields_facts(malformed_msg, dstb, srcb) end
     local rec, list, d, miss_n, ne, nm
     local visited = pg_visited(pinfo)
     if visited then
@@ -363,7 +362,7 @@ local function dissect(tvb, pinfo, tree)
     elseif e < n then
         scan(s, n, tvb, pinfo, t, tree, e + 1)
     end
-    I.finish(cols)
+    info_finish(cols)
     in_packet = false
     return n
 end

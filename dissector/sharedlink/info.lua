@@ -19,6 +19,9 @@ local FAST_MARK = MARKS.fast   -- (SHAREDLINK_FAST_MARK=1: a switch read once, a
 local INFO = {}
 local ninfo, info_len, info_full = 0, 0, false
 local info_clean = true     -- every piece came from the named fast path
+-- single: the packet's one piece so far, when info_layout made it (speed trick, measured: I.finish
+-- writes it with no test of the pieces; spill puts it in INFO when another piece follows)
+local single = nil
 local frames_in_info, frames_dropped = 0, 0
 
 local function info_add(str)
@@ -90,14 +93,20 @@ local function info_layout(kind, rec, miss_n)
     local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or nil
     if tail then total = total + #tail end
     if total > INFO_MAX then return false end
-    frames_in_info, ninfo, info_len = 1, 1, total
+    frames_in_info = 1
     local text = (full and named.info or named.dinfo)()
-    INFO[1] = tail and text .. tail or text
+    single = tail and text .. tail or text
     return true
+end
+
+-- The single piece info_layout made goes into INFO, before another piece joins it.
+local function spill()
+    ninfo, info_len, INFO[1], single = 1, #single, single, nil
 end
 
 -- Info column: this frame's piece, piece by piece (what info_layout does not make).
 local function info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n)
+    if single then spill() end
     if frames_in_info > 0 then
         if info_full then frames_dropped = frames_dropped + 1 else info_add(" ; ") end
     end
@@ -111,11 +120,12 @@ end
 local I = {}
 function I.begin()
     ninfo, info_len, info_full, frames_in_info, frames_dropped = 0, 0, false, 0, 0
-    info_clean = true
+    info_clean, single = true, nil
 end
 
 -- Noise of len bytes between frames, as a piece of its own.
 function I.noise(len)
+    if single then spill() end
     if info_full then
         frames_dropped = frames_dropped + 1
     else
@@ -128,12 +138,12 @@ end
 -- The packet's Info, into the column; then no pieces (as I.begin: speed trick, measured, no call
 -- a packet to start one).
 function I.finish(cols)
-    if ninfo == 1 and frames_in_info == 1 and info_clean and not info_full then
-        -- one frame's piece (the commonest packet): nothing dropped, no control character
-        local info = INFO[1]
+    if single then
+        -- one frame's piece by info_layout (the commonest packet): nothing dropped, no control character
+        local info = single
         if FAST_MARK and MARKS.fast_hit then info = "[fast] " .. info; MARKS.fast_hit = false end
         cols.info = info
-        ninfo, info_len, frames_in_info = 0, 0, 0
+        single, frames_in_info = nil, 0
         return
     end
     if frames_dropped > 0 then

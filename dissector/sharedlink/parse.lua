@@ -43,11 +43,13 @@ local P = { nv = 0, nf = 0, FL = FL, FS = FS, FE = FE, FV = FV, FC = FC, VT = VT
 -- first (up to MAX_LAYOUTS: a compressed stream's deltas cycle through a few subsets of the
 -- variables); bylen: node pair * 65536 + frame length -> the layout that matched last (nbylen
 -- entries).
-local LY = {}
+-- bylen is an upvalue of its own (speed trick, measured: one table lookup a frame less).
+local LY, bylen = {}, nil
 local MAX_LAYOUTS = 8
 local Pm = { P = P, LY = LY }
 function Pm.reset()
-    LY.mru, LY.bylen, LY.nbylen = {}, {}, 0
+    LY.mru, LY.nbylen = {}, 0
+    bylen = {}
 end
 Pm.reset()
 
@@ -259,26 +261,28 @@ end
 -- calls into the C library (tolower, isdigit) a character.
 local VALUE = "([ -Z\\^-{}-~\128-\255]*)"
 local DOUBLE = "([-+]?[0-9]+%.?[0-9]*)"
-local CHECKSUM = "|C([^]|[]*)%]"
+local CHECKSUM = "|C([^]|[]*)%](\r?\n?)"
 
 -- TAKE[n](f, pat, at): a layout's pattern of n values matched on f from at; nil when it does not
 -- match, else its values go into VV[1..n] and it returns their total length, the sum of their
--- bytes and the checksum text.  Code made once for each n (speed trick, measured: the captures
--- stay in its locals, no call passes them on); the values are summed as one string, one
--- SUM_OF call instead of one a value (-2.3 thousand instructions a frame, summary pass).
+-- bytes, the checksum text and the line end after its ']' (CR LF, CR, LF or "", as line_end
+-- takes it: the entry's, for the frame a payload starts with; speed trick, measured: no
+-- string.byte call).  Code made once for each n (speed trick, measured: the captures stay in its
+-- locals, no call passes them on); the values are summed as one string, one SUM_OF call instead
+-- of one a value (-2.3 thousand instructions a frame, summary pass).
 local TAKE = { [0] = function(f, pat, at)
-    local ctext = s_match(f, pat, at)
+    local ctext, le = s_match(f, pat, at)
     if not ctext then return nil end
-    return 0, 0, ctext
+    return 0, 0, ctext, le
 end }
 for n = 1, 8 do
     local args, sets = {}, {}
     for k = 1, n do args[k], sets[k] = "v" .. k, "VV[" .. k .. "] = v" .. k end
     TAKE[n] = assert(load("local VV, SUM_OF, s_byte, byte_sum, s_match = ... return function(f, pat, at) local " ..
-        t_concat(args, ", ") .. ", ctext = s_match(f, pat, at) if not ctext then return nil end " ..
+        t_concat(args, ", ") .. ", ctext, le = s_match(f, pat, at) if not ctext then return nil end " ..
         t_concat(sets, " ") .. " local all = " .. t_concat(args, " .. ") .. " local n = #all " ..
-        "if n <= 40 then return n, SUM_OF[n](s_byte(all, 1, n)), ctext end " ..
-        "return n, byte_sum(all, 1, n), ctext end", "=TAKE", "t", {}))(VV, U.SUM_OF, s_byte, byte_sum, s_match)
+        "if n <= 40 then return n, SUM_OF[n](s_byte(all, 1, n)), ctext, le end " ..
+        "return n, byte_sum(all, 1, n), ctext, le end", "=TAKE", "t", {}))(VV, U.SUM_OF, s_byte, byte_sum, s_match)
 end
 
 -- The node pair's recent layouts (key), newest first, tried on the frame f (len: the index of its
@@ -287,15 +291,15 @@ end
 local function layout_mru(f, len, key)
     local mru = LY.mru[key]
     if not mru then return nil end
-    local vlen, sum, ctext
+    local vlen, sum, ctext, le
     for k = 1, #mru do
         local sh = mru[k]
-        if s_find(f, sh.head, 1, true) == 1 then vlen, sum, ctext = sh.take(f, sh.pat, sh.at) end
+        if s_find(f, sh.head, 1, true) == 1 then vlen, sum, ctext, le = sh.take(f, sh.pat, sh.at) end
         if vlen then
             if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
-            if LY.nbylen >= 4096 then LY.bylen, LY.nbylen = {}, 0 end
-            if len < 65536 then LY.bylen[key * 65536 + len], LY.nbylen = sh, LY.nbylen + 1 end
-            return sh, vlen, sum, ctext
+            if LY.nbylen >= 4096 then bylen, LY.nbylen = {}, 0 end
+            if len < 65536 then bylen[key * 65536 + len], LY.nbylen = sh, LY.nbylen + 1 end
+            return sh, vlen, sum, ctext, le
         end
     end
     return nil
@@ -538,7 +542,8 @@ local FAST_MARK = MARKS.fast
 
 -- Parse a frame.  Returns the last index of the content, the address bytes, why it is malformed
 -- (nil: it is not), the checksum verdict (checksum_verdict) and, for a layout's frame, whether
--- it can have no expert info (quiet: see the entry) and is full without state (else nil).
+-- it can have no expert info (quiet: see the entry), is full without state (else nil) and the
+-- line end after its ']' (TAKE).
 -- vis: a shown tree (it needs the fields' places).  payload: f is the whole payload and fl its
 -- length, and only the layout cache is tried, for the frame the payload starts with (nil when
 -- it has none; a layout's head starts with "[:" and the addresses, so the frame needs no header
@@ -555,12 +560,12 @@ local FAST_MARK = MARKS.fast
 -- in a function of its own (one call a frame less).
 local function parse_frame(f, fl, terminated, vis, payload)
     local dstb, srcb = s_byte(f, 3, 4)
-    local sh, vlen, sum, ctext
+    local sh, vlen, sum, ctext, le
     if FAST and terminated and fl >= 6 then   -- (f holds fl bytes at least: srcb is a byte)
         local key = dstb * 256 + srcb
-        sh = LY.bylen[key * 65536 + fl]
-        if sh and s_find(f, sh.head, 1, true) == 1 then vlen, sum, ctext = sh.take(f, sh.pat, sh.at) end
-        if not vlen then sh, vlen, sum, ctext = layout_mru(f, fl, key) end
+        sh = bylen[key * 65536 + fl]
+        if sh and s_find(f, sh.head, 1, true) == 1 then vlen, sum, ctext, le = sh.take(f, sh.pat, sh.at) end
+        if not vlen then sh, vlen, sum, ctext, le = layout_mru(f, fl, key) end
     end
     if not vlen then
         if payload then return nil end
@@ -576,10 +581,10 @@ local function parse_frame(f, fl, terminated, vis, payload)
     if not sh.named then full = positional_empty(sh.n) and full end
     if vis then fast_positions(sh) end
     local cs_val = HEXV[ctext] or checksum_value(ctext)
-    if not cfg.validate then return fl - 1, dstb, srcb, nil, cs_val, nil, 2, false, full end
+    if not cfg.validate then return fl - 1, dstb, srcb, nil, cs_val, nil, 2, false, full, le end
     local cs_calc = (sh.fixed + sum) % 256
-    if cs_val ~= cs_calc then return fl - 1, dstb, srcb, nil, cs_val, cs_calc, 0, false, full end
-    return fl - 1, dstb, srcb, nil, cs_val, cs_calc, 1, sh.quiet and UHEX[ctext], full
+    if cs_val ~= cs_calc then return fl - 1, dstb, srcb, nil, cs_val, cs_calc, 0, false, full, le end
+    return fl - 1, dstb, srcb, nil, cs_val, cs_calc, 1, sh.quiet and UHEX[ctext], full, le
 end
 
 -- The kind the fields alone tell; a data frame (full or delta, told by the state) gives nil, true.

@@ -24,7 +24,7 @@ local inbound       -- receiver key (addresses, "|", letters: see list_in_use) -
 local ninbound      -- receivers with an inbound list (at most max_conversations)
 local pending_q     -- ask key .. ":" .. name (or "#N", "#L": a list request) -> record of the asking frame
 local dir_cache_key, dir_cache_num, dir_cache_ports -- cache for the current packet
-local last_asrc, last_adst, last_pdir, last_akey     -- addresses of the last packet and their key
+local last_asrc, last_adst, last_pdir, last_byaddr  -- addresses of the last packet and their dirs entry
 local stamp_ctr = 0
 -- lists_gen: bumped whenever a list a direction with none of its own may use changes (a
 -- declaration, a new capture, the preferences); a direction keeps the one it found (d.lcur) while
@@ -36,7 +36,7 @@ function S.reset()
     lists_gen = lists_gen + 1
     dirs, pair_lists, pending_q, inbound, ninbound = {}, {}, {}, {}, 0
     dir_cache_key, dir_cache_num, dir_cache_ports = nil, nil, 0
-    last_asrc, last_adst, last_pdir, last_akey = nil, nil, nil, nil
+    last_asrc, last_adst, last_pdir, last_byaddr = nil, nil, nil, nil
 end
 S.reset()
 
@@ -87,17 +87,16 @@ local function get_dir(pinfo, num, dstb, srcb)
         -- a UDP/TCP flow is one direction whatever direction flags its link layer had
         local asrc, adst = g_src(pinfo), g_dst(pinfo)
         local pdir = (sport == 0 and dport == 0) and g_p2p_dir(pinfo) or -1
-        local akey
         if pdir == last_pdir and asrc == last_asrc and adst == last_adst then
-            akey = last_akey
+            byaddr = last_byaddr
         else
-            akey = tostring(asrc) .. ">" .. tostring(adst) .. "/" .. pdir
-            last_asrc, last_adst, last_pdir, last_akey = asrc, adst, pdir, akey
-        end
-        byaddr = dirs[akey]
-        if not byaddr then
-            byaddr = { akey = akey }
-            dirs[akey] = byaddr
+            local akey = tostring(asrc) .. ">" .. tostring(adst) .. "/" .. pdir
+            byaddr = dirs[akey]
+            if not byaddr then
+                byaddr = { akey = akey }
+                dirs[akey] = byaddr
+            end
+            last_asrc, last_adst, last_pdir, last_byaddr = asrc, adst, pdir, byaddr
         end
         dir_cache_key = byaddr
         dir_cache_num = num
@@ -418,8 +417,7 @@ do
     -- what it leaves out is gathered in CARRY (empty D fields: value, frame, ...; ne entries) and
     -- MISS (named variables: name, value, frame, ...; nm entries).  Returns whether it is full,
     -- ne, nm, the number of named variables carried, full_local (the verdict without state), nm for
-    -- the record (0 for a journal's), and for a layout of known names, the names it carries
-    -- (known_subset; nm is 0 then without a tree).
+    -- the record (0 for a journal's).
     local function data_values(d, list, num, sk, good, full_local, has_tree)
         local named = P.named
         local hist, key = d.hist, nil
@@ -431,7 +429,7 @@ do
         local full
         full, full_local = stored_verdict(d, named, good, miss_n, full_local)
         -- a journal's carried names go in no record (see journal)
-        return full, dv_ne, nm, miss_n, full_local, hist and 0 or nm, nil
+        return full, dv_ne, nm, miss_n, full_local, hist and 0 or nm
     end
 
     -- The carried values of empty D fields (CARRY, ne) and named ones (MISS, nm) into a table record.
@@ -447,14 +445,8 @@ do
     -- The record of a data frame that carries values (or whose kind the fields alone do not tell:
     -- a record with its kind; see data_record): a packed text line unless the frame has a table
     -- record anyway.  Returns the record (nil: a line).
-    local function data_carried(rec, d, num, sk, ne, nm, sub, kch)
-        if sub then
-            if rec or not carried_names(num, sk, sub, d.vals, d.from) then   -- (kch: "d", a delta)
-                if nm == 0 then nm = carried_subset(d, sub) end
-                rec = rec or get_rec(num, sk, true)
-                carried_record(rec, ne, nm)
-            end
-        elseif ne > 0 or nm > 0 then
+    local function data_carried(rec, num, sk, ne, nm, kch)
+        if ne > 0 or nm > 0 then
             if rec or not carried_store(num, sk, ne, nm, kch) then
                 rec = rec or get_rec(num, sk, true)
                 carried_record(rec, ne, nm)
@@ -465,15 +457,10 @@ do
         return rec
     end
 
-    -- State, first pass, a data frame: the sync clock, and the record later passes read (late
-    -- sync, carried values, a kind the fields alone do not tell).  Returns state_data's answers (the
-    -- kind, the record, and list, d, miss_n, ne and tree_nm as given: a tail call).
-    -- The sync clock: a full frame (good checksum) sets it; a delta past the interval is late.
-    -- nm: MISS's entries for the record (0: none, or a journal's, which go in no record).  sub: the
-    -- names a layout of known names carries (data_values), their values in the direction, else
-    -- nil.  A frame past a limit (lim_hit) gets a table record with it.
-    local function data_record(pinfo, d, num, sk, full, full_local, cs_status, ne, nm, sub, list, miss_n, tree_nm)
-        local rec = lim_hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
+    -- The sync clock at the current packet (rel_ts) for direction d: a full frame (good checksum)
+    -- sets it; a delta past the interval is late.  Returns the record (rec, or a table record
+    -- with its late sync: rec.late).
+    local function sync_clock(pinfo, d, num, sk, full, cs_status, rec)
         local now = g_rel_ts(pinfo)
         local first = d.first
         if not first then first = now; d.first = now end
@@ -486,13 +473,49 @@ do
                 rec.late = age
             end
         end
+        return rec
+    end
+
+    -- State, first pass, a data frame: the sync clock, and the record later passes read (late
+    -- sync, carried values, a kind the fields alone do not tell).  Returns state_data's answers (the
+    -- kind, the record, and list, d, miss_n, ne and tree_nm as given: a tail call).
+    -- nm: MISS's entries for the record (0: none, or a journal's, which go in no record).  A frame
+    -- past a limit (lim_hit) gets a table record with it.
+    local function data_record(pinfo, d, num, sk, full, full_local, cs_status, ne, nm, list, miss_n, tree_nm)
+        local rec = lim_hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
+        rec = sync_clock(pinfo, d, num, sk, full, cs_status, rec)
         local kch = full and "f" or "d"
-        if sub or ne > 0 or nm > 0 or full ~= full_local then rec = data_carried(rec, d, num, sk, ne, nm, sub, kch) end
+        if ne > 0 or nm > 0 or full ~= full_local then rec = data_carried(rec, num, sk, ne, nm, kch) end
         if rec then
             rec.kind = kch
             if lim_hit then rec.limit = lim_hit end
         end
         return full and "full" or "delta", rec, list, d, miss_n, ne, tree_nm
+    end
+
+    -- State, first pass, a delta of a layout of known names, a subset of the direction's (sub: the
+    -- names it carries, their values in the direction; state_data): the sync clock, and the record
+    -- (its carried names' line straight from the direction: records.carried_names, speed trick,
+    -- measured; a table record when the frame has one anyway).  Returns state_data's answers.
+    local function subset_record(pinfo, d, num, sk, sub, list, tree)
+        local rec = lim_hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
+        -- the sync clock, as sync_clock's for a delta (one call a delta less)
+        local now = g_rel_ts(pinfo)
+        local first = d.first
+        if not first then first = now; d.first = now end
+        local age = now - (d.lastfull or first)
+        if age > cfg.sync then
+            rec = rec or get_rec(num, sk, true)
+            rec.late = age
+        end
+        local nm = tree and carried_subset(d, sub) or 0   -- MISS, for a tree only
+        if rec or not carried_names(num, sk, sub, d.vals, d.from) then
+            rec = rec or get_rec(num, sk, true)
+            carried_record(rec, 0, nm > 0 and nm or carried_subset(d, sub))
+            rec.kind = "d"
+            if lim_hit then rec.limit = lim_hit end
+        end
+        return "delta", rec, list, d, #sub, 0, nm
     end
 
     -- State, first pass, a declaration with a good checksum: the list it declares (a list learnt
@@ -695,11 +718,10 @@ do
         local list = d.lcur
         if d.lgen ~= lists_gen then list = list_in_use(d, num, sk, dstb, srcb) end
         if P.n_pos > 0 and list.by_length then list = frame_list(list) end
-        local named, full, ne, nm, miss_n, rec_nm, sub = P.named, full_local, 0, 0, 0, 0, nil
+        local named = P.named
         -- a layout of known names (good checksum, no journal): its values stored; with the
         -- direction's whole known set nothing is carried (the commonest frame), with a subset the
-        -- direction's other names are, into MISS only for a tree (data_record reads them from the
-        -- direction itself: speed trick, measured)
+        -- direction's other names are (subset_record)
         local known = cs_status ~= 0 and named and not d.hist   -- true: the whole known set
         if known and d.names_is ~= named.N then
             -- else a subset? (known_subset's cache read here: one call a delta less)
@@ -707,18 +729,22 @@ do
             known = known and known[named]
             if not (known and known.count == #d.names) then known = known_subset(d, named) end
         end
-        if known then
-            named.store(d.vals, d.from, num)
-            if known ~= true then
-                sub = known.names
-                full, full_local, miss_n = false, false, #sub
-                if tree then nm = carried_subset(d, sub); rec_nm = nm end
-            end
-        else
-            full, ne, nm, miss_n, full_local, rec_nm, sub = data_values(d, list, num, sk, cs_status ~= 0,
-                full_local, tree ~= nil)
+        if not known then
+            local full, ne, nm, miss_n, full_l, rec_nm = data_values(d, list, num, sk, cs_status ~= 0, full_local,
+                tree ~= nil)
+            return data_record(pinfo, d, num, sk, full, full_l, cs_status, ne, rec_nm, list, miss_n, nm)
         end
-        return data_record(pinfo, d, num, sk, full, full_local, cs_status, ne, rec_nm, sub, list, miss_n, nm)
+        named.store(d.vals, d.from, num)
+        if known ~= true then return subset_record(pinfo, d, num, sk, known.names, list, tree) end
+        if full_local and not lim_hit then
+            -- full (the commonest frame): only the sync clock changes (as sync_clock's; speed trick,
+            -- measured: no call with a dozen arguments)
+            local now = g_rel_ts(pinfo)
+            if not d.first then d.first = now end
+            d.lastfull = now
+            return "full", nil, list, d, 0, 0, 0
+        end
+        return data_record(pinfo, d, num, sk, full_local, full_local, cs_status, 0, 0, list, 0, 0)
     end
 end
 
@@ -737,30 +763,38 @@ local function list_at(d, num, sk)
     return found and h[3 * found] or cfg.list
 end
 
--- A data frame's kind on a later pass: the record's, else the verdict without state.
-local function data_kind(rec, full_local, miss_n)
-    if rec and rec.kind then return rec.kind == "f" and "full" or "delta" end
-    return (full_local and miss_n == 0) and "full" or "delta"
+-- A later pass, a frame whose state needs its direction: the list in use there on the first pass
+-- and, for a named frame the journal judged, what it carried (miss_n, nm), from the journal.
+local function later_dir(pinfo, num, sk, is_data, dstb, srcb, has_tree, miss_n)
+    local d = get_dir(pinfo, num, dstb, srcb)
+    local list = frame_list(list_at(d, num, sk))
+    local nm = 0
+    if is_data and d.jkey and P.n_pos == 0 then
+        local key = journal.key(num, sk)
+        if key >= d.jkey then miss_n, nm = journal.missing(d, key, has_tree) end
+    end
+    return list, d, miss_n, nm
 end
 
 -- State on a later pass: the record, and the list in use at this frame on the first pass
--- (looked up only where it names something: positional values, or a tree to show indexes).
+-- (looked up only where it names something: positional values, or a tree to show indexes).  A
+-- data frame's kind: the record's, else the verdict without state.
 local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local, has_tree)
     local rec = get_rec(num, sk, false)
     local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
-    local nm = 0
-    local list, d = cfg.list, nil
+    local nm, list, d = 0, cfg.list, nil
     if (is_data or kind == "malformed" or kind == "reply") and addrs_ok
         and (has_tree or P.n_pos > 0 or LIM.journal or kind == "reply") then
-        d = get_dir(pinfo, num, dstb, srcb)
-        list = frame_list(list_at(d, num, sk))
-        -- a named frame the journal judged: what it carried, from the journal
-        if is_data and d.jkey and P.n_pos == 0 then
-            local key = journal.key(num, sk)
-            if key >= d.jkey then miss_n, nm = journal.missing(d, key, has_tree) end
+        list, d, miss_n, nm = later_dir(pinfo, num, sk, is_data, dstb, srcb, has_tree, miss_n)
+    end
+    if is_data then
+        local rk = rec and rec.kind
+        if rk then
+            kind = rk == "f" and "full" or "delta"
+        else
+            kind = (full_local and miss_n == 0) and "full" or "delta"
         end
     end
-    if is_data then kind = data_kind(rec, full_local, miss_n) end
     return kind, rec, list, d, miss_n, nm
 end
 
