@@ -190,7 +190,11 @@ def fields(
     res = tshark(capture, args, prefs=prefs, two_pass=two_pass, **kw)
     booleans = _boolean_fields() & set(names)
     rows: list[dict[str, list[str]]] = []
-    for line in res.stdout.splitlines():
+    # one packet a line: split at "\n" alone (str.splitlines would also split a value that holds
+    # \x0b, \x0c, \x1c-\x1e or \x85, bytes an expert message may quote from the packet)
+    for line in res.stdout.split("\n"):
+        if not line:
+            continue
         cols = line.split("\t")
         cols += [""] * (len(all_names) - len(cols))
         row = {n: (c.split("\x1f") if c != "" else []) for n, c in zip(all_names, cols)}

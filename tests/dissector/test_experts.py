@@ -66,3 +66,21 @@ def test_gen_faults_counts_as_the_issue_says() -> None:
     counts = _expert(INPUTS / "gen-faults.pcap", "-q")
     assert counts[("Errors", "Checksum")] == 14
     assert counts[("Warns", "Sequence")] == 31
+
+
+def test_an_expert_quoting_control_bytes_keeps_its_packet_on_one_row(tmp_path: Path) -> None:
+    """A bad checksum's expert quotes the checksum text as sent; bytes such as \\x1d, \\x0b or
+    \\x85 in it must not split the packet's ``-T fields`` row (tshark ends a row at LF alone).
+    Found by hypothesis in test_serial_dissector (a serial frame cut short by binary noise)."""
+    from sharedlink.capture.packets import UdpBuilder
+    from sharedlink.capture.pcapio import PcapWriter
+
+    frames = [b"[:AB|N0|D1|C9\x1d\x0b\x85]\r\n", b"[:AB|N0|D2|C00]\r\n"]
+    cap = tmp_path / "ctl.pcap"
+    with open(cap, "wb") as fh:
+        w = PcapWriter(fh)
+        for i, f in enumerate(frames):
+            w.write(1_767_268_800 * 10**9 + i * 10**6, UdpBuilder("10.0.0.2", "10.0.0.1", 7013, 4000).frame(f, i + 1))
+    rows = tu.fields(cap, ["frame.number", "sharedlink.checksum.status"])
+    assert [r["frame.number"] for r in rows] == [["1"], ["2"]]
+    assert any(m.startswith("Bad checksum") for m in rows[0]["_ws.expert.message"]), rows[0]
