@@ -10,19 +10,21 @@ if type(token) ~= "table" or token.sharedlink_module ~= true then return end
 local U, cfg, wsapi, hf = M.util, M.prefs, M.wsapi, M.fields.hf
 local UHEX = U.UHEX
 local ei, sl, s_byte, s_sub = M.fields.ei, M.proto, string.byte, string.sub
-local s_format, tonumber, tostring = string.format, tonumber, tostring
-local floor, ARROW, B_CR, B_LF = math.floor, U.ARROW, U.B_CR, U.B_LF
+-- (the rarely used ones, string.format, tostring, U.ARROW, U.nstime_of, U.zrange, read where used:
+-- the main chunk keeps under 150 locals)
+local tonumber = tonumber
+local floor, B_CR, B_LF = math.floor, U.B_CR, U.B_LF
 local B_A, B_P = U.B_A, U.B_P
 local LETTER, valid_type, parse_long = U.LETTER, U.valid_type, U.parse_long
-local nstime_of, zrange, FL, FS = U.nstime_of, U.zrange, M.parse.P.FL, M.parse.P.FS
+local FL, FS = M.parse.P.FL, M.parse.P.FS
 local FE, FV, FC, VT = M.parse.P.FE, M.parse.P.FV, M.parse.P.FC, M.parse.P.VT
 local VN, VV, VI, VR = M.parse.P.VN, M.parse.P.VV, M.parse.P.VI, M.parse.P.VR
 local VTf, VQf, VDf = M.parse.P.VTf, M.parse.P.VQf, M.parse.P.VDf
 
 local P = M.parse.P
+local VALUE = cfg.VALUE   -- name -> its value field (sharedlink.value.<name>), made at load
 local crlf_frames = true   -- see set_crlf_frames
-local R = M.records
-local CARRY, MISS = R.CARRY, R.MISS
+local CARRY, MISS = M.records.CARRY, M.records.MISS
 
 -- TreeItem's methods called through this table (speed trick, measured: -V 16 us a frame
 -- less): ti:add(...) looks the method up through wslua's __index, a call into C, each time.
@@ -220,7 +222,7 @@ local function proto_item_text(kind, dstb, srcb, dst, src, cs_status, nodes)
             if text then return text end
         end
     end
-    local text = "SharedLink Protocol, " .. src .. ARROW .. dst .. " " .. kind .. (bad and ", bad checksum" or "")
+    local text = "SharedLink Protocol, " .. src .. U.ARROW .. dst .. " " .. kind .. (bad and ", bad checksum" or "")
     if hk then
         if not byk then byk = {}; HEAD_TEXT[kind] = byk end
         byk[hk] = text
@@ -314,13 +316,15 @@ end
 
 -- A value's typed field (double, long, string; shown: hidden, at range r) or its var.badvalue.
 -- known: the value is a plain decimal already (a named layout's pattern matched it), so a hidden
--- tree nobody asks for doubles skips tonumber.
-local function typed_value(vt, vtext, r, vtype, text, known)
+-- tree nobody asks for doubles skips tonumber; dbl: the value as a double when value_items made
+-- it already (false: not a double), nil when not (speed trick, measured: tonumber is ~1,150
+-- instructions).
+local function typed_value(vt, vtext, r, vtype, text, known, dbl)
     local field, v
     if vtype == 2 then
         field = H_var_double
         if known and REF[field] == false then return end
-        v = tonumber(text)
+        if dbl == nil then v = tonumber(text) else v = dbl end
         if not v then TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a double: " .. text) end
     elseif vtype == 0 then
         field, v = hf.var_long, parse_long(text)
@@ -336,33 +340,49 @@ local function typed_value(vt, vtext, r, vtype, text, known)
     end
 end
 
+-- A generated item of field with value x under vt (shown), at range r when r is not nil.
+local function gen_item(vt, field, r, x)
+    local it
+    if r then it = TI.add(vt, field, r, x) else it = TI.add(vt, field, x) end
+    TI.set_generated(it)
+    return it
+end
+
 -- A variable's value items: sharedlink.var.value (shown: at range r, or generated when gen, a
 -- carried value with no bytes of its own), for a value in the frame, carried forward, or of a
--- named variable the frame left out.  The one place a variable's value becomes items: fields per
--- variable (issue 29) go here.
+-- named variable the frame left out, then (vtype: a value in the frame of that type) its typed
+-- field.  The one place a variable's value becomes items: fields per variable (issue 29) go here.
 -- name: false for a value that is not its direction's (a reply's: it gets no value field).
-local function value_items(vt, vtext, name, value, r, gen)
-    if c_shown then
-        local it = r and TI.add(vt, H_var_value, r, value) or TI.add(vt, H_var_value, value)
-        if gen then TI.set_generated(it) end
+local function value_items(vt, vtext, name, value, r, gen, vtype, known)
+    local shown = c_shown
+    if shown then
+        if gen then gen_item(vt, H_var_value, r, value) else TI.add(vt, H_var_value, r, value) end
     elseif REF[H_var_value] ~= false then
         hadd(vt, vtext, H_var_value, value)
     end
     -- sharedlink.value.<name> (docs/fields-sharedlink.md, "Filtering by variable"): typed as its
     -- field; a value that does not read as that type is left out.  Hidden: the Value line shows it.
-    local vf = name and cfg.VALUE[name]
-    if not vf then return end
-    local field = vf.field
-    if not c_shown and REF[field] == false then return end
-    local vtype, x = vf.vtype, value
-    if vtype == 2 then x = tonumber(value) elseif vtype == 0 then x = parse_long(value) end
-    if x == nil then return end
-    if c_shown then
-        local it = r and TI.add(vt, field, r, x) or TI.add(vt, field, x)
-        TI.set_hidden(it)
-        if gen then TI.set_generated(it) end
-    else
-        hadd(vt, vtext, field, x)
+    local vf = name and VALUE[name]
+    local dbl = nil   -- the value as a double, once made (false: not a double)
+    if vf then
+        local field = vf.field
+        if shown or REF[field] ~= false then
+            local ftype, x = vf.vtype, value
+            if ftype == 2 then x = tonumber(value); dbl = x or false
+            elseif ftype == 0 then x = parse_long(value) end
+            if x ~= nil then
+                if shown then
+                    TI.set_hidden(gen and gen_item(vt, field, r, x) or TI.add(vt, field, r, x))
+                else
+                    hadd(vt, vtext, field, x)
+                end
+            end
+        end
+    end
+    if shown and dbl and vtype == 2 then   -- (typed_value's most common case, inline: speed trick, measured)
+        TI.set_hidden(TI.add(vt, H_var_double, r, dbl))
+    elseif vtype then
+        typed_value(vt, vtext, r, vtype, value, known, dbl)
     end
 end
 
@@ -394,10 +414,10 @@ local function var_reply(vt, vtext, name)
     if resp_to and resp_to[name] then
         if c_shown then
             TI.set_generated(TI.add(vt, hf.response_to, resp_to[name]))
-            TI.set_generated(TI.add(vt, hf.response_time, nstime_of(C.rts[name])))
+            TI.set_generated(TI.add(vt, hf.response_time, U.nstime_of(C.rts[name])))
         else
             hitem(vt, vtext, hf.response_to, resp_to[name])
-            if REF[hf.response_time] ~= false then hadd(vt, vtext, hf.response_time, nstime_of(C.rts[name])) end
+            if REF[hf.response_time] ~= false then hadd(vt, vtext, hf.response_time, U.nstime_of(C.rts[name])) end
         end
     elseif unmatched and unmatched[name] then
         TI.add_proto_expert_info(vt, ei.unanswered)
@@ -420,8 +440,7 @@ local function var_value(vt, vtext, v, name, vtype)
     if val ~= "" or VN[v] then
         local r = nil
         if shown then local df = VDf[v]; r = c_tvb(c_o + FS[df] + 1, FE[df] - FS[df]) end
-        value_items(vt, vtext, not VR[v] and name, val, r, false)
-        if vtype then typed_value(vt, vtext, r, vtype, val, c_tv ~= nil) end
+        value_items(vt, vtext, not VR[v] and name, val, r, false, vtype, c_tv ~= nil)
         if shown then TI.set_text(vt, label .. " = " .. val) end
     else
         -- an empty positional D: the value carried forward (the frame's next carried pair)
@@ -453,26 +472,58 @@ end
 -- Variable v: its subtree (shown: at its first field fs) and every item of it.  A named
 -- variable's index is its place among the direction's names; a positional one's name and type
 -- come from the list.
-local function tree_variable(v, fs)
-    local name, index, vtype = var_naming(v, VN[v], VI[v])
+-- Shown: the variable's subtree at its first field fs, its T item and (a named variable's, not a
+-- reply's) its name item; returns the subtree and the type (vtype: the list's when no T).  Speed
+-- trick (measured, -V): the common items made here, no var_type or var_name call.
+local function shown_var_head(v, fs, name, vtype)
+    local tf, qf, df = VTf[v], VQf[v], VDf[v]
+    local vend = df ~= 0 and df or (qf ~= 0 and qf or tf)
+    local tvb, o = c_tvb, c_o
+    local vt = TI.add(c_ti, H_var, tvb(o + fs, FE[vend] - fs + 1))
+    if tf ~= 0 then
+        local tv = c_tv
+        vtype = tv and tv[v] or valid_type(VT[v])
+        if vtype then TI.add(vt, H_ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
+        else var_type(vt, nil, v, tf, vtype) end
+    end
+    if VN[v] and not VR[v] then
+        TI.set_hidden(TI.add(vt, H_var_name, tvb(o + FS[qf] + 1, FE[qf] - FS[qf]), name))
+    else
+        var_name(vt, nil, v, name)
+    end
+    return vt, vtype
+end
+
+-- Hidden (or none): the variable's item (var_item), its T item and its name item; returns the
+-- item, its text and the type (vtype: the list's when no T).
+local function hidden_var_head(v, name, vtype)
+    local vt, vtext = var_item()
     -- a T field: its field number where the places are known (the parser may leave a T's number
     -- with VT false: shown as an empty type), else (a layout's frame) its text
-    local has_t
-    if c_places then has_t = VTf[v] ~= 0 else has_t = VT[v] end
-    local vt, vtext
-    if c_shown then
-        local tf, qf, df = VTf[v], VQf[v], VDf[v]
-        local vend = df ~= 0 and df or (qf ~= 0 and qf or tf)
-        vt = TI.add(c_ti, H_var, c_tvb(c_o + fs, FE[vend] - fs + 1))
-    else
-        vt, vtext = var_item()
-    end
-    if has_t then
+    if (c_places and VTf[v] ~= 0) or (not c_places and VT[v]) then
         local tv = c_tv
         vtype = tv and tv[v] or valid_type(VT[v])
         var_type(vt, vtext, v, VTf[v], vtype)
     end
     var_name(vt, vtext, v, name)
+    return vt, vtext, vtype
+end
+
+-- Variable v: its subtree (shown: at its first field fs) and every item of it.  A named
+-- variable's index is its place among the direction's names; a positional one's name and type
+-- come from the list.
+local function tree_variable(v, fs)
+    local name, index, vtype = VN[v], VI[v], nil
+    if not name or VR[v] then
+        name, index, vtype = var_naming(v, name, index)
+    elseif c_d then   -- (var_naming's most common case, inline: speed trick, measured)
+        local d = c_d
+        local first = d.nfirst[name]
+        index = (first and first <= c_num) and d.npos[name] or nil
+    end
+    local vt, vtext
+    if c_shown then vt, vtype = shown_var_head(v, fs, name, vtype)
+    else vt, vtext, vtype = hidden_var_head(v, name, vtype) end
     if not VR[v] and index then
         if c_shown then TI.set_generated(TI.add(vt, H_var_index, index))
         elseif REF[H_var_index] ~= false then hadd(vt, vtext, H_var_index, index) end
@@ -541,7 +592,7 @@ local function tree_plain_field(l, fs, fe)
     local text = (l ~= false) and s_sub(c_f, fs + 1, fe) or ""
     local vr = shown and c_tvb(c_o + fs + 1, fe - fs)     -- the text after the letter
     if l == false then
-        if shown then ti = TI.add(ti, zrange(c_tvb, c_o + fs), "Empty field") end
+        if shown then ti = TI.add(ti, U.zrange(c_tvb, c_o + fs), "Empty field") end
         TI.add_proto_expert_info(ti, ei.field_empty)
     elseif l == U.L_N or l == U.L_L or l == U.L_T then
         number_field(l, fs, fe, text, vr)
@@ -580,7 +631,7 @@ function C.value_fields_unseen(n, miss)
     for k = 1, n, step do
         local name
         if miss then name = miss[k] else name = VN[k] or list[VI[k] + 1] end
-        local vf = name and cfg.VALUE[name]
+        local vf = name and VALUE[name]
         if vf and REF[vf.field] ~= false then return false end
     end
     return true
@@ -624,8 +675,22 @@ local function layout_fields()
     for v = 1, P.nv do tree_variable(v) end
 end
 
+-- A layout's frame, shown (its places from parse): N, its variables in order (a variable's first
+-- field its T, else its D), C; no walk to find which field starts which variable (speed trick,
+-- measured: -V).
+local function shown_layout_fields()
+    local ns, ne = FS[1], FE[1]
+    number_field(U.L_N, ns, ne, P.n_text, c_tvb(c_o + ns + 1, ne - ns))
+    for v = 1, P.nv do
+        local first = VTf[v]
+        if first == 0 then first = VDf[v] end
+        tree_variable(v, FS[first])
+    end
+end
+
 local function tree_fields()
     if not c_places then return layout_fields() end
+    if P.layout then return shown_layout_fields() end
     local kind, cpos = C.kind, P.cpos
     for i = 1, P.nf do FV[i] = 0; FC[i] = false end
     for v = 1, P.nv do
@@ -658,10 +723,10 @@ function C.request_link(rec)
     if rec.req_to then
         if shown then
             TI.set_generated(TI.add(ti, hf.response_to, rec.req_to))
-            TI.set_generated(TI.add(ti, hf.response_time, nstime_of(rec.req_rt)))
+            TI.set_generated(TI.add(ti, hf.response_time, U.nstime_of(rec.req_rt)))
         else
             hitem(ti, c_ttext, hf.response_to, rec.req_to)
-            hitem(ti, c_ttext, hf.response_time, nstime_of(rec.req_rt))
+            hitem(ti, c_ttext, hf.response_time, U.nstime_of(rec.req_rt))
         end
     end
 end
@@ -676,7 +741,7 @@ local function tree_carried_names()
     if not miss then return end
     local shown, ti = c_shown, c_ti
     if not shown and carried_unseen(miss, miss_len) then return end
-    local zr = shown and zrange(c_tvb, c_o + C.bodyend)
+    local zr = shown and U.zrange(c_tvb, c_o + C.bodyend)
     for k = 1, miss_len, 3 do
         local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
         local index = d and d.npos[name]
@@ -709,7 +774,7 @@ local function shown_checksum(cpos, ctext)
         -- the label with " [correct]", one call (speed trick, measured: -V)
         local label = CHECKSUM_OK[val]
         if not label then
-            label = s_format("Checksum: 0x%02x [correct]", val)
+            label = string.format("Checksum: 0x%02x [correct]", val)
             CHECKSUM_OK[val] = label
         end
         ct = TI.add(ti, H_checksum, cr, val, label)
@@ -733,8 +798,9 @@ local function shown_checksum(cpos, ctext)
         if not byte_val then TI.append_text(ct, " [correct]") end
     else
         TI.set_generated(TI.add(ct, H_checksum_status, cr, 0))
-        TI.append_text(ct, s_format(" [incorrect, should be 0x%02x]", cs_calc))
-        TI.add_proto_expert_info(ct, ei.checksum_bad, s_format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
+        TI.append_text(ct, string.format(" [incorrect, should be 0x%02x]", cs_calc))
+        TI.add_proto_expert_info(ct, ei.checksum_bad,
+            string.format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
     end
 end
 
@@ -760,7 +826,7 @@ local function hidden_checksum(ctext)
     if REF[H_checksum_status] ~= false then hadd(ti, ttext, H_checksum_status, cs_status) end
     if cs_status ~= 1 then
         TI.add_proto_expert_info(ct or ti, ei.checksum_bad,
-            s_format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
+            string.format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
     end
 end
 
@@ -773,7 +839,7 @@ local function tree_trailer()
         if shown then TI.set_generated(TI.add(ti, hf.sync_is_late, true))
         else hitem(ti, c_ttext, hf.sync_is_late, true) end
         TI.add_proto_expert_info(ti, ei.sync_late,
-            s_format("No full frame for %.3f s (sync interval %.3f s + %.1f s slack)",
+            string.format("No full frame for %.3f s (sync interval %.3f s + %.1f s slack)",
                 rec.late, cfg.sync - U.SYNC_SLACK, U.SYNC_SLACK))
     end
     if P.cpos then
