@@ -118,13 +118,11 @@ local REF = LEARNT    -- the one in use for the frame being built
 local EACH_FRAME = wsapi.env.probe_each_frame
 local SEEN, IS_SEEN, n_seen = {}, {}, 0   -- the fields ever found referenced, in a list and a set
 local ref_num, ref_visited, ref_tvb = -1, nil, nil   -- the last hidden dissection: frame, pass, Tvb
-local UNKNOWN = {}  -- "the parent's text is not read yet"
 
 -- Start a hidden tree: forget what may have changed since the last frame.  tvb: the packet's Tvb,
--- the same object for the frames of one packet (one dissection).  Returns the text hadd compares
--- the protocol item's children with (UNKNOWN: read when needed).
+-- the same object for the frames of one packet (one dissection).
 local function ref_start(tvb, num, visited)
-    if rawequal(tvb, ref_tvb) and not EACH_FRAME then return UNKNOWN end   -- the packet's next frame
+    if rawequal(tvb, ref_tvb) and not EACH_FRAME then return end   -- the packet's next frame
     ref_tvb = tvb
     if EACH_FRAME or visited ~= ref_visited or num ~= ref_num + 1 then
         for k in pairs(LEARNT) do LEARNT[k] = nil end
@@ -136,22 +134,21 @@ local function ref_start(tvb, num, visited)
         end
     end
     ref_num = num
-    return UNKNOWN
 end
 
 -- A shown tree (the GUI's packet details, -V) ends a run: what follows learns again.
 local function ref_break() ref_num, ref_tvb = -1, nil end
 
--- A hidden item: field = value under parent (whose text is ptext, or UNKNOWN), for a field not
+-- A hidden item: field = value under parent, for a field not
 -- known to be unreferenced (the caller checks REF[field] ~= false first, so an unreferenced
 -- field costs no call); the first item of a field tells whether it is referenced.  Returns the
 -- item, or nil when nobody references the field.
-local function hadd(parent, ptext, field, value)
+local function hadd(parent, field, value)
     local it
     if value == nil then it = TI.add(parent, field) else it = TI.add(parent, field, value) end
     local r = REF[field]
     if r == nil then
-        r = wsapi.referenced(it, parent, ptext ~= UNKNOWN and ptext or nil)
+        r = wsapi.referenced(it, parent)
         REF[field] = r
         if r and not IS_SEEN[field] then
             IS_SEEN[field] = true
@@ -163,16 +160,16 @@ local function hadd(parent, ptext, field, value)
 end
 
 -- A hidden item when its field is not known to be unreferenced (hadd), for the rarer items.
-local function hitem(parent, ptext, field, value)
+local function hitem(parent, field, value)
     if REF[field] == false then return nil end
-    return hadd(parent, ptext, field, value)
+    return hadd(parent, field, value)
 end
 
 -- The frame being built (set by tree_frame; upvalues, not a table's fields: speed trick, measured)
 local C = {}   -- the rest of it
 local c_shown
 local c_csrc, c_d, c_f, c_ke, c_list, c_num, c_o, c_places
-local c_ti, c_ttext, c_tv, c_tvb
+local c_ti, c_tv, c_tvb
 
 ------------------------------------------------------------------------------
 -- The head: the protocol item, the addresses, the kind, malformed.
@@ -199,11 +196,11 @@ local function tree_address(off, b, letter, is_node, field, node_field, what)
         end
         ti = TI.add(ti, field, r, letter)
     elseif is_node then
-        if REF[field] ~= false then hadd(ti, c_ttext, field, letter) end
-        if REF[node_field] ~= false then hadd(ti, c_ttext, node_field, b - B_A + 1) end
+        if REF[field] ~= false then hadd(ti, field, letter) end
+        if REF[node_field] ~= false then hadd(ti, node_field, b - B_A + 1) end
         return
     else
-        ti = hitem(ti, c_ttext, field, letter) or ti
+        ti = hitem(ti, field, letter) or ti
     end
     TI.add_proto_expert_info(ti, ei.address_invalid, what .. " " .. letter .. " is not a letter A-P")
 end
@@ -244,13 +241,13 @@ local function tree_head()
         ti = TI.add(C.tree, sl)
     end
     c_ti = ti
-    c_ttext = mode == HIDDEN and ref_start(tvb, c_num, C.visited) or nil
+    if mode == HIDDEN then ref_start(tvb, c_num, C.visited) end
     tree_address(c_o + 3, dstb, C.dst, dnode, H_dst, hf.dst_node, "Destination")
     tree_address(c_o + 4, srcb, C.src, snode, H_src, hf.src_node, "Source")
     if mode == SHOWN then
         TI.set_generated(TI.add(ti, hf.kind, kind))
     elseif REF[hf.kind] ~= false then
-        hadd(ti, c_ttext, hf.kind, kind)
+        hadd(ti, hf.kind, kind)
     end
     if C.malformed_msg then TI.add_proto_expert_info(ti, ei.malformed, C.malformed_msg) end
 end
@@ -258,18 +255,16 @@ end
 ------------------------------------------------------------------------------
 -- A variable: its subtree and items (tree_variable).
 ------------------------------------------------------------------------------
--- A hidden variable's subtree: the item its items go on, and that item's text (the protocol
--- item's when nobody references sharedlink.var; no tree: the protocol item).
+-- A hidden variable's subtree: the item its items go on (the protocol item when nobody references
+-- sharedlink.var; no tree: the protocol item).
 local function var_item()
     local ti = c_ti
-    if REF[H_var] == false then return ti, c_ttext end
-    local vt = hadd(ti, c_ttext, H_var)
-    if not vt then return ti, c_ttext end
-    return vt, UNKNOWN   -- a real variable item: its text is read when a probe needs it
+    if REF[H_var] == false then return ti end
+    return hadd(ti, H_var) or ti
 end
 
 -- Its T field (field tf; shown: the type or an expert when it is not a number), hidden: its type.
-local function var_type(vt, vtext, v, tf, vtype)
+local function var_type(vt, v, tf, vtype)
     if c_shown then
         local tvb, o = c_tvb, c_o
         if vtype then
@@ -279,7 +274,7 @@ local function var_type(vt, vtext, v, tf, vtype)
                 :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
         end
     elseif vtype then
-        if REF[H_ftype] ~= false then hadd(vt, vtext, H_ftype, vtype) end
+        if REF[H_ftype] ~= false then hadd(vt, H_ftype, vtype) end
     else
         TI.add_proto_expert_info(vt, ei.var_badvalue, "Type is not a number")
     end
@@ -288,7 +283,7 @@ end
 -- Its name: the subtree's label, its field kept for filters, hidden (and a reply's R); an expert
 -- for a positional value past a list learnt from a declaration (docs/fields-sharedlink.md, "Names
 -- from an a-priori list": past a user's or the a-priori list a slot is #i with no warning).
-local function var_name(vt, vtext, v, name)
+local function var_name(vt, v, name)
     local shown = c_shown
     local list = c_list
     if not VN[v] and not list[VI[v] + 1] and list.decl then
@@ -309,8 +304,8 @@ local function var_name(vt, vtext, v, name)
             TI.set_hidden(TI.add(vt, H_var_name, r, name))
             return
         end
-        if VR[v] and VN[v] and REF[hf.response] ~= false then hadd(vt, vtext, hf.response, name) end
-        if REF[H_var_name] ~= false then hadd(vt, vtext, H_var_name, name) end
+        if VR[v] and VN[v] and REF[hf.response] ~= false then hadd(vt, hf.response, name) end
+        if REF[H_var_name] ~= false then hadd(vt, H_var_name, name) end
     end
 end
 
@@ -319,7 +314,7 @@ end
 -- tree nobody asks for doubles skips tonumber; dbl: the value as a double when value_items made
 -- it already (false: not a double), nil when not (speed trick, measured: tonumber is ~1,150
 -- instructions).
-local function typed_value(vt, vtext, r, vtype, text, known, dbl)
+local function typed_value(vt, r, vtype, text, known, dbl)
     local field, v
     if vtype == 2 then
         field = H_var_double
@@ -336,7 +331,7 @@ local function typed_value(vt, vtext, r, vtype, text, known, dbl)
     if c_shown then
         TI.set_hidden(TI.add(vt, field, r, v))
     elseif REF[field] ~= false then
-        hadd(vt, vtext, field, v)
+        hadd(vt, field, v)
     end
 end
 
@@ -353,12 +348,12 @@ end
 -- named variable the frame left out, then (vtype: a value in the frame of that type) its typed
 -- field.  The one place a variable's value becomes items: fields per variable (issue 29) go here.
 -- name: false for a value that is not its direction's (a reply's: it gets no value field).
-local function value_items(vt, vtext, name, value, r, gen, vtype, known)
+local function value_items(vt, name, value, r, gen, vtype, known)
     local shown = c_shown
     if shown then
         if gen then gen_item(vt, H_var_value, r, value) else TI.add(vt, H_var_value, r, value) end
     elseif REF[H_var_value] ~= false then
-        hadd(vt, vtext, H_var_value, value)
+        hadd(vt, H_var_value, value)
     end
     -- sharedlink.value.<name> (docs/fields-sharedlink.md, "Filtering by variable"): typed as its
     -- field; a value that does not read as that type is left out.  Hidden: the Value line shows it.
@@ -374,7 +369,7 @@ local function value_items(vt, vtext, name, value, r, gen, vtype, known)
                 if shown then
                     TI.set_hidden(gen and gen_item(vt, field, r, x) or TI.add(vt, field, r, x))
                 else
-                    hadd(vt, vtext, field, x)
+                    hadd(vt, field, x)
                 end
             end
         end
@@ -382,26 +377,26 @@ local function value_items(vt, vtext, name, value, r, gen, vtype, known)
     if shown and dbl and vtype == 2 then   -- (typed_value's most common case, inline: speed trick, measured)
         TI.set_hidden(TI.add(vt, H_var_double, r, dbl))
     elseif vtype then
-        typed_value(vt, vtext, r, vtype, value, known, dbl)
+        typed_value(vt, r, vtype, value, known, dbl)
     end
 end
 
 -- A carried value's items: its value and frame when known (cv, cf: false when not), at range r0
 -- (shown), the subtree's text set to label ... .
-local function carried_items(vt, vtext, name, label, cv, cf, r0)
+local function carried_items(vt, name, label, cv, cf, r0)
     local shown = c_shown
-    if cv then value_items(vt, vtext, name, cv, r0, true) end
+    if cv then value_items(vt, name, cv, r0, true) end
     if shown then
         TI.set_generated(r0 and TI.add(vt, H_var_carried, r0, true) or TI.add(vt, H_var_carried, true))
     elseif REF[H_var_carried] ~= false then
-        hadd(vt, vtext, H_var_carried, true)
+        hadd(vt, H_var_carried, true)
     end
     if cf then
         if shown then
             TI.set_generated(r0 and TI.add(vt, H_var_carried_from, r0, cf) or TI.add(vt, H_var_carried_from, cf))
             TI.set_text(vt, label .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
         elseif REF[H_var_carried_from] ~= false then
-            hadd(vt, vtext, H_var_carried_from, cf)
+            hadd(vt, H_var_carried_from, cf)
         end
     elseif shown then
         TI.set_text(vt, label .. " = ? (carried, no earlier value)")
@@ -409,15 +404,15 @@ local function carried_items(vt, vtext, name, label, cv, cf, r0)
 end
 
 -- A reply's link to its query (or the expert of a reply without one).
-local function var_reply(vt, vtext, name)
+local function var_reply(vt, name)
     local resp_to, unmatched = C.resp_to, C.unmatched
     if resp_to and resp_to[name] then
         if c_shown then
             TI.set_generated(TI.add(vt, hf.response_to, resp_to[name]))
             TI.set_generated(TI.add(vt, hf.response_time, U.nstime_of(C.rts[name])))
         else
-            hitem(vt, vtext, hf.response_to, resp_to[name])
-            if REF[hf.response_time] ~= false then hadd(vt, vtext, hf.response_time, U.nstime_of(C.rts[name])) end
+            hitem(vt, hf.response_to, resp_to[name])
+            if REF[hf.response_time] ~= false then hadd(vt, hf.response_time, U.nstime_of(C.rts[name])) end
         end
     elseif unmatched and unmatched[name] then
         TI.add_proto_expert_info(vt, ei.unanswered)
@@ -425,7 +420,7 @@ local function var_reply(vt, vtext, name)
 end
 
 -- A variable's value (its D), or what a declaration or a reply without value shows.
-local function var_value(vt, vtext, v, name, vtype)
+local function var_value(vt, v, name, vtype)
     local shown = c_shown
     local val, label = VV[v], shown and (name or ("#" .. VI[v]))
     if not val then
@@ -433,14 +428,14 @@ local function var_value(vt, vtext, v, name, vtype)
         local resp_in = C.resp_in
         if resp_in and resp_in[name] then
             if shown then TI.set_generated(TI.add(vt, hf.response_in, resp_in[name]))
-            else hitem(vt, vtext, hf.response_in, resp_in[name]) end
+            else hitem(vt, hf.response_in, resp_in[name]) end
         end
         return
     end
     if val ~= "" or VN[v] then
         local r = nil
         if shown then local df = VDf[v]; r = c_tvb(c_o + FS[df] + 1, FE[df] - FS[df]) end
-        value_items(vt, vtext, not VR[v] and name, val, r, false, vtype, c_tv ~= nil)
+        value_items(vt, not VR[v] and name, val, r, false, vtype, c_tv ~= nil)
         if shown then TI.set_text(vt, label .. " = " .. val) end
     else
         -- an empty positional D: the value carried forward (the frame's next carried pair)
@@ -448,9 +443,9 @@ local function var_value(vt, vtext, v, name, vtype)
         local cv, cf = false, false
         if csrc then cv, cf = csrc[ke + 1], csrc[ke + 2] end
         c_ke = ke + 2
-        carried_items(vt, vtext, name, label, cv, cf, shown and c_tvb(c_o + FS[VDf[v]], 1))
+        carried_items(vt, name, label, cv, cf, shown and c_tvb(c_o + FS[VDf[v]], 1))
     end
-    if VR[v] then var_reply(vt, vtext, name) end
+    if VR[v] then var_reply(vt, name) end
 end
 
 -- Variable v's name, index and type: a positional one's from the list (#i past it), a named one's
@@ -484,29 +479,29 @@ local function shown_var_head(v, fs, name, vtype)
         local tv = c_tv
         vtype = tv and tv[v] or valid_type(VT[v])
         if vtype then TI.add(vt, H_ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
-        else var_type(vt, nil, v, tf, vtype) end
+        else var_type(vt, v, tf, vtype) end
     end
     if VN[v] and not VR[v] then
         TI.set_hidden(TI.add(vt, H_var_name, tvb(o + FS[qf] + 1, FE[qf] - FS[qf]), name))
     else
-        var_name(vt, nil, v, name)
+        var_name(vt, v, name)
     end
     return vt, vtype
 end
 
 -- Hidden (or none): the variable's item (var_item), its T item and its name item; returns the
--- item, its text and the type (vtype: the list's when no T).
+-- item and the type (vtype: the list's when no T).
 local function hidden_var_head(v, name, vtype)
-    local vt, vtext = var_item()
+    local vt = var_item()
     -- a T field: its field number where the places are known (the parser may leave a T's number
     -- with VT false: shown as an empty type), else (a layout's frame) its text
     if (c_places and VTf[v] ~= 0) or (not c_places and VT[v]) then
         local tv = c_tv
         vtype = tv and tv[v] or valid_type(VT[v])
-        var_type(vt, vtext, v, VTf[v], vtype)
+        var_type(vt, v, VTf[v], vtype)
     end
-    var_name(vt, vtext, v, name)
-    return vt, vtext, vtype
+    var_name(vt, v, name)
+    return vt, vtype
 end
 
 -- Variable v: its subtree (shown: at its first field fs) and every item of it.  A named
@@ -521,14 +516,14 @@ local function tree_variable(v, fs)
         local first = d.nfirst[name]
         index = (first and first <= c_num) and d.npos[name] or nil
     end
-    local vt, vtext
+    local vt
     if c_shown then vt, vtype = shown_var_head(v, fs, name, vtype)
-    else vt, vtext, vtype = hidden_var_head(v, name, vtype) end
+    else vt, vtype = hidden_var_head(v, name, vtype) end
     if not VR[v] and index then
         if c_shown then TI.set_generated(TI.add(vt, H_var_index, index))
-        elseif REF[H_var_index] ~= false then hadd(vt, vtext, H_var_index, index) end
+        elseif REF[H_var_index] ~= false then hadd(vt, H_var_index, index) end
     end
-    var_value(vt, vtext, v, name, vtype)
+    var_value(vt, v, name, vtype)
 end
 
 ------------------------------------------------------------------------------
@@ -537,7 +532,7 @@ end
 -- An item of field at the text after the letter (shown: range vr), value text; the item or nil.
 local function plain_item(parent, field, vr, text)
     if c_shown then return TI.add(parent, field, vr, text) end
-    return hitem(parent, c_ttext, field, text)
+    return hitem(parent, field, text)
 end
 
 -- An item with no field (shown only: a text at f[fs..fe]) and its expert.
@@ -573,8 +568,8 @@ local function unknown_field(l, fs, fe)
         ft = TI.add(ti, hf.field_letter, tvb(o + fs, 1), LETTER[l])
         TI.add(ft, hf.field_text, tvb(o + fs, fe - fs + 1), s_sub(c_f, fs, fe))
     else
-        ft = hitem(ti, c_ttext, hf.field_letter, LETTER[l])
-        hitem(ti, c_ttext, hf.field_text, s_sub(c_f, fs, fe))
+        ft = hitem(ti, hf.field_letter, LETTER[l])
+        hitem(ti, hf.field_text, s_sub(c_f, fs, fe))
     end
     if l == U.L_C then
         TI.add_proto_expert_info(ft or ti, ei.field_unknown, "Checksum field C that is not the last field")
@@ -600,7 +595,7 @@ local function tree_plain_field(l, fs, fe)
         local qt = plain_item(ti, hf.query, vr, text)
         if resp_in and resp_in[text] then
             if shown then TI.set_generated(TI.add(qt, hf.response_in, resp_in[text]))
-            else hitem(ti, c_ttext, hf.response_in, resp_in[text]) end
+            else hitem(ti, hf.response_in, resp_in[text]) end
         end
     elseif PLAIN[l] then
         local item = plain_item(ti, PLAIN[l], vr, text)
@@ -669,7 +664,7 @@ local function layout_fields()
     if REF[H_ordinal] ~= false then
         local n = P.n_ord   -- 0 also for an N past what to_ordinal keeps
         if n == 0 and P.n_text ~= "0" then n = floor(tonumber(P.n_text)) end
-        hadd(c_ti, c_ttext, H_ordinal, n)
+        hadd(c_ti, H_ordinal, n)
     end
     if layout_vars_unseen() then return end
     for v = 1, P.nv do tree_variable(v) end
@@ -718,15 +713,15 @@ function C.request_link(rec)
     local ti, shown = c_ti, c_shown
     if rec.req_in then
         if shown then TI.set_generated(TI.add(ti, hf.response_in, rec.req_in))
-        else hitem(ti, c_ttext, hf.response_in, rec.req_in) end
+        else hitem(ti, hf.response_in, rec.req_in) end
     end
     if rec.req_to then
         if shown then
             TI.set_generated(TI.add(ti, hf.response_to, rec.req_to))
             TI.set_generated(TI.add(ti, hf.response_time, U.nstime_of(rec.req_rt)))
         else
-            hitem(ti, c_ttext, hf.response_to, rec.req_to)
-            hitem(ti, c_ttext, hf.response_time, U.nstime_of(rec.req_rt))
+            hitem(ti, hf.response_to, rec.req_to)
+            hitem(ti, hf.response_time, U.nstime_of(rec.req_rt))
         end
     end
 end
@@ -745,17 +740,17 @@ local function tree_carried_names()
     for k = 1, miss_len, 3 do
         local name, cv, cf = miss[k], miss[k + 1], miss[k + 2]
         local index = d and d.npos[name]
-        local vt, vtext
+        local vt
         if shown then
             vt = TI.add(ti, H_var, zr)
             TI.set_hidden(TI.add(vt, H_var_name, name))
             if index then TI.set_generated(TI.add(vt, H_var_index, index)) end
         else
-            vt, vtext = var_item()
-            if REF[H_var_name] ~= false then hadd(vt, vtext, H_var_name, name) end
-            if index and REF[H_var_index] ~= false then hadd(vt, vtext, H_var_index, index) end
+            vt = var_item()
+            if REF[H_var_name] ~= false then hadd(vt, H_var_name, name) end
+            if index and REF[H_var_index] ~= false then hadd(vt, H_var_index, index) end
         end
-        carried_items(vt, vtext, name, name, cv, cf, nil)
+        carried_items(vt, name, name, cv, cf, nil)
         if shown then TI.set_generated(vt) end
     end
 end
@@ -806,24 +801,24 @@ end
 
 -- The same items in a hidden tree (or none), on the protocol item.
 local function hidden_checksum(ctext)
-    local ti, ttext, val, cs_status = c_ti, c_ttext, C.cs_val, C.cs_status
+    local ti, val, cs_status = c_ti, C.cs_val, C.cs_status
     local ct
     if val and val <= 255 then
-        if REF[H_checksum] ~= false then ct = hadd(ti, ttext, H_checksum, val) end
+        if REF[H_checksum] ~= false then ct = hadd(ti, H_checksum, val) end
     elseif REF[hf.checksum_text] ~= false then
-        ct = hadd(ti, ttext, hf.checksum_text, ctext)
+        ct = hadd(ti, hf.checksum_text, ctext)
     end
     if not UHEX[ctext] then
         TI.add_proto_expert_info(ct or ti, ei.checksum_format,
             "Checksum \"" .. ctext .. "\" is not two upper-case hex digits")
     end
     if not cfg.validate then
-        if REF[H_checksum_status] ~= false then hadd(ti, ttext, H_checksum_status, 2) end
+        if REF[H_checksum_status] ~= false then hadd(ti, H_checksum_status, 2) end
         return
     end
     local cs_calc = C.cs_calc
-    if REF[H_checksum_calc] ~= false then hadd(ti, ttext, H_checksum_calc, cs_calc) end
-    if REF[H_checksum_status] ~= false then hadd(ti, ttext, H_checksum_status, cs_status) end
+    if REF[H_checksum_calc] ~= false then hadd(ti, H_checksum_calc, cs_calc) end
+    if REF[H_checksum_status] ~= false then hadd(ti, H_checksum_status, cs_status) end
     if cs_status ~= 1 then
         TI.add_proto_expert_info(ct or ti, ei.checksum_bad,
             string.format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
@@ -837,7 +832,7 @@ local function tree_trailer()
     if rec and rec.limit then TI.add_proto_expert_info(ti, ei.limit, rec.limit) end
     if rec and rec.late then
         if shown then TI.set_generated(TI.add(ti, hf.sync_is_late, true))
-        else hitem(ti, c_ttext, hf.sync_is_late, true) end
+        else hitem(ti, hf.sync_is_late, true) end
         TI.add_proto_expert_info(ti, ei.sync_late,
             string.format("No full frame for %.3f s (sync interval %.3f s + %.1f s slack)",
                 rec.late, cfg.sync - U.SYNC_SLACK, U.SYNC_SLACK))
@@ -846,7 +841,7 @@ local function tree_trailer()
         if shown then shown_checksum(P.cpos, P.ctext) else hidden_checksum(P.ctext) end
     else
         if shown then TI.set_generated(TI.add(ti, H_checksum_status, 2))
-        else hitem(ti, c_ttext, H_checksum_status, 2) end
+        else hitem(ti, H_checksum_status, 2) end
         if terminated and not C.malformed_msg then TI.add_proto_expert_info(ti, ei.checksum_missing) end
     end
     -- line terminator

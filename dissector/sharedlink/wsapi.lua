@@ -83,10 +83,8 @@ end
 -- (proto.c, TRY_TO_FAKE_THIS_ITEM), whose text is the parent's text.  So an item whose text
 -- differs from its parent's is a real one (checked on 4.0, 4.4 and 4.6).  When either text
 -- is missing (a release whose items carry none) the probe cannot tell: referenced.
--- parent_text: the parent's text, or nil (read here).
-function wsapi.referenced(item, parent, parent_text)
-    local t = item.text
-    if parent_text == nil then parent_text = parent.text end
+function wsapi.referenced(item, parent)
+    local t, parent_text = item.text, parent.text
     if type(t) ~= "string" or type(parent_text) ~= "string" then return true end
     return t ~= parent_text
 end
