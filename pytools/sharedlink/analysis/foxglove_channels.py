@@ -202,6 +202,17 @@ def _rows_typed(names: list[str], texts: list[str], tcs: list[int | None], chang
     return typed, frags
 
 
+def _names_json(changed: list[str]) -> str:
+    """The JSON list of a frame's changed names, kept for a few lists a capture."""
+    key = tuple(changed)
+    names = _NAMES.get(key)
+    if names is None:
+        names = _dumps(changed)
+        if len(_NAMES) < _NAMES_MAX:
+            _NAMES[key] = names
+    return names
+
+
 def _member_key(name: str) -> str:
     """``"name": `` (a JSON member's start), kept for a few names a capture."""
     key = _NAME_JSON.get(name)
@@ -439,11 +450,7 @@ class FoxgloveChannels:
     def _emit(self, dr: _Direction, typed: dict[str, Any], number: int, kind: str, ok: bool | None, late: bool,
               raw: bytes, ts: int, changed: list[str], values: bool = True) -> None:
         """A frame's frames, values (``values``) and location messages, its direction's values up to date."""
-        names = _NAMES.get(tuple(changed)) if changed else "[]"
-        if names is None:
-            names = _dumps(changed)
-            if len(_NAMES) < _NAMES_MAX:
-                _NAMES[tuple(changed)] = names
+        names = _names_json(changed) if changed else "[]"
         fmt = dr.rows.get((kind, ok, late)) or self._row_format(dr, kind, ok, late)
         row = fmt % (number, names, _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
         dr.log_frames(row.encode(), ts)
@@ -545,12 +552,7 @@ class FoxgloveChannels:
                             typed[x] = tv[j - a0]
                             frags[x] = fv[j - a0]
                     values_json = ("{%s}" % ", ".join(frags.values())).encode()
-                    key = tuple(changed)
-                    names = _NAMES.get(key)  # type: ignore[assignment]
-                    if names is None:
-                        names = _dumps(changed)
-                        if len(_NAMES) < _NAMES_MAX:
-                            _NAMES[key] = names
+                    names = _names_json(changed)
                 a = e
             names_l.append(names)
             values_l.append(values_json)
