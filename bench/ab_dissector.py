@@ -1,6 +1,6 @@
 """CPU time of several dissector folders against syslog, side by side (interleaved runs).
 
-    python bench/ab_dissector.py [--frames N] [--repeat N] [--passes summary,-2,-V,-Y,compressed]
+    python bench/ab_dissector.py [--frames N] [--repeat N] [--passes=summary,-2,-V,-Y,compressed]
                                  NAME=DIR [NAME=DIR ...]
 
 Each DIR is a ``dissector/`` folder (this checkout's, or an old one's in a ``git worktree``, e.g.
@@ -28,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("folders", nargs="+", metavar="NAME=DIR", help="a dissector folder to time, named")
     ap.add_argument("--frames", type=int, default=200_000, help="beacon frames a capture (default 200000)")
     ap.add_argument("--repeat", type=int, default=3, help="runs a configuration, best kept (default 3)")
-    ap.add_argument("--passes", default="summary,-2,compressed", help="among " + ",".join(PASSES))
+    ap.add_argument("--passes", default="summary,-2,compressed", help="among " + ",".join(PASSES) + " (write --passes=-2,-V: a list starting with - takes the =)")
     args = ap.parse_args(argv)
     passes = args.passes.split(",")
     if bad := [p for p in passes if p not in PASSES]:
