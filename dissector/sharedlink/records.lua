@@ -136,24 +136,40 @@ local function named_head(sk, kind)
     return t
 end
 
--- The line of a delta that carries named values alone, those of names (a list of names) whose
--- values and frames are in vals and from (a direction's: the state writer's known subset), as
--- carried_store makes it from MISS (speed trick, measured: no MISS filled and read back).
--- Returns false when a value holds a line break (then the caller makes a table record).
-local function carried_names(num, sk, names, vals, from)
-    local pend, i = cr_pend, cr_npieces
-    pend[i + 1], pend[i + 2] = num, HEAD[sk] or named_head(sk, "d")   -- (a delta's head: key sk)
-    i = i + 2
-    for k = 1, #names do
-        local name = names[k]
-        local v, fr = vals[name] or false, from[name] or false
-        local t = PIECE[name]
-        if t == nil or PV[name] ~= v or PF[name] ~= fr then t = name_piece(name, v, fr) end
-        if not t then return false end
-        pend[i + k] = t
+-- The line of a delta that carries named values alone: a known subset's (sub, the state writer's:
+-- sub.names the names it carries, their values and frames in vals and from, a direction's), as
+-- carried_store makes it from MISS.  Speed trick (measured, compressed capture): the line after its
+-- frame number is made once and kept in sub (sub.line, for the frame key sub.lsk; sub.run: its
+-- names' part) while none of those values changes (the state writer clears both when another
+-- layout's values were stored in the direction since: state.lua subset_data), so a delta of the
+-- same layout as the last one puts in two pieces, its number and that text.  Returns false when a
+-- value holds a line break (then the caller makes a table record).
+local function subset_text(sk, sub, vals, from)
+    local run = sub.run
+    if not run then
+        run = ""
+        local names = sub.names
+        for k = 1, #names do
+            local name = names[k]
+            local v = vals[name]
+            run = run .. "|" .. name .. (v and ("|=" .. v) or "|") .. "|" .. from_text(from[name])
+        end
+        if s_find(run, "\n", 1, true) then return false end
+        sub.run = run
     end
-    i = i + #names + 1
-    pend[i] = "\n"
+    local line = (HEAD[sk] or named_head(sk, "d")) .. run .. "\n"   -- (a delta's head: key sk)
+    sub.line, sub.lsk = line, sk
+    return line
+end
+
+local function subset_line(num, sk, sub, vals, from)
+    local line = sub.line
+    if not line or sub.lsk ~= sk then
+        line = subset_text(sk, sub, vals, from)
+        if not line then return false end
+    end
+    local i = cr_npieces + 2
+    cr_pend[i - 1], cr_pend[i] = num, line
     -- (carried_line_end, written out: one call a delta less)
     if cr_npend == 0 then cr_pend_first = num end
     cr_npieces, cr_npend = i, cr_npend + 1
@@ -273,6 +289,6 @@ local function get_rec(num, sk, create)
     return rec
 end
 
-R.carried_store, R.carried_names, R.get_rec = carried_store, carried_names, get_rec
+R.carried_store, R.subset_line, R.get_rec = carried_store, subset_line, get_rec
 
 return R

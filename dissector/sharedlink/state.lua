@@ -15,7 +15,7 @@ local P = M.parse.P
 local LIM = cfg.LIM   -- the limits and their per-capture facts (prefs; the same table for ever)
 local R = M.records
 local PG = wsapi.PG
-local get_rec, carried_store, carried_names, CARRY, MISS = R.get_rec, R.carried_store, R.carried_names, R.CARRY, R.MISS
+local get_rec, carried_store, subset_line, CARRY, MISS = R.get_rec, R.carried_store, R.subset_line, R.CARRY, R.MISS
 
 -- Per-capture state (reset by S.reset)
 local dirs          -- direction key -> direction state
@@ -177,6 +177,7 @@ local function replace_values(d, old, list)
         if marked[list[k]] then maxslot = k - 1; filled[k - 1] = true end
     end
     d.maxslot, d.filled, d.eff = maxslot, filled, nil
+    d.wl = false   -- (subset_data's lines made again)
 end
 
 -- The journal: linear state for a direction with many names.  A direction with up to
@@ -383,7 +384,7 @@ do
         end
         if #miss == 0 then return nil end
         if not cache then cache = {}; d.subsets = cache end
-        sub = { count = #names, names = miss }
+        sub = { count = #names, names = miss, n = #miss, line = false, run = false, lsk = false }
         cache[named] = sub
         return sub
     end
@@ -406,7 +407,8 @@ do
     -- the whole set of the frame's named layout (d.names_is), and the frame's verdicts, full and
     -- full_local (see data_values).
     local function stored_verdict(d, named, good, miss_n, full_local)
-        if named and good and miss_n == 0 and #d.names == named.n then d.names_is = named.N end
+        -- (never a journal's: state_data takes the whole set without looking for one)
+        if named and good and miss_n == 0 and #d.names == named.n and not d.hist then d.names_is = named.N end
         local n_ord = P.n_ord
         local full = P.nd > 0 and (n_ord == nil or n_ord == 0) and not dv_required and miss_n == 0
         if P.n_pos == 0 then full_local = full_local and miss_n == 0 end
@@ -493,11 +495,33 @@ do
         return full and "full" or "delta", rec, list, d, miss_n, ne, tree_nm
     end
 
-    -- State, first pass, a delta of a layout of known names, a subset of the direction's (sub: the
-    -- names it carries, their values in the direction; state_data): the sync clock, and the record
-    -- (its carried names' line straight from the direction: records.carried_names, speed trick,
-    -- measured; a table record when the frame has one anyway).  Returns state_data's answers.
-    local function subset_record(pinfo, d, num, sk, sub, list, tree)
+    -- State, first pass, a data frame the state writer's known paths do not take (state_data): its
+    -- values one by one (data_values), then data_record.  (d.wl: see subset_data.)
+    local function data_general(pinfo, d, num, sk, cs_status, full_local, tree, list)
+        if P.n_pos > 0 and list.by_length then list = frame_list(list) end
+        d.wl = false
+        local full, ne, nm, miss_n, full_l, rec_nm = data_values(d, list, num, sk, cs_status ~= 0, full_local,
+            tree ~= nil)
+        return data_record(pinfo, d, num, sk, full, full_l, cs_status, ne, rec_nm, list, miss_n, nm)
+    end
+
+    -- State, first pass, a named layout's frame with a good checksum that is not the direction's
+    -- whole known set (state_data): a delta of a subset of the direction's known names (sub: the
+    -- names it carries, kept per layout in d.subsets, known_subset; their values in the direction)
+    -- gets its values stored, the sync clock, and the record (its carried names' line made from the
+    -- direction: records.subset_line, kept in sub while d.wl, the layout of the last values stored in
+    -- the direction, is this one; a table record when the frame has one anyway); any other frame
+    -- goes to data_general.  Returns state_data's answers.
+    local function subset_data(pinfo, d, num, sk, cs_status, full_local, tree, list, named)
+        local sub = d.subsets
+        sub = sub and sub[named]
+        if not (sub and sub.count == #d.names) then
+            sub = known_subset(d, named)
+            if not sub then return data_general(pinfo, d, num, sk, cs_status, full_local, tree, list) end
+        end
+        named.store(d.vals, d.from, num)
+        -- another layout's values were stored since sub's line was made: it is made again
+        if d.wl ~= named then d.wl = named; sub.line, sub.run = false, false end
         local rec = lim_hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
         -- the sync clock, as sync_clock's for a delta (one call a delta less)
         local now = g_rel_ts(pinfo)
@@ -508,14 +532,15 @@ do
             rec = rec or get_rec(num, sk, true)
             rec.late = age
         end
-        local nm = tree and carried_subset(d, sub) or 0   -- MISS, for a tree only
-        if rec or not carried_names(num, sk, sub, d.vals, d.from) then
+        local names = sub.names
+        local nm = tree and carried_subset(d, names) or 0   -- MISS, for a tree only
+        if rec or not subset_line(num, sk, sub, d.vals, d.from) then
             rec = rec or get_rec(num, sk, true)
-            carried_record(rec, 0, nm > 0 and nm or carried_subset(d, sub))
+            carried_record(rec, 0, nm > 0 and nm or carried_subset(d, names))
             rec.kind = "d"
             if lim_hit then rec.limit = lim_hit end
         end
-        return "delta", rec, list, d, #sub, 0, nm
+        return "delta", rec, list, d, sub.n, 0, nm
     end
 
     -- State, first pass, a declaration with a good checksum: the list it declares (a list learnt
@@ -708,34 +733,34 @@ do
         return kind, limit_record(rec, num, sk), list, d, 0, 0, 0
     end
 
+    -- The list in use in direction d on a data frame when d.lcur may not be it (d.lgen is not
+    -- lists_gen): list_in_use's; a direction past max_conversations (made anew each frame, so it
+    -- always comes here) gets the limit's text.
+    local function data_list(d, num, sk, dstb, srcb)
+        if d.over then lim_hit = over_text() end
+        return list_in_use(d, num, sk, dstb, srcb)
+    end
+
     -- State on the first pass, a data frame between nodes A-P (cs_status: its checksum verdict, 0
     -- bad; tree: nil when there is none).  Returns the kind, the record (nil: none), the list in
     -- use, the direction state, the named variables carried, and ne/nm (see data_values).
+    -- A layout of known names with a good checksum has its values stored by the layout's code: the
+    -- direction's whole known set (d.names_is; never a journal's, whose names outnumber any
+    -- layout's) here, the commonest frame, nothing carried; a subset in subset_data.
     function state_data(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
         lim_hit = false
         local d = get_dir(pinfo, num, dstb, srcb)
-        if d.over then lim_hit = over_text() end
         local list = d.lcur
-        if d.lgen ~= lists_gen then list = list_in_use(d, num, sk, dstb, srcb) end
-        if P.n_pos > 0 and list.by_length then list = frame_list(list) end
+        if d.lgen ~= lists_gen then list = data_list(d, num, sk, dstb, srcb) end
         local named = P.named
-        -- a layout of known names (good checksum, no journal): its values stored; with the
-        -- direction's whole known set nothing is carried (the commonest frame), with a subset the
-        -- direction's other names are (subset_record)
-        local known = cs_status ~= 0 and named and not d.hist   -- true: the whole known set
-        if known and d.names_is ~= named.N then
-            -- else a subset? (known_subset's cache read here: one call a delta less)
-            known = d.subsets
-            known = known and known[named]
-            if not (known and known.count == #d.names) then known = known_subset(d, named) end
+        if cs_status == 0 or not named then
+            return data_general(pinfo, d, num, sk, cs_status, full_local, tree, list)
         end
-        if not known then
-            local full, ne, nm, miss_n, full_l, rec_nm = data_values(d, list, num, sk, cs_status ~= 0, full_local,
-                tree ~= nil)
-            return data_record(pinfo, d, num, sk, full, full_l, cs_status, ne, rec_nm, list, miss_n, nm)
+        if d.names_is ~= named.N then
+            return subset_data(pinfo, d, num, sk, cs_status, full_local, tree, list, named)
         end
         named.store(d.vals, d.from, num)
-        if known ~= true then return subset_record(pinfo, d, num, sk, known.names, list, tree) end
+        d.wl = named
         if full_local and not lim_hit then
             -- full (the commonest frame): only the sync clock changes (as sync_clock's; speed trick,
             -- measured: no call with a dozen arguments)
