@@ -13,13 +13,13 @@ local t_concat = table.concat
 
 local R = {}
 local recs          -- frame number -> { [subkey] = record }
-local cr_pend, cr_npend, cr_npieces, cr_pend_first, cr_store, cr_first  -- packed carried records
+local cr_pend, cr_npieces, cr_store, cr_first  -- packed carried records
 local sk_str, sk_str_n       -- frame key -> its text, for them
 
 -- per-capture state (init)
 function R.reset()
     recs = {}
-    cr_pend, cr_npend, cr_npieces, cr_pend_first, cr_first = {}, 0, 0, 0, {}
+    cr_pend, cr_npieces, cr_first = {}, 0, {}
     cr_store = { bytes = nil, size = 0, off = {}, len = {}, last = 0, last_text = nil }
     sk_str, sk_str_n = {}, 0
 end
@@ -38,7 +38,7 @@ local CPARTS = {}
 -- Carried-only records (the bulk of a compressed stream) are kept as text lines
 -- "num|sk|value|frame|value|frame..." (a D value never holds "|" or a line break;
 -- "" = none; a carried named value is stored as "=" .. value, as it may be ""),
--- packed 256 to a string: Wireshark runs full Lua garbage collections
+-- packed into chunks (carried_flush): Wireshark runs full Lua garbage collections
 -- during a capture, and their cost grows with the number of live Lua objects.
 local FROM_STR, from_str_n = {}, 0   -- frame number -> its text (the carried values' frames)
 local function from_text(fr)
@@ -63,22 +63,25 @@ local function sk_text(sk)
     return sks
 end
 
--- Record lines wait in cr_pend as pieces, each line ending in "\n" (cr_npend lines, cr_npieces
--- pieces), and are packed 256 to a chunk "\n" .. lines.  Speed trick (measured, compressed
+-- Record lines wait in cr_pend as pieces (cr_npieces), each line's first piece its frame number
+-- (a number: cr_pend[1] is the first pending line's) and its last "\n", and are packed into a
+-- chunk "\n" .. lines once CHUNK_PIECES pieces wait (256 lines of a compressed stream's deltas,
+-- two pieces each: subset_line).  Speed trick (measured, compressed
 -- capture): the chunks are kept in one ByteArray (cr_store), outside the Lua heap, as the
 -- collector's pace follows the heap's live size: kept as Lua strings, they made every
 -- collection rarer and each one sweep more garbage, a cost to every allocation of the pass
 -- (-2.6 us a frame).  cr_store.off/len: chunk i's place in it; last/last_text: the chunk read last.
+local CHUNK_PIECES = 512
 local function carried_flush()
-    if cr_npend == 0 then return end
+    if cr_npieces == 0 then return end
     local text = "\n" .. t_concat(cr_pend, "", 1, cr_npieces)
     local st = cr_store
     if not st.bytes then st.bytes = ByteArray.new() end
     st.bytes:append(ByteArray.new(text, true))
     local i = #st.off + 1
     st.off[i], st.len[i], st.size = st.size, #text, st.size + #text
-    cr_first[i] = cr_pend_first
-    cr_npend, cr_npieces = 0, 0
+    cr_first[i] = cr_pend[1]   -- (the frame number of its first line)
+    cr_npieces = 0
 end
 
 -- The text of chunk i.
@@ -88,12 +91,11 @@ local function carried_chunk(i)
     return st.last_text
 end
 
--- Frame num's record line has been put in cr_pend after the pieces already there, ending with
--- its "\n" at index i (carried_store: the line and "\n").
-local function carried_line_end(num, i)
-    if cr_npend == 0 then cr_pend_first = num end
-    cr_npieces, cr_npend = i, cr_npend + 1
-    if cr_npend >= 256 then carried_flush() end
+-- A record line has been put in cr_pend after the pieces already there, ending with its "\n" at
+-- index i (carried_store).
+local function carried_line_end(i)
+    cr_npieces = i
+    if i >= CHUNK_PIECES then carried_flush() end
 end
 
 -- The named part of a line: name|value|frame|... for the nm/3 triples in MISS.
@@ -141,14 +143,14 @@ end
 -- carried_store makes it from MISS.  Speed trick (measured, compressed capture): the line after its
 -- frame number is made once and kept in sub (sub.line, for the frame key sub.lsk; sub.run: its
 -- names' part) while none of those values changes (the state writer clears both when another
--- layout's values were stored in the direction since: state.lua subset_data), so a delta of the
+-- layout's values were stored in the direction since: state.lua state_data), so a delta of the
 -- same layout as the last one puts in two pieces, its number and that text.  Returns false when a
 -- value holds a line break (then the caller makes a table record).
-local function subset_text(sk, sub, vals, from)
+local function subset_text(sk, sub, d)
     local run = sub.run
     if not run then
         run = ""
-        local names = sub.names
+        local names, vals, from = sub.names, d.vals, d.from
         for k = 1, #names do
             local name = names[k]
             local v = vals[name]
@@ -162,18 +164,17 @@ local function subset_text(sk, sub, vals, from)
     return line
 end
 
-local function subset_line(num, sk, sub, vals, from)
+local function subset_line(num, sk, sub, d)
     local line = sub.line
     if not line or sub.lsk ~= sk then
-        line = subset_text(sk, sub, vals, from)
+        line = subset_text(sk, sub, d)
         if not line then return false end
     end
     local i = cr_npieces + 2
     cr_pend[i - 1], cr_pend[i] = num, line
     -- (carried_line_end, written out: one call a delta less)
-    if cr_npend == 0 then cr_pend_first = num end
-    cr_npieces, cr_npend = i, cr_npend + 1
-    if cr_npend >= 256 then carried_flush() end
+    cr_npieces = i
+    if i >= CHUNK_PIECES then carried_flush() end
     return true
 end
 
@@ -195,10 +196,10 @@ local function carried_store(num, sk, ne, nm, kind)
             pend[i] = t
         end
         pend[i + 1] = "\n"
-        carried_line_end(num, i + 1)
+        carried_line_end(i + 1)
         return true
     end
-    CPARTS[1], CPARTS[2], CPARTS[3], CPARTS[4] = num, sk_text(sk), kind, ne
+    CPARTS[1], CPARTS[2], CPARTS[3], CPARTS[4] = "", sk_text(sk), kind, ne   -- (the line after its number)
     local n = 4
     for k = 1, ne, 2 do
         CPARTS[n + 1], CPARTS[n + 2] = CARRY[k] or "", from_text(CARRY[k + 1])
@@ -207,8 +208,8 @@ local function carried_store(num, sk, ne, nm, kind)
     n = carried_names_text(nm, n)
     local line = t_concat(CPARTS, "|", 1, n)
     if s_find(line, "\n", 1, true) then return false end   -- a line break in a value: a table record
-    cr_pend[i + 1], cr_pend[i + 2] = line, "\n"
-    carried_line_end(num, i + 2)
+    cr_pend[i + 1], cr_pend[i + 2], cr_pend[i + 3] = num, line, "\n"
+    carried_line_end(i + 3)
     return true
 end
 
@@ -247,7 +248,7 @@ local function carried_parse(line)
 end
 
 local function carried_lookup(num, sk)
-    if cr_npend > 0 and num >= cr_pend_first then carried_flush() end
+    if cr_npieces > 0 and num >= cr_pend[1] then carried_flush() end
     -- last chunk whose first frame is <= num
     local lo, hi = 1, #cr_first
     local found = nil
@@ -267,7 +268,7 @@ local function get_rec(num, sk, create)
     local r = recs[num]
     if r == nil then
         if not create then
-            if cr_npend == 0 and cr_first[1] == nil then return nil end   -- no carried-only records at all
+            if cr_npieces == 0 and cr_first[1] == nil then return nil end   -- no carried-only records at all
             return carried_lookup(num, sk)
         end
         r = { sk = sk }

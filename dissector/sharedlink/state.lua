@@ -48,9 +48,10 @@ S.reset()
 -- seen: name -> stamp of the last frame that had it; filled: slot -> true once it held a value
 -- (a required slot), maxslot: the highest; first/lastfull: times of the first frame and of the
 -- last good full one.
+local NO_SUBSETS = {}   -- (d.subsets of a direction with none: never written)
 local function new_dir()
     return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, nkey = {}, seen = {}, filled = {}, maxslot = -1,
-        first = nil, lastfull = nil, list = nil }
+        first = nil, lastfull = nil, list = nil, subsets = NO_SUBSETS, wl = false }
 end
 
 -- A new direction at byaddr[key]; past max_conversations one that is kept nowhere (d.over).
@@ -177,7 +178,7 @@ local function replace_values(d, old, list)
         if marked[list[k]] then maxslot = k - 1; filled[k - 1] = true end
     end
     d.maxslot, d.filled, d.eff = maxslot, filled, nil
-    d.wl = false   -- (subset_data's lines made again)
+    d.wl = false   -- (state_data makes a subset's line again)
 end
 
 -- The journal: linear state for a direction with many names.  A direction with up to
@@ -286,7 +287,7 @@ do
                 d.npos[name] = #names - 1
                 d.nfirst[name] = num
                 d.nkey[#names] = key or journal.key(num, sk)
-                d.names_is = nil
+                d.names_is, d.subsets = nil, NO_SUBSETS   -- (known_subset's made again)
                 st = 0
             else
                 -- a new name past max_names: no state
@@ -365,14 +366,13 @@ do
     end
 
     -- The direction's known names a named layout leaves out, in the direction's order (nil: the
-    -- layout names one the direction does not know, or leaves none out), kept per layout until the
-    -- direction learns another name (speed trick, measured: a compressed stream's deltas).
+    -- layout names one the direction does not know, or leaves none out), kept per layout in
+    -- d.subsets (read by state_data) until the direction learns another name (named_value empties
+    -- it; speed trick, measured: a compressed stream's deltas).
     local function known_subset(d, named)
         local names = d.names
         if #names > JOURNAL_NAMES and not d.over then return nil end   -- a journal's (data_values)
         local cache = d.subsets
-        local sub = cache and cache[named]
-        if sub and sub.count == #names then return sub end
         local npos, sn, in_layout = d.npos, named.N, {}
         for k = 1, named.n do
             if not npos[sn[k]] then return nil end
@@ -383,8 +383,8 @@ do
             if not in_layout[names[k]] then miss[#miss + 1] = names[k] end
         end
         if #miss == 0 then return nil end
-        if not cache then cache = {}; d.subsets = cache end
-        sub = { count = #names, names = miss, n = #miss, line = false, run = false, lsk = false }
+        if cache == NO_SUBSETS then cache = {}; d.subsets = cache end
+        local sub = { names = miss, n = #miss, line = false, run = false, lsk = false }
         cache[named] = sub
         return sub
     end
@@ -496,7 +496,7 @@ do
     end
 
     -- State, first pass, a data frame the state writer's known paths do not take (state_data): its
-    -- values one by one (data_values), then data_record.  (d.wl: see subset_data.)
+    -- values one by one (data_values), then data_record.  (d.wl: see state_data.)
     local function data_general(pinfo, d, num, sk, cs_status, full_local, tree, list)
         if P.n_pos > 0 and list.by_length then list = frame_list(list) end
         d.wl = false
@@ -505,41 +505,15 @@ do
         return data_record(pinfo, d, num, sk, full, full_l, cs_status, ne, rec_nm, list, miss_n, nm)
     end
 
-    -- State, first pass, a named layout's frame with a good checksum that is not the direction's
-    -- whole known set (state_data): a delta of a subset of the direction's known names (sub: the
-    -- names it carries, kept per layout in d.subsets, known_subset; their values in the direction)
-    -- gets its values stored, the sync clock, and the record (its carried names' line made from the
-    -- direction: records.subset_line, kept in sub while d.wl, the layout of the last values stored in
-    -- the direction, is this one; a table record when the frame has one anyway); any other frame
-    -- goes to data_general.  Returns state_data's answers.
-    local function subset_data(pinfo, d, num, sk, cs_status, full_local, tree, list, named)
-        local sub = d.subsets
-        sub = sub and sub[named]
-        if not (sub and sub.count == #d.names) then
-            sub = known_subset(d, named)
-            if not sub then return data_general(pinfo, d, num, sk, cs_status, full_local, tree, list) end
-        end
-        named.store(d.vals, d.from, num)
-        -- another layout's values were stored since sub's line was made: it is made again
-        if d.wl ~= named then d.wl = named; sub.line, sub.run = false, false end
-        local rec = lim_hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
-        -- the sync clock, as sync_clock's for a delta (one call a delta less)
-        local now = g_rel_ts(pinfo)
-        local first = d.first
-        if not first then first = now; d.first = now end
-        local age = now - (d.lastfull or first)
-        if age > cfg.sync then
-            rec = rec or get_rec(num, sk, true)
-            rec.late = age
-        end
-        local names = sub.names
-        local nm = tree and carried_subset(d, names) or 0   -- MISS, for a tree only
-        if rec or not subset_line(num, sk, sub, d.vals, d.from) then
-            rec = rec or get_rec(num, sk, true)
-            carried_record(rec, 0, nm > 0 and nm or carried_subset(d, names))
-            rec.kind = "d"
-            if lim_hit then rec.limit = lim_hit end
-        end
+    -- State, first pass, a known subset's delta (state_data) that has a table record: past a limit,
+    -- a late sync (age: the time since its direction's last full frame), or a carried value with a
+    -- line break.  Returns state_data's answers.
+    local function subset_record(d, num, sk, sub, list, nm, age)
+        local rec = get_rec(num, sk, true)
+        if age > cfg.sync then rec.late = age end
+        carried_record(rec, 0, nm > 0 and nm or carried_subset(d, sub.names))
+        rec.kind = "d"
+        if lim_hit then rec.limit = lim_hit end
         return "delta", rec, list, d, sub.n, 0, nm
     end
 
@@ -744,9 +718,16 @@ do
     -- State on the first pass, a data frame between nodes A-P (cs_status: its checksum verdict, 0
     -- bad; tree: nil when there is none).  Returns the kind, the record (nil: none), the list in
     -- use, the direction state, the named variables carried, and ne/nm (see data_values).
-    -- A layout of known names with a good checksum has its values stored by the layout's code: the
-    -- direction's whole known set (d.names_is; never a journal's, whose names outnumber any
-    -- layout's) here, the commonest frame, nothing carried; a subset in subset_data.
+    -- A named layout's frame with a good checksum has its values stored by the layout's code
+    -- (named.store) when its names are known ones (speed trick, measured: no data_values call):
+    --  * the direction's whole known set (d.names_is; never a journal's, whose names outnumber any
+    --    layout's), the commonest frame: nothing carried, only the sync clock changes (as
+    --    sync_clock's: no data_record call with a dozen arguments);
+    --  * a subset of them (known_subset), a compressed stream's delta: the sync clock, and the
+    --    record, its carried names' line made from the direction (records.subset_line), kept in sub
+    --    while d.wl, the layout whose values were stored last in the direction, is this one; a table
+    --    record when the frame has one anyway (subset_record).
+    -- Any other frame: data_general.
     function state_data(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
         lim_hit = false
         local d = get_dir(pinfo, num, dstb, srcb)
@@ -756,20 +737,30 @@ do
         if cs_status == 0 or not named then
             return data_general(pinfo, d, num, sk, cs_status, full_local, tree, list)
         end
-        if d.names_is ~= named.N then
-            return subset_data(pinfo, d, num, sk, cs_status, full_local, tree, list, named)
+        if d.names_is == named.N then
+            named.store(d.vals, d.from, num)
+            d.wl = named
+            if full_local and not lim_hit then
+                local now = g_rel_ts(pinfo)
+                if not d.first then d.first = now end
+                d.lastfull = now
+                return "full", nil, list, d, 0, 0, 0
+            end
+            return data_record(pinfo, d, num, sk, full_local, full_local, cs_status, 0, 0, list, 0, 0)
         end
+        local sub = d.subsets[named] or known_subset(d, named)
+        if not sub then return data_general(pinfo, d, num, sk, cs_status, full_local, tree, list) end
         named.store(d.vals, d.from, num)
-        d.wl = named
-        if full_local and not lim_hit then
-            -- full (the commonest frame): only the sync clock changes (as sync_clock's; speed trick,
-            -- measured: no call with a dozen arguments)
-            local now = g_rel_ts(pinfo)
-            if not d.first then d.first = now end
-            d.lastfull = now
-            return "full", nil, list, d, 0, 0, 0
+        -- another layout's values were stored since sub's line was made: it is made again
+        if d.wl ~= named then d.wl = named; sub.line, sub.run = false, false end
+        local now = g_rel_ts(pinfo)
+        local last = d.lastfull or d.first   -- (a delta: the sync clock as sync_clock's)
+        if not last then last = now; d.first = now end
+        local nm = tree and carried_subset(d, sub.names) or 0   -- MISS, for a tree only
+        if lim_hit or now - last > cfg.sync or not subset_line(num, sk, sub, d) then
+            return subset_record(d, num, sk, sub, list, nm, now - last)
         end
-        return data_record(pinfo, d, num, sk, full_local, full_local, cs_status, 0, 0, list, 0, 0)
+        return "delta", nil, list, d, sub.n, 0, nm
     end
 end
 
