@@ -23,7 +23,7 @@ local pair_lists    -- "SD" letters -> learnt list (the pair's latest good decla
 local inbound       -- receiver key (addresses, "|", letters: see list_in_use) -> its inbound (L) list
 local ninbound      -- receivers with an inbound list (at most max_conversations)
 local pending_q     -- ask key .. ":" .. name (or "#N", "#L": a list request) -> record of the asking frame
-local dir_cache_key, dir_cache_num, dir_cache_ports -- cache for the current packet
+local dir_cache_num, dir_cache_ports -- the packet whose attributes were read last, its ports
 local last_asrc, last_adst, last_pdir, last_byaddr  -- addresses of the last packet and their dirs entry
 local stamp_ctr = 0
 -- lists_gen: bumped whenever a list a direction with none of its own may use changes (a
@@ -35,7 +35,7 @@ function S.lists_changed() lists_gen = lists_gen + 1 end
 function S.reset()
     lists_gen = lists_gen + 1
     dirs, pair_lists, pending_q, inbound, ninbound = {}, {}, {}, {}, 0
-    dir_cache_key, dir_cache_num, dir_cache_ports = nil, nil, 0
+    dir_cache_num, dir_cache_ports = nil, 0
     last_asrc, last_adst, last_pdir, last_byaddr = nil, nil, nil, nil
 end
 S.reset()
@@ -73,37 +73,34 @@ function S.take_getters()
         PG.rel_ts
 end
 
+-- The dirs entry of the current packet's addresses (and capture direction: pdir), made the
+-- packet's (last_byaddr).
+local function packet_addrs(asrc, adst, pdir)
+    local akey = tostring(asrc) .. ">" .. tostring(adst) .. "/" .. pdir
+    local byaddr = dirs[akey]
+    if not byaddr then
+        byaddr = { akey = akey }
+        dirs[akey] = byaddr
+    end
+    last_asrc, last_adst, last_pdir, last_byaddr = asrc, adst, pdir, byaddr
+end
+
 -- Direction state for (src address, dst address, src port, dst port, letters).
--- dirs[addresses][ports and letters as one number]; cheap on the per-frame path.
+-- dirs[addresses][ports and letters as one number]; cheap on the per-frame path: the attributes
+-- are read once a packet (dir_cache_num), and the key text of the addresses is rebuilt (and
+-- looked up) only when they differ from the previous packet's (speed trick, measured: Address
+-- objects compare cheaper than they print).  The capture direction only where no port tells the
+-- directions apart (a serial line): a UDP/TCP flow is one direction whatever direction flags its
+-- link layer had.
 local function get_dir(pinfo, num, dstb, srcb)
-    local byaddr
-    if dir_cache_num == num then
-        byaddr = dir_cache_key
-    else
-        -- the capture direction keeps the two directions of a serial line apart.  Speed
-        -- trick (measured): Address objects compare cheaper than they print, so the key
-        -- text is rebuilt only when the addresses differ from the previous packet's.
+    if dir_cache_num ~= num then
         local sport, dport = g_sport(pinfo), g_dport(pinfo)
-        -- the capture direction only where no port tells the directions apart (a serial line);
-        -- a UDP/TCP flow is one direction whatever direction flags its link layer had
         local asrc, adst = g_src(pinfo), g_dst(pinfo)
         local pdir = (sport == 0 and dport == 0) and g_p2p_dir(pinfo) or -1
-        if pdir == last_pdir and asrc == last_asrc and adst == last_adst then
-            byaddr = last_byaddr
-        else
-            local akey = tostring(asrc) .. ">" .. tostring(adst) .. "/" .. pdir
-            byaddr = dirs[akey]
-            if not byaddr then
-                byaddr = { akey = akey }
-                dirs[akey] = byaddr
-            end
-            last_asrc, last_adst, last_pdir, last_byaddr = asrc, adst, pdir, byaddr
-        end
-        dir_cache_key = byaddr
-        dir_cache_num = num
-        dir_cache_ports = (sport * 65536 + dport) * 65536
+        if pdir ~= last_pdir or asrc ~= last_asrc or adst ~= last_adst then packet_addrs(asrc, adst, pdir) end
+        dir_cache_num, dir_cache_ports = num, (sport * 65536 + dport) * 65536
     end
-    local key = dir_cache_ports + dstb * 256 + srcb
+    local byaddr, key = last_byaddr, dir_cache_ports + dstb * 256 + srcb
     return byaddr[key] or add_dir(byaddr, key)
 end
 
@@ -726,14 +723,17 @@ do
     --  * a subset of them (known_subset), a compressed stream's delta: the sync clock, and the
     --    record, its carried names' line made from the direction (records.subset_line), kept in sub
     --    while d.wl, the layout whose values were stored last in the direction, is this one; a table
-    --    record when the frame has one anyway (subset_record).
+    --    record when the frame has one anyway (subset_record).  A data frame with no value at all
+    --    (NO_VALUES: [:AB|N0|C..], a compressed stream's delta when nothing changed) is taken as a
+    --    layout of no names, so it carries them all.
     -- Any other frame: data_general.
+    local NO_VALUES = { n = 0, N = {}, store = function() end }
     function state_data(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
         lim_hit = false
         local d = get_dir(pinfo, num, dstb, srcb)
         local list = d.lcur
         if d.lgen ~= lists_gen then list = data_list(d, num, sk, dstb, srcb) end
-        local named = P.named
+        local named = P.named or (P.nv == 0 and NO_VALUES)
         if cs_status == 0 or not named then
             return data_general(pinfo, d, num, sk, cs_status, full_local, tree, list)
         end
@@ -756,7 +756,8 @@ do
         local now = g_rel_ts(pinfo)
         local last = d.lastfull or d.first   -- (a delta: the sync clock as sync_clock's)
         if not last then last = now; d.first = now end
-        local nm = tree and carried_subset(d, sub.names) or 0   -- MISS, for a tree only
+        local nm = 0
+        if tree then nm = carried_subset(d, sub.names) end   -- MISS, for a tree only
         if lim_hit or now - last > cfg.sync or not subset_line(num, sk, sub, d) then
             return subset_record(d, num, sk, sub, list, nm, now - last)
         end
