@@ -154,7 +154,11 @@ local function subset_text(sk, sub, d)
         for k = 1, #names do
             local name = names[k]
             local v = vals[name]
-            run = run .. "|" .. name .. (v and ("|=" .. v) or "|") .. "|" .. from_text(from[name])
+            if v then
+                run = run .. "|" .. name .. "|=" .. v .. "|" .. from_text(from[name])
+            else
+                run = run .. "|" .. name .. "||" .. from_text(from[name])
+            end
         end
         if s_find(run, "\n", 1, true) then return false end
         sub.run = run

@@ -54,7 +54,8 @@ local function new_dir()
         first = nil, lastfull = nil, list = nil, subsets = NO_SUBSETS, wl = false }
 end
 
--- A new direction at byaddr[key]; past max_conversations one that is kept nowhere (d.over).
+-- A new direction at byaddr[key]; past max_conversations one that is kept nowhere (d.over: made
+-- anew each frame, so it never knows a name; state_data counts on it).
 local function add_dir(byaddr, key)
     local d = new_dir()
     d.akey = byaddr.akey   -- its addresses (and serial direction): the receiver's key, with its letters
@@ -502,15 +503,14 @@ do
         return data_record(pinfo, d, num, sk, full, full_l, cs_status, ne, rec_nm, list, miss_n, nm)
     end
 
-    -- State, first pass, a known subset's delta (state_data) that has a table record: past a limit,
-    -- a late sync (age: the time since its direction's last full frame), or a carried value with a
-    -- line break.  Returns state_data's answers.
+    -- State, first pass, a known subset's delta (state_data) that has a table record: a late sync
+    -- (age: the time since its direction's last full frame), or a carried value with a line
+    -- break.  Returns state_data's answers.
     local function subset_record(d, num, sk, sub, list, nm, age)
         local rec = get_rec(num, sk, true)
         if age > cfg.sync then rec.late = age end
         carried_record(rec, 0, nm > 0 and nm or carried_subset(d, sub.names))
         rec.kind = "d"
-        if lim_hit then rec.limit = lim_hit end
         return "delta", rec, list, d, sub.n, 0, nm
     end
 
@@ -723,7 +723,9 @@ do
     --  * a subset of them (known_subset), a compressed stream's delta: the sync clock, and the
     --    record, its carried names' line made from the direction (records.subset_line), kept in sub
     --    while d.wl, the layout whose values were stored last in the direction, is this one; a table
-    --    record when the frame has one anyway (subset_record).  A data frame with no value at all
+    --    record when the frame has one anyway (subset_record).  Neither meets a limit (lim_hit
+    --    stays false): a direction past max_conversations (add_dir) is made anew each frame, with
+    --    no names, and neither stores a new name.  A data frame with no value at all
     --    (NO_VALUES: [:AB|N0|C..], a compressed stream's delta when nothing changed) is taken as a
     --    layout of no names, so it carries them all.
     -- Any other frame: data_general.
@@ -740,7 +742,7 @@ do
         if d.names_is == named.N then
             named.store(d.vals, d.from, num)
             d.wl = named
-            if full_local and not lim_hit then
+            if full_local then
                 local now = g_rel_ts(pinfo)
                 if not d.first then d.first = now end
                 d.lastfull = now
@@ -758,7 +760,7 @@ do
         if not last then last = now; d.first = now end
         local nm = 0
         if tree then nm = carried_subset(d, sub.names) end   -- MISS, for a tree only
-        if lim_hit or now - last > cfg.sync or not subset_line(num, sk, sub, d) then
+        if now - last > cfg.sync or not subset_line(num, sk, sub, d) then
             return subset_record(d, num, sk, sub, list, nm, now - last)
         end
         return "delta", nil, list, d, sub.n, 0, nm
