@@ -261,8 +261,15 @@ local function carried_lookup(num, sk)
         if cr_first[mid] <= num then found = mid; lo = mid + 1 else hi = mid - 1 end
     end
     if not found then return nil end
+    -- the packet's lines may begin in the chunks before, when its first line in this one
+    local key = "\n" .. num .. "|" .. sk .. "|"
     local chunk = carried_chunk(found)
-    local a = s_find(chunk, "\n" .. num .. "|" .. sk .. "|", 1, true)
+    local a = s_find(chunk, key, 1, true)
+    while not a and found > 1 and cr_first[found] == num do
+        found = found - 1
+        chunk = carried_chunk(found)
+        a = s_find(chunk, key, 1, true)
+    end
     if not a then return nil end
     local b = s_find(chunk, "\n", a + 1, true)
     return carried_parse(s_sub(chunk, a + 1, b - 1))

@@ -743,9 +743,7 @@ do
             named.store(d.vals, d.from, num)
             d.wl = named
             if full_local then
-                local now = g_rel_ts(pinfo)
-                if not d.first then d.first = now end
-                d.lastfull = now
+                d.lastfull = g_rel_ts(pinfo)   -- (d.first, read only while there is none, not needed)
                 return "full", nil, list, d, 0, 0, 0
             end
             return data_record(pinfo, d, num, sk, full_local, full_local, cs_status, 0, 0, list, 0, 0)
