@@ -14,7 +14,7 @@ local ARROW, CTRL, LETTER, B_PIPE, B_A, B_P = U.ARROW, U.CTRL, U.LETTER, U.B_PIP
 local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = U.L_N, U.L_T, U.L_Q, U.L_R, U.L_D, U.L_C, U.L_L,
     U.L_E, U.L_M, U.L_P, U.L_G
 local valid_type, byte_sum, str_sum, checksum_value = U.valid_type, U.byte_sum, U.str_sum, U.checksum_value
-local HEXV, UHEX = U.HEXV, U.UHEX
+local HEXV, UHEX, INFO_MAX = U.HEXV, U.UHEX, U.INFO_MAX
 local to_ordinal, pat_escape = U.to_ordinal, U.pat_escape
 local HUGE_INDEX = 4294967295   -- the largest index the uint32 sharedlink.var.index holds
 
@@ -431,7 +431,7 @@ local function layout_kind(f)
     return nil
 end
 
--- The Info pieces of a named layout (sh) for info_code, and its Info's fixed lengths.
+-- The Info pieces of a named layout (sh) for info_code, and the room its values have in INFO_MAX.
 local function named_info(sh, dstb, srcb)
     local sn, nv = sh.N, sh.n
     local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
@@ -446,7 +446,7 @@ local function named_info(sh, dstb, srcb)
         ilen = ilen + #sn[k] + 2
     end
     sh.info, sh.dinfo = info_code(sh.key, sn, pieces, dpieces)
-    sh.info_len, sh.dinfo_len = ilen, ilen + #dhead - #head
+    sh.info_room, sh.dinfo_room = INFO_MAX - ilen, INFO_MAX - (ilen + #dhead - #head)
 end
 
 -- Whether a layout's types hold a long (whose values need parse_long to rule out var.badvalue).
