@@ -44,13 +44,18 @@ local P = { nv = 0, nf = 0, FL = FL, FS = FS, FE = FE, FV = FV, FC = FC, VT = VT
 -- variables); bylen: frame length -> the layout that matched last (nbylen entries; its head,
 -- checked before its pattern, tells the node pair: speed trick, measured, no string.byte call a
 -- frame for the pair's letters).
--- bylen is an upvalue of its own (speed trick, measured: one table lookup a frame less).
-local LY, bylen = {}, nil
+-- bylen is an upvalue of its own (speed trick, measured: one table lookup a frame less), one
+-- table for the capture (emptied in place), which the entry reads too (Pm.bylen: parse_frame).
+local LY, bylen = {}, {}
 local MAX_LAYOUTS = 8
-local Pm = { P = P, LY = LY }
+local Pm = { P = P, LY = LY, bylen = bylen }
+local function bylen_clear()
+    for k in pairs(bylen) do bylen[k] = nil end
+    LY.nbylen = 0
+end
 function Pm.reset()
-    LY.mru, LY.nbylen = {}, 0
-    bylen = {}
+    LY.mru = {}
+    bylen_clear()
 end
 Pm.reset()
 
@@ -564,6 +569,8 @@ end
 -- (measured): the layout's names, types, indexes and facts stay in P while the next frames have
 -- its layout (P.filled, cleared by the parser): such a frame writes its values and its
 -- checksum's facts; the layout's code answers for parse_frame (a tail call: no answer copied).
+-- The entry calls the layout's code (sh.hit) itself when bylen has one for fl (speed trick,
+-- measured: one call a frame less), else this.
 local function parse_frame(f, fl, terminated, vis, payload)
     local sh = FAST and terminated and bylen[fl]
     if sh then return sh.hit(f, fl, terminated, vis, payload) end
@@ -581,7 +588,7 @@ function parse_other(f, fl, terminated, vis, payload)
                 sh.hit(f, fl, terminated, vis, payload, true)
             if bodyend then
                 if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
-                if LY.nbylen >= 4096 then bylen, LY.nbylen = {}, 0 end
+                if LY.nbylen >= 4096 then bylen_clear() end
                 bylen[fl], LY.nbylen = sh, LY.nbylen + 1
                 return bodyend, dstb, srcb, m, cs_val, cs_calc, cs_status, quiet, full, le
             end
