@@ -95,12 +95,11 @@ local function info_layout(kind, rec, miss_n)
         single = named.info()
         return true
     end
-    local full = kind == "full"
-    local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or nil
-    if P.vlen + (tail and #tail or 0) > (full and named.info_room or named.dinfo_room) then return false end
+    if kind ~= "delta" then return false end   -- (a full frame carries nothing)
+    local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or ""
+    if P.vlen + #tail > named.dinfo_room then return false end
     frames_in_info = 1
-    local text = (full and named.info or named.dinfo)()
-    single = tail and text .. tail or text
+    single = named.dinfo(tail)
     return true
 end
 

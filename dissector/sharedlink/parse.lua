@@ -389,8 +389,9 @@ end
 ------------------------------------------------------------------------------
 -- Learning a layout (from a frame the parser took).
 ------------------------------------------------------------------------------
--- A named layout's Info code, made once per pattern (kept for 256 patterns): info() / dinfo() make
--- the Info of a full frame / a delta (info_frame) from the values in VV.  Speed trick (measured):
+-- A named layout's Info code, made once per pattern (kept for 256 patterns): info() / dinfo(tail)
+-- make the Info of a full frame / a delta (info_frame) from the values in VV (a delta's tail after
+-- them: "" or " (+n carried)").  Speed trick (measured):
 -- the names and the Info's pieces are constants in the code, one concatenation, no arguments.
 local INFO_CODE, info_code_n = {}, 0
 local function info_code(pat, sn, pieces, dpieces)
@@ -402,7 +403,7 @@ local function info_code(pat, sn, pieces, dpieces)
             dinfo[2 * k - 1], dinfo[2 * k] = string.format("%q", dpieces[k]), "VV[" .. k .. "]"
         end
         code = { assert(load("local VV = ... return function() return " .. t_concat(info, " .. ") ..
-            " end, function() return " .. t_concat(dinfo, " .. ") .. " end",
+            " end, function(tail) return " .. t_concat(dinfo, " .. ") .. " .. tail end",
             "=info_code", "t", {}))(VV) }
         if info_code_n >= 256 then INFO_CODE, info_code_n = {}, 0 end
         INFO_CODE[pat], info_code_n = code, info_code_n + 1
@@ -580,7 +581,11 @@ end
 -- A frame the layout that matched its length last does not have: the node pair's recent layouts,
 -- newest first (the one that matches comes first and is remembered for fl), else the parser.
 function parse_other(f, fl, terminated, vis, payload)
-    local mru = FAST and terminated and fl >= 6 and LY.mru[s_byte(f, 3) * 256 + s_byte(f, 4)]
+    local mru = false
+    if FAST and terminated and fl >= 6 then
+        local dstb, srcb = s_byte(f, 3, 4)
+        mru = LY.mru[dstb * 256 + srcb]
+    end
     if mru then
         for k = 1, #mru do
             local sh = mru[k]
