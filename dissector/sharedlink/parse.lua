@@ -278,9 +278,9 @@ local CHECKSUM = "|C([^]|[]*)%](\r?\n?)"
 -- line_end: no string.byte call).  sh.hit(f, fl, terminated, vis, payload, try) returns what
 -- parse_frame returns; when f does not have the layout, nil with try, else parse_other's answer
 -- (a tail call: the layout that matched the same length last is tried first, parse_frame).
-local parse_other   -- (below)
-local HIT_ENV = { "sh", "VV", "P", "SUM_OF", "s_byte", "byte_sum", "s_match", "s_find", "HEXV", "UHEX",
-    "checksum_value", "cfg", "positional_empty", "fast_positions", "parse_other", "MARKS" }
+local parse_other, fill_code   -- (below)
+local HIT_ENV = { "sh", "VV", "VT", "VN", "VI", "VR", "P", "SUM_OF", "s_byte", "byte_sum", "s_match", "s_find",
+    "HEXV", "UHEX", "checksum_value", "cfg", "positional_empty", "fast_positions", "parse_other", "MARKS" }
 local function hit_code(sh)
     local n, vs, sets = sh.n, {}, {}
     for k = 1, n do vs[k], sets[k] = "v" .. k, "VV[" .. k .. "] = v" .. k end
@@ -298,7 +298,7 @@ local function hit_code(sh)
         (MARKS.fast and "MARKS.fast_hit = true " or "") ..
         "local cpos = " .. (sh.flen - 1) .. " + vlen " ..
         "P.ctext = ctext P.vlen = vlen P.cpos = cpos " ..
-        "if P.filled ~= sh then sh.fill(sh) end " ..
+        "if P.filled ~= sh then " .. fill_code(sh) .. "end " ..
         (sh.named and ("local full = " .. tostring(sh.full0) .. " ")
                    or ("local full = positional_empty(" .. n .. ") and " .. tostring(sh.full0) .. " ")) ..
         "if vis then fast_positions(sh) end " ..
@@ -348,10 +348,11 @@ local function layout_store(sh)
     return sh.store
 end
 
--- A layout's names, types, indexes and facts into P: code made once per layout (speed trick,
--- measured: a compressed stream's deltas change layout every frame), the names and types
--- constants in it.  Returns the code, kept in sh.fill.
-local function layout_fill(sh)
+-- A layout's names, types, indexes and facts into P: code made once per layout, in its hit code
+-- (hit_code; speed trick, measured: a compressed stream's deltas change layout every frame), the
+-- names and types constants in it.  Returns the code's text (VT, VN, VI, VR, P and sh its
+-- upvalues); a named layout's store code is made with it.
+function fill_code(sh)
     local n, st, sn, code = sh.n, sh.T, sh.N, {}
     -- one assignment a field (a multiple one moves every value first), constants where known
     for k = 1, n do
@@ -359,15 +360,13 @@ local function layout_fill(sh)
             st[k] and string.format("%q", st[k]) or "nil", k, sn[k] and string.format("%q", sn[k]) or "nil",
             k, sh.ord + k - 1, k)
     end
-    local fill = assert(load("local VT, VN, VI, VR, P = ... return function(sh) " .. t_concat(code, " ") ..
+    if sh.named then layout_store(sh) end
+    return t_concat(code, " ") ..
         " P.n_ord = sh.ord P.n_text = sh.ntext P.nv = " .. n .. " P.nd = " .. n ..
         " P.layout = sh P.odd = false P.limit = false " ..
         (sh.named and ("P.nq = " .. n .. " P.n_pos = 0 P.n_empty_d = 0 P.named = sh ")
                    or ("P.nq = 0 P.n_pos = " .. n .. " P.named = nil ")) ..
-        "P.filled = sh end", "=layout_fill", "t", {}))(VT, VN, VI, VR, P)
-    sh.fill = fill
-    if sh.named then layout_store(sh) end
-    return fill
+        "P.filled = sh "
 end
 
 -- A positional layout's frame: its empty D fields (P.n_empty_d; full without state needs none).
@@ -378,11 +377,11 @@ local function positional_empty(n)
     return n_empty_d == 0
 end
 
--- A layout's hit code (hit_code), made on its first match, with its fill code.
+-- A layout's hit code (hit_code), made on its first match.
 local function layout_hit(sh)
-    if not sh.fill then layout_fill(sh) end
-    sh.hit = assert(load(hit_code(sh), "=layout_hit", "t", {}))(sh, VV, P, U.SUM_OF, s_byte, byte_sum, s_match,
-        s_find, HEXV, UHEX, checksum_value, cfg, positional_empty, fast_positions, parse_other, MARKS)
+    sh.hit = assert(load(hit_code(sh), "=layout_hit", "t", {}))(sh, VV, VT, VN, VI, VR, P, U.SUM_OF, s_byte,
+        byte_sum, s_match, s_find, HEXV, UHEX, checksum_value, cfg, positional_empty, fast_positions, parse_other,
+        MARKS)
     return sh.hit
 end
 
