@@ -83,19 +83,23 @@ for k = 1, 64 do CARRIED_TAIL[k] = " (+" .. k .. " carried)" end
 
 -- Info column: this frame's piece, a full or delta frame of a named layout alone in its packet so
 -- far: the layout's Info code makes the same text as info_frame's pieces, in one concatenation
--- (speed trick, measured), when it fits INFO_MAX.  Returns whether it did (else the entry calls
--- info_frame: three arguments, not nine, for the commonest frame).
+-- (speed trick, measured), when it fits INFO_MAX (the layout's info_room / dinfo_room: what its
+-- values may take).  Returns whether it did (else the entry calls info_frame: three arguments,
+-- not nine, for the commonest frame).
 local function info_layout(kind, rec, miss_n)
     local named = P.named
     if frames_in_info ~= 0 or not named or (rec and rec.late) then return false end
-    local full = kind == "full"
-    local total = (full and named.info_len or named.dinfo_len) + P.vlen
-    local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or nil
-    if tail then total = total + #tail end
-    if total > INFO_MAX then return false end
+    if miss_n == 0 and kind == "full" then   -- (the commonest frame: nothing carried)
+        if P.vlen > named.info_room then return false end
+        frames_in_info = 1
+        single = named.info()
+        return true
+    end
+    if kind ~= "delta" then return false end   -- (a full frame carries nothing)
+    local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or ""
+    if P.vlen + #tail > named.dinfo_room then return false end
     frames_in_info = 1
-    local text = (full and named.info or named.dinfo)()
-    single = tail and text .. tail or text
+    single = named.dinfo(tail)
     return true
 end
 
@@ -140,9 +144,7 @@ end
 function I.finish(cols)
     if single then
         -- one frame's piece by info_layout (the commonest packet): nothing dropped, no control character
-        local info = single
-        if FAST_MARK and MARKS.fast_hit then info = "[fast] " .. info; MARKS.fast_hit = false end
-        cols.info = info
+        cols.info = single
         single, frames_in_info = nil, 0
         return
     end
@@ -160,6 +162,17 @@ function I.finish(cols)
     end
     ninfo, info_len, info_full, frames_in_info, frames_dropped = 0, 0, false, 0, 0
     info_clean = true
+end
+
+-- SHAREDLINK_FAST_MARK=1: the Info of a packet the layout cache parsed starts "[fast] " (a switch
+-- read once, at load: for info_layout's single piece I.finish is wrapped then, no test a packet
+-- otherwise).
+if FAST_MARK then
+    local finish = I.finish
+    function I.finish(cols)
+        if single and MARKS.fast_hit then single = "[fast] " .. single; MARKS.fast_hit = false end
+        finish(cols)
+    end
 end
 
 I.info_frame, I.info_layout = info_frame, info_layout

@@ -14,7 +14,7 @@ local ARROW, CTRL, LETTER, B_PIPE, B_A, B_P = U.ARROW, U.CTRL, U.LETTER, U.B_PIP
 local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = U.L_N, U.L_T, U.L_Q, U.L_R, U.L_D, U.L_C, U.L_L,
     U.L_E, U.L_M, U.L_P, U.L_G
 local valid_type, byte_sum, str_sum, checksum_value = U.valid_type, U.byte_sum, U.str_sum, U.checksum_value
-local HEXV, UHEX = U.HEXV, U.UHEX
+local HEXV, UHEX, INFO_MAX = U.HEXV, U.UHEX, U.INFO_MAX
 local to_ordinal, pat_escape = U.to_ordinal, U.pat_escape
 local HUGE_INDEX = 4294967295   -- the largest index the uint32 sharedlink.var.index holds
 
@@ -41,15 +41,21 @@ local P = { nv = 0, nf = 0, FL = FL, FS = FS, FE = FE, FV = FV, FC = FC, VT = VT
 
 -- The layout cache (per capture, reset by Pm.reset): mru: node pair -> its recent layouts, newest
 -- first (up to MAX_LAYOUTS: a compressed stream's deltas cycle through a few subsets of the
--- variables); bylen: node pair * 65536 + frame length -> the layout that matched last (nbylen
--- entries).
--- bylen is an upvalue of its own (speed trick, measured: one table lookup a frame less).
-local LY, bylen = {}, nil
+-- variables); bylen: frame length -> the layout that matched last (nbylen entries; its head,
+-- checked before its pattern, tells the node pair: speed trick, measured, no string.byte call a
+-- frame for the pair's letters).
+-- bylen is an upvalue of its own (speed trick, measured: one table lookup a frame less), one
+-- table for the capture (emptied in place), which the entry reads too (Pm.bylen: parse_frame).
+local LY, bylen = {}, {}
 local MAX_LAYOUTS = 8
-local Pm = { P = P, LY = LY }
+local Pm = { P = P, LY = LY, bylen = bylen }
+local function bylen_clear()
+    for k in pairs(bylen) do bylen[k] = nil end
+    LY.nbylen = 0
+end
 function Pm.reset()
-    LY.mru, LY.nbylen = {}, 0
-    bylen = {}
+    LY.mru = {}
+    bylen_clear()
 end
 Pm.reset()
 
@@ -263,46 +269,44 @@ local VALUE = "([ -Z\\^-{}-~\128-\255]*)"
 local DOUBLE = "([-+]?[0-9]+%.?[0-9]*)"
 local CHECKSUM = "|C([^]|[]*)%](\r?\n?)"
 
--- TAKE[n](f, pat, at): a layout's pattern of n values matched on f from at; nil when it does not
--- match, else its values go into VV[1..n] and it returns their total length, the sum of their
--- bytes, the checksum text and the line end after its ']' (CR LF, CR, LF or "", as line_end
--- takes it: the entry's, for the frame a payload starts with; speed trick, measured: no
--- string.byte call).  Code made once for each n (speed trick, measured: the captures stay in its
--- locals, no call passes them on); the values are summed as one string, one SUM_OF call instead
--- of one a value (-2.3 thousand instructions a frame, summary pass).
-local TAKE = { [0] = function(f, pat, at)
-    local ctext, le = s_match(f, pat, at)
-    if not ctext then return nil end
-    return 0, 0, ctext, le
-end }
-for n = 1, 8 do
-    local args, sets = {}, {}
-    for k = 1, n do args[k], sets[k] = "v" .. k, "VV[" .. k .. "] = v" .. k end
-    TAKE[n] = assert(load("local VV, SUM_OF, s_byte, byte_sum, s_match = ... return function(f, pat, at) local " ..
-        t_concat(args, ", ") .. ", ctext, le = s_match(f, pat, at) if not ctext then return nil end " ..
-        t_concat(sets, " ") .. " local all = " .. t_concat(args, " .. ") .. " local n = #all " ..
-        "if n <= 40 then return n, SUM_OF[n](s_byte(all, 1, n)), ctext, le end " ..
-        "return n, byte_sum(all, 1, n), ctext, le end", "=TAKE", "t", {}))(VV, U.SUM_OF, s_byte, byte_sum, s_match)
-end
-
--- The node pair's recent layouts (key), newest first, tried on the frame f (len: the index of its
--- ']', or the payload's length when f is the payload); the one that matches comes first and is
--- remembered for len.  Returns it and what its take returned (TAKE); nil: none.
-local function layout_mru(f, len, key)
-    local mru = LY.mru[key]
-    if not mru then return nil end
-    local vlen, sum, ctext, le
-    for k = 1, #mru do
-        local sh = mru[k]
-        if s_find(f, sh.head, 1, true) == 1 then vlen, sum, ctext, le = sh.take(f, sh.pat, sh.at) end
-        if vlen then
-            if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
-            if LY.nbylen >= 4096 then bylen, LY.nbylen = {}, 0 end
-            if len < 65536 then bylen[key * 65536 + len], LY.nbylen = sh, LY.nbylen + 1 end
-            return sh, vlen, sum, ctext, le
-        end
-    end
-    return nil
+-- A layout's frame, matched and taken into P: code made once per layout, on its first match
+-- (layout_hit; kept in sh.hit), as the parser would have left P (see parse_frame).  Speed tricks
+-- (measured): the layout's head, pattern, sums and facts are constants of the code (no table read
+-- for them), its captures stay in its locals (no call passes them on), and the values are summed as
+-- one string, one SUM_OF call instead of one a value (-2.3 thousand instructions a frame, summary
+-- pass).  The pattern takes the line end after the ']' (CR LF, CR, LF or "", as the entry's
+-- line_end: no string.byte call).  sh.hit(f, fl, terminated, vis, payload, try) returns what
+-- parse_frame returns; when f does not have the layout, nil with try, else parse_other's answer
+-- (a tail call: the layout that matched the same length last is tried first, parse_frame).
+local parse_other, fill_code   -- (below)
+local HIT_ENV = { "sh", "VV", "VT", "VN", "VI", "VR", "P", "SUM_OF", "s_byte", "byte_sum", "s_match", "s_find",
+    "HEXV", "UHEX", "checksum_value", "cfg", "positional_empty", "fast_positions", "parse_other", "MARKS" }
+local function hit_code(sh)
+    local n, vs, sets = sh.n, {}, {}
+    for k = 1, n do vs[k], sets[k] = "v" .. k, "VV[" .. k .. "] = v" .. k end
+    local miss = "if try then return nil end return parse_other(f, fl, terminated, vis, payload) end "
+    local ret = "return cpos + #ctext, " .. sh.dstb .. ", " .. sh.srcb .. ", nil, cs_val, "
+    return "local " .. t_concat(HIT_ENV, ", ") .. " = ... " ..
+        "local HEAD, PAT, AT = sh.head, sh.pat, sh.at " ..
+        "return function(f, fl, terminated, vis, payload, try) " ..
+        "if s_find(f, HEAD, 1, true) ~= 1 then " .. miss ..
+        "local " .. (n > 0 and (t_concat(vs, ", ") .. ", ") or "") .. "ctext, le = s_match(f, PAT, AT) " ..
+        "if not ctext then " .. miss .. t_concat(sets, " ") ..
+        (n > 0 and (" local all = " .. t_concat(vs, " .. ") .. " local vlen = #all local sum " ..
+            "if vlen <= 40 then sum = SUM_OF[vlen](s_byte(all, 1, vlen)) else sum = byte_sum(all, 1, vlen) end ")
+            or " local vlen, sum = 0, 0 ") ..
+        (MARKS.fast and "MARKS.fast_hit = true " or "") ..
+        "local cpos = " .. (sh.flen - 1) .. " + vlen " ..
+        "P.ctext = ctext P.vlen = vlen P.cpos = cpos " ..
+        "if P.filled ~= sh then " .. fill_code(sh) .. "end " ..
+        (sh.named and ("local full = " .. tostring(sh.full0) .. " ")
+                   or ("local full = positional_empty(" .. n .. ") and " .. tostring(sh.full0) .. " ")) ..
+        "if vis then fast_positions(sh) end " ..
+        "local cs_val = HEXV[ctext] or checksum_value(ctext) " ..
+        "if not cfg.validate then " .. ret .. "nil, 2, false, full, le end " ..
+        "local cs_calc = (" .. sh.fixed .. " + sum) % 256 " ..
+        "if cs_val ~= cs_calc then " .. ret .. "cs_calc, 0, false, full, le end " ..
+        ret .. "cs_calc, 1, " .. (sh.quiet and "UHEX[ctext]" or "false") .. ", full, le end"
 end
 
 -- The fields' places in a frame the layout cache parsed (N, T/Q/D triplets or D fields, C), for
@@ -344,10 +348,11 @@ local function layout_store(sh)
     return sh.store
 end
 
--- A layout's names, types, indexes and facts into P: code made once per layout (speed trick,
--- measured: a compressed stream's deltas change layout every frame), the names and types
--- constants in it.  Returns the code, kept in sh.fill.
-local function layout_fill(sh)
+-- A layout's names, types, indexes and facts into P: code made once per layout, in its hit code
+-- (hit_code; speed trick, measured: a compressed stream's deltas change layout every frame), the
+-- names and types constants in it.  Returns the code's text (VT, VN, VI, VR, P and sh its
+-- upvalues); a named layout's store code is made with it.
+function fill_code(sh)
     local n, st, sn, code = sh.n, sh.T, sh.N, {}
     -- one assignment a field (a multiple one moves every value first), constants where known
     for k = 1, n do
@@ -355,15 +360,13 @@ local function layout_fill(sh)
             st[k] and string.format("%q", st[k]) or "nil", k, sn[k] and string.format("%q", sn[k]) or "nil",
             k, sh.ord + k - 1, k)
     end
-    local fill = assert(load("local VT, VN, VI, VR, P = ... return function(sh) " .. t_concat(code, " ") ..
+    if sh.named then layout_store(sh) end
+    return t_concat(code, " ") ..
         " P.n_ord = sh.ord P.n_text = sh.ntext P.nv = " .. n .. " P.nd = " .. n ..
         " P.layout = sh P.odd = false P.limit = false " ..
         (sh.named and ("P.nq = " .. n .. " P.n_pos = 0 P.n_empty_d = 0 P.named = sh ")
                    or ("P.nq = 0 P.n_pos = " .. n .. " P.named = nil ")) ..
-        "P.filled = sh end", "=layout_fill", "t", {}))(VT, VN, VI, VR, P)
-    sh.fill = fill
-    if sh.named then layout_store(sh) end
-    return fill
+        "P.filled = sh "
 end
 
 -- A positional layout's frame: its empty D fields (P.n_empty_d; full without state needs none).
@@ -374,11 +377,20 @@ local function positional_empty(n)
     return n_empty_d == 0
 end
 
+-- A layout's hit code (hit_code), made on its first match.
+local function layout_hit(sh)
+    sh.hit = assert(load(hit_code(sh), "=layout_hit", "t", {}))(sh, VV, VT, VN, VI, VR, P, U.SUM_OF, s_byte,
+        byte_sum, s_match, s_find, HEXV, UHEX, checksum_value, cfg, positional_empty, fast_positions, parse_other,
+        MARKS)
+    return sh.hit
+end
+
 ------------------------------------------------------------------------------
 -- Learning a layout (from a frame the parser took).
 ------------------------------------------------------------------------------
--- A named layout's Info code, made once per pattern (kept for 256 patterns): info() / dinfo() make
--- the Info of a full frame / a delta (info_frame) from the values in VV.  Speed trick (measured):
+-- A named layout's Info code, made once per pattern (kept for 256 patterns): info() / dinfo(tail)
+-- make the Info of a full frame / a delta (info_frame) from the values in VV (a delta's tail after
+-- them: "" or " (+n carried)").  Speed trick (measured):
 -- the names and the Info's pieces are constants in the code, one concatenation, no arguments.
 local INFO_CODE, info_code_n = {}, 0
 local function info_code(pat, sn, pieces, dpieces)
@@ -390,7 +402,7 @@ local function info_code(pat, sn, pieces, dpieces)
             dinfo[2 * k - 1], dinfo[2 * k] = string.format("%q", dpieces[k]), "VV[" .. k .. "]"
         end
         code = { assert(load("local VV = ... return function() return " .. t_concat(info, " .. ") ..
-            " end, function() return " .. t_concat(dinfo, " .. ") .. " end",
+            " end, function(tail) return " .. t_concat(dinfo, " .. ") .. " .. tail end",
             "=info_code", "t", {}))(VV) }
         if info_code_n >= 256 then INFO_CODE, info_code_n = {}, 0 end
         INFO_CODE[pat], info_code_n = code, info_code_n + 1
@@ -424,7 +436,7 @@ local function layout_kind(f)
     return nil
 end
 
--- The Info pieces of a named layout (sh) for info_code, and its Info's fixed lengths.
+-- The Info pieces of a named layout (sh) for info_code, and the room its values have in INFO_MAX.
 local function named_info(sh, dstb, srcb)
     local sn, nv = sh.N, sh.n
     local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
@@ -439,7 +451,7 @@ local function named_info(sh, dstb, srcb)
         ilen = ilen + #sn[k] + 2
     end
     sh.info, sh.dinfo = info_code(sh.key, sn, pieces, dpieces)
-    sh.info_len, sh.dinfo_len = ilen, ilen + #dhead - #head
+    sh.info_room, sh.dinfo_room = INFO_MAX - ilen, INFO_MAX - (ilen + #dhead - #head)
 end
 
 -- Whether a layout's types hold a long (whose values need parse_long to rule out var.badvalue).
@@ -470,7 +482,8 @@ local function new_layout(f, kind, dstb, srcb)
     for k = 1, nv do vlen = vlen + #VV[k] end
     local sh = { head = head, at = #head + 1, pat = "^" .. t_concat(parts), n = nv, named = named, T = st, N = sn,
         TV = named and tv or nil, has_long = named and has_long(tv), ord = P.n_ord, ntext = P.n_text,
-        fixed = fixed % 256, take = TAKE[nv], flen = P.cpos + 1 - vlen }
+        fixed = fixed % 256, flen = P.cpos + 1 - vlen, dstb = dstb, srcb = srcb }
+    sh.hit = function(...) return layout_hit(sh)(...) end
     -- quiet: no value of the layout can carry an expert info (var.badvalue; see tree's has_experts)
     sh.quiet = named and not sh.has_long
     sh.full0 = nv > 0 and P.n_ord == 0   -- full without state, but for empty positional D fields
@@ -538,53 +551,55 @@ local function parse_fields_of(f, fl, terminated)
     return bodyend, dstb, srcb, malformed_msg, checksum_verdict(f)
 end
 
-local FAST_MARK = MARKS.fast
-
 -- Parse a frame.  Returns the last index of the content, the address bytes, why it is malformed
 -- (nil: it is not), the checksum verdict (checksum_verdict) and, for a layout's frame, whether
 -- it can have no expert info (quiet: see the entry), is full without state (else nil) and the
--- line end after its ']' (TAKE).
+-- line end after its ']' (the layout's pattern takes it).
 -- vis: a shown tree (it needs the fields' places).  payload: f is the whole payload and fl its
 -- length, and only the layout cache is tried, for the frame the payload starts with (nil when
 -- it has none; a layout's head starts with "[:" and the addresses, so the frame needs no header
 -- check).
 --
 -- The layout cache: the layout that matched the same length last is tried first (fl: the index of
--- the frame's ']', or the payload's length), then the node pair's recent ones.  A frame it has
--- goes into P (its values are in VV already: TAKE): its variables and the facts a layout's frame
--- has (a data frame: N, then T/Q/D triplets or D fields, then C; the facts only other kinds have,
--- has_e..has_r, l_ord, cmd_start, ord_text, are read for those alone), and its checksum verdict
--- is the layout's fixed sum plus the values'.  Speed tricks (measured): the layout's names, types,
--- indexes and facts stay in P while the next frames have its layout (P.filled, cleared by the
--- parser): such a frame writes its values and its checksum's facts; the cache is tried here, not
--- in a function of its own (one call a frame less).
+-- the frame's ']', or the payload's length; its code, sh.hit, checks the head), then the node
+-- pair's recent ones (parse_other).  A frame it has goes into P: its values (VV), its variables
+-- and the facts a layout's frame has (a data frame: N, then T/Q/D triplets or D fields, then C;
+-- the facts only other kinds have, has_e..has_r, l_ord, cmd_start, ord_text, are read for those
+-- alone), and its checksum verdict is the layout's fixed sum plus the values'.  Speed tricks
+-- (measured): the layout's names, types, indexes and facts stay in P while the next frames have
+-- its layout (P.filled, cleared by the parser): such a frame writes its values and its
+-- checksum's facts; the layout's code answers for parse_frame (a tail call: no answer copied).
+-- The entry calls the layout's code (sh.hit) itself when bylen has one for fl (speed trick,
+-- measured: one call a frame less), else this.
 local function parse_frame(f, fl, terminated, vis, payload)
-    local dstb, srcb = s_byte(f, 3, 4)
-    local sh, vlen, sum, ctext, le
-    if FAST and terminated and fl >= 6 then   -- (f holds fl bytes at least: srcb is a byte)
-        local key = dstb * 256 + srcb
-        sh = bylen[key * 65536 + fl]
-        if sh and s_find(f, sh.head, 1, true) == 1 then vlen, sum, ctext, le = sh.take(f, sh.pat, sh.at) end
-        if not vlen then sh, vlen, sum, ctext, le = layout_mru(f, fl, key) end
+    local sh = FAST and terminated and bylen[fl]
+    if sh then return sh.hit(f, fl, terminated, vis, payload) end
+    return parse_other(f, fl, terminated, vis, payload)
+end
+
+-- A frame the layout that matched its length last does not have: the node pair's recent layouts,
+-- newest first (the one that matches comes first and is remembered for fl), else the parser.
+function parse_other(f, fl, terminated, vis, payload)
+    local mru = false
+    if FAST and terminated and fl >= 6 then
+        local dstb, srcb = s_byte(f, 3, 4)
+        mru = LY.mru[dstb * 256 + srcb]
     end
-    if not vlen then
-        if payload then return nil end
-        return parse_fields_of(f, fl, terminated)
+    if mru then
+        for k = 1, #mru do
+            local sh = mru[k]
+            local bodyend, dstb, srcb, m, cs_val, cs_calc, cs_status, quiet, full, le =
+                sh.hit(f, fl, terminated, vis, payload, true)
+            if bodyend then
+                if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
+                if LY.nbylen >= 4096 then bylen_clear() end
+                bylen[fl], LY.nbylen = sh, LY.nbylen + 1
+                return bodyend, dstb, srcb, m, cs_val, cs_calc, cs_status, quiet, full, le
+            end
+        end
     end
-    if FAST_MARK then MARKS.fast_hit = true end
-    fl = sh.flen + vlen + #ctext
-    P.ctext = ctext   -- (one assignment a field: a multiple one moves each value first)
-    P.vlen = vlen
-    P.cpos = fl - 1 - #ctext   -- the pattern ends in |C<ctext>]
-    if P.filled ~= sh then (sh.fill or layout_fill(sh))(sh) end
-    local full = sh.full0
-    if not sh.named then full = positional_empty(sh.n) and full end
-    if vis then fast_positions(sh) end
-    local cs_val = HEXV[ctext] or checksum_value(ctext)
-    if not cfg.validate then return fl - 1, dstb, srcb, nil, cs_val, nil, 2, false, full, le end
-    local cs_calc = (sh.fixed + sum) % 256
-    if cs_val ~= cs_calc then return fl - 1, dstb, srcb, nil, cs_val, cs_calc, 0, false, full, le end
-    return fl - 1, dstb, srcb, nil, cs_val, cs_calc, 1, sh.quiet and UHEX[ctext], full, le
+    if payload then return nil end
+    return parse_fields_of(f, fl, terminated)
 end
 
 -- The kind the fields alone tell; a data frame (full or delta, told by the state) gives nil, true.
