@@ -172,9 +172,8 @@ local function fields_facts(malformed_msg, dstb, srcb)
 end
 
 -- Whether CR LF frames the packet's bytes (tree's set_crlf_frames: sharedlink.crlf.missing is noted
--- only then), told the tree module before the first frame of the packet that lacks one.  Speed
--- trick (measured): pinfo.port_type is a call into wslua's __index, read only then.
-local crlf_told = false
+-- only then), told the tree module before each frame that lacks one.  Speed trick (measured):
+-- pinfo.port_type is a call into wslua's __index, read only then (no state kept a packet).
 
 -- The index of the last byte of a frame closed at b, its line end included (CR LF, CR or LF).
 local function line_end(s, b)
@@ -233,10 +232,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     if not info_layout(kind, rec, miss_n) then info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n) end
 
     local crlf = e == a + fl + 1   -- CR LF after its ']' (line_end)
-    if not crlf and terminated and not crlf_told then
-        set_crlf_frames(pinfo.port_type ~= PT_UDP)
-        crlf_told = true
-    end
+    if not crlf and terminated then set_crlf_frames(pinfo.port_type ~= PT_UDP) end
     -- Tree: shown, hidden (nobody sees it) or none (tshark's summary pass: built only for a frame
     -- with expert infos, on root, where only the experts stay); one builder (tree.lua)
     local mode = T_NONE
@@ -357,7 +353,6 @@ local function dissect(tvb, pinfo, tree)
     -- the Info starts empty (I.finish leaves it so) unless the last packet stopped short of it
     if in_packet then I.begin() end
     in_packet = true
-    crlf_told = false
     -- the layout cache first, for the frame the payload starts with (dissect_frame's payload)
     local e = dissect_frame(s, n, 1, nil, true, tvb, pinfo, t, n * 1048576 + 1, s, tree, true)
     if not e then
