@@ -276,15 +276,15 @@ local CHECKSUM = "|C([^]|[]*)%](\r?\n?)"
 -- one string, one SUM_OF call instead of one a value (-2.3 thousand instructions a frame, summary
 -- pass).  The pattern takes the line end after the ']' (CR LF, CR, LF or "", as the entry's
 -- line_end: no string.byte call).  sh.hit(f, fl, terminated, vis, payload, try) returns what
--- parse_frame returns; when f does not have the layout, nil with try, else parse_other's answer
--- (a tail call: the layout that matched the same length last is tried first, parse_frame).
-local parse_other, fill_code   -- (below)
+-- parse_frame returns; when f does not have the layout, nil with try, else parse_frame's answer
+-- (a tail call: the entry tries the layout that matched the same length last first).
+local parse_frame, fill_code   -- (below)
 local HIT_ENV = { "sh", "VV", "VT", "VN", "VI", "VR", "P", "SUM_OF", "s_byte", "byte_sum", "s_match", "s_find",
-    "HEXV", "UHEX", "checksum_value", "cfg", "positional_empty", "fast_positions", "parse_other", "MARKS" }
+    "HEXV", "UHEX", "checksum_value", "cfg", "positional_empty", "fast_positions", "parse_frame", "MARKS" }
 local function hit_code(sh)
     local n, vs, sets = sh.n, {}, {}
     for k = 1, n do vs[k], sets[k] = "v" .. k, "VV[" .. k .. "] = v" .. k end
-    local miss = "if try then return nil end return parse_other(f, fl, terminated, vis, payload) end "
+    local miss = "if try then return nil end return parse_frame(f, fl, terminated, vis, payload) end "
     local ret = "return cpos + #ctext, " .. sh.dstb .. ", " .. sh.srcb .. ", nil, cs_val, "
     return "local " .. t_concat(HIT_ENV, ", ") .. " = ... " ..
         "local HEAD, PAT, AT = sh.head, sh.pat, sh.at " ..
@@ -380,7 +380,7 @@ end
 -- A layout's hit code (hit_code), made on its first match.
 local function layout_hit(sh)
     sh.hit = assert(load(hit_code(sh), "=layout_hit", "t", {}))(sh, VV, VT, VN, VI, VR, P, U.SUM_OF, s_byte,
-        byte_sum, s_match, s_find, HEXV, UHEX, checksum_value, cfg, positional_empty, fast_positions, parse_other,
+        byte_sum, s_match, s_find, HEXV, UHEX, checksum_value, cfg, positional_empty, fast_positions, parse_frame,
         MARKS)
     return sh.hit
 end
@@ -561,8 +561,8 @@ end
 -- check).
 --
 -- The layout cache: the layout that matched the same length last is tried first (fl: the index of
--- the frame's ']', or the payload's length; its code, sh.hit, checks the head), then the node
--- pair's recent ones (parse_other).  A frame it has goes into P: its values (VV), its variables
+-- the frame's ']', or the payload's length; its code, sh.hit, checks the head; the entry calls
+-- it), then the node pair's recent ones.  A frame it has goes into P: its values (VV), its variables
 -- and the facts a layout's frame has (a data frame: N, then T/Q/D triplets or D fields, then C;
 -- the facts only other kinds have, has_e..has_r, l_ord, cmd_start, ord_text, are read for those
 -- alone), and its checksum verdict is the layout's fixed sum plus the values'.  Speed tricks
@@ -570,16 +570,9 @@ end
 -- its layout (P.filled, cleared by the parser): such a frame writes its values and its
 -- checksum's facts; the layout's code answers for parse_frame (a tail call: no answer copied).
 -- The entry calls the layout's code (sh.hit) itself when bylen has one for fl (speed trick,
--- measured: one call a frame less), else this.
-local function parse_frame(f, fl, terminated, vis, payload)
-    local sh = FAST and terminated and bylen[fl]
-    if sh then return sh.hit(f, fl, terminated, vis, payload) end
-    return parse_other(f, fl, terminated, vis, payload)
-end
-
--- A frame the layout that matched its length last does not have: the node pair's recent layouts,
+-- measured: one call a frame less); parse_frame is the rest: the node pair's recent layouts,
 -- newest first (the one that matches comes first and is remembered for fl), else the parser.
-function parse_other(f, fl, terminated, vis, payload)
+function parse_frame(f, fl, terminated, vis, payload)
     local mru = false
     if FAST and terminated and fl >= 6 then
         local dstb, srcb = s_byte(f, 3, 4)
