@@ -171,10 +171,6 @@ local function fields_facts(malformed_msg, dstb, srcb)
     return kind, is_data, nodes, full_local, is_data and nodes
 end
 
--- Whether CR LF frames the packet's bytes (tree's set_crlf_frames: sharedlink.crlf.missing is noted
--- only then), told the tree module before each frame that lacks one.  Speed trick (measured):
--- pinfo.port_type is a call into wslua's __index, read only then (no state kept a packet).
-
 -- The index of the last byte of a frame closed at b, its line end included (CR LF, CR or LF).
 local function line_end(s, b)
     local c1, c2 = s_byte(s, b + 1, b + 2)
@@ -232,6 +228,9 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     if not info_layout(kind, rec, miss_n) then info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n) end
 
     local crlf = e == a + fl + 1   -- CR LF after its ']' (line_end)
+    -- whether CR LF frames the packet's bytes (sharedlink.crlf.missing is noted only then), told
+    -- the tree module before each frame that lacks one.  Speed trick (measured): pinfo.port_type
+    -- is a call into wslua's __index, read only then
     if not crlf and terminated then set_crlf_frames(pinfo.port_type ~= PT_UDP) end
     -- Tree: shown, hidden (nobody sees it) or none (tshark's summary pass: built only for a frame
     -- with expert infos, on root, where only the experts stay); one builder (tree.lua)
