@@ -154,7 +154,6 @@ function I.finish(cols)
     end
     if ninfo > 0 then
         local info = (ninfo == 1) and INFO[1] or t_concat(INFO, "", 1, ninfo)
-        if FAST_MARK and MARKS.fast_hit then info = "[fast] " .. info; MARKS.fast_hit = false end
         -- control characters from a damaged frame must not break the column (the
         -- fast path's text cannot hold any: its patterns exclude them)
         if not info_clean and s_find(info, CTRL) then info = s_gsub(info, CTRL, "?") end
@@ -165,12 +164,17 @@ function I.finish(cols)
 end
 
 -- SHAREDLINK_FAST_MARK=1: the Info of a packet the layout cache parsed starts "[fast] " (a switch
--- read once, at load: for info_layout's single piece I.finish is wrapped then, no test a packet
--- otherwise).
+-- read once, at load: I.finish is wrapped then, no test a packet otherwise).
 if FAST_MARK then
     local finish = I.finish
     function I.finish(cols)
-        if single and MARKS.fast_hit then single = "[fast] " .. single; MARKS.fast_hit = false end
+        if MARKS.fast_hit then
+            if single then
+                single, MARKS.fast_hit = "[fast] " .. single, false
+            elseif ninfo > 0 then
+                INFO[1], MARKS.fast_hit = "[fast] " .. INFO[1], false
+            end
+        end
         finish(cols)
     end
 end
