@@ -115,9 +115,12 @@ end
 -- name's value and frame stay the same.
 -- Speed trick (measured, compressed capture): a delta's line goes in as these pieces, no string
 -- made for it until its chunk.
+local function piece_text(name, v, fr)
+    return "|" .. name .. (v and ("|=" .. v) or "|") .. "|" .. from_text(fr)
+end
 local PIECE, PV, PF, piece_n = {}, {}, {}, 0
 local function name_piece(name, v, fr)
-    local t = "|" .. name .. (v and ("|=" .. v) or "|") .. "|" .. from_text(fr)
+    local t = piece_text(name, v, fr)
     if s_find(t, "\n", 1, true) then t = false end
     if piece_n >= 4096 then PIECE, PV, PF, piece_n = {}, {}, {}, 0 end
     if PIECE[name] == nil then piece_n = piece_n + 1 end
@@ -153,12 +156,7 @@ local function subset_text(sk, sub, d)
         local names, vals, from = sub.names, d.vals, d.from
         for k = 1, #names do
             local name = names[k]
-            local v = vals[name]
-            if v then
-                run = run .. "|" .. name .. "|=" .. v .. "|" .. from_text(from[name])
-            else
-                run = run .. "|" .. name .. "||" .. from_text(from[name])
-            end
+            run = run .. piece_text(name, vals[name], from[name])
         end
         if s_find(run, "\n", 1, true) then return false end
         sub.run = run
