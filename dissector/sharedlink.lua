@@ -446,6 +446,7 @@ function sl.prefs_changed()
     apply_ports()
     cfg.read()
     S.lists_changed()
+    Pm.reset()   -- (a layout's code holds validate_checksum's value)
 end
 
 apply_ports()

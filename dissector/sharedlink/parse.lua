@@ -280,33 +280,62 @@ local CHECKSUM = "|C([^]|[]*)%](\r?\n?)"
 -- (a tail call: the entry tries the layout that matched the same length last first).
 local parse_frame, fill_code   -- (below)
 local HIT_ENV = { "sh", "VV", "VT", "VN", "VI", "VR", "P", "SUM_OF", "s_byte", "byte_sum", "s_match", "s_find",
-    "HEXV", "UHEX", "checksum_value", "cfg", "positional_empty", "fast_positions", "parse_frame", "MARKS" }
+    "HEXV", "UHEX", "checksum_value", "positional_empty", "fast_positions", "parse_frame", "MARKS" }
+-- The checksum part of the hit code: the values' sum (unless the checksum is not validated: the
+-- preference's value is a constant of the code, which Pm.reset drops when it changes) and the
+-- answers for each verdict (ret: the answers before the verdict's).
+local function verdict_code(sh, n, ret, full)
+    if not cfg.validate then return ret .. "nil, 2, false, " .. full .. ", le end" end
+    return (n > 0 and ("local sum " ..
+            "if vlen <= 40 then sum = SUM_OF[vlen](s_byte(all, 1, vlen)) else sum = byte_sum(all, 1, vlen) end ")
+            or "local sum = 0 ") ..
+        "local cs_calc = (" .. sh.fixed .. " + sum) % 256 " ..
+        "if cs_val ~= cs_calc then " .. ret .. "cs_calc, 0, false, " .. full .. ", le end " ..
+        ret .. "cs_calc, 1, " .. (sh.quiet and "UHEX[ctext]" or "false") .. ", " .. full .. ", le end "
+end
+
 local function hit_code(sh)
     local n, vs, sets = sh.n, {}, {}
-    for k = 1, n do vs[k], sets[k] = "v" .. k, "VV[" .. k .. "] = v" .. k end
+    for k = 1, n do
+        vs[k], sets[k] = "v" .. k, "VV[" .. k .. "] = v" .. k
+        -- a named layout's values for its store and Info code (upvalues: no table read)
+        if sh.named then sets[k] = sets[k] .. " u" .. k .. " = v" .. k end
+    end
     local miss = "if try then return nil end return parse_frame(f, fl, terminated, vis, payload) end "
     local ret = "return cpos + #ctext, " .. sh.dstb .. ", " .. sh.srcb .. ", nil, cs_val, "
-    return "local " .. t_concat(HIT_ENV, ", ") .. " = ... " ..
-        "local HEAD, PAT, AT = sh.head, sh.pat, sh.at " ..
-        "return function(f, fl, terminated, vis, payload, try) " ..
+    local full = sh.named and tostring(sh.full0) or "full"
+    return "function(f, fl, terminated, vis, payload, try) " ..
         "if s_find(f, HEAD, 1, true) ~= 1 then " .. miss ..
         "local " .. (n > 0 and (t_concat(vs, ", ") .. ", ") or "") .. "ctext, le = s_match(f, PAT, AT) " ..
         "if not ctext then " .. miss .. t_concat(sets, " ") ..
-        (n > 0 and (" local all = " .. t_concat(vs, " .. ") .. " local vlen = #all local sum " ..
-            "if vlen <= 40 then sum = SUM_OF[vlen](s_byte(all, 1, vlen)) else sum = byte_sum(all, 1, vlen) end ")
-            or " local vlen, sum = 0, 0 ") ..
+        (n == 0 and " local vlen = 0 "
+            or cfg.validate and (" local all = " .. t_concat(vs, " .. ") .. " local vlen = #all ")
+            or (" local vlen = #" .. t_concat(vs, " + #") .. " ")) ..
         (MARKS.fast and "MARKS.fast_hit = true " or "") ..
         "local cpos = " .. (sh.flen - 1) .. " + vlen " ..
         "P.ctext = ctext P.vlen = vlen P.cpos = cpos " ..
         "if P.filled ~= sh then " .. fill_code(sh) .. "end " ..
-        (sh.named and ("local full = " .. tostring(sh.full0) .. " ")
-                   or ("local full = positional_empty(" .. n .. ") and " .. tostring(sh.full0) .. " ")) ..
+        (sh.named and "" or ("local full = positional_empty(" .. n .. ") and " .. tostring(sh.full0) .. " ")) ..
         "if vis then fast_positions(sh) end " ..
         "local cs_val = HEXV[ctext] or checksum_value(ctext) " ..
-        "if not cfg.validate then " .. ret .. "nil, 2, false, full, le end " ..
-        "local cs_calc = (" .. sh.fixed .. " + sum) % 256 " ..
-        "if cs_val ~= cs_calc then " .. ret .. "cs_calc, 0, false, full, le end " ..
-        ret .. "cs_calc, 1, " .. (sh.quiet and "UHEX[ctext]" or "false") .. ", full, le end"
+        verdict_code(sh, n, ret, full)
+end
+
+-- A named layout's store (the state writer's store of a layout of known names: a direction's
+-- vals and from) and Info code (info() / dinfo(tail): the Info of a full frame / of a delta, its
+-- tail after the values: "" or " (+n carried)"; see named_info), in the hit code's chunk: the
+-- values are its upvalues u1..un, the names and the Info's pieces constants (speed trick,
+-- measured: no table read, no loop, one concatenation).
+local function named_code(sh)
+    local n, store, info, dinfo = sh.n, {}, {}, {}
+    for k = 1, n do
+        store[k] = string.format("vals[%q] = u%d from[%q] = num", sh.N[k], k, sh.N[k])
+        info[2 * k - 1], info[2 * k] = string.format("%q", sh.pieces[k]), "u" .. k
+        dinfo[2 * k - 1], dinfo[2 * k] = string.format("%q", sh.dpieces[k]), "u" .. k
+    end
+    return "local function store(vals, from, num) " .. t_concat(store, " ") .. " end " ..
+        "local function info() return " .. t_concat(info, " .. ") .. " end " ..
+        "local function dinfo(tail) return " .. t_concat(dinfo, " .. ") .. " .. tail end "
 end
 
 -- The fields' places in a frame the layout cache parsed (N, T/Q/D triplets or D fields, C), for
@@ -337,21 +366,10 @@ local function fast_positions(sh)
     P.nf = i + 1
 end
 
--- A named layout's values from VV into a direction's vals and from (the state writer's store of a
--- layout of known names): code made once per layout with its fill code, kept in sh.store (speed trick, measured: the
--- names constants in it, no loop).
-local function layout_store(sh)
-    local code = {}
-    for k = 1, sh.n do code[k] = string.format("vals[%q], from[%q] = VV[%d], num", sh.N[k], sh.N[k], k) end
-    sh.store = assert(load("local VV = ... return function(vals, from, num) " .. t_concat(code, " ") .. " end",
-        "=layout_store", "t", {}))(VV)
-    return sh.store
-end
-
 -- A layout's names, types, indexes and facts into P: code made once per layout, in its hit code
 -- (hit_code; speed trick, measured: a compressed stream's deltas change layout every frame), the
 -- names and types constants in it.  Returns the code's text (VT, VN, VI, VR, P and sh its
--- upvalues); a named layout's store code is made with it.
+-- upvalues).
 function fill_code(sh)
     local n, st, sn, code = sh.n, sh.T, sh.N, {}
     -- one assignment a field (a multiple one moves every value first), constants where known
@@ -360,7 +378,6 @@ function fill_code(sh)
             st[k] and string.format("%q", st[k]) or "nil", k, sn[k] and string.format("%q", sn[k]) or "nil",
             k, sh.ord + k - 1, k)
     end
-    if sh.named then layout_store(sh) end
     return t_concat(code, " ") ..
         " P.n_ord = sh.ord P.n_text = sh.ntext P.nv = " .. n .. " P.nd = " .. n ..
         " P.layout = sh P.odd = false P.limit = false " ..
@@ -377,39 +394,25 @@ local function positional_empty(n)
     return n_empty_d == 0
 end
 
--- A layout's hit code (hit_code), made on its first match.
+-- A layout's code, made on its first match: its hit code (hit_code) in sh.hit and, for a named
+-- layout, its store and Info code (named_code) in sh.store, sh.info and sh.dinfo, one chunk.
 local function layout_hit(sh)
-    sh.hit = assert(load(hit_code(sh), "=layout_hit", "t", {}))(sh, VV, VT, VN, VI, VR, P, U.SUM_OF, s_byte,
-        byte_sum, s_match, s_find, HEXV, UHEX, checksum_value, cfg, positional_empty, fast_positions, parse_frame,
-        MARKS)
+    local ups = {}
+    for k = 1, sh.n do ups[k] = "u" .. k end
+    local code = "local " .. t_concat(HIT_ENV, ", ") .. " = ... " ..
+        "local HEAD, PAT, AT = sh.head, sh.pat, sh.at " ..
+        (sh.named and sh.n > 0 and ("local " .. t_concat(ups, ", ") .. " " .. named_code(sh)) or "") ..
+        "local hit = " .. hit_code(sh) .. " " ..
+        (sh.named and "return hit, store, info, dinfo" or "return hit")
+    sh.hit, sh.store, sh.info, sh.dinfo = assert(load(code, "=layout_hit", "t", {}))(sh, VV, VT, VN, VI, VR, P,
+        U.SUM_OF, s_byte, byte_sum, s_match, s_find, HEXV, UHEX, checksum_value, positional_empty, fast_positions,
+        parse_frame, MARKS)
     return sh.hit
 end
 
 ------------------------------------------------------------------------------
 -- Learning a layout (from a frame the parser took).
 ------------------------------------------------------------------------------
--- A named layout's Info code, made once per pattern (kept for 256 patterns): info() / dinfo(tail)
--- make the Info of a full frame / a delta (info_frame) from the values in VV (a delta's tail after
--- them: "" or " (+n carried)").  Speed trick (measured):
--- the names and the Info's pieces are constants in the code, one concatenation, no arguments.
-local INFO_CODE, info_code_n = {}, 0
-local function info_code(pat, sn, pieces, dpieces)
-    local code = INFO_CODE[pat]
-    if not code then
-        local info, dinfo = {}, {}
-        for k = 1, #sn do
-            info[2 * k - 1], info[2 * k] = string.format("%q", pieces[k]), "VV[" .. k .. "]"
-            dinfo[2 * k - 1], dinfo[2 * k] = string.format("%q", dpieces[k]), "VV[" .. k .. "]"
-        end
-        code = { assert(load("local VV = ... return function() return " .. t_concat(info, " .. ") ..
-            " end, function(tail) return " .. t_concat(dinfo, " .. ") .. " .. tail end",
-            "=info_code", "t", {}))(VV) }
-        if info_code_n >= 256 then INFO_CODE, info_code_n = {}, 0 end
-        INFO_CODE[pat], info_code_n = code, info_code_n + 1
-    end
-    return code[1], code[2]
-end
-
 -- Whether every variable of the parsed frame is a T/Q/D triplet with a valid type (named), or a
 -- D alone (positional).
 local function all_named()
@@ -436,7 +439,8 @@ local function layout_kind(f)
     return nil
 end
 
--- The Info pieces of a named layout (sh) for info_code, and the room its values have in INFO_MAX.
+-- The Info pieces of a named layout (sh) for its Info code (named_code), and the room its values
+-- have in INFO_MAX.
 local function named_info(sh, dstb, srcb)
     local sn, nv = sh.N, sh.n
     local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
@@ -450,7 +454,7 @@ local function named_info(sh, dstb, srcb)
         end
         ilen = ilen + #sn[k] + 2
     end
-    sh.info, sh.dinfo = info_code(sh.key, sn, pieces, dpieces)
+    sh.pieces, sh.dpieces = pieces, dpieces
     sh.info_room, sh.dinfo_room = INFO_MAX - ilen, INFO_MAX - (ilen + #dhead - #head)
 end
 
