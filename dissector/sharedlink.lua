@@ -179,6 +179,12 @@ local function line_end(s, b)
     return b
 end
 
+-- A terminated frame with no CR LF after it tells the tree module whether CR LF frames the
+-- packet's bytes (not on UDP).
+local function tell_crlf(pinfo, terminated)
+    if terminated then set_crlf_frames(pinfo.port_type ~= PT_UDP) end
+end
+
 -- wslua attributes the entry reads each frame, through wsapi's getters (PG), as upvalues once
 -- wsapi.init has chosen them on the first packet (set by dissect)
 local pg_number, pg_visited, pg_visible
@@ -225,32 +231,37 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
             full_local)
     end
 
-    if not info_layout(kind, rec, miss_n) then info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n) end
+    -- Info: the piece of the payload's first frame from its layout's Info code, which the packet's
+    -- Info is when no other frame follows (dissect writes it: speed trick, measured); else info.lua's
+    local piece = payload and P.first_piece(kind, rec, miss_n)
+    if not piece and not info_layout(kind, rec, miss_n) then
+        info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n)
+    end
 
     local crlf = e == a + fl + 1   -- CR LF after its ']' (line_end)
     -- whether CR LF frames the packet's bytes (sharedlink.crlf.missing is noted only then), told
     -- the tree module before each frame that lacks one.  Speed trick (measured): pinfo.port_type
     -- is a call into wslua's __index, read only then
-    if not crlf and terminated then set_crlf_frames(pinfo.port_type ~= PT_UDP) end
+    if not crlf then tell_crlf(pinfo, terminated) end
     -- Tree: shown, hidden (nobody sees it) or none (tshark's summary pass: built only for a frame
     -- with expert infos, on root, where only the experts stay); one builder (tree.lua)
     local mode = T_NONE
     if tree then
         mode = MODE[vis]
     else
-        if not root then return e end
+        if not root then return e, piece end
         -- a layout's frame with no possible expert (speed trick, measured): quiet (values its
         -- layout proves, a good upper-case checksum), CR LF after it, no record (late sync,
         -- limit); otherwise has_experts tells
-        if quiet and crlf and not rec then return e end
+        if quiet and crlf and not rec then return e, piece end
         if not has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status) then
-            return e
+            return e, piece
         end
         tree = root
     end
     tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, visited, kind,
         dstb, srcb, list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
-    return e
+    return e, piece
 end
 ------------------------------------------------------------------------------
 -- Payload scanning
@@ -352,8 +363,17 @@ local function dissect(tvb, pinfo, tree)
     -- the Info starts empty (I.finish leaves it so) unless the last packet stopped short of it
     if in_packet then I.begin() end
     in_packet = true
-    -- the layout cache first, for the frame the payload starts with (dissect_frame's payload)
-    local e = dissect_frame(s, n, 1, nil, true, tvb, pinfo, t, n * 1048576 + 1, s, tree, true)
+    -- the layout cache first, for the frame the payload starts with (dissect_frame's payload); its
+    -- Info piece (piece: from its layout's Info code) is the packet's Info when it is the only frame
+    local e, piece = dissect_frame(s, n, 1, nil, true, tvb, pinfo, t, n * 1048576 + 1, s, tree, true)
+    if piece then
+        if e == n then
+            cols.info = piece
+            in_packet = false
+            return n
+        end
+        I.first(piece)
+    end
     if not e then
         scan(s, n, tvb, pinfo, t, tree, 1)
     elseif e < n then

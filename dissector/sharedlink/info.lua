@@ -77,29 +77,18 @@ local function info_pieces(f, bodyend, kind, is_data, rec, list, dstb, srcb, mis
     if rec and rec.late then info_add(" [sync late]") end
 end
 
--- " (+n carried)", made once for n up to 64 (a delta's tail)
-local CARRIED_TAIL = {}
-for k = 1, 64 do CARRIED_TAIL[k] = " (+" .. k .. " carried)" end
-
 -- Info column: this frame's piece, a full or delta frame of a named layout alone in its packet so
--- far: the layout's Info code makes the same text as info_frame's pieces, in one concatenation
--- (speed trick, measured), when it fits INFO_MAX (the layout's info_room / dinfo_room: what its
--- values may take).  Returns whether it did (else the entry calls info_frame: three arguments,
--- not nine, for the commonest frame).
+-- far: the layout's Info code (named.piece, parse's named_code) makes the same text as
+-- info_frame's pieces, in one concatenation (speed trick, measured), when it fits INFO_MAX.
+-- Returns whether it did (else the entry calls info_frame: three arguments, not nine, for the
+-- commonest frame).  The entry writes the piece of a packet's only frame itself (I.first: when
+-- more frames follow).
 local function info_layout(kind, rec, miss_n)
     local named = P.named
-    if frames_in_info ~= 0 or not named or (rec and rec.late) then return false end
-    if miss_n == 0 and kind == "full" then   -- (the commonest frame: nothing carried)
-        if P.vlen > named.info_room then return false end
-        frames_in_info = 1
-        single = named.info()
-        return true
-    end
-    if kind ~= "delta" then return false end   -- (a full frame carries nothing)
-    local tail = (miss_n > 0) and (CARRIED_TAIL[miss_n] or (" (+" .. miss_n .. " carried)")) or ""
-    if P.vlen + #tail > named.dinfo_room then return false end
-    frames_in_info = 1
-    single = named.dinfo(tail)
+    if frames_in_info ~= 0 or not named then return false end
+    local piece = named.piece(kind, rec, miss_n)
+    if not piece then return false end
+    frames_in_info, single = 1, piece
     return true
 end
 
@@ -125,6 +114,12 @@ local I = {}
 function I.begin()
     ninfo, info_len, info_full, frames_in_info, frames_dropped = 0, 0, false, 0, 0
     info_clean, single = true, nil
+end
+
+-- The piece of the packet's first frame, which the entry got from its layout's Info code
+-- (named.first_piece), when more frames follow (as info_layout's).
+function I.first(piece)
+    frames_in_info, single = 1, piece
 end
 
 -- Noise of len bytes between frames, as a piece of its own.

@@ -65,13 +65,17 @@ Pm.reset()
 local FAST = not wsapi.env.no_fast
 local MARKS = { fast = wsapi.env.fast_mark, fast_hit = false }
 
+-- P.first_piece: a named layout's first_piece (named_code), else none.
+local function NO_PIECE() return nil end
+P.first_piece = NO_PIECE
+
 local function parse_reset()
     P.nf, P.nv = 0, 0
     P.n_ord, P.l_ord, P.n_text, P.huge_ord, P.n_nan = nil, nil, nil, nil, nil
     P.has_e, P.has_m, P.has_p, P.has_g, P.has_r = false, false, false, false, false
     P.nq, P.nd, P.n_empty_d, P.n_pos = 0, 0, 0, 0
     P.cpos, P.ctext, P.cmd_start, P.ord_text = nil, nil, nil, false
-    P.layout, P.named, P.filled = false, nil, nil
+    P.layout, P.named, P.filled, P.first_piece = false, nil, nil, NO_PIECE
     P.odd, P.limit = false, false
 end
 
@@ -280,7 +284,8 @@ local CHECKSUM = "|C([^]|[]*)%](\r?\n?)"
 -- (a tail call: the entry tries the layout that matched the same length last first).
 local parse_frame, fill_code   -- (below)
 local HIT_ENV = { "sh", "VV", "VT", "VN", "VI", "VR", "P", "SUM_OF", "s_byte", "byte_sum", "s_match", "s_find",
-    "HEXV", "UHEX", "checksum_value", "positional_empty", "fast_positions", "parse_frame", "MARKS" }
+    "HEXV", "UHEX", "checksum_value", "positional_empty", "fast_positions", "parse_frame", "MARKS", "CARRIED_TAIL",
+    "NO_PIECE" }
 -- The checksum part of the hit code: the values' sum (unless the checksum is not validated: the
 -- preference's value is a constant of the code, which Pm.reset drops when it changes) and the
 -- answers for each verdict (ret: the answers before the verdict's).
@@ -311,6 +316,7 @@ local function hit_code(sh)
         (n == 0 and " local vlen = 0 "
             or cfg.validate and (" local all = " .. t_concat(vs, " .. ") .. " local vlen = #all ")
             or (" local vlen = #" .. t_concat(vs, " + #") .. " ")) ..
+        (sh.named and n > 0 and "uvlen = vlen " or "") ..
         (MARKS.fast and "MARKS.fast_hit = true " or "") ..
         "local cpos = " .. (sh.flen - 1) .. " + vlen " ..
         "P.ctext = ctext P.vlen = vlen P.cpos = cpos " ..
@@ -322,10 +328,13 @@ local function hit_code(sh)
 end
 
 -- A named layout's store (the state writer's store of a layout of known names: a direction's
--- vals and from) and Info code (info() / dinfo(tail): the Info of a full frame / of a delta, its
--- tail after the values: "" or " (+n carried)"; see named_info), in the hit code's chunk: the
--- values are its upvalues u1..un, the names and the Info's pieces constants (speed trick,
--- measured: no table read, no loop, one concatenation).
+-- vals and from) and Info code (piece(kind, rec, miss_n): the frame's Info piece, as info.lua's
+-- info_pieces makes it, for a full frame that carries nothing or a delta, its tail " (+n
+-- carried)" after the values, with no late sync record, when it fits INFO_MAX; else nil;
+-- first_piece: the same for the entry, off with SHAREDLINK_FAST_MARK, whose mark I.finish puts),
+-- in the hit code's chunk: the values are its upvalues u1..un (uvlen their length), the names
+-- and the Info's pieces constants (speed trick, measured: no table read, no loop, one
+-- concatenation).
 local function named_code(sh)
     local n, store, info, dinfo = sh.n, {}, {}, {}
     for k = 1, n do
@@ -334,8 +343,16 @@ local function named_code(sh)
         dinfo[2 * k - 1], dinfo[2 * k] = string.format("%q", sh.dpieces[k]), "u" .. k
     end
     return "local function store(vals, from, num) " .. t_concat(store, " ") .. " end " ..
-        "local function info() return " .. t_concat(info, " .. ") .. " end " ..
-        "local function dinfo(tail) return " .. t_concat(dinfo, " .. ") .. " .. tail end "
+        "local function piece(kind, rec, miss_n) " ..
+        "if rec and rec.late then return nil end " ..
+        "if kind == 'full' then " ..
+        "if miss_n ~= 0 or uvlen > " .. sh.info_room .. " then return nil end " ..
+        "return " .. t_concat(info, " .. ") .. " end " ..
+        "if kind ~= 'delta' then return nil end " ..
+        "local tail = miss_n > 0 and (CARRIED_TAIL[miss_n] or (' (+' .. miss_n .. ' carried)')) or '' " ..
+        "if uvlen + #tail > " .. sh.dinfo_room .. " then return nil end " ..
+        "return " .. t_concat(dinfo, " .. ") .. " .. tail end " ..
+        "local first_piece = " .. (MARKS.fast and "function() return nil end " or "piece ")
 end
 
 -- The fields' places in a frame the layout cache parsed (N, T/Q/D triplets or D fields, C), for
@@ -381,8 +398,9 @@ function fill_code(sh)
     return t_concat(code, " ") ..
         " P.n_ord = sh.ord P.n_text = sh.ntext P.nv = " .. n .. " P.nd = " .. n ..
         " P.layout = sh P.odd = false P.limit = false " ..
-        (sh.named and ("P.nq = " .. n .. " P.n_pos = 0 P.n_empty_d = 0 P.named = sh ")
-                   or ("P.nq = 0 P.n_pos = " .. n .. " P.named = nil ")) ..
+        (sh.named and ("P.nq = " .. n .. " P.n_pos = 0 P.n_empty_d = 0 P.named = sh " ..
+                       "P.first_piece = sh.first_piece ")
+                   or ("P.nq = 0 P.n_pos = " .. n .. " P.named = nil P.first_piece = NO_PIECE ")) ..
         "P.filled = sh "
 end
 
@@ -401,12 +419,12 @@ local function layout_hit(sh)
     for k = 1, sh.n do ups[k] = "u" .. k end
     local code = "local " .. t_concat(HIT_ENV, ", ") .. " = ... " ..
         "local HEAD, PAT, AT = sh.head, sh.pat, sh.at " ..
-        (sh.named and sh.n > 0 and ("local " .. t_concat(ups, ", ") .. " " .. named_code(sh)) or "") ..
+        (sh.named and sh.n > 0 and ("local uvlen, " .. t_concat(ups, ", ") .. " " .. named_code(sh)) or "") ..
         "local hit = " .. hit_code(sh) .. " " ..
-        (sh.named and "return hit, store, info, dinfo" or "return hit")
-    sh.hit, sh.store, sh.info, sh.dinfo = assert(load(code, "=layout_hit", "t", {}))(sh, VV, VT, VN, VI, VR, P,
-        U.SUM_OF, s_byte, byte_sum, s_match, s_find, HEXV, UHEX, checksum_value, positional_empty, fast_positions,
-        parse_frame, MARKS)
+        (sh.named and sh.n > 0 and "return hit, store, piece, first_piece" or "return hit")
+    sh.hit, sh.store, sh.piece, sh.first_piece = assert(load(code, "=layout_hit", "t", {}))(sh, VV, VT, VN, VI, VR,
+        P, U.SUM_OF, s_byte, byte_sum, s_match, s_find, HEXV, UHEX, checksum_value, positional_empty,
+        fast_positions, parse_frame, MARKS, U.CARRIED_TAIL, NO_PIECE)
     return sh.hit
 end
 

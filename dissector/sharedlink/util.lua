@@ -15,6 +15,9 @@ U.ELLIPSIS = "\226\128\166"  -- U+2026
 U.INFO_MAX = 120
 U.CTRL = "[\0-\31\127]"   -- control characters (not to be shown in the Info column)
 U.SYNC_SLACK = 0.5 -- seconds added to the sync interval before sync.late fires
+-- " (+n carried)", made once for n up to 64 (a delta's Info tail)
+U.CARRIED_TAIL = {}
+for k = 1, 64 do U.CARRIED_TAIL[k] = " (+" .. k .. " carried)" end
 
 -- byte values: brackets and separators, line ends, the node letters' range, the field letters
 U.B_LBRACK, U.B_RBRACK, U.B_PIPE, U.B_COLON = 91, 93, 124, 58
