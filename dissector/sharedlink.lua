@@ -162,13 +162,14 @@ end
 -- delta as the state tells), whether it is a data frame, whether both address bytes are nodes A-P
 -- (nil: cut short), whether it is full without state (a data frame with N0 or none, no empty
 -- positional D and no named variable left out; the state-based verdict is stored when it
--- differs), and whether state_data takes it (a data frame between nodes).
+-- differs), and the first pass's state writer for it: state_data (a data frame between nodes),
+-- else state_other.
 local function fields_facts(malformed_msg, dstb, srcb)
     local kind, is_data = kind_of_fields(malformed_msg)
     local nodes = (dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P) or false
     local n_ord = P.n_ord
     local full_local = P.nd > 0 and (n_ord == nil or n_ord == 0) and P.n_empty_d == 0
-    return kind, is_data, nodes, full_local, is_data and nodes
+    return kind, is_data, nodes, full_local, (is_data and nodes) and state_data or state_other
 end
 
 -- The index of the last byte of a frame closed at b, its line end included (CR LF, CR or LF).
@@ -205,9 +206,8 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
 
     -- the layout cache's code for the frame's length (bylen), else parse_frame (speed trick,
     -- measured: the cache's code called here, not through parse_frame)
-    local sh = terminated and bylen[fl]
     local bodyend, dstb, srcb, malformed_msg, cs_val, cs_calc, cs_status, quiet, full_local, le =
-        (sh and sh.hit or parse_frame)(f, fl, terminated, vis, payload)
+        (terminated and bylen[fl] or parse_frame)(f, fl, terminated, vis, payload)
     if payload then
         if not bodyend then return nil end
         fl = bodyend + 1
@@ -215,21 +215,15 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     end
     local num = pg_number(pinfo)
     -- a layout's frame: a data frame between nodes A-P (its head is the layout's); full_local
-    -- from the layout (nil from the parser); any other frame from fields_facts
-    local kind, is_data, addrs_ok, data_ok = nil, true, true, true
-    if full_local == nil then kind, is_data, addrs_ok, full_local, data_ok = fields_facts(malformed_msg, dstb, srcb) end
-    local rec, list, d, miss_n, ne, nm
+    -- from the layout (nil from the parser); any other frame from fields_facts, with the state
+    -- writer's function for it on the first pass (a later pass: state_later_pass).  One argument
+    -- list for the three: the answers go straight into the locals (speed trick, measured)
+    local fkind, is_data, addrs_ok, state = nil, true, true, state_data
+    if full_local == nil then fkind, is_data, addrs_ok, full_local, state = fields_facts(malformed_msg, dstb, srcb) end
     local visited = pg_visited(pinfo)
-    if visited then
-        kind, rec, list, d, miss_n, nm = state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok,
-            full_local, tree ~= nil)
-        ne = 0
-    elseif data_ok then
-        kind, rec, list, d, miss_n, ne, nm = state_data(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
-    else
-        kind, rec, list, d, miss_n, ne, nm = state_other(pinfo, num, sk, kind, cs_status ~= 0, dstb, srcb, addrs_ok,
-            full_local)
-    end
+    if visited then state = state_later_pass end
+    local kind, rec, list, d, miss_n, ne, nm = state(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree,
+        fkind, is_data, addrs_ok)
 
     -- Info: the piece of the payload's first frame from its layout's Info code, which the packet's
     -- Info is when no other frame follows (dissect writes it: speed trick, measured); else info.lua's
@@ -245,10 +239,11 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     if not crlf then tell_crlf(pinfo, terminated) end
     -- Tree: shown, hidden (nobody sees it) or none (tshark's summary pass: built only for a frame
     -- with expert infos, on root, where only the experts stay); one builder (tree.lua)
-    local mode = T_NONE
+    local mode
     if tree then
         mode = MODE[vis]
     else
+        mode = T_NONE
         if not root then return e, piece end
         -- a layout's frame with no possible expert (speed trick, measured): quiet (values its
         -- layout proves, a good upper-case checksum), CR LF after it, no record (late sync,

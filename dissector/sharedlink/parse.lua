@@ -27,7 +27,7 @@ local HUGE_INDEX = 4294967295   -- the largest index the uint32 sharedlink.var.i
 --   a reply; VTf/VQf/VDf the field numbers of T, Q/R, D (0: none), P.nv;
 -- and the facts (parse_reset): n_ord/l_ord the N/L ordinals (n_text: N's text); has_e..has_r an
 -- E, M, P, G or R field; nq/nd Q and D fields; n_pos positional D fields, n_empty_d empty ones;
--- cpos/ctext the checksum field's start and text (vlen: the values' total length, layout frames);
+-- cpos/ctext the checksum field's start and text;
 -- cmd_start the first E/M field; ord_text N? or L? (a list request); layout: the cached layout
 -- that parsed the frame (else false), named: the same when it is a named one (else nil),
 -- filled: the layout whose facts P holds (parse_frame); odd: a field whose tree item carries an expert info
@@ -41,9 +41,9 @@ local P = { nv = 0, nf = 0, FL = FL, FS = FS, FE = FE, FV = FV, FC = FC, VT = VT
 
 -- The layout cache (per capture, reset by Pm.reset): mru: node pair -> its recent layouts, newest
 -- first (up to MAX_LAYOUTS: a compressed stream's deltas cycle through a few subsets of the
--- variables); bylen: frame length -> the layout that matched last (nbylen entries; its head,
--- checked before its pattern, tells the node pair: speed trick, measured, no string.byte call a
--- frame for the pair's letters).
+-- variables); bylen: frame length -> the hit code (sh.hit) of the layout that matched last
+-- (nbylen entries; its head, checked before its pattern, tells the node pair: speed trick,
+-- measured, no string.byte call a frame for the pair's letters).
 -- bylen is an upvalue of its own (speed trick, measured: one table lookup a frame less), one
 -- table for the capture (emptied in place), which the entry reads too (Pm.bylen: parse_frame).
 local LY, bylen = {}, {}
@@ -319,7 +319,7 @@ local function hit_code(sh)
         (sh.named and n > 0 and "uvlen = vlen " or "") ..
         (MARKS.fast and "MARKS.fast_hit = true " or "") ..
         "local cpos = " .. (sh.flen - 1) .. " + vlen " ..
-        "P.ctext = ctext P.vlen = vlen P.cpos = cpos " ..
+        "P.ctext = ctext P.cpos = cpos " ..
         "if P.filled ~= sh then " .. fill_code(sh) .. "end " ..
         (sh.named and "" or ("local full = positional_empty(" .. n .. ") and " .. tostring(sh.full0) .. " ")) ..
         "if vis then fast_positions(sh) end " ..
@@ -608,7 +608,7 @@ function parse_frame(f, fl, terminated, vis, payload)
             if bodyend then
                 if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
                 if LY.nbylen >= 4096 then bylen_clear() end
-                bylen[fl], LY.nbylen = sh, LY.nbylen + 1
+                bylen[fl], LY.nbylen = sh.hit, LY.nbylen + 1
                 return bodyend, dstb, srcb, m, cs_val, cs_calc, cs_status, quiet, full, le
             end
         end

@@ -685,8 +685,10 @@ do
     -- reply, query, declaration, command..., or a data frame whose addresses are not nodes A-P:
     -- kind nil, full or delta as full_local tells; addrs_ok: both addresses are nodes A-P).  Returns
     -- the kind, the record (nil: none), the list in use, the direction state (malformed, reply),
-    -- and 0, 0, 0 (as state_data's).
-    function state_other(pinfo, num, sk, kind, good, dstb, srcb, addrs_ok, full_local)
+    -- and 0, 0, 0 (as state_data's).  The arguments are state_data's, then the kind the fields
+    -- tell (fields_facts), whether it is a data frame, and addrs_ok.
+    function state_other(pinfo, num, sk, cs_status, dstb, srcb, full_local, _, kind, _, addrs_ok)
+        local good = cs_status ~= 0
         lim_hit = false
         local rec, list, d = nil, cfg.list, nil
         if not kind then kind = full_local and "full" or "delta" end   -- a data frame, addresses not A-P
@@ -795,8 +797,10 @@ end
 
 -- State on a later pass: the record, and the list in use at this frame on the first pass
 -- (looked up only where it names something: positional values, or a tree to show indexes).  A
--- data frame's kind: the record's, else the verdict without state.
-local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs_ok, full_local, has_tree)
+-- data frame's kind: the record's, else the verdict without state.  The arguments and answers are
+-- state_other's (ne: 0).
+local function state_later_pass(pinfo, num, sk, _, dstb, srcb, full_local, tree, kind, is_data, addrs_ok)
+    local has_tree = tree ~= nil
     local rec = get_rec(num, sk, false)
     local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
     local nm, list, d = 0, cfg.list, nil
@@ -812,7 +816,7 @@ local function state_later_pass(pinfo, num, sk, kind, is_data, dstb, srcb, addrs
             kind = (full_local and miss_n == 0) and "full" or "delta"
         end
     end
-    return kind, rec, list, d, miss_n, nm
+    return kind, rec, list, d, miss_n, 0, nm
 end
 
 S.get_dir, S.list_at, S.journal, S.JOURNAL_NAMES = get_dir, list_at, journal, JOURNAL_NAMES
