@@ -202,7 +202,7 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     -- a tree that is shown (-V, -T fields/json, the GUI's details) gets every range and
     -- label; one nobody sees (-Y, coloring rules, taps) takes the fast paths too.  The
     -- protocol item is added once the frame is known (the full tree: with its text)
-    local vis = tree ~= nil and pg_visible(tree)
+    local vis = tree and pg_visible(tree)   -- (nil: no tree)
 
     -- the layout cache's code for the frame's length (bylen), else parse_frame (speed trick,
     -- measured: the cache's code called here, not through parse_frame)

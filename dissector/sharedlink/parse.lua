@@ -14,7 +14,7 @@ local ARROW, CTRL, LETTER, B_PIPE, B_A, B_P = U.ARROW, U.CTRL, U.LETTER, U.B_PIP
 local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = U.L_N, U.L_T, U.L_Q, U.L_R, U.L_D, U.L_C, U.L_L,
     U.L_E, U.L_M, U.L_P, U.L_G
 local valid_type, byte_sum, str_sum, checksum_value = U.valid_type, U.byte_sum, U.str_sum, U.checksum_value
-local HEXV, UHEX, INFO_MAX = U.HEXV, U.UHEX, U.INFO_MAX
+local HEXV, INFO_MAX = U.HEXV, U.INFO_MAX
 local to_ordinal, pat_escape = U.to_ordinal, U.pat_escape
 local HUGE_INDEX = 4294967295   -- the largest index the uint32 sharedlink.var.index holds
 
@@ -284,7 +284,7 @@ local CHECKSUM = "|C([^]|[]*)%](\r?\n?)"
 -- (a tail call: the entry tries the layout that matched the same length last first).
 local parse_frame, fill_code   -- (below)
 local HIT_ENV = { "sh", "VV", "VT", "VN", "VI", "VR", "P", "SUM_OF", "s_byte", "byte_sum", "s_match", "s_find",
-    "HEXV", "UHEX", "checksum_value", "positional_empty", "fast_positions", "parse_frame", "MARKS", "CARRIED_TAIL",
+    "HEXV", "UHEXV", "checksum_value", "positional_empty", "fast_positions", "parse_frame", "MARKS", "CARRIED_TAIL",
     "NO_PIECE" }
 -- The checksum part of the hit code: the values' sum (unless the checksum is not validated: the
 -- preference's value is a constant of the code, which Pm.reset drops when it changes) and the
@@ -296,7 +296,7 @@ local function verdict_code(sh, n, ret, full)
             or "local sum = 0 ") ..
         "local cs_calc = (" .. sh.fixed .. " + sum) % 256 " ..
         "if cs_val ~= cs_calc then " .. ret .. "cs_calc, 0, false, " .. full .. ", le end " ..
-        ret .. "cs_calc, 1, " .. (sh.quiet and "UHEX[ctext]" or "false") .. ", " .. full .. ", le end "
+        ret .. "cs_calc, 1, quiet, " .. full .. ", le end "
 end
 
 local function hit_code(sh)
@@ -323,7 +323,10 @@ local function hit_code(sh)
         "if P.filled ~= sh then " .. fill_code(sh) .. "end " ..
         (sh.named and "" or ("local full = positional_empty(" .. n .. ") and " .. tostring(sh.full0) .. " ")) ..
         "if vis then fast_positions(sh) end " ..
-        "local cs_val = HEXV[ctext] or checksum_value(ctext) " ..
+        -- (quiet, a layout with no possible expert: a good upper-case checksum adds none)
+        (sh.quiet and "local cs_val, quiet = UHEXV[ctext], true " ..
+            "if not cs_val then cs_val, quiet = HEXV[ctext] or checksum_value(ctext), false end "
+            or "local cs_val, quiet = HEXV[ctext] or checksum_value(ctext), false ") ..
         verdict_code(sh, n, ret, full)
 end
 
@@ -423,7 +426,7 @@ local function layout_hit(sh)
         "local hit = " .. hit_code(sh) .. " " ..
         (sh.named and sh.n > 0 and "return hit, store, piece, first_piece" or "return hit")
     sh.hit, sh.store, sh.piece, sh.first_piece = assert(load(code, "=layout_hit", "t", {}))(sh, VV, VT, VN, VI, VR,
-        P, U.SUM_OF, s_byte, byte_sum, s_match, s_find, HEXV, UHEX, checksum_value, positional_empty,
+        P, U.SUM_OF, s_byte, byte_sum, s_match, s_find, HEXV, U.UHEXV, checksum_value, positional_empty,
         fast_positions, parse_frame, MARKS, U.CARRIED_TAIL, NO_PIECE)
     return sh.hit
 end
@@ -515,7 +518,7 @@ local function new_layout(f, kind, dstb, srcb)
 end
 
 -- Remember the parsed frame's layout for the node pair (key); a layout known already comes first
--- again, the same table (the direction's names_is compares the table's N).
+-- again, the same table (the direction's names_is is the layout itself).
 local function learn_layout(f, key, dstb, srcb)
     local kind = layout_kind(f)
     if not kind then return end

@@ -399,14 +399,14 @@ do
     end
 
     -- A named layout's values go into the direction (its names are known ones) by the layout's
-    -- store code, named.store (parse's layout_store, made with its fill code).
+    -- store code, named.store (parse's named_code, made with its hit code).
 
     -- After store_values (miss_n named variables carried): whether the direction's names are now
     -- the whole set of the frame's named layout (d.names_is), and the frame's verdicts, full and
     -- full_local (see data_values).
     local function stored_verdict(d, named, good, miss_n, full_local)
         -- (never a journal's: state_data takes the whole set without looking for one)
-        if named and good and miss_n == 0 and #d.names == named.n and not d.hist then d.names_is = named.N end
+        if named and good and miss_n == 0 and #d.names == named.n and not d.hist then d.names_is = named end
         local n_ord = P.n_ord
         local full = P.nd > 0 and (n_ord == nil or n_ord == 0) and not dv_required and miss_n == 0
         if P.n_pos == 0 then full_local = full_local and miss_n == 0 end
@@ -741,7 +741,7 @@ do
         if cs_status == 0 or not named then
             return data_general(pinfo, d, num, sk, cs_status, full_local, tree, list)
         end
-        if d.names_is == named.N then
+        if d.names_is == named then
             named.store(d.vals, d.from, num)
             d.wl = named
             if full_local then

@@ -74,8 +74,11 @@ end
 -- Checksum texts of two upper-case hex digits (the form without sharedlink.checksum.format)
 local UHEX = {}
 U.UHEX = UHEX
-for t in pairs(HEXV) do
-    if not s_find(t, "[a-f]") then UHEX[t] = true end
+-- and their values (the hit code of a layout with no possible expert: one table read)
+local UHEXV = {}
+U.UHEXV = UHEXV
+for t, v in pairs(HEXV) do
+    if not s_find(t, "[a-f]") then UHEX[t], UHEXV[t] = true, v end
 end
 
 -- The value of a checksum text: two hex digits (either case) or up to 8; nil otherwise.
