@@ -8,7 +8,7 @@ local token, M = ...
 if type(token) ~= "table" or token.sharedlink_module ~= true then return end
 
 local U, cfg, wsapi = M.util, M.prefs, M.wsapi
-local s_byte, s_find, s_match, s_gsub = string.byte, string.find, string.match, string.gsub
+local s_byte, s_find, s_match, s_gsub, s_rep = string.byte, string.find, string.match, string.gsub, string.rep
 local tonumber, floor, t_concat = tonumber, math.floor, table.concat
 local ARROW, CTRL, LETTER, B_PIPE, B_A, B_P = U.ARROW, U.CTRL, U.LETTER, U.B_PIPE, U.B_A, U.B_P
 local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = U.L_N, U.L_T, U.L_Q, U.L_R, U.L_D, U.L_C, U.L_L,
@@ -278,7 +278,10 @@ local CHECKSUM = "|C([^]|[]*)%](\r?\n?)"
 -- (measured): the layout's head, pattern, sums and facts are constants of the code (no table read
 -- for them), its captures stay in its locals (no call passes them on), and the values are summed as
 -- one string, one SUM_OF call instead of one a value (-2.3 thousand instructions a frame, summary
--- pass).  The pattern takes the line end after the ']' (CR LF, CR, LF or "", as the entry's
+-- pass), a string padded past Lua's 40 bytes for interned strings (sh.npad bytes of "\0" after the
+-- values of the frame that taught the layout, LONG in all): Lua makes it without hashing it into
+-- its string table, which a short string new each frame fills (-1.7 thousand instructions a
+-- frame, time -2.7 %, summary pass).  The pattern takes the line end after the ']' (CR LF, CR, LF or "", as the entry's
 -- line_end: no string.byte call).  sh.hit(f, fl, terminated, vis, payload, try) returns what
 -- parse_frame returns; when f does not have the layout, nil with try, else parse_frame's answer
 -- (a tail call: the entry tries the layout that matched the same length last first).
@@ -299,6 +302,22 @@ local function verdict_code(sh, n, ret, full)
         ret .. "cs_calc, 1, quiet, " .. full .. ", le end "
 end
 
+local LONG = 44   -- (a layout's values joined and padded: longer than 40 bytes, give or take 3)
+-- The hit code's vlen (the values' length) and, when the checksum is validated, all (the values
+-- joined and padded, for its sum); a named layout's uvlen.
+local function vlen_code(sh, n, vs)
+    local code
+    if n == 0 then
+        code = " local vlen = 0 "
+    elseif cfg.validate then
+        code = " local all = " .. t_concat(vs, " .. ") ..
+            (sh.npad > 0 and (" .. PAD local vlen = #all - " .. sh.npad .. " ") or " local vlen = #all ")
+    else
+        code = " local vlen = #" .. t_concat(vs, " + #") .. " "
+    end
+    return code .. (sh.named and "uvlen = vlen " or "")
+end
+
 local function hit_code(sh)
     local n, vs, sets = sh.n, {}, {}
     for k = 1, n do
@@ -313,10 +332,7 @@ local function hit_code(sh)
         "if s_find(f, HEAD, 1, true) ~= 1 then " .. miss ..
         "local " .. (n > 0 and (t_concat(vs, ", ") .. ", ") or "") .. "ctext, le = s_match(f, PAT, AT) " ..
         "if not ctext then " .. miss .. t_concat(sets, " ") ..
-        (n == 0 and " local vlen = 0 "
-            or cfg.validate and (" local all = " .. t_concat(vs, " .. ") .. " local vlen = #all ")
-            or (" local vlen = #" .. t_concat(vs, " + #") .. " ")) ..
-        (sh.named and n > 0 and "uvlen = vlen " or "") ..
+        vlen_code(sh, n, vs) ..
         (MARKS.fast and "MARKS.fast_hit = true " or "") ..
         "local cpos = " .. (sh.flen - 1) .. " + vlen " ..
         "P.ctext = ctext P.cpos = cpos " ..
@@ -421,7 +437,7 @@ local function layout_hit(sh)
     local ups = {}
     for k = 1, sh.n do ups[k] = "u" .. k end
     local code = "local " .. t_concat(HIT_ENV, ", ") .. " = ... " ..
-        "local HEAD, PAT, AT = sh.head, sh.pat, sh.at " ..
+        "local HEAD, PAT, AT, PAD = sh.head, sh.pat, sh.at, sh.pad " ..
         (sh.named and sh.n > 0 and ("local uvlen, " .. t_concat(ups, ", ") .. " " .. named_code(sh)) or "") ..
         "local hit = " .. hit_code(sh) .. " " ..
         (sh.named and sh.n > 0 and "return hit, store, piece, first_piece" or "return hit")
@@ -507,7 +523,8 @@ local function new_layout(f, kind, dstb, srcb)
     for k = 1, nv do vlen = vlen + #VV[k] end
     local sh = { head = head, at = #head + 1, pat = "^" .. t_concat(parts), n = nv, named = named, T = st, N = sn,
         TV = named and tv or nil, has_long = named and has_long(tv), ord = P.n_ord, ntext = P.n_text,
-        fixed = fixed % 256, flen = P.cpos + 1 - vlen, dstb = dstb, srcb = srcb }
+        fixed = fixed % 256, flen = P.cpos + 1 - vlen, dstb = dstb, srcb = srcb, npad = LONG - vlen }
+    if sh.npad > 0 then sh.pad = s_rep("\0", sh.npad) end
     sh.hit = function(...) return layout_hit(sh)(...) end
     -- quiet: no value of the layout can carry an expert info (var.badvalue; see tree's has_experts)
     sh.quiet = named and not sh.has_long

@@ -167,12 +167,15 @@ def test_cache_on_every_kind_of_value(tmp_path: Path, monkeypatch: pytest.Monkey
     """A layout's value pattern is a set of byte ranges (any byte but '|', ']', the control
     characters and DEL; a double-typed value a plain decimal) and its checksum sums the values as
     one string: values long and short, UTF-8, punctuation, and the bytes it must leave to the
-    parser come out as the parser makes them, in named and positional layouts; the long and the
-    UTF-8 ones take the cache."""
+    parser come out as the parser makes them, in named and positional layouts, with good checksums
+    and bad ones (the sum of values joined short and long: the hit code pads them past Lua's 40
+    bytes for interned strings, by what the layout's first frame needs); the long and the UTF-8
+    ones take the cache."""
     long_text = "x" * 50
     values = ["1.5", long_text, "Ωμέγα", "%^{}~\\`'\"", "a[b", "a]b", "tab\there", "del\x7f", "", "-0.25",
               "y" * 30, "7"]
-    bodies = []
+    # the first frames of each layout with short values (its hit code pads the joined values most)
+    bodies = [":AB|N0|T4|QName|Da|T4|QNote|Db|T2|QLat|D1.5|C", ":CD|N0|D1|D2|D3|C"] * 2
     for i in range(72):
         v = values[i % len(values)]
         w = values[(i * 5 + 1) % len(values)]
@@ -181,7 +184,8 @@ def test_cache_on_every_kind_of_value(tmp_path: Path, monkeypatch: pytest.Monkey
     frames = []
     for i, body in enumerate(bodies):
         raw = body.encode()
-        frames.append((t0 + i * 200_000_000, b"[" + raw + f"{sum(raw) % 256:02X}]\r\n".encode()))
+        checksum = (sum(raw) + (i % 7 == 3)) % 256   # every 7th frame a bad one
+        frames.append((t0 + i * 200_000_000, b"[" + raw + f"{checksum:02X}]\r\n".encode()))
     cap = write_capture(tmp_path / "values.pcap", frames)
     _same_both_ways(cap, monkeypatch)
     marked = _marked(cap, monkeypatch, [])
