@@ -26,9 +26,18 @@ local VALUE = cfg.VALUE   -- name -> its value field (sharedlink.value.<name>), 
 local crlf_frames = true   -- see set_crlf_frames
 local CARRY, MISS = M.records.CARRY, M.records.MISS
 
--- TreeItem's methods called through this table (speed trick, measured: -V 16 us a frame
--- less): ti:add(...) looks the method up through wslua's __index, a call into C, each time.
+-- TreeItem's methods called through wsapi.TI (speed trick, measured: -V 16 us a frame less):
+-- ti:add(...) looks the method up through wslua's __index, a call into C, each time.  Kept here
+-- as upvalues (speed trick, measured: -V, one table read less a call, ~90 a frame), taken once
+-- wsapi.init has checked them on the first packet (bind_ti, called by tree_frame).
 local TI = wsapi.TI   -- see wsapi (2)
+local ti_add, ti_hide, ti_gen, ti_text, ti_append, ti_expert
+local ti_bound = false
+local function bind_ti()
+    ti_add, ti_hide, ti_gen, ti_text = TI.add, TI.set_hidden, TI.set_generated, TI.set_text
+    ti_append, ti_expert = TI.append_text, TI.add_proto_expert_info
+    ti_bound = wsapi.ready
+end
 
 ------------------------------------------------------------------------------
 -- One builder, three trees.  tree_frame walks the frame's items once, in the order a shown tree
@@ -145,7 +154,7 @@ local function ref_break() ref_num, ref_tvb = -1, nil end
 -- item, or nil when nobody references the field.
 local function hadd(parent, field, value)
     local it
-    if value == nil then it = TI.add(parent, field) else it = TI.add(parent, field, value) end
+    if value == nil then it = ti_add(parent, field) else it = ti_add(parent, field, value) end
     local r = REF[field]
     if r == nil then
         r = wsapi.referenced(it, parent)
@@ -190,11 +199,11 @@ local function tree_address(off, b, letter, is_node, field, node_field, what)
                 label = what .. ": " .. letter .. " (node " .. (b - B_A + 1) .. ")"
                 labels[b] = label
             end
-            TI.add(ti, field, r, letter, label)
-            TI.set_hidden(TI.add(ti, node_field, r, b - B_A + 1))
+            ti_add(ti, field, r, letter, label)
+            ti_hide(ti_add(ti, node_field, r, b - B_A + 1))
             return
         end
-        ti = TI.add(ti, field, r, letter)
+        ti = ti_add(ti, field, r, letter)
     elseif is_node then
         if REF[field] ~= false then hadd(ti, field, letter) end
         if REF[node_field] ~= false then hadd(ti, node_field, b - B_A + 1) end
@@ -202,7 +211,7 @@ local function tree_address(off, b, letter, is_node, field, node_field, what)
     else
         ti = hitem(ti, field, letter) or ti
     end
-    TI.add_proto_expert_info(ti, ei.address_invalid, what .. " " .. letter .. " is not a letter A-P")
+    ti_expert(ti, ei.address_invalid, what .. " " .. letter .. " is not a letter A-P")
 end
 
 -- The protocol line: "SharedLink Protocol, B→A full" (", bad checksum").  Speed trick (measured,
@@ -233,23 +242,23 @@ local function tree_head()
     local snode = srcb and srcb >= B_A and srcb <= B_P
     local ti
     if mode == SHOWN then
-        ti = TI.add(C.tree, sl, tvb(C.a - 1, C.e - C.a + 1),
+        ti = ti_add(C.tree, sl, tvb(C.a - 1, C.e - C.a + 1),
             proto_item_text(kind, dstb, srcb, C.dst, C.src, C.cs_status, dnode and snode))
     elseif mode == HIDDEN then
-        ti = TI.add(C.tree, sl, tvb(C.a - 1, C.e - C.a + 1))
+        ti = ti_add(C.tree, sl, tvb(C.a - 1, C.e - C.a + 1))
     else
-        ti = TI.add(C.tree, sl)
+        ti = ti_add(C.tree, sl)
     end
     c_ti = ti
     if mode == HIDDEN then ref_start(tvb, c_num, C.visited) end
     tree_address(c_o + 3, dstb, C.dst, dnode, H_dst, hf.dst_node, "Destination")
     tree_address(c_o + 4, srcb, C.src, snode, H_src, hf.src_node, "Source")
     if mode == SHOWN then
-        TI.set_generated(TI.add(ti, hf.kind, kind))
+        ti_gen(ti_add(ti, hf.kind, kind))
     elseif REF[hf.kind] ~= false then
         hadd(ti, hf.kind, kind)
     end
-    if C.malformed_msg then TI.add_proto_expert_info(ti, ei.malformed, C.malformed_msg) end
+    if C.malformed_msg then ti_expert(ti, ei.malformed, C.malformed_msg) end
 end
 
 ------------------------------------------------------------------------------
@@ -268,7 +277,7 @@ local function var_type(vt, v, tf, vtype)
     if c_shown then
         local tvb, o = c_tvb, c_o
         if vtype then
-            TI.add(vt, H_ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
+            ti_add(vt, H_ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
         else
             vt:add(tvb(o + FS[tf], FE[tf] - FS[tf] + 1), "Type (T): " .. tostring(VT[v] or ""))
                 :add_proto_expert_info(ei.var_badvalue, "Type is not a number")
@@ -276,7 +285,7 @@ local function var_type(vt, v, tf, vtype)
     elseif vtype then
         if REF[H_ftype] ~= false then hadd(vt, H_ftype, vtype) end
     else
-        TI.add_proto_expert_info(vt, ei.var_badvalue, "Type is not a number")
+        ti_expert(vt, ei.var_badvalue, "Type is not a number")
     end
 end
 
@@ -287,7 +296,7 @@ local function var_name(vt, v, name)
     local shown = c_shown
     local list = c_list
     if not VN[v] and not list[VI[v] + 1] and list.decl then
-        TI.add_proto_expert_info(vt, ei.var_unknown,
+        ti_expert(vt, ei.var_unknown,
             "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
     end
     do
@@ -297,11 +306,11 @@ local function var_name(vt, v, name)
             if VN[v] then
                 local qf = VQf[v]
                 r = tvb(o + FS[qf] + 1, FE[qf] - FS[qf])
-                if VR[v] then TI.add(vt, hf.response, r, name) end
+                if VR[v] then ti_add(vt, hf.response, r, name) end
             else
                 r = tvb(o + FS[VDf[v]], 1)
             end
-            TI.set_hidden(TI.add(vt, H_var_name, r, name))
+            ti_hide(ti_add(vt, H_var_name, r, name))
             return
         end
         if VR[v] and VN[v] and REF[hf.response] ~= false then hadd(vt, hf.response, name) end
@@ -320,16 +329,16 @@ local function typed_value(vt, r, vtype, text, known, dbl)
         field = H_var_double
         if known and REF[field] == false then return end
         if dbl == nil then v = tonumber(text) else v = dbl end
-        if not v then TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a double: " .. text) end
+        if not v then ti_expert(vt, ei.var_badvalue, "Not a double: " .. text) end
     elseif vtype == 0 then
         field, v = hf.var_long, parse_long(text)
-        if not v then TI.add_proto_expert_info(vt, ei.var_badvalue, "Not a long (int64): " .. text) end
+        if not v then ti_expert(vt, ei.var_badvalue, "Not a long (int64): " .. text) end
     elseif vtype == 4 then
         field, v = hf.var_string, text
     end
     if not v then return end
     if c_shown then
-        TI.set_hidden(TI.add(vt, field, r, v))
+        ti_hide(ti_add(vt, field, r, v))
     elseif REF[field] ~= false then
         hadd(vt, field, v)
     end
@@ -338,8 +347,8 @@ end
 -- A generated item of field with value x under vt (shown), at range r when r is not nil.
 local function gen_item(vt, field, r, x)
     local it
-    if r then it = TI.add(vt, field, r, x) else it = TI.add(vt, field, x) end
-    TI.set_generated(it)
+    if r then it = ti_add(vt, field, r, x) else it = ti_add(vt, field, x) end
+    ti_gen(it)
     return it
 end
 
@@ -351,7 +360,7 @@ end
 local function value_items(vt, name, value, r, gen, vtype, known)
     local shown = c_shown
     if shown then
-        if gen then gen_item(vt, H_var_value, r, value) else TI.add(vt, H_var_value, r, value) end
+        if gen then gen_item(vt, H_var_value, r, value) else ti_add(vt, H_var_value, r, value) end
     elseif REF[H_var_value] ~= false then
         hadd(vt, H_var_value, value)
     end
@@ -367,7 +376,7 @@ local function value_items(vt, name, value, r, gen, vtype, known)
             elseif ftype == 0 then x = parse_long(value) end
             if x ~= nil then
                 if shown then
-                    TI.set_hidden(gen and gen_item(vt, field, r, x) or TI.add(vt, field, r, x))
+                    ti_hide(gen and gen_item(vt, field, r, x) or ti_add(vt, field, r, x))
                 else
                     hadd(vt, field, x)
                 end
@@ -375,7 +384,7 @@ local function value_items(vt, name, value, r, gen, vtype, known)
         end
     end
     if shown and dbl and vtype == 2 then   -- (typed_value's most common case, inline: speed trick, measured)
-        TI.set_hidden(TI.add(vt, H_var_double, r, dbl))
+        ti_hide(ti_add(vt, H_var_double, r, dbl))
     elseif vtype then
         typed_value(vt, r, vtype, value, known, dbl)
     end
@@ -387,19 +396,19 @@ local function carried_items(vt, name, label, cv, cf, r0)
     local shown = c_shown
     if cv then value_items(vt, name, cv, r0, true) end
     if shown then
-        TI.set_generated(r0 and TI.add(vt, H_var_carried, r0, true) or TI.add(vt, H_var_carried, true))
+        ti_gen(r0 and ti_add(vt, H_var_carried, r0, true) or ti_add(vt, H_var_carried, true))
     elseif REF[H_var_carried] ~= false then
         hadd(vt, H_var_carried, true)
     end
     if cf then
         if shown then
-            TI.set_generated(r0 and TI.add(vt, H_var_carried_from, r0, cf) or TI.add(vt, H_var_carried_from, cf))
-            TI.set_text(vt, label .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
+            ti_gen(r0 and ti_add(vt, H_var_carried_from, r0, cf) or ti_add(vt, H_var_carried_from, cf))
+            ti_text(vt, label .. " = " .. tostring(cv) .. " (carried from frame " .. cf .. ")")
         elseif REF[H_var_carried_from] ~= false then
             hadd(vt, H_var_carried_from, cf)
         end
     elseif shown then
-        TI.set_text(vt, label .. " = ? (carried, no earlier value)")
+        ti_text(vt, label .. " = ? (carried, no earlier value)")
     end
 end
 
@@ -408,14 +417,14 @@ local function var_reply(vt, name)
     local resp_to, unmatched = C.resp_to, C.unmatched
     if resp_to and resp_to[name] then
         if c_shown then
-            TI.set_generated(TI.add(vt, hf.response_to, resp_to[name]))
-            TI.set_generated(TI.add(vt, hf.response_time, U.nstime_of(C.rts[name])))
+            ti_gen(ti_add(vt, hf.response_to, resp_to[name]))
+            ti_gen(ti_add(vt, hf.response_time, U.nstime_of(C.rts[name])))
         else
             hitem(vt, hf.response_to, resp_to[name])
             if REF[hf.response_time] ~= false then hadd(vt, hf.response_time, U.nstime_of(C.rts[name])) end
         end
     elseif unmatched and unmatched[name] then
-        TI.add_proto_expert_info(vt, ei.unanswered)
+        ti_expert(vt, ei.unanswered)
     end
 end
 
@@ -424,10 +433,10 @@ local function var_value(vt, v, name, vtype)
     local shown = c_shown
     local val, label = VV[v], shown and (name or ("#" .. VI[v]))
     if not val then
-        if shown then TI.set_text(vt, label .. (VR[v] and " (reply without value)" or " (declared)")) end
+        if shown then ti_text(vt, label .. (VR[v] and " (reply without value)" or " (declared)")) end
         local resp_in = C.resp_in
         if resp_in and resp_in[name] then
-            if shown then TI.set_generated(TI.add(vt, hf.response_in, resp_in[name]))
+            if shown then ti_gen(ti_add(vt, hf.response_in, resp_in[name]))
             else hitem(vt, hf.response_in, resp_in[name]) end
         end
         return
@@ -436,7 +445,7 @@ local function var_value(vt, v, name, vtype)
         local r = nil
         if shown then local df = VDf[v]; r = c_tvb(c_o + FS[df] + 1, FE[df] - FS[df]) end
         value_items(vt, not VR[v] and name, val, r, false, vtype, c_tv ~= nil)
-        if shown then TI.set_text(vt, label .. " = " .. val) end
+        if shown then ti_text(vt, label .. " = " .. val) end
     else
         -- an empty positional D: the value carried forward (the frame's next carried pair)
         local ke, csrc = c_ke, c_csrc
@@ -474,15 +483,15 @@ local function shown_var_head(v, fs, name, vtype)
     local tf, qf, df = VTf[v], VQf[v], VDf[v]
     local vend = df ~= 0 and df or (qf ~= 0 and qf or tf)
     local tvb, o = c_tvb, c_o
-    local vt = TI.add(c_ti, H_var, tvb(o + fs, FE[vend] - fs + 1))
+    local vt = ti_add(c_ti, H_var, tvb(o + fs, FE[vend] - fs + 1))
     if tf ~= 0 then
         local tv = c_tv
         vtype = tv and tv[v] or valid_type(VT[v])
-        if vtype then TI.add(vt, H_ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
+        if vtype then ti_add(vt, H_ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
         else var_type(vt, v, tf, vtype) end
     end
     if VN[v] and not VR[v] then
-        TI.set_hidden(TI.add(vt, H_var_name, tvb(o + FS[qf] + 1, FE[qf] - FS[qf]), name))
+        ti_hide(ti_add(vt, H_var_name, tvb(o + FS[qf] + 1, FE[qf] - FS[qf]), name))
     else
         var_name(vt, v, name)
     end
@@ -520,7 +529,7 @@ local function tree_variable(v, fs)
     if c_shown then vt, vtype = shown_var_head(v, fs, name, vtype)
     else vt, vtype = hidden_var_head(v, name, vtype) end
     if not VR[v] and index then
-        if c_shown then TI.set_generated(TI.add(vt, H_var_index, index))
+        if c_shown then ti_gen(ti_add(vt, H_var_index, index))
         elseif REF[H_var_index] ~= false then hadd(vt, H_var_index, index) end
     end
     var_value(vt, v, name, vtype)
@@ -531,15 +540,15 @@ end
 ------------------------------------------------------------------------------
 -- An item of field at the text after the letter (shown: range vr), value text; the item or nil.
 local function plain_item(parent, field, vr, text)
-    if c_shown then return TI.add(parent, field, vr, text) end
+    if c_shown then return ti_add(parent, field, vr, text) end
     return hitem(parent, field, text)
 end
 
 -- An item with no field (shown only: a text at f[fs..fe]) and its expert.
 local function text_item(fs, fe, text, expert, etext)
     local ti = c_ti
-    if c_shown then ti = TI.add(ti, c_tvb(c_o + fs, fe - fs + 1), text) end
-    TI.add_proto_expert_info(ti, expert, etext)
+    if c_shown then ti = ti_add(ti, c_tvb(c_o + fs, fe - fs + 1), text) end
+    ti_expert(ti, expert, etext)
 end
 
 -- An N, L or T field (letter l, text at f[fs+1..fe]): its number, or an expert when it is none.
@@ -565,16 +574,16 @@ local function unknown_field(l, fs, fe)
     local ft
     if c_shown then
         local tvb, o = c_tvb, c_o
-        ft = TI.add(ti, hf.field_letter, tvb(o + fs, 1), LETTER[l])
-        TI.add(ft, hf.field_text, tvb(o + fs, fe - fs + 1), s_sub(c_f, fs, fe))
+        ft = ti_add(ti, hf.field_letter, tvb(o + fs, 1), LETTER[l])
+        ti_add(ft, hf.field_text, tvb(o + fs, fe - fs + 1), s_sub(c_f, fs, fe))
     else
         ft = hitem(ti, hf.field_letter, LETTER[l])
         hitem(ti, hf.field_text, s_sub(c_f, fs, fe))
     end
     if l == U.L_C then
-        TI.add_proto_expert_info(ft or ti, ei.field_unknown, "Checksum field C that is not the last field")
+        ti_expert(ft or ti, ei.field_unknown, "Checksum field C that is not the last field")
     else
-        TI.add_proto_expert_info(ft or ti, ei.field_unknown, "Unknown field letter " .. LETTER[l])
+        ti_expert(ft or ti, ei.field_unknown, "Unknown field letter " .. LETTER[l])
     end
 end
 
@@ -587,14 +596,14 @@ local function tree_plain_field(l, fs, fe)
     local text = (l ~= false) and s_sub(c_f, fs + 1, fe) or ""
     local vr = shown and c_tvb(c_o + fs + 1, fe - fs)     -- the text after the letter
     if l == false then
-        if shown then ti = TI.add(ti, U.zrange(c_tvb, c_o + fs), "Empty field") end
-        TI.add_proto_expert_info(ti, ei.field_empty)
+        if shown then ti = ti_add(ti, U.zrange(c_tvb, c_o + fs), "Empty field") end
+        ti_expert(ti, ei.field_empty)
     elseif l == U.L_N or l == U.L_L or l == U.L_T then
         number_field(l, fs, fe, text, vr)
     elseif l == U.L_Q then
         local qt = plain_item(ti, hf.query, vr, text)
         if resp_in and resp_in[text] then
-            if shown then TI.set_generated(TI.add(qt, hf.response_in, resp_in[text]))
+            if shown then ti_gen(ti_add(qt, hf.response_in, resp_in[text]))
             else hitem(ti, hf.response_in, resp_in[text]) end
         end
     elseif PLAIN[l] then
@@ -675,7 +684,12 @@ end
 -- measured: -V).
 local function shown_layout_fields()
     local ns, ne = FS[1], FE[1]
-    number_field(U.L_N, ns, ne, P.n_text, c_tvb(c_o + ns + 1, ne - ns))
+    local n = P.n_ord   -- the layout's N: digits only, its number unless 0 (0 also for an N past
+    if n ~= 0 or P.n_text == "0" then   -- what to_ordinal keeps): no tonumber, floor (speed trick, measured)
+        ti_add(c_ti, H_ordinal, c_tvb(c_o + ns + 1, ne - ns), n)
+    else
+        number_field(U.L_N, ns, ne, P.n_text, c_tvb(c_o + ns + 1, ne - ns))
+    end
     for v = 1, P.nv do
         local first = VTf[v]
         if first == 0 then first = VDf[v] end
@@ -712,13 +726,13 @@ end
 function C.request_link(rec)
     local ti, shown = c_ti, c_shown
     if rec.req_in then
-        if shown then TI.set_generated(TI.add(ti, hf.response_in, rec.req_in))
+        if shown then ti_gen(ti_add(ti, hf.response_in, rec.req_in))
         else hitem(ti, hf.response_in, rec.req_in) end
     end
     if rec.req_to then
         if shown then
-            TI.set_generated(TI.add(ti, hf.response_to, rec.req_to))
-            TI.set_generated(TI.add(ti, hf.response_time, U.nstime_of(rec.req_rt)))
+            ti_gen(ti_add(ti, hf.response_to, rec.req_to))
+            ti_gen(ti_add(ti, hf.response_time, U.nstime_of(rec.req_rt)))
         else
             hitem(ti, hf.response_to, rec.req_to)
             hitem(ti, hf.response_time, U.nstime_of(rec.req_rt))
@@ -742,16 +756,16 @@ local function tree_carried_names()
         local index = d and d.npos[name]
         local vt
         if shown then
-            vt = TI.add(ti, H_var, zr)
-            TI.set_hidden(TI.add(vt, H_var_name, name))
-            if index then TI.set_generated(TI.add(vt, H_var_index, index)) end
+            vt = ti_add(ti, H_var, zr)
+            ti_hide(ti_add(vt, H_var_name, name))
+            if index then ti_gen(ti_add(vt, H_var_index, index)) end
         else
             vt = var_item()
             if REF[H_var_name] ~= false then hadd(vt, H_var_name, name) end
             if index and REF[H_var_index] ~= false then hadd(vt, H_var_index, index) end
         end
         carried_items(vt, name, name, cv, cf, nil)
-        if shown then TI.set_generated(vt) end
+        if shown then ti_gen(vt) end
     end
 end
 
@@ -772,29 +786,29 @@ local function shown_checksum(cpos, ctext)
             label = string.format("Checksum: 0x%02x [correct]", val)
             CHECKSUM_OK[val] = label
         end
-        ct = TI.add(ti, H_checksum, cr, val, label)
+        ct = ti_add(ti, H_checksum, cr, val, label)
     elseif byte_val then
-        ct = TI.add(ti, H_checksum, cr, val)
+        ct = ti_add(ti, H_checksum, cr, val)
     else
-        ct = TI.add(ti, hf.checksum_text, cr, ctext)
+        ct = ti_add(ti, hf.checksum_text, cr, ctext)
     end
     if not UHEX[ctext] then
-        TI.add_proto_expert_info(ct, ei.checksum_format,
+        ti_expert(ct, ei.checksum_format,
             "Checksum \"" .. ctext .. "\" is not two upper-case hex digits")
     end
     if not cfg.validate then
-        TI.set_generated(TI.add(ct, H_checksum_status, cr, 2))
+        ti_gen(ti_add(ct, H_checksum_status, cr, 2))
         return
     end
     local cs_calc = C.cs_calc
-    TI.set_generated(TI.add(ct, H_checksum_calc, cr, cs_calc))
+    ti_gen(ti_add(ct, H_checksum_calc, cr, cs_calc))
     if cs_status == 1 then
-        TI.set_generated(TI.add(ct, H_checksum_status, cr, 1))
-        if not byte_val then TI.append_text(ct, " [correct]") end
+        ti_gen(ti_add(ct, H_checksum_status, cr, 1))
+        if not byte_val then ti_append(ct, " [correct]") end
     else
-        TI.set_generated(TI.add(ct, H_checksum_status, cr, 0))
-        TI.append_text(ct, string.format(" [incorrect, should be 0x%02x]", cs_calc))
-        TI.add_proto_expert_info(ct, ei.checksum_bad,
+        ti_gen(ti_add(ct, H_checksum_status, cr, 0))
+        ti_append(ct, string.format(" [incorrect, should be 0x%02x]", cs_calc))
+        ti_expert(ct, ei.checksum_bad,
             string.format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
     end
 end
@@ -809,7 +823,7 @@ local function hidden_checksum(ctext)
         ct = hadd(ti, hf.checksum_text, ctext)
     end
     if not UHEX[ctext] then
-        TI.add_proto_expert_info(ct or ti, ei.checksum_format,
+        ti_expert(ct or ti, ei.checksum_format,
             "Checksum \"" .. ctext .. "\" is not two upper-case hex digits")
     end
     if not cfg.validate then
@@ -820,7 +834,7 @@ local function hidden_checksum(ctext)
     if REF[H_checksum_calc] ~= false then hadd(ti, H_checksum_calc, cs_calc) end
     if REF[H_checksum_status] ~= false then hadd(ti, H_checksum_status, cs_status) end
     if cs_status ~= 1 then
-        TI.add_proto_expert_info(ct or ti, ei.checksum_bad,
+        ti_expert(ct or ti, ei.checksum_bad,
             string.format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
     end
 end
@@ -828,27 +842,28 @@ end
 local function tree_trailer()
     local ti, rec, s, a, e, fl = c_ti, C.rec, C.s, C.a, C.e, C.fl
     local terminated, shown = C.terminated, c_shown
-    if P.limit then TI.add_proto_expert_info(ti, ei.limit, P.limit) end
-    if rec and rec.limit then TI.add_proto_expert_info(ti, ei.limit, rec.limit) end
+    if P.limit then ti_expert(ti, ei.limit, P.limit) end
+    if rec and rec.limit then ti_expert(ti, ei.limit, rec.limit) end
     if rec and rec.late then
-        if shown then TI.set_generated(TI.add(ti, hf.sync_is_late, true))
+        if shown then ti_gen(ti_add(ti, hf.sync_is_late, true))
         else hitem(ti, hf.sync_is_late, true) end
-        TI.add_proto_expert_info(ti, ei.sync_late,
+        ti_expert(ti, ei.sync_late,
             string.format("No full frame for %.3f s (sync interval %.3f s + %.1f s slack)",
                 rec.late, cfg.sync - U.SYNC_SLACK, U.SYNC_SLACK))
     end
     if P.cpos then
         if shown then shown_checksum(P.cpos, P.ctext) else hidden_checksum(P.ctext) end
     else
-        if shown then TI.set_generated(TI.add(ti, H_checksum_status, 2))
+        if shown then ti_gen(ti_add(ti, H_checksum_status, 2))
         else hitem(ti, H_checksum_status, 2) end
-        if terminated and not C.malformed_msg then TI.add_proto_expert_info(ti, ei.checksum_missing) end
+        if terminated and not C.malformed_msg then ti_expert(ti, ei.checksum_missing) end
     end
     -- line terminator
     local b = a + fl - 1
-    if terminated and crlf_frames
-        and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
-        TI.add_proto_expert_info(ti, ei.crlf_missing)
+    if terminated and crlf_frames then
+        local c1, c2 = nil, nil
+        if e == b + 2 then c1, c2 = s_byte(s, b + 1, b + 2) end   -- (one call: speed trick, measured)
+        if c1 ~= B_CR or c2 ~= B_LF then ti_expert(ti, ei.crlf_missing) end
     end
 end
 
@@ -863,6 +878,7 @@ end
 -- starts again with each pass).  Called by dissect_frame; what the parts share goes in the c_ upvalues.
 local function tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, visited, kind,
                           dstb, srcb, list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
+    if not ti_bound then bind_ti() end
     REF = mode == NONE and NO_REF or LEARNT
     c_shown = mode == SHOWN
     if c_shown then ref_break() end
