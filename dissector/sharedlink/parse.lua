@@ -14,7 +14,7 @@ local ARROW, CTRL, LETTER, B_PIPE, B_A, B_P = U.ARROW, U.CTRL, U.LETTER, U.B_PIP
 local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = U.L_N, U.L_T, U.L_Q, U.L_R, U.L_D, U.L_C, U.L_L,
     U.L_E, U.L_M, U.L_P, U.L_G
 local valid_type, byte_sum, str_sum, checksum_value = U.valid_type, U.byte_sum, U.str_sum, U.checksum_value
-local HEXV, INFO_MAX = U.HEXV, U.INFO_MAX
+local INFO_MAX = U.INFO_MAX
 local to_ordinal, pat_escape = U.to_ordinal, U.pat_escape
 local HUGE_INDEX = 4294967295   -- the largest index the uint32 sharedlink.var.index holds
 
@@ -288,7 +288,7 @@ local CHECKSUM = "|C([^]|[]*)%](\r?\n?)"
 -- (a tail call: the entry tries the layout that matched the same length last first).
 local parse_frame, fill_code   -- (below)
 local HIT_ENV = { "sh", "VV", "VT", "VN", "VI", "VR", "P", "SUM_OF", "s_byte", "byte_sum", "s_match", "s_find",
-    "HEXV", "UHEXV", "checksum_value", "positional_empty", "fast_positions", "parse_frame", "MARKS", "CARRIED_TAIL",
+    "UHEXV", "checksum_value", "positional_empty", "fast_positions", "parse_frame", "MARKS", "CARRIED_TAIL",
     "NO_PIECE" }
 -- The checksum part of the hit code: the values' sum (unless the checksum is not validated: the
 -- preference's value is a constant of the code, which Pm.reset drops when it changes) and the
@@ -342,8 +342,8 @@ local function hit_code(sh)
         "if vis then fast_positions(sh) end " ..
         -- (quiet, a layout with no possible expert: a good upper-case checksum adds none)
         (sh.quiet and "local cs_val, quiet = UHEXV[ctext], true " ..
-            "if not cs_val then cs_val, quiet = HEXV[ctext] or checksum_value(ctext), false end "
-            or "local cs_val, quiet = HEXV[ctext] or checksum_value(ctext), false ") ..
+            "if not cs_val then cs_val, quiet = checksum_value(ctext), false end "
+            or "local cs_val, quiet = UHEXV[ctext] or checksum_value(ctext), false ") ..
         verdict_code(sh, n, ret, full)
 end
 
@@ -443,7 +443,7 @@ local function layout_hit(sh)
         "local hit = " .. hit_code(sh) .. " " ..
         (sh.named and sh.n > 0 and "return hit, store, piece, first_piece" or "return hit")
     sh.hit, sh.store, sh.piece, sh.first_piece = assert(load(code, "=layout_hit", "t", {}))(sh, VV, VT, VN, VI, VR,
-        P, U.SUM_OF, s_byte, byte_sum, s_match, s_find, HEXV, U.UHEXV, checksum_value, positional_empty,
+        P, U.SUM_OF, s_byte, byte_sum, s_match, s_find, U.UHEXV, checksum_value, positional_empty,
         fast_positions, parse_frame, MARKS, U.CARRIED_TAIL, NO_PIECE)
     return sh.hit
 end

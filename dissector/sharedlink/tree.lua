@@ -8,7 +8,7 @@ local token, M = ...
 if type(token) ~= "table" or token.sharedlink_module ~= true then return end
 
 local U, cfg, wsapi, hf = M.util, M.prefs, M.wsapi, M.fields.hf
-local UHEX = U.UHEX
+local UHEX = U.UHEXV   -- (two upper-case hex digits -> their value)
 local ei, sl, s_byte, s_sub = M.fields.ei, M.proto, string.byte, string.sub
 -- (the rarely used ones, string.format, tostring, U.ARROW, U.nstime_of, U.zrange, read where used:
 -- the main chunk keeps under 150 locals)
