@@ -119,12 +119,15 @@ function U.nstime_of(d)
     return NSTime.new(secs, ns)
 end
 
--- byte -> its letter as the tree and Info show it (a control byte as \xNN; no byte: "?")
-local LETTER = setmetatable({}, { __index = function() return "?" end })   -- nil (cut short): "?"
+-- byte -> its letter as the tree and Info show it (a control byte as \xNN; no byte: "?"), made
+-- on first use (a capture uses a few: less live heap, which the collector walks)
+local LETTER = setmetatable({}, { __index = function(t, b)
+    if b == nil then return "?" end   -- (cut short)
+    local l = (b >= 32 and b <= 126) and string.char(b) or s_format("\\x%02x", b)
+    rawset(t, b, l)
+    return l
+end })
 U.LETTER = LETTER
-for b = 0, 255 do
-    if b >= 32 and b <= 126 then LETTER[b] = string.char(b) else LETTER[b] = s_format("\\x%02x", b) end
-end
 
 -- A T field's text as its type number (0-255), nil when it is not one.  Speed trick
 -- (measured, -V): the texts seen are remembered (a few distinct ones a capture, up to 256).
