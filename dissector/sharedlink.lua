@@ -232,11 +232,12 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
         info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n)
     end
 
-    local crlf = e == a + fl + 1   -- CR LF after its ']' (line_end)
-    -- whether CR LF frames the packet's bytes (sharedlink.crlf.missing is noted only then), told
-    -- the tree module before each frame that lacks one.  Speed trick (measured): pinfo.port_type
-    -- is a call into wslua's __index, read only then
-    if not crlf then tell_crlf(pinfo, terminated) end
+    -- CR LF after its ']' (line_end)?  Whether CR LF frames the packet's bytes
+    -- (sharedlink.crlf.missing is noted only then) is told the tree module before each frame
+    -- that lacks one.  Speed trick (measured): pinfo.port_type is a call into wslua's __index,
+    -- read only then
+    local crlf = true
+    if e ~= a + fl + 1 then crlf = false; tell_crlf(pinfo, terminated) end
     -- Tree: shown, hidden (nobody sees it) or none (tshark's summary pass: built only for a frame
     -- with expert infos, on root, where only the experts stay); one builder (tree.lua)
     local mode
