@@ -282,8 +282,8 @@ local CHECKSUM = "|C([^]|[]*)%](\r?\n?)"
 -- pass), a string padded past Lua's 40 bytes for interned strings (sh.npad bytes of "\0" after the
 -- values of the frame that taught the layout, LONG in all): Lua makes it without hashing it into
 -- its string table, which a short string new each frame fills (-1.7 thousand instructions a
--- frame, time -2.7 %, summary pass).  The pattern takes the line end after the ']' (CR LF, CR, LF or "", as the entry's
--- line_end: no string.byte call).  sh.hit(f, fl, terminated, vis, payload, try) returns what
+-- frame, time -2.7 %, summary pass).  The pattern takes the line end after the ']' (CR LF, CR,
+-- LF or "", as the entry's line_end: no string.byte call).  sh.hit(f, fl, terminated, vis, payload, try) returns what
 -- parse_frame returns; when f does not have the layout, nil with try, else parse_frame's answer
 -- (a tail call: the entry tries the layout that matched the same length last first).
 local parse_frame, fill_code   -- (below)
@@ -433,15 +433,16 @@ local function positional_empty(n)
 end
 
 -- A layout's code, made on its first match: its hit code (hit_code) in sh.hit and, for a named
--- layout, its store and Info code (named_code) in sh.store, sh.info and sh.dinfo, one chunk.
+-- layout (at least one value), its store and Info code (named_code) in sh.store, sh.piece and
+-- sh.first_piece, one chunk.
 local function layout_hit(sh)
     local ups = {}
     for k = 1, sh.n do ups[k] = "u" .. k end
     local code = "local " .. t_concat(HIT_ENV, ", ") .. " = ... " ..
         "local HEAD, PAT, AT, PAD = sh.head, sh.pat, sh.at, sh.pad " ..
-        (sh.named and sh.n > 0 and ("local uvlen, " .. t_concat(ups, ", ") .. " " .. named_code(sh)) or "") ..
+        (sh.named and ("local uvlen, " .. t_concat(ups, ", ") .. " " .. named_code(sh)) or "") ..
         "local hit = " .. hit_code(sh) .. " " ..
-        (sh.named and sh.n > 0 and "return hit, store, piece, first_piece" or "return hit")
+        (sh.named and "return hit, store, piece, first_piece" or "return hit")
     sh.hit, sh.store, sh.piece, sh.first_piece = assert(load(code, "=layout_hit", "t", {}))(sh, VV, VT, VN, VI, VR,
         P, U.SUM_OF, s_byte, byte_sum, s_match, s_find, U.UHEXV, checksum_value, positional_empty,
         fast_positions, parse_frame, MARKS, U.CARRIED_TAIL, NO_PIECE)

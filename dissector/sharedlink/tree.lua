@@ -8,7 +8,7 @@ local token, M = ...
 if type(token) ~= "table" or token.sharedlink_module ~= true then return end
 
 local U, cfg, wsapi, hf = M.util, M.prefs, M.wsapi, M.fields.hf
-local UHEX = U.UHEXV   -- (two upper-case hex digits -> their value)
+local UHEXV = U.UHEXV   -- (two upper-case hex digits -> their value)
 local ei, sl, s_byte, s_sub = M.fields.ei, M.proto, string.byte, string.sub
 -- (the rarely used ones, string.format, tostring, U.ARROW, U.nstime_of, U.zrange, read where used:
 -- the main chunk keeps under 150 locals)
@@ -792,7 +792,7 @@ local function shown_checksum(cpos, ctext)
     else
         ct = ti_add(ti, hf.checksum_text, cr, ctext)
     end
-    if not UHEX[ctext] then
+    if not UHEXV[ctext] then
         ti_expert(ct, ei.checksum_format,
             "Checksum \"" .. ctext .. "\" is not two upper-case hex digits")
     end
@@ -822,7 +822,7 @@ local function hidden_checksum(ctext)
     elseif REF[hf.checksum_text] ~= false then
         ct = hadd(ti, hf.checksum_text, ctext)
     end
-    if not UHEX[ctext] then
+    if not UHEXV[ctext] then
         ti_expert(ct or ti, ei.checksum_format,
             "Checksum \"" .. ctext .. "\" is not two upper-case hex digits")
     end
@@ -913,7 +913,7 @@ local function has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kin
     if malformed_msg or not addrs_ok or P.odd or cs_status == 0 or not P.cpos then return true end
     if rec and (rec.limit or rec.late or rec.unmatched) then return true end
     local ctext = P.ctext
-    if not UHEX[ctext] then return true end   -- not two upper-case hex digits
+    if not UHEXV[ctext] then return true end   -- not two upper-case hex digits
     local b = a + fl - 1
     if terminated and crlf_frames and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
         return true
