@@ -302,8 +302,12 @@ def test_query_cli_formats(dataset):
     assert [(d["pair"], d["frames"]) for d in json.loads(r.stdout)] == want
     r = subprocess.run([*CLI, "query", str(dataset), sql, "--format", "csv"], capture_output=True, text=True, timeout=120)
     assert r.stdout.splitlines() == ["pair,frames"] + [f"{a},{b}" for a, b in want]
+    csv_text = r.stdout
     r = subprocess.run([*CLI, "query", str(dataset), sql], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0 and "C>A" in r.stdout and f"{len(want)} row" in r.stdout
+    assert r.returncode == 0 and r.stdout == csv_text  # on a pipe: CSV
+    r = subprocess.run([*CLI, "query", str(dataset), sql, "--format", "table"], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0 and "C>A" in r.stdout and f"({len(want)} row" in r.stdout
 
 
 def test_query_bad_input(dataset, tmp_path):

@@ -16,7 +16,7 @@ LAYERS = [
     {"protocols"},
     {"capture"},
     {"generators"},
-    {"analysis"},
+    {"analysis", "present"},
     {"replay", "extcap", "wireshark", "plugins", "scapy_layer", "fleet", "watch", "foxglove_server"},
     {"commands"},
     {"cli", "__main__"},

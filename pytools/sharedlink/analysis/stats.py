@@ -34,6 +34,9 @@ from sharedlink.analysis.malformed import PIECE, other_protocol, talk_key, unfra
 from sharedlink.capture.pcapio import CaptureError
 from sharedlink.capture.serial_format import GIVEN_UP
 from sharedlink.capture.stream import StreamFrame
+from sharedlink.present import COUNT, DURATION, PROSE, REAL, VALUE, Column, Table, plain
+from sharedlink.present import formats as fmt
+from sharedlink.present.formats import one_line as one_line  # (its home is present: tables escape every cell)
 from sharedlink.protocols.codec import TYPE_DOUBLE, guess_value, typed_value
 from sharedlink.protocols.limits import LimitCounts
 from sharedlink.protocols.state import BEACON_VARIABLES, Update, VariableTable
@@ -499,87 +502,54 @@ def capture_stats(
 _NO_VALUES = VariableTable()
 
 
-_ESCAPES = {"\r": "\\r", "\n": "\\n", "\t": "\\t", "\\": "\\\\"}
-_CONTROL = re.compile(r"[\x00-\x1f\x7f\\]")
-
-
-def one_line(text: str) -> str:
-    """A value on one table row, as the packet details and the tap's report show it: CR, LF, TAB
-    and a backslash escaped (``\\r``, ``\\n``, ``\\t``, ``\\\\``), any other control
-    character as ``\\xhh``."""
-    return _CONTROL.sub(lambda m: _ESCAPES.get(m.group(), "\\x%02x" % ord(m.group())), text)
-
-
-def tables(st: CaptureStats) -> list[tuple[str, list[str], list[list[str]]]]:
-    """The statistics as (title, headers, rows) tables, for terminals and plain text."""
-
-    def num(x: float | None, fmt: str = "%.6g") -> str:
-        return "" if x is None else fmt % x
-
-    def whole(x: float | None) -> str:  # as --json has it: every digit
-        return "" if x is None else repr(x)
-
+def tables(st: CaptureStats) -> list[Table]:
+    """The statistics as :class:`~sharedlink.present.Table` s (raw values, one format per
+    kind: :mod:`sharedlink.present.formats`), for terminals and plain text."""
     ratio = st.compression_ratio
-    summary = [
-        ["frames", str(st.frames)],
-        ["bytes", str(st.bytes)],
-        ["duration", "%.3f s" % st.duration_s],
-        ["rate", num(st.rate_hz, "%.3f Hz")],
-        ["checksum failures", str(st.checksum_failures)],
-        ["no checksum", str(st.checksum_missing)],
-        ["sync late frames", str(st.sync_late)],
-        ["sync gaps (> %.3g s)" % (st.sync_interval + SYNC_SLACK_S), str(st.sync_gaps)],
+    summary = Table(f"SharedLink statistics: {st.path}", [Column("", PROSE), Column("", VALUE)], header=False)
+    for row in (
+        ["frames", fmt.count(st.frames)],
+        ["bytes", fmt.count(st.bytes)],
+        ["first frame", fmt.timestamp(st.first_ns)],
+        ["last frame", fmt.timestamp(st.last_ns)],
+        ["duration", fmt.duration(st.duration_s)],
+        ["rate", "" if st.rate_hz is None else f"{fmt.real(st.rate_hz)} Hz"],
+        ["checksum failures", fmt.count(st.checksum_failures)],
+        ["no checksum", fmt.count(st.checksum_missing)],
+        ["sync late frames", fmt.count(st.sync_late)],
+        ["sync gaps (> %s)" % fmt.duration(st.sync_interval + SYNC_SLACK_S), fmt.count(st.sync_gaps)],
         ["compression ratio", "" if ratio is None else "%.3f (%.1f %% saved)" % (ratio, 100 * (1 - ratio))],
-        ["noise", "%d segments, %d bytes" % (st.noise_segments, st.noise_bytes)],
-        ["other records", str(st.other_records)],
-    ]
+        ["noise", f"{fmt.count(st.noise_segments)} segments, {fmt.count(st.noise_bytes)} bytes"],
+        ["other records", fmt.count(st.other_records)],
+    ):
+        summary.add(*row)
     for name, (n, b) in sorted(st.other_protocols.items()):
-        summary.append([f"{name} (not SharedLink)", "%d segments, %d bytes" % (n, b)])
+        summary.add(f"{name} (not SharedLink)", f"{fmt.count(n)} segments, {fmt.count(b)} bytes")
     if st.limits.total:
-        summary.append(["dropped at limits", ", ".join(f"{k} {n}" for k, n in st.limits.to_dict().items() if n)])
-    kinds = [[k, str(n)] for k, n in sorted(st.kinds.items())]
-    pairs = [
-        [
-            p.pair,
-            str(p.frames),
-            str(p.bytes),
-            num(p.rate_hz, "%.3f"),
-            " ".join(f"{k}={n}" for k, n in sorted(p.kinds.items())),
-            str(p.checksum_failures),
-            str(p.sync_late),
-            str(p.sync_gaps),
-            num(p.max_sync_gap_s, "%.3f"),
-        ]
-        for _, p in sorted(st.pairs.items())
-    ]
-    variables = [
-        [v.pair, v.name, str(v.count), str(v.changes), whole(v.min), whole(v.max), one_line(v.last or "")]
-        for _, v in sorted(st.variables.items())
-    ]
-    return [
-        (f"SharedLink statistics: {st.path}", ["", ""], summary),
-        ("Frames per kind", ["kind", "frames"], kinds),
-        (
-            "Frames per node pair",
-            ["pair", "frames", "bytes", "rate Hz", "kinds", "bad checksum", "sync late", "sync gaps", "max gap s"],
-            pairs,
-        ),
-        ("Variables", ["pair", "name", "count", "changes", "min", "max", "last"], variables),
-    ]
+        summary.add("dropped at limits", ", ".join(f"{k} {fmt.count(n)}" for k, n in st.limits.to_dict().items() if n))
+    kinds = Table("Frames per kind", [Column("kind"), Column("frames", COUNT)])
+    for k, n in sorted(st.kinds.items()):
+        kinds.add(k, n)
+    pairs = Table("Frames per node pair", [
+        Column("pair"), Column("frames", COUNT), Column("bytes", COUNT, drop=3), Column("rate Hz", REAL, drop=4),
+        Column("kinds", PROSE, drop=5), Column("bad checksum", COUNT), Column("sync late", COUNT, drop=1),
+        Column("sync gaps", COUNT, drop=2), Column("max gap", DURATION, drop=0)], more="--json has every column")
+    for _, p in sorted(st.pairs.items()):
+        pairs.add(p.pair, p.frames, p.bytes, p.rate_hz, " ".join(f"{k}={fmt.count(n)}" for k, n in sorted(p.kinds.items())),
+                  p.checksum_failures, p.sync_late, p.sync_gaps, p.max_sync_gap_s)
+    variables = Table("Variables", [
+        Column("pair", drop=3), Column("name"), Column("count", COUNT), Column("changes", COUNT, drop=1),
+        Column("min", VALUE), Column("max", VALUE), Column("last", cut=True, drop=2)], more="--json has every column")
+    for _, v in sorted(st.variables.items()):
+        integral = None if v.type_code is None else v.type_code != TYPE_DOUBLE
+        variables.add(v.pair, v.name, v.count, v.changes, fmt.value(v.min, integral), fmt.value(v.max, integral),
+                      v.last or "")  # (control characters escaped as every table cell)
+    return [summary, kinds, pairs, variables]
 
 
 def render_text(st: CaptureStats) -> str:
-    """Plain aligned text of :func:`tables`."""
-    out: list[str] = []
-    for title, headers, rows in tables(st):
-        out.append(title)
-        grid = ([headers] if any(headers) else []) + rows
-        if not grid:
-            out.append("  (none)")
-        widths = [max(len(r[i]) for r in grid) for i in range(len(grid[0]))] if grid else []
-        for r in grid:
-            out.append("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
-        out.append("")
+    """Plain aligned text of :func:`tables` (what ``stats`` prints on a pipe)."""
+    out = "\n".join(plain(t) for t in tables(st))
     if st.error:
-        out.append(f"capture damaged: {st.error}")
-    return "\n".join(out).rstrip() + "\n"
+        out += f"\ncapture damaged: {st.error}\n"
+    return out

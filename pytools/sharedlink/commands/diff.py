@@ -19,7 +19,6 @@ from sharedlink.commands import (
     add_json_option,
     add_variables_option,
     capture_input,
-    fit_table,
     number,
     variables_option,
     warn_empty,
@@ -123,9 +122,11 @@ def _saving(x: float | None, what: str, short: bool = False) -> str:
 
 
 def _rel(ns: int | None, side: SideStats) -> str:
+    from sharedlink.present import duration
+
     if ns is None:
         return "-"
-    return f"{(ns - (side.start_ns or ns)) / 1e9:.3f} s"
+    return duration((ns - (side.start_ns or ns)) / 1e9)
 
 
 def _value(v: str | None) -> str:
@@ -204,14 +205,31 @@ def _verdict(r: DiffReport) -> str:
     return "DIVERGE: " + ", ".join(what)
 
 
+def _tables(r: DiffReport) -> tuple:
+    """The captures side by side and the variables, as sharedlink.present tables."""
+    from sharedlink.present import COUNT, PROSE, VALUE, Column, Table
+
+    caps = Table("captures", [Column("", PROSE), Column("A", VALUE), Column("B", VALUE)])
+    for row in _capture_rows(r, split=True)[1:]:
+        caps.add(*row)
+    vt = Table("variables", [Column("stream", drop=3), Column("name"), Column("type", drop=0),
+                             Column("samples", COUNT), Column("mismatches", COUNT),
+                             Column("first divergence", PROSE, drop=2), Column("worst staleness", PROSE, drop=1)],
+               more="--json has every column")
+    for v in r.variables:
+        vt.add(v.stream, v.name if v.present == "both" else f"{v.name} (only {v.present.upper()})",
+               TYPE_NAMES.get(v.type, "?") if v.type is not None else "?", v.samples, v.mismatches,
+               _divergence(v.first_divergence, r), _staleness(v.worst_staleness), style=None if v.agree else "red")
+    return caps, vt
+
+
 def print_plain(r: DiffReport) -> None:
-    rows = _capture_rows(r)
-    w0 = max(len(x[0]) for x in rows)
-    w1 = max(len(x[1]) for x in rows)
-    print(f"{'':<{w0}}  {'A':<{w1}}  B")
-    for label, a, b in rows:
-        print(f"{label:<{w0}}  {a:<{w1}}  {b}")
-    print()
+    from sharedlink.present import plain
+
+    print(f"A: {r.a.path}\nB: {r.b.path}")
+    caps, _ = _tables(r)
+    caps.title = ""
+    print(plain(caps))
     for line in _summary_lines(r):
         print(line)
     print()
@@ -231,21 +249,13 @@ def print_plain(r: DiffReport) -> None:
 def print_rich(r: DiffReport) -> None:
     from rich.console import Console
 
+    from sharedlink.present import print_fitted
+
     con = Console()
-    caps = fit_table("captures", ["", "A", "B"], [list(x) for x in _capture_rows(r, split=True)[1:]], con.width,
-                     wrap=(0,))
-    rows = [[v.stream, v.name if v.present == "both" else f"{v.name} (only {v.present.upper()})",
-             TYPE_NAMES.get(v.type, "?") if v.type is not None else "?", f"{v.samples:,}", f"{v.mismatches:,}",
-             _divergence(v.first_divergence, r), _staleness(v.worst_staleness)] for v in r.variables]
-    vt = fit_table("variables", ["stream", "name", "type", "samples", "mismatches", "first divergence", "worst staleness"],
-                   rows, con.width, wrap=(5, 6), drop=(2, 6, 5, 0), right=(3, 4),
-                   styles=[None if v.agree else "red" for v in r.variables])
-    if caps is None or vt is None:  # too narrow for tables: plain lines, which the terminal wraps
-        print_plain(r)
-        return
+    caps, vt = _tables(r)
     con.print(f"A: {r.a.path}\nB: {r.b.path}", highlight=False)  # paths wrap as text, outside the table
-    con.print(caps)
+    print_fitted(con, caps)
     for line in _summary_lines(r):
         con.print(line, highlight=False)
-    con.print(vt)
+    print_fitted(con, vt)
     con.print(_verdict(r), style="bold green" if r.agree else "bold red", highlight=False)

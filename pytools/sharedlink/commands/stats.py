@@ -16,7 +16,6 @@ from sharedlink.commands import (
     add_json_option,
     capture_input,
     decode_options,
-    fit_table,
     warn_empty,
 )
 
@@ -59,29 +58,9 @@ def run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-#: per table (by its headers' count): columns that wrap, columns left out first, right-aligned numbers
-_LAYOUT: dict[int, dict] = {
-    2: dict(wrap=(0,), drop=(), right=()),  # the summary, frames per kind
-    9: dict(wrap=(4,), drop=(4, 8, 7, 6, 3), right=(1, 2, 3, 5, 6, 7, 8)),  # per node pair
-    7: dict(wrap=(), drop=(6, 3, 0, 2), right=(2, 3, 4, 5)),  # variables
-}
-
-
 def _rich(st) -> None:
-    """The tables on a terminal, fitted to its width (numbers never cut); plain text when a
-    table cannot fit even with columns left out."""
-    from rich.console import Console
-
+    """The tables on a terminal, fitted to its width (sharedlink.present)."""
     from sharedlink.analysis.stats import tables
+    from sharedlink.present import show
 
-    console = Console()
-    for title, headers, rows in tables(st):
-        t = fit_table(title, headers, rows, console.width, **_LAYOUT.get(len(headers), {}))
-        if t is None:
-            grid = ([headers] if any(headers) else []) + rows
-            widths = [max(len(r[i]) for r in grid) for i in range(len(headers))]
-            console.print(title, highlight=False)
-            for r in grid:
-                console.print("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip(), highlight=False, soft_wrap=True)
-        else:
-            console.print(t)
+    show(tables(st), terminal=True)

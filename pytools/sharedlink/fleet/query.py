@@ -28,7 +28,7 @@ import json
 import os
 import threading
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -153,20 +153,38 @@ def _single_select(con: Any, sql: str) -> bool:
 class QueryResult:
     columns: list[str]
     batches: Iterator[list[tuple]]  # rows, FETCH_ROWS at a time
+    types: list[str] = field(default_factory=list)  # DuckDB's type of each column
+    ns_times: frozenset[int] = frozenset()  # columns whose values are ns since 1970 (TIMESTAMP_NS, UTC)
 
     def rows(self) -> Iterator[tuple]:
+        """The rows, the ``ns_times`` columns as ns since 1970 (ints)."""
         for batch in self.batches:
             yield from batch
 
+    def plain_rows(self) -> Iterator[list[Any]]:
+        """The rows as JSON has them (:func:`plain`; times as UTC text with nanoseconds)."""
+        from sharedlink.present import timestamp
 
-def run_query(root: str | Path, sql: str) -> QueryResult:
-    """Run ``sql`` over the dataset at ``root``; UsageError for a bad dataset or statement."""
+        times = self.ns_times
+        for row in self.rows():
+            yield [timestamp(x) if i in times and x is not None else plain(x) for i, x in enumerate(row)]
+
+
+def run_query(root: str | Path, sql: str, ns_times: bool = False) -> QueryResult:
+    """Run ``sql`` over the dataset at ``root``; UsageError for a bad dataset or statement.
+    ``ns_times``: a single SELECT's TIMESTAMP_NS columns come as ns since 1970 (ints, their
+    indices in ``QueryResult.ns_times``), not as datetimes to the microsecond (what the command
+    prints: every digit)."""
     import duckdb
 
     root = Path(root)
     kept = _snapshot(root)
-    con = kept.cursor() if _single_select(kept, sql) else _database(root, require_dataset(root))
+    single = _single_select(kept, sql)
+    con = kept.cursor() if single else _database(root, require_dataset(root))
+    described: list[tuple[str, str]] | None = None
     try:
+        if single and ns_times:
+            sql, described = _with_ns_times(con, sql)
         cur = con.execute(sql)
     except duckdb.Error as exc:
         con.close()
@@ -184,13 +202,41 @@ def run_query(root: str | Path, sql: str) -> QueryResult:
         finally:
             con.close()
 
-    return QueryResult([d[0] for d in cur.description], batches())
+    if described is None:
+        return QueryResult([d[0] for d in cur.description], batches(), [str(d[1]) for d in cur.description])
+    # (the wrapped query's names are its expressions': the statement's own, as described)
+    return QueryResult([c for c, _ in described], batches(), [t for _, t in described],
+                       frozenset(i for i, (_, t) in enumerate(described) if t == "TIMESTAMP_NS"))
+
+
+def _with_ns_times(con: Any, sql: str) -> tuple[str, list[tuple[str, str]] | None]:
+    """A SELECT with a TIMESTAMP_NS column, which DuckDB gives Python as a datetime (to the
+    microsecond), wrapped so that those columns come as ns since 1970 (``epoch_ns``), the
+    others as they are: (the statement to run, the names and types of the statement's columns);
+    (``sql``, None) when it has no such column."""
+    import duckdb
+
+    described = [(str(r[0]), str(r[1])) for r in con.execute("DESCRIBE " + sql).fetchall()]
+    if not any(t == "TIMESTAMP_NS" for _, t in described):
+        return sql, None
+    body = sql
+    tokens = duckdb.tokenize(sql)
+    real = [(pos, kind) for pos, kind in tokens if kind != duckdb.token_type.comment]
+    if real and sql[real[-1][0]] == ";":  # (the statement's own end: the subquery has none)
+        body = sql[: real[-1][0]]
+    cols = ", ".join(f"epoch_ns(#{i + 1})" if t == "TIMESTAMP_NS" else f"#{i + 1}" for i, (_, t) in enumerate(described))
+    return f"SELECT {cols} FROM ({body}\n) AS _sharedlink_q", described
 
 
 def plain(x: Any) -> Any:
-    """A DuckDB value as JSON has it: numbers, strings, booleans, null; times in ISO 8601."""
+    """A DuckDB value as JSON has it: numbers, strings, booleans, null; times in ISO 8601
+    (timestamps UTC with nanoseconds, sharedlink.present.timestamp)."""
     if x is None or isinstance(x, (bool, int, float, str)):
         return x
+    if isinstance(x, _dt.datetime):
+        from sharedlink.present import timestamp
+
+        return timestamp(x)
     if isinstance(x, (bytes, bytearray, memoryview)):
         return bytes(x).decode("latin-1")
     if isinstance(x, (_dt.datetime, _dt.date, _dt.time)):
@@ -219,9 +265,9 @@ def write_csv(result: QueryResult, out: TextIO) -> int:
     w = csv.writer(out, lineterminator="\n")
     w.writerow(result.columns)
     n = 0
-    for batch in result.batches:
-        w.writerows([text(x) for x in row] for row in batch)
-        n += len(batch)
+    for row in result.plain_rows():
+        w.writerow(text(x) for x in row)
+        n += 1
     return n
 
 
@@ -229,9 +275,9 @@ def write_json(result: QueryResult, out: TextIO) -> int:
     """A JSON array of objects, one per row (written as rows come); the number of rows."""
     n = 0
     out.write("[")
-    for row in result.rows():
+    for row in result.plain_rows():
         out.write(",\n " if n else "\n ")
-        out.write(json.dumps(dict(zip(result.columns, (plain(x) for x in row)))))
+        out.write(json.dumps(dict(zip(result.columns, row))))
         n += 1
     out.write("\n]\n" if n else "]\n")
     return n
