@@ -1,37 +1,60 @@
 """Plots: a capture's GPS track and its variables over time, as one PNG (matplotlib, headless).
 
-:func:`collect` reads the capture once (streaming; long series are thinned to about
+:func:`collect` reads the capture once (streaming, through the decoding core's columns mode:
+no per-frame object for the frames its fast path takes; long series are thinned to about
 ``max_points`` points each, so memory stays bounded) into :class:`PlotData`;
 :func:`build_figure` draws it and returns the matplotlib :class:`~matplotlib.figure.Figure`
-(the top panel is the track, then one panel per variable: ``1 + len(variables)`` axes besides
-the speed colour bar); :func:`plot_capture` does both and writes the file.
+(the top panel is the track, then one panel per variable, then the events strip:
+``2 + len(variables)`` axes besides the speed colour bar); :func:`plot_capture` does both and
+writes the file.
 
-The track panel: latitude/longitude of every direction that carries a position, points
-coloured by speed (viridis), start and end marked, gaps (no frame for longer than
-``gap_factor`` times the usual period) and frames with a bad checksum marked where the
-vehicle was then. The variable panels share the time axis (seconds since the first frame)
-and show the same gaps (shaded) and checksum failures (red lines).
+What people read (issue 41):
+
+* the track panel: latitude/longitude of every direction that carries a position, points
+  coloured by speed (viridis), start and end marked, dropped frames (no frame for longer than
+  ``gap_factor`` times the usual period) and frames with a bad checksum marked where the vehicle
+  was then: every one up to :data:`MAX_MARKERS`, beyond that an even sample of that many,
+  smaller and translucent (the legend says how many there are and how many are drawn);
+* the variable panels share the time axis: clock time (UTC) by default, time since the first
+  frame with ``elapsed=True`` (in s, min or h as the capture's length asks); the y axes carry the
+  variable's unit when :mod:`sharedlink.protocols.units` knows it; a dropped-frame stretch is
+  shaded and a bad checksum a thin line only while there are at most :data:`MAX_MARKERS` of
+  them, beyond that the events strip alone shows them;
+* the events strip (the last panel): dropped frames and bad checksums counted per time bin
+  (:data:`EVENT_BINS` bins), so a faulty capture reads as a rate, never as a wall of red;
+* one legend, for the whole figure: the node pairs' colours (the same in every panel), start
+  and end, the markers.
 """
 
 from __future__ import annotations
 
 import math
+from array import array
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sharedlink.analysis.decode import NS, Decoded, iter_decoded
+from sharedlink.analysis.decode import NS, Columns, Decoded, Decoder, DirColumns
 from sharedlink.analysis.export import LAT, LON
 from sharedlink.capture.pcapio import CaptureError, display_name
 from sharedlink.protocols.codec import guess_value, typed_value
 from sharedlink.protocols.state import BEACON_VARIABLES
+from sharedlink.protocols.units import label as unit_label
+from sharedlink.protocols.units import unit_of
 
 SPEED = "AutoGpsVel"
 TRACK_CMAP = "viridis"
-#: panels beyond this many variables are not drawn (use --vars)
+#: panels beyond this many variables are not drawn (use --select)
 MAX_PANELS = 12
-#: markers of each kind kept at most (beyond that, thinned)
+#: markers of each kind drawn one by one at most (beyond: an even sample of this many)
+MAX_MARKERS = 300
+#: markers of each kind kept while reading (a bounded even sample; MAX_MARKERS of them drawn)
 MAX_MARKS = 2000
+#: bins of the events strip
+EVENT_BINS = 200
+#: the events' colours
+DROPPED_COLOUR = "tab:orange"
+BAD_COLOUR = "tab:red"
 
 
 class Thinned:
@@ -59,6 +82,14 @@ class Thinned:
         return [list(c) for c in zip(*self.rows)]
 
 
+def sample(xs: Sequence, n: int) -> list:
+    """At most ``n`` of ``xs``, evenly spread (first and last kept)."""
+    if len(xs) <= n:
+        return list(xs)
+    step = (len(xs) - 1) / (n - 1)
+    return [xs[round(i * step)] for i in range(n)]
+
+
 @dataclass
 class PairTrack:
     pair: str
@@ -66,11 +97,34 @@ class PairTrack:
     start: tuple[float, float, float] | None = None  # (t, lon, lat)
     end: tuple[float, float, float] | None = None
     last_pos: tuple[float, float] | None = None
-    gaps: Thinned = field(default_factory=lambda: Thinned(MAX_MARKS))  # (t0, t1, lon, lat)
+    gaps: Thinned = field(default_factory=lambda: Thinned(MAX_MARKS))  # (t0, t1, lon, lat): dropped frames
     bad: Thinned = field(default_factory=lambda: Thinned(MAX_MARKS))  # (t, lon, lat)
+    gap_times: array = field(default_factory=lambda: array("d"))  # every stretch of dropped frames (its start)
+    bad_times: array = field(default_factory=lambda: array("d"))  # every bad checksum
+    dropped: int = 0  # frames missing in the stretches, about (each stretch's length / the usual period, less one)
     last_ts: int | None = None
     intervals: list[int] = field(default_factory=list)  # the first intervals, for the usual period
     period_ns: int | None = None
+    held: dict[str, tuple[int | None, str]] = field(default_factory=dict)  # the position's variables now
+
+    def interval(self, ts: int, t0_ns: int, gap_factor: float) -> None:
+        """A frame at ``ts``: a stretch of dropped frames when later than ``gap_factor`` periods."""
+        if self.last_ts is not None:
+            dt = ts - self.last_ts
+            if self.period_ns is None:
+                if dt > 0:
+                    self.intervals.append(dt)
+                if len(self.intervals) >= 50:
+                    self.period_ns = sorted(self.intervals)[len(self.intervals) // 2]
+                    self.intervals = []
+            period = self.period_ns or (sorted(self.intervals)[len(self.intervals) // 2] if self.intervals else None)
+            if period and dt > gap_factor * period:
+                lo_, la_ = self.last_pos or (math.nan, math.nan)
+                t_from = (self.last_ts - t0_ns) / NS
+                self.gaps.add(t_from, (ts - t0_ns) / NS, lo_, la_)
+                self.gap_times.append(t_from)
+                self.dropped += max(1, round(dt / period) - 1)
+        self.last_ts = ts
 
 
 @dataclass
@@ -91,11 +145,23 @@ class PlotData:
 
     @property
     def gaps(self) -> int:
+        """Stretches of dropped frames."""
         return sum(t.gaps.seen for t in self.tracks.values())
+
+    @property
+    def dropped_frames(self) -> int:
+        """Frames missing in those stretches, about."""
+        return sum(t.dropped for t in self.tracks.values())
 
     @property
     def checksum_failures(self) -> int:
         return sum(t.bad.seen for t in self.tracks.values())
+
+    def track(self, pair: str, max_points: int) -> PairTrack:
+        tr = self.tracks.get(pair)
+        if tr is None:
+            tr = self.tracks[pair] = PairTrack(pair, Thinned(max_points))
+        return tr
 
 
 def _number(type_code: int | None, text: str) -> float | None:
@@ -103,6 +169,15 @@ def _number(type_code: int | None, text: str) -> float | None:
     if isinstance(x, (int, float)) and math.isfinite(x):
         return float(x)
     return None
+
+
+@dataclass
+class _Names:
+    lat: str
+    lon: str
+    speed: str
+    max_points: int
+    gap_factor: float
 
 
 def collect(
@@ -119,10 +194,15 @@ def collect(
     """Read a capture into :class:`PlotData` (one streaming pass). Damage after the first
     record sets ``error``; a missing or unreadable file raises CaptureError."""
     data = PlotData(str(path), speed_var=speed)
+    names = _Names(lat, lon, speed, max_points, gap_factor)
+    dec = Decoder(variables, sync_interval, carried=False)  # a frame's own values; the tables hold the rest
     try:
-        for item in iter_decoded(path, variables, sync_interval, progress=progress):
-            if isinstance(item, Decoded):
-                _add(data, item, max_points, gap_factor, lat, lon, speed)
+        for item in dec.capture(path, progress, columns=True):
+            if isinstance(item, Columns):
+                for c in sorted(item.dirs.values(), key=lambda c: c.ts_ns[0] if c.ts_ns else 0):
+                    _add_columns(data, c, names)
+            elif isinstance(item, Decoded):
+                _add(data, item, names)
     except CaptureError as exc:
         if exc.record is None and data.frames == 0:
             raise
@@ -130,33 +210,24 @@ def collect(
     return data
 
 
-def _add(data: PlotData, d: Decoded, max_points: int, gap_factor: float, lat: str, lon: str, speed: str) -> None:
+def _start(data: PlotData, ts: int) -> None:
     if data.t0_ns is None:
-        data.t0_ns = d.ts_ns
+        data.t0_ns = ts
+
+
+def _add(data: PlotData, d: Decoded, names: _Names) -> None:
+    """A frame the reference path decoded (a bad checksum, a declaration, the first frames)."""
+    _start(data, d.ts_ns)
     data.frames += 1
-    t = (d.ts_ns - data.t0_ns) / NS
-    data.duration_s = t
+    t = (d.ts_ns - data.t0_ns) / NS  # type: ignore[operator]
+    data.duration_s = max(data.duration_s, t)
     pair = d.pair
-    tr = data.tracks.get(pair)
-    if tr is None:
-        tr = data.tracks[pair] = PairTrack(pair, Thinned(max_points))
-    # gaps: a frame later than gap_factor times the usual period (the median of the first 50)
-    if tr.last_ts is not None:
-        dt = d.ts_ns - tr.last_ts
-        if tr.period_ns is None:
-            if dt > 0:
-                tr.intervals.append(dt)
-            if len(tr.intervals) >= 50:
-                tr.period_ns = sorted(tr.intervals)[len(tr.intervals) // 2]
-                tr.intervals = []
-        period = tr.period_ns or (sorted(tr.intervals)[len(tr.intervals) // 2] if tr.intervals else None)
-        if period and dt > gap_factor * period:
-            lo_, la_ = tr.last_pos or (math.nan, math.nan)
-            tr.gaps.add((tr.last_ts - data.t0_ns) / NS, t, lo_, la_)
-    tr.last_ts = d.ts_ns
+    tr = data.track(pair, names.max_points)
+    tr.interval(d.ts_ns, data.t0_ns, names.gap_factor)  # type: ignore[arg-type]
     if d.checksum_ok is False:
         lo_, la_ = tr.last_pos or (math.nan, math.nan)
         tr.bad.add(t, lo_, la_)
+        tr.bad_times.append(t)
         return
     if not d.updates:
         return
@@ -164,32 +235,169 @@ def _add(data: PlotData, d: Decoded, max_points: int, gap_factor: float, lat: st
     for u in d.present():
         v = vars_.get(u.name)
         x = _number(v.type_code if v is not None else None, u.text or "")
-        if x is None:
-            continue
-        by_pair = data.series.setdefault(u.name, {})
-        s = by_pair.get(pair)
-        if s is None:
-            s = by_pair[pair] = Thinned(max_points)
-        s.add(t, x)
-    la, lo = vars_.get(lat), vars_.get(lon)
-    if la is None or lo is None or la.text is None or lo.text is None:
+        if x is not None:
+            _series(data, u.name, pair, names.max_points).add(t, x)
+    for name in (names.lat, names.lon, names.speed):
+        v = vars_.get(name)
+        if v is not None and v.text is not None:
+            tr.held[name] = (v.type_code, v.text)
+    _track_point(tr, t, names)
+    _finish(tr, t, names)
+
+
+def _series(data: PlotData, name: str, pair: str, max_points: int) -> Thinned:
+    by_pair = data.series.setdefault(name, {})
+    s = by_pair.get(pair)
+    if s is None:
+        s = by_pair[pair] = Thinned(max_points)
+    return s
+
+
+def _track_point(tr: PairTrack, t: float, names: _Names) -> None:
+    """The position after a frame, as a track point (thinned)."""
+    pts = tr.points
+    pts.seen += 1
+    if (pts.seen - 1) % pts.stride:
         return
-    y, x = _number(la.type_code, la.text), _number(lo.type_code, lo.text)
-    if y is None or x is None or not (-90 <= y <= 90 and -180 <= x <= 180):
+    pos = _position(tr, names)
+    if pos is None:
         return
-    sp = vars_.get(speed)
-    spd = _number(sp.type_code, sp.text) if sp is not None and sp.text is not None else None
-    tr.points.add(t, x, y, math.nan if spd is None else spd)
+    x, y, spd = pos
+    pts.rows.append((t, x, y, spd))
+    if len(pts.rows) >= 2 * pts.limit:
+        pts.rows = pts.rows[::2]
+        pts.stride *= 2
     tr.last_pos = (x, y)
     if tr.start is None:
         tr.start = (t, x, y)
     tr.end = (t, x, y)
 
 
-def build_figure(data: PlotData, variables: Sequence[str] | None = None, title: str | None = None):
-    """Draw :class:`PlotData`; returns the Figure (``1 + len(variables)`` panels, plus the
-    speed colour bar axes, labelled ``<colorbar>``). Unknown or non-numeric variables in
-    ``variables`` raise ValueError."""
+def _position(tr: PairTrack, names: _Names) -> tuple[float, float, float] | None:
+    la, lo = tr.held.get(names.lat), tr.held.get(names.lon)
+    if la is None or lo is None:
+        return None
+    y, x = _number(*la), _number(*lo)
+    if y is None or x is None or not (-90 <= y <= 90 and -180 <= x <= 180):
+        return None
+    sp = tr.held.get(names.speed)
+    spd = _number(*sp) if sp is not None else None
+    return x, y, math.nan if spd is None else spd
+
+
+def _add_columns(data: PlotData, c: DirColumns, names: _Names) -> None:
+    """A batch of one direction's frames the fast path took (good full or delta frames): their
+    values per row, thinned per series as they come (only the kept ones parsed)."""
+    if not c.ts_ns:
+        return
+    _start(data, c.ts_ns[0])
+    t0 = data.t0_ns
+    tr = data.track(c.pair, names.max_points)
+    pair = c.pair
+    data.frames += len(c.ts_ns)
+    data.duration_s = max(data.duration_s, (max(c.ts_ns) - t0) / NS)  # type: ignore[operator]
+    names_, texts, types = c.name, c.text, c.type_code
+    watched = {names.lat, names.lon, names.speed}
+    held = tr.held
+    by_name: dict[str, Thinned | None] = {}
+    interval = tr.interval
+    factor = names.gap_factor
+    k = 0
+    for ts, n in zip(c.ts_ns, c.nvalues):
+        interval(ts, t0, factor)  # type: ignore[arg-type]
+        if not n:
+            continue
+        t = (ts - t0) / NS  # type: ignore[operator]
+        for k in range(k, k + n):
+            name = names_[k]
+            s = by_name.get(name, False)
+            if s is False:
+                s = by_name[name] = data.series.get(name, {}).get(pair)
+            if s is None:  # not (yet) a numeric series: made at its first number
+                x = _number(types[k], texts[k])
+                if x is not None:
+                    s = by_name[name] = _series(data, name, pair, names.max_points)
+                    s.add(t, x)
+            else:
+                s.seen += 1
+                if not (s.seen - 1) % s.stride:
+                    x = _number(types[k], texts[k])
+                    if x is not None:
+                        s.rows.append((t, x))
+                        if len(s.rows) >= 2 * s.limit:
+                            s.rows = s.rows[::2]
+                            s.stride *= 2
+            if name in watched:
+                held[name] = (types[k], texts[k])
+        k += 1
+        _track_point(tr, t, names)
+    _finish(tr, (c.ts_ns[-1] - t0) / NS, names)  # type: ignore[operator]
+
+
+def _finish(tr: PairTrack, t: float, names: _Names) -> None:
+    """The end marker and the last position: where the direction is after its frame at ``t``
+    (its last frames may have been thinned away)."""
+    if tr.start is not None and (tr.end is None or tr.end[0] < t):
+        pos = _position(tr, names)
+        if pos is not None:
+            tr.end = (t, pos[0], pos[1])
+            tr.last_pos = (pos[0], pos[1])
+
+
+# -- drawing ---------------------------------------------------------------------------------------
+
+
+@dataclass
+class TimeAxis:
+    """How seconds since the first frame are drawn: clock time (matplotlib dates, UTC) or
+    elapsed time in s, min or h."""
+
+    elapsed: bool
+    t0_ns: int
+    scale: float  # divide seconds by this (elapsed), or seconds per day (clock)
+    label: str
+
+    @classmethod
+    def of(cls, data: PlotData, elapsed: bool) -> TimeAxis:
+        if elapsed or data.t0_ns is None:
+            d = data.duration_s
+            scale, unit = (1.0, "s") if d < 600 else (60.0, "min") if d < 36000 else (3600.0, "h")
+            return cls(True, data.t0_ns or 0, scale, f"time since the first frame ({unit})")
+        return cls(False, data.t0_ns, 86400.0, "time (UTC)")
+
+    def x(self, ts: Sequence[float]) -> list[float]:
+        if self.elapsed:
+            s = self.scale
+            return [t / s for t in ts]
+        base = self.t0_ns / NS / 86400.0  # matplotlib's dates: days since 1970-01-01 UTC
+        return [base + t / 86400.0 for t in ts]
+
+    def style(self, ax) -> None:
+        ax.set_xlabel(self.label)
+        if not self.elapsed:
+            import datetime as dt
+
+            import matplotlib.dates as mdates
+
+            loc = mdates.AutoDateLocator(tz=dt.timezone.utc)
+            ax.xaxis.set_major_locator(loc)
+            ax.xaxis.set_major_formatter(mdates.ConciseDateFormatter(loc, tz=dt.timezone.utc))
+
+
+def _title(data: PlotData, title: str | None) -> str:
+    from sharedlink.present import count, duration
+
+    label = title or display_name(Path(data.path).name)
+    return (f"{label}: {count(data.frames)} frames, {duration(data.duration_s)}, "
+            f"{count(data.dropped_frames)} dropped frames, {count(data.checksum_failures)} bad checksums")
+
+
+def build_figure(data: PlotData, variables: Sequence[str] | None = None, title: str | None = None,
+                 elapsed: bool = False):
+    """Draw :class:`PlotData`; returns the Figure (the track, a panel per variable and the
+    events strip, plus the speed colour bar axes, labelled ``<colorbar>``). Unknown or
+    non-numeric variables in ``variables`` raise ValueError. ``elapsed``: the time axis in
+    time since the first frame instead of clock time (UTC)."""
     from matplotlib.figure import Figure
 
     names = list(data.variables) if variables is None else list(variables)
@@ -199,33 +407,63 @@ def build_figure(data: PlotData, variables: Sequence[str] | None = None, title: 
         raise ValueError(f"no numeric values for {', '.join(unknown)} in {data.path} (variables: {have})")
     names = names[:MAX_PANELS]
     n = len(names)
-    fig = Figure(figsize=(10, 6 + 1.7 * n), dpi=100, layout="constrained")
-    gs = fig.add_gridspec(1 + n, 1, height_ratios=[4.5] + [1.5] * n)
+    fig = Figure(figsize=(10, 6.8 + 1.7 * n), dpi=100, layout="constrained")
+    gs = fig.add_gridspec(2 + n, 1, height_ratios=[4.5] + [1.5] * n + [0.8])
     ax = fig.add_subplot(gs[0])
+    colours = _pair_colours(data)
     _draw_track(fig, ax, data)
-    label = title or display_name(Path(data.path).name)
-    fig.suptitle(
-        f"{label}: {data.frames} frames, {data.duration_s:.1f} s, "
-        f"{data.gaps} gaps, {data.checksum_failures} checksum failures"
-    )
+    fig.suptitle(_title(data, title))
+    axis = TimeAxis.of(data, elapsed)
     first = None
     for i, name in enumerate(names):
         vax = fig.add_subplot(gs[1 + i], sharex=first)
         first = first or vax
-        _draw_series(vax, data, name)
-        if i < n - 1:
-            vax.tick_params(labelbottom=False)
-        else:
-            vax.set_xlabel("time since the first frame (s)")
+        _draw_series(vax, data, name, axis, colours)
+        vax.tick_params(labelbottom=False)
+    eax = fig.add_subplot(gs[1 + n], sharex=first)
+    eax.set_label("events")
+    _draw_events(eax, data, axis)
+    axis.style(eax)
+    _legend(fig, ax, colours)
     return fig
+
+
+def _pair_colours(data: PlotData) -> dict[str, str]:
+    """One colour per node pair, the same in every panel."""
+    pairs = sorted({p for by_pair in data.series.values() for p in by_pair} | set(data.tracks))
+    return {p: f"C{i % 10}" for i, p in enumerate(pairs)}
+
+
+def _legend(fig, ax, colours: dict[str, str]) -> None:
+    """The one legend: the track's markers and the node pairs' line colours."""
+    from matplotlib.lines import Line2D
+
+    handles, labels = ax.get_legend_handles_labels()
+    if len(colours) > 1:
+        for pair, colour in colours.items():
+            handles.append(Line2D([], [], color=colour, linewidth=1.5))
+            labels.append(pair)
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", fontsize="small", ncols=min(4, len(handles)))
+
+
+def _marker_label(what: str, seen: int, drawn: int, suffix: str) -> str:
+    from sharedlink.present import count
+
+    places = "place" if seen == 1 else "places"
+    if what.startswith("bad"):
+        shown = f", {count(drawn)} drawn" if drawn < seen else ""
+        return f"{what} ({count(seen)}{shown}){suffix}"
+    shown = f", {count(drawn)} drawn" if drawn < seen else ""
+    return f"{what} ({count(seen)} {places}{shown}){suffix}"
 
 
 def _draw_track(fig, ax, data: PlotData) -> None:
     import matplotlib as mpl
 
     ax.set_title("GPS track", loc="left")
-    ax.set_xlabel("longitude (°)")
-    ax.set_ylabel("latitude (°)")
+    ax.set_xlabel(unit_label(LON).replace(LON, "longitude"))
+    ax.set_ylabel(unit_label(LAT).replace(LAT, "latitude"))
     drawn = False
     mappable = None
     lats: list[float] = []
@@ -259,14 +497,7 @@ def _draw_track(fig, ax, data: PlotData) -> None:
                     markeredgecolor="black", linestyle="none", zorder=4, label="start" + suffix)
             ax.plot(tr.end[1], tr.end[2], marker="s", markersize=10, color="tab:red",
                     markeredgecolor="black", linestyle="none", zorder=4, label="end" + suffix)
-        gcols = tr.gaps.columns()
-        if gcols and any(not math.isnan(x) for x in gcols[2]):
-            ax.plot(gcols[2], gcols[3], marker="o", markersize=9, markerfacecolor="none", markeredgecolor="tab:orange",
-                    markeredgewidth=1.8, linestyle="none", zorder=3, label=f"gap ({tr.gaps.seen})" + suffix)
-        bcols = tr.bad.columns()
-        if bcols and any(not math.isnan(x) for x in bcols[1]):
-            ax.plot(bcols[1], bcols[2], marker="x", markersize=8, color="red", markeredgewidth=2,
-                    linestyle="none", zorder=3, label=f"bad checksum ({tr.bad.seen})" + suffix)
+        _track_marks(ax, tr, suffix)
     if not drawn:
         ax.text(0.5, 0.5, f"no position ({LAT}/{LON}) in this capture", transform=ax.transAxes,
                 ha="center", va="center", color="0.4")
@@ -275,38 +506,93 @@ def _draw_track(fig, ax, data: PlotData) -> None:
     ax.set_aspect(1.0 / max(0.05, math.cos(math.radians(mid))), adjustable="datalim")
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.grid(True, linewidth=0.3)
-    ax.legend(loc="best", fontsize="small")
     if mappable is not None:
         cb = fig.colorbar(mappable, ax=ax, shrink=0.8, pad=0.01)
-        cb.set_label(f"speed ({data.speed_var})" if mappable.norm is norm else "time (s)")
+        cb.set_label(f"speed, {unit_label(data.speed_var)}" if mappable.norm is norm else "time (s)")
 
 
-def _draw_series(ax, data: PlotData, name: str) -> None:
+def _track_marks(ax, tr: PairTrack, suffix: str) -> None:
+    """Where frames were dropped and where a checksum failed: every one up to MAX_MARKERS,
+    beyond that an even sample of that many, smaller and translucent."""
+    g = [r for r in tr.gaps.rows if not math.isnan(r[2])]
+    if g:
+        g = sample(g, MAX_MARKERS)
+        few = tr.gaps.seen <= MAX_MARKERS
+        ax.plot([r[2] for r in g], [r[3] for r in g], marker="o", markersize=9 if few else 5, markerfacecolor="none",
+                markeredgecolor=DROPPED_COLOUR, markeredgewidth=1.8 if few else 1.0, alpha=1.0 if few else 0.6,
+                linestyle="none", zorder=3, label=_marker_label("frames dropped", tr.gaps.seen, len(g), suffix))
+    b = [r for r in tr.bad.rows if not math.isnan(r[1])]
+    if b:
+        b = sample(b, MAX_MARKERS)
+        few = tr.bad.seen <= MAX_MARKERS
+        ax.plot([r[1] for r in b], [r[2] for r in b], marker="x", markersize=8 if few else 4, color=BAD_COLOUR,
+                markeredgewidth=2 if few else 1.0, alpha=1.0 if few else 0.6, linestyle="none", zorder=3,
+                label=_marker_label("bad checksums", tr.bad.seen, len(b), suffix))
+
+
+def _draw_series(ax, data: PlotData, name: str, axis: TimeAxis, colours: dict[str, str]) -> None:
     by_pair = data.series.get(name, {})
     for pair, s in by_pair.items():
         cols = s.columns()
         if cols:
-            ax.plot(cols[0], cols[1], drawstyle="steps-post", linewidth=1.0,
-                    label=pair if len(by_pair) > 1 else None)
-    for tr in data.tracks.values():
-        g = tr.gaps.columns()
-        if g:
-            for t0, t1 in zip(g[0], g[1]):
-                ax.axvspan(t0, t1, color="tab:orange", alpha=0.25, linewidth=0)
-        b = tr.bad.columns()
-        if b:
-            for t in b[0]:
-                ax.axvline(t, color="red", alpha=0.5, linewidth=0.8)
-    ax.set_ylabel(name, fontsize="small")
+            ax.plot(axis.x(cols[0]), cols[1], drawstyle="steps-post", linewidth=1.0, color=colours.get(pair))
+    for tr in data.tracks.values():  # a few events: where they are; many: the events strip alone
+        if 0 < tr.gaps.seen <= MAX_MARKERS:
+            for t0, t1, *_ in tr.gaps.rows:
+                x0, x1 = axis.x((t0, t1))
+                ax.axvspan(x0, x1, color=DROPPED_COLOUR, alpha=0.25, linewidth=0)
+        if 0 < tr.bad.seen <= MAX_MARKERS:
+            for x in axis.x([r[0] for r in tr.bad.rows]):
+                ax.axvline(x, color=BAD_COLOUR, alpha=0.5, linewidth=0.8)
+    unit = unit_of(name)
+    ax.set_ylabel(name if unit is None else f"{name}\n({unit})", fontsize="small")
     ax.grid(True, linewidth=0.3)
     ax.ticklabel_format(axis="y", useOffset=False)
-    if len(by_pair) > 1:
-        ax.legend(loc="upper right", fontsize="x-small")
+
+
+def _draw_events(ax, data: PlotData, axis: TimeAxis) -> None:
+    """Dropped frames and bad checksums counted per bin, as two step lines."""
+    width = bin_width(data.duration_s)
+    bins = max(1, math.ceil(data.duration_s / width))
+    edges = [i * width for i in range(bins + 1)]
+    for colour, times in ((DROPPED_COLOUR, [t for tr in data.tracks.values() for t in tr.gap_times]),
+                          (BAD_COLOUR, [t for tr in data.tracks.values() for t in tr.bad_times])):
+        counts = [0] * bins
+        for t in times:
+            counts[min(bins - 1, int(t / width))] += 1
+        if times:
+            ax.stairs(counts, axis.x(edges), color=colour, linewidth=1.2)
+    ax.set_ylabel(f"per {_bin_text(width)}", fontsize="small")
+    ax.set_title("dropped frames (orange) and bad checksums (red)", loc="left", fontsize="small")
+    ax.grid(True, linewidth=0.3)
+    ax.set_ylim(bottom=0)
+
+
+#: the events strip's bin widths (s): the first that makes at most EVENT_BINS bins
+BIN_WIDTHS = (0.1, 0.2, 0.5, 1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 10800, 21600, 43200, 86400)
+
+
+def bin_width(span_s: float) -> float:
+    """A round bin width giving at most :data:`EVENT_BINS` bins over ``span_s`` seconds."""
+    for w in BIN_WIDTHS:
+        if span_s / w <= EVENT_BINS:
+            return float(w)
+    return 86400.0 * math.ceil(span_s / 86400.0 / EVENT_BINS)
+
+
+def _bin_text(seconds: float) -> str:
+    """``1 s``, ``15 min``, ``1 h``."""
+    for unit, size in (("day", 86400), ("h", 3600), ("min", 60)):
+        if seconds >= size and seconds % size == 0:
+            n = int(seconds // size)
+            return f"{n} {unit}" + ("s" if unit == "day" and n > 1 else "")
+    return f"{seconds:g} s"
 
 
 def figure_for_capture(path: str | Path, variables: Sequence[str] | None = None, **kw):
     """:func:`collect` then :func:`build_figure`: the Figure, for inspection."""
-    return build_figure(collect(path, **kw), variables)
+    elapsed = kw.pop("elapsed", False)
+    return build_figure(collect(path, **kw), variables, elapsed=elapsed)
 
 
 def plot_capture(path: str | Path, out: str | Path, select: Sequence[str] | None = None, **kw) -> PlotData:
@@ -320,7 +606,8 @@ def plot_capture(path: str | Path, out: str | Path, select: Sequence[str] | None
 
         warnings.warn("plot_capture(variables=[names]) is deprecated: use select=", DeprecationWarning, stacklevel=2)
         select = list(kw.pop("variables"))
+    elapsed = kw.pop("elapsed", False)
     data = collect(path, **kw)
-    fig = build_figure(data, select)
+    fig = build_figure(data, select, elapsed=elapsed)
     fig.savefig(str(out))
     return data

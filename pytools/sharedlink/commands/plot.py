@@ -36,8 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "plot",
         help="plot the GPS track and the variables over time",
-        description="Draw the vehicle's track (latitude/longitude coloured by speed, start and end, gaps and "
-        "checksum failures marked) and each variable over time in panels below. Long captures are thinned.",
+        description="Draw the vehicle's track (latitude/longitude coloured by speed, start and end, dropped frames "
+        "and bad checksums marked) and each variable over time in panels below, on a clock-time axis (UTC), "
+        "with dropped frames and bad checksums counted per time bin in a strip at the bottom. Long captures are "
+        "thinned: every marker up to a few hundred, an even sample beyond.",
     )
     p.add_argument("capture", type=Path, help="pcap or pcapng file (-: standard input)")
     add_output_option(p, "image to write (.png, .svg or .pdf)", required=True)
@@ -45,6 +47,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_select_option(p, "variables to plot below the track (default: all numeric)")
     add_location_options(p, "the track, coloured by the speed", names=("lat", "lon", "velocity"))
     add_old_spelling(p, "--speed", "--velocity (--speed is a time factor in replay and watch)", "velocity")
+    p.add_argument("--elapsed", action="store_true",
+                   help="time since the first frame on the time axis (default: clock time, UTC)")
     p.add_argument("--max-points", type=number(10, 1e9, integer=True), default=5000, help="points kept per series (default 5000)")
     add_decode_options(p)
     add_json_option(p)
@@ -74,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         warn_empty(args.capture, data.frames)
         unknown_names({k: v for k, v in given.items() if k != "--select"}, data.variables)
     try:
-        fig = build_figure(data, names)
+        fig = build_figure(data, names, elapsed=args.elapsed)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     with open_output(args.output) as fh:  # complete or not at all, even on a full disk
@@ -82,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
     panels = len(names) if names is not None else len(data.variables)
     summary = {"capture": str(args.capture), "output": str(args.output), "frames": data.frames,
                "variables": names if names is not None else data.variables, "panels": 1 + panels,
-               "gaps": data.gaps, "checksum_failures": data.checksum_failures, "error": data.error}
+               "gaps": data.gaps, "dropped_frames": data.dropped_frames, "checksum_failures": data.checksum_failures,
+               "error": data.error}
     if args.json:
         print(json.dumps(summary))
     else:
