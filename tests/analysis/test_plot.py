@@ -16,7 +16,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from matplotlib import colormaps  # noqa: E402
 
-from sharedlink.analysis.plot import Thinned, build_figure, collect, figure_for_capture  # noqa: E402
+from sharedlink.analysis.plot import BAD_COLOUR, Thinned, build_figure, collect, figure_for_capture  # noqa: E402
 from sharedlink.generators.beacon import GenOptions, generate_file  # noqa: E402
 
 CLI = [sys.executable, "-m", "sharedlink"]
@@ -60,11 +60,11 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
 def test_figure_has_track_and_one_panel_per_variable(captures, variant):
     data = collect(captures[variant])
     assert data.variables == BEACON
-    fig = build_figure(data)
+    fig = build_figure(data, elapsed=True)
     axes = panels(fig)
-    assert len(axes) == 1 + len(BEACON)
+    assert len(axes) == 2 + len(BEACON) and axes[-1].get_label() == "events"
     assert axes[0].get_title(loc="left") == "GPS track"
-    assert [ax.get_ylabel() for ax in axes[1:]] == BEACON
+    assert [ax.get_ylabel().split("\n")[0] for ax in axes[1:-1]] == BEACON
     # the track: a scatter coloured with viridis, by speed, start and end markers
     scatter = [c for c in axes[0].collections if c.get_array() is not None]
     assert scatter and scatter[0].get_cmap().name == "viridis"
@@ -72,26 +72,26 @@ def test_figure_has_track_and_one_panel_per_variable(captures, variant):
     labels = axes[0].get_legend_handles_labels()[1]
     assert "start" in labels and "end" in labels
     if VARIANTS[variant].get("bad_checksum"):
-        assert any(lb.startswith("bad checksum (") for lb in labels)
+        assert any(lb.startswith("bad checksums (") for lb in labels)
         assert data.checksum_failures > 0
     if VARIANTS[variant].get("drop"):
-        assert any(lb.startswith("gap (") for lb in labels) and data.gaps > 0
+        assert any(lb.startswith("frames dropped (") for lb in labels) and data.gaps > 0
     else:
         assert data.gaps == 0
     # every variable panel has its line, ending at the last value sent
     # (then a red vertical line per checksum failure)
-    for ax in axes[1:]:
+    for ax in axes[1:-1]:
         line, *marks = ax.get_lines()
         assert len(line.get_xdata()) > 10
         assert max(line.get_xdata()) <= data.duration_s + 1e-9
         assert len(marks) == data.checksum_failures
-        assert all(m.get_color() == "red" for m in marks)
+        assert all(m.get_color() == BAD_COLOUR for m in marks)
 
 
 def test_vars_picks_panels(captures):
     fig = figure_for_capture(captures["named"], ["AutoGpsVel", "AutoGpsHead"])
     axes = panels(fig)
-    assert len(axes) == 3 and [ax.get_ylabel() for ax in axes[1:]] == ["AutoGpsVel", "AutoGpsHead"]
+    assert len(axes) == 4 and [ax.get_ylabel() for ax in axes[1:-1]] == ["AutoGpsVel\n(mph)", "AutoGpsHead\n(°)"]
     with pytest.raises(ValueError, match="Nope"):
         figure_for_capture(captures["named"], ["Nope"])
 
@@ -103,18 +103,19 @@ def test_png_is_a_real_image(captures, tmp_path):
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     img = mpimg.imread(str(out))
     h, w = img.shape[:2]
-    assert (w, h) == (1000, 1280)  # 10 in x (6 + 4 * 1.7) in at 100 dpi
+    assert (w, h) == (1000, 1360)  # 10 in x (6.8 + 4 * 1.7) in at 100 dpi
     assert viridis_pixels(img) > 2000  # the track's colours are there
-    # the marker colours too: red crosses (checksum failures), orange rings (gaps)
+    # the marker colours too: red crosses (checksum failures), orange rings (dropped frames)
     rgb = img[..., :3]
-    assert ((rgb[..., 0] > 0.95) & (rgb[..., 1] < 0.1) & (rgb[..., 2] < 0.1)).sum() > 50
+    red = np.array(matplotlib.colors.to_rgb(BAD_COLOUR))
+    assert (np.linalg.norm(rgb - red, axis=2) < 0.08).sum() > 50
     # fewer panels, a shorter image; positional captures plot the same way
     out2 = tmp_path / "pos.png"
     r = run_cli("plot", captures["positional"], "-o", out2, "--vars", "AutoGpsVel", "--json")
     assert r.returncode == 0, r.stderr
     assert '"panels": 2' in r.stdout
     img2 = mpimg.imread(str(out2))
-    assert img2.shape[:2] == (770, 1000) and viridis_pixels(img2) > 2000
+    assert img2.shape[:2] == (850, 1000) and viridis_pixels(img2) > 2000
 
 
 def test_plot_bad_input(captures, tmp_path):

@@ -308,28 +308,28 @@ def _add_columns(data: PlotData, c: DirColumns, names: _Names) -> None:
         if not n:
             continue
         t = (ts - t0) / NS  # type: ignore[operator]
-        for k in range(k, k + n):
-            name = names_[k]
+        for j in range(k, k + n):
+            name = names_[j]
             s = by_name.get(name, False)
             if s is False:
                 s = by_name[name] = data.series.get(name, {}).get(pair)
             if s is None:  # not (yet) a numeric series: made at its first number
-                x = _number(types[k], texts[k])
+                x = _number(types[j], texts[j])
                 if x is not None:
                     s = by_name[name] = _series(data, name, pair, names.max_points)
                     s.add(t, x)
             else:
                 s.seen += 1
                 if not (s.seen - 1) % s.stride:
-                    x = _number(types[k], texts[k])
+                    x = _number(types[j], texts[j])
                     if x is not None:
                         s.rows.append((t, x))
                         if len(s.rows) >= 2 * s.limit:
                             s.rows = s.rows[::2]
                             s.stride *= 2
             if name in watched:
-                held[name] = (types[k], texts[k])
-        k += 1
+                held[name] = (types[j], texts[j])
+        k += n
         _track_point(tr, t, names)
     _finish(tr, (c.ts_ns[-1] - t0) / NS, names)  # type: ignore[operator]
 
