@@ -467,55 +467,8 @@ def run_transform(args: argparse.Namespace, mode: str) -> int:
     return EXIT_OK
 
 
-# -- tables that fit the terminal (stats, diff) --------------------------------------------------
-
-
-def fit_table(title: str, headers: list[str], rows: list[list[str]], width: int, *, wrap: tuple[int, ...] = (),
-              drop: tuple[int, ...] = (), right: tuple[int, ...] = (), styles: list[str | None] | None = None,
-              ) -> Any | None:
-    """A rich Table of ``rows`` no wider than ``width``, whose cells are never cut: columns in
-    ``wrap`` (prose) wrap at spaces, the others keep their whole text on one line. When too wide,
-    headers of several words go on several lines, then the columns in ``drop`` are left out in
-    that order (named in the caption). None when even that does not fit (the caller prints
-    plain lines instead, which the terminal wraps)."""
-    from rich.table import Table
-
-    show = any(headers)
-    n = len(headers)
-
-    def longest_word(text: str) -> int:
-        return max((len(w) for w in text.split()), default=0)
-
-    def need(cols: list[int], stacked: bool) -> int:
-        total = 1 + 3 * len(cols)  # borders and padding: "│ x │ y │"
-        for i in cols:
-            head = (longest_word(headers[i]) if stacked else len(headers[i])) if show else 0
-            if i in wrap:
-                cell = max((longest_word(r[i]) for r in rows), default=0)
-            else:
-                cell = max((len(r[i]) for r in rows), default=0)
-            total += max(head, cell, 1)
-        return total
-
-    cols, stacked = list(range(n)), False
-    if need(cols, False) > width:
-        stacked = True
-        for i in drop:
-            if need(cols, True) <= width:
-                break
-            cols.remove(i)
-        if need(cols, True) > width:
-            return None
-    dropped = [headers[i] for i in range(n) if i not in cols]
-    caption = f"left out to fit the terminal: {', '.join(dropped)} (--json has every column)" if dropped else None
-    t = Table(title=title, show_header=show, title_justify="left", caption=caption, caption_justify="left")
-    for i in cols:
-        head = headers[i].replace(" ", "\n") if stacked and i not in wrap else headers[i]
-        t.add_column(head, justify="right" if i in right else "left", no_wrap=i not in wrap,
-                     overflow="fold")  # never "…": the widths above leave room for every cell
-    for k, r in enumerate(rows):
-        t.add_row(*(r[i] for i in cols), style=styles[k] if styles else None)
-    return t
+# -- tables: sharedlink.present (what people read: one format per kind of number, tables fitted
+#    to the terminal, plain on a pipe) -------------------------------------------------------------
 
 
 # -- progress, for commands that read a whole capture ------------------------------------------
