@@ -703,7 +703,9 @@ class LiveView:
         from rich.table import Table
         from rich.text import Text
 
-        head = f"{self.title}: {self.frames} frames, {self.stats.noise} noise"
+        from sharedlink.present import count
+
+        head = f"{self.title}: {count(self.frames)} frames, {count(self.stats.noise)} noise"
         if self.unshown:
             head += f" ({self.unshown} of directions past {MAX_CONVERSATIONS} not shown)"
         parts: list[Any] = [Text(head, style="bold")]
@@ -721,7 +723,7 @@ class LiveView:
             line = Text(f"  {st.fps:.0f} frames/s  ")
             for label, n, at in (("checksum failures", st.bad, st.bad_ns), ("late syncs", st.late, st.late_ns),
                                  ("gaps", st.gaps, st.gap_ns)):
-                line.append(f"{label} {n}", style="bold white on red" if now_ns - at < hl else ("red" if n else ""))
+                line.append(f"{label} {count(n)}", style="bold white on red" if now_ns - at < hl else ("red" if n else ""))
                 line.append("  ")
             line.append(f"last frame {_age(now_ns - st.last_ns)} ago")
             parts += [head, line]

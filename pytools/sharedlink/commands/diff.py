@@ -141,13 +141,15 @@ def _divergence(d: Divergence | None, r: DiffReport) -> str:
 
 
 def _staleness(s: Staleness | None) -> str:
+    from sharedlink.present import duration
+
     if s is None:
         return "-"
     where = f"A #{s.from_a_frame}/B #{s.from_b_frame}"
     late = f" ({s.late.upper()} late)" if s.late else ""
     if s.to_a_frame is None:
-        return f"{s.ms:.0f} ms from {where}, never caught up{late}"
-    return f"{s.ms:.0f} ms from {where} to A #{s.to_a_frame}/B #{s.to_b_frame}{late}"
+        return f"{duration(s.ms / 1000)} from {where}, never caught up{late}"
+    return f"{duration(s.ms / 1000)} from {where} to A #{s.to_a_frame}/B #{s.to_b_frame}{late}"
 
 
 def _capture_rows(r: DiffReport, split: bool = False) -> list[tuple[str, str, str]]:
