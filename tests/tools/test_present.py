@@ -185,6 +185,8 @@ def test_query_table_on_a_pipe_is_plain(dataset):
     r = run("query", dataset, "select seq, pair, size from frames order by seq limit 2", "--format", "table")
     assert r.returncode == 0 and "│" not in r.stdout and "(2 rows)" in r.stdout
     assert re.search(r"^\s+seq\s+pair\s+size$", r.stdout, re.M), r.stdout
+    r = run("query", dataset, "select seq, pair from frames where false", "--format", "table")
+    assert r.stdout.split() == ["seq", "pair", "(0", "rows)"]  # no rows: the headers still
 
 
 # -- plots ----------------------------------------------------------------------------------------

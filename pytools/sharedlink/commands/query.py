@@ -77,7 +77,7 @@ def _table(result, terminal: bool) -> None:
     n = len(result.columns)
     types = result.types or [""] * n
     cols = [_column(c, t, i, n, i in result.ns_times) for i, (c, t) in enumerate(zip(result.columns, types))]
-    t = Table("", cols, more="--format csv has every column and every character")
+    t = Table("", cols, more="--format csv has every column and every character", empty="")
     for row in result.rows():
         t.add(*(x if c.kind in (TIME, INTEGER) and x is not None else text(x) for x, c in zip(row, cols)))
     show([t], terminal=terminal)

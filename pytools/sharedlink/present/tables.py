@@ -63,6 +63,7 @@ class Table:
     styles: list[str | None] = field(default_factory=list)  # a rich style per row (terminal only)
     more: str = ""  # where every column is, said when some are left out or cut
     header: bool = True  # False: a two-column list of names and values without headers
+    empty: str = "(none)"  # said for a table without rows ("": its headers alone, as DuckDB's shell)
 
     def add(self, *cells: Any, style: str | None = None) -> None:
         self.rows.append(list(cells))
@@ -174,8 +175,8 @@ def plain(table: Table, texts: list[list[str]] | None = None) -> str:
     texts = table.texts() if texts is None else texts
     grid = ([[c.header for c in table.columns]] if table.header else []) + texts
     out = [table.title] if table.title else []
-    if not texts:
-        out.append("  (none)")
+    if not texts and table.empty:
+        out.append(f"  {table.empty}")
         return "\n".join(out) + "\n"
     widths = [max(_len(r[i]) for r in grid) for i in range(len(table.columns))]
     for r in grid:
@@ -233,8 +234,8 @@ def print_fitted(console: Any, table: Table) -> None:
     texts = table.texts()
     if table.title:
         console.print(Text(table.title, style="bold"))
-    if not texts:
-        console.print("  (none)", highlight=False)
+    if not texts and table.empty:
+        console.print(f"  {table.empty}", highlight=False)
         return
     fitted = fit(table, console.width, texts)
     if fitted is None:
