@@ -166,6 +166,17 @@ def test_query_on_an_80_column_terminal(dataset):
     # (every value of a left-out column is one a CSV has)
 
 
+def test_query_on_a_terminal_shows_the_first_and_last_rows(dataset):
+    sql = "select seq from frames order by seq"
+    lines = on_terminal(80, "query", dataset, sql).splitlines()
+    cells = [line.strip() for line in lines if re.fullmatch(r"\s*(\d+|…)", line)]
+    assert cells == [str(i) for i in range(1, 21)] + ["…"] + [str(i) for i in range(31, 51)]
+    assert "(50 rows, 40 shown)" in lines
+    lines = on_terminal(80, "query", dataset, sql, "--max-rows", "0").splitlines()
+    assert [line.strip() for line in lines if re.fullmatch(r"\s*\d+", line)] == [str(i) for i in range(1, 51)]
+    assert "(50 rows)" in lines
+
+
 def test_query_times_keep_their_nanoseconds(dataset):
     sql = "select time_ns, time, day from frames order by seq limit 3"
     text = on_terminal(200, "query", dataset, sql)

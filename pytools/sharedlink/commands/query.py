@@ -6,8 +6,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from sharedlink.commands import EXIT_OK
+from sharedlink.commands import EXIT_OK, number
 from sharedlink.errors import UsageError
+
+#: rows of a result a table on a terminal shows at most (the first and the last half)
+MAX_ROWS = 40
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,6 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "aligned plain text)")
     p.add_argument("--json", dest="fmt", action="store_const", const="json",
                    help="print the result as JSON on standard output (--format json)")
+    p.add_argument("--max-rows", type=number(0, 1e12, integer=True), default=MAX_ROWS, metavar="N",
+                   help=f"the table on a terminal shows the first and last N/2 rows of a longer result, as DuckDB's "
+                   f"shell (default {MAX_ROWS}; 0: every row)")
     p.set_defaults(func=run)
 
 
@@ -46,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
     elif args.fmt is None and not sys.stdout.isatty():
         write_csv(result, sys.stdout)
     elif result.columns:
-        _table(result, sys.stdout.isatty())
+        terminal = sys.stdout.isatty()
+        _table(result, terminal, args.max_rows if terminal else 0)
     return EXIT_OK
 
 
@@ -69,17 +76,36 @@ def _column(name: str, type_: str, i: int, n: int, ns_time: bool):
                   type_.endswith("]"))
 
 
-def _table(result, terminal: bool) -> None:
-    """The result as a table: fitted to the terminal, or every column as plain text."""
+def _table(result, terminal: bool, max_rows: int = 0) -> None:
+    """The result as a table: fitted to the terminal, or every column as plain text; with
+    ``max_rows``, a longer result's first and last ``max_rows // 2`` rows around a row of
+    ``…`` (the rows between are read and counted, not kept)."""
+    from collections import deque
+
     from sharedlink.fleet.query import text
-    from sharedlink.present import INTEGER, TIME, Table, show
+    from sharedlink.present import INTEGER, TIME, Table, count, show
 
     n = len(result.columns)
     types = result.types or [""] * n
     cols = [_column(c, t, i, n, i in result.ns_times) for i, (c, t) in enumerate(zip(result.columns, types))]
     t = Table("", cols, more="--format csv has every column and every character", empty="")
+    first: list = []
+    last: deque = deque(maxlen=max_rows // 2 if max_rows else 0)
+    room = max_rows - max_rows // 2 if max_rows else -1  # rows kept from the start (-1: all)
+    rows = 0
     for row in result.rows():
+        rows += 1
+        if room < 0 or len(first) < room:
+            first.append(row)
+        else:
+            last.append(row)
+    shown = len(first) + len(last)
+    for row in first:
+        t.add(*(x if c.kind in (TIME, INTEGER) and x is not None else text(x) for x, c in zip(row, cols)))
+    if rows > shown:
+        t.add(*("…" for _ in cols))
+    for row in last:
         t.add(*(x if c.kind in (TIME, INTEGER) and x is not None else text(x) for x, c in zip(row, cols)))
     show([t], terminal=terminal)
-    rows = len(t.rows)
-    print(f"({rows} row{'s' if rows != 1 else ''})")
+    more = f", {count(shown)} shown" if rows > shown else ""
+    print(f"({count(rows)} row{'s' if rows != 1 else ''}{more})")
