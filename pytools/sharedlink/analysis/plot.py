@@ -559,7 +559,7 @@ def _draw_events(ax, data: PlotData, axis: TimeAxis) -> None:
                           (BAD_COLOUR, [t for tr in data.tracks.values() for t in tr.bad_times])):
         counts = [0] * bins
         for t in times:
-            counts[min(bins - 1, int(t / width))] += 1
+            counts[max(0, min(bins - 1, int(t / width)))] += 1  # (a frame before the first: the first bin)
         if times:
             ax.stairs(counts, axis.x(edges), color=colour, linewidth=1.2)
     ax.set_ylabel(f"per {_bin_text(width)}", fontsize="small")

@@ -8,8 +8,8 @@
 * ``captures``: the manifest, one row per capture (path, vehicle, size, hash, frames, values,
   records, first_ns, last_ns, error).
 
-:func:`run_query` runs one statement and streams its rows; :func:`write_csv`, :func:`write_json`
-and :func:`table_rows` format them.
+:func:`run_query` runs one statement and streams its rows; :func:`write_csv` and :func:`write_json`
+write them (``QueryResult.plain_rows``: the values as JSON has them, times UTC with nanoseconds).
 
 A single SELECT runs on a connection of its own to an in-memory database this process keeps for
 the dataset's manifest as it is (:func:`_snapshot`): a second query over the same snapshot sets
