@@ -34,7 +34,7 @@ from sharedlink.analysis.malformed import PIECE, other_protocol, talk_key, unfra
 from sharedlink.capture.pcapio import CaptureError
 from sharedlink.capture.serial_format import GIVEN_UP
 from sharedlink.capture.stream import StreamFrame
-from sharedlink.present import COUNT, DURATION, PROSE, REAL, VALUE, Column, Table, plain
+from sharedlink.present import COUNT, DURATION, PROSE, REAL, TEXT, VALUE, Column, Table, plain
 from sharedlink.present import formats as fmt
 from sharedlink.present.formats import one_line as one_line  # (its home is present: tables escape every cell)
 from sharedlink.protocols.codec import TYPE_DOUBLE, guess_value, typed_value
@@ -537,9 +537,12 @@ def tables(st: CaptureStats) -> list[Table]:
     for _, p in sorted(st.pairs.items()):
         pairs.add(p.pair, p.frames, p.bytes, p.rate_hz, " ".join(f"{k}={fmt.count(n)}" for k, n in sorted(p.kinds.items())),
                   p.checksum_failures, p.sync_late, p.sync_gaps, p.max_sync_gap_s)
+    # the last values: numbers (never cut, right-aligned) when every one is, else text (cut to fit)
+    numbers = all(isinstance(v.last_value, (int, float)) for v in st.variables.values())
     variables = Table("Variables", [
         Column("pair", drop=3), Column("name"), Column("count", COUNT), Column("changes", COUNT, drop=1),
-        Column("min", VALUE), Column("max", VALUE), Column("last", cut=True, drop=2)], more="--json has every column")
+        Column("min", VALUE), Column("max", VALUE), Column("last", VALUE if numbers else TEXT, cut=not numbers, drop=2)],
+        more="--json has every column")
     for _, v in sorted(st.variables.items()):
         integral = None if v.type_code is None else v.type_code != TYPE_DOUBLE
         variables.add(v.pair, v.name, v.count, v.changes, fmt.value(v.min, integral), fmt.value(v.max, integral),
