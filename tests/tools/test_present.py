@@ -276,3 +276,19 @@ def test_plot_reads_in_clock_time_with_units_and_one_legend(figure, faulty):
     ax = [a for a in elapsed.axes if a.get_label() == "events"][0]
     assert ax.get_xlabel() == "time since the first frame (h)"
     assert max(ax.get_xlim()) < 40000 / 3600 * 1.1
+
+
+def test_plot_of_times_matplotlib_cannot_date(longs):
+    """A capture stamped past the year 9999 (pcapng holds it): time since its first frame,
+    the first frame's time in the axis label, never a traceback."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from sharedlink.analysis.plot import build_figure, collect
+
+    data = collect(longs)
+    data.t0_ns = 300_000_000_000 * 10**9  # +11476-08-15T05:20:00Z
+    fig = build_figure(data)
+    fig.canvas.draw()
+    events = [a for a in fig.axes if a.get_label() == "events"][0]
+    assert events.get_xlabel() == "time since the first frame, +11476-08-15T05:20:00.000000000Z (s)"

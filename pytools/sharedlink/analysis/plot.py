@@ -347,6 +347,10 @@ def _finish(tr: PairTrack, t: float, names: _Names) -> None:
 # -- drawing ---------------------------------------------------------------------------------------
 
 
+#: the seconds since 1970 matplotlib's dates can show (years 1 to 9999)
+_DATES = (-62135596800.0, 253402300799.0)
+
+
 @dataclass
 class TimeAxis:
     """How seconds since the first frame are drawn: clock time (matplotlib dates, UTC) or
@@ -359,10 +363,16 @@ class TimeAxis:
 
     @classmethod
     def of(cls, data: PlotData, elapsed: bool) -> TimeAxis:
-        if elapsed or data.t0_ns is None:
+        clock = data.t0_ns is not None and _DATES[0] <= data.t0_ns / NS and data.t0_ns / NS + data.duration_s < _DATES[1]
+        if elapsed or not clock:
             d = data.duration_s
             scale, unit = (1.0, "s") if d < 600 else (60.0, "min") if d < 36000 else (3600.0, "h")
-            return cls(True, data.t0_ns or 0, scale, f"time since the first frame ({unit})")
+            since = "the first frame"
+            if data.t0_ns is not None and not elapsed:  # (a time matplotlib's dates cannot hold: said in the label)
+                from sharedlink.present import timestamp
+
+                since = f"the first frame, {timestamp(data.t0_ns)}"
+            return cls(True, data.t0_ns or 0, scale, f"time since {since} ({unit})")
         return cls(False, data.t0_ns, 86400.0, "time (UTC)")
 
     def x(self, ts: Sequence[float]) -> list[float]:
