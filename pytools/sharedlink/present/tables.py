@@ -86,6 +86,9 @@ class Fitted:
 
 
 def _len(text: str) -> int:
+    """Terminal cells ``text`` takes (wide characters two)."""
+    if text.isascii():
+        return len(text)
     from rich.cells import cell_len
 
     return cell_len(text)
