@@ -518,7 +518,7 @@ def _draw_track(fig, ax, data: PlotData) -> None:
     ax.grid(True, linewidth=0.3)
     if mappable is not None:
         cb = fig.colorbar(mappable, ax=ax, shrink=0.8, pad=0.01)
-        cb.set_label(f"speed, {unit_label(data.speed_var)}" if mappable.norm is norm else "time (s)")
+        cb.set_label(f"speed, {unit_label(data.speed_var)}" if mappable.norm is norm else "time since the first frame (s)")
 
 
 def _track_marks(ax, tr: PairTrack, suffix: str) -> None:
