@@ -45,7 +45,8 @@ tshark:
 
 venv: $(STAMP)
 
-# the virtualenv with the package alone (make install: no test extras), and with them (tests)
+# the virtualenv with the package alone (make install: the lean core, no extras), and with every
+# extra and the test tools (make test)
 define MAKE_VENV
 	@if ! $(PYTHON) -m venv --help >/dev/null 2>&1 || ! $(PYTHON) -c 'import ensurepip' 2>/dev/null; then \
 	  echo "installing python3-venv from Debian's packages"; \
@@ -55,14 +56,18 @@ define MAKE_VENV
 	$(BIN)/pip install -q --upgrade pip
 endef
 
+# an editable install without setuptools' boxed "Editable installation" warning (lenient mode
+# kept: a module added to the checkout is there without reinstalling)
+PIP_EDITABLE := PYTHONWARNINGS="ignore:Editable installation" $(BIN)/pip install -q -e
+
 $(RUNTIME): pyproject.toml setup.py
 	$(MAKE_VENV)
-	$(BIN)/pip install -q -e .
+	$(PIP_EDITABLE) .
 	@touch $(RUNTIME)
 
 $(STAMP): pyproject.toml setup.py
 	$(MAKE_VENV)
-	$(BIN)/pip install -q -e '.[test]'
+	$(PIP_EDITABLE) '.[all,test]'
 	@touch $(STAMP) $(RUNTIME)
 
 # --- the main job ----------------------------------------------------------------------------
@@ -132,6 +137,6 @@ test-matrix: deps rootfs
 # the long fuzz run (tshark: editcap mutations, truncations, random and 64 KB payloads; the Python
 # parsers: atheris). FUZZ_ARGS, e.g. "--seeds 500"; SHAREDLINK_TSHARK picks the release.
 fuzz: deps
-	@$(PY) -c 'import atheris' 2>/dev/null || $(BIN)/pip install -q -e '.[fuzz]' \
+	@$(PY) -c 'import atheris' 2>/dev/null || $(PIP_EDITABLE) '.[all,fuzz]' \
 	  || echo "atheris could not be installed: the Python parsers are fuzzed with hypothesis"
 	$(PY) scripts/fuzz.py $(FUZZ_ARGS)

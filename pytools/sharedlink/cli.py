@@ -20,30 +20,65 @@ from collections.abc import Sequence
 from typing import Any, NoReturn
 
 from . import __version__
-from ._interrupt import quiet_interrupt
+from ._interrupt import Terminated, quiet_interrupt
 
 with quiet_interrupt():  # Ctrl-C while the command loads: exit 130, no traceback
-    from .commands import EXIT_INTERRUPTED, EXIT_OK, EXIT_TERMINATED, EXIT_USAGE
+    from .commands import EXIT_INTERRUPTED, EXIT_OK, EXIT_TERMINATED, EXIT_USAGE, set_quiet
+    from .commands.examples import epilog
     from .errors import Error, UsageError
 
 #: sub-command modules, in the order ``--help`` lists them
 COMMANDS = [
     "gen", "replay", "serial", "compress", "expand", "diff", "stats", "export", "plot", "lists", "watch",
-    "ingest", "query", "plugins",
+    "ingest", "query", "plugins", "completion",
 ]
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_OK", "EXIT_USAGE", "Error", "UsageError", "main", "build_parser"]
 
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter, except that an epilog of indented lines (the examples) is kept as
+    written."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        prose, mark, examples = text.partition("examples:\n")
+        filled = super()._fill_text(prose, width, indent) if prose.strip() else ""
+        if not mark:
+            return filled
+        raw = "\n".join(indent + line for line in (mark + examples).splitlines())
+        return f"{filled}\n\n{raw}" if filled else raw
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse with its errors (a bad number, a missing argument) raised as UsageError: the
-    usage line, then ``sharedlink: error: ...`` once from :func:`main`, exit 2 (also when
-    :func:`main` is called from Python)."""
+    """argparse with its errors (a bad number, a missing argument, an unknown option) raised as
+    UsageError: the usage line of the (sub)command that was given, then ``sharedlink: error:
+    ...`` once from :func:`main`, exit 2 (also when :func:`main` is called from Python)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:  # type: ignore[override]
         self.print_usage(sys.stderr)
         raise UsageError(message)
+
+    def parse_args(self, args: Sequence[str] | None = None, namespace: Any = None) -> argparse.Namespace:  # type: ignore[override]
+        """As argparse's, but an unknown option is reported with the usage of the subcommand
+        it was given to (``usage: sharedlink stats ...``), not the top-level one."""
+        ns, extras = self.parse_known_args(args, namespace)
+        parser = ns.__dict__.pop("_parser", self)
+        if extras:
+            parser.error(f"unrecognized arguments: {' '.join(extras)}")
+        return ns
+
+
+def _leaves(parser: argparse.ArgumentParser, name: str = "") -> list[tuple[str, argparse.ArgumentParser]]:
+    """Every (sub)command's parser, by its name (``serial capture``)."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        return [(name, parser)] if name else []
+    return [leaf for s in subs for sub, p in s.choices.items() for leaf in _leaves(p, f"{name} {sub}".strip())]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,14 +89,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    sub.required = True
     for name in COMMANDS:
         importlib.import_module(f"sharedlink.commands.{name}").register(sub)
+    for name, leaf in _leaves(parser):
+        leaf.set_defaults(_parser=leaf)  # (read by _Parser.parse_args: the usage of this command)
+        examples = epilog(name)
+        if examples:
+            leaf.epilog = f"{leaf.epilog}\n\n{examples}" if leaf.epilog else examples
     return parser
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised where the program is so that it cleans up as on Ctrl-C."""
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -75,6 +110,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
+        set_quiet(args)
+        if args.command is None:  # bare `sharedlink`: the commands, as --help lists them
+            parser.print_help()
+            return EXIT_OK
         return int(args.func(args) or 0)
     except Error as exc:  # every error of the package, reported once: FILE: record N: reason
         print(f"sharedlink: error: {exc}", file=sys.stderr)

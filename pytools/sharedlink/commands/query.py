@@ -8,6 +8,7 @@ from pathlib import Path
 
 from sharedlink.commands import EXIT_OK
 from sharedlink.errors import UsageError
+from sharedlink.extras import require
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if not args.dataset.exists():  # the one wording of a missing input
         raise UsageError(f"{args.dataset}: no such file")
+    require("fleet", "sharedlink query")
     from sharedlink.fleet.query import (  # pyarrow loads for this command only
         run_query,
         write_csv,

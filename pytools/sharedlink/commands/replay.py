@@ -15,11 +15,13 @@ from sharedlink.commands import (
     EXIT_FAIL,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    EXIT_TERMINATED,
     EXIT_USAGE,
     PORT,
     SECONDS_OR_ZERO,
     add_json_option,
     add_old_spelling,
+    add_quiet_option,
     add_speed_option,
     capture_input,
     number,
@@ -71,7 +73,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sel.add_argument("--filter-src", action="append", default=[], metavar="ADDR",
                      help="only frames from this source address or network, e.g. 192.168.1.12 or 10.0.0.0/8 (repeatable)")
     out = p.add_argument_group("output")
-    out.add_argument("--quiet", "-q", action="store_true", help="no progress, no summary (errors are still printed)")
+    add_quiet_option(out)
     add_json_option(out)
     p.set_defaults(func=run)
 
@@ -158,7 +160,7 @@ def _run(args: argparse.Namespace) -> int:
     if stats.send_errors and not args.json and args.quiet:
         print(f"sharedlink: {stats.send_errors} frames could not be sent (first: {stats.first_error})", file=sys.stderr)
     if stats.interrupted:
-        return EXIT_INTERRUPTED
+        return EXIT_TERMINATED if stats.terminated else EXIT_INTERRUPTED
     if stats.capture_error:
         return EXIT_USAGE
     return EXIT_FAIL if stats.send_errors else EXIT_OK

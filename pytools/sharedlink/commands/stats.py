@@ -9,16 +9,18 @@ import sys
 from pathlib import Path
 
 from sharedlink.commands import (
-    EXIT_OK,
     EXIT_USAGE,
     Progress,
     add_decode_options,
     add_json_option,
+    add_quiet_option,
     capture_input,
     decode_options,
+    fail_on,
     fit_table,
     warn_empty,
 )
+from sharedlink.commands.fail_on import add_fail_on_option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,6 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("capture", type=Path, help="pcap or pcapng file (-: standard input)")
     add_decode_options(p)
     add_json_option(p, "the statistics")
+    add_quiet_option(p)
+    add_fail_on_option(p)
     p.set_defaults(func=run)
 
 
@@ -56,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     if st.error:
         print(f"sharedlink: error: {st.error} (the statistics cover the {st.frames} frames before it)", file=sys.stderr)
         return EXIT_USAGE
-    return EXIT_OK
+    return fail_on(args.fail_on, st)
 
 
 #: per table (by its headers' count): columns that wrap, columns left out first, right-aligned numbers

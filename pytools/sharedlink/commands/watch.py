@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from sharedlink._interrupt import Terminated
 from sharedlink.capture.pcapio import buffered_stdout
 from sharedlink.commands import (
     BAUD,
@@ -25,6 +26,7 @@ from sharedlink.commands import (
 )
 from sharedlink.defaults import WATCH_DEFAULT_PORT as DEFAULT_PORT
 from sharedlink.errors import UsageError
+from sharedlink.extras import require
 
 if TYPE_CHECKING:  # (loaded when the command runs: every command's start-up pays for what is imported here)
     from sharedlink.analysis.decode import Decoded
@@ -39,8 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "its age and update rate, and the link's frames/s, checksum failures, late syncs and gaps (highlighted "
         "when they happen). --json prints one JSON line per frame instead; --foxglove also serves the decoded "
         "stream to Foxglove over its WebSocket protocol.",
-        epilog="Exit codes: 0 the capture (--from) ended, 2 bad usage, no permission to sniff, a port --bind-port finds taken "
-        "or a damaged capture (after the frames before the damage), 130 stopped with Ctrl-C.",
+        epilog="Exit codes: 0 stopped with Ctrl-C (as tcpdump) or the CAPTURE ended, 2 bad usage, no permission to "
+        "sniff, a port --bind-port finds taken or a damaged capture (after the frames before the damage), 143 "
+        "stopped by SIGTERM.",
     )
     src = p.add_argument_group("source (default: UDP port 7013)")
     p.add_argument("capture", nargs="?", type=Path, default=None, metavar="CAPTURE", action=OptionalPositional,
@@ -88,7 +91,9 @@ def _source(args: argparse.Namespace) -> Any:
         try:
             return SerialSource(args.serial, args.baud)
         except Exception as exc:  # pyserial's SerialException, OSError
-            raise UsageError(f"{args.serial}: {exc}") from None
+            from sharedlink.capture.serial_port import port_error
+
+            raise UsageError(port_error(args.serial, exc)) from None
     if not 0 < args.port < 65536:
         raise UsageError("--port must be 1..65535")
     from sharedlink.watch import MAX_LAG_S
@@ -113,6 +118,7 @@ def _source(args: argparse.Namespace) -> Any:
 
 
 def _foxglove(args: argparse.Namespace) -> tuple[Any, Any]:
+    require("foxglove", "sharedlink watch --foxglove")
     import foxglove
 
     from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
@@ -131,9 +137,21 @@ def _foxglove(args: argparse.Namespace) -> tuple[Any, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Ctrl-C is how a watch ends, as tcpdump's: exit 0 after the summary (SIGTERM: 143)."""
+    try:
+        return _run(args)
+    except KeyboardInterrupt as exc:
+        if isinstance(exc, Terminated):
+            raise
+        return EXIT_OK
+
+
+def _run(args: argparse.Namespace) -> int:
     from sharedlink.watch import FastDecoder, JsonLines, WatchStats, run_watch, served
 
     variables, sync = decode_options(args)
+    if args.foxglove:  # before the source opens
+        require("foxglove", "sharedlink watch --foxglove")
     source = _source(args)
     server = None
     stats = WatchStats()
