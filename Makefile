@@ -13,7 +13,7 @@ DISSECTORS := $(wildcard dissector/*.lua)
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: all demo test lint bench captures install uninstall deps tshark venv clean help rootfs test-matrix fuzz mutate
+.PHONY: all demo test lint bench captures install uninstall deps tshark venv clean help rootfs test-matrix fuzz mutate man
 
 all: help
 
@@ -22,6 +22,7 @@ help:
 	@echo "make test      lint and run the whole test suite"
 	@echo "make bench     print speed and memory ratios"
 	@echo "make captures  regenerate captures/ (byte-identical)"
+	@echo "make man       remake docs/sharedlink.1, the man page, from the command's parsers"
 	@echo "make install   put the dissectors, the serial extcap and the coloring rules into your personal Wireshark folders"
 	@echo "make uninstall remove them again"
 	@echo "make test-matrix  the tshark tests on Wireshark 4.0, 4.4 and 4.6 (root filesystems built once)"
@@ -100,6 +101,10 @@ bench: deps
 mutate: deps
 	@$(BIN)/python -c 'import mutmut' 2>/dev/null || $(BIN)/pip install -q 'mutmut>=3.3'  # the [mutate] extra
 	env -u PYTHONPATH $(PY) scripts/mutate.py $(MUTATE_ARGS)
+
+# the man page from the parsers (argparse-manpage, in the test extra); test_cli_docs checks it fresh
+man: venv
+	$(PY) scripts/manpage.py docs/sharedlink.1
 
 captures: deps
 	$(CLI) gen -o captures/beacon-full.pcap --duration 60 --seed 1

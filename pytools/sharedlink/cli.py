@@ -91,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMANDS:
         importlib.import_module(f"sharedlink.commands.{name}").register(sub)
+    sub.choices["completion"].set_defaults(root_parser=parser)  # what its script completes
     for name, leaf in _leaves(parser):
         leaf.set_defaults(_parser=leaf)  # (read by _Parser.parse_args: the usage of this command)
         examples = epilog(name)

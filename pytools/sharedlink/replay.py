@@ -108,10 +108,12 @@ class CaptureFrames:
     :class:`~sharedlink.capture.pcapio.CaptureError`.
     """
 
-    def __init__(self, path: str | Path, flt: FrameFilter | None = None) -> None:
+    def __init__(self, path: str | Path, flt: FrameFilter | None = None, direction: int | None = None) -> None:
         self.path = Path(path)
         self.filter = flt or FrameFilter()
         self.counts = SourceCounts()
+        #: serial records: only those of this direction (pcapng EPB flags: 1 inbound, 2 outbound)
+        self.direction = direction
 
     def __iter__(self) -> Iterator[OutFrame]:
         counts = self.counts
@@ -124,7 +126,7 @@ class CaptureFrames:
             counts.records += 1
             linktype, data = rec.linktype, rec.data
             if linktype in user:
-                if active:
+                if active or (self.direction is not None and rec.flags & 3 != self.direction):
                     counts.filtered += 1
                     continue
                 yield OutFrame(rec.number, rec.ts_ns, data, None, None)

@@ -459,10 +459,32 @@ def report(summary: dict, as_json: bool, line: str) -> None:
         note(line)
 
 
+def _problem_names(text: str) -> tuple[str, ...]:
+    from sharedlink.problems import PROBLEMS
+
+    names = tuple(dict.fromkeys(n.strip() for n in text.split(",") if n.strip()))
+    unknown = [n for n in names if n not in PROBLEMS]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"{','.join(unknown) or repr(text)}: give one or more of {','.join(PROBLEMS)}")
+    return names
+
+
+_problem_names.__name__ = "problem list"
+
+
+def add_fail_on_option(p: argparse.ArgumentParser | Any) -> None:
+    """``--fail-on PROBLEM,...`` (stats): the problems of :mod:`sharedlink.problems`."""
+    from sharedlink.problems import PROBLEMS
+
+    p.add_argument("--fail-on", type=_problem_names, default=(), metavar="PROBLEM,...",
+                   help=f"exit 1 when any of these occur in the capture (for CI): {', '.join(PROBLEMS)} "
+                   f"({'; '.join(f'{k}: {v.words}' for k, v in PROBLEMS.items())})")
+
+
 def fail_on(names: tuple[str, ...], st: Any) -> int:
     """``--fail-on``: EXIT_FAIL, with a line on stderr, when a named problem occurred in the
     statistics ``st``; else EXIT_OK (the names and their counts: :mod:`.fail_on`)."""
-    from sharedlink.commands.fail_on import failures
+    from sharedlink.problems import failures
 
     found = failures(names, st) if names else None
     if found:

@@ -24,18 +24,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def script(shell: str) -> str:
-    """The completion script for ``shell``."""
+def script(parser: argparse.ArgumentParser, shell: str) -> str:
+    """The completion script of ``parser`` (the ``sharedlink`` one) for ``shell``."""
     import shtab
 
-    from sharedlink.cli import build_parser
-
-    parser = build_parser()
     return shtab.complete(parser, shell=shell)
 
 
 def run(args: argparse.Namespace) -> int:
-    text = script(args.shell)
+    text = script(args.root_parser, args.shell)  # (set by cli.build_parser: the whole command)
     if args.json:
         import json
 

@@ -12,6 +12,7 @@ from sharedlink.commands import (
     EXIT_USAGE,
     Progress,
     add_decode_options,
+    add_fail_on_option,
     add_json_option,
     add_quiet_option,
     capture_input,
@@ -20,7 +21,6 @@ from sharedlink.commands import (
     fit_table,
     warn_empty,
 )
-from sharedlink.commands.fail_on import add_fail_on_option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "stats",
         help="statistics of a capture",
         description="Frames per kind and per node pair, rates, bytes, compression ratio, checksum failures, "
-        "sync gaps and per-variable count/min/max/last. Streams: any size of capture.",
+        "late full sets and per-variable count/min/max/last. Streams: any size of capture.",
     )
     p.add_argument("capture", type=Path, help="pcap or pcapng file (-: standard input)")
     add_decode_options(p)
