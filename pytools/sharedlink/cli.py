@@ -3,9 +3,11 @@
 Each sub-command lives in ``sharedlink/commands/<name>.py`` with ``register(subparsers)``
 adding its parser and setting ``func``; ``func(args) -> int`` returns the exit code.
 
-Exit codes, for every command: 0 success (and, for diff, data agree), 1 the check failed
-(diff: data diverge), 2 bad input or usage (missing or damaged file, bad option, output that is
-the input, full disk), 130 stopped by Ctrl-C, 143 stopped by SIGTERM (cleaned up as on Ctrl-C).
+Exit codes, for every command (the table is in docs/cli.md): 0 success (and, for diff, data
+agree; watch stopped by Ctrl-C, its normal end, as tcpdump), 1 the check failed (diff: data
+diverge; stats --fail-on: a problem occurred), 2 bad input or usage (missing or damaged file, bad
+option, output that is the input, a missing extra, full disk), 130 stopped by Ctrl-C, 143 stopped
+by SIGTERM (cleaned up as on Ctrl-C, replay and watch too).
 """
 
 from __future__ import annotations
@@ -85,7 +87,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="sharedlink",
         description="Generate, replay, compare and decode SharedLink beacon captures.",
-        epilog="Exit codes: 0 ok, 1 check failed (e.g. diff found a divergence), 2 bad input or usage, 130 interrupted (143 by SIGTERM).",
+        epilog="Exit codes: 0 ok (also watch stopped with Ctrl-C), 1 check failed (diff found a divergence, stats "
+        "--fail-on a problem, replay could not send), 2 bad input or usage, 130 interrupted by Ctrl-C, 143 by "
+        "SIGTERM. 'sharedlink COMMAND --help' ends with examples; docs/cli.md has the whole vocabulary.\n\n"
+        "examples:\n  sharedlink gen -o drive.pcap      # a 60 s drive\n"
+        "  sharedlink stats drive.pcap       # what is in it\n"
+        "  sharedlink completion bash        # shell completion (bash, zsh, fish)",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)

@@ -11,7 +11,7 @@ and the command that installs it, never an ImportError traceback.
 
 from __future__ import annotations
 
-import importlib
+import importlib.util
 
 from sharedlink.errors import UsageError
 
@@ -47,11 +47,14 @@ class MissingExtra(UsageError):
 
 
 def require(extra: str, what: str) -> None:
-    """Import the modules of ``extra`` (``"plot"``, ``"fleet"``, ...) or raise
-    :class:`MissingExtra` naming ``what`` (e.g. ``"sharedlink plot"``). Call it where the
-    command starts, before the work: the modules are imported once, later imports are free."""
+    """Raise :class:`MissingExtra` naming ``what`` (e.g. ``"sharedlink plot"``) unless the
+    modules of ``extra`` (``"plot"``, ``"fleet"``, ...) are installed. Call it where the command
+    starts, before the work. It finds them without importing them (a command imports only
+    what it uses: ``query`` loads DuckDB, never pyarrow)."""
     for module in EXTRAS[extra]:
         try:
-            importlib.import_module(module)
-        except ImportError:
-            raise MissingExtra(what, extra, module) from None
+            found = importlib.util.find_spec(module) is not None
+        except (ImportError, ValueError):
+            found = False
+        if not found:
+            raise MissingExtra(what, extra, module)

@@ -144,13 +144,13 @@ def test_stats_fail_on(captures):
     import json
 
     st = json.loads(_run("stats", captures["faulty"], "--json").stdout)
-    assert st["checksum_failures"] > 0 and st["sync_late"] > 0  # the capture has both
+    assert st["checksum_failures"] > 1 and st["sync_gaps"] > 1  # the capture has both
     r = _run("stats", captures["faulty"], "--fail-on", "checksum,late")
     assert r.returncode == 1 and "frames" in r.stdout
-    assert r.stderr == (f"sharedlink: failed: {st['checksum_failures']} bad checksums, {st['sync_late']} late full "
+    assert r.stderr == (f"sharedlink: failed: {st['checksum_failures']} bad checksums, {st['sync_gaps']} late full "
                         "sets (--fail-on checksum,late)\n"), r.stderr
     r = _run("stats", captures["faulty"], "--fail-on", "late", "--json")
-    assert r.returncode == 1 and json.loads(r.stdout)["sync_late"] == st["sync_late"]
+    assert r.returncode == 1 and json.loads(r.stdout)["sync_gaps"] == st["sync_gaps"]
     assert _run("stats", captures["clean"], "--fail-on", "checksum,late").returncode == 0
     r = _run("stats", captures["clean"], "--fail-on", "checksum,nonsense")
     assert r.returncode == 2 and "nonsense: give one or more of checksum,late" in r.stderr

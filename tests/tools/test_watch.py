@@ -357,7 +357,7 @@ def test_view_counts_late_syncs_and_gaps(tmp_path):
     console = Console(record=True, width=120)
     console.print(view.render(items[-1].ts_ns))
     text = console.export_text()
-    assert f"late syncs {late}" in text and f"gaps {gaps}" in text
+    assert f"late syncs {late}" in text and f"late full sets {gaps}" in text
 
 
 def _foxglove_messages(ws_port: int, watch_port: int, cap: Path) -> tuple[str, list[tuple[int, bytes]], dict]:

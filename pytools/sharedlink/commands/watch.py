@@ -38,8 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "watch",
         help="live view of a link: UDP port, serial line or a capture at its pace",
         description="Decode SharedLink traffic as it arrives and show, per direction, every variable's last value, "
-        "its age and update rate, and the link's frames/s, checksum failures, late syncs and gaps (highlighted "
-        "when they happen). --json prints one JSON line per frame instead; --foxglove also serves the decoded "
+        "its age and update rate, and the link's frames/s, checksum failures, late syncs and late full sets "
+        "(highlighted when they happen). --json prints one JSON line per frame instead; --foxglove also serves the decoded "
         "stream to Foxglove over its WebSocket protocol.",
         epilog="Exit codes: 0 stopped with Ctrl-C (as tcpdump) or the CAPTURE ended, 2 bad usage, no permission to "
         "sniff, a port --bind-port finds taken or a damaged capture (after the frames before the damage), 143 "
