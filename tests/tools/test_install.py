@@ -168,3 +168,23 @@ def test_the_readme_pipx_lines_install_the_lean_core(tmp_path, pipx):
     assert r.returncode == 2 and "needs the 'plot' extra" in r.stderr and not (tmp_path / "p.png").exists()
     r = subprocess.run([cli, "plugins", "install"], **run)  # the README's last line, into the temporary HOME
     assert r.returncode == 0, r.stderr
+
+
+def test_the_makefiles_editable_install_is_quiet(tmp_path):
+    """make demo/test/install make .venv with the Makefile's PIP_EDITABLE line: pip -q, and
+    setuptools' boxed "Editable installation" warning filtered, so nothing is printed."""
+    line = re.search(r"^PIP_EDITABLE := (.*)$", (ROOT / "Makefile").read_text(), re.M)
+    assert line, "Makefile: no PIP_EDITABLE"
+    src = tmp_path / "checkout"
+    src.mkdir()
+    for name in ("pyproject.toml", "setup.py", "README.md"):
+        shutil.copy(ROOT / name, src / name)
+    for name in ("pytools", "dissector", "extcap"):
+        shutil.copytree(ROOT / name, src / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+    subprocess.run([sys.executable, "-m", "venv", str(src / ".venv")], check=True, timeout=120)
+    command = line.group(1).replace("$(BIN)", ".venv/bin") + " . --no-deps"  # (the dependencies: not the point)
+    r = subprocess.run(command, shell=True, cwd=src, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout == "" and r.stderr == "", (r.stdout, r.stderr)
+    r = subprocess.run([str(src / ".venv" / "bin" / "sharedlink"), "--version"], capture_output=True, text=True)
+    assert r.returncode == 0 and r.stdout.startswith("sharedlink ")
