@@ -20,6 +20,7 @@ from sharedlink.commands import (
     add_json_option,
     add_location_options,
     add_old_spelling,
+    add_quiet_option,
     add_speed_option,
     capture_input,
     decode_options,
@@ -67,6 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_speed_option(src, "with CAPTURE: its pace times X (2 = twice as fast; default 1)")
     out = p.add_argument_group("output")
     add_json_option(out, "one line per frame (instead of the view)")
+    add_quiet_option(out)
     out.add_argument("--foxglove", action="store_true", help="serve the stream over the Foxglove WebSocket protocol")
     out.add_argument("--foxglove-port", type=int, default=8765, metavar="PORT", help="its port (default 8765; 0: any free)")
     out.add_argument("--foxglove-host", default="127.0.0.1", metavar="ADDR", help="its address (default 127.0.0.1)")
@@ -163,7 +165,8 @@ def _run(args: argparse.Namespace) -> int:
             server, channels = _foxglove(args)
             outputs.append(served(channels.frame, stats))
             sessions.append(served(channels.session, stats))
-        print(f"sharedlink watch: {source.description}", file=sys.stderr, flush=True)
+        if not args.quiet:  # what is watched (the Foxglove server's address is always said)
+            print(f"sharedlink watch: {source.description}", file=sys.stderr, flush=True)
         if args.json:  # Ctrl-C waits until a batch's lines are written whole (see run_watch)
             with buffered_stdout(binary=False) as out:
                 write = out.write
