@@ -312,8 +312,7 @@ def refuse_terminal(out: Path | str | None, what: str = "a capture") -> None:
         raise UsageError(f"-: standard output is a terminal and {what} is binary: redirect it (> file) or give -o FILE")
 
 
-def format_from_suffix(out: Path | str | None, formats: dict[str, str], default: str, given: str | None,
-                       fix: str = "give --format to write it anyway") -> str:
+def format_from_suffix(out: Path | str | None, formats: dict[str, str], default: str, given: str | None) -> str:
     """The format an output is written in: ``given`` (``--format``) when given, else its file
     name's suffix (``formats``: suffix -> format), else ``default`` for a name without one or
     standard output. A suffix of no known format (``-o x.xlsx``) is a UsageError unless
@@ -327,7 +326,7 @@ def format_from_suffix(out: Path | str | None, formats: dict[str, str], default:
         return default
     if suffix not in formats:
         known = ", ".join(sorted(formats))
-        raise UsageError(f"{out}: {suffix} is not a format written here ({known}): {fix}")
+        raise UsageError(f"{out}: {suffix} is not a format written here ({known}): give --format to write it anyway")
     return formats[suffix]
 
 

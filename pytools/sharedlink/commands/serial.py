@@ -21,7 +21,6 @@ from sharedlink.commands import (
     add_output_option,
     add_quiet_option,
     capture_input,
-    format_from_suffix,
     honours_force,
     note,
     number,
@@ -39,11 +38,6 @@ from sharedlink.errors import Error, UsageError
 
 if TYPE_CHECKING:  # (loaded when the command runs: every command's start-up pays for what is imported here)
     from sharedlink.capture.serial_import import SerialImportError
-
-
-#: what a serial capture's file may be called: it is pcapng (the direction is in the packet flags)
-PCAPNG_SUFFIXES = {".pcapng": "pcapng", ".ntar": "pcapng"}
-PCAPNG_ONLY = "serial captures are pcapng (the direction lives in the packet flags): give a .pcapng name"
 
 
 def _linktype(text: str) -> int:
@@ -130,7 +124,6 @@ def run_capture(args: argparse.Namespace) -> int:
         raise UsageError("--count must be positive")
     to_stdout = str(args.out) == "-"
     refuse_terminal(args.out, "a serial capture")
-    format_from_suffix(args.out, PCAPNG_SUFFIXES, "pcapng", None, PCAPNG_ONLY)
     if to_stdout and args.json:
         raise UsageError("--json needs -o FILE (the capture goes to standard output)")
     name = f"{args.tap[0]}<->{args.tap[1]}" if args.tap else args.device
@@ -171,7 +164,6 @@ def run_import(args: argparse.Namespace) -> int:
 
     require_output(args, "out")
     refuse_terminal(args.out, "a serial capture")
-    format_from_suffix(args.out, PCAPNG_SUFFIXES, "pcapng", None, PCAPNG_ONLY)
     args.log = capture_input(args.log)  # one wording for a missing file; -: standard input
     start_ns = args.start
     if args.baud <= 0:
