@@ -13,7 +13,7 @@ DISSECTORS := $(wildcard dissector/*.lua)
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: all demo test lint bench captures install uninstall deps tshark venv clean help rootfs test-matrix fuzz mutate
+.PHONY: all demo test lint bench captures install uninstall deps tshark venv clean help rootfs test-matrix fuzz mutate man
 
 all: help
 
@@ -22,6 +22,7 @@ help:
 	@echo "make test      lint and run the whole test suite"
 	@echo "make bench     print speed and memory ratios"
 	@echo "make captures  regenerate captures/ (byte-identical)"
+	@echo "make man       remake docs/sharedlink.1, the man page, from the command's parsers"
 	@echo "make install   put the dissectors, the serial extcap and the coloring rules into your personal Wireshark folders"
 	@echo "make uninstall remove them again"
 	@echo "make test-matrix  the tshark tests on Wireshark 4.0, 4.4 and 4.6 (root filesystems built once)"
@@ -45,7 +46,8 @@ tshark:
 
 venv: $(STAMP)
 
-# the virtualenv with the package alone (make install: no test extras), and with them (tests)
+# the virtualenv with the package alone (make install: the lean core, no extras), and with every
+# extra and the test tools (make test)
 define MAKE_VENV
 	@if ! $(PYTHON) -m venv --help >/dev/null 2>&1 || ! $(PYTHON) -c 'import ensurepip' 2>/dev/null; then \
 	  echo "installing python3-venv from Debian's packages"; \
@@ -55,14 +57,18 @@ define MAKE_VENV
 	$(BIN)/pip install -q --upgrade pip
 endef
 
+# an editable install without setuptools' boxed "Editable installation" warning (lenient mode
+# kept: a module added to the checkout is there without reinstalling)
+PIP_EDITABLE := PYTHONWARNINGS="ignore:Editable installation" $(BIN)/pip install -q -e
+
 $(RUNTIME): pyproject.toml setup.py
 	$(MAKE_VENV)
-	$(BIN)/pip install -q -e .
+	$(PIP_EDITABLE) .
 	@touch $(RUNTIME)
 
 $(STAMP): pyproject.toml setup.py
 	$(MAKE_VENV)
-	$(BIN)/pip install -q -e '.[test]'
+	$(PIP_EDITABLE) '.[all,test]'
 	@touch $(STAMP) $(RUNTIME)
 
 # --- the main job ----------------------------------------------------------------------------
@@ -95,6 +101,10 @@ bench: deps
 mutate: deps
 	@$(BIN)/python -c 'import mutmut' 2>/dev/null || $(BIN)/pip install -q 'mutmut>=3.3'  # the [mutate] extra
 	env -u PYTHONPATH $(PY) scripts/mutate.py $(MUTATE_ARGS)
+
+# the man page from the parsers (argparse-manpage, in the test extra); test_cli_docs checks it fresh
+man: venv
+	$(PY) scripts/manpage.py docs/sharedlink.1
 
 captures: deps
 	$(CLI) gen -o captures/beacon-full.pcap --duration 60 --seed 1
@@ -132,6 +142,6 @@ test-matrix: deps rootfs
 # the long fuzz run (tshark: editcap mutations, truncations, random and 64 KB payloads; the Python
 # parsers: atheris). FUZZ_ARGS, e.g. "--seeds 500"; SHAREDLINK_TSHARK picks the release.
 fuzz: deps
-	@$(PY) -c 'import atheris' 2>/dev/null || $(BIN)/pip install -q -e '.[fuzz]' \
+	@$(PY) -c 'import atheris' 2>/dev/null || $(PIP_EDITABLE) '.[all,fuzz]' \
 	  || echo "atheris could not be installed: the Python parsers are fuzzed with hypothesis"
 	$(PY) scripts/fuzz.py $(FUZZ_ARGS)

@@ -12,6 +12,12 @@ import sys
 EXIT_INTERRUPTED = 130
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the program is so that it cleans up as on Ctrl-C (``cli.main``
+    installs the handler; exit 143, not Ctrl-C's 130: code that catches KeyboardInterrupt to
+    clean up tells the two apart by this class)."""
+
+
 def _exit_interrupted(signum, frame):  # type: ignore[no-untyped-def]
     sys.stderr.write("sharedlink: interrupted\n")
     raise SystemExit(EXIT_INTERRUPTED)

@@ -36,6 +36,7 @@ from pathlib import Path
 from socket import inet_ntoa
 from typing import Any, NamedTuple, Optional, Union
 
+from sharedlink._interrupt import Terminated
 from sharedlink.capture.packets import Datagram, PacketDecoder, decode_packet
 from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, LINKTYPE_USER0, NS, CaptureError, read_records
 from sharedlink.defaults import MAX_PPS, MIN_PPS  # noqa: F401 - the steady rates --pps takes
@@ -107,10 +108,12 @@ class CaptureFrames:
     :class:`~sharedlink.capture.pcapio.CaptureError`.
     """
 
-    def __init__(self, path: str | Path, flt: FrameFilter | None = None) -> None:
+    def __init__(self, path: str | Path, flt: FrameFilter | None = None, direction: int | None = None) -> None:
         self.path = Path(path)
         self.filter = flt or FrameFilter()
         self.counts = SourceCounts()
+        #: serial records: only those of this direction (pcapng EPB flags: 1 inbound, 2 outbound)
+        self.direction = direction
 
     def __iter__(self) -> Iterator[OutFrame]:
         counts = self.counts
@@ -123,7 +126,7 @@ class CaptureFrames:
             counts.records += 1
             linktype, data = rec.linktype, rec.data
             if linktype in user:
-                if active:
+                if active or (self.direction is not None and rec.flags & 3 != self.direction):
                     counts.filtered += 1
                     continue
                 yield OutFrame(rec.number, rec.ts_ns, data, None, None)
@@ -352,7 +355,9 @@ class SerialSink:
         try:
             self.port = serial.Serial(device, baudrate=baud, write_timeout=write_timeout)
         except (serial.SerialException, ValueError, OSError) as exc:
-            raise ReplayError(f"--serial {device}: {exc}") from None
+            from sharedlink.capture.serial_port import port_error
+
+            raise ReplayError(port_error(device, exc)) from None
         self.device, self.baud = device, baud
         write, stalled = self.port.write, serial.SerialTimeoutException
 
@@ -431,6 +436,7 @@ class ReplayStats:
     lag_median_ns: int | None = None
     lag_max_ns: int | None = None
     interrupted: bool = False
+    terminated: bool = False  # the interruption was SIGTERM (exit 143), not Ctrl-C (130)
     realtime: bool = False  # real-time scheduling was asked for and granted
     capture_error: str | None = None
     #: capture timing: the frames of the first pass whose time did not advance past the first
@@ -676,8 +682,9 @@ class Replayer:
                     with latency_hints(self.opts.realtime) as granted:
                         st.realtime = granted
                         self._run_timed()
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:
             st.interrupted = True
+            st.terminated = isinstance(exc, Terminated)
         except SinkStalled:
             pass  # counted as a send error: exit 1
         except CaptureError as exc:

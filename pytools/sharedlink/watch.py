@@ -634,8 +634,9 @@ class DirStat:
 
 class LiveView:
     """Per direction: variables' last values, age since they changed, update rates; link
-    frames/s, checksum failures, late syncs and gaps (a full set more than the sync interval
-    + 0.5 s after the previous one); what just happened is highlighted for :data:`HIGHLIGHT_S`."""
+    frames/s, checksum failures, late syncs (frames while a full set is overdue) and late full
+    sets (a full set more than the sync interval + 0.5 s after the previous one: docs/cli.md's
+    words, never "gaps"); what just happened is highlighted for :data:`HIGHLIGHT_S`."""
 
     def __init__(self, sync_interval: float = 1.0, title: str = "") -> None:
         self.dirs: dict[tuple, DirStat] = {}
@@ -722,7 +723,7 @@ class LiveView:
             head = Text(f"{st.pair}  {' '.join(map(str, st.conv))}", style="bold cyan")
             line = Text(f"  {st.fps:.0f} frames/s  ")
             for label, n, at in (("checksum failures", st.bad, st.bad_ns), ("late syncs", st.late, st.late_ns),
-                                 ("gaps", st.gaps, st.gap_ns)):
+                                 ("late full sets", st.gaps, st.gap_ns)):
                 line.append(f"{label} {count(n)}", style="bold white on red" if now_ns - at < hl else ("red" if n else ""))
                 line.append("  ")
             line.append(f"last frame {_age(now_ns - st.last_ns)} ago")

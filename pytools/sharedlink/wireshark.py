@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sharedlink.extras import require
+
 _PACKAGE = Path(__file__).resolve().parent
 _CHECKOUT = _PACKAGE.parents[1]  # <repo>/pytools/sharedlink -> <repo>
 
@@ -210,6 +212,7 @@ def decode(
 
     ``prefs`` are SharedLink (or other) preferences, e.g. ``{"sharedlink.variables": "A,B"}``.
     """
+    require("pyshark", "sharedlink.wireshark.decode")
     import pyshark  # imported here: optional dependency, slow import
 
     script = Path(dissector) if dissector is not None else DEFAULT_DISSECTOR

@@ -12,7 +12,7 @@ PACKAGE = Path(sharedlink.__file__).resolve().parent
 
 #: the layers, lowest first; a module's layer is that of its first name part under sharedlink
 LAYERS = [
-    {"errors", "_interrupt", "defaults"},
+    {"errors", "_interrupt", "defaults", "extras", "problems"},
     {"protocols"},
     {"capture"},
     {"generators"},

@@ -32,7 +32,7 @@ def test_serial_frames_split_across_writes():
         out, err = w.communicate(timeout=60)
         os.close(master)
         os.close(slave)
-    assert w.returncode == 130, err
+    assert w.returncode == 0, err  # Ctrl-C ends a watch as it does tcpdump
     rows = [json.loads(x) for x in out.splitlines()]
     assert [r["values"]["AutoGpsLat"] for r in rows] == [float(f"38.{i:04d}") for i in range(20)]
     assert all(r["checksum"] == "good" and (r["src"], r["dst"]) == ("B", "A") for r in rows)

@@ -165,3 +165,14 @@ def list_ports() -> list[tuple[str, str]]:
     except ImportError:  # pragma: no cover
         return []
     return sorted((p.device, p.description or p.device) for p in lp.comports())
+
+
+def port_error(device: str, exc: BaseException) -> str:
+    """The one message for a serial port that would not open, in every command (serial capture,
+    replay --serial, watch --serial): ``DEVICE: cannot open it: No such file or directory``.
+    pyserial's own ("[Errno 2] could not open port X: [Errno 2] No such file or directory: 'X'")
+    says the errno and the name twice."""
+    code = getattr(exc, "errno", None)
+    if isinstance(code, int) and code > 0:
+        return f"{device}: cannot open it: {os.strerror(code)}"
+    return f"{device}: cannot open it: {exc}"

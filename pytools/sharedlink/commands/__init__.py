@@ -252,6 +252,20 @@ class OldSpelling(argparse.Action):
         setattr(namespace, self.dest, values)
 
 
+class OldFlag(argparse.Action):
+    """An old spelling of a flag (no value), kept for one release: sets the new flag's ``dest``
+    and says so on standard error; hidden from ``--help``."""
+
+    def __init__(self, option_strings: list[str], dest: str, new: str, **kwargs: Any) -> None:
+        self.new = new
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        deprecated(str(option_string), self.new)
+        setattr(namespace, self.dest, True)
+
+
 class OptionalPositional(argparse.Action):
     """An optional positional (``nargs="?"``) that leaves its ``dest`` alone when absent, so
     that an old option spelling of it (``watch --from``) is not overwritten."""
@@ -289,6 +303,31 @@ def require_output(args: argparse.Namespace, dest: str = "output") -> Path:
         raise UsageError("no output: give -o FILE (-: standard output)")
     setattr(args, dest, Path(out))
     return Path(out)
+
+
+def refuse_terminal(out: Path | str | None, what: str = "a capture") -> None:
+    """Binary output (``-o -``) is refused when standard output is a terminal, as gzip and
+    tcpdump -w - do: a UsageError, nothing written."""
+    if out is not None and is_stdout(out) and sys.stdout is not None and sys.stdout.isatty():
+        raise UsageError(f"-: standard output is a terminal and {what} is binary: redirect it (> file) or give -o FILE")
+
+
+def format_from_suffix(out: Path | str | None, formats: dict[str, str], default: str, given: str | None) -> str:
+    """The format an output is written in: ``given`` (``--format``) when given, else its file
+    name's suffix (``formats``: suffix -> format), else ``default`` for a name without one or
+    standard output. A suffix of no known format (``-o x.xlsx``) is a UsageError unless
+    ``--format`` says what to write."""
+    if given is not None:
+        return given
+    if out is None or is_stdout(out) or str(out).startswith("/dev/"):
+        return default
+    suffix = Path(out).suffix.lower()
+    if not suffix:
+        return default
+    if suffix not in formats:
+        known = ", ".join(sorted(formats))
+        raise UsageError(f"{out}: {suffix} is not a format written here ({known}): give --format to write it anyway")
+    return formats[suffix]
 
 
 def add_json_option(p: argparse.ArgumentParser | Any, what: str = "the summary") -> None:
@@ -380,7 +419,7 @@ def check_room(out: Path, records: int, record_bytes: int) -> None:
             raise UsageError(f"{out}: would write {records:,} frames, about {_size(size)}, but {folder} has "
                              f"{_size(free)} free (lower --rate, --duration or --frames)")
     if size > ANNOUNCE_BYTES:
-        print(f"writing {records:,} frames to {out}, about {_size(size)}", file=sys.stderr)
+        note(f"writing {records:,} frames to {out}, about {_size(size)}")
 
 
 def generate_to(opts: Any, generate: Callable[[Any, Path], T], out: Path) -> T:
@@ -411,11 +450,72 @@ def plural(n: int, word: str, words: str | None = None) -> str:
 
 
 def report(summary: dict, as_json: bool, line: str) -> None:
-    """The closing summary: JSON on stdout with ``--json``, else ``line`` on stderr."""
+    """The closing summary: JSON on stdout with ``--json``, else ``line`` on stderr (not with
+    ``--quiet``)."""
     if as_json:
         json.dump(summary, sys.stdout)
         print()
     else:
+        note(line)
+
+
+def _problem_names(text: str) -> tuple[str, ...]:
+    from sharedlink.problems import PROBLEMS
+
+    names = tuple(dict.fromkeys(n.strip() for n in text.split(",") if n.strip()))
+    unknown = [n for n in names if n not in PROBLEMS]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"{','.join(unknown) or repr(text)}: give one or more of {','.join(PROBLEMS)}")
+    return names
+
+
+_problem_names.__name__ = "problem list"
+
+
+def add_fail_on_option(p: argparse.ArgumentParser | Any) -> None:
+    """``--fail-on PROBLEM,...`` (stats): the problems of :mod:`sharedlink.problems`."""
+    from sharedlink.problems import PROBLEMS
+
+    p.add_argument("--fail-on", type=_problem_names, default=(), metavar="PROBLEM,...",
+                   help=f"exit 1 when any of these occur in the capture (for CI): {', '.join(PROBLEMS)} "
+                   f"({'; '.join(f'{k}: {v.words}' for k, v in PROBLEMS.items())})")
+
+
+def fail_on(names: tuple[str, ...], st: Any) -> int:
+    """``--fail-on``: EXIT_FAIL, with a line on stderr, when a named problem occurred in the
+    statistics ``st``; else EXIT_OK (the names and their counts: :mod:`.fail_on`)."""
+    from sharedlink.problems import failures
+
+    found = failures(names, st) if names else None
+    if found:
+        print(f"sharedlink: failed: {found} (--fail-on {','.join(names)})", file=sys.stderr)
+        return EXIT_FAIL
+    return EXIT_OK
+
+
+# -- --quiet: one meaning in every command ------------------------------------------------------
+
+QUIET_HELP = ("no progress bar, no per-file lines and no closing summary on standard error (warnings, errors "
+              "and what goes to standard output are still printed)")
+#: the running command's --quiet (set by cli.main from the parsed arguments: read by
+#: :class:`Progress`, :func:`report` and :func:`note`, so that no command has to pass it on)
+QUIET = False
+
+
+def add_quiet_option(p: argparse.ArgumentParser | Any) -> None:
+    """``--quiet``/``-q``: the same on every command that shows progress or a summary."""
+    p.add_argument("--quiet", "-q", action="store_true", help=QUIET_HELP)
+
+
+def set_quiet(args: argparse.Namespace) -> None:
+    global QUIET
+    QUIET = bool(getattr(args, "quiet", False))
+
+
+def note(line: str) -> None:
+    """An informational line on standard error (what was written, what is about to be): not
+    with ``--quiet``."""
+    if not QUIET:
         print(line, file=sys.stderr)
 
 
@@ -430,12 +530,14 @@ def add_transform_arguments(p: argparse.ArgumentParser) -> None:
     add_variables_option(p)
     add_json_option(p)
     add_force_option(p)
+    add_quiet_option(p)
 
 
 @honours_force
 def run_transform(args: argparse.Namespace, mode: str) -> int:
     """``compress`` / ``expand``: rewrite the capture, then the summary."""
     require_output(args)
+    refuse_terminal(args.output)
     args.input = capture_input(args.input)
     if not (args.sync_interval > 0 and math.isfinite(args.sync_interval)):
         raise UsageError("--sync-interval must be a positive number of seconds")
@@ -455,11 +557,10 @@ def run_transform(args: argparse.Namespace, mode: str) -> int:
         saving = ""
         if st.saving is not None:
             saving = f" ({st.saving:.1%} smaller)" if st.saving >= 0 else f" ({-st.saving:.1%} larger)"
-        print(
+        note(
             f"wrote {args.output}: {st.records} records, {st.value_frames} value frames "
             f"({st.full} full, {st.delta} delta, {st.copied} copied unchanged), "
-            f"SharedLink bytes {st.bytes_in} -> {st.bytes_out}{saving}",
-            file=sys.stderr,
+            f"SharedLink bytes {st.bytes_in} -> {st.bytes_out}{saving}"
         )
     if st.error:
         print(f"sharedlink: error: {st.error} (the records before it were written)", file=sys.stderr)
@@ -488,7 +589,7 @@ class Progress:
         import time
 
         self._clock = time.monotonic
-        self.enabled = not quiet and sys.stdout.isatty() and sys.stderr.isatty()
+        self.enabled = not (quiet or QUIET) and sys.stdout.isatty() and sys.stderr.isatty()
         self.after = float(os.environ.get("SHAREDLINK_PROGRESS_AFTER", PROGRESS_AFTER_S))  # (tests: 0)
         self.start = self._clock()
         self.what, self.unit = what, unit

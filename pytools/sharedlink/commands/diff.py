@@ -17,6 +17,7 @@ from sharedlink.commands import (
     STDIN,
     Progress,
     add_json_option,
+    add_quiet_option,
     add_variables_option,
     capture_input,
     number,
@@ -59,6 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--single-process", action="store_true",
                    help="read both captures in this process (default: each in its own)")
     add_json_option(p, "the report")
+    add_quiet_option(p)
     p.set_defaults(func=run)
 
 

@@ -17,19 +17,23 @@ from sharedlink.commands import (
     add_json_option,
     add_location_options,
     add_output_option,
+    add_quiet_option,
     add_select_option,
     capture_input,
     decode_options,
     deprecated,
+    format_from_suffix,
     given_names,
     honours_force,
     name_list,
+    note,
     plural,
     warn_empty,
 )
 from sharedlink.defaults import EXPORT_BINARY_FORMATS as BINARY_FORMATS
 from sharedlink.defaults import EXPORT_FORMATS as FORMATS
 from sharedlink.errors import UsageError
+from sharedlink.extras import require
 
 _SUFFIXES = {".csv": "csv", ".jsonl": "jsonl", ".ndjson": "jsonl", ".geojson": "geojson", ".kml": "kml", ".mcap": "mcap"}
 
@@ -54,6 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_location_options(p, "geojson/kml (and mcap)")
     add_decode_options(p)
     add_json_option(p)
+    add_quiet_option(p)
     p.set_defaults(func=run)
 
 
@@ -70,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     given = given_names(args)
     fmt = args.fmt
     if fmt is None:
-        fmt = _SUFFIXES.get(args.output.suffix.lower(), "csv") if args.output is not None else "csv"
+        fmt = format_from_suffix(args.output, _SUFFIXES, "csv", None)
     columns = name_list(args.select)
     if args.output is not None and args.output.is_dir():
         raise UsageError(f"{args.output}: is a directory")
@@ -79,6 +84,8 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--format {fmt} is binary: give the file with -o")
         if args.changes or columns is not None:
             raise UsageError(f"--format {fmt} writes every frame and variable: no --changes or --select")
+    if fmt == "mcap":
+        require("foxglove", "sharedlink export --format mcap")
     refuse_overwrite(args.output, args.capture)
     opts = ExportOptions(fmt=fmt, changes=args.changes, variables=variables, columns=columns, sync_interval=sync,
                          lat=args.lat, lon=args.lon, heading=args.heading, velocity=args.velocity,
@@ -106,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.output is not None and not is_stdout(args.output):
         what = "point" if fmt in ("geojson", "kml") else "message" if fmt == "mcap" else "row"
         n = result.points if what == "point" else result.rows
-        print(f"wrote {args.output}: {plural(n, what)} from {plural(result.frames, 'frame')} ({fmt})", file=sys.stderr)
+        note(f"wrote {args.output}: {plural(n, what)} from {plural(result.frames, 'frame')} ({fmt})")
     if fmt != "mcap" and not result.error:  # MCAP holds P2OS and blackboard channels too
         warn_empty(args.capture, result.frames)
     if result.error:

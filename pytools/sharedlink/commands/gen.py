@@ -17,11 +17,14 @@ from sharedlink.commands import (
     add_json_option,
     add_old_spelling,
     add_output_option,
+    add_quiet_option,
     check_room,
+    format_from_suffix,
     generate_to,
     honours_force,
     number,
     plural,
+    refuse_terminal,
     report,
     require_output,
     start_time,
@@ -64,7 +67,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--start", type=start_time(), default=None, metavar="TIME",
                    help="time of the first beacon, UTC ISO 8601 (e.g. 2026-03-02T08:00:00Z; default 2026-01-01T12:00:00Z)")
     add_json_option(p)
+    add_quiet_option(p)
     p.set_defaults(func=run)
+
+
+#: file name suffixes gen knows, and the format each is written in
+_SUFFIXES = {".pcap": "pcap", ".cap": "pcap", ".dmp": "pcap", ".pcapng": "pcapng", ".ntar": "pcapng"}
 
 
 @honours_force
@@ -75,9 +83,12 @@ def run(args: argparse.Namespace) -> int:
     )
 
     require_output(args, "out")
+    refuse_terminal(args.out)
+    fmt = format_from_suffix(args.out, _SUFFIXES, "pcap", args.fmt)  # (a suffix of no capture format: refused)
+    if args.fmt is None and args.transport == "serial":
+        fmt = "pcapng"  # serial captures are pcapng
     if args.transport == "serial" and args.protocol == "sharedlink":
         return run_gen_serial(args)
-    fmt = args.fmt or ("pcapng" if str(args.out).endswith(".pcapng") or args.transport == "serial" else "pcap")
     if args.protocol != "sharedlink":
         return run_session(args, fmt)
     if args.transport not in (None, "udp"):

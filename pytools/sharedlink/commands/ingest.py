@@ -10,15 +10,18 @@ from typing import TYPE_CHECKING
 from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
+    OldFlag,
     Progress,
     add_decode_options,
     add_json_option,
     add_old_spelling,
     add_output_option,
+    add_quiet_option,
     decode_options,
 )
 from sharedlink.commands import report as print_summary
 from sharedlink.errors import UsageError
+from sharedlink.extras import require
 from sharedlink.fleet import BATCH_ROWS
 
 if TYPE_CHECKING:
@@ -44,16 +47,20 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "its workers must see the captures and DATASET at the same paths")
     p.add_argument("--vehicle", metavar="NAME",
                    help="the vehicle of every capture given (default: the name of the directory a capture is in)")
-    p.add_argument("--force", action="store_true", help="re-ingest captures even when unchanged")
+    p.add_argument("--reingest", action="store_true", help="decode captures again even when the dataset holds them unchanged")
+    p.add_argument("--force", dest="reingest", action=OldFlag, new="--reingest (--force means replace a symbolic-link output elsewhere)")
     p.add_argument("--batch-rows", type=int, default=BATCH_ROWS, metavar="N",
                    help=f"rows held per table before a row group is written (bounds memory; default {BATCH_ROWS})")
-    p.add_argument("--quiet", "-q", action="store_true", help="no line per capture")
+    add_quiet_option(p)
     add_decode_options(p)
     add_json_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    require("fleet", "sharedlink ingest")
+    if args.scheduler:
+        require("dask", "sharedlink ingest --scheduler")
     from sharedlink.fleet.ingest import ingest  # pyarrow loads only for this command
 
     variables, sync = decode_options(args)
@@ -80,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         progress.total = _total_size(args.inputs)  # (bytes of every capture: the bar's whole)
         report = ingest(
             args.inputs, args.dataset, workers=args.workers, scheduler=args.scheduler, vehicle=args.vehicle,
-            variables=variables, sync_interval=sync, force=args.force, batch_rows=args.batch_rows, on_outcome=say,
+            variables=variables, sync_interval=sync, force=args.reingest, batch_rows=args.batch_rows, on_outcome=say,
             progress=progress,
         )
     bad = report.count("damaged") + report.count("failed")

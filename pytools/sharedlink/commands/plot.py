@@ -18,6 +18,7 @@ from sharedlink.commands import (
     add_location_options,
     add_old_spelling,
     add_output_option,
+    add_quiet_option,
     add_select_option,
     capture_input,
     decode_options,
@@ -30,6 +31,7 @@ from sharedlink.commands import (
     warn_empty,
 )
 from sharedlink.errors import UsageError
+from sharedlink.extras import require
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -52,6 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-points", type=number(10, 1e9, integer=True), default=5000, help="points kept per series (default 5000)")
     add_decode_options(p)
     add_json_option(p)
+    add_quiet_option(p)
     p.set_defaults(func=run)
 
 
@@ -66,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     if args.max_points < 10:
         raise UsageError("--max-points must be at least 10")
     names = name_list(args.select)
+    require("plot", "sharedlink plot")
     import matplotlib
 
     matplotlib.use("Agg")  # headless, whatever the environment says

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from sharedlink.commands import EXIT_OK, number
 from sharedlink.errors import UsageError
+from sharedlink.extras import require
 
 #: rows of a result a table on a terminal shows at most (the first and the last half)
 MAX_ROWS = 40
@@ -38,6 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if not args.dataset.exists():  # the one wording of a missing input
         raise UsageError(f"{args.dataset}: no such file")
+    require("fleet", "sharedlink query")
     from sharedlink.fleet.query import (  # pyarrow loads for this command only
         run_query,
         write_csv,

@@ -15,16 +15,18 @@ from sharedlink.commands import (
     EXIT_FAIL,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    EXIT_TERMINATED,
     EXIT_USAGE,
     PORT,
     SECONDS_OR_ZERO,
     add_json_option,
     add_old_spelling,
+    add_quiet_option,
     add_speed_option,
     capture_input,
     number,
 )
-from sharedlink.defaults import MAX_PPS, MIN_PPS
+from sharedlink.defaults import MAX_PPS, MIN_PPS, SERIAL_DIRECTIONS
 from sharedlink.errors import UsageError
 
 if TYPE_CHECKING:  # (sharedlink.replay loads when the command runs: every command's start-up pays for what is imported here)
@@ -51,6 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     dest.add_argument("--bind", metavar="ADDR", default=None, help="source address (ADDR or ADDR:PORT) or interface name")
     dest.add_argument("--serial", metavar="DEVICE", default=None, help="write the bytes to this serial port or pty instead")
     dest.add_argument("--baud", type=BAUD, default=9600, help="with --serial: baud rate (default 9600)")
+    dest.add_argument("--direction", choices=sorted(SERIAL_DIRECTIONS), default=None,
+                      help="serial captures: replay only the records of this direction (in: inbound, from the tap's "
+                      "DEV_A; out: outbound, from DEV_B); needed with --serial when the capture holds both")
     timing = p.add_argument_group("timing")
     pace = timing.add_mutually_exclusive_group()
     add_speed_option(pace, "capture timing times X (2 = twice as fast; default 1)")
@@ -71,9 +76,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     sel.add_argument("--filter-src", action="append", default=[], metavar="ADDR",
                      help="only frames from this source address or network, e.g. 192.168.1.12 or 10.0.0.0/8 (repeatable)")
     out = p.add_argument_group("output")
-    out.add_argument("--quiet", "-q", action="store_true", help="no progress, no summary (errors are still printed)")
+    add_quiet_option(out)
     add_json_option(out)
     p.set_defaults(func=run)
+
+
+def _check_direction(args: argparse.Namespace) -> None:
+    """A serial capture holding both directions goes into one port only one direction at a
+    time: ``--direction in|out`` (as serial import names them) is required then."""
+    from sharedlink.capture.pcapio import read_records
+    from sharedlink.replay import USER_LINKTYPES
+
+    if args.direction is not None:
+        return
+    seen: dict[int, int] = {}
+    try:
+        for rec in read_records(args.capture):
+            if rec.linktype in USER_LINKTYPES:
+                seen[rec.flags & 3] = seen.get(rec.flags & 3, 0) + 1
+    except CaptureError:
+        pass  # reported by the replay itself, after the good frames
+    if seen.get(1) and seen.get(2):
+        raise UsageError(f"{args.source} holds both directions of a serial line ({seen[1]} inbound, {seen[2]} outbound "
+                         "records): give --direction in or --direction out, one port takes one direction")
 
 
 def _sink(args: argparse.Namespace) -> UdpSink | SerialSink:
@@ -84,6 +109,7 @@ def _sink(args: argparse.Namespace) -> UdpSink | SerialSink:
             raise UsageError("--serial writes to a serial port: --to, --bind, --broadcast and --multicast do not apply")
         if args.baud <= 0:
             raise UsageError("--baud must be positive")
+        _check_direction(args)
         return SerialSink(args.serial, args.baud)
     host, port = split_host_port(args.to) if args.to else ("127.0.0.1", None)
     if port is None:
@@ -128,7 +154,8 @@ def _run(args: argparse.Namespace) -> int:
                   f"{'' if opts.speed == 1 else f' (at {opts.speed:g}x)'}: waiting for it (Ctrl-C stops; --pps N or "
                   "--topspeed play without the capture's gaps)", file=sys.stderr, flush=True)
 
-        replayer = Replayer(CaptureFrames(args.capture, flt), sink, opts, progress=progress,
+        direction = None if args.direction is None else SERIAL_DIRECTIONS[args.direction]
+        replayer = Replayer(CaptureFrames(args.capture, flt, direction), sink, opts, progress=progress,
                             progress_interval=progress.interval if progress else 1.0, long_wait=long_wait)
         stats = replayer.run()
     finally:
@@ -158,7 +185,7 @@ def _run(args: argparse.Namespace) -> int:
     if stats.send_errors and not args.json and args.quiet:
         print(f"sharedlink: {stats.send_errors} frames could not be sent (first: {stats.first_error})", file=sys.stderr)
     if stats.interrupted:
-        return EXIT_INTERRUPTED
+        return EXIT_TERMINATED if stats.terminated else EXIT_INTERRUPTED
     if stats.capture_error:
         return EXIT_USAGE
     return EXIT_FAIL if stats.send_errors else EXIT_OK

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from contextlib import ExitStack
 from pathlib import Path
@@ -20,10 +19,13 @@ from sharedlink.commands import (
     add_json_option,
     add_old_spelling,
     add_output_option,
+    add_quiet_option,
     capture_input,
     honours_force,
+    note,
     number,
     plural,
+    refuse_terminal,
     report,
     require_output,
     start_time,
@@ -65,7 +67,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "Ctrl-C or SIGTERM ends the capture; every record is flushed as written.",
     )
     c.add_argument("device", nargs="?", help="serial port, e.g. /dev/ttyUSB0 (not with --tap)")
-    c.add_argument("--baud", type=BAUD, required=True, help="line speed, bits per second")
+    c.add_argument("--baud", type=BAUD, default=9600, help="line speed, bits per second (default 9600)")
     add_output_option(c, "capture file to write (default, or -: standard output)", dest="out", default="-")
     add_old_spelling(c, "--out", "-o/--output", "out", type=Path, metavar="FILE")
     add_force_option(c)
@@ -74,6 +76,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--duration", type=SECONDS, default=None, help="stop after S seconds")
     c.add_argument("--count", type=COUNT, default=None, metavar="N", help="stop after N records")
     add_json_option(c)
+    add_quiet_option(c)
     c.set_defaults(func=run_capture)
 
     i = ss.add_parser(
@@ -98,6 +101,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "file's modification time)")
     i.add_argument("--linktype", type=_linktype, default=147, help="USER link type (default user0 = 147)")
     add_json_option(i)
+    add_quiet_option(i)
     i.set_defaults(func=run_import)
 
     ls = ss.add_parser("ports", help="list the machine's serial ports")
@@ -108,7 +112,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 @honours_force
 def run_capture(args: argparse.Namespace) -> int:
     from sharedlink.capture.serial_format import SerialCaptureWriter
-    from sharedlink.capture.serial_port import capture
+    from sharedlink.capture.serial_port import capture, port_error
 
     if args.tap and args.device:
         raise UsageError("give either DEVICE or --tap DEV_A DEV_B, not both")
@@ -119,6 +123,7 @@ def run_capture(args: argparse.Namespace) -> int:
     if args.count is not None and args.count <= 0:
         raise UsageError("--count must be positive")
     to_stdout = str(args.out) == "-"
+    refuse_terminal(args.out, "a serial capture")
     if to_stdout and args.json:
         raise UsageError("--json needs -o FILE (the capture goes to standard output)")
     name = f"{args.tap[0]}<->{args.tap[1]}" if args.tap else args.device
@@ -132,7 +137,7 @@ def run_capture(args: argparse.Namespace) -> int:
         def ready() -> None:
             if deferred is not None:
                 deferred.open()
-            print(f"capturing {name} at {args.baud} baud into {args.out} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+            note(f"capturing {name} at {args.baud} baud into {args.out} (Ctrl-C to stop)")
 
         try:
             stats = capture(w, args.device, args.baud, tuple(args.tap) if args.tap else None, args.duration, args.count,
@@ -140,7 +145,7 @@ def run_capture(args: argparse.Namespace) -> int:
         except Exception as exc:  # serial.SerialException / OSError opening or configuring a port
             if isinstance(exc, (KeyboardInterrupt, BrokenPipeError, Error)):
                 raise
-            raise UsageError(f"{name}: {_port_error(exc)}") from None
+            raise UsageError(port_error(name, exc)) from None
     summary = {
         "file": str(args.out),
         "records": stats.records,
@@ -152,21 +157,13 @@ def run_capture(args: argparse.Namespace) -> int:
     return 0
 
 
-def _port_error(exc: BaseException) -> str:
-    """One clause for a port that would not open: pyserial's "[Errno 2] could not open port X:
-    [Errno 2] No such file or directory: 'X'" says the errno and the name twice."""
-    code = getattr(exc, "errno", None)
-    if isinstance(code, int) and code > 0:
-        return f"cannot open it: {os.strerror(code)}"
-    return str(exc)
-
-
 @honours_force
 def run_import(args: argparse.Namespace) -> int:
     from sharedlink.capture.serial_format import SerialCaptureWriter, StreamReader
     from sharedlink.capture.serial_import import SerialImportError, read_log
 
     require_output(args, "out")
+    refuse_terminal(args.out, "a serial capture")
     args.log = capture_input(args.log)  # one wording for a missing file; -: standard input
     start_ns = args.start
     if args.baud <= 0:

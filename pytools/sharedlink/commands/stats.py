@@ -9,13 +9,15 @@ import sys
 from pathlib import Path
 
 from sharedlink.commands import (
-    EXIT_OK,
     EXIT_USAGE,
     Progress,
     add_decode_options,
+    add_fail_on_option,
     add_json_option,
+    add_quiet_option,
     capture_input,
     decode_options,
+    fail_on,
     warn_empty,
 )
 
@@ -25,11 +27,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "stats",
         help="statistics of a capture",
         description="Frames per kind and per node pair, rates, bytes, compression ratio, checksum failures, "
-        "sync gaps and per-variable count/min/max/last. Streams: any size of capture.",
+        "late full sets and per-variable count/min/max/last. Streams: any size of capture.",
     )
     p.add_argument("capture", type=Path, help="pcap or pcapng file (-: standard input)")
     add_decode_options(p)
     add_json_option(p, "the statistics")
+    add_quiet_option(p)
+    add_fail_on_option(p)
     p.set_defaults(func=run)
 
 
@@ -55,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     if st.error:
         print(f"sharedlink: error: {st.error} (the statistics cover the {st.frames} frames before it)", file=sys.stderr)
         return EXIT_USAGE
-    return EXIT_OK
+    return fail_on(args.fail_on, st)
 
 
 def _rich(st) -> None:

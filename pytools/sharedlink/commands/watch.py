@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from sharedlink._interrupt import Terminated
 from sharedlink.capture.pcapio import buffered_stdout
 from sharedlink.commands import (
     BAUD,
@@ -19,12 +20,14 @@ from sharedlink.commands import (
     add_json_option,
     add_location_options,
     add_old_spelling,
+    add_quiet_option,
     add_speed_option,
     capture_input,
     decode_options,
 )
 from sharedlink.defaults import WATCH_DEFAULT_PORT as DEFAULT_PORT
 from sharedlink.errors import UsageError
+from sharedlink.extras import require
 
 if TYPE_CHECKING:  # (loaded when the command runs: every command's start-up pays for what is imported here)
     from sharedlink.analysis.decode import Decoded
@@ -36,11 +39,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "watch",
         help="live view of a link: UDP port, serial line or a capture at its pace",
         description="Decode SharedLink traffic as it arrives and show, per direction, every variable's last value, "
-        "its age and update rate, and the link's frames/s, checksum failures, late syncs and gaps (highlighted "
-        "when they happen). --json prints one JSON line per frame instead; --foxglove also serves the decoded "
+        "its age and update rate, and the link's frames/s, checksum failures, late syncs and late full sets "
+        "(highlighted when they happen). --json prints one JSON line per frame instead; --foxglove also serves the decoded "
         "stream to Foxglove over its WebSocket protocol.",
-        epilog="Exit codes: 0 the capture (--from) ended, 2 bad usage, no permission to sniff, a port --bind-port finds taken "
-        "or a damaged capture (after the frames before the damage), 130 stopped with Ctrl-C.",
+        epilog="Exit codes: 0 stopped with Ctrl-C (as tcpdump) or the CAPTURE ended, 2 bad usage, no permission to "
+        "sniff, a port --bind-port finds taken or a damaged capture (after the frames before the damage), 143 "
+        "stopped by SIGTERM.",
     )
     src = p.add_argument_group("source (default: UDP port 7013)")
     p.add_argument("capture", nargs="?", type=Path, default=None, metavar="CAPTURE", action=OptionalPositional,
@@ -64,6 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_speed_option(src, "with CAPTURE: its pace times X (2 = twice as fast; default 1)")
     out = p.add_argument_group("output")
     add_json_option(out, "one line per frame (instead of the view)")
+    add_quiet_option(out)
     out.add_argument("--foxglove", action="store_true", help="serve the stream over the Foxglove WebSocket protocol")
     out.add_argument("--foxglove-port", type=int, default=8765, metavar="PORT", help="its port (default 8765; 0: any free)")
     out.add_argument("--foxglove-host", default="127.0.0.1", metavar="ADDR", help="its address (default 127.0.0.1)")
@@ -88,7 +93,9 @@ def _source(args: argparse.Namespace) -> Any:
         try:
             return SerialSource(args.serial, args.baud)
         except Exception as exc:  # pyserial's SerialException, OSError
-            raise UsageError(f"{args.serial}: {exc}") from None
+            from sharedlink.capture.serial_port import port_error
+
+            raise UsageError(port_error(args.serial, exc)) from None
     if not 0 < args.port < 65536:
         raise UsageError("--port must be 1..65535")
     from sharedlink.watch import MAX_LAG_S
@@ -113,6 +120,7 @@ def _source(args: argparse.Namespace) -> Any:
 
 
 def _foxglove(args: argparse.Namespace) -> tuple[Any, Any]:
+    require("foxglove", "sharedlink watch --foxglove")
     import foxglove
 
     from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
@@ -131,9 +139,21 @@ def _foxglove(args: argparse.Namespace) -> tuple[Any, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Ctrl-C is how a watch ends, as tcpdump's: exit 0 after the summary (SIGTERM: 143)."""
+    try:
+        return _run(args)
+    except KeyboardInterrupt as exc:
+        if isinstance(exc, Terminated):
+            raise
+        return EXIT_OK
+
+
+def _run(args: argparse.Namespace) -> int:
     from sharedlink.watch import FastDecoder, JsonLines, WatchStats, run_watch, served
 
     variables, sync = decode_options(args)
+    if args.foxglove:  # before the source opens
+        require("foxglove", "sharedlink watch --foxglove")
     source = _source(args)
     server = None
     stats = WatchStats()
@@ -145,7 +165,8 @@ def run(args: argparse.Namespace) -> int:
             server, channels = _foxglove(args)
             outputs.append(served(channels.frame, stats))
             sessions.append(served(channels.session, stats))
-        print(f"sharedlink watch: {source.description}", file=sys.stderr, flush=True)
+        if not args.quiet:  # what is watched (the Foxglove server's address is always said)
+            print(f"sharedlink watch: {source.description}", file=sys.stderr, flush=True)
         if args.json:  # Ctrl-C waits until a batch's lines are written whole (see run_watch)
             with buffered_stdout(binary=False) as out:
                 write = out.write

@@ -39,8 +39,9 @@ class VarListError(ValueError):
 
 
 def parse_pair(text: str) -> str:
-    """``"B>A"`` (spaces allowed around the letters) -> ``"B>A"``; anything else an error."""
-    src, sep, dst = text.partition(">")
+    """``"B>A"`` (spaces allowed around the letters; ``"B→A"``, as Wireshark draws it, too) ->
+    ``"B>A"``; anything else an error."""
+    src, sep, dst = text.replace("\u2192", ">").partition(">")
     src, dst = src.strip(), dst.strip()
     if not sep or len(src) != 1 or len(dst) != 1 or src not in LETTERS or dst not in LETTERS:
         raise VarListError(f"bad node pair {text.strip()!r} (SRC>DST, letters A-P)")
@@ -91,7 +92,7 @@ def parse_varlists(text: str) -> dict[str, VarList]:
         if not entry.strip():
             continue
         head, colon, rest = entry.partition(":")
-        if colon and ">" in head:
+        if colon and (">" in head or "\u2192" in head):
             pair = parse_pair(head)
             out[pair] = parse_list(rest, pair)
         else:
