@@ -153,7 +153,7 @@ cfg.parse_varlists = parse_varlists
 -- untyped value is added when it reads as a number).
 local KAIROS_NAMES = "AutoGpsLat:2,AutoGpsLon:2,AutoGpsHead:2,AutoGpsVel:2," ..
     "AutoGpsReferences:0,AutoGpsQuality:0,AutoGpsStamp:2,pause:0,key_on:0,eng_enb:0,pe7:0,bbrake:0,fbrake:0," ..
-    "steerang:2,throttle:0,svp_enb_eng,serialpck:0,veh_gear:0,veh_state:0,veh_estop:0,veh_obstacle:0," ..
+    "steerang:2,throttle:0,svp_enb_eng:0,serialpck:0,veh_gear:0,veh_state:0,veh_estop:0,veh_obstacle:0," ..
     "vehicle_bat:2,run_composite:4,VehicleName:4,Health_total:0,rpm:0,fuel:0,sys_thd:2," ..
     "video_mux1:0,veh_start:0,veh_enable:0,veh_motion:0,joy_steer:2,veh_steer:0,veh_brake:0,veh_throttle:0," ..
     "veh_shift:0,veh_clutch:0"

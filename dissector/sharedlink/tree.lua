@@ -489,6 +489,9 @@ local function shown_var_head(v, fs, name, vtype)
         vtype = tv and tv[v] or valid_type(VT[v])
         if vtype then ti_add(vt, H_ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
         else var_type(vt, v, tf, vtype) end
+    elseif VT[v] then   -- a name with no T of its own: the frame's last T (parse's add_var), generated
+        vtype = valid_type(VT[v])
+        ti_gen(ti_add(vt, H_ftype, vtype))
     end
     if VN[v] and not VR[v] then
         ti_hide(ti_add(vt, H_var_name, tvb(o + FS[qf] + 1, FE[qf] - FS[qf]), name))
@@ -503,8 +506,9 @@ end
 local function hidden_var_head(v, name, vtype)
     local vt = var_item()
     -- a T field: its field number where the places are known (the parser may leave a T's number
-    -- with VT false: shown as an empty type), else (a layout's frame) its text
-    if (c_places and VTf[v] ~= 0) or (not c_places and VT[v]) then
+    -- with VT false: shown as an empty type), else (a layout's frame) its text; a name with no T
+    -- of its own and the frame's last T (VT, VTf 0)
+    if VT[v] or (c_places and VTf[v] ~= 0) then
         local tv = c_tv
         vtype = tv and tv[v] or valid_type(VT[v])
         var_type(vt, v, VTf[v], vtype)
