@@ -35,8 +35,11 @@
 -- sharedlink.inbound_ordinal (L), sharedlink.command / .command.arg (E and its D
 -- arguments), sharedlink.mode (M), sharedlink.ping (P), sharedlink.pong (G),
 -- sharedlink.field.letter / .field.text (unknown fields), sharedlink.noise (bytes
--- between frames), sharedlink.checksum.text (a checksum that is not a hex byte),
--- sharedlink.sync.is_late (generated boolean: the sync.late condition, for taps/filters).
+-- between frames), sharedlink.checksum.text (a checksum that is not a hex byte, or not written
+-- as two upper-case hex digits), sharedlink.sync.is_late (generated boolean: the sync.late
+-- condition, for taps/filters), sharedlink.sync.gap (a late frame's time since the last full one).
+-- Each expert's summary names its problem, never a value (the values are in those fields:
+-- tshark -z expert lists one row per problem).
 -- Expert infos beyond the core set: sharedlink.checksum.missing (warning),
 -- sharedlink.var.badvalue (warning: value/type/ordinal not matching its type),
 -- sharedlink.crlf.missing (note), sharedlink.noise.skipped (note),
