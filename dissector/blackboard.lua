@@ -61,6 +61,12 @@ local pf = {
     response_in = ProtoField.framenum("blackboard.response_in", "Answered in frame", base.NONE, frametype.RESPONSE),
     repeat_of = ProtoField.framenum("blackboard.repeat_of", "Repeat of frame", base.NONE, frametype.DUP_ACK),
     junk = ProtoField.bytes("blackboard.junk", "Bytes outside any message"),
+    -- the values of the expert infos, in fields of their own (issue 41: one summary a problem)
+    non_hex = ProtoField.uint8("blackboard.non_hex.char", "Non-hex character", base.HEX),
+    non_hex_count = ProtoField.uint32("blackboard.non_hex.count", "Non-hex characters in all", base.DEC),
+    ack_expected = ProtoField.uint8("blackboard.ack.expected", "Expected acknowledgement (the set message's checksum)",
+        base.HEX),
+    unanswered_in = ProtoField.framenum("blackboard.unanswered_in", "Unanswered message in frame", base.NONE),
 }
 local field_list = {}
 for _, f in pairs(pf) do
@@ -248,9 +254,8 @@ local function decode_hex(tvb, t, off, text_end, ndig)
     local bad = 0
     local function flag(pos)
         bad = bad + 1
-        if bad <= 8 then -- the first few; the count after
-            t:add_proto_expert_info(ex.non_hex, "Non-hex character 0x" .. hex2(u8(tvb, pos)) .. " at offset "
-                .. istr(pos - off))
+        if bad <= 8 then -- the first few (each its byte, at its place); the count after
+            t:add(pf.non_hex, tvb:range(pos, 1)):add_proto_expert_info(ex.non_hex)
         end
     end
     local i = off + 1
@@ -272,7 +277,9 @@ local function decode_hex(tvb, t, off, text_end, ndig)
         t:add_proto_expert_info(ex.odd)
     end
     if bad > 8 then
-        t:add_proto_expert_info(ex.non_hex, istr(bad) .. " non-hex characters in all")
+        local ci = t:add(pf.non_hex_count, bad)
+        ci:set_generated()
+        ci:add_proto_expert_info(ex.non_hex, "Non-hex characters past the first 8")
     end
     return bytes, bad
 end
@@ -304,8 +311,7 @@ local function add_checksum(t, r, bytes)
     if written ~= calc then
         status = 0
         cki:append_text(" [incorrect, should be 0x" .. hex2(calc) .. "]")
-        cki:add_proto_expert_info(ex.checksum_bad, "Bad checksum: 0x" .. hex2(written) .. ", should be 0x"
-            .. hex2(calc))
+        cki:add_proto_expert_info(ex.checksum_bad)   -- (blackboard.checksum and .calculated)
     else
         cki:append_text(" [correct]")
     end
@@ -329,8 +335,7 @@ local function add_fields(tvb, t, m)
     t:add(pf.node, brange(4, 1), node)
     local need = (m.kind == SET) and 5 + count or 5
     if #bytes ~= need then
-        ci:add_proto_expert_info(ex.count_bad, "Count " .. istr(count) .. " means " .. istr(need)
-            .. " bytes, " .. istr(#bytes) .. " present")
+        ci:add_proto_expert_info(ex.count_bad)   -- (the count in blackboard.count, the bytes in the hex text)
     end
     local ndata = #bytes - 5
     if m.kind == SET and ndata > 0 then
@@ -359,11 +364,11 @@ local function note_previous(tvb, t, m, prev, summary)
     end
     if prev.text == m.hextext then
         t:add(pf.repeat_of, tvb:range(m.off, 1), prev.frame):set_generated()
-        t:add_proto_expert_info(ex.repeat_msg, "Repeat of frame " .. istr(prev.frame)
-            .. ": no acknowledgement seen")
+        t:add_proto_expert_info(ex.repeat_msg)   -- (the frame: blackboard.repeat_of)
         return summary .. " [repeat]"
     end
-    t:add_proto_expert_info(ex.unanswered, "Frame " .. istr(prev.frame) .. " got no answer before this message")
+    t:add(pf.unanswered_in, tvb:range(m.off, 1), prev.frame):set_generated()
+    t:add_proto_expert_info(ex.unanswered)
     return summary
 end
 
@@ -420,7 +425,7 @@ local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_l
     m.bytes, bad = decode_hex(tvb, t, off, text_end, m.ndig)
     if bad > 0 or m.ndig % 2 == 1 or #m.bytes < 5 then
         if #m.bytes < 5 and bad == 0 and m.ndig % 2 == 0 then
-            t:add_proto_expert_info(ex.short, "Message too short: " .. istr(#m.bytes) .. " bytes, at least 5")
+            t:add_proto_expert_info(ex.short)   -- (its bytes: blackboard.hex)
         end
         add_terminator(tvb, t, m, over_limit)
         t:append_text(", " .. m.name .. " (malformed)")
@@ -469,16 +474,15 @@ local function dissect_binary(tvb, pinfo, tree, off, stop, rec, can_more)
         local status = 1
         if a ~= rec.checksum then
             status = 0
-            ai:add_proto_expert_info(ex.ack_bad, "Acknowledgement 0x" .. hex2(a) .. " does not match checksum 0x"
-                .. hex2(rec.checksum) .. " of frame " .. istr(rec.frame))
+            t:add(pf.ack_expected, tvb:range(off, 1), rec.checksum):set_generated()
+            ai:add_proto_expert_info(ex.ack_bad)   -- (the set message: blackboard.request_in)
         end
         t:add(pf.checksum_status, tvb:range(off, 1), status):set_generated()
         summary = "ack 0x" .. hex2(a) .. ((status == 1) and "" or " [wrong]")
     else
         t:add(pf.type, tvb:range(off, n), "response")
         if have < want then
-            t:add_proto_expert_info(ex.response_short, "Read response truncated: " .. istr(want)
-                .. " bytes expected, " .. istr(have) .. " present")
+            t:add_proto_expert_info(ex.response_short)   -- (what it asked: the request's blackboard.count)
             if n > 0 then
                 t:add(pf.data, tvb:range(off, n))
             end
@@ -500,8 +504,7 @@ local function dissect_binary(tvb, pinfo, tree, off, stop, rec, can_more)
         local status = 1
         if written ~= calc then
             status = 0
-            ci:add_proto_expert_info(ex.response_bad, "Bad read response checksum: 0x" .. hex2(written)
-                .. ", should be 0x" .. hex2(calc))
+            ci:add_proto_expert_info(ex.response_bad)   -- (blackboard.checksum and .calculated)
         end
         t:add(pf.checksum_status, cr, status):set_generated()
         summary = "response " .. istr(rec.count) .. " bytes" .. ((status == 1) and "" or " [bad checksum]")

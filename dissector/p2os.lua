@@ -325,8 +325,8 @@ local function dissect_command(tvb, tree, off, plen, in_handshake)
     local used
     if t == ARG_POSITIVE or t == ARG_NEGATIVE then
         if plen < 4 then
-            ti:add_proto_expert_info(ex.arg_truncated, "Integer argument truncated: 2 bytes needed, "
-                .. istr(plen - 2) .. " present")
+            -- (one summary a problem, issue 41: what is present is in the packet's byte count)
+            ti:add_proto_expert_info(ex.arg_truncated, "Integer argument truncated")
             return name .. " (argument truncated)"
         end
         local mag = tvb:range(off + 2, 2):le_uint()
@@ -346,8 +346,8 @@ local function dissect_command(tvb, tree, off, plen, in_handshake)
         local li = tree:add(pf.arg_length, tvb:range(off + 2, 1))
         local have = plen - 3
         if have < slen then
-            li:add_proto_expert_info(ex.arg_truncated, "String argument of " .. istr(slen)
-                .. " bytes, " .. istr(have) .. " present")
+            -- (its length is p2os.arg.length, what is present p2os.arg.string)
+            li:add_proto_expert_info(ex.arg_truncated, "String argument truncated")
             slen = have
         end
         if slen > 0 then
@@ -400,7 +400,7 @@ local function dissect_sip(tvb, tree, off, plen)
     for _, spec in ipairs(SIP_HEAD) do
         local f, size = spec[1], spec[2]
         if i + size > stop then
-            tree:add_proto_expert_info(ex.sip_truncated, "Standard SIP truncated before " .. spec[3])
+            tree:add_proto_expert_info(ex.sip_truncated, "Standard SIP truncated")   -- (issue 41: no field name)
             return "SIP (truncated)"
         end
         local r = tvb:range(i, size)
@@ -434,10 +434,9 @@ local function dissect_sip(tvb, tree, off, plen)
     local nson = u8(tvb, i)
     local st = tree:add(pf.sip_sonar_count, tvb:range(i, 1))
     i = i + 1
-    for k = 1, nson do
+    for _ = 1, nson do
         if i + 3 > stop then
-            st:add_proto_expert_info(ex.sip_truncated, "Sonar reading " .. istr(k) .. " of "
-                .. istr(nson) .. " truncated")
+            st:add_proto_expert_info(ex.sip_truncated, "Standard SIP truncated in its sonar readings")
             return summary .. " (truncated)"
         end
         local num = u8(tvb, i)
@@ -449,7 +448,7 @@ local function dissect_sip(tvb, tree, off, plen)
     end
     for _, spec in ipairs(SIP_TAIL) do
         if i + 1 > stop then
-            tree:add_proto_expert_info(ex.sip_truncated, "Standard SIP truncated before " .. spec[2])
+            tree:add_proto_expert_info(ex.sip_truncated, "Standard SIP truncated")
             return summary .. " (truncated)"
         end
         tree:add(spec[1], tvb:range(i, 1))
@@ -492,8 +491,7 @@ end
 
 local function dissect_encoder(tvb, tree, off, plen)
     if plen < 9 then
-        tree:add_proto_expert_info(ex.sip_truncated, "ENCODER packet truncated: 9 bytes needed, "
-            .. istr(plen) .. " present")
+        tree:add_proto_expert_info(ex.sip_truncated, "ENCODER packet truncated")
         return "ENCODER (truncated)"
     end
     local l = tvb:range(off + 1, 4):le_int()
@@ -623,15 +621,18 @@ local function dissect_one(tvb, pinfo, tree, h, count)
     local pt = tree:add(p2os, tvb:range(h, total))
     pt:add(pf.header, tvb:range(h, 2))
     local ci = pt:add(pf.count, tvb:range(h + 2, 1))
-    if count > MAX_COUNT then
-        ci:add_proto_expert_info(ex.count_big)
-    end
     local plen = count - 2
     local off = h + 3
     local calc = p2os_checksum(tvb, off, plen)
     local crange = tvb:range(off + plen, 2)
     local written = crange:uint()
     local client, how = direction(pinfo, tvb, off, plen)
+    -- the robot ignores a client command over 200 bytes (the P2OS manual); a server packet may
+    -- count up to 255 (ARIA reads them; shared/PROTOCOL-NOTES.md, issue 40): no expert for it
+    local too_big = client and count > MAX_COUNT
+    if too_big then
+        ci:add_proto_expert_info(ex.count_big)
+    end
     local di = pt:add(pf.direction, tvb:range(h, total), client and 0 or 1)
     di:set_generated()
     if how then
@@ -665,13 +666,13 @@ local function dissect_one(tvb, pinfo, tree, h, count)
         status = 1
     else
         ck:append_text(" [incorrect, should be 0x" .. string.format("%04X", calc) .. "]")
-        ck:add_proto_expert_info(ex.checksum_bad, "Bad checksum: 0x" .. string.format("%04X", written)
-            .. ", should be 0x" .. string.format("%04X", calc))
+        -- one summary a problem (issue 41): the values are p2os.checksum and p2os.checksum.calculated
+        ck:add_proto_expert_info(ex.checksum_bad)
         status = 0
         summary = summary .. " [bad checksum]"
     end
     pt:add(pf.checksum_status, crange, status):set_generated()
-    if count > MAX_COUNT then
+    if too_big then
         summary = summary .. " [count > 200]"
     end
     pt:append_text(", " .. (client and "client to robot: " or "robot to client: ") .. summary)
@@ -745,7 +746,7 @@ local function dissect_buffer(tvb, pinfo, tree)
             if h + 3 <= n then
                 t:add(pf.count, tvb:range(h + 2, 1))
             end
-            t:add_proto_expert_info(ex.truncated, "Packet truncated: " .. istr(need) .. " more bytes needed")
+            t:add_proto_expert_info(ex.truncated)   -- (its byte count: p2os.count)
             infos[#infos + 1] = "truncated packet"
             break
         end

@@ -22,7 +22,8 @@
 --   sharedlink.variables          a-priori list naming positional values, NAME or NAME:TYPE
 --                                 (0 long, 2 double, 4 string; default AutoGpsLat:2,AutoGpsLon:2,
 --                                 AutoGpsHead:2,AutoGpsVel:2), and per-pair lists SRC>DST: ...
---   sharedlink.sync_interval      expected full-frame interval in ms (default 1000)
+--   sharedlink.sync_interval_ms   expected full-frame interval in ms (default 1000; the old name
+--                                 sharedlink.sync_interval still works, deprecated)
 --   sharedlink.max_slots, max_names, max_conversations, max_pending, max_held_bytes
 --                                 limits (1024, 4096, 65536, 1024, 65536): input past one is
 --                                 dropped with sharedlink.limit.exceeded ("Limits" in
@@ -34,8 +35,11 @@
 -- sharedlink.inbound_ordinal (L), sharedlink.command / .command.arg (E and its D
 -- arguments), sharedlink.mode (M), sharedlink.ping (P), sharedlink.pong (G),
 -- sharedlink.field.letter / .field.text (unknown fields), sharedlink.noise (bytes
--- between frames), sharedlink.checksum.text (a checksum that is not a hex byte),
--- sharedlink.sync.is_late (generated boolean: the sync.late condition, for taps/filters).
+-- between frames), sharedlink.checksum.text (a checksum that is not a hex byte, or not written
+-- as two upper-case hex digits), sharedlink.sync.is_late (generated boolean: the sync.late
+-- condition, for taps/filters), sharedlink.sync.gap (a late frame's time since the last full one).
+-- Each expert's summary names its problem, never a value (the values are in those fields:
+-- tshark -z expert lists one row per problem).
 -- Expert infos beyond the core set: sharedlink.checksum.missing (warning),
 -- sharedlink.var.badvalue (warning: value/type/ordinal not matching its type),
 -- sharedlink.crlf.missing (note), sharedlink.noise.skipped (note),
@@ -269,13 +273,13 @@ local function add_noise(s, i, j, tvb, tree, root)
     I.noise(j - i + 1)
     if not tree then
         -- no tree: the expert alone, on the tree Wireshark gave
-        if root then TI.add_proto_expert_info(root, ei.noise, (j - i + 1) .. " bytes outside any frame") end
+        if root then TI.add_proto_expert_info(root, ei.noise) end   -- (the bytes: sharedlink.noise)
         return
     end
     local r = tvb(i - 1, j - i + 1)
     local ti = tree:add(sl, r)
     ti:append_text(", noise")
-    ti:add(hf.noise, r):add_proto_expert_info(ei.noise, (j - i + 1) .. " bytes outside any frame")
+    ti:add(hf.noise, r):add_proto_expert_info(ei.noise)
 end
 
 -- A frame at s[a..] that no ']' closes: held for the next TCP segment while within

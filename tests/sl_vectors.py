@@ -172,5 +172,8 @@ REAL_VEHICLE_LIST = [
     ("veh_gear", 0), ("veh_state", 0), ("veh_estop", 0), ("veh_obstacle", 0), ("vehicle_bat", 2),
     ("run_composite", 4), ("VehicleName", 4), ("Health_total", 0), ("rpm", 0), ("fuel", 0), ("sys_thd", 2),
 ]
+#: REAL_VEHICLE_LIST as a declaration of it types it: svp_enb_eng has no T of its own, so it takes
+#: the T0 before it (BUL-009, issue 40: "created with the previously defined type")
+REAL_VEHICLE_TYPED = [(n, 0 if n == "svp_enb_eng" else t) for n, t in REAL_VEHICLE_LIST]
 REAL_OCU_LIST = [("video_mux1", 0), ("veh_start", 0), ("veh_enable", 0), ("veh_motion", 0), ("joy_steer", 2),
        ("veh_steer", 0), ("veh_brake", 0), ("veh_throttle", 0), ("veh_shift", 0), ("veh_clutch", 0)]

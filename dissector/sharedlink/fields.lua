@@ -47,6 +47,8 @@ local hf = {
     noise = ProtoField.bytes("sharedlink.noise", "Noise"),
     -- the sync.late condition as a field (the expert of the same name cannot be read by a tap)
     sync_is_late = ProtoField.bool("sharedlink.sync.is_late", "Sync late"),
+    -- a late frame's time since its direction's last full frame (the sync.late expert's value)
+    sync_gap = ProtoField.relative_time("sharedlink.sync.gap", "Time since the last full frame"),
 }
 -- fields and experts are registered by a loop over their keyed tables, in key order
 -- (a stable order for tshark -G fields)

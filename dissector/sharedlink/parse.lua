@@ -106,12 +106,15 @@ end
 -- The parser: every field from p on, in one pass, recorded with its place; variables gathered as
 -- T/Q/R/D come.  The state of the pass (upvalues, reset by general_reset): g_t/g_tf a pending T's
 -- text and field, g_q/g_qf a pending Q or R name and field, g_r: it is an R, g_idx the next
--- variable's index.
+-- variable's index, g_lt the text of the frame's last T when it is a type (else false).
 ------------------------------------------------------------------------------
-local g_t, g_tf, g_q, g_qf, g_r, g_idx
+local g_t, g_tf, g_q, g_qf, g_r, g_idx, g_lt
 
--- A variable (type text, name, value, is reply; its T, Q/R and D field numbers).
+-- A variable (type text, name, value, is reply; its T, Q/R and D field numbers).  A name with no
+-- T of its own (tf 0) takes the frame's last T (BUL-009: "created with the previously defined
+-- type"; docs/fields-sharedlink.md, "Values"): VT its text, VTf 0.
 local function add_var(t, q, v, r, tf, qf, df)
+    if q and tf == 0 then t = g_lt end
     local nv = P.nv + 1
     P.nv = nv
     VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = t, q, v, g_idx, r
@@ -124,7 +127,7 @@ local function take_triplet(p, fe, t1, t2, t3)
     add_var(t1, t2, t3, false, nf + 1, nf + 2, nf + 3)
     g_idx = g_idx + 1
     P.nq, P.nd = P.nq + 1, P.nd + 1
-    if not valid_type(t1) then P.odd = true end
+    if valid_type(t1) then g_lt = t1 else g_lt, P.odd = false, true end
     local q1 = p + #t1 + 2
     local d1 = q1 + #t2 + 2
     FL[nf + 1], FS[nf + 1], FE[nf + 1] = L_T, p, q1 - 2
@@ -204,7 +207,7 @@ local function take_field(c, p, fe, t1, bodyend, nf)
     elseif c == L_T then
         if g_q then flush_name(); g_q, g_r, g_qf = false, false, 0 end
         g_t, g_tf = t1, nf
-        if not valid_type(t1) then P.odd = true end
+        if valid_type(t1) then g_lt = t1 else g_lt, P.odd = false, true end
     elseif c == L_N or c == L_L then
         take_ordinal(c, t1)
     elseif c == L_C and fe == bodyend then
@@ -220,7 +223,7 @@ end
 
 -- The fields from p to bodyend.
 local function parse_fields(f, p, bodyend)
-    g_t, g_tf, g_q, g_qf, g_r, g_idx = false, 0, false, 0, false, 0
+    g_t, g_tf, g_q, g_qf, g_r, g_idx, g_lt = false, 0, false, 0, false, 0, false
     while p and p <= bodyend + 1 do
         local c = s_byte(f, p)
         local _, fe, t1, t2, t3

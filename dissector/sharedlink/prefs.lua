@@ -22,8 +22,16 @@ sl.prefs.validate_checksum = Pref.bool("Validate the checksum", true,
 sl.prefs.variables = Pref.string("Positional variable list", DEFAULT_VARS,
     "NAME[:TYPE],... (types 0 long, 2 double, 4 string): names a positional frame of as many slots; " ..
     "SRC>DST: NAME[:TYPE],...; ... gives a list for a node pair (as `sharedlink lists` prints it)")
-sl.prefs.sync_interval = Pref.uint("Sync interval (ms)", 1000,
-    "A full frame is expected at least this often per direction (plus 500 ms slack)")
+-- The sync interval, named with its unit (issue 41: the CLI's --sync-interval is in seconds, this
+-- is in milliseconds).  sharedlink.sync_interval, its old name, still works for one release
+-- (wslua has no obsolete-preference alias): a value set there is used when sync_interval_ms is
+-- left at its default, with a deprecation note on stderr once.
+local SYNC_DEFAULT_MS = 1000
+sl.prefs.sync_interval_ms = Pref.uint("Sync interval (ms)", SYNC_DEFAULT_MS,
+    "A full frame is expected at least this often per direction, in milliseconds (plus 500 ms slack; " ..
+    "the command line's --sync-interval is the same in seconds)")
+sl.prefs.sync_interval = Pref.uint("Sync interval (ms), old name (deprecated)", SYNC_DEFAULT_MS,
+    "Deprecated: use sharedlink.sync_interval_ms (same value, in ms); used only while that one is at its default")
 -- Limits (issue 31; the same names and defaults as the Python tools' sharedlink.protocols.limits)
 local LIMIT_DEFAULTS = { max_slots = 1024, max_names = 4096, max_conversations = 65536, max_pending = 1024,
     max_held_bytes = 65536 }
@@ -130,9 +138,9 @@ end
 -- The values in use: list (the parsed variable list), validate, heuristic, sync (the interval plus
 -- the slack, in seconds), and LIM: the limits and the per-capture facts they need: journal (a
 -- direction keeps a journal, see state's journal), ndirs (directions with state), npend
--- (unanswered queries a conversation)
+-- (unanswered queries a querier), nqueriers (queriers with an entry in npend)
 local cfg = { list = EMPTY, pairs = {}, validate = true, heuristic = true, sync = 1.0 + U.SYNC_SLACK,
-    LIM = { journal = false, ndirs = 0, npend = {} } }
+    LIM = { journal = false, ndirs = 0, npend = {}, nqueriers = 0 } }
 
 local function read_limits()
     local LIM = cfg.LIM
@@ -153,7 +161,7 @@ cfg.parse_varlists = parse_varlists
 -- untyped value is added when it reads as a number).
 local KAIROS_NAMES = "AutoGpsLat:2,AutoGpsLon:2,AutoGpsHead:2,AutoGpsVel:2," ..
     "AutoGpsReferences:0,AutoGpsQuality:0,AutoGpsStamp:2,pause:0,key_on:0,eng_enb:0,pe7:0,bbrake:0,fbrake:0," ..
-    "steerang:2,throttle:0,svp_enb_eng,serialpck:0,veh_gear:0,veh_state:0,veh_estop:0,veh_obstacle:0," ..
+    "steerang:2,throttle:0,svp_enb_eng:0,serialpck:0,veh_gear:0,veh_state:0,veh_estop:0,veh_obstacle:0," ..
     "vehicle_bat:2,run_composite:4,VehicleName:4,Health_total:0,rpm:0,fuel:0,sys_thd:2," ..
     "video_mux1:0,veh_start:0,veh_enable:0,veh_motion:0,joy_steer:2,veh_steer:0,veh_brake:0,veh_throttle:0," ..
     "veh_shift:0,veh_clutch:0"
@@ -206,6 +214,23 @@ end
 -- name -> { field, vtype } (0 long, 2 double, 4 string)
 cfg.VALUE = value_fields()
 
+-- The sync interval in ms: sync_interval_ms, else the old name's value when only that one was set
+-- (noted once on stderr as deprecated).
+local old_noted = false
+function cfg.sync_ms()
+    local ms = tonumber(sl.prefs.sync_interval_ms) or SYNC_DEFAULT_MS
+    local old = tonumber(sl.prefs.sync_interval) or SYNC_DEFAULT_MS
+    if ms == SYNC_DEFAULT_MS and old ~= SYNC_DEFAULT_MS then
+        if not old_noted then
+            old_noted = true
+            io.stderr:write("SharedLink: the preference sharedlink.sync_interval is deprecated: " ..
+                "use sharedlink.sync_interval_ms (the same value, in ms)\n")
+        end
+        return old
+    end
+    return ms
+end
+
 -- the preferences' values (at init and when they change)
 function cfg.read()
     local text = sl.prefs.variables
@@ -218,14 +243,14 @@ function cfg.read()
     end
     cfg.validate = sl.prefs.validate_checksum
     cfg.heuristic = sl.prefs.heuristic
-    cfg.sync = (tonumber(sl.prefs.sync_interval) or 1000) / 1000 + U.SYNC_SLACK
+    cfg.sync = cfg.sync_ms() / 1000 + U.SYNC_SLACK
     read_limits()
 end
 
 -- the per-capture facts the limits keep (init)
 function cfg.reset()
     local LIM = cfg.LIM
-    LIM.journal, LIM.ndirs, LIM.npend = false, 0, {}
+    LIM.journal, LIM.ndirs, LIM.npend, LIM.nqueriers = false, 0, {}, 0
 end
 
 return cfg

@@ -562,12 +562,17 @@ do
     end
 
     -- A query waits for its reply (under its ask key and each name it asks for; at most
-    -- max_pending a querier).
+    -- max_pending a querier, at most max_conversations queriers: a new one past them is refused,
+    -- as Python's PendingAsks does, issue 40).
     local function ask(ak, name, rec)
         local qkey = ak .. ":" .. name
         if pending_q[qkey] then
             pending_q[qkey] = rec
+        elseif LIM.npend[ak] == nil and LIM.nqueriers >= LIM.max_conversations then
+            lim_hit = "Limit exceeded: more than " .. LIM.max_conversations ..
+                " queriers with unanswered queries (max_conversations)"
         elseif (LIM.npend[ak] or 0) < LIM.max_pending then
+            if LIM.npend[ak] == nil then LIM.nqueriers = LIM.nqueriers + 1 end
             pending_q[qkey] = rec
             LIM.npend[ak] = (LIM.npend[ak] or 0) + 1
         else

@@ -211,7 +211,8 @@ local function tree_address(off, b, letter, is_node, field, node_field, what)
     else
         ti = hitem(ti, field, letter) or ti
     end
-    ti_expert(ti, ei.address_invalid, what .. " " .. letter .. " is not a letter A-P")
+    -- (one summary a problem, issue 41: the letter is in the field itself)
+    ti_expert(ti, ei.address_invalid, what .. " is not a letter A-P")
 end
 
 -- The protocol line: "SharedLink Protocol, B→A full" (", bad checksum").  Speed trick (measured,
@@ -296,8 +297,7 @@ local function var_name(vt, v, name)
     local shown = c_shown
     local list = c_list
     if not VN[v] and not list[VI[v] + 1] and list.decl then
-        ti_expert(vt, ei.var_unknown,
-            "Positional value " .. VI[v] .. " is past the known list (" .. #list .. " variables)")
+        ti_expert(vt, ei.var_unknown)   -- (its slot: sharedlink.var.index)
     end
     do
         local r
@@ -329,10 +329,10 @@ local function typed_value(vt, r, vtype, text, known, dbl)
         field = H_var_double
         if known and REF[field] == false then return end
         if dbl == nil then v = tonumber(text) else v = dbl end
-        if not v then ti_expert(vt, ei.var_badvalue, "Not a double: " .. text) end
+        if not v then ti_expert(vt, ei.var_badvalue, "Not a double") end   -- (the text: sharedlink.var.value)
     elseif vtype == 0 then
         field, v = hf.var_long, parse_long(text)
-        if not v then ti_expert(vt, ei.var_badvalue, "Not a long (int64): " .. text) end
+        if not v then ti_expert(vt, ei.var_badvalue, "Not a long (int64)") end
     elseif vtype == 4 then
         field, v = hf.var_string, text
     end
@@ -489,6 +489,9 @@ local function shown_var_head(v, fs, name, vtype)
         vtype = tv and tv[v] or valid_type(VT[v])
         if vtype then ti_add(vt, H_ftype, tvb(o + FS[tf] + 1, FE[tf] - FS[tf]), vtype)
         else var_type(vt, v, tf, vtype) end
+    elseif VT[v] then   -- a name with no T of its own: the frame's last T (parse's add_var), generated
+        vtype = valid_type(VT[v])
+        ti_gen(ti_add(vt, H_ftype, vtype))
     end
     if VN[v] and not VR[v] then
         ti_hide(ti_add(vt, H_var_name, tvb(o + FS[qf] + 1, FE[qf] - FS[qf]), name))
@@ -503,8 +506,9 @@ end
 local function hidden_var_head(v, name, vtype)
     local vt = var_item()
     -- a T field: its field number where the places are known (the parser may leave a T's number
-    -- with VT false: shown as an empty type), else (a layout's frame) its text
-    if (c_places and VTf[v] ~= 0) or (not c_places and VT[v]) then
+    -- with VT false: shown as an empty type), else (a layout's frame) its text; a name with no T
+    -- of its own and the frame's last T (VT, VTf 0)
+    if VT[v] or (c_places and VTf[v] ~= 0) then
         local tv = c_tv
         vtype = tv and tv[v] or valid_type(VT[v])
         var_type(vt, v, VTf[v], vtype)
@@ -559,8 +563,10 @@ local function number_field(l, fs, fe, text, vr)
         else text_item(fs, fe, "Type (T): " .. text, ei.var_badvalue, "Type is not a number") end
         return
     end
-    local n = tonumber(text)
-    if n and n >= 0 and n < 4294967296 and n == floor(n) then
+    -- an ordinal is decimal digits only, as the state reads it (parse's state_ordinal: 1e3, +5,
+    -- 0x10 and 5.5 are no number there, so none here either; issue 40)
+    local n = not string.find(text, "[^0-9]") and tonumber(text)
+    if n and n < 4294967296 then
         plain_item(c_ti, l == U.L_N and H_ordinal or hf.inbound_ordinal, vr, floor(n))
     else
         text_item(fs, fe, (l == U.L_N and "Ordinal (N): " or "Inbound ordinal (L): ") .. text,
@@ -583,7 +589,7 @@ local function unknown_field(l, fs, fe)
     if l == U.L_C then
         ti_expert(ft or ti, ei.field_unknown, "Checksum field C that is not the last field")
     else
-        ti_expert(ft or ti, ei.field_unknown, "Unknown field letter " .. LETTER[l])
+        ti_expert(ft or ti, ei.field_unknown)   -- (the letter: sharedlink.field.letter)
     end
 end
 
@@ -792,9 +798,9 @@ local function shown_checksum(cpos, ctext)
     else
         ct = ti_add(ti, hf.checksum_text, cr, ctext)
     end
-    if not UHEXV[ctext] then
-        ti_expert(ct, ei.checksum_format,
-            "Checksum \"" .. ctext .. "\" is not two upper-case hex digits")
+    if not UHEXV[ctext] then   -- (the text as written in a field of its own, issue 41)
+        if byte_val then ti_add(ct, hf.checksum_text, cr, ctext) end
+        ti_expert(ct, ei.checksum_format)
     end
     if not cfg.validate then
         ti_gen(ti_add(ct, H_checksum_status, cr, 2))
@@ -808,8 +814,8 @@ local function shown_checksum(cpos, ctext)
     else
         ti_gen(ti_add(ct, H_checksum_status, cr, 0))
         ti_append(ct, string.format(" [incorrect, should be 0x%02x]", cs_calc))
-        ti_expert(ct, ei.checksum_bad,
-            string.format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
+        -- one summary a problem (issue 41): the values are sharedlink.checksum and .calculated
+        ti_expert(ct, ei.checksum_bad)
     end
 end
 
@@ -823,8 +829,8 @@ local function hidden_checksum(ctext)
         ct = hadd(ti, hf.checksum_text, ctext)
     end
     if not UHEXV[ctext] then
-        ti_expert(ct or ti, ei.checksum_format,
-            "Checksum \"" .. ctext .. "\" is not two upper-case hex digits")
+        if val and val <= 255 then hitem(ti, hf.checksum_text, ctext) end
+        ti_expert(ct or ti, ei.checksum_format)
     end
     if not cfg.validate then
         if REF[H_checksum_status] ~= false then hadd(ti, H_checksum_status, 2) end
@@ -833,10 +839,7 @@ local function hidden_checksum(ctext)
     local cs_calc = C.cs_calc
     if REF[H_checksum_calc] ~= false then hadd(ti, H_checksum_calc, cs_calc) end
     if REF[H_checksum_status] ~= false then hadd(ti, H_checksum_status, cs_status) end
-    if cs_status ~= 1 then
-        ti_expert(ct or ti, ei.checksum_bad,
-            string.format("Bad checksum: %s, calculated %02X", ctext, cs_calc))
-    end
+    if cs_status ~= 1 then ti_expert(ct or ti, ei.checksum_bad) end
 end
 
 local function tree_trailer()
@@ -845,11 +848,16 @@ local function tree_trailer()
     if P.limit then ti_expert(ti, ei.limit, P.limit) end
     if rec and rec.limit then ti_expert(ti, ei.limit, rec.limit) end
     if rec and rec.late then
-        if shown then ti_gen(ti_add(ti, hf.sync_is_late, true))
-        else hitem(ti, hf.sync_is_late, true) end
-        ti_expert(ti, ei.sync_late,
-            string.format("No full frame for %.3f s (sync interval %.3f s + %.1f s slack)",
-                rec.late, cfg.sync - U.SYNC_SLACK, U.SYNC_SLACK))
+        -- one summary a problem (issue 41): the time since the last full frame in sharedlink.sync.gap
+        local gap = U.nstime_of(rec.late)
+        if shown then
+            ti_gen(ti_add(ti, hf.sync_is_late, true))
+            ti_gen(ti_add(ti, hf.sync_gap, gap))
+        else
+            hitem(ti, hf.sync_is_late, true)
+            hitem(ti, hf.sync_gap, gap)
+        end
+        ti_expert(ti, ei.sync_late)
     end
     if P.cpos then
         if shown then shown_checksum(P.cpos, P.ctext) else hidden_checksum(P.ctext) end

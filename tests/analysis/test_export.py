@@ -197,7 +197,8 @@ def test_jsonl_value_is_json_dumps_of_the_typed_value(type_code):
 
 def _two_pass_csv(path: Path) -> str:
     """The CSV export by its definition: a first pass learns every name given a value (in order
-    of first appearance), the second writes each frame's row with every column."""
+    of first appearance), the second writes each frame's row with every column: the direction's
+    values after the frame, a reply's the values it carries alone (issue 40)."""
     import io
 
     from sharedlink.analysis.decode import Decoded, format_time, iter_decoded
@@ -215,7 +216,8 @@ def _two_pass_csv(path: Path) -> str:
             continue
         t0 = d.ts_ns if t0 is None else t0
         ok = "none" if d.checksum_ok is None else ("good" if d.checksum_ok else "bad")
-        vals = [getattr(d.table.vars.get(n), "text", None) for n in names]
+        held = {u.name: u for u in d.updates if u.text is not None} if d.kind == "reply" else d.table.vars
+        vals = [getattr(held.get(n), "text", None) for n in names]
         w.writerow([d.number, format_time(d.ts_ns), d.ts_ns, round((d.ts_ns - t0) / 1e9, 9), d.src, d.dst, d.kind, ok,
                     *["" if v is None else v for v in vals]])
     return out.getvalue()

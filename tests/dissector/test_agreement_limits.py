@@ -238,8 +238,9 @@ def test_a_new_name_past_max_names_is_shown_as_sent_and_stored_nowhere_alike(tmp
 # -- a named value without T -------------------------------------------------------------------
 
 #: a vehicle declares Vel double and Lat long, then sends named values with and without T: a
-#: value is typed by the T of its own triplet (BUL-009: "Ttype|Qname|Ddata"), untyped (never
-#: bad) without one, whatever an earlier triplet or the list said; a positional slot by its list
+#: value is typed by the T of its own triplet (BUL-009: "Ttype|Qname|Ddata"), or the frame's last
+#: T before it (issue 40), untyped (never bad) with none in its frame, whatever an earlier frame
+#: or the list said; a positional slot by its list
 UNTYPED_AFTER_TYPED = ["AB|N0|T2|QVel|T0|QLat", "AB|N0|QVel|D5", "AB|N0|T4|QVel|D6", "AB|N0|QVel|D7",
                        "AB|N0|D1|D2", "AB|N0|QLat|D1.5", "AB|N0|T2|QHead|D1|QHead|D2", "BA|QHead", "AB|RHead|D5",
                        "BA|QLat", "AB|RLat|D1.5"]
@@ -257,9 +258,43 @@ def test_a_named_value_without_t_is_untyped_alike(tmp_path: Path) -> None:
     assert sent(3) == [("Vel", "7", False, False, None, False)]
     assert sent(4) == [("Lat", "2", False, False, "long", False), ("Vel", "1", False, False, "double", False)]
     assert sent(5) == [("Lat", "1.5", False, False, None, False)]
-    assert sent(6) == [("Head", "1", False, False, "double", False), ("Head", "2", False, False, None, False)]
+    # the second Head has no T of its own: the frame's last T (issue 40)
+    assert sent(6) == [("Head", "1", False, False, "double", False), ("Head", "2", False, False, "double", False)]
     assert sent(8) == [("Head", "5", False, False, None, False)]  # a reply: the list's type, Head has none
     assert sent(10) == [("Lat", "1.5", False, True, None, False)]  # ... Lat's is long: a bad value
+
+
+# -- a name without T after one (issue 40) ----------------------------------------------------
+
+#: BUL-009: a Q name with no T of its own takes the frame's last T ("created with the
+#: previously defined type"): in a declaration (BUL-110's svp_enb_eng, veh_clutch), in named
+#: data (a bad value when it does not fit), after a T that is no type (untyped, no warning of
+#: its own), and in a reply (the T before it wins over the list's type)
+LAST_T = ["AB|N0|T0|Qthrottle|Qsvp_enb_eng|T4|Qname|T2|Qvel|Qhead", "AB|N0|D1|D2|Dx|D1.5|D7",
+          "AB|N0|D|D1.5|D|D|D", "AB|N0|T0|QA|D1|QB|D2|T2|QC|D3|QD|D4.5", "AB|N0|T0|QA|D1|QB|Dz",
+          "AB|N0|Tx|QA|D1|QB|D2", "AB|N0|QE|D1|T2|QF|D2", "BA|QA|QB", "AB|T2|RA|D1|RB|D2",
+          "BA|N0|T0|Qveh_shift|Qveh_clutch", "BA|N0|D3|D1"]
+
+
+def test_a_name_without_t_takes_the_last_t_alike(tmp_path: Path) -> None:
+    frames = _session(LAST_T)
+    cap = _write(tmp_path / "last_t.pcap", frames)
+    lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
+    assert lua == py
+
+    def types(i: int) -> dict[str, tuple]:   # name -> (bad, type) of the values the frame sends
+        return {v[0]: (v[3], v[4]) for v in py[i][0]["vars"] if not v[2]}
+    assert types(1) == {"throttle": (False, "long"), "svp_enb_eng": (False, "long"), "name": (False, "string"),
+                        "vel": (False, "double"), "head": (False, "double")}
+    assert types(2) == {"svp_enb_eng": (True, None)}   # a long slot: 1.5 is a bad value
+    assert types(3) == {"A": (False, "long"), "B": (False, "long"), "C": (False, "double"), "D": (False, "double")}
+    assert types(4) == {"A": (False, "long"), "B": (True, None)}
+    assert types(5) == {"A": (True, None), "B": (False, None)}   # after a T that is no type: untyped, no warning
+    assert types(6) == {"E": (False, None), "F": (False, "double")}   # no T before E in its frame
+    assert types(8) == {"A": (False, "double"), "B": (False, "double")}   # a reply: the T before it
+    assert types(10) == {"veh_shift": (False, "long"), "veh_clutch": (False, "long")}
+    rows = tu.fields(cap, ["frame.number", "sharedlink.type"], two_pass=False)
+    assert rows[0]["sharedlink.type"] == ["0", "0", "4", "2", "2"]   # the inherited ones generated
 
 
 # -- max_slots: named values are no slots ------------------------------------------------------

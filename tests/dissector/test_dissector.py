@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+import tshark_util as tu
 from sharedlink.capture.packets import decode_packet
 from sharedlink.capture.pcapio import read_records
 from sharedlink.generators.beacon import GenOptions, generate_file
@@ -382,8 +383,23 @@ def test_sync_late(sync_pcap):
 
 
 def test_sync_interval_preference(sync_pcap):
-    rows = fields(sync_pcap, ["sharedlink.sync.late"], prefs={"sharedlink.sync_interval": 5000})
+    rows = fields(sync_pcap, ["sharedlink.sync.late"], prefs={"sharedlink.sync_interval_ms": 5000})
     assert not any(r["sharedlink.sync.late"] for r in rows)
+
+
+def test_sync_interval_old_name_still_works_with_a_deprecation_note(sync_pcap):
+    """Issue 41: the preference is named with its unit (sync_interval_ms); the old name works for one
+    release, noted as deprecated on stderr, and the new name wins when both are given."""
+    res = tu.tshark(sync_pcap, ["-o", "sharedlink.sync_interval:5000", "-T", "fields", "-e", "sharedlink.sync.late"])
+    assert not any(line.strip() for line in res.stdout.splitlines())
+    assert "sharedlink.sync_interval is deprecated: use sharedlink.sync_interval_ms" in res.stderr
+    both = tu.tshark(sync_pcap, ["-o", "sharedlink.sync_interval_ms:2000", "-o", "sharedlink.sync_interval:5000",
+                                 "-T", "fields", "-e", "frame.number", "-e", "sharedlink.sync.late"]).stdout
+    new = tu.tshark(sync_pcap, ["-o", "sharedlink.sync_interval_ms:2000",
+                                "-T", "fields", "-e", "frame.number", "-e", "sharedlink.sync.late"]).stdout
+    assert both == new and any(line.split("\t")[1].strip() for line in new.splitlines())   # 2 s: some late
+    res = tu.tshark(sync_pcap, ["-o", "sharedlink.sync_interval_ms:5000", "-T", "fields", "-e", "sharedlink.sync.late"])
+    assert "deprecated" not in res.stderr
 
 
 def test_state_stable_across_passes(sync_pcap):

@@ -98,7 +98,8 @@ def test_kairos_names_registered_with_their_types() -> None:
         assert types[f"sharedlink.value.{name}"] == "FT_DOUBLE", name
     assert types["sharedlink.value.veh_gear"] == "FT_INT64"
     assert types["sharedlink.value.VehicleName"] == "FT_STRING"
-    assert types["sharedlink.value.svp_enb_eng"] == "FT_DOUBLE"   # untyped in the bulletin: double
+    # BUL-110's declaration gives it no T of its own: the T0 before it (BUL-009, issue 40)
+    assert types["sharedlink.value.svp_enb_eng"] == "FT_INT64"
 
 
 def test_a_name_saved_in_the_preferences_gets_a_field(tmp_path: Path) -> None:

@@ -14,13 +14,14 @@ import json
 from pathlib import Path
 
 import pytest
-from sl_vectors import REAL_OCU_LIST, REAL_VEHICLE_LIST, load_streams, write_stream
+from sl_vectors import REAL_OCU_LIST, REAL_VEHICLE_LIST, REAL_VEHICLE_TYPED, load_streams, write_stream
 
 from sharedlink.cli import main
 from sharedlink.protocols.varlists import parse_varlists
 
 STREAMS = {s["name"]: s for s in load_streams()}
 VEHICLE, OCU = REAL_VEHICLE_LIST, REAL_OCU_LIST
+TYPED = REAL_VEHICLE_TYPED   # VEHICLE as its declaration reads (svp_enb_eng: the T0 before it)
 OCU_ADDR, VEH_ADDR = "10.0.0.1:4104", "10.0.0.2:4000"
 
 
@@ -63,10 +64,10 @@ def test_declarations_in_order_with_types(tmp_path, capsys):
                      ((1, 28), (4, 7), (7, 3))]
     lists = [x for x in lines if x.startswith("B>A: ")]
     assert [parse_varlists(x)["B>A"] for x in lists] == [
-        VEHICLE, VEHICLE[:7], [("AutoGpsHead", 2), ("AutoGpsVel", 2), ("VehicleName", 4)],
+        TYPED, TYPED[:7], [("AutoGpsHead", 2), ("AutoGpsVel", 2), ("VehicleName", 4)],
         [("AutoGpsHead", 2), ("AutoGpsVel", 2), ("VehicleName", 4)],  # the lists at the end
     ]
-    assert "svp_enb_eng," in lists[0] and "svp_enb_eng:" not in lists[0]  # declared with no T
+    assert "svp_enb_eng:0," in lists[0]  # declared with no T of its own: the T0 before it (issue 40)
     # the whole output reads back as the lists at the end
     assert parse_varlists(out) == {"B>A": [("AutoGpsHead", 2), ("AutoGpsVel", 2), ("VehicleName", 4)]}
 
@@ -87,8 +88,8 @@ def test_both_directions_of_a_connect(tmp_path, capsys):
         f"# frame 6: L0 from {OCU_ADDR} to {VEH_ADDR}, 28 names, checksum good",
     ]
     assert out.splitlines()[-1] == "A>B: " + ",".join(f"{n}:{t}" for n, t in OCU) + "; B>A: " + ",".join(
-        f"{n}:{t}" if t is not None else n for n, t in VEHICLE)
-    assert parse_varlists(out) == {"A>B": OCU, "B>A": VEHICLE}
+        f"{n}:{t}" if t is not None else n for n, t in TYPED)
+    assert parse_varlists(out) == {"A>B": OCU, "B>A": TYPED}
 
 
 def test_json(tmp_path, capsys):
@@ -145,7 +146,7 @@ def test_a_name_the_syntax_cannot_carry_becomes_its_slot(tmp_path, capsys):
     cap = _made(tmp_path, "names", ["[:BA|N0|T2|Qa,b|T4|QOk|Qx:y|C??]"])
     rc, out, _ = _run(capsys, cap)
     assert rc == 0
-    assert parse_varlists(out) == {"A>B": [("#0", 2), ("Ok", 4), ("#2", None)]}
+    assert parse_varlists(out) == {"A>B": [("#0", 2), ("Ok", 4), ("#2", 4)]}  # x:y: the T4 before it
     assert "#   name 'a,b' cannot be written in a list: shown as #0" in out.splitlines()
 
 
@@ -208,7 +209,7 @@ def test_the_vehicle_answering_list_requests(tmp_path, capsys):
     (res,) = json.loads(out)["captures"]
     assert [(d["frame"], d["field"], d["pair"], d["src"], d["dst"]) for d in res["declarations"]] == [
         (2, "N", "B>A", "10.0.0.2:1033", OCU_ADDR), (4, "L", "A>B", "10.0.0.2:1033", OCU_ADDR)]
-    assert parse_varlists(res["variables"]) == {"B>A": VEHICLE, "A>B": OCU}
+    assert parse_varlists(res["variables"]) == {"B>A": TYPED, "A>B": OCU}
 
 
 def test_declarations_past_the_listed_limit_are_counted_and_applied(tmp_path, capsys, monkeypatch):

@@ -9,12 +9,15 @@ variable names are learnt (one pass over the capture), then copied out after the
 Rows, one per SharedLink frame (``changes=False``):
 ``number, time (UTC ISO 8601, ns), ts_ns, t (s since the first frame), src, dst, kind,
 checksum (good/bad/none)`` then every variable's value as the frame leaves its direction's
-table (values carried forward included; a frame with a bad checksum changes nothing). With
+table (values carried forward included; a frame with a bad checksum changes nothing), but for a
+reply: its row holds the values the reply carries, typed as its direction's list types them
+(a reply's values are never stored: docs/fields-sharedlink.md, "Replies"), and no other. A
+row's ``changed`` (jsonl) names only values the row holds. With
 ``changes=True``: one row per variable that a frame gave a new value: ``number, time, ts_ns,
 t, src, dst, name, type, value``. JSON exports carry typed values (numbers for long and
 double); CSV keeps the text as sent.
 
-GeoJSON: a FeatureCollection with one Point per frame that has a position (properties: the
+GeoJSON: a FeatureCollection with one Point per data frame that has a position (properties: the
 row) and one LineString track per direction. KML: one Placemark LineString track per direction
 with start and end points (with their times).
 
@@ -38,7 +41,7 @@ from pathlib import Path
 from typing import IO, Any
 from xml.sax.saxutils import escape as xml_escape
 
-from sharedlink.analysis.decode import VALUE_KINDS, Decoded, format_time, iter_decoded
+from sharedlink.analysis.decode import Decoded, format_time, iter_decoded
 from sharedlink.capture.pcapio import CaptureError, atomic_open, display_name
 from sharedlink.defaults import EXPORT_BINARY_FORMATS, EXPORT_FORMATS
 from sharedlink.errors import UsageError
@@ -49,6 +52,8 @@ FORMATS = EXPORT_FORMATS
 #: formats written as bytes to a file by their own module (not through :func:`export`)
 BINARY_FORMATS = EXPORT_BINARY_FORMATS
 LAT, LON, HEADING, VELOCITY = "AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"
+#: the frames a position comes from (GeoJSON, KML): a reply's values are not its direction's
+_DATA_KINDS = ("full", "delta")
 FRAME_COLUMNS = ["number", "time", "ts_ns", "t", "src", "dst", "kind", "checksum"]
 CHANGE_COLUMNS = ["number", "time", "ts_ns", "t", "src", "dst", "name", "type", "value"]
 
@@ -80,6 +85,17 @@ class ExportResult:
 
 def _checksum(d: Decoded) -> str:
     return "none" if d.checksum_ok is None else ("good" if d.checksum_ok else "bad")
+
+
+def own_values(d: Decoded) -> dict[str, Variable]:
+    """A reply's values as the row holds them (issue 40): the ones it carries itself, typed by its
+    ``T`` or its direction's list (its Updates; never in the table)."""
+    return {u.name: Variable(u.name, u.type_code, u.text) for u in d.updates if u.text is not None}
+
+
+def row_vars(d: Decoded) -> dict[str, Variable]:
+    """The values a frame's row holds: the direction's table after it, a reply's own values."""
+    return own_values(d) if d.kind == "reply" else d.table.vars
 
 
 def _typed(v: Variable | None) -> Any:
@@ -225,7 +241,7 @@ class _Csv(_Writer):
         if self.t0 is None:
             self.t0 = d.ts_ns
         ts, ok = d.ts_ns, d.checksum_ok
-        vars_ = d.table.vars
+        vars_ = row_vars(d)
         vals = [d.number, format_time(ts), ts, round((ts - self.t0) / 1e9, 9), d.src, d.dst, d.kind,
                 "none" if ok is None else ("good" if ok else "bad")]
         add = vals.append
@@ -296,7 +312,8 @@ class _Jsonl(_Writer):
         """A frame's row as a dict (the plain path :meth:`line` is checked against)."""
         row = self.frame_row(d)
         row["values"] = self.values(d)
-        row["changed"] = [u.name for u in d.changes()]
+        wanted = self.opts.columns
+        row["changed"] = [u.name for u in d.changes() if wanted is None or u.name in wanted]
         return row
 
     def line(self, d: Decoded) -> str:
@@ -304,6 +321,8 @@ class _Jsonl(_Writer):
         value's ``"name": value`` is made again only when its text or type changed; the
         letters, kind and checksum members once per combination; the changed names once per
         list of names."""
+        if d.kind == "reply":  # (rare: the plain path; its values are its own, never the table's)
+            return json.dumps(self.row(d)) + "\n"
         if self.t0 is None:
             self.t0 = d.ts_ns
         frags, wanted = self._frags, self.opts.columns
@@ -322,7 +341,8 @@ class _Jsonl(_Writer):
             if f is None or f[0] is not text or f[1] != v.type_code:
                 f = frags[n] = (text, v.type_code, "%s: %s" % (self._js(n), _value_json(v)))
             add(f[2])
-        changed = tuple([u.name for u in d.updates if u.changed and not u.carried and u.text is not None])
+        changed = tuple([u.name for u in d.updates if u.changed and not u.carried and u.text is not None
+                         and (wanted is None or u.name in wanted)])
         names = self._names.get(changed)
         if names is None:
             names = self._names[changed] = ", ".join([self._js(n) for n in changed])
@@ -346,7 +366,7 @@ class _Jsonl(_Writer):
         wanted = self.opts.columns
         return {
             n: _typed(v)
-            for n, v in d.table.vars.items()
+            for n, v in row_vars(d).items()
             if v.text is not None and (wanted is None or n in wanted)
         }
 
@@ -411,7 +431,7 @@ class _GeoJson(_Jsonl):
         self.out.write(json.dumps(obj))
 
     def write(self, d: Decoded) -> int:
-        if d.checksum_ok is False or d.kind not in VALUE_KINDS:
+        if d.checksum_ok is False or d.kind not in _DATA_KINDS:
             return 0
         pos = _position(d, self.opts)
         if pos is None:
@@ -466,7 +486,7 @@ class _Kml(_Writer):
         self.name = ""
 
     def write(self, d: Decoded) -> int:
-        if d.checksum_ok is False or d.kind not in VALUE_KINDS:
+        if d.checksum_ok is False or d.kind not in _DATA_KINDS:
             return 0
         if self.opts.changes and not any(u.name in (self.opts.lat, self.opts.lon) for u in d.changes()):
             return 0

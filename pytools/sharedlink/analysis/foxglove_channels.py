@@ -56,6 +56,7 @@ from sharedlink.capture.pcapio import NS
 from sharedlink.errors import UsageError
 from sharedlink.protocols import blackboard, p2os
 from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG, guess_value, parse_typed
+from sharedlink.protocols.state import Variable
 
 # -- default variable names (the beacon's, BUL-009)
 LAT, LON, HEADING, SPEED = "AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"
@@ -239,7 +240,11 @@ _ROW = ('{"number": %%d, "src": %s, "dst": %s, "kind": "%s", "checksum": "%s", "
 
 
 def values_json(d: Decoded) -> dict[str, Any]:
-    """A frame's ``values`` message (the reference for :meth:`FoxgloveChannels.frame`)."""
+    """A frame's ``values`` message (the reference for :meth:`FoxgloveChannels.frame`): its
+    direction's values after it; a reply's: the values it carries (issue 40: never stored, so
+    never the table's), typed by its ``T`` or its direction's list."""
+    if d.kind == "reply":
+        return {u.name: _typed(Variable(u.name, u.type_code, u.text)) for u in d.updates if u.text is not None}
     return {n: _typed(v) for n, v in d.table.vars.items() if v.text is not None}
 
 
@@ -425,6 +430,13 @@ class FoxgloveChannels:
         if d.kind == "malformed":  # a frame that sets and shows nothing: its frames message only
             self._emit(dr, dr.typed, d.number, d.kind, d.checksum_ok, False, d.raw, ts, [], False)
             return
+        if d.kind == "reply":  # its own values (never the direction's), no position (issue 40)
+            own = [u for u in d.updates if u.text is not None]
+            body = ", ".join([_fragment_of(u.name, u.text, u.type_code)[1] for u in own])  # type: ignore[arg-type]
+            changed = [u.name for u in own if u.changed and not u.carried]
+            self._emit(dr, dr.typed, d.number, d.kind, d.checksum_ok, d.late, d.raw, ts, changed,
+                       ("{%s}" % body).encode())
+            return
         vars_ = d.table.vars
         changed = [u.name for u in d.updates if u.changed and not u.carried and u.text is not None]
         typed = dr.typed
@@ -448,18 +460,21 @@ class FoxgloveChannels:
         self._emit(dr, typed, d.number, d.kind, d.checksum_ok, d.late, d.raw, ts, changed)
 
     def _emit(self, dr: _Direction, typed: dict[str, Any], number: int, kind: str, ok: bool | None, late: bool,
-              raw: bytes, ts: int, changed: list[str], values: bool = True) -> None:
-        """A frame's frames, values (``values``) and location messages, its direction's values up to date."""
+              raw: bytes, ts: int, changed: list[str], values: bool | bytes = True) -> None:
+        """A frame's frames, values (``values``: True the direction's, bytes a reply's own, False
+        none) and location messages (a data frame's), its direction's values up to date."""
         names = _names_json(changed) if changed else "[]"
         fmt = dr.rows.get((kind, ok, late)) or self._row_format(dr, kind, ok, late)
         row = fmt % (number, names, _jstr((raw[:-2] if raw.endswith(b"\r\n") else raw).decode("latin-1")))
         dr.log_frames(row.encode(), ts)
-        if values:
+        if values is True:
             dr.log_values(dr.values_json, ts)
+        elif values:
+            dr.log_values(values, ts)
         else:
             dr.nmalformed += 1
         dr.nframes += 1
-        if ok is not False and kind in VALUE_KINDS:
+        if values is True and ok is not False and kind in VALUE_KINDS:
             fix = self._fix_bytes(dr, typed, ts, dr.pair)
             if fix is not None:
                 if dr.location is None:

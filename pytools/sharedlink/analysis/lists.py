@@ -108,7 +108,8 @@ def _number(text: str) -> int | None:
 def declaration_of(fields: Sequence[Field]) -> tuple[str, int, list[tuple[str, int | None]]] | None:
     """("N" or "L", ordinal, [(name, type)]) when the fields are a declaration: an ``N`` or
     ``L`` field with a number, at least one ``Q`` name, and no ``D``, ``E``, ``R``, ``P``,
-    ``G`` or ``M`` field. A ``T`` types the ``Q`` right after it only."""
+    ``G`` or ``M`` field. A ``T`` types the ``Q`` after it, and the ``Q`` names after that with
+    no ``T`` of their own (BUL-009: the last ``T`` of the frame stays in force)."""
     if any(f.letter in _NOT_DECLARATION for f in fields):
         return None
     head = next((f for f in fields if f.letter in ("N", "L")), None)
@@ -118,13 +119,14 @@ def declaration_of(fields: Sequence[Field]) -> tuple[str, int, list[tuple[str, i
     if ordinal is None:
         return None  # N? / L?: a list request
     names: list[tuple[str, int | None]] = []
-    type_code: int | None = None
+    own: int | None = None  # the T right before the name
+    last: int | None = None  # the frame's last T (BUL-009: a name with no T of its own takes it)
     for f in fields:
         if f.letter == "T":
-            type_code = _number(f.text)
+            own = last = _number(f.text)
         elif f.letter == "Q":
-            names.append((f.text, type_code))
-            type_code = None
+            names.append((f.text, last if own is None else own))
+            own = None
     return (head.letter, ordinal, names) if names else None
 
 

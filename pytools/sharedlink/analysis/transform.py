@@ -167,7 +167,8 @@ class Rewriter:
 
     @staticmethod
     def _named(src: VariableTable, out: VariableTable, full: bool) -> tuple[Field, ...]:
-        fields = [Field("N", "0")]
+        untyped: list[Field] = []  # before every T: a name without T after one takes its type (BUL-009)
+        typed: list[Field] = []
         for name, v in src.vars.items():
             if v.text is None:
                 continue
@@ -176,9 +177,10 @@ class Rewriter:
                 if o is not None and o.text == v.text:
                     continue
             if v.type_code is not None:
-                fields.append(Field("T", str(v.type_code)))
-            fields += [Field("Q", name), Field("D", v.text)]
-        return tuple(fields)
+                typed += [Field("T", str(v.type_code)), Field("Q", name), Field("D", v.text)]
+            else:
+                untyped += [Field("Q", name), Field("D", v.text)]
+        return (Field("N", "0"), *untyped, *typed)
 
     @staticmethod
     def _positional(in_fields: Sequence[Field], src: VariableTable, out: VariableTable, full: bool) -> tuple[Field, ...]:

@@ -495,20 +495,37 @@ class NamedValue:
 
 
 def named_values(fields: Sequence[Field]) -> list[NamedValue]:
-    """The ``[T t|] Q name|D value`` triplets and ``R name|D value`` replies of a frame."""
+    """The ``[T t|] Q name|D value`` triplets and ``R name|D value`` replies of a frame.
+
+    BUL-009 ("If it does not exist it is created with the previously defined type"): a name
+    with no ``T`` of its own takes the type of the frame's last ``T`` before it (a ``T`` that
+    is no type leaves it untyped, and only the name right after that ``T`` is flagged bad);
+    with no ``T`` before it in the frame it is untyped (a reply's then typed by its direction's
+    list). A ``T`` is a name's own when it comes after the previous variable (a value, or a
+    name with no value, ended by the next ``T``, ``Q`` or ``R``), as sharedlink.lua's parser
+    reads it (docs/fields-sharedlink.md, "Values")."""
     out: list[NamedValue] = []
-    type_code: int | None = None
-    bad_type = False
+    own: str | None = None  # the pending T's text: the next name's own T
+    last: int | None = None  # the frame's last T's type (None: no T yet, or one that is no type)
     name: str | None = None
     for f in fields:
-        if f.letter == "T":
-            type_code = parse_type(f.text)
-            bad_type = type_code is None
-        elif f.letter in ("Q", "R"):
+        letter = f.letter
+        if letter == "T":
+            name = None  # (a name pending here had no value: a declared name, it took the T before it)
+            own = f.text
+            last = parse_type(own)
+        elif letter in ("Q", "R"):
+            if name is not None:
+                own = None  # the pending name (no value) took its own T
             name = f.text
-        elif f.letter == "D" and name is not None:
-            out.append(NamedValue(name, type_code, f.text, bad_type))
-            name, type_code, bad_type = None, None, False
+        elif letter == "D":
+            if name is not None:
+                if own is None:
+                    out.append(NamedValue(name, last, f.text))
+                else:
+                    tc = parse_type(own)
+                    out.append(NamedValue(name, tc, f.text, tc is None))
+            name, own = None, None
     return out
 
 
@@ -534,15 +551,16 @@ def declared_list(fields: Sequence[Field]) -> tuple[str, int, list[tuple[str, in
         return None
     which, ordinal = "N", 0
     out: list[tuple[str, int | None]] = []
-    type_code: int | None = None
+    own: int | None = None  # the pending T's type: the next name's own
+    last: int | None = None  # the frame's last T's (BUL-009: a name with no T of its own takes it)
     for f in fields:
         if f.letter in ("N", "L"):
             which, ordinal = f.letter, _ordinal(f.text)
         elif f.letter == "T":
-            type_code = parse_type(f.text)
+            own = last = parse_type(f.text)
         elif f.letter == "Q":
-            out.append((f.text, type_code))
-            type_code = None
+            out.append((f.text, last if own is None else own))
+            own = None
     return which, ordinal, out
 
 
