@@ -26,9 +26,11 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from sharedlink.analysis.core.patterns import plain_udp
 from sharedlink.analysis.decode import Decoder, ReferenceDecoder
 from sharedlink.capture.change_records import SEP_CHANGE, SEP_VALUE, escape
 from sharedlink.capture.packets import PacketDecoder
+from sharedlink.capture.pcap_blocks import MAX_RECORD, PcapBlocks, implausible
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
     NS,
@@ -48,14 +50,10 @@ from sharedlink.protocols.state import BEACON_VARIABLES, conversation_key, rever
 #: frames that carry values: the ones a change stream has a record for
 _VALUE_KINDS = ("full", "delta", "reply")
 _REC = struct.Struct("<IIII")
-#: the record header, then from byte 12 of an Ethernet packet: the type and the IP version and
-#: header length (3 bytes), IP total length, flags and fragment offset, protocol, the addresses
-#: and UDP ports (12 bytes: the conversation), UDP length (the 16-bit fields little-endian:
-#: compared through _SWAP16; the fragment field is 0, or 0x40 for "don't fragment"), and the
-#: frame's two letters ("[:AB")
+#: the record header, then from byte 12 of an Ethernet packet as
+#: :data:`~sharedlink.analysis.core.patterns.PCAP_UDP` reads it (tested by
+#: :func:`~sharedlink.analysis.core.patterns.plain_udp`), and the frame's two letters ("[:AB")
 _REC_X = struct.Struct("<IIII12x3sxHxxHxB2x12sH4x2s")
-_SWAP16 = [((x & 0xFF) << 8) | (x >> 8) for x in range(65536)]
-_ETH_IPV4 = b"\x08\x00\x45"  # Ethernet II, IPv4 without options
 
 
 class ChangeReader:
@@ -125,30 +123,21 @@ class ChangeReader:
         raise CaptureError(p, None, "file too short to be a capture" if head else "empty file")
 
     def _pcap(self, fh, p: str, head: bytes) -> Iterator[Chunk]:
-        """Classic little-endian pcap: walk records in large blocks."""
-        mult = 1 if struct.unpack("<I", head[:4])[0] == PCAP_MAGIC_NS else 1000
-        linktype = pcap_header(p, head)[2]
-        rest = b""
+        """Classic little-endian pcap: walk records in large blocks (the one block walker's)."""
+        _endian, mult, linktype = pcap_header(p, head)
+        blocks = PcapBlocks(fh, p, self.block)
         number = 0
-        while True:
-            data = fh.read(self.block)
-            buf = rest + data if rest else data
-            if not buf:
-                break
+        for buf in blocks:
             off, number = self._walk(buf, linktype, mult, number, p)
-            rest = buf[off:]
+            blocks.keep(buf, off)
             if self._recs:
                 yield self._chunk()
-            if not data or self._damage is not None:
+            if self._damage is not None:
                 break
         yield from self._serial_flush()
         if self._damage is not None:
             raise self._damage
-        if rest:
-            if len(rest) < 16:
-                raise CaptureError(p, number + 1, f"truncated record header ({len(rest)} of 16 bytes)")
-            incl = struct.unpack_from("<I", rest, 8)[0]
-            raise CaptureError(p, number + 1, f"truncated record ({len(rest) - 16} of {incl} bytes)")
+        blocks.end(number)
 
     def _generic(self, p: str, records: Iterator[Record]) -> Iterator[Chunk]:
         """Any other capture (pcapng, big-endian pcap): records via pcapio, re-packed in
@@ -220,7 +209,6 @@ class ChangeReader:
         struct_error = struct.error
         fast = self.fast_enabled and linktype == LINKTYPE_ETHERNET
         lanes = self._lanes
-        swap = _SWAP16
         recs, tsarr = self._recs, self._ts
         fulls: list[int] = []
         out = (self._ts.append, self._num.append, recs.append, fulls.append)
@@ -245,8 +233,7 @@ class ChangeReader:
                     break
                 sec, frac, incl, _orig = unpack(buf, off)
                 eth = None
-            if (fast and eth == _ETH_IPV4 and proto == 17 and not frag & 0xFFBF and 50 < incl < 65000
-                    and tl == swap[incl - 14] and ul == swap[incl - 34]):
+            if fast and eth is not None and plain_udp(eth, tl, frag, proto, incl, ul):
                 lane = lanes.get(letters + addr)
                 if lane is None:
                     lane = self._lane(letters, addr)
@@ -277,8 +264,8 @@ class ChangeReader:
             d = off + 16
             e = d + incl
             if e > end:
-                if incl > 0x4000000:  # reported by _pcap once this block's frames are out
-                    self._damage = CaptureError(p, number + 1, f"record length {incl} is implausible (damaged file)")
+                if incl > MAX_RECORD:  # reported by _pcap once this block's frames are out
+                    self._damage = implausible(p, number + 1, incl)
                 break
             off = e
             number += 1

@@ -1,6 +1,6 @@
 """The block tier of the core's compiled layouts (changes only): many records of a direction at once.
 
-:class:`sharedlink.analysis.decode._Compiled` ``take`` decodes a run of records of a direction one
+:class:`sharedlink.analysis.core.compiled.Compiled` ``take`` decodes a run of records of a direction one
 at a time; once the run is long (:data:`BLOCK_AFTER` records in a row) it asks the direction's
 block taker (:func:`block_taker`) for the records that follow: one ``findall`` of the direction's
 compiled layout, with the pcap record and packet headers around it, over a window of the pcap
@@ -27,7 +27,8 @@ from operator import add, and_, lshift, mul, ne, or_, setitem
 from struct import pack
 from zlib import adler32
 
-from sharedlink.analysis.decode import cached_pattern
+from sharedlink.analysis.core.checksum import low_sum_table
+from sharedlink.analysis.core.patterns import cached_pattern
 from sharedlink.capture.pcapio import NS
 
 #: records a direction's per-record loop takes in a row before its block taker is asked
@@ -49,10 +50,7 @@ _NOT_VALUE = bytes(range(32)) + b"[]"
 #: the checksum digits as a little-endian 16-bit number -> the low byte of 1 + the byte sum of a
 #: frame whose checksum they are: the 1, "[" (91), the digits, "]" CR LF (116) and the value, as
 #: the frame's other bytes add up to the value (0: not two upper-case hex digits)
-_CKLOW = bytearray(65536)
-for _i in range(256):
-    _d = b"%02X" % _i
-    _CKLOW[_d[0] | _d[1] << 8] = (1 + 91 + _d[0] + _d[1] + 116 + _i) & 255
+_CKLOW = low_sum_table()
 #: a frame's size -> the captured length, IP total length and UDP length of a record that holds
 #: just its datagram, as :func:`_lengths` gives them
 _LENGTHS = [pack("<I", n + 42) + pack(">HH", n + 28, n + 8) for n in range(257)]

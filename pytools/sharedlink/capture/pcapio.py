@@ -505,6 +505,12 @@ class _Prefixed:
     def __init__(self, head: bytes, fh: BinaryIO) -> None:
         self._head, self._fh = head, fh
 
+    def read1(self, n: int = -1) -> bytes:
+        if not self._head:
+            read1 = getattr(self._fh, "read1", None)
+            return read1(n) if read1 is not None else self._fh.read(n)
+        return self.read(min(n, len(self._head)) if n >= 0 else len(self._head))
+
     def read(self, n: int = -1) -> bytes:
         if not self._head:
             return self._fh.read(n)
@@ -542,24 +548,9 @@ def pcap_header(p: str, header: bytes) -> tuple[str, int, int]:
 
 
 def _read_pcap(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
-    endian, mult, linktype = pcap_header(p, head + fh.read(20))
-    hdr = struct.Struct(endian + "IIII")
-    read = fh.read
-    number = 0
-    while True:
-        h = read(16)
-        if not h:
-            return
-        number += 1
-        if len(h) < 16:
-            raise CaptureError(p, number, f"truncated record header ({len(h)} of 16 bytes)")
-        sec, frac, incl, orig = hdr.unpack(h)
-        if incl > 0x4000000:
-            raise CaptureError(p, number, f"record length {incl} is implausible (damaged file)")
-        data = read(incl)
-        if len(data) < incl:
-            raise CaptureError(p, number, f"truncated record ({len(data)} of {incl} bytes)")
-        yield Record(number, sec * 1_000_000_000 + frac * mult, linktype, data, orig)
+    from sharedlink.capture.pcap_blocks import walk_pcap  # (it builds on this module)
+
+    yield from walk_pcap(fh, p, head + fh.read(20), records=True)
 
 
 def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
