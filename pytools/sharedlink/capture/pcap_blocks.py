@@ -72,7 +72,7 @@ class PcapBlocks:
 
 
 def walk_pcap(fh: BinaryIO, name: str, head: bytes, offer: Callable | None = None, records: bool = False,
-              size: int = PCAP_BLOCK) -> Iterator[Any]:
+              size: int = PCAP_BLOCK, closing: bool = False) -> Iterator[Any]:
     """The records of a classic pcap file whose first 24 bytes ``head`` were read (``fh`` is
     after them): ``(number, ts_ns, link type, data, 0, 0)`` each, or with ``records`` a
     :class:`~sharedlink.capture.pcapio.Record`. ``offer`` (a run taker, for little-endian
@@ -80,43 +80,46 @@ def walk_pcap(fh: BinaryIO, name: str, head: bytes, offer: Callable | None = Non
     frames, bytes)``) is offered each record of a block first (after misses in a row it skips
     0, 1, 3, 7 ... 63 records: a capture it takes nothing of costs it a call in 64 records); a
     run it takes comes as ``(number, frames, RUN, b"", bytes, 0)``. Raises
-    :class:`~sharedlink.capture.pcapio.CaptureError` after every record before the damage."""
-    endian, mult, linktype = pcap_header(name, head)
-    if endian != "<" or linktype != 1:
-        offer = None
-    unpack = struct.Struct(endian + "IIII").unpack_from
-    blocks = PcapBlocks(fh, name, size)
-    number = 0
-    skip = miss = 0
-    for buf in blocks:
-        end = len(buf)
-        off = 0
-        sbuf = buf.decode("latin-1") if offer is not None else ""
-        while off + 16 <= end:
-            if offer is not None:
-                if skip:
-                    skip -= 1
+    :class:`~sharedlink.capture.pcapio.CaptureError` after every record before the damage.
+    ``closing``: ``fh`` is closed when the walk ends (or is given up)."""
+    try:
+        endian, mult, linktype = pcap_header(name, head)
+        offer = offer if endian == "<" and linktype == 1 else None
+        unpack = struct.Struct(endian + "IIII").unpack_from
+        blocks = PcapBlocks(fh, name, size)
+        number = skip = miss = 0
+        for buf in blocks:
+            end = len(buf)
+            off = 0
+            sbuf = buf.decode("latin-1") if offer is not None else ""
+            while off + 16 <= end:
+                if offer is not None:
+                    if skip:
+                        skip -= 1
+                    else:
+                        run = offer(buf, sbuf, off, number, mult)
+                        if run is not None:
+                            miss = 0
+                            off, number, taken, wire = run
+                            yield number, taken, RUN, b"", wire, 0
+                            continue
+                        skip = miss
+                        miss = min(2 * miss + 1, 63)
+                sec, frac, incl, orig = unpack(buf, off)
+                if incl > MAX_RECORD:
+                    raise implausible(name, number + 1, incl)
+                e = off + 16 + incl
+                if e > end:
+                    break
+                number += 1
+                if records:
+                    yield Record(number, sec * NS + frac * mult, linktype, buf[off + 16 : e], orig)
                 else:
-                    run = offer(buf, sbuf, off, number, mult)
-                    if run is not None:
-                        miss = 0
-                        off, number, taken, wire = run
-                        yield number, taken, RUN, b"", wire, 0
-                        continue
-                    skip = miss
-                    miss = min(2 * miss + 1, 63)
-            sec, frac, incl, orig = unpack(buf, off)
-            if incl > MAX_RECORD:
-                raise implausible(name, number + 1, incl)
-            e = off + 16 + incl
-            if e > end:
-                break
-            number += 1
-            if records:
-                yield Record(number, sec * NS + frac * mult, linktype, buf[off + 16 : e], orig)
-            else:
-                yield number, sec * NS + frac * mult, linktype, buf[off + 16 : e], 0, 0
-            off = e
-        blocks.keep(buf, off)
-        sbuf = ""  # (at most two blocks' worth held: this one's bytes and text)
-    blocks.end(number, endian)
+                    yield number, sec * NS + frac * mult, linktype, buf[off + 16 : e], 0, 0
+                off = e
+            blocks.keep(buf, off)
+            sbuf = ""  # (at most two blocks' worth held: this one's bytes and text)
+        blocks.end(number, endian)
+    finally:
+        if closing:
+            fh.close()

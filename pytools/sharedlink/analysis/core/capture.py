@@ -78,16 +78,15 @@ class _Loop:
         addrs = self.addrs
         progress = self.progress
         try:
-            for rec in capture_records(path, self.runs):
-                number, ts_ns, linktype, data = rec[:4]
-                if linktype == RUN:  # a run taker took ts_ns frames (rec[4]: their bytes) into dec.rows (dec.batch)
-                    yield from self._run(number, ts_ns, rec[4])
+            for number, ts_ns, linktype, data, flags, interface in capture_records(path, self.runs):
+                if linktype == RUN:  # a run taker took ts_ns frames (flags: their bytes) into dec.rows (dec.batch)
+                    yield from self._run(number, ts_ns, flags)
                     continue
                 if progress is not None:
                     self._progress(number, 16 + len(data))
                 got = udp_payload(data, addrs) if linktype == LINKTYPE_ETHERNET else None
                 if got is None:
-                    yield from self._other(rec)
+                    yield from self._other(number, ts_ns, linktype, data, flags, interface)
                 elif got:
                     if self.counting:
                         yield from self._counted(number, ts_ns, *got)
@@ -125,11 +124,11 @@ class _Loop:
             yield self._batch()
         yield from self.dec.decode_datagram(number, ts_ns, conv, payload)
 
-    def _other(self, rec: tuple) -> Iterator[Item]:
+    def _other(self, number: int, ts_ns: int, linktype: int, data: bytes, flags: int, interface: int
+               ) -> Iterator[Item]:
         """A record the general path takes: serial, or through the packet decoder and splitters."""
         if self.taken:
             yield self._batch()
-        number, ts_ns, linktype, data, flags, interface = rec
         dec = self.dec
         if linktype in USER_LINKTYPES:
             for item in self.serial.feed(number, ts_ns, linktype, data, flags, interface):

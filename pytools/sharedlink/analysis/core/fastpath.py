@@ -136,7 +136,7 @@ class FastPath:
         if h.stamp != stamp or table.named is not True:  # new names or another form: indexes may differ
             last.clear()
             h.stamp = stamp
-        full = lay.settle(sent, stamp)  # (before the frame names anything new)
+        full = lay.full if lay.stamp == stamp else lay.settle(sent, stamp)  # (before the frame names anything new)
         for name, dval in zip(lay.names, values):
             text = dval[1:]
             v = vars_[name]

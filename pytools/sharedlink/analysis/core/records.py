@@ -26,17 +26,14 @@ def capture_records(path: str | Path, fast: Callable | None = None) -> Iterator[
     files): offered each record of a block first; a run it takes comes as one item with link
     type :data:`~sharedlink.capture.pcap_blocks.RUN`."""
     p = str(path)
-    fh = None
     if os.path.isfile(p):
         try:
-            fh = open(p, "rb")  # noqa: SIM115 - closed below
+            with open(p, "rb") as fh:
+                head = fh.read(24)
         except OSError:
-            fh = None  # read_records reports it
-    if fh is not None:
-        with fh:
-            head = fh.read(24)
-            if head[:4] in _PCAP_HEADS and len(head) == 24:
-                yield from walk_pcap(fh, shown_name(path), head, fast)
-                return
-    for r in read_records(path):
-        yield r.number, r.ts_ns, r.linktype, r.data, r.flags, r.interface
+            head = b""  # read_records reports it
+        if head[:4] in _PCAP_HEADS and len(head) == 24:
+            fh = open(p, "rb")  # noqa: SIM115 - the walk closes it
+            fh.seek(24)
+            return walk_pcap(fh, shown_name(path), head, fast, closing=True)
+    return ((r.number, r.ts_ns, r.linktype, r.data, r.flags, r.interface) for r in read_records(path))
