@@ -215,15 +215,12 @@ class ChangeReader:
         bulk = (self._ts.extend, self._num.extend, recs.extend, fulls.extend)  # (the block tier's)
         general = self._general
         st = self.stats
-        sync_ns = self.sync_ns
-        half = sync_ns // 2
-        limit = sync_ns + sync_ns - half  # a gap must round to 2 intervals to miss one
         end = len(buf)
         off = 0
         if st.start_ns is None and end >= 16:
             sec, frac = unpack(buf, 0)[:2]
             st.start_ns = sec * NS + frac * mult
-        nrec = wire = pbytes = nfull = missed = taken = 0
+        nrec = wire = twire = taken = 0
         ts = self._last_ts
         while True:
             try:
@@ -241,23 +238,9 @@ class ChangeReader:
                     off, number, n, w, first = lane[0](buf, off, number, mult, addr, out, bulk)
                     if n:
                         taken += n
-                        nrec += n
-                        wire += w
-                        pbytes += w - 42 * n
-                        if first is not None:  # (the core made the direction's layouts again)
-                            idx = self._base + len(recs) - 1
-                            self._events += ((idx, letters, escape(v.name), v.type_code) for v in first)
-                            lanes.clear()
-                        if fulls:
-                            nfull += len(fulls)
-                            sy = lane[1]
-                            prev = sy[0]
-                            for t in fulls:
-                                if t - prev >= limit:
-                                    missed += (t - prev + half) // sync_ns - 1
-                                prev = t
-                            sy[0] = prev
-                            fulls.clear()
+                        twire += w
+                        if first is not None or fulls:
+                            self._after_take(lane[1], letters, first, fulls)
                         last = tsarr[-1]  # the last frame's time, packed
                         ts = (last & 0xFFFFFFFF) * NS + (last >> 32)
                         continue
@@ -273,15 +256,37 @@ class ChangeReader:
             wire += incl
             ts = sec * NS + frac * mult
             general(number, ts, linktype, buf[d:e])
-        st.records += nrec
-        st.wire_bytes += wire
-        st.payload_bytes += pbytes
-        st.full += nfull
-        st.sync_missed += missed
+        st.records += nrec + taken
+        st.wire_bytes += wire + twire
+        st.payload_bytes += twire - 42 * taken  # (the frames: the records less their Ethernet, IP and UDP headers)
         if taken:
             self.dec.fast += taken  # type: ignore[attr-defined]
         self._last_ts = ts
         return off, number
+
+    def _after_take(self, sy: list[int], letters: bytes, first: list | None, fulls: list[int]) -> None:
+        """After a run a direction's ``take`` took: the first values it reported (the core made the
+        direction's layouts again: the lanes are looked up again) and the sync gaps of its full
+        frames (``fulls``, emptied; ``sy``: the direction's sync entry)."""
+        if first is not None:
+            idx = self._base + len(self._recs) - 1
+            self._events += ((idx, letters, escape(v.name), v.type_code) for v in first)
+            self._lanes.clear()
+        if not fulls:
+            return
+        sync_ns = self.sync_ns
+        half = sync_ns // 2
+        limit = sync_ns + sync_ns - half  # a gap must round to 2 intervals to miss one
+        missed = 0
+        prev = sy[0]
+        for t in fulls:
+            if t - prev >= limit:
+                missed += (t - prev + half) // sync_ns - 1
+            prev = t
+        sy[0] = prev
+        self.stats.full += len(fulls)
+        self.stats.sync_missed += missed
+        fulls.clear()
 
     def _lane(self, letters: bytes, addr: bytes) -> tuple[Any, list[int]] | None:
         """The fast lane of a direction (letters and the packet's addresses and ports): the

@@ -125,28 +125,12 @@ def _run_taker(compiled: Compiled, slots: tuple[list[int], list[int], list[int]]
 
     h = compiled.hot
     t = h.table
-    vs, cur, named, pos, key = compiled.vars, compiled.cur, compiled.named, compiled.pos, compiled.key
+    vs, cur, key = compiled.vars, compiled.cur, compiled.key
     nslots, pslots, preq = slots
     sync = h.sync
     unpack_x = PCAP_UDP.unpack_from
     struct_error = struct.error
-
-    def match(buf: bytes, start: int, e: int) -> tuple[tuple, list[int], bool] | None:
-        # one frame of this direction in a compiled layout: its groups, their variables, full
-        if buf[start + 8] == 68:  # "[:AB|N0|D": positional
-            m = pos(buf, start, e) if pos is not None else None
-            if m is None:
-                return None
-            g = m.groups()
-            # full (as VariableTable.kind, before the frame): every slot that has held a value has one
-            return g, pslots, b"" not in g or all(g[i] for i in preq)
-        if named is None or (buf[start + 8] == 67 and t.named is not True):
-            return None  # (a bare N0 takes the direction's form: named only in a named direction)
-        m = named(buf, start, e)
-        if m is None:
-            return None
-        g = m.groups()
-        return g, nslots, _named_full(g, nslots, cur)
+    match = _matcher(compiled, pslots, nslots, preq)
 
     def take(buf: bytes, off: int, number: int, mult: int, lane: bytes, out: tuple, bulk: tuple | None = None
              ) -> tuple[int, int, int, int, list[Variable] | None]:
@@ -165,13 +149,11 @@ def _run_taker(compiled: Compiled, slots: tuple[list[int], list[int], list[int]]
             if run >= BLOCK_AFTER and off + 67 <= end:
                 bpos = buf[off + 66] == 68  # positional: "[:AB|N0|D" (after 16 + 42 bytes of headers)
                 got = block(buf, off, number, mult, lane, bulk, bpos, t.named is True, changed)
-                if got is None:
-                    run = 0
-                else:
-                    off, number, k, w, lf, whole = got
+                run = 0 if got is None or not got[5] else run
+                if got is not None:
+                    off, number, k, w, lf, _whole = got
                     n, wire, form = n + k, wire + w, bpos
                     last_full = lf if lf is not None else last_full
-                    run = run if whole else 0
                     continue
             try:
                 sec, frac, incl, _orig, eth, tl, frag, proto, here, ul = unpack_x(buf, off)
@@ -216,6 +198,33 @@ def _run_taker(compiled: Compiled, slots: tuple[list[int], list[int], list[int]]
         return off, number, n, wire, first
 
     return take
+
+
+def _matcher(compiled: Compiled, pslots: list[int], nslots: list[int], preq: list[int]) -> Callable:
+    """The per-record match of a :class:`Compiled`'s ``take``: ``match(buf, start, end)`` -> None
+    when the frame is not one of this direction in a compiled layout, else its groups, the
+    variable each is, and whether it is a full set (as :meth:`VariableTable.kind` before it)."""
+    t = compiled.hot.table
+    cur, named, pos = compiled.cur, compiled.named, compiled.pos
+
+    def match(buf: bytes, start: int, e: int) -> tuple[tuple, list[int], bool] | None:
+        # one frame of this direction in a compiled layout: its groups, their variables, full
+        if buf[start + 8] == 68:  # "[:AB|N0|D": positional
+            m = pos(buf, start, e) if pos is not None else None
+            if m is None:
+                return None
+            g = m.groups()
+            # full (as VariableTable.kind, before the frame): every slot that has held a value has one
+            return g, pslots, b"" not in g or all(g[i] for i in preq)
+        if named is None or (buf[start + 8] == 67 and t.named is not True):
+            return None  # (a bare N0 takes the direction's form: named only in a named direction)
+        m = named(buf, start, e)
+        if m is None:
+            return None
+        g = m.groups()
+        return g, nslots, _named_full(g, nslots, cur)
+
+    return match
 
 
 def _write_back(compiled: Compiled, dirty: list[int], form: bool | None, last_full: int | None) -> None:
