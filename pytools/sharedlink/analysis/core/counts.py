@@ -195,21 +195,18 @@ def _run_clock(c: DirCounts, sync: list, groups: list[tuple], stamps: list[int],
     """The sync clock over a run of :meth:`CountsSink.count_run` (a frame whose groups hold
     ``full_nones`` Nones is a full set): the full sets, gaps and late frames into ``c``; returns
     the index of the run's last full set (-1: none)."""
-    full_ts = sync[1]
-    since = full_ts if full_ts is not None else sync[0]
     gaps: list[int] = []
     late = nfull = 0
     # (the Nones of each frame's groups counted at C speed, the clock walked after the run)
     nones = list(map(tuple.count, groups, repeat(None)))
     for k, ts in zip(nones, stamps):
         if k == full_nones:
-            if full_ts is not None:
-                gaps.append(ts - full_ts)
-            full_ts = since = ts
+            gap = full_set(sync, ts)
+            if gap is not None:
+                gaps.append(gap)
             nfull += 1
-        elif ts - since > late_ns:
+        elif is_late(sync, ts, late_ns):
             late += 1
-    sync[1] = full_ts
     c.full += nfull
     c.late += late
     c.gaps += gaps
