@@ -8,7 +8,8 @@ count it: 1, plus 1 for each ``if``/``elif``, ``for``, ``while``, ``except`` han
 a nested function or class is its own unit (mccabe and ruff add it to its parent's).
 
 The decoding core (``analysis/core/``) and the modules issue 39 changed meet them (``STRICT``:
-never in DEBT). DEBT is what the other files owe today: it may only shrink (the test fails when a
+never in DEBT), but two it touched in passing: ``analysis/compiled_blocks.py`` (an import) and
+``watch.py`` (an alias removed), still listed. DEBT is what the other files owe today: it may only shrink (the test fails when a
 listed item grows, when a new function or file breaks a limit, or when a debt is paid but still
 listed: then delete its line).
 """
@@ -24,7 +25,8 @@ PACKAGE = Path(sharedlink.__file__).resolve().parent
 MAX_FILE_LINES, MAX_LINES, MAX_COMPLEXITY = 800, 80, 15
 #: files (relative to the package) that may owe nothing
 STRICT = ("analysis/core/", "analysis/decode.py", "analysis/changes.py", "analysis/lists.py",
-          "capture/pcap_blocks.py", "__init__.py")
+          "capture/pcap_blocks.py", "capture/pcapio.py", "capture/serial_import.py", "protocols/codec.py",
+          "commands/diff.py", "commands/watch.py", "__init__.py")
 #: (file, what) -> the size today: "file" (its lines), "lines NAME", "complexity NAME" (NAME:
 #: Class.method, or outer.inner for a nested function)
 DEBT: dict[tuple[str, str], int] = {
@@ -37,8 +39,6 @@ DEBT: dict[tuple[str, str], int] = {
     ("analysis/stats.py", "lines CaptureStats.add"): 81,
     ("analysis/transform.py", "complexity _transform_records"): 21,
     ("capture/packets.py", "complexity _decode"): 19,
-    ("capture/pcapio.py", "complexity _read_pcapng"): 29,
-    ("capture/pcapio.py", "lines _read_pcapng"): 95,
     ("capture/serial_port.py", "complexity capture"): 20,
     ("capture/serial_port.py", "lines capture"): 89,
     ("fleet/ingest.py", "complexity _decode_into"): 21,
