@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from sharedlink.analysis.core.patterns import plain_udp
-from sharedlink.analysis.decode import Decoder, ReferenceDecoder
+from sharedlink.analysis.decode import VALUE_KINDS, Decoder, ReferenceDecoder
 from sharedlink.capture.change_records import SEP_CHANGE, SEP_VALUE, escape
 from sharedlink.capture.packets import PacketDecoder
 from sharedlink.capture.pcap_blocks import MAX_RECORD, PcapBlocks, implausible
@@ -47,8 +47,6 @@ from sharedlink.protocols.codec import Frame, SharedLinkError, declared_list, fr
 from sharedlink.protocols.limits import MAX_CONVERSATIONS, MAX_SLOTS
 from sharedlink.protocols.state import BEACON_VARIABLES, conversation_key, reverse_conversation
 
-#: frames that carry values: the ones a change stream has a record for
-_VALUE_KINDS = ("full", "delta", "reply")
 _REC = struct.Struct("<IIII")
 #: the record header, then from byte 12 of an Ethernet packet as
 #: :data:`~sharedlink.analysis.core.patterns.PCAP_UDP` reads it (tested by
@@ -355,7 +353,7 @@ class ChangeReader:
         st = self.stats
         st.payload_bytes += len(sf.raw)
         key = (frame.dst + frame.src).encode("latin-1", "replace")
-        value_frame = frame_kind(frame.fields) in _VALUE_KINDS
+        value_frame = frame_kind(frame.fields) in VALUE_KINDS  # (frames that carry values: the ones a change stream has a record for)
         if frame.checksum is not None and frame.checksum.ok is False:
             st.checksum_failures += 1  # nothing is learnt from it
             if value_frame:
