@@ -77,6 +77,7 @@ class _Loop:
         datagram = self.dec.decode_datagram
         addrs = self.addrs
         progress = self.progress
+        counting = self.counting
         try:
             for number, ts_ns, linktype, data, flags, interface in capture_records(path, self.runs):
                 if linktype == RUN:  # a run taker took ts_ns frames (flags: their bytes) into dec.rows (dec.batch)
@@ -88,10 +89,10 @@ class _Loop:
                 if got is None:
                     yield from self._other(number, ts_ns, linktype, data, flags, interface)
                 elif got:
-                    if self.counting:
-                        yield from self._counted(number, ts_ns, *got)
+                    if counting:
+                        yield from self._counted(number, ts_ns, got[0], got[1])
                     else:
-                        yield from datagram(number, ts_ns, *got)
+                        yield from datagram(number, ts_ns, got[0], got[1])
         except CaptureError:
             yield from self._end()
             raise

@@ -10,6 +10,7 @@ to 256 bytes: the sum at C speed.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from zlib import adler32
 
 #: checksum digits (str and bytes keys) -> what to take from (1 + the byte sum of the whole frame)
@@ -22,11 +23,11 @@ for _i in range(256):
 ADLER_MAX = 256
 
 
-def frame_ok(raw: bytes, digits: str | bytes) -> bool:
+def frame_ok(raw: bytes, digits: str | bytes, _adler: Callable = adler32, _sub: dict = CKSUB) -> bool:
     """Whether ``raw`` (a whole frame, ``[:`` to CR LF, ``digits`` its two upper-case hex checksum
-    digits) has a right checksum."""
-    s = (adler32(raw) & 0xFFFF) if len(raw) <= ADLER_MAX else sum(raw) + 1
-    return not (s - CKSUB[digits]) & 0xFF
+    digits) has a right checksum. (``_adler``, ``_sub``: bound once, no global look-up a frame.)"""
+    s = (_adler(raw) & 0xFFFF) if len(raw) <= 256 else sum(raw) + 1  # (256: ADLER_MAX)
+    return not (s - _sub[digits]) & 0xFF
 
 
 def low_sum_table() -> bytearray:
