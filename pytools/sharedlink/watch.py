@@ -596,11 +596,6 @@ def _ts_ns(item: Any) -> int:
 # -- decoding: the core decoder -----------------------------------------------------------------
 
 
-#: the old name of the decoding core here: :class:`~sharedlink.analysis.decode.Decoder` takes the
-#: UDP source's :class:`RawDatagram` s whole itself (:meth:`~sharedlink.analysis.decode.Decoder.datagram`)
-FastDecoder = Decoder
-
-
 # -- the live view ---------------------------------------------------------------------------
 
 
@@ -865,7 +860,7 @@ def served(output: Callable[[Any], None], stats: WatchStats) -> Callable[[Any], 
 
 def run_watch(
     source: Any,
-    decoder: Decoder | FastDecoder,
+    decoder: Decoder,
     outputs: list[Callable[[Decoded], None]],
     tick: Callable[[int], None] | None = None,
     interval: float = 0.25,

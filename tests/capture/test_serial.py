@@ -29,7 +29,7 @@ from sharedlink.capture.serial_format import (
     parse_linktype,
     read_capture,
 )
-from sharedlink.capture.serial_import import ImportError_, detect_format, parse_hexdump, read_log
+from sharedlink.capture.serial_import import SerialImportError, detect_format, parse_hexdump, read_log
 from sharedlink.generators.serial import SerialGenOptions, generate_serial_file, line_records, session_frames
 from sharedlink.protocols import blackboard, p2os
 from sharedlink.protocols.codec import encode_named, encode_positional, parse_frame
@@ -321,7 +321,7 @@ def test_text_log_and_raw_dump_and_cli_import(tmp_path):
 def test_import_errors_are_clean(tmp_path):
     bad = tmp_path / "bad.txt"
     bad.write_text("00000000  5b 3a 41  |[:A|\n00000010  41 42\n")
-    with pytest.raises(ImportError_) as ei:
+    with pytest.raises(SerialImportError) as ei:
         read_log(bad, "hex")
     assert ei.value.line == 2
     for args in (["serial", "import", str(bad), "-o", str(tmp_path / "x.pcapng"), "--log-format", "hex"],

@@ -143,9 +143,9 @@ def watch_decode(path: Path) -> object:
     """What ``watch`` does with each datagram (its decoder, as commands/watch.py makes it)."""
     from sharedlink.capture.packets import decode_packet
     from sharedlink.capture.pcapio import read_records
-    from sharedlink.watch import FastDecoder, RawDatagram
+    from sharedlink.watch import Decoder, RawDatagram
 
-    dec = FastDecoder(carried=False)
+    dec = Decoder(carried=False)
     n = 0
     for rec in read_records(path):
         dg = decode_packet(rec.linktype, rec.data)

@@ -7,7 +7,7 @@ import pytest
 from sharedlink import errors
 from sharedlink.analysis.transform import TransformError
 from sharedlink.capture.pcapio import CaptureError, read_records
-from sharedlink.capture.serial_import import ImportError_, SerialImportError, read_log
+from sharedlink.capture.serial_import import SerialImportError, read_log
 from sharedlink.cli import main
 from sharedlink.protocols import blackboard, codec, p2os
 from sharedlink.replay import ReplayError
@@ -52,7 +52,7 @@ def test_input_errors_carry_path_record_and_reason(tmp_path):
     log.write_text("00000000  5b 3a 41  |[:A|\n00000010  41 42\n")
     with pytest.raises(errors.InputError) as ei:
         read_log(log, "hex")
-    assert ImportError_ is SerialImportError and isinstance(ei.value, ValueError)
+    assert isinstance(ei.value, SerialImportError) and isinstance(ei.value, ValueError)
     assert ei.value.record == ei.value.line == 2 and str(ei.value) == f"{log}: line 2: {ei.value.reason}"
 
 

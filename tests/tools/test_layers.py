@@ -24,8 +24,6 @@ LAYERS = [
 
 
 def layer_of(part: str) -> int:
-    if part in sharedlink.MOVED:  # an old flat name: the module it now is
-        part = sharedlink.MOVED[part].split(".")[0]
     if not (PACKAGE / f"{part}.py").exists() and not (PACKAGE / part).is_dir():
         # a name of the package root: its version (no layer) or the codec it re-exports
         return 0 if part == "__version__" else layer_of("protocols")
@@ -68,7 +66,7 @@ def test_no_module_imports_from_a_higher_layer():
     checked = 0
     for path in sorted(PACKAGE.rglob("*.py")):
         parts = module_parts(path)
-        if not parts:  # the package root: re-exports the codec and maps old names (sharedlink.MOVED)
+        if not parts:  # the package root: re-exports the codec
             continue
         mine = layer_of(parts[0])
         for line, name in imported(path):

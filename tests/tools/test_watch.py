@@ -313,7 +313,7 @@ def test_ctrl_c_during_a_batch_finishes_it_and_draws_it():
     every output and the counts, the view is drawn once more with all of them, then
     KeyboardInterrupt (before, the batch stopped at that frame and the last view drawn was the
     one before the batch)."""
-    from sharedlink.watch import FastDecoder, LiveView, UdpSource, WatchStats, run_watch
+    from sharedlink.watch import Decoder, LiveView, UdpSource, WatchStats, run_watch
 
     port = free_port()
     source = UdpSource(port, "127.0.0.1")
@@ -325,7 +325,7 @@ def test_ctrl_c_during_a_batch_finishes_it_and_draws_it():
     old = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         with pytest.raises(KeyboardInterrupt):
-            run_watch(source, FastDecoder(), [view.update, out], tick=lambda now: drawn.append((view.frames, stats.frames, out.seen)),
+            run_watch(source, Decoder(), [view.update, out], tick=lambda now: drawn.append((view.frames, stats.frames, out.seen)),
                       interval=60, stats=stats)
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
     finally:
@@ -433,23 +433,26 @@ def _same(a, b, tables: bool = True) -> None:
 
 
 def _compare(cap: Path) -> tuple[int, int]:
-    """Decode ``cap`` with the general decoder and with FastDecoder (frame by frame, and datagram
+    """Decode ``cap`` with the reference decoder and with the core (frame by frame, and datagram
     by datagram as the UDP source feeds it); every result equal. Returns the fast path's counts."""
-    from sharedlink.analysis.decode import Decoded
-    from sharedlink.analysis.decode import ReferenceDecoder as Decoder  # the plain path, the oracle
+    from sharedlink.analysis.decode import (
+        Decoded,
+        Decoder,
+        ReferenceDecoder,  # the plain path, the oracle
+    )
     from sharedlink.capture.packets import decode_packet
     from sharedlink.capture.pcapio import read_records
     from sharedlink.capture.stream import StreamFrame, iter_frames
-    from sharedlink.watch import FastDecoder, RawDatagram
+    from sharedlink.watch import RawDatagram
 
-    ref, fast = Decoder(), FastDecoder()
+    ref, fast = ReferenceDecoder(), Decoder()
     refs = []
     for sf in iter_frames(cap):
         if isinstance(sf, StreamFrame) and sf.frame is not None:
             refs.append(sf)
             _same(fast.decode(sf), ref.decode(sf))
     # the same through datagram(), as the UDP source feeds it
-    ref, fast2 = Decoder(), FastDecoder()
+    ref, fast2 = ReferenceDecoder(), Decoder()
     pending = iter(refs)
     n = 0
     for rec in read_records(cap):
@@ -489,7 +492,7 @@ def test_fast_decoder_equals_the_general_one_on_varied_captures(tmp_path):
 
 
 def test_foxglove_channels_leave_a_fast_frame_unparsed(tmp_path):
-    """watch --foxglove feeds FastDecoder's frames to FoxgloveChannels: the messages come from
+    """watch --foxglove feeds Decoder's frames to FoxgloveChannels: the messages come from
     the letters, kind and values the fast path gives, without parsing the frame after all."""
     import io
 
@@ -499,13 +502,13 @@ def test_foxglove_channels_leave_a_fast_frame_unparsed(tmp_path):
     from sharedlink.analysis.foxglove_channels import FoxgloveChannels
     from sharedlink.capture.packets import decode_packet
     from sharedlink.capture.pcapio import read_records
-    from sharedlink.watch import FastDecoder, RawDatagram
+    from sharedlink.watch import Decoder, RawDatagram
 
     cap = tmp_path / "d.pcap"
     generate_file(GenOptions(duration=20, seed=4, compress=True), cap)
     ctx = foxglove.Context()
     writer = foxglove.open_mcap(io.BytesIO(), context=ctx)
-    channels, fast = FoxgloveChannels(ctx), FastDecoder()
+    channels, fast = FoxgloveChannels(ctx), Decoder()
     taken = []
     for rec in read_records(cap):
         dg = decode_packet(rec.linktype, rec.data)
@@ -639,9 +642,9 @@ def test_live_view_holds_at_most_max_names_per_direction():
     view, before, every name it had ever shown: 5,000)."""
     from sharedlink.protocols.codec import Field, Frame, build_frame, encode_positional
     from sharedlink.protocols.limits import MAX_NAMES
-    from sharedlink.watch import FastDecoder, LiveView, RawDatagram
+    from sharedlink.watch import Decoder, LiveView, RawDatagram
 
-    dec, view = FastDecoder([], carried=False), LiveView(1.0)
+    dec, view = Decoder([], carried=False), LiveView(1.0)
     conv = ("udp", "127.0.0.1", 5555, "", 7013)
     n = 0
     for i in range(MAX_NAMES + 904):
@@ -663,9 +666,9 @@ def test_live_view_fits_the_terminal():
     from rich.console import Console
 
     from sharedlink.protocols.limits import MAX_NAMES
-    from sharedlink.watch import FastDecoder, LiveView, RawDatagram
+    from sharedlink.watch import Decoder, LiveView, RawDatagram
 
-    dec, view = FastDecoder([], carried=False), LiveView(1.0, "t")
+    dec, view = Decoder([], carried=False), LiveView(1.0, "t")
     for c, count in enumerate((MAX_NAMES, 5, 5)):
         conv = ("udp", "127.0.0.1", 5555 + c, "", 7013)
         for i in range(count):
@@ -721,12 +724,12 @@ def test_foxglove_channels_past_the_limit_are_counted_not_fatal():
     import foxglove
 
     from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
-    from sharedlink.watch import FastDecoder, RawDatagram, WatchStats, served
+    from sharedlink.watch import Decoder, RawDatagram, WatchStats, served
 
     stats = WatchStats()
     channels = FoxgloveChannels(foxglove.Context(), ChannelOptions(max_channels=4))
     out = served(channels.frame, stats)
-    dec = FastDecoder([], carried=False)
+    dec = Decoder([], carried=False)
     n = 0
     for rnd in range(3):
         for port in (5001, 5002, 5003):
@@ -744,16 +747,16 @@ def test_json_lines_are_json_line_exactly(capture):
     per variable and made again only when they change."""
     from sharedlink.capture.stream import StreamFrame, iter_frames
     from sharedlink.protocols.codec import Field, Frame, build_frame, encode_positional
-    from sharedlink.watch import FastDecoder, JsonLines, RawDatagram, json_line
+    from sharedlink.watch import Decoder, JsonLines, RawDatagram, json_line
 
     lines, n = JsonLines(), 0
-    dec = FastDecoder(carried=False)
+    dec = Decoder(carried=False)
     for item in iter_frames(capture):
         if isinstance(item, StreamFrame) and item.frame is not None:
             d = dec.decode(item)
             assert lines(d, 3) == json_line(d, 3)
             n += 1
-    dec, conv, k = FastDecoder([], carried=False), ("udp", "127.0.0.1", 5555, "", 7013), 0
+    dec, conv, k = Decoder([], carried=False), ("udp", "127.0.0.1", 5555, "", 7013), 0
     for i in range(600):
         raws = [encode_named("A", "B", [("First", 2, str(i)), (f"Name{i}", 2, str(i)), ("S", 4, 'x"\\u\x01é'),
                                         ("Odd", 2, "inf" if i % 2 else "nan"), ("L", 0, str(i // 3))])]

@@ -26,9 +26,11 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from sharedlink.analysis.decode import Decoder, ReferenceDecoder
+from sharedlink.analysis.core.patterns import plain_udp
+from sharedlink.analysis.decode import VALUE_KINDS, Decoder, ReferenceDecoder
 from sharedlink.capture.change_records import SEP_CHANGE, SEP_VALUE, escape
 from sharedlink.capture.packets import PacketDecoder
+from sharedlink.capture.pcap_blocks import MAX_RECORD, PcapBlocks, implausible
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
     NS,
@@ -45,17 +47,11 @@ from sharedlink.protocols.codec import Frame, SharedLinkError, declared_list, fr
 from sharedlink.protocols.limits import MAX_CONVERSATIONS, MAX_SLOTS
 from sharedlink.protocols.state import BEACON_VARIABLES, conversation_key, reverse_conversation
 
-#: frames that carry values: the ones a change stream has a record for
-_VALUE_KINDS = ("full", "delta", "reply")
 _REC = struct.Struct("<IIII")
-#: the record header, then from byte 12 of an Ethernet packet: the type and the IP version and
-#: header length (3 bytes), IP total length, flags and fragment offset, protocol, the addresses
-#: and UDP ports (12 bytes: the conversation), UDP length (the 16-bit fields little-endian:
-#: compared through _SWAP16; the fragment field is 0, or 0x40 for "don't fragment"), and the
-#: frame's two letters ("[:AB")
+#: the record header, then from byte 12 of an Ethernet packet as
+#: :data:`~sharedlink.analysis.core.patterns.PCAP_UDP` reads it (tested by
+#: :func:`~sharedlink.analysis.core.patterns.plain_udp`), and the frame's two letters ("[:AB")
 _REC_X = struct.Struct("<IIII12x3sxHxxHxB2x12sH4x2s")
-_SWAP16 = [((x & 0xFF) << 8) | (x >> 8) for x in range(65536)]
-_ETH_IPV4 = b"\x08\x00\x45"  # Ethernet II, IPv4 without options
 
 
 class ChangeReader:
@@ -125,30 +121,21 @@ class ChangeReader:
         raise CaptureError(p, None, "file too short to be a capture" if head else "empty file")
 
     def _pcap(self, fh, p: str, head: bytes) -> Iterator[Chunk]:
-        """Classic little-endian pcap: walk records in large blocks."""
-        mult = 1 if struct.unpack("<I", head[:4])[0] == PCAP_MAGIC_NS else 1000
-        linktype = pcap_header(p, head)[2]
-        rest = b""
+        """Classic little-endian pcap: walk records in large blocks (the one block walker's)."""
+        _endian, mult, linktype = pcap_header(p, head)
+        blocks = PcapBlocks(fh, p, self.block)
         number = 0
-        while True:
-            data = fh.read(self.block)
-            buf = rest + data if rest else data
-            if not buf:
-                break
+        for buf in blocks:
             off, number = self._walk(buf, linktype, mult, number, p)
-            rest = buf[off:]
+            blocks.keep(buf, off)
             if self._recs:
                 yield self._chunk()
-            if not data or self._damage is not None:
+            if self._damage is not None:
                 break
         yield from self._serial_flush()
         if self._damage is not None:
             raise self._damage
-        if rest:
-            if len(rest) < 16:
-                raise CaptureError(p, number + 1, f"truncated record header ({len(rest)} of 16 bytes)")
-            incl = struct.unpack_from("<I", rest, 8)[0]
-            raise CaptureError(p, number + 1, f"truncated record ({len(rest) - 16} of {incl} bytes)")
+        blocks.end(number)
 
     def _generic(self, p: str, records: Iterator[Record]) -> Iterator[Chunk]:
         """Any other capture (pcapng, big-endian pcap): records via pcapio, re-packed in
@@ -220,22 +207,18 @@ class ChangeReader:
         struct_error = struct.error
         fast = self.fast_enabled and linktype == LINKTYPE_ETHERNET
         lanes = self._lanes
-        swap = _SWAP16
         recs, tsarr = self._recs, self._ts
         fulls: list[int] = []
         out = (self._ts.append, self._num.append, recs.append, fulls.append)
         bulk = (self._ts.extend, self._num.extend, recs.extend, fulls.extend)  # (the block tier's)
         general = self._general
         st = self.stats
-        sync_ns = self.sync_ns
-        half = sync_ns // 2
-        limit = sync_ns + sync_ns - half  # a gap must round to 2 intervals to miss one
         end = len(buf)
         off = 0
         if st.start_ns is None and end >= 16:
             sec, frac = unpack(buf, 0)[:2]
             st.start_ns = sec * NS + frac * mult
-        nrec = wire = pbytes = nfull = missed = taken = 0
+        nrec = wire = twire = taken = 0
         ts = self._last_ts
         while True:
             try:
@@ -245,8 +228,7 @@ class ChangeReader:
                     break
                 sec, frac, incl, _orig = unpack(buf, off)
                 eth = None
-            if (fast and eth == _ETH_IPV4 and proto == 17 and not frag & 0xFFBF and 50 < incl < 65000
-                    and tl == swap[incl - 14] and ul == swap[incl - 34]):
+            if fast and eth is not None and plain_udp(eth, tl, frag, proto, incl, ul):
                 lane = lanes.get(letters + addr)
                 if lane is None:
                     lane = self._lane(letters, addr)
@@ -254,31 +236,17 @@ class ChangeReader:
                     off, number, n, w, first = lane[0](buf, off, number, mult, addr, out, bulk)
                     if n:
                         taken += n
-                        nrec += n
-                        wire += w
-                        pbytes += w - 42 * n
-                        if first is not None:  # (the core made the direction's layouts again)
-                            idx = self._base + len(recs) - 1
-                            self._events += ((idx, letters, escape(v.name), v.type_code) for v in first)
-                            lanes.clear()
-                        if fulls:
-                            nfull += len(fulls)
-                            sy = lane[1]
-                            prev = sy[0]
-                            for t in fulls:
-                                if t - prev >= limit:
-                                    missed += (t - prev + half) // sync_ns - 1
-                                prev = t
-                            sy[0] = prev
-                            fulls.clear()
+                        twire += w
+                        if first is not None or fulls:
+                            self._after_take(lane[1], letters, first, fulls)
                         last = tsarr[-1]  # the last frame's time, packed
                         ts = (last & 0xFFFFFFFF) * NS + (last >> 32)
                         continue
             d = off + 16
             e = d + incl
             if e > end:
-                if incl > 0x4000000:  # reported by _pcap once this block's frames are out
-                    self._damage = CaptureError(p, number + 1, f"record length {incl} is implausible (damaged file)")
+                if incl > MAX_RECORD:  # reported by _pcap once this block's frames are out
+                    self._damage = implausible(p, number + 1, incl)
                 break
             off = e
             number += 1
@@ -286,15 +254,37 @@ class ChangeReader:
             wire += incl
             ts = sec * NS + frac * mult
             general(number, ts, linktype, buf[d:e])
-        st.records += nrec
-        st.wire_bytes += wire
-        st.payload_bytes += pbytes
-        st.full += nfull
-        st.sync_missed += missed
+        st.records += nrec + taken
+        st.wire_bytes += wire + twire
+        st.payload_bytes += twire - 42 * taken  # (the frames: the records less their Ethernet, IP and UDP headers)
         if taken:
             self.dec.fast += taken  # type: ignore[attr-defined]
         self._last_ts = ts
         return off, number
+
+    def _after_take(self, sy: list[int], letters: bytes, first: list | None, fulls: list[int]) -> None:
+        """After a run a direction's ``take`` took: the first values it reported (the core made the
+        direction's layouts again: the lanes are looked up again) and the sync gaps of its full
+        frames (``fulls``, emptied; ``sy``: the direction's sync entry)."""
+        if first is not None:
+            idx = self._base + len(self._recs) - 1
+            self._events += ((idx, letters, escape(v.name), v.type_code) for v in first)
+            self._lanes.clear()
+        if not fulls:
+            return
+        sync_ns = self.sync_ns
+        half = sync_ns // 2
+        limit = sync_ns + sync_ns - half  # a gap must round to 2 intervals to miss one
+        missed = 0
+        prev = sy[0]
+        for t in fulls:
+            if t - prev >= limit:
+                missed += (t - prev + half) // sync_ns - 1
+            prev = t
+        sy[0] = prev
+        self.stats.full += len(fulls)
+        self.stats.sync_missed += missed
+        fulls.clear()
 
     def _lane(self, letters: bytes, addr: bytes) -> tuple[Any, list[int]] | None:
         """The fast lane of a direction (letters and the packet's addresses and ports): the
@@ -363,7 +353,7 @@ class ChangeReader:
         st = self.stats
         st.payload_bytes += len(sf.raw)
         key = (frame.dst + frame.src).encode("latin-1", "replace")
-        value_frame = frame_kind(frame.fields) in _VALUE_KINDS
+        value_frame = frame_kind(frame.fields) in VALUE_KINDS  # (frames that carry values: the ones a change stream has a record for)
         if frame.checksum is not None and frame.checksum.ok is False:
             st.checksum_failures += 1  # nothing is learnt from it
             if value_frame:

@@ -1,6 +1,6 @@
 """The block tier of the core's compiled layouts (changes only): many records of a direction at once.
 
-:class:`sharedlink.analysis.decode._Compiled` ``take`` decodes a run of records of a direction one
+:class:`sharedlink.analysis.core.compiled.Compiled` ``take`` decodes a run of records of a direction one
 at a time; once the run is long (:data:`BLOCK_AFTER` records in a row) it asks the direction's
 block taker (:func:`block_taker`) for the records that follow: one ``findall`` of the direction's
 compiled layout, with the pcap record and packet headers around it, over a window of the pcap
@@ -27,7 +27,8 @@ from operator import add, and_, lshift, mul, ne, or_, setitem
 from struct import pack
 from zlib import adler32
 
-from sharedlink.analysis.decode import cached_pattern
+from sharedlink.analysis.core.checksum import low_sum_table
+from sharedlink.analysis.core.patterns import cached_pattern
 from sharedlink.capture.pcapio import NS
 
 #: records a direction's per-record loop takes in a row before its block taker is asked
@@ -49,10 +50,7 @@ _NOT_VALUE = bytes(range(32)) + b"[]"
 #: the checksum digits as a little-endian 16-bit number -> the low byte of 1 + the byte sum of a
 #: frame whose checksum they are: the 1, "[" (91), the digits, "]" CR LF (116) and the value, as
 #: the frame's other bytes add up to the value (0: not two upper-case hex digits)
-_CKLOW = bytearray(65536)
-for _i in range(256):
-    _d = b"%02X" % _i
-    _CKLOW[_d[0] | _d[1] << 8] = (1 + 91 + _d[0] + _d[1] + 116 + _i) & 255
+_CKLOW = low_sum_table()
 #: a frame's size -> the captured length, IP total length and UDP length of a record that holds
 #: just its datagram, as :func:`_lengths` gives them
 _LENGTHS = [pack("<I", n + 42) + pack(">HH", n + 28, n + 8) for n in range(257)]
@@ -81,18 +79,7 @@ def block_taker(key: bytes, frame_named: bytes | None, frame_pos: bytes | None, 
     ``whole`` False when it stopped short of what it looked at (the next record is not one for it)."""
     patterns: dict[bytes, Callable] = {}
     window = [BLOCK_MIN]
-    # the same layouts, matched faster: a value is anything up to the next "|" (the bytes the
-    # per-record class leaves out are looked for in the values afterwards, all at once) and an
-    # optional named value is an alternative with nothing (one step for sre, not a repeat)
-    forms = {}
-    if frame_named is not None:
-        fast = frame_named.replace(b"(" + value + b"+))?", rb"([^|]+)|)")
-        if fast.count(rb"([^|]+)|)") == len(nslots):
-            forms[False] = fast
-    if frame_pos is not None:
-        fast = frame_pos.replace(b"(" + value + b"*)", rb"([^|]*)")
-        if fast.count(rb"([^|]*)") == len(pslots):
-            forms[True] = fast
+    forms = _fast_forms(frame_named, frame_pos, value, nslots, pslots)
 
     def take(buf: bytes, off: int, number: int, mult: int, lane: bytes, bulk: tuple, positional: bool,
              bare_ok: bool, changed: Callable) -> tuple[int, int, int, int, int | None, bool] | None:
@@ -106,29 +93,10 @@ def block_taker(key: bytes, frame_named: bytes | None, frame_pos: bytes | None, 
                 patterns.clear()
             findall = patterns[pk] = _findall(_RECORD % re.escape(lane) + b"(" + frame + b")")
         rows = findall(buf, off, off + window[0])
-        k = len(rows)
-        if not k:
-            window[0] = BLOCK_MIN
-            return None
+        n = len(rows)
         cols = list(zip(*rows))
-        heads, frames, cks = cols[0], cols[1], cols[-1]
+        k = _rows_taken(buf, off, rows, cols, not positional and not bare_ok) if n else 0
         vals = cols[2:-1]
-        # the rows must be the records from ``off`` on, one after the other (findall skips what
-        # does not match), each holding just its datagram (captured length = 42 + the frame), its
-        # IP and UDP lengths right, its frame at most 256 bytes (the checksum below) with a right
-        # checksum, its values without the bytes the per-record loop's class leaves out, and
-        # (named) a bare N0 only in a named direction: the per-record loop's checks, at C speed;
-        # the first row that fails one ends the block (found the slow way).
-        sizes = list(map(len, frames))
-        hj = b"".join(heads)  # 58 bytes a row
-        n = k
-        if not (max(sizes) <= 256 and buf.startswith(b"".join(chain.from_iterable(zip(heads, frames))), off)
-                and _lengths(hj) == b"".join(map(_LENGTHS.__getitem__, sizes))
-                and (positional or bare_ok or 14 not in sizes)
-                and bytes(map(and_, map(adler32, frames), repeat(255)))
-                == bytes(map(_CKLOW.__getitem__, array("H", b"".join(cks))))
-                and all(len(j) == len(j.translate(None, _NOT_VALUE)) for j in map(b"".join, vals))):
-            k = _first_bad(buf, off, rows, hj, not positional and not bare_ok)
         # a first value (a variable without one present) ends the block before its frame: the
         # per-record loop reports it and the layouts are made again
         slots = pslots if positional else nslots
@@ -139,43 +107,16 @@ def block_taker(key: bytes, frame_named: bytes | None, frame_pos: bytes | None, 
         if not k or True not in valued:
             window[0] = BLOCK_MIN
             return None
-        whole = k == n
-        if whole:
+        sizes = list(map(len, cols[1][:k]))
+        hj = b"".join(cols[0][:k])  # 58 bytes a row
+        if k == n:
             window[0] = min(BLOCK_MAX, window[0] * 2)
         else:
-            window[0] = max(BLOCK_MIN, 2 * (sum(sizes[:k]) + 58 * k))
+            window[0] = max(BLOCK_MIN, 2 * (sum(sizes) + 58 * k))
             vals = [c[:k] for c in vals]
-            hj = hj[: 58 * k]
-            del sizes[k:]
-        # the change records: for each variable a column of what a record holds of it (b"" when
-        # the frame did not change it); the variables that have a value only (the others have
-        # none in the block)
-        pieces: list = []
-        dense = 0
         vals = list(compress(vals, valued))
-        for col, s in zip(vals, compress(slots, valued)):
-            if b"" not in col:  # every frame has it (a full stream)
-                dense += 1
-                present, where = col, None
-            else:
-                present = list(compress(col, col))  # (an absent value is b"")
-                if not present:
-                    continue
-                where = compress(range(k), col)
-            diff = list(map(ne, present, chain((cur[s],), present)))
-            changes = diff.count(True)
-            if not changes:
-                continue
-            if changes == k:  # every frame changed it
-                pieces += (repeat(rec[s], k), present)
-            else:
-                piece = [b""] * k
-                deque(map(setitem, repeat(piece), compress(where or range(k), diff),
-                          map(add, repeat(rec[s]), compress(present, diff))), maxlen=0)
-                pieces.append(piece)
-            cur[s] = present[-1]
-            changed(s)
         ts_ext, num_ext, rec_ext, full_ext = bulk
+        pieces, dense = _change_pieces(vals, list(compress(slots, valued)), cur, rec, k, changed)
         rec_ext(map(b"".join, zip(repeat(key, k), *pieces)) if pieces else repeat(key, k))
         hdr = _field(hj, 0, 8, False, "I")  # seconds and fractions, two a row
         if mult == 1:  # the packed time is the record header's first 8 bytes
@@ -183,23 +124,100 @@ def block_taker(key: bytes, frame_named: bytes | None, frame_pos: bytes | None, 
         else:
             ts_ext(map(or_, hdr[0::2], map(lshift, map(mul, hdr[1::2], repeat(mult)), repeat(32))))
         num_ext(array("q", pack("<%dq" % k, *range(number + 1, number + k + 1))))
-        # full frames: every variable that has a value present (there is one: see above)
-        last_full = None
-        if dense == len(vals):
-            secs, fracs = hdr[0::2], hdr[1::2]
-            last = k - 1
-        else:
-            mask = list(map(all, zip(*vals)))
-            last = k - 1 - mask[::-1].index(True) if True in mask else -1
-            secs, fracs = compress(hdr[0::2], mask), compress(hdr[1::2], mask)
-        if last >= 0:
-            full_ext(map(add, map(mul, secs, repeat(NS)), map(mul, fracs, repeat(mult))))
-            sync[1] = hdr[2 * last] * NS + hdr[2 * last + 1] * mult
-            last_full = number + last + 1
+        last = _full_frames(hdr, vals, dense, mult, sync, full_ext)
         wire = sum(sizes) + 42 * k
-        return off + wire + 16 * k, number + k, k, wire, last_full, whole
+        return off + wire + 16 * k, number + k, k, wire, number + last + 1 if last >= 0 else None, k == n
 
     return take
+
+
+def _fast_forms(frame_named: bytes | None, frame_pos: bytes | None, value: bytes, nslots: list[int],
+                pslots: list[int]) -> dict[bool, bytes]:
+    """The block tier's patterns of a frame, by form (True: positional): the same layouts, matched
+    faster: a value is anything up to the next "|" (the bytes the per-record class leaves out are
+    looked for in the values afterwards, all at once) and an optional named value is an
+    alternative with nothing (one step for sre, not a repeat)."""
+    forms = {}
+    if frame_named is not None:
+        fast = frame_named.replace(b"(" + value + b"+))?", rb"([^|]+)|)")
+        if fast.count(rb"([^|]+)|)") == len(nslots):
+            forms[False] = fast
+    if frame_pos is not None:
+        fast = frame_pos.replace(b"(" + value + b"*)", rb"([^|]*)")
+        if fast.count(rb"([^|]*)") == len(pslots):
+            forms[True] = fast
+    return forms
+
+
+def _rows_taken(buf: bytes, off: int, rows: list[tuple], cols: list[tuple], no_bare: bool) -> int:
+    """How many of a block's rows (``cols``: its columns, head, frame, values, checksum) from
+    ``off`` on the block tier may take: the rows must be the records from ``off`` on, one after
+    the other (findall skips what does not match), each holding just its datagram (captured
+    length = 42 + the frame), its IP and UDP lengths right, its frame at most 256 bytes (the
+    checksum below) with a right checksum, its values without the bytes the per-record loop's
+    class leaves out, and (``no_bare``) no bare N0: the per-record loop's checks, at C speed; the
+    first row that fails one ends the block (found the slow way)."""
+    heads, frames, cks = cols[0], cols[1], cols[-1]
+    sizes = list(map(len, frames))
+    hj = b"".join(heads)
+    if (max(sizes) <= 256 and buf.startswith(b"".join(chain.from_iterable(zip(heads, frames))), off)
+            and _lengths(hj) == b"".join(map(_LENGTHS.__getitem__, sizes))
+            and not (no_bare and 14 in sizes)
+            and bytes(map(and_, map(adler32, frames), repeat(255)))
+            == bytes(map(_CKLOW.__getitem__, array("H", b"".join(cks))))
+            and all(len(j) == len(j.translate(None, _NOT_VALUE)) for j in map(b"".join, cols[2:-1]))):
+        return len(rows)
+    return _first_bad(buf, off, rows, hj, no_bare)
+
+
+def _change_pieces(vals: list, slots: list[int], cur: list, rec: list[bytes], k: int, changed: Callable
+                   ) -> tuple[list, int]:
+    """The change records of ``k`` rows: for each variable (``vals``: the columns of the variables
+    that have a value, ``slots``: which they are) a column of what a record holds of it (b""
+    when the frame did not change it); ``cur`` kept in step, ``changed`` told. Returns the
+    columns and how many variables every row has."""
+    pieces: list = []
+    dense = 0
+    for col, s in zip(vals, slots):
+        if b"" not in col:  # every frame has it (a full stream)
+            dense += 1
+            present, where = col, None
+        else:
+            present = list(compress(col, col))  # (an absent value is b"")
+            if not present:
+                continue
+            where = compress(range(k), col)
+        diff = list(map(ne, present, chain((cur[s],), present)))
+        changes = diff.count(True)
+        if not changes:
+            continue
+        if changes == k:  # every frame changed it
+            pieces += (repeat(rec[s], k), present)
+        else:
+            piece = [b""] * k
+            deque(map(setitem, repeat(piece), compress(where or range(k), diff),
+                      map(add, repeat(rec[s]), compress(present, diff))), maxlen=0)
+            pieces.append(piece)
+        cur[s] = present[-1]
+        changed(s)
+    return pieces, dense
+
+
+def _full_frames(hdr: array, vals: list, dense: int, mult: int, sync: list, full_ext: Callable) -> int:
+    """The full frames of a block's rows (every variable that has a value present): their times
+    to ``full_ext``, the sync clock set to the last one's; returns its index (-1: none)."""
+    k = len(hdr) // 2
+    if dense == len(vals):
+        secs, fracs = hdr[0::2], hdr[1::2]
+        last = k - 1
+    else:
+        mask = list(map(all, zip(*vals)))
+        last = k - 1 - mask[::-1].index(True) if True in mask else -1
+        secs, fracs = compress(hdr[0::2], mask), compress(hdr[1::2], mask)
+    if last >= 0:
+        full_ext(map(add, map(mul, secs, repeat(NS)), map(mul, fracs, repeat(mult))))
+        sync[1] = hdr[2 * last] * NS + hdr[2 * last + 1] * mult
+    return last
 
 
 def _field(heads: bytes, at: int, size: int, big: bool, code: str = "") -> array:

@@ -20,16 +20,12 @@ from typing import Any
 
 from sharedlink.capture.pcapio import CaptureError
 from sharedlink.capture.stream import StreamFrame, iter_frames
-from sharedlink.protocols.codec import Field, Frame
+from sharedlink.protocols.codec import Frame, declared_list
 from sharedlink.protocols.varlists import MAX_SLOTS, TYPES, format_list, format_varlists
 
-#: digits an ordinal may have (issue 31: longer is malformed)
-MAX_NUMBER_DIGITS = 9
 #: declarations kept for the report per capture; past it they still change the lists, and are
 #: counted (``omitted``), not kept (a capture of nothing but declarations stays bounded)
 MAX_LISTED = 65536
-#: field letters that make a frame something else than a declaration
-_NOT_DECLARATION = set("DERPGM")
 #: characters the list syntax cannot carry in a name (its separators, line ends)
 _UNWRITABLE = set(",;:>\r\n")
 
@@ -101,35 +97,6 @@ class CaptureLists:
         }
 
 
-def _number(text: str) -> int | None:
-    return int(text) if text.isdigit() and len(text) <= MAX_NUMBER_DIGITS else None
-
-
-def declaration_of(fields: Sequence[Field]) -> tuple[str, int, list[tuple[str, int | None]]] | None:
-    """("N" or "L", ordinal, [(name, type)]) when the fields are a declaration: an ``N`` or
-    ``L`` field with a number, at least one ``Q`` name, and no ``D``, ``E``, ``R``, ``P``,
-    ``G`` or ``M`` field. A ``T`` types the ``Q`` after it, and the ``Q`` names after that with
-    no ``T`` of their own (BUL-009: the last ``T`` of the frame stays in force)."""
-    if any(f.letter in _NOT_DECLARATION for f in fields):
-        return None
-    head = next((f for f in fields if f.letter in ("N", "L")), None)
-    if head is None:
-        return None
-    ordinal = _number(head.text)
-    if ordinal is None:
-        return None  # N? / L?: a list request
-    names: list[tuple[str, int | None]] = []
-    own: int | None = None  # the T right before the name
-    last: int | None = None  # the frame's last T (BUL-009: a name with no T of its own takes it)
-    for f in fields:
-        if f.letter == "T":
-            own = last = _number(f.text)
-        elif f.letter == "Q":
-            names.append((f.text, last if own is None else own))
-            own = None
-    return (head.letter, ordinal, names) if names else None
-
-
 def _endpoint(sf: StreamFrame, which: str) -> str:
     proto, src, sport, dst, dport = sf.conv
     if proto == "serial":
@@ -167,7 +134,7 @@ def capture_lists(path: str | Path) -> CaptureLists:
 
 
 def _take(out: CaptureLists, sf: StreamFrame, frame: Frame) -> None:
-    decl = declaration_of(frame.fields)
+    decl = declared_list(frame.fields)  # (the codec's parser: the decoder's rule)
     if decl is None:
         return
     letter, ordinal, names = decl

@@ -505,6 +505,12 @@ class _Prefixed:
     def __init__(self, head: bytes, fh: BinaryIO) -> None:
         self._head, self._fh = head, fh
 
+    def read1(self, n: int = -1) -> bytes:
+        if not self._head:
+            read1 = getattr(self._fh, "read1", None)
+            return read1(n) if read1 is not None else self._fh.read(n)
+        return self.read(min(n, len(self._head)) if n >= 0 else len(self._head))
+
     def read(self, n: int = -1) -> bytes:
         if not self._head:
             return self._fh.read(n)
@@ -542,24 +548,9 @@ def pcap_header(p: str, header: bytes) -> tuple[str, int, int]:
 
 
 def _read_pcap(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
-    endian, mult, linktype = pcap_header(p, head + fh.read(20))
-    hdr = struct.Struct(endian + "IIII")
-    read = fh.read
-    number = 0
-    while True:
-        h = read(16)
-        if not h:
-            return
-        number += 1
-        if len(h) < 16:
-            raise CaptureError(p, number, f"truncated record header ({len(h)} of 16 bytes)")
-        sec, frac, incl, orig = hdr.unpack(h)
-        if incl > 0x4000000:
-            raise CaptureError(p, number, f"record length {incl} is implausible (damaged file)")
-        data = read(incl)
-        if len(data) < incl:
-            raise CaptureError(p, number, f"truncated record ({len(data)} of {incl} bytes)")
-        yield Record(number, sec * 1_000_000_000 + frac * mult, linktype, data, orig)
+    from sharedlink.capture.pcap_blocks import walk_pcap  # (it builds on this module)
+
+    yield from walk_pcap(fh, p, head + fh.read(20), records=True)
 
 
 def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
@@ -567,39 +558,20 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
     interfaces: list[tuple[int, int, int]] = []  # (linktype, units per second, offset in ns)
     snaplens: list[int] = []  # each interface's SnapLen (0: none)
     number = 0
-    first = True
-    buf = head
     read = fh.read
+    h = head + read(4)
+    first = True
     while True:
-        if first:
-            h = buf + read(4)
-        else:
+        if not first:
             h = read(8)
             if not h:
                 return
         where = number + 1 if not first else None
         if len(h) < 8:
             raise CaptureError(p, where, "truncated block header")
-        btype_raw = h[:4]
-        if first or struct.unpack("<I", btype_raw)[0] == PCAPNG_SHB:
-            bom = read(4)
-            if len(bom) < 4:
-                raise CaptureError(p, where, "truncated section header")
-            if struct.unpack("<I", bom)[0] == PCAPNG_BOM:
-                endian = "<"
-            elif struct.unpack(">I", bom)[0] == PCAPNG_BOM:
-                endian = ">"
-            else:
-                raise CaptureError(p, where, "bad pcapng byte-order magic")
-            total = struct.unpack(endian + "I", h[4:8])[0]
-            if total < 28 or total % 4:
-                raise CaptureError(p, where, f"bad section header length {total}")
-            body = read(total - 12)
-            if len(body) < total - 12:
-                raise CaptureError(p, where, "truncated section header")
-            interfaces = []
-            snaplens = []
-            first = False
+        if first or struct.unpack("<I", h[:4])[0] == PCAPNG_SHB:
+            endian = _section(read, h, p, where)  # a new section: its interfaces anew
+            interfaces, snaplens, first = [], [], False
             continue
         btype, total = struct.unpack(endian + "II", h)
         if total < 12 or total % 4 or total > 0x4000000:
@@ -609,55 +581,84 @@ def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
             raise CaptureError(p, number + 1, f"truncated block ({len(body) + 8} of {total} bytes)")
         body = body[:-4]
         if btype == BT_IDB:
-            if len(body) < 8:
-                raise CaptureError(p, number + 1, "truncated interface description")
-            # each interface has its own link type, time resolution (if_tsresol, default
-            # microseconds) and time offset (if_tsoffset, seconds added to every time on it)
-            linktype, _reserved, snaplen = struct.unpack(endian + "HHI", body[:8])
-            units, offset = 1_000_000, 0
-            for code, val in _options(body[8:], endian):
-                if code == 9 and val:
-                    r = val[0]
-                    units = 2 ** (r & 0x7F) if r & 0x80 else 10 ** (r & 0x7F)
-                elif code == 14 and len(val) == 8:
-                    offset = struct.unpack(endian + "q", val)[0] * 1_000_000_000
-            interfaces.append((linktype, units, offset))
-            snaplens.append(snaplen)
-        elif btype == BT_EPB or btype == BT_PB:
+            interfaces.append(_interface(body, endian, p, number + 1))
+            snaplens.append(struct.unpack(endian + "I", body[4:8])[0])
+        elif btype in (BT_EPB, BT_PB, BT_SPB):
             number += 1
-            if len(body) < 20:
-                raise CaptureError(p, number, "truncated enhanced packet block" if btype == BT_EPB else "truncated packet block")
-            if btype == BT_EPB:
-                iface, hi, lo, incl, orig = struct.unpack(endian + "IIIII", body[:20])
-            else:  # interface id and drops count are 16 bits each
-                iface, _drops, hi, lo, incl, orig = struct.unpack(endian + "HHIIII", body[:20])
-            if iface >= len(interfaces):
-                raise CaptureError(p, number, f"packet on undeclared interface {iface}")
-            if 20 + incl > len(body):
-                raise CaptureError(p, number, "packet data longer than its block")
-            data = body[20 : 20 + incl]
-            flags = 0
-            optstart = 20 + incl + ((-incl) & 3)
-            if optstart < len(body):
-                for code, val in _options(body[optstart:], endian):
-                    if code == 2 and len(val) == 4:
-                        flags = struct.unpack(endian + "I", val)[0]
-            linktype, units, offset = interfaces[iface]
-            ts = (hi << 32) | lo
-            ts_ns = (ts * 1_000_000_000 // units if units != 1_000_000_000 else ts) + offset
-            yield Record(number, ts_ns, linktype, data, orig, flags, iface)
-        elif btype == BT_SPB:
-            number += 1
-            if not interfaces or len(body) < 4:
-                raise CaptureError(p, number, "simple packet block without interface")
-            orig = struct.unpack(endian + "I", body[:4])[0]
-            # the captured length is not stored: the original length, cut at interface 0's
-            # SnapLen (the block's padding is no packet data)
-            data = body[4 : 4 + (min(orig, snaplens[0]) if snaplens[0] else orig)]
-            yield Record(number, 0, interfaces[0][0], data, orig)
+            yield _packet(btype, body, endian, interfaces, snaplens, p, number)
         elif btype in FRAME_BLOCKS:
             number += 1  # no packet, but Wireshark gives it a frame number
         # other blocks (name resolution, statistics, secrets) are skipped
+
+
+def _section(read: Any, h: bytes, p: str, where: int | None) -> str:
+    """A section header block whose first 8 bytes ``h`` were read: read the rest, return its
+    byte order."""
+    bom = read(4)
+    if len(bom) < 4:
+        raise CaptureError(p, where, "truncated section header")
+    if struct.unpack("<I", bom)[0] == PCAPNG_BOM:
+        endian = "<"
+    elif struct.unpack(">I", bom)[0] == PCAPNG_BOM:
+        endian = ">"
+    else:
+        raise CaptureError(p, where, "bad pcapng byte-order magic")
+    total = struct.unpack(endian + "I", h[4:8])[0]
+    if total < 28 or total % 4:
+        raise CaptureError(p, where, f"bad section header length {total}")
+    body = read(total - 12)
+    if len(body) < total - 12:
+        raise CaptureError(p, where, "truncated section header")
+    return endian
+
+
+def _interface(body: bytes, endian: str, p: str, number: int) -> tuple[int, int, int]:
+    """An interface description block: ``(link type, time units a second, time offset ns)``;
+    each interface has its own time resolution (if_tsresol, default microseconds) and time
+    offset (if_tsoffset, seconds added to every time on it)."""
+    if len(body) < 8:
+        raise CaptureError(p, number, "truncated interface description")
+    linktype = struct.unpack(endian + "H", body[:2])[0]
+    units, offset = 1_000_000, 0
+    for code, val in _options(body[8:], endian):
+        if code == 9 and val:
+            r = val[0]
+            units = 2 ** (r & 0x7F) if r & 0x80 else 10 ** (r & 0x7F)
+        elif code == 14 and len(val) == 8:
+            offset = struct.unpack(endian + "q", val)[0] * 1_000_000_000
+    return linktype, units, offset
+
+
+def _packet(btype: int, body: bytes, endian: str, interfaces: list[tuple[int, int, int]], snaplens: list[int],
+            p: str, number: int) -> Record:
+    """An enhanced, simple or (obsolete) packet block: its record."""
+    if btype == BT_SPB:
+        if not interfaces or len(body) < 4:
+            raise CaptureError(p, number, "simple packet block without interface")
+        orig = struct.unpack(endian + "I", body[:4])[0]
+        # the captured length is not stored: the original length, cut at interface 0's
+        # SnapLen (the block's padding is no packet data)
+        return Record(number, 0, interfaces[0][0], body[4 : 4 + (min(orig, snaplens[0]) if snaplens[0] else orig)], orig)
+    if len(body) < 20:
+        raise CaptureError(p, number, "truncated enhanced packet block" if btype == BT_EPB else "truncated packet block")
+    if btype == BT_EPB:
+        iface, hi, lo, incl, orig = struct.unpack(endian + "IIIII", body[:20])
+    else:  # interface id and drops count are 16 bits each
+        iface, _drops, hi, lo, incl, orig = struct.unpack(endian + "HHIIII", body[:20])
+    if iface >= len(interfaces):
+        raise CaptureError(p, number, f"packet on undeclared interface {iface}")
+    if 20 + incl > len(body):
+        raise CaptureError(p, number, "packet data longer than its block")
+    flags = 0
+    optstart = 20 + incl + ((-incl) & 3)
+    if optstart < len(body):
+        for code, val in _options(body[optstart:], endian):
+            if code == 2 and len(val) == 4:
+                flags = struct.unpack(endian + "I", val)[0]
+    linktype, units, offset = interfaces[iface]
+    ts = (hi << 32) | lo
+    ts_ns = (ts * 1_000_000_000 // units if units != 1_000_000_000 else ts) + offset
+    return Record(number, ts_ns, linktype, body[20 : 20 + incl], orig, flags, iface)
 
 
 def _options(buf: bytes, endian: str) -> Iterator[tuple[int, bytes]]:

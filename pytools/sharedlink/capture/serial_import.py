@@ -46,10 +46,6 @@ class SerialImportError(InputError, ValueError):
         return self.record
 
 
-#: the old name of :class:`SerialImportError`
-ImportError_ = SerialImportError
-
-
 @dataclass(frozen=True)
 class Chunk:
     ts_ns: int

@@ -109,10 +109,6 @@ def run(args: argparse.Namespace) -> int:
 # -- formatting ------------------------------------------------------------------------------
 
 
-def _pct(x: float | None) -> str:
-    return "-" if x is None else f"{x:.1%}"
-
-
 def _saving(x: float | None, what: str, short: bool = False) -> str:
     """B against A: ``saves 26.0% of A's SharedLink bytes``, or when B is larger ``takes 36.9%
     more SharedLink bytes than A`` (never a negative saving)."""

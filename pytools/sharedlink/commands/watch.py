@@ -30,8 +30,7 @@ from sharedlink.errors import UsageError
 from sharedlink.extras import require
 
 if TYPE_CHECKING:  # (loaded when the command runs: every command's start-up pays for what is imported here)
-    from sharedlink.analysis.decode import Decoded
-    from sharedlink.watch import FastDecoder
+    from sharedlink.analysis.decode import Decoded, Decoder
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -149,7 +148,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from sharedlink.watch import FastDecoder, JsonLines, WatchStats, run_watch, served
+    from sharedlink.analysis.decode import Decoder
+    from sharedlink.watch import JsonLines, WatchStats, run_watch, served
 
     variables, sync = decode_options(args)
     if args.foxglove:  # before the source opens
@@ -158,7 +158,7 @@ def _run(args: argparse.Namespace) -> int:
     server = None
     stats = WatchStats()
     try:
-        decoder = FastDecoder(variables, sync, carried=False)  # the outputs read values from the table
+        decoder = Decoder(variables, sync, carried=False)  # the outputs read values from the table
         outputs: list = []
         sessions: list = []
         if args.foxglove:
@@ -197,7 +197,7 @@ def _damage(source: Any) -> int:
     return EXIT_USAGE
 
 
-def _live(source: Any, decoder: FastDecoder, outputs: list, sync: float, sessions: list, stats: Any) -> int:
+def _live(source: Any, decoder: Decoder, outputs: list, sync: float, sessions: list, stats: Any) -> int:
     from rich.console import Console
     from rich.live import Live
 

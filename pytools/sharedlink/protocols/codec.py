@@ -98,11 +98,6 @@ class Checksum:
             return None
         return self.value == self.calculated
 
-    @property
-    def well_formed(self) -> bool:
-        t = self.text
-        return t is not None and len(t) == 2 and all(c in "0123456789ABCDEF" for c in t)
-
 
 @dataclass(frozen=True)
 class Frame:
@@ -137,12 +132,6 @@ def address_node(letter: str) -> int | None:
     """``A``..``P`` -> 1..16, anything else None."""
     i = ADDRESS_LETTERS.find(letter) if len(letter) == 1 else -1
     return i + 1 if i >= 0 else None
-
-
-def node_address(node: int) -> str:
-    if not 1 <= node <= 16:
-        raise ValueError(f"node {node} outside 1..16")
-    return ADDRESS_LETTERS[node - 1]
 
 
 def checksum(data: bytes) -> int:
@@ -539,10 +528,6 @@ def positional_values(fields: Sequence[Field]) -> tuple[int, list[str | None]]:
         elif f.letter == "D":
             values.append(f.text if f.text != "" else None)
     return ordinal, values
-
-
-def is_named_form(fields: Sequence[Field]) -> bool:
-    return any(f.letter == "Q" for f in fields) and any(f.letter == "D" for f in fields)
 
 
 def declared_list(fields: Sequence[Field]) -> tuple[str, int, list[tuple[str, int | None]]] | None:
