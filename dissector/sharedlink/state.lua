@@ -585,17 +585,21 @@ do
     end
 
     -- A query waits for its reply (under its ask key and each name it asks for; at most
-    -- max_pending a querier).
+    -- max_pending a querier, max_pending_total in all).
     local function ask(ak, name, rec)
         local qkey = ak .. ":" .. name
         if pending_q[qkey] then
             pending_q[qkey] = rec
-        elseif (LIM.npend[ak] or 0) < LIM.max_pending then
-            pending_q[qkey] = rec
-            LIM.npend[ak] = (LIM.npend[ak] or 0) + 1
-        else
+        elseif (LIM.npend[ak] or 0) >= LIM.max_pending then
             lim_hit = "Limit exceeded: more than " .. LIM.max_pending ..
                 " unanswered queries in this conversation (max_pending)"
+        elseif LIM.npend_total >= LIM.max_pending_total then
+            lim_hit = "Limit exceeded: more than " .. LIM.max_pending_total ..
+                " unanswered queries in all (max_pending_total)"
+        else
+            pending_q[qkey] = rec
+            LIM.npend[ak] = (LIM.npend[ak] or 0) + 1
+            LIM.npend_total = LIM.npend_total + 1
         end
     end
 
@@ -606,6 +610,7 @@ do
         if qrec then
             pending_q[qkey] = nil
             LIM.npend[ak] = (LIM.npend[ak] or 1) - 1
+            LIM.npend_total = LIM.npend_total - 1
         end
         return qrec
     end
