@@ -229,3 +229,13 @@ def check_memory(make: Callable[[int, Path], Sequence[str]], n: int, tmp: Path, 
     raise ScalingError(f"memory or time not bounded (4N at most 2x N + {slack_kb // 1024} MB"
                        f"{' beyond start-up' if beyond_start else ''}, {time_limit:.0f}x CPU): {report}\n"
                        f"command: {' '.join(cmds[4 * n])}")
+
+
+def many_directions(n: int) -> list[bytes | tuple[int, bytes]]:
+    """n directions (a source port each), one named frame of 2 values each."""
+    return [(1024 + i % 60000, frame(f"{'ABCDEFGHIJ'[i // 60000]}B|N0|T2|QLat|D1.5|T2|QLon|D{i}")) for i in range(n)]
+
+
+def many_names(n: int) -> list[bytes]:
+    """One direction, each frame two names never sent before (past max_names, 4,096: dropped)."""
+    return [frame(f"AB|N0|T4|Qa{i}|Dx|T4|Qb{i}|Dy") for i in range(n)]

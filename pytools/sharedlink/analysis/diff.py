@@ -215,10 +215,12 @@ def _worker(conn, path: str, variables: list, sync_interval: float, fast: bool) 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _sparse_collector()  # decoding makes reference cycles: the collector stays on (issue 44)
+    gc.freeze()  # what the process holds now (modules, ...) is never scanned again: each chunk's collect is cheap
     try:
         for item in read_changes(path, variables, sync_interval, fast):
             if isinstance(item, Chunk):
                 conn.send_bytes(marshal.dumps((0, item.as_tuple())))
+                gc.collect()  # a chunk's cycles, while the reader holds little else (cheap: ~1 ms)
             else:
                 conn.send_bytes(marshal.dumps((1, item.to_dict())))
     except (KeyboardInterrupt, BrokenPipeError, EOFError):
