@@ -113,3 +113,15 @@ def test_diff_reader_collects_the_decoders_cycles(tmp_path: Path) -> None:
     enabled, garbage = p.stdout.split()
     assert enabled == "True"
     assert int(garbage) < 5000, garbage  # with the collector off: 10,000 objects (10 a declaration)
+
+
+@pytest.mark.parametrize("pattern", [mp.repeated_declaration, mp.new_layouts])
+def test_shared_structures_decode_alike_in_one_and_two_passes(pattern, tmp_path: Path) -> None:
+    """The shared list history and the layouts' subsets: a later pass (-2) reads back what the
+    first had (the list in use at each frame, the carried names)."""
+    cap = mp.write_udp(tmp_path / "p.pcap", pattern(40))
+    names = ["sharedlink.kind", "sharedlink.var.name", "sharedlink.var.value", "sharedlink.var.carried_from"]
+    one, two = tu.fields(cap, names, two_pass=False), tu.fields(cap, names, two_pass=True)
+    assert one == two
+    kinds = [k for r in two for k in r["sharedlink.kind"]]
+    assert kinds.count("declaration" if pattern is mp.repeated_declaration else "delta") >= 40, kinds
