@@ -639,9 +639,16 @@ local function first_pass(raw, dir, num, iface)
     st.recs[#st.recs + 1] = { num, prefix_len + 1, n }
     if not st.proto then detect_protocol(st, s, n) end
     local pieces, hold, over = scan_direction(st, s, n, dir)
+    local run = st.run
     res = region_result(st, s, dir, num, pieces, hold, prefix_len)
     res.over = over
     keep_tail(st, s, hold)
+    if hold == 1 and not over then
+        -- nothing completed, every byte held: the record joins the run of held records (their
+        -- frame's end completes them all), as an appended one does
+        if run and run.proto == res.proto and run.dir == dir then res = run end
+        st.run = res
+    end
     return res
 end
 
