@@ -6,7 +6,7 @@
 -- from the line, the direction in the EPB flags (inbound / outbound; Wireshark turns them
 -- into pinfo.p2p_dir).
 --
--- Each direction is a byte stream. On the first pass the stream is cut into frames (and the
+-- Each direction of each interface is a byte stream. On the first pass the stream is cut into frames (and the
 -- noise between them) by the protocol's framing rules; a frame split across records is held
 -- back until its last byte arrives and shown in that record as a reassembled data source
 -- with links to the records it came from. The bytes completed in a record are handed, in one
@@ -136,11 +136,20 @@ slserial.prefs.max_held_bytes = Pref.uint("Max held bytes", MAX_HELD_DEFAULT,
 ------------------------------------------------------------------------------
 -- State (first pass): per direction stream buffer; per record the result
 ------------------------------------------------------------------------------
--- [p2p_dir] = { held = { strings }, hlen = their length, recs = { {num, s, e}... } (positions in
--- the held bytes), proto = name|nil, expect = see bb_expectation, append = whether the next
--- bytes can be appended to the held ones without a scan (see can_append) }
+-- [stream_key(interface, p2p_dir)] = { held = { strings }, hlen = their length, recs = { {num, s,
+-- e}... } (positions in the held bytes: released when their frame completes), proto = name|nil,
+-- expect = see bb_expectation, append = whether the next bytes can be appended to the held ones
+-- without a scan (see can_append), run = the result the records appended since the last scan
+-- share (append_held), iface = the capture interface }
+-- A stream is a direction of one interface: two serial lines in one pcapng are two streams each
+-- (issue 44; the Python reader keys them the same way).
 local dirs = {}
-local results = {}  -- [record number] = result table (see first_pass)
+local results = {}  -- [record number] = result table (see first_pass; shared by a run of held records)
+local f_iface = Field.new("frame.interface_id")
+
+local function stream_key(iface, dir)
+    return iface * 4 + dir + 1
+end
 
 function slserial.init()
     dirs, results = {}, {}
@@ -467,11 +476,12 @@ local function fixed_protocol()
     return nil
 end
 
-local function dir_state(dir)
-    local st = dirs[dir]
+local function dir_state(iface, dir)
+    local key = stream_key(iface, dir)
+    local st = dirs[key]
     if not st then
-        st = { held = {}, hlen = 0, recs = {}, proto = fixed_protocol() }
-        dirs[dir] = st
+        st = { held = {}, hlen = 0, recs = {}, proto = fixed_protocol(), iface = iface }
+        dirs[key] = st
     end
     return st
 end
@@ -492,7 +502,10 @@ local function can_append(st, s)
     return false
 end
 
--- a record that only lengthens the held frame: kept as it is, nothing scanned again
+-- a record that only lengthens the held frame: kept as it is, nothing scanned again; the records
+-- of such a run share one result (what they show is the same: the stream, its protocol, and the
+-- record completing them; issue 44: a table each cost about 1.8 KB a record sent byte by byte)
+local NO_PIECES = {}
 local function append_held(st, raw, dir, num)
     local finish = FINISH[st.proto]
     if not st.append or st.expect or not finish or st.hlen + #raw > max_held or s_find(raw, finish) then
@@ -502,7 +515,12 @@ local function append_held(st, raw, dir, num)
     st.held[#st.held + 1] = raw
     st.hlen = prefix_len + #raw
     st.recs[#st.recs + 1] = { num, prefix_len + 1, st.hlen }
-    return { dir = dir, proto = st.proto, pieces = {}, region_len = 0, prefix_len = prefix_len, held_from = 0 }
+    local run = st.run
+    if not run then
+        run = { dir = dir, proto = st.proto, pieces = NO_PIECES, region_len = 0, held_from = 0 }
+        st.run = run
+    end
+    return run
 end
 
 local function detect_protocol(st, s, n)
@@ -515,8 +533,9 @@ local function detect_protocol(st, s, n)
         -- nothing recognisable of its own (e.g. a blackboard slave's binary answers):
         -- the protocol of another direction (lowest direction number first)
         for _, d in ipairs({ -1, 0, 1 }) do
-            if dirs[d] and dirs[d].proto then
-                st.proto = dirs[d].proto
+            local other = dirs[stream_key(st.iface, d)]
+            if other and other.proto then
+                st.proto = other.proto
                 break
             end
         end
@@ -526,7 +545,7 @@ end
 -- good messages make the other direction expect their answers (the master's; a direction
 -- that answers never gives the other one answers to expect)
 local function expect_answers(st, s, dir, pieces)
-    local other = (dir == 0 or dir == 1) and not st.slave and dir_state(1 - dir) or nil
+    local other = (dir == 0 or dir == 1) and not st.slave and dir_state(st.iface, 1 - dir) or nil
     if not other or other.master or (other.proto ~= nil and other.proto ~= "blackboard") then return end
     for _, p in ipairs(pieces) do
         local c = s_byte(s, p[1])
@@ -567,15 +586,16 @@ local function region_result(st, s, dir, num, pieces, hold, prefix_len)
     }
     if prefix_len > 0 and region_len > 0 then
         res.region = s_sub(s, 1, region_len)
-        -- { record number, offset in the region, length } of each record's share
-        local frags = {}
+        -- record number, offset in the region, length of each record's share (3 entries a record)
+        local frags, nf, count = {}, 0, 0
         for _, r in ipairs(st.recs) do
             if r[2] <= region_len then
                 local last = r[3] < region_len and r[3] or region_len
-                frags[#frags + 1] = { r[1], r[2] - 1, last - r[2] + 1 }
+                frags[nf + 1], frags[nf + 2], frags[nf + 3] = r[1], r[2] - 1, last - r[2] + 1
+                nf, count = nf + 3, count + 1
             end
         end
-        res.frags = frags
+        res.frags, res.nfrags = frags, count
     end
     -- records whose held bytes complete here learn where
     if region_len > 0 then
@@ -592,7 +612,7 @@ end
 -- keep the held tail (from hold on) and the records it holds bytes of
 local function keep_tail(st, s, hold)
     local tail = s_sub(s, hold)
-    st.held, st.hlen = { tail }, #tail
+    st.held, st.hlen, st.run = { tail }, #tail, nil
     st.append = can_append(st, tail)
     if st.expect then
         st.expect.at = st.expect.at - (hold - 1)
@@ -608,8 +628,8 @@ local function keep_tail(st, s, hold)
     st.recs = recs
 end
 
-local function first_pass(raw, dir, num)
-    local st = dir_state(dir)
+local function first_pass(raw, dir, num, iface)
+    local st = dir_state(iface, dir)
     local res = append_held(st, raw, dir, num)
     if res then return res end
     local prefix_len = st.hlen
@@ -619,9 +639,16 @@ local function first_pass(raw, dir, num)
     st.recs[#st.recs + 1] = { num, prefix_len + 1, n }
     if not st.proto then detect_protocol(st, s, n) end
     local pieces, hold, over = scan_direction(st, s, n, dir)
+    local run = st.run
     res = region_result(st, s, dir, num, pieces, hold, prefix_len)
     res.over = over
     keep_tail(st, s, hold)
+    if hold == 1 and not over then
+        -- nothing completed, every byte held: the record joins the run of held records (their
+        -- frame's end completes them all), as an appended one does
+        if run and run.proto == res.proto and run.dir == dir then res = run end
+        st.run = res
+    end
     return res
 end
 
@@ -648,18 +675,19 @@ end
 -- #12(26), #13(18), #14(8)]", a "[Frame: N, payload: a-b (n bytes)]" row per record, the
 -- count and the length
 local function add_fragments(t, rtvb, res)
-    local list = {}
-    for i, f in ipairs(res.frags) do list[i] = "#" .. f[1] .. "(" .. f[3] .. ")" end
+    local list, frags, count = {}, res.frags, res.nfrags
+    for i = 1, count do list[i] = "#" .. frags[3 * i - 2] .. "(" .. frags[3 * i] .. ")" end
     local ft = t:add(hf.fragments, rtvb:range(0, res.region_len))
     ft:set_generated()
-    ft:set_text(#res.frags .. " Reassembled fragments (" .. plural(res.region_len, "byte") .. "): "
+    ft:set_text(count .. " Reassembled fragments (" .. plural(res.region_len, "byte") .. "): "
         .. table.concat(list, ", "))
-    for _, f in ipairs(res.frags) do
-        local fi = ft:add(hf.fragment, rtvb:range(f[2], f[3]), f[1])
+    for i = 1, count do
+        local num, off, len = frags[3 * i - 2], frags[3 * i - 1], frags[3 * i]
+        local fi = ft:add(hf.fragment, rtvb:range(off, len), num)
         fi:set_generated()
-        fi:append_text(", payload: " .. f[2] .. "-" .. (f[2] + f[3] - 1) .. " (" .. plural(f[3], "byte") .. ")")
+        fi:append_text(", payload: " .. off .. "-" .. (off + len - 1) .. " (" .. plural(len, "byte") .. ")")
     end
-    ft:add(hf.fragment_count, #res.frags):set_generated()
+    ft:add(hf.fragment_count, count):set_generated()
     ft:add(hf.reassembled_length, res.region_len):set_generated()
 end
 
@@ -695,17 +723,19 @@ end
 
 local function first_pass_result(tvb, pinfo, n, dir)
     local num = pinfo.number
+    local fi = f_iface()
+    local iface = fi and fi.value or 0
     local res = results[num]
     if res then return res end
     if pinfo.visited then
         -- a record the first pass never saw (should not happen): dissect it alone
         local saved = dirs
         dirs = {}
-        res = first_pass(tvb:raw(0, n), dir, num)
+        res = first_pass(tvb:raw(0, n), dir, num, iface)
         dirs = saved
         return res
     end
-    res = first_pass(tvb:raw(0, n), dir, num)
+    res = first_pass(tvb:raw(0, n), dir, num, iface)
     results[num] = res
     return res
 end
@@ -774,7 +804,7 @@ local function dissect(tvb, pinfo, tree)
     if nframes > 0 then
         t:append_text(", completes " .. plural(nframes, label .. " frame") ..
             (res.region and (" (" .. plural(res.region_len, "byte") .. " reassembled from " ..
-                plural(#res.frags, "record") .. ")") or ""))
+                plural(res.nfrags, "record") .. ")") or ""))
     elseif not res.proto then
         t:append_text(", protocol not recognised yet")
     end

@@ -34,7 +34,7 @@ sl.prefs.sync_interval = Pref.uint("Sync interval (ms), old name (deprecated)", 
     "Deprecated: use sharedlink.sync_interval_ms (same value, in ms); used only while that one is at its default")
 -- Limits (issue 31; the same names and defaults as the Python tools' sharedlink.protocols.limits)
 local LIMIT_DEFAULTS = { max_slots = 1024, max_names = 4096, max_conversations = 65536, max_pending = 1024,
-    max_held_bytes = 65536 }
+    max_pending_total = 65536, max_held_bytes = 65536 }
 sl.prefs.max_slots = Pref.uint("Maximum slot number", LIMIT_DEFAULTS.max_slots,
     "Positional slots, ordinals and declared list entries at or past this number are dropped")
 sl.prefs.max_names = Pref.uint("Maximum names a direction holds", LIMIT_DEFAULTS.max_names,
@@ -43,6 +43,8 @@ sl.prefs.max_conversations = Pref.uint("Maximum directions with state", LIMIT_DE
     "Directions past this many keep no state")
 sl.prefs.max_pending = Pref.uint("Maximum unanswered queries", LIMIT_DEFAULTS.max_pending,
     "Queries past this many unanswered ones in a conversation are not matched with a reply")
+sl.prefs.max_pending_total = Pref.uint("Maximum unanswered queries in all", LIMIT_DEFAULTS.max_pending_total,
+    "Queries past this many unanswered ones in all conversations together are not matched with a reply")
 sl.prefs.max_held_bytes = Pref.uint("Maximum bytes held for an unterminated frame", LIMIT_DEFAULTS.max_held_bytes,
     "A TCP frame not terminated within this many bytes is decoded as unterminated")
 
@@ -138,9 +140,9 @@ end
 -- The values in use: list (the parsed variable list), validate, heuristic, sync (the interval plus
 -- the slack, in seconds), and LIM: the limits and the per-capture facts they need: journal (a
 -- direction keeps a journal, see state's journal), ndirs (directions with state), npend
--- (unanswered queries a querier), nqueriers (queriers with an entry in npend)
+-- (unanswered queries a querier), nqueriers (queriers with an entry in npend), npend_total (in all)
 local cfg = { list = EMPTY, pairs = {}, validate = true, heuristic = true, sync = 1.0 + U.SYNC_SLACK,
-    LIM = { journal = false, ndirs = 0, npend = {}, nqueriers = 0 } }
+    LIM = { journal = false, ndirs = 0, npend = {}, nqueriers = 0, npend_total = 0 } }
 
 local function read_limits()
     local LIM = cfg.LIM
@@ -250,7 +252,7 @@ end
 -- the per-capture facts the limits keep (init)
 function cfg.reset()
     local LIM = cfg.LIM
-    LIM.journal, LIM.ndirs, LIM.npend, LIM.nqueriers = false, 0, {}, 0
+    LIM.journal, LIM.ndirs, LIM.npend, LIM.nqueriers, LIM.npend_total = false, 0, {}, 0, 0
 end
 
 return cfg

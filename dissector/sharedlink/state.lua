@@ -23,6 +23,7 @@ local pair_lists    -- "SD" letters -> learnt list (the pair's latest good decla
 local inbound       -- receiver key (addresses, "|", letters: see list_in_use) -> its inbound (L) list
 local ninbound      -- receivers with an inbound list (at most max_conversations)
 local pending_q     -- ask key .. ":" .. name (or "#N", "#L": a list request) -> record of the asking frame
+local decl_lists    -- a declared list's content (names and types) -> the first list declared with it
 local dir_cache_num, dir_cache_ports -- the packet whose attributes were read last, its ports
 local last_asrc, last_adst, last_pdir, last_byaddr  -- addresses of the last packet and their dirs entry
 local stamp_ctr = 0
@@ -30,11 +31,13 @@ local stamp_ctr = 0
 -- declaration, a new capture, the preferences); a direction keeps the one it found (d.lcur) while
 -- d.lgen is the same (speed trick, measured: no three table lookups a frame, list_in_use)
 local lists_gen = 0
+local NO_VALUES = { n = 0, N = {}, store = function() end }   -- (state_data; its subs emptied by S.reset)
 local S = {}
 function S.lists_changed() lists_gen = lists_gen + 1 end
 function S.reset()
     lists_gen = lists_gen + 1
     dirs, pair_lists, pending_q, inbound, ninbound = {}, {}, {}, {}, 0
+    decl_lists, NO_VALUES.subs = {}, nil
     dir_cache_num, dir_cache_ports = nil, 0
     last_asrc, last_adst, last_pdir, last_byaddr = nil, nil, nil, nil
 end
@@ -48,10 +51,12 @@ S.reset()
 -- seen: name -> stamp of the last frame that had it; filled: slot -> true once it held a value
 -- (a required slot), maxslot: the highest; first/lastfull: times of the first frame and of the
 -- last good full one.
-local NO_SUBSETS = {}   -- (d.subsets of a direction with none: never written)
+-- sgen: bumped when the direction learns a name (its known subsets, kept by each layout in
+-- named.subs[d] with the sgen they were made at, are then made again: known_subset).
+local NO_SUBSETS = {}   -- (named.subs of a layout with none: never written)
 local function new_dir()
     return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, nkey = {}, seen = {}, filled = {}, maxslot = -1,
-        first = nil, lastfull = nil, list = nil, subsets = NO_SUBSETS, wl = false }
+        first = nil, lastfull = nil, list = nil, sgen = 0, wl = false }
 end
 
 -- A new direction at byaddr[key]; past max_conversations one that is kept nowhere (d.over: made
@@ -285,7 +290,7 @@ do
                 d.npos[name] = #names - 1
                 d.nfirst[name] = num
                 d.nkey[#names] = key or journal.key(num, sk)
-                d.names_is, d.subsets = nil, NO_SUBSETS   -- (known_subset's made again)
+                d.names_is, d.sgen = nil, d.sgen + 1   -- (known_subset's made again)
                 st = 0
             else
                 -- a new name past max_names: no state
@@ -364,13 +369,14 @@ do
     end
 
     -- The direction's known names a named layout leaves out, in the direction's order (nil: the
-    -- layout names one the direction does not know, or leaves none out), kept per layout in
-    -- d.subsets (read by state_data) until the direction learns another name (named_value empties
-    -- it; speed trick, measured: a compressed stream's deltas).
+    -- layout names one the direction does not know, or leaves none out), kept by the layout in
+    -- named.subs[d] (read by state_data) until the direction learns another name (named_value bumps
+    -- d.sgen; speed trick, measured: a compressed stream's deltas).  Kept by the layout, not the
+    -- direction: a layout the layout cache drops (parse.lua, MAX_LAYOUTS a node pair) takes its
+    -- subsets with it (issue 44: a direction's own table kept every layout it ever met alive).
     local function known_subset(d, named)
         local names = d.names
         if #names > JOURNAL_NAMES and not d.over then return nil end   -- a journal's (data_values)
-        local cache = d.subsets
         local npos, sn, in_layout = d.npos, named.N, {}
         for k = 1, named.n do
             if not npos[sn[k]] then return nil end
@@ -381,9 +387,11 @@ do
             if not in_layout[names[k]] then miss[#miss + 1] = names[k] end
         end
         if #miss == 0 then return nil end
-        if cache == NO_SUBSETS then cache = {}; d.subsets = cache end
-        local sub = { names = miss, n = #miss, line = false, run = false, lsk = false }
-        cache[named] = sub
+        local sub = { names = miss, n = #miss, line = false, run = false, lsk = false, gen = d.sgen }
+        if d.over then return sub end   -- (made anew each frame: nothing kept for it)
+        local cache = named.subs
+        if not cache then cache = {}; named.subs = cache end
+        cache[d] = sub
         return sub
     end
 
@@ -514,6 +522,20 @@ do
         return "delta", rec, list, d, sub.n, 0, nm
     end
 
+    -- The first list declared with the content (names and types) of list (issue 44): the one a
+    -- direction's history keeps (d.uhist, list_in_use), so a declaration repeated before every
+    -- data frame keeps one list, not a copy each.  (The list itself stays a table of its own: a
+    -- declaration replaces its direction's list, and what it keeps, even with the same names, as
+    -- the Python twin's VarSource does.)
+    local function canonical_list(list, types, n)
+        local parts = {}
+        for k = 1, n do parts[k] = list[k] .. "\0" .. (types[k] or "") end
+        local key = table.concat(parts, "\1")
+        local canon = decl_lists[key]
+        if not canon then canon = list; decl_lists[key] = list end
+        return canon
+    end
+
     -- State, first pass, a declaration with a good checksum: the list it declares (a list learnt
     -- from a declaration: past its end var.unknown).  An N declaration is its own conversation's
     -- list; an L one the inbound list of the declarer's receiver (the declaration's destination
@@ -548,6 +570,7 @@ do
             end
         end
         for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
+        newlist.canon = canonical_list(newlist, types, maxi)
         if dd then
             dd.list = newlist
         elseif inbound[rkey] or ninbound < LIM.max_conversations then
@@ -562,8 +585,8 @@ do
     end
 
     -- A query waits for its reply (under its ask key and each name it asks for; at most
-    -- max_pending a querier, at most max_conversations queriers: a new one past them is refused,
-    -- as Python's PendingAsks does, issue 40).
+    -- max_pending a querier, at most max_conversations queriers (a new one past them is refused,
+    -- as Python's PendingAsks does, issue 40), max_pending_total in all (issue 44).
     local function ask(ak, name, rec)
         local qkey = ak .. ":" .. name
         if pending_q[qkey] then
@@ -571,13 +594,17 @@ do
         elseif LIM.npend[ak] == nil and LIM.nqueriers >= LIM.max_conversations then
             lim_hit = "Limit exceeded: more than " .. LIM.max_conversations ..
                 " queriers with unanswered queries (max_conversations)"
-        elseif (LIM.npend[ak] or 0) < LIM.max_pending then
+        elseif (LIM.npend[ak] or 0) >= LIM.max_pending then
+            lim_hit = "Limit exceeded: more than " .. LIM.max_pending ..
+                " unanswered queries in this conversation (max_pending)"
+        elseif LIM.npend_total >= LIM.max_pending_total then
+            lim_hit = "Limit exceeded: more than " .. LIM.max_pending_total ..
+                " unanswered queries in all (max_pending_total)"
+        else
             if LIM.npend[ak] == nil then LIM.nqueriers = LIM.nqueriers + 1 end
             pending_q[qkey] = rec
             LIM.npend[ak] = (LIM.npend[ak] or 0) + 1
-        else
-            lim_hit = "Limit exceeded: more than " .. LIM.max_pending ..
-                " unanswered queries in this conversation (max_pending)"
+            LIM.npend_total = LIM.npend_total + 1
         end
     end
 
@@ -588,6 +615,7 @@ do
         if qrec then
             pending_q[qkey] = nil
             LIM.npend[ak] = (LIM.npend[ak] or 1) - 1
+            LIM.npend_total = LIM.npend_total - 1
         end
         return qrec
     end
@@ -657,11 +685,13 @@ do
         end
         local old = d.used_list or cfg.list
         if list ~= old then
-            local h = d.uhist
+            -- the history keeps a declared list's canonical copy, once a run (issue 44)
+            local h, canon = d.uhist, list.canon or list
             if not h then h = {}; d.uhist = h end
-            h[#h + 1] = num
-            h[#h + 1] = sk
-            h[#h + 1] = list
+            local nh = #h
+            if nh == 0 or h[nh] ~= canon then
+                h[nh + 1], h[nh + 2], h[nh + 3] = num, sk, canon
+            end
             d.used_list = list
             replace_values(d, old, list)
         end
@@ -736,7 +766,6 @@ do
     --    (NO_VALUES: [:AB|N0|C..], a compressed stream's delta when nothing changed) is taken as a
     --    layout of no names, so it carries them all.
     -- Any other frame: data_general.
-    local NO_VALUES = { n = 0, N = {}, store = function() end }
     function state_data(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
         lim_hit = false
         local d = get_dir(pinfo, num, dstb, srcb)
@@ -755,7 +784,8 @@ do
             end
             return data_record(pinfo, d, num, sk, full_local, full_local, cs_status, 0, 0, list, 0, 0)
         end
-        local sub = d.subsets[named] or known_subset(d, named)
+        local sub = (named.subs or NO_SUBSETS)[d]
+        if not sub or sub.gen ~= d.sgen then sub = known_subset(d, named) end
         if not sub then return data_general(pinfo, d, num, sk, cs_status, full_local, tree, list) end
         named.store(d.vals, d.from, num)
         -- another layout's values were stored since sub's line was made: it is made again

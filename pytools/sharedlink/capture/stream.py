@@ -153,8 +153,10 @@ class SerialSplitter:
         self._readers: dict[int, StreamReader] = {}
         self._linktype: dict[int, int] = {}
         self._reported: dict[tuple[int, int], int] = {}  # (interface, direction) -> last record given out
-        self._ts: dict[int, int] = {}  # record number -> timestamp, for records still held
-        self._prune_at = 64
+        # interface -> {record number -> timestamp} for its records still held, pruned per interface
+        # when it doubles (linear in the number of interfaces: issue 44)
+        self._ts: dict[int, dict[int, int]] = {}
+        self._prune_at: dict[int, int] = {}
         self._last = (0, 0)  # (number, ts_ns) of the last record fed
 
     def feed(
@@ -163,15 +165,17 @@ class SerialSplitter:
         reader = self._readers.get(interface)
         if reader is None:
             reader = self._readers[interface] = StreamReader("auto")
+            self._ts[interface] = {}
         self._linktype[interface] = linktype
         self._last = (number, ts_ns)
-        self._ts[number] = ts_ns
+        ts = self._ts[interface]
+        ts[number] = ts_ns
         d = flags & 3
         out = self._convert(interface, d, reader.feed(d, data, number), number, ts_ns)
-        if len(self._ts) >= self._prune_at:
-            held = {r for rd in self._readers.values() for df in rd.dirs.values() for r in df.pending_records}
-            self._ts = {r: t for r, t in self._ts.items() if r in held}
-            self._prune_at = 2 * len(self._ts) + 64
+        if len(ts) >= self._prune_at.get(interface, 64):
+            held = {r for df in reader.dirs.values() for r in df.pending_records}
+            ts = self._ts[interface] = {r: t for r, t in ts.items() if r in held}
+            self._prune_at[interface] = 2 * len(ts) + 64
         return out
 
     def flush(self) -> list[StreamFrame | tuple[int, int]]:
@@ -180,9 +184,10 @@ class SerialSplitter:
         for interface, reader in self._readers.items():
             for d, p in reader.flush():
                 number = p.records[-1] if p.records else self._last[0]
-                out += self._convert(interface, d, [p], number, self._ts.get(number, self._last[1]))
+                out += self._convert(interface, d, [p], number, self._ts[interface].get(number, self._last[1]))
         self._readers.clear()
         self._ts.clear()
+        self._prune_at.clear()
         return out
 
     def _convert(
@@ -199,7 +204,7 @@ class SerialSplitter:
                 last = self._reported.get(key, 0)
                 for r in p.records:
                     if r > last:
-                        out.append((r, self._ts.get(r, ts_ns)))
+                        out.append((r, self._ts[interface].get(r, ts_ns)))
                         last = r
                 self._reported[key] = last
         return out

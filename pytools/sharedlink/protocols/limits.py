@@ -19,6 +19,9 @@ MAX_NUMBER_DIGITS = 9
 MAX_CONVERSATIONS = 65536
 #: pending (unanswered) queries or messages per conversation
 MAX_PENDING = 1024
+#: pending (unanswered) query entries in all, every querier's together (issue 44: 1,024 a querier
+#: times 65,536 queriers was no practical bound)
+MAX_PENDING_TOTAL = 65536
 #: bytes held for one unterminated serial or TCP record
 MAX_HELD_BYTES = 65536
 
@@ -33,8 +36,8 @@ class LimitCounts:
     conversations: int = 0  # frames of a new direction past MAX_CONVERSATIONS
     #: unfinished serial or TCP frames given up at MAX_HELD_BYTES (their bytes counted as noise)
     held: int = 0
-    #: queries (frames) refused because MAX_PENDING asks already wait for an answer, or from a new
-    #: querier past MAX_CONVERSATIONS queriers
+    #: queries (frames) refused because MAX_PENDING asks already wait for an answer, or
+    #: MAX_PENDING_TOTAL in all, or from a new querier past MAX_CONVERSATIONS queriers
     pending: int = 0
 
     @property

@@ -48,7 +48,14 @@ from sharedlink.protocols.codec import (
     parse_typed,
     positional_values,
 )
-from sharedlink.protocols.limits import MAX_CONVERSATIONS, MAX_NAMES, MAX_PENDING, MAX_SLOTS, LimitCounts
+from sharedlink.protocols.limits import (
+    MAX_CONVERSATIONS,
+    MAX_NAMES,
+    MAX_PENDING,
+    MAX_PENDING_TOTAL,
+    MAX_SLOTS,
+    LimitCounts,
+)
 from sharedlink.protocols.varlists import flatten, parse_varlists, split
 
 VarList = list[tuple[str, int | None]]
@@ -490,14 +497,15 @@ class PendingAsks:
     query or a declaration; ``("N", "")`` for an ``N``k declaration, the answer to ``L?``;
     ``("L", "")`` for ``N?``), holding the frame that asked last. Asking again for a name
     that waits replaces it (a querier that polls one name holds one entry). At most
-    ``MAX_PENDING`` entries a querier: a new one past it is refused (not remembered: its answer
-    is unmatched) and the frame counted once in ``limits.pending`` (docs/fields-sharedlink.md,
+    ``MAX_PENDING`` entries a querier and ``MAX_PENDING_TOTAL`` in all (issue 44): a new one past
+    either is refused (not remembered: its answer is unmatched) and the frame counted once in ``limits.pending`` (docs/fields-sharedlink.md,
     "Limits"). At most ``MAX_CONVERSATIONS`` queriers: a new one past it is refused the same way
     (nothing of it remembered, the frame counted in ``limits.pending``; its direction may be
     counted besides in ``limits.conversations`` by :meth:`LinkState.table`, a bound of its own)."""
 
     def __init__(self, limits: LimitCounts | None = None) -> None:
         self._by: dict[Hashable, dict[tuple[str, str], int]] = {}
+        self._total = 0  # entries waiting, every querier's (at most MAX_PENDING_TOTAL)
         self.limits = limits if limits is not None else LimitCounts()
 
     def ask(self, key: Hashable, wants: str, names: frozenset[str] | Sequence[str], number: int) -> bool:
@@ -513,8 +521,11 @@ class PendingAsks:
         refused = False
         for name in (names if wants == "R" else ("",)):
             k = (wants, name)
-            if k in asks or len(asks) < MAX_PENDING:
+            if k in asks:
                 asks[k] = number
+            elif len(asks) < MAX_PENDING and self._total < MAX_PENDING_TOTAL:
+                asks[k] = number
+                self._total += 1
             else:
                 refused = True
         if refused:
@@ -528,6 +539,7 @@ class PendingAsks:
         if not asks:
             return None
         found = [asks.pop((kind, name), None) for name in (names if kind == "R" else ("",))]
+        self._total -= sum(n is not None for n in found)
         return max((n for n in found if n is not None), default=None)
 
 
