@@ -46,6 +46,7 @@ from typing import NamedTuple
 from zlib import adler32
 
 from sharedlink.analysis.malformed import PIECE, Unframed
+from sharedlink.analysis.robots import FIRST_BYTES, RobotLinks
 from sharedlink.capture.packets import Datagram, PacketDecoder
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
@@ -1487,6 +1488,8 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
     serial = SerialSplitter()
     packets = PacketDecoder().decode  # IP fragments reassembled
     splitter = dec.splitter
+    robots = getattr(dec, "robots", None) or RobotLinks()  # (a caller wanting messages sets dec.robots)
+    robot_first = FIRST_BYTES
     general = ReferenceDecoder.decode
     addrs: dict[bytes, tuple[str, str, int, str, int]] = {}
     datagram = dec.decode_datagram
@@ -1531,6 +1534,14 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
                         stop = min(34 + ulen, end) if ulen >= 8 else end
                         if stop > 42:
                             payload = data[42:stop]
+                            if robots.claimed or payload[0] in robot_first:  # P2OS/blackboard (robots.py)
+                                items = robots.udp(number, ts_ns, conv, payload)
+                                if items is not None:
+                                    if taken:
+                                        yield take_batch()
+                                        taken = 0
+                                    yield from items
+                                    continue
                             if counting:
                                 if count(number, ts_ns, conv, payload):
                                     taken += 1
@@ -1549,10 +1560,16 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
             if linktype in USER_LINKTYPES:
                 for item in serial.feed(number, ts_ns, linktype, data, flags, interface):
                     yield from _decode_item(dec, general, item)
+                if robots.messages:
+                    yield from robots.serial(number, ts_ns, data, flags, interface)
                 continue
             dg = packets(linktype, data)
             if dg is None:
                 yield number, ts_ns
+                continue
+            items = robots.datagram(number, ts_ns, dg)
+            if items is not None:  # a P2OS or blackboard conversation: never SharedLink's (issue 44)
+                yield from items
                 continue
             for sf in splitter.split(number, ts_ns, dg):
                 yield from _decode_item(dec, general, sf)

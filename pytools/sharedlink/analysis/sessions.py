@@ -94,6 +94,15 @@ class SessionReader:
             s = self.sessions[key] = _Session(0, label)
         return s
 
+    def claim(self, key: object, label: str, protocol: str) -> None:
+        """Decide ``key``'s protocol before its first message (the core's robot links: a port or
+        a heuristic said so); its sides' deframers then look for that protocol only."""
+        s = self._session(key, label)
+        if s.protocol is None:
+            s.protocol = protocol
+            self.numbered += 1
+            s.index = self.numbered
+
     def feed(
         self, key: object, label: str, side: object, number: int, ts_ns: int, data: bytes, client: bool | None = None
     ) -> list[SessionMessage]:
