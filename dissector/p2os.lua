@@ -623,15 +623,18 @@ local function dissect_one(tvb, pinfo, tree, h, count)
     local pt = tree:add(p2os, tvb:range(h, total))
     pt:add(pf.header, tvb:range(h, 2))
     local ci = pt:add(pf.count, tvb:range(h + 2, 1))
-    if count > MAX_COUNT then
-        ci:add_proto_expert_info(ex.count_big)
-    end
     local plen = count - 2
     local off = h + 3
     local calc = p2os_checksum(tvb, off, plen)
     local crange = tvb:range(off + plen, 2)
     local written = crange:uint()
     local client, how = direction(pinfo, tvb, off, plen)
+    -- the 200-byte limit is the robot's, for the commands it reads; ARIA reads server packets
+    -- with counts up to 255 (issue 42)
+    local ignored = client and count > MAX_COUNT
+    if ignored then
+        ci:add_proto_expert_info(ex.count_big)
+    end
     local di = pt:add(pf.direction, tvb:range(h, total), client and 0 or 1)
     di:set_generated()
     if how then
@@ -671,7 +674,7 @@ local function dissect_one(tvb, pinfo, tree, h, count)
         summary = summary .. " [bad checksum]"
     end
     pt:add(pf.checksum_status, crange, status):set_generated()
-    if count > MAX_COUNT then
+    if ignored then
         summary = summary .. " [count > 200]"
     end
     pt:append_text(", " .. (client and "client to robot: " or "robot to client: ") .. summary)
@@ -771,14 +774,15 @@ function p2os.dissector(tvb, pinfo, tree)
     return dissect_buffer(tvb, pinfo, tree)
 end
 
--- heuristic: FA FB, a count of 2..200, the whole first packet present with a good checksum
+-- heuristic: FA FB, a count of 2..255 (server packets run to 255), the whole first packet
+-- present with a good checksum
 local function heuristic(tvb, pinfo, tree)
     local n = tvb:len()
     if n < 5 or u8(tvb, 0) ~= 0xFA or u8(tvb, 1) ~= 0xFB then
         return false
     end
     local count = u8(tvb, 2)
-    if count < 2 or count > MAX_COUNT or 3 + count > n then
+    if count < 2 or 3 + count > n then
         return false
     end
     local plen = count - 2
