@@ -87,6 +87,7 @@ class SessionReader:
     def __init__(self) -> None:
         self.sessions: dict[object, _Session] = {}
         self.numbered = 0
+        self.noise: dict[str, list[int]] = {}  # protocol -> [pieces, bytes] outside any packet (serial)
 
     def _session(self, key: object, label: str) -> _Session:
         s = self.sessions.get(key)
@@ -116,6 +117,10 @@ class SessionReader:
         out: list[SessionMessage] = []
         for piece in d.feed(data, number):
             if piece.frame is None or piece.protocol not in ("p2os", "blackboard"):
+                if piece.protocol in ("p2os", "blackboard"):
+                    n = self.noise.setdefault(piece.protocol, [0, 0])
+                    n[0] += 1
+                    n[1] += len(piece.data)
                 continue
             if s.protocol is None:
                 s.protocol = piece.protocol

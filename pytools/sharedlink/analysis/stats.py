@@ -31,6 +31,9 @@ from pathlib import Path
 
 from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Counted, Decoded, Decoder
 from sharedlink.analysis.malformed import PIECE, other_protocol, talk_key, unframed_pieces
+from sharedlink.analysis.robot_stats import RobotStats, robot_tables
+from sharedlink.analysis.robots import ROBOT_PROTOCOLS, RobotLinks
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import CaptureError
 from sharedlink.capture.serial_format import GIVEN_UP
 from sharedlink.capture.stream import StreamFrame
@@ -136,6 +139,7 @@ class CaptureStats:
     last_ns: int | None = None  # records: a capture's records need not be in time order)
     error: str | None = None  # the capture is damaged here (everything before it is counted)
     limits: LimitCounts = field(default_factory=LimitCounts)  # input dropped at a bound (limits.py)
+    robots: RobotStats = field(default_factory=RobotStats, compare=False)  # P2OS, blackboard (robot_stats.py)
     _full: dict[int, _FullSize] = field(default_factory=dict, repr=False, compare=False)  # per table
 
     @property
@@ -181,6 +185,7 @@ class CaptureStats:
             "variables": [v.to_dict() for _, v in sorted(self.variables.items())],
             "limits": self.limits.to_dict(),
             "error": self.error,
+            **self.robots.to_dict(),  # "p2os", "blackboard": where present
         }
 
     # -- accumulation --------------------------------------------------------------------
@@ -462,6 +467,7 @@ def capture_stats(
     st = CaptureStats(path=str(path), sync_interval=sync_interval)
     dec = Decoder(variables, sync_interval, carried=False)  # stats reads only what frames carry
     st.limits = dec.limits
+    dec.robots = RobotLinks(messages=True)  # type: ignore[attr-defined]  # P2OS and blackboard too
     it = dec.capture(path, progress, counts=True)
     talks: dict[tuple, str] = {}  # conversations (both directions) a related protocol was seen on
     try:
@@ -472,12 +478,14 @@ def capture_stats(
                 st.add_counts(item)
             elif isinstance(item, tuple):
                 st.other_records += 1
+            elif type(item) is SessionMessage:
+                st.robots.add(item)
             elif item.error == PIECE:  # noise beside a malformed frame the core cut
                 st.noise_segments += 1
                 st.noise_bytes += len(item.raw)
             else:
                 key = talk_key(item.conv)
-                other = other_protocol(item.raw)
+                other = item.error if item.error in ROBOT_PROTOCOLS else other_protocol(item.raw)
                 if other is not None:
                     talks[key] = other
                 else:  # its binary replies (a blackboard ack or read response) on the same conversation
@@ -492,6 +500,7 @@ def capture_stats(
         if exc.record is None and st.frames == 0 and st.other_records == 0 and st.noise_segments == 0:
             raise
         st.error = str(exc)
+    st.robots.noise(dec.robots.reader.noise)  # type: ignore[attr-defined]
     return st
 
 
@@ -556,6 +565,8 @@ def tables(st: CaptureStats) -> list[tuple[str, list[str], list[list[str]]]]:
         [v.pair, v.name, str(v.count), str(v.changes), whole(v.min), whole(v.max), one_line(v.last or "")]
         for _, v in sorted(st.variables.items())
     ]
+    if st.frames == 0 and st.robots.packets:  # a P2OS or blackboard capture: no empty SharedLink tables
+        return [(f"Capture statistics: {st.path}", ["", ""], summary), *robot_tables(st.robots)]
     return [
         (f"SharedLink statistics: {st.path}", ["", ""], summary),
         ("Frames per kind", ["kind", "frames"], kinds),
@@ -565,6 +576,7 @@ def tables(st: CaptureStats) -> list[tuple[str, list[str], list[list[str]]]]:
             pairs,
         ),
         ("Variables", ["pair", "name", "count", "changes", "min", "max", "last"], variables),
+        *robot_tables(st.robots),
     ]
 
 
