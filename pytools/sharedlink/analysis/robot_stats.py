@@ -34,8 +34,11 @@ _BB_KINDS = {blackboard.SetMessage: "set", blackboard.RequestMessage: "request",
              blackboard.ReadResponse: "response"}
 
 
-def _range(lo: float | None, hi: float | None, v: float) -> tuple[float, float]:
-    return (v if lo is None or v < lo else lo), (v if hi is None or v > hi else hi)
+def _finite(v: float) -> float | None:
+    return v if -math.inf < v < math.inf else None
+
+
+_INF = float("inf")
 
 
 @dataclass
@@ -43,7 +46,6 @@ class P2osStats:
     packets: int = 0
     bytes: int = 0
     sides: dict[str, int] = field(default_factory=dict)
-    types: dict[tuple[str, str], int] = field(default_factory=dict)
     checksum_failures: int = 0
     ignored: int = 0
     undecoded: int = 0
@@ -52,12 +54,12 @@ class P2osStats:
     sip_last_ns: int | None = None
     sip_gaps: int = 0
     sip_max_gap_ns: int = 0
-    x: tuple = (None, None)
-    y: tuple = (None, None)
+    x: list[float] = field(default_factory=lambda: [_INF, -_INF])  # unwrapped, mm
+    y: list[float] = field(default_factory=lambda: [_INF, -_INF])
     distance_mm: float = 0.0
-    vel: tuple = (None, None)  # (min, max) of the mean wheel velocity, mm/s
+    vel: list[float] = field(default_factory=lambda: [_INF, -_INF])  # the mean wheel velocity, mm/s
     vel_sum: float = 0.0
-    volts: tuple = (None, None)
+    volts: list[float] = field(default_factory=lambda: [_INF, -_INF])
     volts_first: float | None = None
     volts_last: float | None = None
     stall_left: int = 0
@@ -68,44 +70,46 @@ class P2osStats:
     server_types: dict[int, int] = field(default_factory=dict)
     noise_pieces: int = 0
     noise_bytes: int = 0
-    _pose: dict[int, tuple[float, float]] = field(default_factory=dict, repr=False)  # session -> unwrapped x, y
-    _last_raw: dict[int, tuple[int, int]] = field(default_factory=dict, repr=False)
+    _pose: dict[int, tuple[float, float, int, int]] = field(default_factory=dict, repr=False)  # session -> x, y, raw x, y
     _synced: set = field(default_factory=set, repr=False)  # sessions past their SYNC2 echo
 
     def add(self, m: SessionMessage) -> None:
+        raw = m.raw
         self.packets += 1
-        self.bytes += len(m.raw)
-        self.sides[m.side] = self.sides.get(m.side, 0) + 1
+        self.bytes += len(raw)
+        side = m.side
+        sides = self.sides
+        sides[side] = sides.get(side, 0) + 1
         if m.ok is False:
             self.checksum_failures += 1
         msg = m.message
-        client = m.side == "client"
-        if len(m.raw) > 2 and client and m.raw[2] > p2os.MAX_COUNT:
-            self.ignored += 1
         if msg is None:
             self.undecoded += 1
-            name = "(undecoded)"
-        elif client:
+            return
+        if side == "client":
+            if raw[2] > p2os.MAX_COUNT:
+                self.ignored += 1
             num = msg.number  # type: ignore[union-attr]
-            name = _SYNC_NAMES[num] if num <= 2 and msg.argtype is None and m.session not in self._synced else msg.name  # type: ignore[union-attr]
-            self.commands[name] = self.commands.get(name, 0) + 1
-        else:
-            t = m.raw[3] if len(m.raw) > 3 else -1
-            self.server_types[t] = self.server_types.get(t, 0) + 1
-            name = p2os.SERVER_TYPES.get(t, "type 0x%02X" % t)
-            if isinstance(msg, p2os.Sip):
-                self._sip(m, msg)
-                name = "SIP"
-            elif isinstance(msg, p2os.SyncReply) and msg.number == 2 and msg.strings:
-                self._synced.add(m.session)
-        key = (m.side, name)
-        self.types[key] = self.types.get(key, 0) + 1
+            if num <= 2 and msg.argtype is None and m.session not in self._synced:  # type: ignore[union-attr]
+                name = _SYNC_NAMES[num]
+            else:
+                name = msg.name  # type: ignore[union-attr]
+            cmds = self.commands
+            cmds[name] = cmds.get(name, 0) + 1
+            return
+        t = raw[3]
+        st = self.server_types
+        st[t] = st.get(t, 0) + 1
+        if type(msg) is p2os.Sip:
+            self._sip(m.session, m.ts_ns, msg)
+        elif t == p2os.TYPE_SYNC2 and type(msg) is p2os.SyncReply and msg.strings:
+            self._synced.add(m.session)
 
-    def _sip(self, m: SessionMessage, s: p2os.Sip) -> None:
+    def _sip(self, session: int, ts: int, s: p2os.Sip) -> None:
         self.sips += 1
-        ts = m.ts_ns
-        if self.sip_last_ns is not None:
-            gap = ts - self.sip_last_ns
+        last = self.sip_last_ns
+        if last is not None:
+            gap = ts - last
             if gap > SIP_GAP_S * NS:
                 self.sip_gaps += 1
             if gap > self.sip_max_gap_ns:
@@ -113,31 +117,60 @@ class P2osStats:
         else:
             self.sip_first_ns = ts
         self.sip_last_ns = ts
-        last = self._last_raw.get(m.session)
-        if last is None:
-            x, y = float(s.xpos), float(s.ypos)
+        xr, yr = s.xpos, s.ypos
+        pose = self._pose.get(session)
+        if pose is None:
+            x, y = float(xr), float(yr)
         else:  # the 16-bit positions wrap: the shorter way round
-            px, py = self._pose[m.session]
-            dx = (s.xpos - last[0] + 0x8000) % 0x10000 - 0x8000
-            dy = (s.ypos - last[1] + 0x8000) % 0x10000 - 0x8000
-            x, y = px + dx, py + dy
-            self.distance_mm += math.hypot(dx, dy)
-        self._last_raw[m.session] = (s.xpos, s.ypos)
-        self._pose[m.session] = (x, y)
-        self.x = _range(*self.x, x)
-        self.y = _range(*self.y, y)
+            dx = (xr - pose[2] + 0x8000) % 0x10000 - 0x8000
+            dy = (yr - pose[3] + 0x8000) % 0x10000 - 0x8000
+            x, y = pose[0] + dx, pose[1] + dy
+            if dx or dy:
+                self.distance_mm += math.hypot(dx, dy)
+        self._pose[session] = (x, y, xr, yr)
+        r = self.x
+        if x < r[0]:
+            r[0] = x
+        if x > r[1]:
+            r[1] = x
+        r = self.y
+        if y < r[0]:
+            r[0] = y
+        if y > r[1]:
+            r[1] = y
         v = (s.lvel + s.rvel) / 2
-        self.vel = _range(*self.vel, v)
+        r = self.vel
+        if v < r[0]:
+            r[0] = v
+        if v > r[1]:
+            r[1] = v
         self.vel_sum += v
         volts = s.battery / 10
-        self.volts = _range(*self.volts, volts)
+        r = self.volts
+        if volts < r[0]:
+            r[0] = volts
+        if volts > r[1]:
+            r[1] = volts
         if self.volts_first is None:
             self.volts_first = volts
         self.volts_last = volts
-        self.stall_left += s.stall_bumpers & 0x0001
-        self.stall_right += (s.stall_bumpers >> 8) & 1
+        sb = s.stall_bumpers
+        self.stall_left += sb & 1
+        self.stall_right += sb >> 8 & 1
         self.motors_on += s.flags & 1
         self.moving += s.moving
+
+    def types(self) -> list[tuple[str, str, int]]:
+        """(side, type, packets): commands by name, server packets by type (SIP for both standard ones)."""
+        out = [("client", n, c) for n, c in self.commands.items()]
+        server: dict[str, int] = {}
+        for t, c in self.server_types.items():
+            name = "SIP" if t in (p2os.TYPE_SIP_STOPPED, p2os.TYPE_SIP_MOVING) else p2os.SERVER_TYPES.get(t, "type 0x%02X" % t)
+            server[name] = server.get(name, 0) + c
+        out += [("robot", n, c) for n, c in server.items()]
+        if self.undecoded:
+            out.append(("", "(undecoded)", self.undecoded))
+        return sorted(out)
 
     def to_dict(self) -> dict:
         span = (self.sip_last_ns or 0) - (self.sip_first_ns or 0)
@@ -145,7 +178,7 @@ class P2osStats:
             "packets": self.packets,
             "bytes": self.bytes,
             "by_side": dict(sorted(self.sides.items())),
-            "types": [{"side": s, "type": t, "packets": n} for (s, t), n in sorted(self.types.items())],
+            "types": [{"side": s, "type": t, "packets": n} for s, t, n in self.types()],
             "checksum_failures": self.checksum_failures,
             "ignored_commands": self.ignored,
             "undecoded": self.undecoded,
@@ -158,12 +191,14 @@ class P2osStats:
             },
             "pose": {
                 "frame": "robot odometry (mm from where the robot started its count; not geographic)",
-                "x_min_mm": self.x[0], "x_max_mm": self.x[1], "y_min_mm": self.y[0], "y_max_mm": self.y[1],
+                "x_min_mm": _finite(self.x[0]), "x_max_mm": _finite(self.x[1]),
+                "y_min_mm": _finite(self.y[0]), "y_max_mm": _finite(self.y[1]),
                 "distance_mm": round(self.distance_mm, 3),
             },
-            "velocity_mm_s": {"min": self.vel[0], "max": self.vel[1],
+            "velocity_mm_s": {"min": _finite(self.vel[0]), "max": _finite(self.vel[1]),
                               "mean": self.vel_sum / self.sips if self.sips else None},
-            "battery_v": {"first": self.volts_first, "last": self.volts_last, "min": self.volts[0], "max": self.volts[1]},
+            "battery_v": {"first": self.volts_first, "last": self.volts_last, "min": _finite(self.volts[0]),
+                          "max": _finite(self.volts[1])},
             "flags": {"stall_left": self.stall_left, "stall_right": self.stall_right, "motors_enabled": self.motors_on,
                       "moving": self.moving},
             "commands": [self._command(n, c) for n, c in sorted(self.commands.items())],

@@ -18,7 +18,8 @@ Each claimed segment comes out as one noise :class:`~sharedlink.capture.stream.S
 whose ``error`` is the protocol's name (what a SharedLink-only caller saw before: a whole
 segment that is not SharedLink); in messages mode (``RobotLinks(messages=True)``, set as the
 decoder's ``robots`` attribute before :meth:`~sharedlink.analysis.decode.Decoder.capture`) the
-:class:`~sharedlink.analysis.sessions.SessionMessage` s it completes follow it, decoded by
+segments are only counted (``segments``: protocol -> [segments, bytes]) and the
+:class:`~sharedlink.analysis.sessions.SessionMessage` s they complete come out, decoded by
 :class:`~sharedlink.analysis.sessions.SessionReader` (the one P2OS/blackboard decoder: reassembly,
 several packets a segment, direction, blackboard answers). Serial records (messages mode) are
 decoded beside the core's :class:`~sharedlink.capture.stream.SerialSplitter`, which still reports
@@ -89,6 +90,7 @@ class RobotLinks:
         self.messages = messages
         self.reader = SessionReader()
         self.claimed: dict[tuple, str] = {}
+        self.segments: dict[str, list[int]] = {}  # messages mode: protocol -> [segments, bytes]
 
     def udp(self, number: int, ts_ns: int, conv: tuple, payload: bytes) -> list | None:
         """A UDP datagram of the core's fast record loop: its items, or None (not a robot link)."""
@@ -116,11 +118,15 @@ class RobotLinks:
             return []  # a retransmission: data the stream has had
         if not payload:
             return []
-        out: list = [StreamFrame(number, ts_ns, conv, payload, None, which)]
-        if self.messages:
-            client = True if dport == p2os.MOBILESIM_PORT else False if sport == p2os.MOBILESIM_PORT else None
-            out += reader.feed(key, reader.sessions[key].label, a, number, ts_ns, payload, client)
-        return out
+        if not self.messages:
+            return [StreamFrame(number, ts_ns, conv, payload, None, which)]
+        seg = self.segments.get(which)
+        if seg is None:
+            seg = self.segments[which] = [0, 0]
+        seg[0] += 1
+        seg[1] += len(payload)
+        client = True if dport == p2os.MOBILESIM_PORT else False if sport == p2os.MOBILESIM_PORT else None
+        return reader.feed(key, reader.sessions[key].label, a, number, ts_ns, payload, client)
 
     def serial(self, number: int, ts_ns: int, data: bytes, flags: int, interface: int) -> list[SessionMessage]:
         """A serial record (messages mode): the P2OS packets and blackboard messages it completes.

@@ -501,6 +501,10 @@ def capture_stats(
             raise
         st.error = str(exc)
     st.robots.noise(dec.robots.reader.noise)  # type: ignore[attr-defined]
+    for name, (n, b) in dec.robots.segments.items():  # type: ignore[attr-defined]  # (claimed: counted there)
+        counts = st.other_protocols.setdefault(name, [0, 0])
+        counts[0] += n
+        counts[1] += b
     return st
 
 

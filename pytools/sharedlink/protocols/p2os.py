@@ -391,7 +391,11 @@ def decode_sip(payload: bytes) -> Sip:
     off = _SIP_HEAD.size
     if len(p) < off + 3 * nson:
         raise P2osError(len(p), f"{nson} sonar readings truncated")
-    sonars = tuple(struct.unpack_from("<BH", p, off + 3 * i) for i in range(nson))
+    if nson:
+        v = struct.unpack_from("<" + "BH" * nson, p, off)
+        sonars = tuple(zip(v[::2], v[1::2]))
+    else:
+        sonars = ()
     off += 3 * nson
     if len(p) < off + _SIP_TAIL.size:
         raise P2osError(len(p), "standard SIP truncated after the sonar readings")
