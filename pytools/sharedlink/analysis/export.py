@@ -38,7 +38,10 @@ from pathlib import Path
 from typing import IO, Any
 from xml.sax.saxutils import escape as xml_escape
 
-from sharedlink.analysis.decode import VALUE_KINDS, Decoded, format_time, iter_decoded
+from sharedlink.analysis.decode import VALUE_KINDS, Decoded, Decoder, format_time
+from sharedlink.analysis.robot_export import RobotCsv, RobotJsonl
+from sharedlink.analysis.robots import RobotLinks
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import CaptureError, atomic_open, display_name
 from sharedlink.defaults import EXPORT_BINARY_FORMATS, EXPORT_FORMATS
 from sharedlink.errors import UsageError
@@ -76,6 +79,7 @@ class ExportResult:
     columns: list[str] = field(default_factory=list)
     error: str | None = None  # the capture is damaged here; everything before it was written
     seen: set[str] = field(default_factory=set)  # variable names given a value (with opts.require)
+    packets: int = 0  # P2OS packets and blackboard messages (csv/jsonl rows: robot_export.py)
 
 
 def _checksum(d: Decoded) -> str:
@@ -123,16 +127,28 @@ def _value_json(v: Variable) -> str:
 _jstr = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
 
 
-def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded]:
-    """The decoded frames; damage after the first record ends the stream with ``error`` set."""
+def _robot_rows(opts: ExportOptions) -> bool:
+    """Whether P2OS and blackboard packets are rows too: csv and jsonl, one row a frame, every column."""
+    return opts.fmt in ("csv", "jsonl") and not opts.changes and opts.columns is None
+
+
+def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded | SessionMessage]:
+    """The decoded frames (and the P2OS/blackboard packets, :func:`_robot_rows`); damage after
+    the first record ends the stream with ``error`` set."""
     seen = result.seen if opts.require else None
     try:
         # (rows read values from the table and what frames changed: carried Updates are not needed)
-        for item in iter_decoded(path, opts.variables, opts.sync_interval, carried=False, progress=opts.progress):
+        dec = Decoder(opts.variables, opts.sync_interval, carried=False)
+        if _robot_rows(opts):
+            dec.robots = RobotLinks(messages=True)  # type: ignore[attr-defined]
+        for item in dec.capture(path, opts.progress):
             if isinstance(item, Decoded):
                 result.frames += 1
                 if seen is not None:
                     seen.update(u.name for u in item.updates if u.text is not None)
+                yield item
+            elif type(item) is SessionMessage:
+                result.packets += 1
                 yield item
     except CaptureError as exc:
         if exc.record is None and result.frames == 0:
@@ -534,17 +550,27 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
         writer = _WRITERS[opts.fmt](out, opts, columns)
     if isinstance(writer, _Kml):
         writer.name = f"SharedLink tracks: {display_name(Path(path).name)}"
+    robots = (RobotJsonl(writer._held, writer.flush) if isinstance(writer, _Jsonl) else RobotCsv()) if _robot_rows(opts) else None
     try:
-        if first is not None:
-            result.rows += writer.write(first)
-        for d in frames:
-            result.rows += writer.write(d)
+        for d in itertools.chain(() if first is None else (first,), frames):
+            if type(d) is SessionMessage:
+                if robots is not None:
+                    result.rows += robots.write(d)  # type: ignore[arg-type]
+                continue
+            result.rows += writer.write(d)  # type: ignore[arg-type]
         missing = [n for n in opts.require if n not in result.seen]
         if missing and result.error is None:  # a file output is not left behind (atomic_open)
             have = ", ".join(sorted(result.seen)) or "none"
             raise UsageError(f"no variable {', '.join(missing)} in {display_name(str(path))} (its variables: {have})")
     finally:
-        writer.close()
+        if isinstance(robots, RobotCsv) and robots.rows and result.frames == 0:
+            robots.finish(out)  # a P2OS or blackboard capture: the CSV is theirs
+        else:
+            if isinstance(robots, RobotCsv):  # SharedLink frames too: the CSV keeps SharedLink's columns
+                result.rows -= robots.rows
+            writer.close()
+        if isinstance(robots, RobotCsv):
+            robots.close()
     if isinstance(writer, (_GeoJson, _Kml)):
         result.points = sum(writer.track.counts.values())
     return result
