@@ -20,8 +20,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sharedlink.analysis.decode import NS, Decoded, iter_decoded
+from sharedlink.analysis.decode import NS, Decoded, Decoder
 from sharedlink.analysis.export import LAT, LON
+from sharedlink.analysis.robot_plot import RobotPlotData
+from sharedlink.analysis.robots import RobotLinks
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import CaptureError, display_name
 from sharedlink.protocols.codec import guess_value, typed_value
 from sharedlink.protocols.state import BEACON_VARIABLES
@@ -83,6 +86,7 @@ class PlotData:
     tracks: dict[str, PairTrack] = field(default_factory=dict)
     speed_var: str = SPEED
     error: str | None = None
+    robots: RobotPlotData = field(default_factory=RobotPlotData)  # P2OS, blackboard (robot_plot.py)
 
     @property
     def variables(self) -> list[str]:
@@ -118,13 +122,17 @@ def collect(
 ) -> PlotData:
     """Read a capture into :class:`PlotData` (one streaming pass). Damage after the first
     record sets ``error``; a missing or unreadable file raises CaptureError."""
-    data = PlotData(str(path), speed_var=speed)
+    data = PlotData(str(path), speed_var=speed, robots=RobotPlotData(max_points))
+    dec = Decoder(variables, sync_interval)
+    dec.robots = RobotLinks(messages=True)  # type: ignore[attr-defined]
     try:
-        for item in iter_decoded(path, variables, sync_interval, progress=progress):
+        for item in dec.capture(path, progress):
             if isinstance(item, Decoded):
                 _add(data, item, max_points, gap_factor, lat, lon, speed)
+            elif type(item) is SessionMessage:
+                data.robots.add(item)
     except CaptureError as exc:
-        if exc.record is None and data.frames == 0:
+        if exc.record is None and data.frames == 0 and data.robots.packets == 0:
             raise
         data.error = str(exc)
     return data
