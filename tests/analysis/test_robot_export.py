@@ -97,3 +97,31 @@ def test_fast_jsonl_lines_equal_the_plain_ones(tmp_path):
             assert (f or fast.line(m)) == plain.line(m)
             json.loads(plain.line(m))
         assert taken >= len(msgs) // 2
+
+
+def test_geojson_and_kml_odometry_track_in_the_robot_frame(tmp_path):
+    """One LineString (GeoJSON) / Folder (KML) a P2OS session: every SIP's position in metres,
+    the frame said (robot odometry, not longitude/latitude), as stats measures the track."""
+    import xml.etree.ElementTree as ET
+
+    from sharedlink.analysis.stats import capture_stats
+
+    path = tmp_path / "p.pcap"
+    generate_p2os_file(P2osGenOptions(duration=6, seed=5), path)
+    st = capture_stats(path).to_dict()["p2os"]
+    gj = tmp_path / "p.geojson"
+    export(path, gj)
+    (feature,) = json.loads(gj.read_text())["features"]
+    coords = feature["geometry"]["coordinates"]
+    assert feature["geometry"]["type"] == "LineString" and len(coords) == st["sip"]["count"]
+    assert "robot odometry frame" in feature["properties"]["frame"] and "not longitude" in feature["properties"]["frame"]
+    xs = [c[0] * 1000 for c in coords]
+    assert min(xs) == st["pose"]["x_min_mm"] and max(xs) == st["pose"]["x_max_mm"]
+    kml = tmp_path / "p.kml"
+    export(path, kml)
+    ns = {"k": "http://www.opengis.net/kml/2.2"}
+    doc = ET.parse(kml).getroot()
+    (folder,) = doc.findall(".//k:Folder", ns)
+    assert "robot odometry frame" in folder.find("k:description", ns).text
+    points = folder.find(".//k:coordinates", ns).text.split()
+    assert [p.split(",")[:2] for p in points] == [[repr(x), repr(y)] for x, y in coords]

@@ -39,7 +39,7 @@ from typing import IO, Any
 from xml.sax.saxutils import escape as xml_escape
 
 from sharedlink.analysis.decode import VALUE_KINDS, Decoded, Decoder, format_time
-from sharedlink.analysis.robot_export import RobotCsv, RobotJsonl
+from sharedlink.analysis.robot_export import RobotCsv, RobotJsonl, RobotTrack
 from sharedlink.analysis.robots import RobotLinks
 from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import CaptureError, atomic_open, display_name
@@ -128,8 +128,9 @@ _jstr = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
 
 
 def _robot_rows(opts: ExportOptions) -> bool:
-    """Whether P2OS and blackboard packets are rows too: csv and jsonl, one row a frame, every column."""
-    return opts.fmt in ("csv", "jsonl") and not opts.changes and opts.columns is None
+    """Whether P2OS and blackboard packets are rows too (csv, jsonl: one row a frame, every column)
+    or an odometry track (geojson, kml without --changes)."""
+    return opts.fmt in ("csv", "jsonl", "geojson", "kml") and not opts.changes and opts.columns is None
 
 
 def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded | SessionMessage]:
@@ -418,6 +419,7 @@ class _GeoJson(_Jsonl):
         super().__init__(out, opts, columns)
         self.track = _Track()
         self.first = True
+        self.robots: RobotTrack | None = None  # P2OS odometry tracks, in the robot's frame (robot_export.py)
         out.write('{"type": "FeatureCollection", "features": [\n')
 
     def _feature(self, obj: dict[str, Any]) -> None:
@@ -471,6 +473,9 @@ class _GeoJson(_Jsonl):
                 self.out.write("%s[%s, %s]" % (sep, lon, lat))
                 sep = ", "
             self.out.write("]}}")
+        for feature in self.robots.geojson() if self.robots is not None else ():
+            self.out.write(("" if self.first else ",\n") + feature)
+            self.first = False
         self.out.write("\n]}\n")
         tr.close()
 
@@ -480,6 +485,7 @@ class _Kml(_Writer):
         super().__init__(out, opts, columns)
         self.track = _Track()
         self.name = ""
+        self.robots: RobotTrack | None = None  # P2OS odometry tracks, in the robot's frame (robot_export.py)
 
     def write(self, d: Decoded) -> int:
         if d.checksum_ok is False or d.kind not in VALUE_KINDS:
@@ -520,6 +526,8 @@ class _Kml(_Writer):
                     % (label, label, format_time(ts), lon, lat)
                 )
             o.write("</Folder>\n")
+        if self.robots is not None:
+            o.write(self.robots.kml())
         o.write("</Document>\n</kml>\n")
         tr.close()
 
@@ -550,7 +558,12 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
         writer = _WRITERS[opts.fmt](out, opts, columns)
     if isinstance(writer, _Kml):
         writer.name = f"SharedLink tracks: {display_name(Path(path).name)}"
-    robots = (RobotJsonl(writer._held, writer.flush) if isinstance(writer, _Jsonl) else RobotCsv()) if _robot_rows(opts) else None
+    robots: RobotCsv | RobotJsonl | RobotTrack | None = None
+    if _robot_rows(opts):
+        if isinstance(writer, (_GeoJson, _Kml)):
+            robots = writer.robots = RobotTrack()
+        else:
+            robots = RobotJsonl(writer._held, writer.flush) if isinstance(writer, _Jsonl) else RobotCsv()
     try:
         for d in itertools.chain(() if first is None else (first,), frames):
             if type(d) is SessionMessage:
@@ -572,7 +585,7 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
         if isinstance(robots, RobotCsv):
             robots.close()
     if isinstance(writer, (_GeoJson, _Kml)):
-        result.points = sum(writer.track.counts.values())
+        result.points = sum(writer.track.counts.values()) + (robots.points if isinstance(robots, RobotTrack) else 0)
     return result
 
 

@@ -205,3 +205,64 @@ class RobotCsv(RobotRows):
 
     def close(self) -> None:
         self.spool.close()
+
+
+#: what a robot track's coordinates are (GeoJSON and KML say so)
+FRAME_NOTE = ("robot odometry frame: x, y in metres from the robot's odometry origin (P2OS standard SIP xpos, ypos, "
+              "16-bit positions unwrapped); not longitude/latitude")
+
+
+class RobotTrack:
+    """The P2OS odometry track of each session (standard SIPs with a good checksum), for GeoJSON
+    (one LineString feature a session) and KML (one Folder a session), in the robot's frame."""
+
+    def __init__(self) -> None:
+        self.tracks: dict[int, list[tuple[float, float, int]]] = {}  # session -> (x m, y m, ts_ns)
+        self.labels: dict[int, str] = {}
+        self._last: dict[int, tuple[int, int, float, float]] = {}  # raw x, y; unwrapped x, y (mm)
+
+    @property
+    def points(self) -> int:
+        return sum(map(len, self.tracks.values()))
+
+    def write(self, m: SessionMessage) -> int:
+        s = m.message
+        if type(s) is not p2os.Sip or m.ok is False:
+            return 0
+        last = self._last.get(m.session)
+        if last is None:
+            x, y = float(s.xpos), float(s.ypos)
+            self.tracks[m.session] = []
+            self.labels[m.session] = m.label
+        else:
+            x = last[2] + (s.xpos - last[0] + 0x8000) % 0x10000 - 0x8000
+            y = last[3] + (s.ypos - last[1] + 0x8000) % 0x10000 - 0x8000
+        self._last[m.session] = (s.xpos, s.ypos, x, y)
+        self.tracks[m.session].append((x / 1000, y / 1000, m.ts_ns))
+        return 1
+
+    def geojson(self) -> list[str]:
+        """One LineString Feature (as JSON text) a session."""
+        out = []
+        for session, pts in sorted(self.tracks.items()):
+            props = {"track": f"p2os session {session}", "link": self.labels[session], "frame": FRAME_NOTE,
+                     "points": len(pts), "start": format_time(pts[0][2]), "end": format_time(pts[-1][2])}
+            coords = ", ".join("[%r, %r]" % (x, y) for x, y, _ in pts)
+            out.append('{"type": "Feature", "properties": %s, "geometry": {"type": "LineString", "coordinates": [%s]}}'
+                       % (json.dumps(props), coords))
+        return out
+
+    def kml(self) -> str:
+        """One Folder a session: the track, its frame said in the description."""
+        from xml.sax.saxutils import escape
+
+        out = []
+        for session, pts in sorted(self.tracks.items()):
+            out.append("<Folder><name>p2os session %d</name><description>%s (%s)</description>\n"
+                       % (session, escape(FRAME_NOTE), escape(self.labels[session])))
+            out.append("<Placemark><name>odometry track %d</name><styleUrl>#track</styleUrl>"
+                       "<TimeSpan><begin>%s</begin><end>%s</end></TimeSpan><LineString><coordinates>\n"
+                       % (session, format_time(pts[0][2]), format_time(pts[-1][2])))
+            out.extend("%r,%r,0\n" % (x, y) for x, y, _ in pts)
+            out.append("</coordinates></LineString></Placemark>\n</Folder>\n")
+        return "".join(out)
