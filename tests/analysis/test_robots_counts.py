@@ -141,3 +141,28 @@ def test_a_position_reading_open_bracket_colon_stays_p2os(tmp_path, port):
     st = capture_stats(path)
     assert st.other_protocols["p2os"] == [len(events), sum(len(p) for _, p in events)]
     assert st.frames == 0 and st.noise_segments == 0 and st.kinds == {}
+
+
+def test_sharedlinks_port_is_never_claimed(tmp_path):
+    """A datagram on SharedLink's port that reads as a blackboard message (or a P2OS packet)
+    does not take the conversation's frames away: the same frames as without it."""
+    from sharedlink.generators.beacon import GenOptions, generate_file
+    from sharedlink.protocols.blackboard import SetMessage
+
+    path = tmp_path / "sl.pcap"
+    generate_file(GenOptions(frames=40), path)
+    from sharedlink.capture.packets import decode_packet
+    from sharedlink.capture.pcapio import read_records
+
+    recs = list(read_records(path))
+    dg = decode_packet(recs[0].linktype, recs[0].data)
+    odd = tmp_path / "odd.pcap"
+    with open(odd, "wb") as fh:
+        w = PcapWriter(fh)
+        evs = [(recs[0].ts_ns - 1000, True, SetMessage(0x1F00, 1, b"\x01\x02\x03").encode()),
+               (recs[0].ts_ns - 500, True, bytes.fromhex("FAFB060B3B64006F3B"))]
+        for ts, _, frame in session_frames(evs, "udp", (dg.src, dg.sport), (dg.dst, dg.dport)):
+            w.write(ts, frame)
+        for r in recs:
+            w.write(r.ts_ns, r.data)
+    assert capture_stats(odd).frames == capture_stats(path).frames == 40

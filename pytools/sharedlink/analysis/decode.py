@@ -1489,7 +1489,7 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
     packets = PacketDecoder().decode  # IP fragments reassembled
     splitter = dec.splitter
     robots = getattr(dec, "robots", None) or RobotLinks()  # (a caller wanting messages sets dec.robots)
-    robot_first = FIRST_BYTES
+    robot_first, claimed = FIRST_BYTES, robots.claimed  # (the dict is filled in place)
     general = ReferenceDecoder.decode
     addrs: dict[bytes, tuple[str, str, int, str, int]] = {}
     datagram = dec.decode_datagram
@@ -1534,7 +1534,7 @@ def _capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int]
                         stop = min(34 + ulen, end) if ulen >= 8 else end
                         if stop > 42:
                             payload = data[42:stop]
-                            if robots.claimed or payload[0] in robot_first:  # P2OS/blackboard (robots.py)
+                            if claimed or payload[0] in robot_first:  # P2OS/blackboard (robots.py)
                                 items = robots.udp(number, ts_ns, conv, payload)
                                 if items is not None:
                                     if taken:

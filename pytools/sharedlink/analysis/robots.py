@@ -4,6 +4,8 @@ The core (:func:`sharedlink.analysis.decode._capture_items`) offers every UDP an
 and in messages mode every serial record, to :class:`RobotLinks` before its SharedLink
 splitters see them. A conversation is a robot link as the dissectors decide it:
 
+Never on SharedLink's port 7013 (its dissector's port comes first in Wireshark).
+
 * P2OS: TCP port 8101 (p2os.lua's port preference, either side), or a segment that starts
   with a whole P2OS packet with a good checksum (p2os.lua's heuristic: ``FA FB``, a count of 2
   to 255, the packet present);
@@ -32,6 +34,7 @@ from sharedlink.analysis.sessions import SessionMessage, SessionReader
 from sharedlink.capture.packets import Datagram
 from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, DIRECTION_NAMES
 from sharedlink.capture.stream import StreamFrame
+from sharedlink.defaults import WATCH_DEFAULT_PORT
 from sharedlink.protocols import blackboard, p2os
 
 #: the protocols a claimed segment's StreamFrame names in ``error``
@@ -41,6 +44,8 @@ FIRST_BYTES = frozenset(b"\xfa:;")
 #: the longest blackboard message: type, 2 * (5 + 255) hex digits, CR
 _MAX_TEXT = 1 + 2 * (5 + 255) + 1
 _SERIAL_CLIENT = {DIR_OUT: True, DIR_IN: False}
+#: SharedLink's UDP port (sharedlink.lua's registration)
+SHAREDLINK_PORT = WATCH_DEFAULT_PORT
 
 Item = "StreamFrame | SessionMessage"
 
@@ -70,10 +75,11 @@ def blackboard_heuristic(p: bytes) -> bool:
 
 
 def claim(proto: str, sport: int, dport: int, payload: bytes) -> str | None:
-    """The robot protocol a conversation's segment makes it, or None."""
+    """The robot protocol a conversation's segment makes it, or None. SharedLink's port is
+    SharedLink's (sharedlink.lua's port registration comes before any heuristic)."""
     if proto == "tcp" and p2os.MOBILESIM_PORT in (sport, dport):
         return "p2os"
-    if not payload or payload[0] not in FIRST_BYTES:
+    if not payload or payload[0] not in FIRST_BYTES or SHAREDLINK_PORT in (sport, dport):
         return None
     if p2os_heuristic(payload):
         return "p2os"
