@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
             source += f", {plural(result.packets, 'P2OS/blackboard packet')}"
         print(f"wrote {args.output}: {plural(n, what)} from {source} ({fmt})", file=sys.stderr)
     if fmt != "mcap" and not result.error:  # MCAP holds P2OS and blackboard channels too
-        warn_empty(args.capture, result.frames + result.packets, "SharedLink frames, P2OS packets or blackboard messages")
+        warn_empty(args.capture, result.frames + result.packets)  # (robot packets: no warning)
     if result.error:
         print(f"sharedlink: error: {result.error} (the {result.frames} frames before it were exported)", file=sys.stderr)
         return EXIT_USAGE

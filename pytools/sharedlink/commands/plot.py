@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
                        lat=args.lat, lon=args.lon, speed=args.velocity, progress=progress)
     robots = data.frames == 0 and data.robots.packets > 0  # a P2OS or blackboard capture: its panels
     if data.error is None:
-        warn_empty(args.capture, data.frames + data.robots.packets, "SharedLink frames, P2OS packets or blackboard messages")
+        warn_empty(args.capture, data.frames + data.robots.packets)  # (robot packets: no warning)
         if not robots:
             unknown_names({k: v for k, v in given.items() if k != "--select"}, data.variables)
     try:

@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     with Progress(args.capture, quiet=args.json) as progress:
         st = capture_stats(args.capture, variables, sync, progress)
     if not st.error:
-        warn_empty(args.capture, st.frames + st.robots.packets, "SharedLink frames, P2OS packets or blackboard messages")
+        warn_empty(args.capture, st.frames + st.robots.packets)  # (robot packets: no warning)
     if args.json:
         json.dump(st.to_dict(), sys.stdout, indent=2)
         print()
