@@ -772,14 +772,15 @@ function p2os.dissector(tvb, pinfo, tree)
     return dissect_buffer(tvb, pinfo, tree)
 end
 
--- heuristic: FA FB, a count of 2..200, the whole first packet present with a good checksum
+-- heuristic: FA FB, a count of 2..255 (server packets run to 255), the whole first packet
+-- present with a good checksum
 local function heuristic(tvb, pinfo, tree)
     local n = tvb:len()
     if n < 5 or u8(tvb, 0) ~= 0xFA or u8(tvb, 1) ~= 0xFB then
         return false
     end
     local count = u8(tvb, 2)
-    if count < 2 or count > MAX_COUNT or 3 + count > n then
+    if count < 2 or 3 + count > n then
         return false
     end
     local plen = count - 2

@@ -484,14 +484,18 @@ class UdpSniffer:
 
 
 class SerialSource:
-    """SharedLink frames read from a serial device with the serial deframer."""
+    """SharedLink frames read from a serial device with the serial deframer; P2OS packets and
+    blackboard messages too (:class:`~sharedlink.analysis.robots.RobotLinks`, the bytes read taken
+    as inbound: a robot's or a slave's), as :class:`SessionMessage` s."""
 
     def __init__(self, device: str, baud: int = 9600) -> None:
+        from sharedlink.analysis.robots import RobotLinks
         from sharedlink.capture.serial_format import Deframer
         from sharedlink.capture.serial_port import open_port
 
         self.port = open_port(device, baud, timeout=0)
         self.deframer = Deframer("sharedlink")
+        self.robots = RobotLinks(messages=True)
         self.number = 0
         self.conv = ("serial", device, baud, "", 0)
         self.description = f"serial {device} at {baud} baud"
@@ -513,6 +517,7 @@ class SerialSource:
                 for p in self.deframer.feed(chunk, self.number):
                     frame = p.frame if isinstance(p.frame, Frame) else None
                     out.append(StreamFrame(self.number, ts, self.conv, p.data, frame, None if frame else (p.reason or "noise")))
+                out += self.robots.serial(self.number, ts, chunk, 1, 0)  # (flags 1: inbound)
             yield out
 
     def now_ns(self) -> int:

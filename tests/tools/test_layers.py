@@ -17,7 +17,7 @@ LAYERS = [
     {"capture"},
     {"generators"},
     {"analysis", "present"},
-    {"replay", "extcap", "wireshark", "plugins", "scapy_layer", "fleet", "watch", "foxglove_server"},
+    {"replay", "extcap", "wireshark", "plugins", "scapy_layer", "fleet", "watch", "robot_watch", "foxglove_server"},
     {"commands"},
     {"cli", "__main__"},
 ]

@@ -41,7 +41,10 @@ from pathlib import Path
 from typing import IO, Any
 from xml.sax.saxutils import escape as xml_escape
 
-from sharedlink.analysis.decode import Decoded, format_time, iter_decoded
+from sharedlink.analysis.decode import Decoded, Decoder, format_time
+from sharedlink.analysis.robot_export import RobotCsv, RobotJsonl, RobotTrack
+from sharedlink.analysis.robots import RobotLinks
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import CaptureError, atomic_open, display_name
 from sharedlink.defaults import EXPORT_BINARY_FORMATS, EXPORT_FORMATS
 from sharedlink.errors import UsageError
@@ -81,6 +84,7 @@ class ExportResult:
     columns: list[str] = field(default_factory=list)
     error: str | None = None  # the capture is damaged here; everything before it was written
     seen: set[str] = field(default_factory=set)  # variable names given a value (with opts.require)
+    packets: int = 0  # P2OS packets and blackboard messages (csv/jsonl rows: robot_export.py)
 
 
 def _checksum(d: Decoded) -> str:
@@ -139,16 +143,29 @@ def _value_json(v: Variable) -> str:
 _jstr = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
 
 
-def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded]:
-    """The decoded frames; damage after the first record ends the stream with ``error`` set."""
+def _robot_rows(opts: ExportOptions) -> bool:
+    """Whether P2OS and blackboard packets are rows too (csv, jsonl: one row a frame, every column)
+    or an odometry track (geojson, kml without --changes)."""
+    return opts.fmt in ("csv", "jsonl", "geojson", "kml") and not opts.changes and opts.columns is None
+
+
+def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded | SessionMessage]:
+    """The decoded frames (and the P2OS/blackboard packets, :func:`_robot_rows`); damage after
+    the first record ends the stream with ``error`` set."""
     seen = result.seen if opts.require else None
     try:
         # (rows read values from the table and what frames changed: carried Updates are not needed)
-        for item in iter_decoded(path, opts.variables, opts.sync_interval, carried=False, progress=opts.progress):
+        dec = Decoder(opts.variables, opts.sync_interval, carried=False)
+        if _robot_rows(opts):
+            dec.robots = RobotLinks(messages=True)  # type: ignore[attr-defined]
+        for item in dec.capture(path, opts.progress):
             if isinstance(item, Decoded):
                 result.frames += 1
                 if seen is not None:
                     seen.update(u.name for u in item.updates if u.text is not None)
+                yield item
+            elif type(item) is SessionMessage:
+                result.packets += 1
                 yield item
     except CaptureError as exc:
         if exc.record is None and result.frames == 0:
@@ -422,6 +439,7 @@ class _GeoJson(_Jsonl):
         super().__init__(out, opts, columns)
         self.track = _Track()
         self.first = True
+        self.robots: RobotTrack | None = None  # P2OS odometry tracks, in the robot's frame (robot_export.py)
         out.write('{"type": "FeatureCollection", "features": [\n')
 
     def _feature(self, obj: dict[str, Any]) -> None:
@@ -475,6 +493,9 @@ class _GeoJson(_Jsonl):
                 self.out.write("%s[%s, %s]" % (sep, lon, lat))
                 sep = ", "
             self.out.write("]}}")
+        for feature in self.robots.geojson() if self.robots is not None else ():
+            self.out.write(("" if self.first else ",\n") + feature)
+            self.first = False
         self.out.write("\n]}\n")
         tr.close()
 
@@ -484,6 +505,7 @@ class _Kml(_Writer):
         super().__init__(out, opts, columns)
         self.track = _Track()
         self.name = ""
+        self.robots: RobotTrack | None = None  # P2OS odometry tracks, in the robot's frame (robot_export.py)
 
     def write(self, d: Decoded) -> int:
         if d.checksum_ok is False or d.kind not in _DATA_KINDS:
@@ -524,6 +546,8 @@ class _Kml(_Writer):
                     % (label, label, format_time(ts), lon, lat)
                 )
             o.write("</Folder>\n")
+        if self.robots is not None:
+            o.write(self.robots.kml())
         o.write("</Document>\n</kml>\n")
         tr.close()
 
@@ -554,19 +578,34 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
         writer = _WRITERS[opts.fmt](out, opts, columns)
     if isinstance(writer, _Kml):
         writer.name = f"SharedLink tracks: {display_name(Path(path).name)}"
+    robots: RobotCsv | RobotJsonl | RobotTrack | None = None
+    if _robot_rows(opts):
+        if isinstance(writer, (_GeoJson, _Kml)):
+            robots = writer.robots = RobotTrack()
+        else:
+            robots = RobotJsonl(writer._held, writer.flush) if isinstance(writer, _Jsonl) else RobotCsv()
     try:
-        if first is not None:
-            result.rows += writer.write(first)
-        for d in frames:
-            result.rows += writer.write(d)
+        for d in itertools.chain(() if first is None else (first,), frames):
+            if type(d) is SessionMessage:
+                if robots is not None:
+                    result.rows += robots.write(d)  # type: ignore[arg-type]
+                continue
+            result.rows += writer.write(d)  # type: ignore[arg-type]
         missing = [n for n in opts.require if n not in result.seen]
         if missing and result.error is None:  # a file output is not left behind (atomic_open)
             have = ", ".join(sorted(result.seen)) or "none"
             raise UsageError(f"no variable {', '.join(missing)} in {display_name(str(path))} (its variables: {have})")
     finally:
-        writer.close()
+        if isinstance(robots, RobotCsv) and robots.rows and result.frames == 0:
+            robots.finish(out)  # a P2OS or blackboard capture: the CSV is theirs
+        else:
+            if isinstance(robots, RobotCsv):  # SharedLink frames too: the CSV keeps SharedLink's columns
+                result.rows -= robots.rows
+            writer.close()
+        if isinstance(robots, RobotCsv):
+            robots.close()
     if isinstance(writer, (_GeoJson, _Kml)):
-        result.points = sum(writer.track.counts.values())
+        result.points = sum(writer.track.counts.values()) + (robots.points if isinstance(robots, RobotTrack) else 0)
     return result
 
 

@@ -36,6 +36,9 @@ from pathlib import Path
 
 from sharedlink.analysis.decode import NS, Columns, Decoded, Decoder, DirColumns
 from sharedlink.analysis.export import LAT, LON
+from sharedlink.analysis.robot_plot import RobotPlotData
+from sharedlink.analysis.robots import RobotLinks
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import CaptureError, display_name
 from sharedlink.protocols.codec import guess_value, typed_value
 from sharedlink.protocols.state import BEACON_VARIABLES
@@ -137,6 +140,7 @@ class PlotData:
     tracks: dict[str, PairTrack] = field(default_factory=dict)
     speed_var: str = SPEED
     error: str | None = None
+    robots: RobotPlotData = field(default_factory=RobotPlotData)  # P2OS, blackboard (robot_plot.py)
 
     @property
     def variables(self) -> list[str]:
@@ -193,9 +197,10 @@ def collect(
 ) -> PlotData:
     """Read a capture into :class:`PlotData` (one streaming pass). Damage after the first
     record sets ``error``; a missing or unreadable file raises CaptureError."""
-    data = PlotData(str(path), speed_var=speed)
+    data = PlotData(str(path), speed_var=speed, robots=RobotPlotData(max_points))
     names = _Names(lat, lon, speed, max_points, gap_factor)
     dec = Decoder(variables, sync_interval, carried=False)  # a frame's own values; the tables hold the rest
+    dec.robots = RobotLinks(messages=True)  # type: ignore[attr-defined]
     try:
         for item in dec.capture(path, progress, columns=True):
             if isinstance(item, Columns):
@@ -203,8 +208,10 @@ def collect(
                     _add_columns(data, c, names)
             elif isinstance(item, Decoded):
                 _add(data, item, names)
+            elif type(item) is SessionMessage:
+                data.robots.add(item)
     except CaptureError as exc:
-        if exc.record is None and data.frames == 0:
+        if exc.record is None and data.frames == 0 and data.robots.packets == 0:
             raise
         data.error = str(exc)
     return data

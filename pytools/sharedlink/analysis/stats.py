@@ -31,6 +31,9 @@ from pathlib import Path
 
 from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Counted, Decoded, Decoder
 from sharedlink.analysis.malformed import PIECE, other_protocol, talk_key, unframed_pieces
+from sharedlink.analysis.robot_stats import RobotStats, robot_tables
+from sharedlink.analysis.robots import ROBOT_PROTOCOLS, RobotLinks
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import CaptureError
 from sharedlink.capture.serial_format import GIVEN_UP
 from sharedlink.capture.stream import StreamFrame
@@ -139,6 +142,7 @@ class CaptureStats:
     last_ns: int | None = None  # records: a capture's records need not be in time order)
     error: str | None = None  # the capture is damaged here (everything before it is counted)
     limits: LimitCounts = field(default_factory=LimitCounts)  # input dropped at a bound (limits.py)
+    robots: RobotStats = field(default_factory=RobotStats, compare=False)  # P2OS, blackboard (robot_stats.py)
     _full: dict[int, _FullSize] = field(default_factory=dict, repr=False, compare=False)  # per table
 
     @property
@@ -184,6 +188,7 @@ class CaptureStats:
             "variables": [v.to_dict() for _, v in sorted(self.variables.items())],
             "limits": self.limits.to_dict(),
             "error": self.error,
+            **self.robots.to_dict(),  # "p2os", "blackboard": where present
         }
 
     # -- accumulation --------------------------------------------------------------------
@@ -465,6 +470,7 @@ def capture_stats(
     st = CaptureStats(path=str(path), sync_interval=sync_interval)
     dec = Decoder(variables, sync_interval, carried=False)  # stats reads only what frames carry
     st.limits = dec.limits
+    dec.robots = RobotLinks(messages=True)  # type: ignore[attr-defined]  # P2OS and blackboard too
     it = dec.capture(path, progress, counts=True)
     talks: dict[tuple, str] = {}  # conversations (both directions) a related protocol was seen on
     try:
@@ -475,12 +481,14 @@ def capture_stats(
                 st.add_counts(item)
             elif isinstance(item, tuple):
                 st.other_records += 1
+            elif type(item) is SessionMessage:
+                st.robots.add(item)
             elif item.error == PIECE:  # noise beside a malformed frame the core cut
                 st.noise_segments += 1
                 st.noise_bytes += len(item.raw)
             else:
                 key = talk_key(item.conv)
-                other = other_protocol(item.raw)
+                other = item.error if item.error in ROBOT_PROTOCOLS else other_protocol(item.raw)
                 if other is not None:
                     talks[key] = other
                 else:  # its binary replies (a blackboard ack or read response) on the same conversation
@@ -495,6 +503,11 @@ def capture_stats(
         if exc.record is None and st.frames == 0 and st.other_records == 0 and st.noise_segments == 0:
             raise
         st.error = str(exc)
+    st.robots.noise(dec.robots.reader.noise)  # type: ignore[attr-defined]
+    for name, (n, b) in dec.robots.segments.items():  # type: ignore[attr-defined]  # (claimed: counted there)
+        counts = st.other_protocols.setdefault(name, [0, 0])
+        counts[0] += n
+        counts[1] += b
     return st
 
 
@@ -547,7 +560,10 @@ def tables(st: CaptureStats) -> list[Table]:
         integral = None if v.type_code is None else v.type_code != TYPE_DOUBLE
         variables.add(v.pair, v.name, v.count, v.changes, fmt.value(v.min, integral), fmt.value(v.max, integral),
                       v.last or "")  # (control characters escaped as every table cell)
-    return [summary, kinds, pairs, variables]
+    if st.frames == 0 and st.robots.packets:  # a P2OS or blackboard capture: no empty SharedLink tables
+        summary.title = f"Capture statistics: {st.path}"
+        return [summary, *robot_tables(st.robots)]
+    return [summary, kinds, pairs, variables, *robot_tables(st.robots)]
 
 
 def render_text(st: CaptureStats) -> str:

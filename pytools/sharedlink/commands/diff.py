@@ -89,6 +89,10 @@ def run(args: argparse.Namespace) -> int:
     unreadable = [s.error for s in (report.a, report.b) if s.error and s.records == 0]
     if unreadable:  # not a capture at all: nothing to compare
         raise UsageError("; ".join(unreadable))
+    if report.a.frames == report.b.frames == 0 and not report.errors and STDIN not in (args.a, args.b):
+        robots = _robot_diff(args)  # P2OS or blackboard captures: compared on their decoded packets
+        if robots is not None:
+            return robots
     for side in (report.a, report.b):
         if not side.error:
             warn_empty(side.path, side.frames)
@@ -104,6 +108,25 @@ def run(args: argparse.Namespace) -> int:
     if report.errors:
         return EXIT_USAGE
     return EXIT_OK if report.agree else EXIT_FAIL
+
+
+def _robot_diff(args: argparse.Namespace) -> int | None:
+    """The P2OS/blackboard comparison (analysis/robot_diff.py), or None when neither capture has any."""
+    from sharedlink.analysis.robot_diff import diff_robots, render
+
+    rd = diff_robots(args.a, args.b, args.tolerance)
+    if not (rd.packets_a or rd.packets_b):
+        return None
+    if args.json:
+        json.dump(rd.to_dict(), sys.stdout, indent=1)
+        print()
+    else:
+        sys.stdout.write(render(rd))
+    for err in rd.errors:
+        print(f"sharedlink: error: {err} (the packets before it were compared)", file=sys.stderr)
+    if rd.errors:
+        return EXIT_USAGE
+    return EXIT_OK if rd.agree else EXIT_FAIL
 
 
 # -- formatting ------------------------------------------------------------------------------

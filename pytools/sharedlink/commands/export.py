@@ -113,9 +113,12 @@ def run(args: argparse.Namespace) -> int:
     elif args.output is not None and not is_stdout(args.output):
         what = "point" if fmt in ("geojson", "kml") else "message" if fmt == "mcap" else "row"
         n = result.points if what == "point" else result.rows
-        note(f"wrote {args.output}: {plural(n, what)} from {plural(result.frames, 'frame')} ({fmt})")
+        source = plural(result.frames, 'frame')
+        if result.packets:
+            source += f", {plural(result.packets, 'P2OS/blackboard packet')}"
+        note(f"wrote {args.output}: {plural(n, what)} from {source} ({fmt})")
     if fmt != "mcap" and not result.error:  # MCAP holds P2OS and blackboard channels too
-        warn_empty(args.capture, result.frames)
+        warn_empty(args.capture, result.frames + result.packets)  # (robot packets: no warning)
     if result.error:
         print(f"sharedlink: error: {result.error} (the {result.frames} frames before it were exported)", file=sys.stderr)
         return EXIT_USAGE

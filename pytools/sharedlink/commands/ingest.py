@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "ingest",
-        help="decode captures into a Parquet dataset (frames and values tables)",
+        help="decode captures into a Parquet dataset (frames, values and packets tables)",
         description="Decode every capture into the Parquet dataset DATASET (Hive-partitioned by day and node pair; "
         "tables frames and values; see docs/fleet.md). Incremental: a capture already in the dataset with the same "
         "content is skipped, a changed one has its rows replaced. A damaged capture keeps the rows before the damage "
@@ -75,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
             line = "unchanged"
         elif o.entry is not None:
             line = f"{o.status}: {o.entry.frames} frames, {o.entry.values} values"
+            if o.entry.packets:
+                line += f", {o.entry.packets} P2OS/blackboard packets"
         else:
             line = o.status
         print(f"{o.path}: {line}", file=sys.stderr)

@@ -78,11 +78,18 @@ def run(args: argparse.Namespace) -> int:
     with Progress(args.capture, quiet=args.json, what="plotting") as progress:
         data = collect(args.capture, variables, sync, max_points=args.max_points,
                        lat=args.lat, lon=args.lon, speed=args.velocity, progress=progress)
+    robots = data.frames == 0 and data.robots.packets > 0  # a P2OS or blackboard capture: its panels
     if data.error is None:
-        warn_empty(args.capture, data.frames)
-        unknown_names({k: v for k, v in given.items() if k != "--select"}, data.variables)
+        warn_empty(args.capture, data.frames + data.robots.packets)  # (robot packets: no warning)
+        if not robots:
+            unknown_names({k: v for k, v in given.items() if k != "--select"}, data.variables)
     try:
-        fig = build_figure(data, names, elapsed=args.elapsed)
+        if robots:
+            from sharedlink.analysis.robot_plot import build_robot_figure
+
+            fig = build_robot_figure(data.robots, args.capture.name)
+        else:
+            fig = build_figure(data, names, elapsed=args.elapsed)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     with open_output(args.output) as fh:  # complete or not at all, even on a full disk
@@ -92,8 +99,12 @@ def run(args: argparse.Namespace) -> int:
                "variables": names if names is not None else data.variables, "panels": 1 + panels,
                "gaps": data.gaps, "dropped_frames": data.dropped_frames, "checksum_failures": data.checksum_failures,
                "error": data.error}
+    if robots:
+        summary.update(panels=len(fig.axes), packets=data.robots.packets, checksum_failures=data.robots.bad, variables=[])
     if args.json:
         print(json.dumps(summary))
+    elif robots:
+        print(f"wrote {args.output}: P2OS/blackboard panels from {plural(data.robots.packets, 'packet')}", file=sys.stderr)
     else:
         print(f"wrote {args.output}: track and {plural(panels, 'variable panel')} from {plural(data.frames, 'frame')}",
               file=sys.stderr)

@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     with Progress(args.capture, quiet=args.json) as progress:
         st = capture_stats(args.capture, variables, sync, progress)
     if not st.error:
-        warn_empty(args.capture, st.frames)
+        warn_empty(args.capture, st.frames + st.robots.packets)  # (robot packets: no warning)
     if args.json:
         json.dump(st.to_dict(), sys.stdout, indent=2)
         print()

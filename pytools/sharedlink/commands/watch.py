@@ -15,6 +15,7 @@ from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
     PORT,
+    STDIN,
     OptionalPositional,
     add_decode_options,
     add_json_option,
@@ -85,7 +86,10 @@ def _source(args: argparse.Namespace) -> Any:
         args.capture = capture_input(args.capture)
         if not args.speed > 0:
             raise UsageError("--speed must be positive")
-        return CaptureSource(args.capture, args.speed, sessions=args.foxglove)  # P2OS, blackboard as export
+        from sharedlink.robot_watch import has_robot_traffic
+
+        robots = args.capture != STDIN and has_robot_traffic(args.capture)  # P2OS, blackboard: robot_watch.py
+        return CaptureSource(args.capture, args.speed, sessions=args.foxglove or robots)
     if args.serial:
         if args.baud <= 0:
             raise UsageError("--baud must be positive")
@@ -176,6 +180,10 @@ def _run(args: argparse.Namespace) -> int:
                     write(line(d, stats.dropped) + "\n")
 
                 outputs.append(emit)
+                from sharedlink.analysis.robot_export import RobotJsonl
+
+                robot = RobotJsonl([], lambda: None)  # P2OS, blackboard: export's lines
+                sessions.append(lambda m: write(robot.fast_line(m) or robot.line(m)))
                 run_watch(source, decoder, outputs, out=out, stats=stats, session_outputs=sessions)
             return _damage(source)
         _live(source, decoder, outputs, sync, sessions, stats)
@@ -198,18 +206,26 @@ def _damage(source: Any) -> int:
 
 
 def _live(source: Any, decoder: Decoder, outputs: list, sync: float, sessions: list, stats: Any) -> int:
-    from rich.console import Console
+    from rich.console import Console, Group
     from rich.live import Live
 
+    from sharedlink.robot_watch import RobotView
     from sharedlink.watch import LiveView, run_watch
 
     view = LiveView(sync, source.description)
     view.stats = stats
     outputs.append(view.update)
+    robots = RobotView()  # P2OS and blackboard sessions, below the SharedLink view
+    sessions.append(robots.update)
     console = Console()
-    with Live(view.render(source.now_ns(), console.height), console=console, auto_refresh=False, transient=False) as live:
+
+    def render(now_ns: int) -> Any:
+        shown = view.render(now_ns, console.height)
+        return Group(shown, robots.render(now_ns)) if robots.sessions else shown
+
+    with Live(render(source.now_ns()), console=console, auto_refresh=False, transient=False) as live:
         def tick(now_ns: int) -> None:
-            live.update(view.render(now_ns, console.height), refresh=True)
+            live.update(render(now_ns), refresh=True)
 
         run_watch(source, decoder, outputs, tick=tick, stats=view.stats, session_outputs=sessions)
     if not console.is_terminal:  # redirected, rich leaves the last view without its newline

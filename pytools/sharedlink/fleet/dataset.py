@@ -5,6 +5,7 @@ Layout (``docs/fleet.md``)::
     DATASET/_manifest.json                     which captures are in, and their files
     DATASET/frames/day=2026-01-01/link=B-A/<capture id>-<run>.parquet
     DATASET/values/day=2026-01-01/link=B-A/<capture id>-<run>.parquet
+    DATASET/packets/day=2026-01-01/link=p2os/<capture id>-<run>.parquet   (P2OS, blackboard)
 
 * ``day`` is the frame's UTC date, ``link`` its node pair as ``SRC-DST`` (``B-A``: from B to A;
   ``>`` is kept out of directory names). Both come from the path (Hive partitioning), not from the
@@ -34,7 +35,7 @@ from sharedlink.errors import UsageError
 # -- layout --------------------------------------------------------------------------------------
 MANIFEST = "_manifest.json"
 LOCK = "_lock"
-TABLES = ("frames", "values")
+TABLES = ("frames", "values", "packets")
 #: manifest format version
 VERSION = 1
 #: partition keys, in directory order
@@ -80,20 +81,64 @@ VALUES_COLUMNS = (
     ("carried", "bool_"),  # not in the frame: carried forward from an earlier one (compression)
     ("changed", "bool_"),  # differs from the value before this frame
 )
-COLUMNS = {"frames": FRAMES_COLUMNS, "values": VALUES_COLUMNS}
+#: one row per P2OS packet or blackboard message (a slave's answer too), issue 42; the partition's
+#: ``link`` is the protocol ("p2os", "blackboard"); the columns as ``export`` names them
+#: (analysis/robot_export.py), typed
+PACKETS_COLUMNS = (
+    ("capture", "string"),
+    ("vehicle", "string"),
+    ("protocol", "string"),  # p2os, blackboard
+    ("frame", "int64"),  # record number that completed the packet
+    ("time_ns", "int64"),
+    ("session", "int32"),  # 1, 2, ... in the capture
+    ("conversation", "string"),  # "tcp 127.0.0.1:8101 - 127.0.0.1:45678", "serial interface 0"
+    ("side", "string"),  # p2os: client, robot; blackboard: master, slave
+    ("type", "string"),  # command name, SIP, ENCODER, SYNC2 echo, ...; set, request, ack, response
+    ("checksum_ok", "bool_"),  # null: nothing to check
+    ("size", "int32"),
+    ("command", "string"),
+    ("arg_int", "int64"),
+    ("arg_text", "string"),
+    ("x_mm", "int32"),  # SIP: robot odometry frame
+    ("y_mm", "int32"),
+    ("heading_deg", "float64"),
+    ("left_velocity_mm_s", "int32"),
+    ("right_velocity_mm_s", "int32"),
+    ("velocity_mm_s", "float64"),
+    ("battery_v", "float64"),
+    ("stall_left", "bool_"),
+    ("stall_right", "bool_"),
+    ("motors_enabled", "bool_"),
+    ("moving", "bool_"),
+    ("compass_deg", "int32"),
+    ("sonars_mm", "string"),  # "number:range ..."
+    ("encoder_left", "int64"),
+    ("encoder_right", "int64"),
+    ("robot_name", "string"),
+    ("robot_class", "string"),
+    ("robot_subclass", "string"),
+    ("address", "int32"),  # blackboard
+    ("node", "int32"),
+    ("count", "int32"),
+    ("data", "binary"),
+    ("error", "string"),
+    ("raw", "binary"),
+)
+COLUMNS = {"frames": FRAMES_COLUMNS, "values": VALUES_COLUMNS, "packets": PACKETS_COLUMNS}
 #: DuckDB's names of the Arrow types above
 DUCKDB_TYPES = {"string": "VARCHAR", "int64": "BIGINT", "int32": "INTEGER", "int8": "TINYINT", "float64": "DOUBLE",
                 "bool_": "BOOLEAN", "binary": "BLOB"}
 
 
 def __getattr__(name: str) -> object:
-    """``FRAMES_SCHEMA``, ``VALUES_SCHEMA`` and ``SCHEMAS`` (table -> schema): the tables as
-    pyarrow schemas, made when first asked for."""
-    if name in ("FRAMES_SCHEMA", "VALUES_SCHEMA", "SCHEMAS"):
+    """``FRAMES_SCHEMA``, ``VALUES_SCHEMA``, ``PACKETS_SCHEMA`` and ``SCHEMAS`` (table -> schema):
+    the tables as pyarrow schemas, made when first asked for."""
+    if name in ("FRAMES_SCHEMA", "VALUES_SCHEMA", "PACKETS_SCHEMA", "SCHEMAS"):
         import pyarrow as pa
 
         schemas = {t: pa.schema([(c, getattr(pa, kind)()) for c, kind in cols]) for t, cols in COLUMNS.items()}
-        globals().update(FRAMES_SCHEMA=schemas["frames"], VALUES_SCHEMA=schemas["values"], SCHEMAS=schemas)
+        globals().update(FRAMES_SCHEMA=schemas["frames"], VALUES_SCHEMA=schemas["values"],
+                         PACKETS_SCHEMA=schemas["packets"], SCHEMAS=schemas)
         return globals()[name]
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
@@ -121,6 +166,7 @@ class CaptureEntry:
     frames: int = 0
     values: int = 0
     records: int = 0
+    packets: int = 0  # P2OS packets and blackboard messages (the packets table)
     first_ns: int | None = None
     last_ns: int | None = None
     error: str | None = None  # damaged here: the rows are what came before

@@ -36,6 +36,8 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from sharedlink.analysis.decode import NS, Columns, Decoded, Decoder, DirColumns
+from sharedlink.analysis.robots import RobotLinks
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.errors import InputError, UsageError
 from sharedlink.fleet import BATCH_ROWS as BATCH_ROWS  # its home is the package (a light import for the CLI)
 from sharedlink.fleet.dataset import (
@@ -49,6 +51,7 @@ from sharedlink.fleet.dataset import (
     save_manifest,
     sweep,
 )
+from sharedlink.fleet.robot_rows import PacketRows, packet_columns
 from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG
 from sharedlink.protocols.state import BEACON_VARIABLES
 
@@ -174,6 +177,7 @@ def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callabl
     first_ns = last_ns = None
     held = batch = rows.batch_rows
     dec = Decoder(task.variables, task.sync_interval)
+    dec.robots = RobotLinks(messages=True)  # type: ignore[attr-defined]  # P2OS, blackboard: the packets table
     try:
         for item in dec.capture(task.path, progress, columns=True):
             t = type(item)
@@ -212,6 +216,10 @@ def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callabl
                     rows.flush_largest()
                     held = batch - rows.held()
                 continue
+            if t is SessionMessage:
+                rows.packets.add(item, _day(item.ts_ns))  # type: ignore[arg-type,union-attr]
+                if rows.packets.held >= batch:
+                    rows.flush_packets()
             if t is not Decoded:
                 n = item[0] if isinstance(item, tuple) else item.number  # type: ignore[union-attr]
                 if n > records:
@@ -243,6 +251,7 @@ def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callabl
     finally:
         entry.records = max(entry.records, records)
         entry.frames += frames
+        entry.packets += rows.packets.count
         entry.first_ns = entry.first_ns if entry.first_ns is not None else first_ns
         entry.last_ns = last_ns if last_ns is not None else entry.last_ns
     entry.values += rows.close_counts()
@@ -441,6 +450,7 @@ class _Rows:
         self.typed: dict[tuple[int | None, str], tuple[int | None, float | None, str | None]] = {}
         self.repeated: set[str] = set()  # value texts met once (typed values are kept from the second time)
         self.values = 0  # values rows written
+        self.packets = PacketRows()  # the packets table's rows held
 
     def held(self) -> int:
         return sum(p.held() for p in self.parts.values())
@@ -566,10 +576,15 @@ class _Rows:
             w[0].write_batch(batch.slice(at, rows), row_group_size=rows)
             at += rows
 
+    def flush_packets(self) -> None:
+        for part, rs in self.packets.take():
+            self._write("packets", part, packet_columns(rs, self.capture, self.vehicle), len(rs))
+
     def close_counts(self) -> int:
         """Write what is held; the values rows written in all."""
         for key in list(self.parts):
             self._flush(key)
+        self.flush_packets()
         return self.values
 
     def close(self) -> list[str]:

@@ -39,7 +39,7 @@ from sharedlink.fleet.dataset import COLUMNS, DUCKDB_TYPES, MANIFEST, TABLES, Ma
 FETCH_ROWS = 10_000
 #: the captures view's columns and DuckDB types
 _CAPTURE_COLUMNS = {"path": "VARCHAR", "vehicle": "VARCHAR", "size": "BIGINT", "hash": "VARCHAR", "frames": "BIGINT",
-                    "values": "BIGINT", "records": "BIGINT", "first_ns": "BIGINT", "last_ns": "BIGINT",
+                    "values": "BIGINT", "records": "BIGINT", "packets": "BIGINT", "first_ns": "BIGINT", "last_ns": "BIGINT",
                     "error": "VARCHAR"}
 #: a kept database caches its files' Parquet footers (about 30 kB a file, read once instead of
 #: once a query) up to this many files

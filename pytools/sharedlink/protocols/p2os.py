@@ -29,7 +29,7 @@ from typing import Union
 from sharedlink.errors import DecodeError
 
 HEADER = b"\xfa\xfb"
-#: P2OS ignores a packet whose count exceeds this
+#: P2OS ignores a client command packet whose count exceeds this (server packets run to 255)
 MAX_COUNT = 200
 #: the simulator's TCP port
 MOBILESIM_PORT = 8101
@@ -160,8 +160,13 @@ class Packet:
 
     @property
     def too_long(self) -> bool:
-        """P2OS ignores packets whose count exceeds 200."""
+        """A count over 200 (what serial protocol detection does not trust)."""
         return self.count > MAX_COUNT
+
+    def ignored(self, from_client: bool) -> bool:
+        """Whether the robot ignores this packet: a client command with a count over 200. The
+        limit is the robot's, for what it reads; ARIA reads server packets with counts up to 255."""
+        return from_client and self.count > MAX_COUNT
 
     def encode(self) -> bytes:
         return build_packet(self.payload)
@@ -386,7 +391,11 @@ def decode_sip(payload: bytes) -> Sip:
     off = _SIP_HEAD.size
     if len(p) < off + 3 * nson:
         raise P2osError(len(p), f"{nson} sonar readings truncated")
-    sonars = tuple(struct.unpack_from("<BH", p, off + 3 * i) for i in range(nson))
+    if nson:
+        v = struct.unpack_from("<" + "BH" * nson, p, off)
+        sonars = tuple(zip(v[::2], v[1::2]))
+    else:
+        sonars = ()
     off += 3 * nson
     if len(p) < off + _SIP_TAIL.size:
         raise P2osError(len(p), "standard SIP truncated after the sonar readings")

@@ -16,6 +16,7 @@ from sharedlink.analysis.core.lanes import BATCH_FRAMES
 from sharedlink.analysis.core.patterns import ETH_IPV4, UDP
 from sharedlink.analysis.core.records import RUN, capture_records
 from sharedlink.analysis.core.reference import ReferenceDecoder
+from sharedlink.analysis.robots import FIRST_BYTES, RobotLinks
 from sharedlink.capture.packets import PacketDecoder
 from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, CaptureError
 from sharedlink.capture.serial_format import USER_LINKTYPES
@@ -72,12 +73,15 @@ class _Loop:
         self.counting = counting or columns
         self.taken = 0  # frames in dec.batch (dec.rows)
         self.read = 24  # bytes of the file read, about (pcap's headers; pcapng's blocks are a little longer)
+        # P2OS/blackboard conversations (analysis/robots.py): a caller wanting messages sets dec.robots
+        self.robots = getattr(dec, "robots", None) or RobotLinks()
 
     def items(self, path: str | Path) -> Iterator[Item]:
         datagram = self.dec.decode_datagram
         addrs = self.addrs
         progress = self.progress
         counting = self.counting
+        robots, robot_first, claimed = self.robots, FIRST_BYTES, self.robots.claimed  # (claimed: filled in place)
         try:
             for number, ts_ns, linktype, data, flags, interface in capture_records(path, self.runs):
                 if linktype == RUN:  # a run taker took ts_ns frames (flags: their bytes) into dec.rows (dec.batch)
@@ -89,6 +93,13 @@ class _Loop:
                 if got is None:
                     yield from self._other(number, ts_ns, linktype, data, flags, interface)
                 elif got:
+                    if claimed or got[1][0] in robot_first:  # P2OS/blackboard: never SharedLink's (issue 44)
+                        taken = robots.udp(number, ts_ns, got[0], got[1])
+                        if taken is not None:
+                            if self.taken:
+                                yield self._batch()
+                            yield from taken
+                            continue
                     if counting:
                         yield from self._counted(number, ts_ns, got[0], got[1])
                     else:
@@ -134,10 +145,16 @@ class _Loop:
         if linktype in USER_LINKTYPES:
             for item in self.serial.feed(number, ts_ns, linktype, data, flags, interface):
                 yield from decode_item(dec, item)
+            if self.robots.messages:
+                yield from self.robots.serial(number, ts_ns, data, flags, interface)
             return
         dg = self.packets(linktype, data)
         if dg is None:
             yield number, ts_ns
+            return
+        robot_items = self.robots.datagram(number, ts_ns, dg)
+        if robot_items is not None:  # a P2OS or blackboard conversation: never SharedLink's (issue 44)
+            yield from robot_items
             return
         for sf in dec.splitter.split(number, ts_ns, dg):
             yield from decode_item(dec, sf)

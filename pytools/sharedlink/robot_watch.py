@@ -1,0 +1,107 @@
+"""``watch`` of P2OS and blackboard links (issue 42): the terminal view's robot panel and the
+``--json`` lines of their packets.
+
+:class:`RobotView` takes the :class:`~sharedlink.analysis.sessions.SessionMessage` s a watch
+source hands out (``session_outputs`` of :func:`sharedlink.watch.run_watch`) and keeps, per
+session, what a person driving a Pioneer or a blackboard post office looks at: packets per
+type, checksum failures, the last SIP (pose in the robot's odometry frame, wheel velocities,
+battery, stall and motor flags) and its age, the last command; blackboard messages per type,
+unanswered ones. ``--json`` writes each packet as ``export --format jsonl`` does
+(:class:`~sharedlink.analysis.robot_export.RobotJsonl`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sharedlink.analysis.robot_export import RobotRows
+from sharedlink.analysis.sessions import SessionMessage
+from sharedlink.capture.pcapio import NS
+
+
+@dataclass
+class _Session:
+    protocol: str
+    label: str
+    types: dict[str, int] = field(default_factory=dict)
+    packets: int = 0
+    bad: int = 0
+    last: dict[str, Any] = field(default_factory=dict)  # the last SIP's row (p2os)
+    last_ns: int | None = None
+    command: str = ""
+    waiting: int = 0  # blackboard: master messages without an answer yet
+
+
+class RobotView:
+    """The robot panel of ``watch`` (see the module doc)."""
+
+    def __init__(self) -> None:
+        self.rows = RobotRows()
+        self.sessions: dict[int, _Session] = {}
+
+    def update(self, m: SessionMessage) -> None:
+        row = self.rows.row(m)
+        s = self.sessions.get(m.session)
+        if s is None:
+            s = self.sessions[m.session] = _Session(m.protocol, m.label)
+        s.packets += 1
+        s.bad += m.ok is False
+        kind = f"{m.side} {row['type']}"
+        s.types[kind] = s.types.get(kind, 0) + 1
+        if row["type"] == "SIP":
+            s.last, s.last_ns = row, m.ts_ns
+        elif row.get("command"):
+            s.command = f"{row['command']} {row.get('arg', '')}".strip()
+        if m.protocol == "blackboard":
+            s.waiting = 1 if m.side == "master" else 0
+
+    def lines(self, now_ns: int) -> list[str]:
+        out = []
+        for n, s in sorted(self.sessions.items()):
+            out.append(f"{s.protocol} session {n} ({s.label}): {s.packets} packets, {s.bad} bad checksums")
+            if s.last:
+                r = s.last
+                age = "" if s.last_ns is None or now_ns < s.last_ns else " (%.1f s ago)" % ((now_ns - s.last_ns) / NS)
+                out.append(f"  SIP{age}: x {r['x_mm']} mm, y {r['y_mm']} mm, heading {r['heading_deg']:.1f} deg, "
+                           f"wheels {r['left_velocity_mm_s']}/{r['right_velocity_mm_s']} mm/s, battery {r['battery_v']:.1f} V, "
+                           f"stall {r['stall_left']}/{r['stall_right']}, motors {'on' if r['motors_enabled'] else 'off'}")
+            if s.command:
+                out.append(f"  last command: {s.command}")
+            if s.protocol == "blackboard" and s.waiting:
+                out.append("  waiting for the slave's answer")
+            out.append("  " + ", ".join(f"{k} {v}" for k, v in sorted(s.types.items())))
+        return out
+
+    def render(self, now_ns: int) -> Any:
+        from rich.text import Text
+
+        return Text("\n".join(self.lines(now_ns)))
+
+
+#: records :func:`has_robot_traffic` looks at
+PROBE_RECORDS = 512
+
+
+def has_robot_traffic(path: str | Path, records: int = PROBE_RECORDS) -> bool:
+    """Whether a capture's first ``records`` records hold a P2OS or blackboard conversation (as
+    the core's robot links claim one) or serial records (which may): then ``watch`` reads its
+    sessions too. A capture that cannot be read: False (the frames' reader reports it)."""
+    from sharedlink.analysis.robots import claim
+    from sharedlink.capture.packets import decode_packet
+    from sharedlink.capture.pcapio import CaptureError, read_records
+    from sharedlink.capture.serial_format import USER_LINKTYPES
+
+    try:
+        for i, rec in enumerate(read_records(path)):
+            if i >= records:
+                break
+            if rec.linktype in USER_LINKTYPES:
+                return True
+            dg = decode_packet(rec.linktype, rec.data)
+            if dg is not None and claim(dg.proto, dg.sport, dg.dport, dg.payload) is not None:
+                return True
+    except (CaptureError, OSError):
+        return False
+    return False
