@@ -593,10 +593,11 @@ class DirCounts:
     [frames, number and time of the last one] (of the frames :meth:`Decoder.count` took);
     ``held``: name -> values carried in the frames :meth:`Decoder.count_run` took; ``changed``:
     name -> the texts it changed to, in order; ``gaps``: the sync gaps of its full frames (ns);
-    ``size``: the bytes of a full set's values now."""
+    ``size``: the bytes of a full set's values now; ``stamps``: its frames' times in capture
+    order (link health, analysis/health.py)."""
 
     __slots__ = ("conv", "src", "dst", "table", "first_ts", "last_ts", "frames", "bytes", "full", "late", "gaps",
-                 "full_bytes", "layouts", "held", "changed", "size", "last_full")
+                 "full_bytes", "layouts", "held", "changed", "size", "last_full", "stamps")
 
     def __init__(self, conv: tuple, src: str, dst: str, h: _Hot, ts: int, size: int) -> None:
         self.conv, self.src, self.dst, self.table = conv, src, dst, h.table
@@ -608,6 +609,7 @@ class DirCounts:
         self.changed: dict[str, list[str]] = {}
         self.size = size
         self.last_full: tuple[int, int] | None = None
+        self.stamps: list[int] = []
 
     @property
     def pair(self) -> str:
@@ -830,6 +832,7 @@ class Decoder(ReferenceDecoder):
             seen[0] += 1
             seen[1], seen[2] = number, ts
         c.frames += 1
+        c.stamps.append(ts)
         c.bytes += len(raw)
         if ts > c.last_ts:
             c.last_ts = ts
@@ -1137,6 +1140,7 @@ class Decoder(ReferenceDecoder):
         if c is None:
             c = self.batch[h] = DirCounts(lane.conv, lane.src, lane.dst, h, stamps[0], self._hot_size(h))
         c.frames += n
+        c.stamps += stamps
         c.bytes += wire - 42 * n  # (the frames: the records less their Ethernet, IP and UDP headers)
         c.full += nfull
         c.late += late

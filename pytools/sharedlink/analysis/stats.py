@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Counted, Decoded, Decoder
+from sharedlink.analysis.health import Health, feed_counted, feed_decoded, health_dict, health_table
 from sharedlink.analysis.malformed import PIECE, other_protocol, talk_key, unframed_pieces
 from sharedlink.capture.pcapio import CaptureError
 from sharedlink.capture.serial_format import GIVEN_UP
@@ -136,6 +137,7 @@ class CaptureStats:
     last_ns: int | None = None  # records: a capture's records need not be in time order)
     error: str | None = None  # the capture is damaged here (everything before it is counted)
     limits: LimitCounts = field(default_factory=LimitCounts)  # input dropped at a bound (limits.py)
+    health: Health | None = None  # link health (analysis/health.py), fed by add and add_counts
     _full: dict[int, _FullSize] = field(default_factory=dict, repr=False, compare=False)  # per table
 
     @property
@@ -181,6 +183,7 @@ class CaptureStats:
             "variables": [v.to_dict() for _, v in sorted(self.variables.items())],
             "limits": self.limits.to_dict(),
             "error": self.error,
+            **health_dict(self.health),
         }
 
     # -- accumulation --------------------------------------------------------------------
@@ -189,6 +192,8 @@ class CaptureStats:
         size = len(d.raw)
         ts = d.ts_ns
         kind = d.kind
+        if self.health is not None:
+            feed_decoded(self.health, d)
         self.frames += 1
         self.bytes += size
         kinds = self.kinds
@@ -298,6 +303,8 @@ class CaptureStats:
         good full and delta frames in the named form, the same sums as :meth:`add` of each."""
         limit = self.sync_interval + SYNC_SLACK_S
         variables = self.variables
+        if self.health is not None:
+            feed_counted(self.health, batch)
         for c in batch.dirs.values():
             pair = c.pair
             self.frames += c.frames
@@ -456,10 +463,12 @@ def capture_stats(
     variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES,
     sync_interval: float = 1.0,
     progress: Callable[[int, int], None] | None = None,
+    outage_after: float | None = None,
 ) -> CaptureStats:
     """Statistics of one capture (``progress(bytes read, records)`` is called now and then). A damaged file gives the statistics of everything before
-    the damage with ``error`` set; a missing or unreadable one raises CaptureError."""
-    st = CaptureStats(path=str(path), sync_interval=sync_interval)
+    the damage with ``error`` set; a missing or unreadable one raises CaptureError. ``outage_after``:
+    link health's fixed outage threshold in seconds (None: learnt from each link's rate)."""
+    st = CaptureStats(path=str(path), sync_interval=sync_interval, health=Health(outage_after))
     dec = Decoder(variables, sync_interval, carried=False)  # stats reads only what frames carry
     st.limits = dec.limits
     it = dec.capture(path, progress, counts=True)
@@ -492,6 +501,7 @@ def capture_stats(
         if exc.record is None and st.frames == 0 and st.other_records == 0 and st.noise_segments == 0:
             raise
         st.error = str(exc)
+    st.health.finish(st.last_ns)  # type: ignore[union-attr]
     return st
 
 
@@ -565,6 +575,7 @@ def tables(st: CaptureStats) -> list[tuple[str, list[str], list[list[str]]]]:
             pairs,
         ),
         ("Variables", ["pair", "name", "count", "changes", "min", "max", "last"], variables),
+        *health_table(st.health),
     ]
 
 
