@@ -172,6 +172,7 @@ class Health:
         self.timeline = timeline
         self.links: dict[tuple, LinkHealth] = {}
         self.end_ns: int | None = None
+        self.finished = False
 
     def link(self, conv: tuple, src: str, dst: str) -> LinkHealth:
         key = (conv, src, dst)
@@ -245,6 +246,7 @@ class Health:
         if end_ns is None:
             end_ns = max((h.last_ns for h in self.links.values() if h.last_ns is not None), default=None)
         self.end_ns = end_ns
+        self.finished = True
         if end_ns is None:
             return
         for h in self.links.values():
@@ -256,6 +258,12 @@ class Health:
             limit = h.threshold_ns(self.fixed_ns)
             if gap > self.low_ns and limit is not None and gap > limit:
                 h.outages.append(Outage(h.link, h.pair, last, None, gap))
+
+    def finish_once(self, end_ns: int | None = None) -> Health:
+        """:meth:`finish` unless done; the Health."""
+        if not self.finished:
+            self.finish(end_ns)
+        return self
 
     def sorted_links(self) -> list[LinkHealth]:
         return sorted(self.links.values(), key=lambda h: (h.link, h.pair))

@@ -137,7 +137,7 @@ class CaptureStats:
     last_ns: int | None = None  # records: a capture's records need not be in time order)
     error: str | None = None  # the capture is damaged here (everything before it is counted)
     limits: LimitCounts = field(default_factory=LimitCounts)  # input dropped at a bound (limits.py)
-    health: Health | None = None  # link health (analysis/health.py), fed by add and add_counts
+    health: Health = field(default_factory=Health)  # link health (analysis/health.py), fed by add and add_counts
     _full: dict[int, _FullSize] = field(default_factory=dict, repr=False, compare=False)  # per table
 
     @property
@@ -183,7 +183,7 @@ class CaptureStats:
             "variables": [v.to_dict() for _, v in sorted(self.variables.items())],
             "limits": self.limits.to_dict(),
             "error": self.error,
-            **health_dict(self.health),
+            **health_dict(self.health.finish_once(self.last_ns)),
         }
 
     # -- accumulation --------------------------------------------------------------------
@@ -192,8 +192,7 @@ class CaptureStats:
         size = len(d.raw)
         ts = d.ts_ns
         kind = d.kind
-        if self.health is not None:
-            feed_decoded(self.health, d)
+        feed_decoded(self.health, d)
         self.frames += 1
         self.bytes += size
         kinds = self.kinds
@@ -303,8 +302,7 @@ class CaptureStats:
         good full and delta frames in the named form, the same sums as :meth:`add` of each."""
         limit = self.sync_interval + SYNC_SLACK_S
         variables = self.variables
-        if self.health is not None:
-            feed_counted(self.health, batch)
+        feed_counted(self.health, batch)
         for c in batch.dirs.values():
             pair = c.pair
             self.frames += c.frames
@@ -501,7 +499,7 @@ def capture_stats(
         if exc.record is None and st.frames == 0 and st.other_records == 0 and st.noise_segments == 0:
             raise
         st.error = str(exc)
-    st.health.finish(st.last_ns)  # type: ignore[union-attr]
+    st.health.finish_once(st.last_ns)
     return st
 
 
@@ -575,7 +573,7 @@ def tables(st: CaptureStats) -> list[tuple[str, list[str], list[list[str]]]]:
             pairs,
         ),
         ("Variables", ["pair", "name", "count", "changes", "min", "max", "last"], variables),
-        *health_table(st.health),
+        *health_table(st.health.finish_once(st.last_ns)),
     ]
 
 

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     if st.error:
         print(f"sharedlink: error: {st.error} (the statistics cover the {st.frames} frames before it)", file=sys.stderr)
         return EXIT_USAGE
-    if "outage" in args.fail_on and st.health is not None and st.health.outages():
+    if "outage" in args.fail_on and st.health.outages():
         print(f"sharedlink: {len(st.health.outages())} outage(s) (--fail-on outage)", file=sys.stderr)
         return EXIT_FAIL
     return EXIT_OK
