@@ -95,7 +95,7 @@ local function link_of(pinfo, num, dstb, srcb, d)
     local L = links[key]
     if not L then
         L = { name = name, pair = pair, frames = 0, win = {}, nwin = 0, wpos = 0, outages = {}, bad = 0, late = 0,
-            had_cs = false, cs_missing = 0 }
+            had_cs = false, cs_missing = 0, fast = false }
         links[key] = L
         order[#order + 1] = key
     end
@@ -149,14 +149,18 @@ local function frame_slow(L, t, cs_status, late, kind)
     L.win[pos], L.wpos = gap, pos
     if L.nwin < WINDOW then L.nwin = L.nwin + 1 end
     L.last = t
+    L.fast = L.had_cs and L.nwin == WINDOW   -- (H.frame's common path may take its next frame)
     return out
 end
 
 -- Every frame, every pass: on the first, its link moves on; the outage duration it ends (seconds),
 -- or nil.  d: the direction state the state module gave (nil: none).  The common frame (a good
 -- checksum on a link that had one, not late, later than the link's latest by no more than the
--- lowest threshold, a full window) costs a few table operations here (speed trick, measured:
--- frame_slow is the plain path, and does the same).
+-- lowest threshold, a full window: L.fast) costs a few table operations here (speed trick,
+-- measured: frame_slow is the plain path, and does the same).  A good full frame's time is the
+-- one the state module just set its direction's sync clock to (d.lastfull, state.lua's
+-- sync_clock and state_data): not read again (speed trick, measured: a wslua call a packet less;
+-- test_health_tap.py would see a clock that moved elsewhere).
 function H.frame(pinfo, num, sk, dstb, srcb, d, visited, cs_status, rec, kind)
     if visited then
         local m = marks[num]
@@ -164,15 +168,14 @@ function H.frame(pinfo, num, sk, dstb, srcb, d, visited, cs_status, rec, kind)
     end
     local t = last_t
     if last_num ~= num then
-        t = PG.rel_ts(pinfo)
+        t = (kind == "full" and cs_status ~= 0 and d and d.lastfull) or PG.rel_ts(pinfo)
         last_num, last_t = num, t
         if not last_end or t > last_end then last_end = t end
     end
     local L = d and d.hl or link_of(pinfo, num, dstb, srcb, d)
     L.frames = L.frames + 1
-    local last = L.last
-    if cs_status == 1 and L.had_cs and not (rec and rec.late) and last and L.nwin == WINDOW then
-        local gap = t - last
+    if cs_status == 1 and L.fast and not (rec and rec.late) then
+        local gap = t - L.last
         if gap > 0 and gap <= low then
             local pos = L.wpos
             pos = pos == WINDOW and 1 or pos + 1

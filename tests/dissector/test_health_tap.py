@@ -159,3 +159,21 @@ def test_expert_in_a_summary_pass(caps):
     res = tu.tshark(caps["14Hz"], ["-q", "-z", "expert"])
     m = re.search(r"^\s+(\d+)\s+\S+\s+SHAREDLINK\s+Link silent", res.stdout, re.M)
     assert m and int(m.group(1)) == 1, res.stdout
+
+
+@pytest.mark.parametrize("name", [*CAPTURES, "open"])
+def test_export_rows_are_stats_outages(caps, name):
+    """export --format jsonl: an outage row (kind: outage) before the frame that ends it, the open
+    ones last; the same outages as stats --json, to the nanosecond of its figures."""
+    r = run_cli("stats", "--json", caps[name])
+    want = json.loads(r.stdout)["outages"]
+    rows = [json.loads(x) for x in run_cli("export", "--format", "jsonl", caps[name]).stdout.splitlines()]
+    got = [x for x in rows if x["kind"] == "outage"]
+    assert sorted(({k: v for k, v in x.items() if k not in ("kind", "src", "dst")} for x in got),
+                  key=lambda o: (o["start"], o["link"])) == want
+    for k, x in enumerate(rows):  # the frame after a closed outage's row is at its end, of its pair
+        if x["kind"] == "outage" and x["end"] is not None:
+            nxt = next(y for y in rows[k + 1:] if y["kind"] != "outage" and f'{y["src"]}>{y["dst"]}' == x["pair"])
+            assert nxt["ts_ns"] / NS == pytest.approx(x["end"], abs=1e-6)
+    if name == "open":
+        assert rows[-1]["kind"] == "outage" and rows[-1]["end"] is None

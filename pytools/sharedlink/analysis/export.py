@@ -66,6 +66,7 @@ class ExportOptions:
     velocity: str = VELOCITY  # mcap: the speed variable (LocationFix velocity)
     require: Sequence[str] = ()  # names the capture must carry (csv/jsonl/geojson/kml), else UsageError
     progress: Callable[[int, int], None] | None = None  # called with (bytes read, records) now and then
+    outage_after: float | None = None  # jsonl's outage rows: a fixed threshold (None: learnt; analysis/health.py)
 
 
 @dataclass
@@ -283,6 +284,13 @@ class _Jsonl(_Writer):
         if len(held) >= _HELD_LINES:
             self.flush()
         return 1
+
+    def outage(self, row: dict) -> None:
+        """An outage's row, in its place among the frames' (kind: outage)."""
+        if self.opts.changes:
+            self.out.write(json.dumps(row) + "\n")
+        else:
+            self._held.append(json.dumps(row) + "\n")
 
     def flush(self) -> None:
         if self._held:
@@ -534,6 +542,9 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
         writer = _WRITERS[opts.fmt](out, opts, columns)
     if isinstance(writer, _Kml):
         writer.name = f"SharedLink tracks: {display_name(Path(path).name)}"
+    if isinstance(writer, _Jsonl) and type(writer) is _Jsonl:  # outage rows (kind: outage, link health)
+        frames = _with_outages(itertools.chain([first] if first is not None else [], frames), writer, result)
+        first = None
     try:
         if first is not None:
             result.rows += writer.write(first)
@@ -548,6 +559,22 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
     if isinstance(writer, (_GeoJson, _Kml)):
         result.points = sum(writer.track.counts.values())
     return result
+
+
+def _with_outages(frames: Iterator[Decoded], writer: _Jsonl, result: ExportResult) -> Iterator[Decoded]:
+    """The frames, an outage's row (analysis/health.py) written before the frame that ends it and
+    the open ones at the end."""
+    from sharedlink.analysis.health import OutageFeed, outage_row
+
+    feed = OutageFeed(writer.opts.outage_after)
+    for d in frames:
+        for o in feed.feed(d):
+            writer.outage(outage_row(o))
+            result.rows += 1
+        yield d
+    for o in feed.finish():
+        writer.outage(outage_row(o))
+        result.rows += 1
 
 
 def export_file(path: str | Path, dest: str | Path, opts: ExportOptions) -> ExportResult:

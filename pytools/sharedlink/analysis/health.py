@@ -388,3 +388,29 @@ def _when(ns: int) -> str:
     import time
 
     return time.strftime("%H:%M:%S", time.gmtime(ns // NS)) + ".%06d" % (ns % NS // 1000)
+
+
+class OutageFeed:
+    """Outages as they end, frame by frame (``export``'s outage rows): :meth:`feed` gives the
+    outages a :class:`~sharedlink.analysis.decode.Decoded` ends, :meth:`finish` the open ones."""
+
+    def __init__(self, outage_after_s: float | None = None) -> None:
+        self.health = Health(outage_after_s)
+
+    def feed(self, d) -> list[Outage]:
+        h = self.health.link(d.conv, d.src, d.dst)
+        n = len(h.outages)
+        feed_decoded(self.health, d)
+        return h.outages[n:] if len(h.outages) > n else []
+
+    def finish(self) -> list[Outage]:
+        before = {id(h): len(h.outages) for h in self.health.links.values()}
+        self.health.finish_once()
+        return sorted((o for h in self.health.links.values() for o in h.outages[before[id(h)]:]),
+                      key=lambda o: (o.start_ns, o.link, o.pair))
+
+
+def outage_row(o: Outage) -> dict:
+    """An outage as an export row of its own (``kind: outage``)."""
+    src, _, dst = o.pair.partition(">")
+    return {"kind": "outage", "src": src, "dst": dst, **o.to_dict()}

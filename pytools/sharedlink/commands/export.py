@@ -15,6 +15,7 @@ from sharedlink.commands import (
     add_decode_options,
     add_force_option,
     add_json_option,
+    add_outage_after_option,
     add_location_options,
     add_output_option,
     add_select_option,
@@ -53,6 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_select_option(p, "variables to export (default: all)")
     add_location_options(p, "geojson/kml (and mcap)")
     add_decode_options(p)
+    add_outage_after_option(p)
     add_json_option(p)
     p.set_defaults(func=run)
 
@@ -82,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     refuse_overwrite(args.output, args.capture)
     opts = ExportOptions(fmt=fmt, changes=args.changes, variables=variables, columns=columns, sync_interval=sync,
                          lat=args.lat, lon=args.lon, heading=args.heading, velocity=args.velocity,
-                         require=_required(fmt, columns, given))
+                         require=_required(fmt, columns, given), outage_after=args.outage_after)
     to_stdout = args.output is None or is_stdout(args.output)
     try:
         with Progress(args.capture, quiet=args.json or to_stdout, what="exporting") as progress:
