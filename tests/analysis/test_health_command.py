@@ -76,3 +76,25 @@ def test_bad_values(cap, tmp_path, args, message):
 def test_missing_capture(tmp_path):
     r = run_cli("health", tmp_path / "none.pcap")
     assert r.returncode == 2 and "Traceback" not in r.stderr
+
+
+def test_plot_breaks_lines_at_outages(cap):
+    """plot: no line across an outage (a NaN point inside it), and the link-quality strip."""
+    import math
+
+    from sharedlink.analysis.plot import QUALITY_LABEL, broken, build_figure, collect
+    from sharedlink.capture.pcapio import NS
+
+    data = collect(cap)
+    outs = data.health.outages()
+    assert len(outs) == 2
+    fig = build_figure(data, ["AutoGpsLat"])
+    assert [ax.get_label() for ax in fig.axes].count(QUALITY_LABEL) == 1
+    (line,) = [ax for ax in fig.axes if ax.get_ylabel() == "AutoGpsLat"][0].get_lines()
+    xs, ys = line.get_xdata(), line.get_ydata()
+    for o in outs:
+        a, b = (o.start_ns - data.t0_ns) / NS, (o.start_ns + o.duration_ns - data.t0_ns) / NS
+        inside = [y for x, y in zip(xs, ys) if a < x < b]
+        assert inside and all(math.isnan(y) for y in inside)
+    ts, vs = broken([0.0, 1.0, 5.0], [1.0, 2.0, 3.0], [(1.0, 5.0)])
+    assert ts == [0.0, 1.0, 3.0, 5.0] and vs[:2] == [1.0, 2.0] and math.isnan(vs[2]) and vs[3] == 3.0

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from sharedlink.analysis.decode import NS, Decoded, iter_decoded
 from sharedlink.analysis.export import LAT, LON
+from sharedlink.analysis.health import Health, feed_decoded, quality
 from sharedlink.capture.pcapio import CaptureError, display_name
 from sharedlink.protocols.codec import guess_value, typed_value
 from sharedlink.protocols.state import BEACON_VARIABLES
@@ -83,6 +84,8 @@ class PlotData:
     tracks: dict[str, PairTrack] = field(default_factory=dict)
     speed_var: str = SPEED
     error: str | None = None
+    #: link health (analysis/health.py): lines broken at outages, the link-quality strip
+    health: Health = field(default_factory=lambda: Health(timeline=True))
 
     @property
     def variables(self) -> list[str]:
@@ -123,10 +126,12 @@ def collect(
         for item in iter_decoded(path, variables, sync_interval, progress=progress):
             if isinstance(item, Decoded):
                 _add(data, item, max_points, gap_factor, lat, lon, speed)
+                feed_decoded(data.health, item)
     except CaptureError as exc:
         if exc.record is None and data.frames == 0:
             raise
         data.error = str(exc)
+    data.health.finish_once()
     return data
 
 
@@ -199,8 +204,9 @@ def build_figure(data: PlotData, variables: Sequence[str] | None = None, title: 
         raise ValueError(f"no numeric values for {', '.join(unknown)} in {data.path} (variables: {have})")
     names = names[:MAX_PANELS]
     n = len(names)
-    fig = Figure(figsize=(10, 6 + 1.7 * n), dpi=100, layout="constrained")
-    gs = fig.add_gridspec(1 + n, 1, height_ratios=[4.5] + [1.5] * n)
+    strip = 1 if data.health.links else 0
+    fig = Figure(figsize=(10, 6 + 1.7 * n + 1.2 * strip), dpi=100, layout="constrained")
+    gs = fig.add_gridspec(1 + n + strip, 1, height_ratios=[4.5] + [1.5] * n + [1.0] * strip)
     ax = fig.add_subplot(gs[0])
     _draw_track(fig, ax, data)
     label = title or display_name(Path(data.path).name)
@@ -213,11 +219,57 @@ def build_figure(data: PlotData, variables: Sequence[str] | None = None, title: 
         vax = fig.add_subplot(gs[1 + i], sharex=first)
         first = first or vax
         _draw_series(vax, data, name)
-        if i < n - 1:
+        if i < n - 1 or strip:
             vax.tick_params(labelbottom=False)
         else:
             vax.set_xlabel("time since the first frame (s)")
+    if strip:
+        qax = fig.add_subplot(gs[1 + n], sharex=first)
+        _draw_quality(qax, data)
+        qax.set_xlabel("time since the first frame (s)")
     return fig
+
+
+#: the link-quality strip's axes label (not a variable panel)
+QUALITY_LABEL = "<link quality>"
+
+
+def _draw_quality(ax, data: PlotData) -> None:
+    """Frames per second per link (Shepherd's link quality while up), outages shaded red."""
+    ax.set_label(QUALITY_LABEL)
+    t0 = (data.t0_ns or 0) / NS
+    many = len(data.health.links) > 1
+    for h in data.health.sorted_links():
+        secs = list(quality(h))
+        ax.step([x.second - t0 for x in secs], [math.nan if x.down_s is not None else x.frames for x in secs],
+                where="post", linewidth=1.0,
+                label=f"{h.link} {h.pair}" if many else None)
+        for o in h.outages:
+            a = (o.start_ns - (data.t0_ns or 0)) / NS
+            ax.axvspan(a, a + o.duration_ns / NS, color="tab:red", alpha=0.3, linewidth=0)
+    n = len(data.health.outages())
+    ax.set_ylabel("frames/s", fontsize="small")
+    ax.set_title(f"link quality ({n} outage{'s' if n != 1 else ''})", loc="left", fontsize="small")
+    ax.grid(True, linewidth=0.3)
+    if many:
+        ax.legend(loc="upper right", fontsize="x-small")
+
+
+def broken(ts: list[float], vs: list[float], spans: list[tuple[float, float]]) -> tuple[list[float], list[float]]:
+    """``ts``/``vs`` with a NaN point inside each outage span that has points on both sides (the
+    line is not drawn across the silence)."""
+    if not spans:
+        return ts, vs
+    import bisect
+
+    out_t, out_v, k = [], [], 0
+    for a, b in sorted(spans):
+        i = bisect.bisect_right(ts, a + 1e-6, lo=k)
+        if 0 < i < len(ts) and ts[i] >= b - 1e-6:  # (b: the next frame's time, to float rounding)
+            out_t += ts[k:i] + [(a + b) / 2]
+            out_v += vs[k:i] + [math.nan]
+            k = i
+    return out_t + ts[k:], out_v + vs[k:]
 
 
 def _draw_track(fig, ax, data: PlotData) -> None:
@@ -286,8 +338,11 @@ def _draw_series(ax, data: PlotData, name: str) -> None:
     for pair, s in by_pair.items():
         cols = s.columns()
         if cols:
-            ax.plot(cols[0], cols[1], drawstyle="steps-post", linewidth=1.0,
-                    label=pair if len(by_pair) > 1 else None)
+            t0_ns = data.t0_ns or 0
+            spans = [((o.start_ns - t0_ns) / NS, (o.start_ns + o.duration_ns - t0_ns) / NS)
+                     for o in data.health.outages() if o.pair == pair]
+            ts, vs = broken(cols[0], cols[1], spans)
+            ax.plot(ts, vs, drawstyle="steps-post", linewidth=1.0, label=pair if len(by_pair) > 1 else None)
     for tr in data.tracks.values():
         g = tr.gaps.columns()
         if g:
