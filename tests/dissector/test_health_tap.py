@@ -163,11 +163,11 @@ def test_expert_in_a_summary_pass(caps):
 
 @pytest.mark.parametrize("name", [*CAPTURES, "open"])
 def test_export_rows_are_stats_outages(caps, name):
-    """export --format jsonl: an outage row (kind: outage) before the frame that ends it, the open
+    """export --format jsonl --outages: an outage row (kind: outage) before the frame that ends it, the open
     ones last; the same outages as stats --json, to the nanosecond of its figures."""
     r = run_cli("stats", "--json", caps[name])
     want = json.loads(r.stdout)["outages"]
-    rows = [json.loads(x) for x in run_cli("export", "--format", "jsonl", caps[name]).stdout.splitlines()]
+    rows = [json.loads(x) for x in run_cli("export", "--format", "jsonl", "--outages", caps[name]).stdout.splitlines()]
     got = [x for x in rows if x["kind"] == "outage"]
     assert sorted(({k: v for k, v in x.items() if k not in ("kind", "src", "dst")} for x in got),
                   key=lambda o: (o["start"], o["link"])) == want

@@ -66,7 +66,8 @@ class ExportOptions:
     velocity: str = VELOCITY  # mcap: the speed variable (LocationFix velocity)
     require: Sequence[str] = ()  # names the capture must carry (csv/jsonl/geojson/kml), else UsageError
     progress: Callable[[int, int], None] | None = None  # called with (bytes read, records) now and then
-    outage_after: float | None = None  # jsonl's outage rows: a fixed threshold (None: learnt; analysis/health.py)
+    outages: bool = False  # jsonl: outage rows (kind: outage, analysis/health.py) among the frames'
+    outage_after: float | None = None  # ... their fixed threshold (None: learnt)
 
 
 @dataclass
@@ -542,7 +543,7 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
         writer = _WRITERS[opts.fmt](out, opts, columns)
     if isinstance(writer, _Kml):
         writer.name = f"SharedLink tracks: {display_name(Path(path).name)}"
-    if isinstance(writer, _Jsonl) and type(writer) is _Jsonl:  # outage rows (kind: outage, link health)
+    if opts.outages and type(writer) is _Jsonl:  # outage rows (kind: outage, link health)
         frames = _with_outages(itertools.chain([first] if first is not None else [], frames), writer, result)
         first = None
     try:
