@@ -93,6 +93,10 @@ local function link_of(pinfo, num, dstb, srcb, d)
     local pair = letter(srcb) .. ">" .. letter(dstb)
     local key = name .. "\t" .. pair
     local L = links[key]
+    if not L and #order >= M.prefs.LIM.max_conversations then   -- (as analysis/health.py's MAX_LINKS)
+        name, pair, key = "(links past the limit)", "*", "*"
+        L = links[key]
+    end
     if not L then
         L = { name = name, pair = pair, frames = 0, win = {}, nwin = 0, wpos = 0, outages = {}, bad = 0, late = 0,
             had_cs = false, cs_missing = 0, fast = false }

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from operator import sub
 
 from sharedlink.capture.pcapio import NS
+from sharedlink.protocols.limits import MAX_CONVERSATIONS
 
 # -- the definition (twin: dissector/sharedlink/health.lua) ------------------------------------
 #: the shortest silence that is an outage under the learnt rule (seconds)
@@ -45,6 +46,10 @@ FLOOR_S = 1.0
 PERIODS = 3
 #: intervals the learnt period is the median of
 WINDOW = 16
+#: links kept apart at most (as the decoder's directions); frames of later ones count under one
+#: link named :data:`OTHER_LINKS` (pair ``*``), as the dissector's (max_conversations)
+MAX_LINKS = MAX_CONVERSATIONS
+OTHER_LINKS = "(links past the limit)"
 #: what the habit note says
 CHECKSUM_HABIT = "checksum missing on a link that carries them"
 
@@ -178,7 +183,12 @@ class Health:
         key = (conv, src, dst)
         h = self.links.get(key)
         if h is None:
-            h = self.links[key] = LinkHealth(link_name(conv), f"{src}>{dst}")
+            if len(self.links) >= MAX_LINKS:
+                key, conv, src, dst = ("", "", "*"), None, "*", ""
+                h = self.links.get(key)
+                if h is not None:
+                    return h
+            h = self.links[key] = LinkHealth(link_name(conv) if conv else OTHER_LINKS, f"{src}>{dst}" if dst else src)
             if self.timeline:
                 h.seconds = Counter()
         return h
@@ -414,3 +424,13 @@ def outage_row(o: Outage) -> dict:
     """An outage as an export row of its own (``kind: outage``)."""
     src, _, dst = o.pair.partition(">")
     return {"kind": "outage", "src": src, "dst": dst, **o.to_dict()}
+
+
+def live_down_s(h: LinkHealth, now_ns: int, fixed_ns: int | None = None) -> float | None:
+    """``watch``: the seconds since the link's last frame when that silence is an outage now (the
+    link's threshold, :data:`FLOOR_S` before it has one), else None."""
+    if h.last_ns is None:
+        return None
+    gap = now_ns - h.last_ns
+    limit = h.threshold_ns(fixed_ns)
+    return gap / NS if gap > (limit if limit is not None else int(FLOOR_S * NS)) else None
