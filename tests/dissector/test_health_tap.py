@@ -177,3 +177,24 @@ def test_export_rows_are_stats_outages(caps, name):
             assert nxt["ts_ns"] / NS == pytest.approx(x["end"], abs=1e-6)
     if name == "open":
         assert rows[-1]["kind"] == "outage" and rows[-1]["end"] is None
+
+
+@pytest.mark.parametrize("name", ["5Hz-two-outages", "lossy", "open"])
+def test_export_csv_rows_are_stats_outages(caps, name):
+    """export --format csv --outages: a row of kind outage (its start's time, the frame that ends
+    it, its duration_s) per outage of stats --json; frame rows as without --outages otherwise."""
+    import csv
+    import io
+
+    want = json.loads(run_cli("stats", "--json", caps[name]).stdout)["outages"]
+    rows = list(csv.DictReader(io.StringIO(run_cli("export", "--format", "csv", "--outages", caps[name]).stdout)))
+    got = [r for r in rows if r["kind"] == "outage"]
+    assert len(got) == len(want)
+    got.sort(key=lambda r: (int(r["ts_ns"]), r["src"]))
+    for r, o in zip(got, want):  # (stats' epoch seconds are a double: its start to the microsecond)
+        assert (f'{r["src"]}>{r["dst"]}', float(r["duration_s"]), r["number"] == "") == (
+            o["pair"], o["duration_s"], o["end"] is None)
+        assert abs(int(r["ts_ns"]) / NS - o["start"]) < 1e-6
+    plain = list(csv.DictReader(io.StringIO(run_cli("export", "--format", "csv", caps[name]).stdout)))
+    frames = [{k: v for k, v in r.items() if k != "duration_s"} for r in rows if r["kind"] != "outage"]
+    assert frames == plain

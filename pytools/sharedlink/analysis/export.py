@@ -66,7 +66,7 @@ class ExportOptions:
     velocity: str = VELOCITY  # mcap: the speed variable (LocationFix velocity)
     require: Sequence[str] = ()  # names the capture must carry (csv/jsonl/geojson/kml), else UsageError
     progress: Callable[[int, int], None] | None = None  # called with (bytes read, records) now and then
-    outages: bool = False  # jsonl: outage rows (kind: outage, analysis/health.py) among the frames'
+    outages: bool = False  # jsonl, csv: outage rows (kind: outage, analysis/health.py) among the frames'
     outage_after: float | None = None  # ... their fixed threshold (None: learnt)
 
 
@@ -203,7 +203,26 @@ class _Csv(_Writer):
             self.w = csv.writer(_Pieces(self.pieces), lineterminator="\n")
             return
         self.w = csv.writer(out, lineterminator="\n")
-        self.w.writerow(CHANGE_COLUMNS if opts.changes else FRAME_COLUMNS + columns)
+        self.w.writerow(CHANGE_COLUMNS if opts.changes else self.head() + columns)
+
+    def head(self) -> list[str]:
+        """The frame columns (with ``--outages`` one more: an outage row's ``duration_s``)."""
+        return FRAME_COLUMNS + (["duration_s"] if self.opts.outages else [])
+
+    def outage(self, row: dict) -> None:
+        """An outage's row (kind ``outage``): the frame that ends it (none when open), its start's
+        time, the pair's letters, its duration; no values."""
+        if self.t0 is None:
+            self.t0 = row["start_ns"]
+        ts = row["start_ns"]
+        vals = [row["number"] if row["number"] is not None else "", format_time(ts), ts, round((ts - self.t0) / 1e9, 9),
+                row["src"], row["dst"], "outage", "", repr(row["duration_s"])]
+        if self.learn:
+            runs = self.runs
+            if runs[-1][0] != len(self.columns):
+                runs.append([len(self.columns), 0])
+            runs[-1][1] += 1
+        self.w.writerow(vals + [""] * len(self.columns))
 
     def write(self, d: Decoded) -> int:
         if self.opts.changes:
@@ -230,6 +249,8 @@ class _Csv(_Writer):
         vars_ = d.table.vars
         vals = [d.number, format_time(ts), ts, round((ts - self.t0) / 1e9, 9), d.src, d.dst, d.kind,
                 "none" if ok is None else ("good" if ok else "bad")]
+        if self.opts.outages:
+            vals.append("")
         add = vals.append
         for name in self.columns:
             v = vars_.get(name)
@@ -247,7 +268,7 @@ class _Csv(_Writer):
         self._spill()
         self.spool.seek(0)
         out, width = self.out, len(self.columns)
-        csv.writer(out, lineterminator="\n").writerow(FRAME_COLUMNS + self.columns)
+        csv.writer(out, lineterminator="\n").writerow(self.head() + self.columns)
         with io.TextIOWrapper(self.spool, encoding="utf-8", newline="") as rows:
             pad = csv.writer(out, lineterminator="\n")
             reader = csv.reader(rows)
@@ -543,7 +564,7 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
         writer = _WRITERS[opts.fmt](out, opts, columns)
     if isinstance(writer, _Kml):
         writer.name = f"SharedLink tracks: {display_name(Path(path).name)}"
-    if opts.outages and type(writer) is _Jsonl:  # outage rows (kind: outage, link health)
+    if opts.outages and type(writer) in (_Jsonl, _Csv):  # outage rows (kind: outage, link health)
         frames = _with_outages(itertools.chain([first] if first is not None else [], frames), writer, result)
         first = None
     try:
@@ -562,20 +583,26 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
     return result
 
 
-def _with_outages(frames: Iterator[Decoded], writer: _Jsonl, result: ExportResult) -> Iterator[Decoded]:
+def _with_outages(frames: Iterator[Decoded], writer: _Jsonl | _Csv, result: ExportResult) -> Iterator[Decoded]:
     """The frames, an outage's row (analysis/health.py) written before the frame that ends it and
     the open ones at the end."""
     from sharedlink.analysis.health import OutageFeed, outage_row
 
     feed = OutageFeed(writer.opts.outage_after)
+    csv_ = isinstance(writer, _Csv)
     for d in frames:
         for o in feed.feed(d):
-            writer.outage(outage_row(o))
+            writer.outage(_csv_row(o, d.number) if csv_ else outage_row(o))
             result.rows += 1
         yield d
     for o in feed.finish():
-        writer.outage(outage_row(o))
+        writer.outage(_csv_row(o, None) if csv_ else outage_row(o))
         result.rows += 1
+
+
+def _csv_row(o, number: int | None) -> dict:
+    src, _, dst = o.pair.partition(">")
+    return {"number": number, "start_ns": o.start_ns, "src": src, "dst": dst, "duration_s": o.duration_ns / 1e9}
 
 
 def export_file(path: str | Path, dest: str | Path, opts: ExportOptions) -> ExportResult:

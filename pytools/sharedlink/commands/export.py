@@ -55,7 +55,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_location_options(p, "geojson/kml (and mcap)")
     add_decode_options(p)
     p.add_argument("--outages", action="store_true",
-                   help="jsonl: each outage of a link as a row of its own (kind: outage) before the frame that ends it")
+                   help="jsonl, csv: each outage of a link as a row of its own (kind: outage) before the frame that ends it "
+                   "(csv: a duration_s column after checksum)")
     add_outage_after_option(p)
     add_json_option(p)
     p.set_defaults(func=run)
@@ -83,8 +84,9 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--format {fmt} is binary: give the file with -o")
         if args.changes or columns is not None:
             raise UsageError(f"--format {fmt} writes every frame and variable: no --changes or --select")
-    if args.outages and fmt != "jsonl":
-        raise UsageError(f"--outages: outage rows are written in --format jsonl only (not {fmt})")
+    if args.outages and (fmt not in ("jsonl", "csv") or (fmt == "csv" and args.changes)):
+        raise UsageError(f"--outages: outage rows are written in --format jsonl or csv (csv: not with --changes), not {fmt}"
+                         + (" --changes" if args.changes else ""))
     refuse_overwrite(args.output, args.capture)
     opts = ExportOptions(fmt=fmt, changes=args.changes, variables=variables, columns=columns, sync_interval=sync,
                          lat=args.lat, lon=args.lon, heading=args.heading, velocity=args.velocity,
