@@ -1,6 +1,7 @@
 """The package layout pyproject.toml cannot say: pytools/sharedlink with its subpackages, and
 the repository's dissector/ and extcap/ folders as the package data folders
-sharedlink/dissector (every *.lua, subfolders included, and the coloring rules) and
+sharedlink/dissector (every *.lua, subfolders included, the coloring rules and the configuration
+profile's files, profile/*) and
 sharedlink/extcap_launcher (sharedlink.wireshark finds them there when installed, and in the
 checkout when run from it)."""
 
@@ -19,7 +20,7 @@ setup(
     package_dir={"": "pytools", "sharedlink.dissector": "dissector", "sharedlink.extcap_launcher": "extcap"},
     package_data={
         **{pkg: ["*.lua"] for pkg in LUA_PACKAGES},
-        "sharedlink.dissector": ["*.lua", "sharedlink.colorfilters"],
+        "sharedlink.dissector": ["*.lua", "sharedlink.colorfilters", "profile/*"],
         "sharedlink.extcap_launcher": ["sharedlink-serial"],
     },
 )

@@ -130,7 +130,7 @@ do
     local here = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
     local TOKEN = { sharedlink_module = true }
     for _, name in ipairs({ "util", "wsapi", "fields", "prefs", "records", "parse", "state", "info", "tree",
-        }) do
+        "health" }) do
         M[name] = assert(loadfile(here .. "sharedlink/" .. name .. ".lua"))(TOKEN, M)
     end
 end
@@ -140,6 +140,7 @@ local tostring, type, B_LBRACK, B_RBRACK = tostring, type, U.B_LBRACK, U.B_RBRAC
 local B_PIPE, B_COLON, B_CR, B_LF = U.B_PIPE, U.B_COLON, U.B_CR, U.B_LF
 local B_A, B_P = U.B_A, U.B_P
 local Pm, S, I, T, R = M.parse, M.state, M.info, M.tree, M.records
+local health_frame, health_mark = M.health.frame, M.health.mark
 local P = Pm.P
 local PG, TI = M.wsapi.PG, M.wsapi.TI
 local parse_frame, kind_of_fields, bylen = Pm.parse_frame, Pm.kind_of_fields, Pm.bylen
@@ -160,6 +161,7 @@ function sl.init()
     Pm.reset()
     cfg.reset()
     cfg.read()
+    M.health.reset()
 end
 
 -- A frame the parser took (not a layout's): the kind its fields tell (nil: a data frame, full or
@@ -228,6 +230,9 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
     if visited then state = state_later_pass end
     local kind, rec, list, d, miss_n, ne, nm = state(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree,
         fkind, is_data, addrs_ok)
+    -- link health (health.lua): the outage this frame ends, if any, marked on every pass
+    local gone = health_frame(pinfo, num, sk, dstb, srcb, d, visited, cs_status, rec, kind)
+    if gone then health_mark(tree, root, gone) end
 
     -- Info: the piece of the payload's first frame from its layout's Info code, which the packet's
     -- Info is when no other frame follows (dissect writes it: speed trick, measured); else info.lua's

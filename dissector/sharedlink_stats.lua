@@ -250,6 +250,9 @@ local function render(st, filter)
         rows[#rows + 1] = { v.pair, v.name, tostring(v.count), one_line(v.last or "") }
     end
     table_lines(out, rows, { "l", "l", "r", "l" })
+    -- link health (the dissector's health module: every frame of the first pass, whatever the filter)
+    local health = package.loaded["sharedlink.health"]
+    if health then health.report(out, table_lines) end
     line("===================================================================")
     return t_concat(out, "\n")
 end

@@ -31,7 +31,7 @@ with quiet_interrupt():  # Ctrl-C while the command loads: exit 130, no tracebac
 
 #: sub-command modules, in the order ``--help`` lists them
 COMMANDS = [
-    "gen", "replay", "serial", "compress", "expand", "diff", "stats", "export", "plot", "lists", "watch",
+    "gen", "replay", "serial", "compress", "expand", "diff", "stats", "health", "export", "plot", "lists", "watch",
     "ingest", "query", "plugins", "completion",
 ]
 

@@ -190,6 +190,46 @@ def uninstall(f: Folders) -> Report:
     return report
 
 
+#: the configuration profile ``install --profile`` makes (issue 43): its name and files
+PROFILE = "SharedLink"
+PROFILE_FILES = ("preferences", "dfilter_buttons", "colorfilters")
+
+
+def profile_dir(f: Folders) -> Path:
+    return f.config / "profiles" / PROFILE
+
+
+def install_profile(f: Folders) -> Report:
+    """The SharedLink profile (columns, filter buttons, coloring rules with the outage rule) into
+    ``<Personal configuration>/profiles/SharedLink`` (Edit > Configuration Profiles)."""
+    report = Report()
+    dest = profile_dir(f)
+    try:
+        dest.mkdir(parents=True, exist_ok=True)
+        for name in PROFILE_FILES:
+            _write(dest / name, (dissector_dir() / "profile" / name).read_text())
+    except OSError as exc:
+        raise PluginsError(f"{exc.filename or ''}: {exc.strerror or exc}") from None
+    report.add(f"installed the {PROFILE} configuration profile into {dest}")
+    return report
+
+
+def uninstall_profile(f: Folders) -> Report:
+    """The profile's files out again (the folder too when nothing else is in it)."""
+    report = Report()
+    dest = profile_dir(f)
+    try:
+        gone = [n for n in PROFILE_FILES if (dest / n).is_file()]
+        for n in gone:
+            (dest / n).unlink()
+        if dest.is_dir() and not any(dest.iterdir()):
+            dest.rmdir()
+    except OSError as exc:
+        raise PluginsError(f"{exc.filename or ''}: {exc.strerror or exc}") from None
+    report.add(f"removed the {PROFILE} configuration profile from {dest}" if gone else f"no {PROFILE} profile in {dest}")
+    return report
+
+
 def paths(f: Folders) -> dict[str, str]:
     """Where the files come from and where install puts them."""
     return {
@@ -198,4 +238,5 @@ def paths(f: Folders) -> dict[str, str]:
         "plugins": str(f.plugins),
         "extcap": str(f.extcap / EXTCAP_NAME),
         "colorfilters": str(f.colorfilters),
+        "profile": str(profile_dir(f)),
     }

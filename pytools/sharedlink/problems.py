@@ -35,6 +35,7 @@ problem("checksum", "bad checksum", "bad checksums", lambda st: st.checksum_fail
 #: a full set more than the sync interval + 0.5 s after the one before (``sync_gaps``); a capture
 #: whose frames went on while a full set was overdue and none came (``sync_late`` only) has one
 problem("late", "late full set", "late full sets", lambda st: max(st.sync_gaps, 1 if st.sync_late else 0))
+problem("outage", "outage", "outages", lambda st: len(st.health.outages()))
 
 
 def failures(names: tuple[str, ...], st: Any) -> str | None:

@@ -645,9 +645,15 @@ class LiveView:
         self.frames = 0
         self.unshown = 0  # frames of directions past MAX_CONVERSATIONS (counted, not shown)
         self.stats = WatchStats()  # the loop's counts (noise, dropped, limits)
+        from sharedlink.analysis.health import Health
+
+        self.health = Health()  # link health (analysis/health.py): outages, live
 
     def update(self, d: Decoded) -> None:
+        from sharedlink.analysis.health import feed_decoded
+
         key = (d.conv, d.src, d.dst)
+        feed_decoded(self.health, d)
         st = self.dirs.get(key)
         if st is None:
             if len(self.dirs) >= MAX_CONVERSATIONS:  # as the decoder: a direction past it keeps no state
@@ -727,6 +733,7 @@ class LiveView:
                 line.append(f"{label} {count(n)}", style="bold white on red" if now_ns - at < hl else ("red" if n else ""))
                 line.append("  ")
             line.append(f"last frame {_age(now_ns - st.last_ns)} ago")
+            self._link_quality(line, st, now_ns)
             parts += [head, line]
             t = Table(box=None, pad_edge=False, show_header=True, header_style="dim")
             t.add_column("variable")
@@ -745,6 +752,20 @@ class LiveView:
             parts.append(t)
             room -= 3 + min(len(st.vars), rows)
         return Group(*parts)
+
+
+    def _link_quality(self, line: Any, st: DirStat, now_ns: int) -> None:
+        """Link health's live line: the direction's outages, and while one lasts how long."""
+        from sharedlink.analysis.health import live_down_s
+
+        h = self.health.links.get((st.conv, *st.pair.split(">")))
+        if h is None:
+            return
+        down = live_down_s(h, now_ns)
+        n = len(h.outages) + (1 if down is not None else 0)
+        line.append(f"  outages {n}", style="red" if n else "")
+        if down is not None:
+            line.append(f"  LINK DOWN {down:.1f} s", style="bold white on red")
 
 
 def _age(ns: int) -> str:

@@ -41,7 +41,7 @@ def captures(tmp_path_factory) -> dict[str, Path]:
 
 
 def panels(fig) -> list:
-    return [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    return [ax for ax in fig.axes if ax.get_label() not in ("<colorbar>", "<link quality>")]
 
 
 def viridis_pixels(img: np.ndarray) -> int:
@@ -103,7 +103,7 @@ def test_png_is_a_real_image(captures, tmp_path):
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     img = mpimg.imread(str(out))
     h, w = img.shape[:2]
-    assert (w, h) == (1000, 1360)  # 10 in x (6.8 + 4 * 1.7) in at 100 dpi
+    assert (w, h) == (1000, 1480)  # 10 in x (6.8 + 4 * 1.7 + 1.2: the link-quality strip) in at 100 dpi
     assert viridis_pixels(img) > 2000  # the track's colours are there
     # the marker colours too: red crosses (checksum failures), orange rings (dropped frames)
     rgb = img[..., :3]
@@ -115,7 +115,7 @@ def test_png_is_a_real_image(captures, tmp_path):
     assert r.returncode == 0, r.stderr
     assert '"panels": 2' in r.stdout
     img2 = mpimg.imread(str(out2))
-    assert img2.shape[:2] == (850, 1000) and viridis_pixels(img2) > 2000
+    assert img2.shape[:2] == (970, 1000) and viridis_pixels(img2) > 2000
 
 
 def test_plot_bad_input(captures, tmp_path):

@@ -164,6 +164,8 @@ def tap_stats(path: Path, flt: str = "", prefs: dict | None = None) -> dict:
             else:
                 parts = line.split(None, 3)
                 out["vars"][(parts[0].replace("→", ">"), parts[1])] = (int(parts[2]), parts[3] if len(parts) > 3 else "")
+        elif not line.startswith("  "):  # (a section of its own: link health, tests/dissector/test_health_tap.py)
+            section = None
     return out
 
 

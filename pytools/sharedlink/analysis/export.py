@@ -74,6 +74,8 @@ class ExportOptions:
     velocity: str = VELOCITY  # mcap: the speed variable (LocationFix velocity)
     require: Sequence[str] = ()  # names the capture must carry (csv/jsonl/geojson/kml), else UsageError
     progress: Callable[[int, int], None] | None = None  # called with (bytes read, records) now and then
+    outages: bool = False  # jsonl, csv: outage rows (kind: outage, analysis/health.py) among the frames'
+    outage_after: float | None = None  # ... their fixed threshold (None: learnt)
 
 
 @dataclass
@@ -234,7 +236,26 @@ class _Csv(_Writer):
             self.w = csv.writer(_Pieces(self.pieces), lineterminator="\n")
             return
         self.w = csv.writer(out, lineterminator="\n")
-        self.w.writerow(CHANGE_COLUMNS if opts.changes else FRAME_COLUMNS + columns)
+        self.w.writerow(CHANGE_COLUMNS if opts.changes else self.head() + columns)
+
+    def head(self) -> list[str]:
+        """The frame columns (with ``--outages`` one more: an outage row's ``duration_s``)."""
+        return FRAME_COLUMNS + (["duration_s"] if self.opts.outages else [])
+
+    def outage(self, row: dict) -> None:
+        """An outage's row (kind ``outage``): the frame that ends it (none when open), its start's
+        time, the pair's letters, its duration; no values."""
+        if self.t0 is None:
+            self.t0 = row["start_ns"]
+        ts = row["start_ns"]
+        vals = [row["number"] if row["number"] is not None else "", format_time(ts), ts, round((ts - self.t0) / 1e9, 9),
+                row["src"], row["dst"], "outage", "", repr(row["duration_s"])]
+        if self.learn:
+            runs = self.runs
+            if runs[-1][0] != len(self.columns):
+                runs.append([len(self.columns), 0])
+            runs[-1][1] += 1
+        self.w.writerow(vals + [""] * len(self.columns))
 
     def write(self, d: Decoded) -> int:
         if self.opts.changes:
@@ -261,6 +282,8 @@ class _Csv(_Writer):
         vars_ = row_vars(d)
         vals = [d.number, format_time(ts), ts, round((ts - self.t0) / 1e9, 9), d.src, d.dst, d.kind,
                 "none" if ok is None else ("good" if ok else "bad")]
+        if self.opts.outages:
+            vals.append("")
         add = vals.append
         for name in self.columns:
             v = vars_.get(name)
@@ -278,7 +301,7 @@ class _Csv(_Writer):
         self._spill()
         self.spool.seek(0)
         out, width = self.out, len(self.columns)
-        csv.writer(out, lineterminator="\n").writerow(FRAME_COLUMNS + self.columns)
+        csv.writer(out, lineterminator="\n").writerow(self.head() + self.columns)
         with io.TextIOWrapper(self.spool, encoding="utf-8", newline="") as rows:
             pad = csv.writer(out, lineterminator="\n")
             reader = csv.reader(rows)
@@ -316,6 +339,13 @@ class _Jsonl(_Writer):
         if len(held) >= _HELD_LINES:
             self.flush()
         return 1
+
+    def outage(self, row: dict) -> None:
+        """An outage's row, in its place among the frames' (kind: outage)."""
+        if self.opts.changes:
+            self.out.write(json.dumps(row) + "\n")
+        else:
+            self._held.append(json.dumps(row) + "\n")
 
     def flush(self) -> None:
         if self._held:
@@ -584,6 +614,9 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
             robots = writer.robots = RobotTrack()
         else:
             robots = RobotJsonl(writer._held, writer.flush) if isinstance(writer, _Jsonl) else RobotCsv()
+    if opts.outages and type(writer) in (_Jsonl, _Csv):  # outage rows (kind: outage, link health)
+        frames = _with_outages(itertools.chain([first] if first is not None else [], frames), writer, result)
+        first = None
     try:
         for d in itertools.chain(() if first is None else (first,), frames):
             if type(d) is SessionMessage:
@@ -607,6 +640,31 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
     if isinstance(writer, (_GeoJson, _Kml)):
         result.points = sum(writer.track.counts.values()) + (robots.points if isinstance(robots, RobotTrack) else 0)
     return result
+
+
+def _with_outages(frames: Iterator[Decoded], writer: _Jsonl | _Csv, result: ExportResult) -> Iterator[Decoded]:
+    """The frames, an outage's row (analysis/health.py) written before the frame that ends it and
+    the open ones at the end."""
+    from sharedlink.analysis.health import OutageFeed, outage_row
+
+    feed = OutageFeed(writer.opts.outage_after)
+    csv_ = isinstance(writer, _Csv)
+    for d in frames:
+        if type(d) is SessionMessage:  # a P2OS/blackboard packet: no SharedLink link's frame
+            yield d
+            continue
+        for o in feed.feed(d):
+            writer.outage(_csv_row(o, d.number) if csv_ else outage_row(o))
+            result.rows += 1
+        yield d
+    for o in feed.finish():
+        writer.outage(_csv_row(o, None) if csv_ else outage_row(o))
+        result.rows += 1
+
+
+def _csv_row(o, number: int | None) -> dict:
+    src, _, dst = o.pair.partition(">")
+    return {"number": number, "start_ns": o.start_ns, "src": src, "dst": dst, "duration_s": o.duration_ns / 1e9}
 
 
 def export_file(path: str | Path, dest: str | Path, opts: ExportOptions) -> ExportResult:

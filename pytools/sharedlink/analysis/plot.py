@@ -36,6 +36,7 @@ from pathlib import Path
 
 from sharedlink.analysis.decode import NS, Columns, Decoded, Decoder, DirColumns
 from sharedlink.analysis.export import LAT, LON
+from sharedlink.analysis.health import Health, feed_decoded, quality
 from sharedlink.analysis.robot_plot import RobotPlotData
 from sharedlink.analysis.robots import RobotLinks
 from sharedlink.analysis.sessions import SessionMessage
@@ -141,6 +142,8 @@ class PlotData:
     speed_var: str = SPEED
     error: str | None = None
     robots: RobotPlotData = field(default_factory=RobotPlotData)  # P2OS, blackboard (robot_plot.py)
+    #: link health (analysis/health.py): lines broken at outages, the link-quality strip
+    health: Health = field(default_factory=lambda: Health(timeline=True))
 
     @property
     def variables(self) -> list[str]:
@@ -206,14 +209,17 @@ def collect(
             if isinstance(item, Columns):
                 for c in sorted(item.dirs.values(), key=lambda c: c.ts_ns[0] if c.ts_ns else 0):
                     _add_columns(data, c, names)
+                    data.health.run(data.health.link(c.conv, c.src, c.dst), c.ts_ns, sum(c.late))
             elif isinstance(item, Decoded):
                 _add(data, item, names)
+                feed_decoded(data.health, item)
             elif type(item) is SessionMessage:
                 data.robots.add(item)
     except CaptureError as exc:
         if exc.record is None and data.frames == 0 and data.robots.packets == 0:
             raise
         data.error = str(exc)
+    data.health.finish_once()
     return data
 
 
@@ -424,8 +430,9 @@ def build_figure(data: PlotData, variables: Sequence[str] | None = None, title: 
         raise ValueError(f"no numeric values for {', '.join(unknown)} in {data.path} (variables: {have})")
     names = names[:MAX_PANELS]
     n = len(names)
-    fig = Figure(figsize=(10, 6.8 + 1.7 * n), dpi=100, layout="constrained")
-    gs = fig.add_gridspec(2 + n, 1, height_ratios=[4.5] + [1.5] * n + [0.8])
+    strip = 1 if data.health.links else 0
+    fig = Figure(figsize=(10, 6.8 + 1.7 * n + 1.2 * strip), dpi=100, layout="constrained")
+    gs = fig.add_gridspec(2 + n + strip, 1, height_ratios=[4.5] + [1.5] * n + [1.0] * strip + [0.8])
     ax = fig.add_subplot(gs[0])
     colours = _pair_colours(data)
     _draw_track(fig, ax, data)
@@ -437,7 +444,11 @@ def build_figure(data: PlotData, variables: Sequence[str] | None = None, title: 
         first = first or vax
         _draw_series(vax, data, name, axis, colours)
         vax.tick_params(labelbottom=False)
-    eax = fig.add_subplot(gs[1 + n], sharex=first)
+    if strip:
+        qax = fig.add_subplot(gs[1 + n], sharex=first)
+        _draw_quality(qax, data, axis)
+        qax.tick_params(labelbottom=False)
+    eax = fig.add_subplot(gs[1 + n + strip], sharex=first)
     eax.set_label("events")
     _draw_events(eax, data, axis)
     axis.style(eax)
@@ -473,6 +484,49 @@ def _marker_label(what: str, seen: int, drawn: int, suffix: str) -> str:
         return f"{what} ({count(seen)}{shown}){suffix}"
     shown = f", {count(drawn)} drawn" if drawn < seen else ""
     return f"{what} ({count(seen)} {places}{shown}){suffix}"
+
+
+#: the link-quality strip's axes label (not a variable panel)
+QUALITY_LABEL = "<link quality>"
+
+
+def _draw_quality(ax, data: PlotData, axis: TimeAxis) -> None:
+    """Frames per second per link (Shepherd's link quality while up), outages shaded red."""
+    ax.set_label(QUALITY_LABEL)
+    t0 = (data.t0_ns or 0) / NS
+    many = len(data.health.links) > 1
+    for h in data.health.sorted_links():
+        secs = list(quality(h))
+        ax.step(axis.x([x.second - t0 for x in secs]), [math.nan if x.down_s is not None else x.frames for x in secs],
+                where="post", linewidth=1.0,
+                label=f"{h.link} {h.pair}" if many else None)
+        for o in h.outages:
+            a = (o.start_ns - (data.t0_ns or 0)) / NS
+            x0, x1 = axis.x((a, a + o.duration_ns / NS))
+            ax.axvspan(x0, x1, color="tab:red", alpha=0.3, linewidth=0)
+    n = len(data.health.outages())
+    ax.set_ylabel("frames/s", fontsize="small")
+    ax.set_title(f"link quality ({n} outage{'s' if n != 1 else ''})", loc="left", fontsize="small")
+    ax.grid(True, linewidth=0.3)
+    if many:
+        ax.legend(loc="upper right", fontsize="x-small")
+
+
+def broken(ts: list[float], vs: list[float], spans: list[tuple[float, float]]) -> tuple[list[float], list[float]]:
+    """``ts``/``vs`` with a NaN point inside each outage span that has points on both sides (the
+    line is not drawn across the silence)."""
+    if not spans:
+        return ts, vs
+    import bisect
+
+    out_t, out_v, k = [], [], 0
+    for a, b in sorted(spans):
+        i = bisect.bisect_right(ts, a + 1e-6, lo=k)
+        if 0 < i < len(ts) and ts[i] >= b - 1e-6:  # (b: the next frame's time, to float rounding)
+            out_t += ts[k:i] + [(a + b) / 2]
+            out_v += vs[k:i] + [math.nan]
+            k = i
+    return out_t + ts[k:], out_v + vs[k:]
 
 
 def _draw_track(fig, ax, data: PlotData) -> None:
@@ -552,7 +606,11 @@ def _draw_series(ax, data: PlotData, name: str, axis: TimeAxis, colours: dict[st
     for pair, s in by_pair.items():
         cols = s.columns()
         if cols:
-            ax.plot(axis.x(cols[0]), cols[1], drawstyle="steps-post", linewidth=1.0, color=colours.get(pair))
+            t0_ns = data.t0_ns or 0
+            spans = [((o.start_ns - t0_ns) / NS, (o.start_ns + o.duration_ns - t0_ns) / NS)
+                     for o in data.health.outages() if o.pair == pair]
+            ts, vs = broken(cols[0], cols[1], spans)  # no line across an outage
+            ax.plot(axis.x(ts), vs, drawstyle="steps-post", linewidth=1.0, color=colours.get(pair))
     for tr in data.tracks.values():  # a few events: where they are; many: the events strip alone
         if 0 < tr.gaps.seen <= MAX_MARKERS:
             for t0, t1, *_ in tr.gaps.rows:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 from sharedlink.analysis.sessions import Ack, SessionMessage
 from sharedlink.capture.pcapio import NS
-from sharedlink.present import COUNT, PROSE, TEXT, Column, Table
+from sharedlink.present import Table, text_table
 from sharedlink.protocols import blackboard, p2os
 
 #: a SIP interval longer than this is a gap (the robot sends one every 100 ms by default)
@@ -349,18 +349,5 @@ def robot_tables(rs: RobotStats) -> list[Table]:
         out.append(("Blackboard statistics", ["", ""], summary))
         out.append(("Blackboard messages per type", ["side", "type", "messages"],
                     [[t["side"], t["type"], str(t["messages"])] for t in b["types"]]))
-    return [_table(*t) for t in out]
+    return [text_table(*t) for t in out]
 
-
-def _table(title: str, headers: list[str], rows: list[list[str]]) -> Table:
-    """A section as a :class:`~sharedlink.present.Table`: a column of whole numbers as counts
-    (right-aligned, one thousands-separator rule), the rest as text; a names-and-values list
-    without headers."""
-    def counts(i: int) -> bool:
-        return bool(rows) and all(r[i].isdigit() for r in rows)
-
-    kinds = [COUNT if i and counts(i) else (PROSE if i else TEXT) for i in range(len(headers))]
-    t = Table(title, [Column(h, k) for h, k in zip(headers, kinds)], header=any(headers))
-    for r in rows:
-        t.add(*(int(x) if k == COUNT else x for x, k in zip(r, kinds)))
-    return t

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Counted, Decoded, Decoder
+from sharedlink.analysis.health import Health, feed_counted, feed_decoded, health_dict, health_table
 from sharedlink.analysis.malformed import PIECE, other_protocol, talk_key, unframed_pieces
 from sharedlink.analysis.robot_stats import RobotStats, robot_tables
 from sharedlink.analysis.robots import ROBOT_PROTOCOLS, RobotLinks
@@ -143,6 +144,7 @@ class CaptureStats:
     error: str | None = None  # the capture is damaged here (everything before it is counted)
     limits: LimitCounts = field(default_factory=LimitCounts)  # input dropped at a bound (limits.py)
     robots: RobotStats = field(default_factory=RobotStats, compare=False)  # P2OS, blackboard (robot_stats.py)
+    health: Health = field(default_factory=Health)  # link health (analysis/health.py), fed by add and add_counts
     _full: dict[int, _FullSize] = field(default_factory=dict, repr=False, compare=False)  # per table
 
     @property
@@ -189,6 +191,7 @@ class CaptureStats:
             "limits": self.limits.to_dict(),
             "error": self.error,
             **self.robots.to_dict(),  # "p2os", "blackboard": where present
+            **health_dict(self.health.finish_once(self.last_ns)),
         }
 
     # -- accumulation --------------------------------------------------------------------
@@ -197,6 +200,7 @@ class CaptureStats:
         size = len(d.raw)
         ts = d.ts_ns
         kind = d.kind
+        feed_decoded(self.health, d)
         self.frames += 1
         self.bytes += size
         kinds = self.kinds
@@ -306,6 +310,7 @@ class CaptureStats:
         good full and delta frames in the named form, the same sums as :meth:`add` of each."""
         limit = self.sync_interval + SYNC_SLACK_S
         variables = self.variables
+        feed_counted(self.health, batch)
         for c in batch.dirs.values():
             pair = c.pair
             self.frames += c.frames
@@ -464,10 +469,12 @@ def capture_stats(
     variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES,
     sync_interval: float = 1.0,
     progress: Callable[[int, int], None] | None = None,
+    outage_after: float | None = None,
 ) -> CaptureStats:
     """Statistics of one capture (``progress(bytes read, records)`` is called now and then). A damaged file gives the statistics of everything before
-    the damage with ``error`` set; a missing or unreadable one raises CaptureError."""
-    st = CaptureStats(path=str(path), sync_interval=sync_interval)
+    the damage with ``error`` set; a missing or unreadable one raises CaptureError. ``outage_after``:
+    link health's fixed outage threshold in seconds (None: learnt from each link's rate)."""
+    st = CaptureStats(path=str(path), sync_interval=sync_interval, health=Health(outage_after))
     dec = Decoder(variables, sync_interval, carried=False)  # stats reads only what frames carry
     st.limits = dec.limits
     dec.robots = RobotLinks(messages=True)  # type: ignore[attr-defined]  # P2OS and blackboard too
@@ -508,6 +515,7 @@ def capture_stats(
         counts = st.other_protocols.setdefault(name, [0, 0])
         counts[0] += n
         counts[1] += b
+    st.health.finish_once(st.last_ns)
     return st
 
 
@@ -563,7 +571,7 @@ def tables(st: CaptureStats) -> list[Table]:
     if st.frames == 0 and st.robots.packets:  # a P2OS or blackboard capture: no empty SharedLink tables
         summary.title = f"Capture statistics: {st.path}"
         return [summary, *robot_tables(st.robots)]
-    return [summary, kinds, pairs, variables, *robot_tables(st.robots)]
+    return [summary, kinds, pairs, variables, *robot_tables(st.robots), *health_table(st.health.finish_once(st.last_ns))]
 
 
 def render_text(st: CaptureStats) -> str:

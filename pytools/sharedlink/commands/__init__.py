@@ -335,6 +335,13 @@ def add_json_option(p: argparse.ArgumentParser | Any, what: str = "the summary")
     p.add_argument("--json", action="store_true", help=f"print {what} as JSON on standard output")
 
 
+def add_outage_after_option(p: argparse.ArgumentParser | Any) -> None:
+    """``--outage-after S``: link health's fixed outage threshold (issue 43; default: learnt)."""
+    p.add_argument("--outage-after", type=number(0, 86_400, above=True, unit="seconds"), default=None, metavar="S",
+                   help="a silence longer than S seconds is an outage (default: the larger of 1 s and 3 periods of "
+                   "each link's learnt rate)")
+
+
 def start_time(high_ns: int | None = None) -> Callable[[str], int]:
     """An argparse ``type=`` for ``--start``: a UTC ISO 8601 date or time -> ns since 1970. A
     plain number (seconds since 1970, the old ``serial import --start``) is still read, with a

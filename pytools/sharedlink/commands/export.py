@@ -16,6 +16,7 @@ from sharedlink.commands import (
     add_force_option,
     add_json_option,
     add_location_options,
+    add_outage_after_option,
     add_output_option,
     add_quiet_option,
     add_select_option,
@@ -57,6 +58,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_select_option(p, "variables to export (default: all)")
     add_location_options(p, "geojson/kml (and mcap)")
     add_decode_options(p)
+    p.add_argument("--outages", action="store_true",
+                   help="jsonl, csv: each outage of a link as a row of its own (kind: outage) before the frame that ends it "
+                   "(csv: a duration_s column after checksum)")
+    add_outage_after_option(p)
     add_json_option(p)
     add_quiet_option(p)
     p.set_defaults(func=run)
@@ -84,12 +89,16 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--format {fmt} is binary: give the file with -o")
         if args.changes or columns is not None:
             raise UsageError(f"--format {fmt} writes every frame and variable: no --changes or --select")
+    if args.outages and (fmt not in ("jsonl", "csv") or (fmt == "csv" and args.changes)):
+        raise UsageError(f"--outages: outage rows are written in --format jsonl or csv (csv: not with --changes), not {fmt}"
+                         + (" --changes" if args.changes else ""))
     if fmt == "mcap":
         require("foxglove", "sharedlink export --format mcap")
     refuse_overwrite(args.output, args.capture)
     opts = ExportOptions(fmt=fmt, changes=args.changes, variables=variables, columns=columns, sync_interval=sync,
                          lat=args.lat, lon=args.lon, heading=args.heading, velocity=args.velocity,
-                         require=_required(fmt, columns, given))
+                         require=_required(fmt, columns, given), outages=args.outages,
+                         outage_after=args.outage_after)
     to_stdout = args.output is None or is_stdout(args.output)
     try:
         with Progress(args.capture, quiet=args.json or to_stdout, what="exporting") as progress:

@@ -66,6 +66,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--jitter", type=number(0, 3_600_000, unit="ms"), default=0.0, metavar="MS", help="timing jitter, uniform over +-MS/2 milliseconds")
     p.add_argument("--start", type=start_time(), default=None, metavar="TIME",
                    help="time of the first beacon, UTC ISO 8601 (e.g. 2026-03-02T08:00:00Z; default 2026-01-01T12:00:00Z)")
+    p.add_argument("--outage", action="append", default=[], metavar="T:D", type=_outage,
+                   help="plant a silence of D seconds T seconds after the start (repeatable): the beacon's direction, "
+                   "on --transport serial the vehicle's (its data and replies)")
     add_json_option(p)
     add_quiet_option(p)
     p.set_defaults(func=run)
@@ -73,6 +76,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 #: file name suffixes gen knows, and the format each is written in
 _SUFFIXES = {".pcap": "pcap", ".cap": "pcap", ".dmp": "pcap", ".pcapng": "pcapng", ".ntar": "pcapng"}
+
+
+def _outage(text: str) -> tuple[float, float]:
+    """``--outage T:D`` (argparse type: a bad value is a usage error, exit 2)."""
+    from sharedlink.generators.outages import parse_outage
+
+    try:
+        return parse_outage(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix(f"--outage {text!r}: ")) from None
 
 
 @honours_force
@@ -90,6 +103,8 @@ def run(args: argparse.Namespace) -> int:
     if args.transport == "serial" and args.protocol == "sharedlink":
         return run_gen_serial(args)
     if args.protocol != "sharedlink":
+        if args.outage:
+            raise UsageError("--outage plants silences in SharedLink sessions only")
         return run_session(args, fmt)
     if args.transport not in (None, "udp"):
         raise UsageError("SharedLink beacons are generated over udp")
@@ -110,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         bad_checksum=args.bad_checksum,
         drop=args.drop,
         jitter_ms=args.jitter,
+        outages=tuple(args.outage),
     )
     if args.start is not None:
         opts.start_ns = args.start
@@ -125,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
         "payload_bytes": stats.bytes,
         "kinds": stats.kinds,
         "dropped": stats.dropped,
+        "silenced": stats.silenced,
         "bad_checksums": stats.bad_checksums,
     }
     kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
@@ -132,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
         summary, args.json,
         f"wrote {args.out}: {plural(stats.frames, 'frame')} ({kinds}), {stats.bytes} payload bytes"
         + (f", {stats.dropped} dropped" if stats.dropped else "")
+        + (f", {stats.silenced} silenced in {plural(len(args.outage), 'outage')}" if args.outage else "")
         + (f", {stats.bad_checksums} bad checksums" if stats.bad_checksums else ""),
     )
     return 0
@@ -190,6 +208,7 @@ def run_gen_serial(args: argparse.Namespace) -> int:
         noise=args.noise,
         host=args.dst.upper(),
         vehicle=args.src.upper(),
+        outages=tuple(args.outage),
     )
     stats = generate_to(opts, generate_serial_file, args.out)
     summary = {

@@ -24,6 +24,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("action", choices=["install", "uninstall", "path"], help="what to do")
     p.add_argument("--tshark", default="tshark", metavar="PATH",
                    help="the tshark whose folders are used (default: tshark on PATH)")
+    p.add_argument("--profile", action="store_true",
+                   help="install: also the SharedLink configuration profile (columns, filter buttons for bad checksum, "
+                   "late full set and outage, coloring rules); uninstall removes it whether given or not")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=run)
 
@@ -41,6 +44,10 @@ def run(args: argparse.Namespace) -> int:
                 print(f"{k}: {v}")
         return EXIT_OK
     report = plugins.install(f) if args.action == "install" else plugins.uninstall(f)
+    if args.action == "install" and args.profile:
+        report.lines += plugins.install_profile(f).lines
+    elif args.action == "uninstall":
+        report.lines += plugins.uninstall_profile(f).lines
     if args.json:
         print(json.dumps({"action": args.action, "done": report.lines, **plugins.paths(f)}))
     else:

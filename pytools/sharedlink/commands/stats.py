@@ -14,6 +14,7 @@ from sharedlink.commands import (
     add_decode_options,
     add_fail_on_option,
     add_json_option,
+    add_outage_after_option,
     add_quiet_option,
     capture_input,
     decode_options,
@@ -33,6 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_decode_options(p)
     add_json_option(p, "the statistics")
     add_quiet_option(p)
+    add_outage_after_option(p)
     add_fail_on_option(p)
     p.set_defaults(func=run)
 
@@ -46,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     variables, sync = decode_options(args)
     args.capture = capture_input(args.capture)
     with Progress(args.capture, quiet=args.json) as progress:
-        st = capture_stats(args.capture, variables, sync, progress)
+        st = capture_stats(args.capture, variables, sync, progress, args.outage_after)
     if not st.error:
         warn_empty(args.capture, st.frames + st.robots.packets)  # (robot packets: no warning)
     if args.json:

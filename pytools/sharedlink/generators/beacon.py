@@ -15,6 +15,7 @@ from typing import BinaryIO
 
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import NS, atomic_open, make_writer
+from sharedlink.generators.outages import check_outages, silenced, windows
 from sharedlink.generators.scenario import drive_tuples
 from sharedlink.protocols.codec import _HEX2, address_node
 from sharedlink.protocols.state import BEACON_VARIABLES
@@ -43,6 +44,7 @@ class GenOptions:
     start_ns: int = DEFAULT_START_NS
     src_ip: str | None = None
     dst_ip: str = "255.255.255.255"
+    outages: tuple[tuple[float, float], ...] = ()  # planted silences (start s, duration s): generators/outages.py
 
     def validate(self) -> None:
         if self.rate <= 0:
@@ -66,6 +68,7 @@ class GenOptions:
         for name in ("src", "dst"):
             if address_node(getattr(self, name)) is None:
                 raise ValueError(f"--{name} must be a node letter A-P")
+        check_outages(self.outages, self.frame_count / self.rate)
 
     @property
     def frame_count(self) -> int:
@@ -80,6 +83,7 @@ class GenStats:
     delta: int = 0
     declarations: int = 0
     dropped: int = 0
+    silenced: int = 0  # frames not sent in planted outages
     bad_checksums: int = 0
     kinds: dict[str, int] = field(default_factory=dict)
 
@@ -165,7 +169,11 @@ def generate(opts: GenOptions, out: BinaryIO) -> GenStats:
     drop, bad = opts.drop, opts.bad_checksum
     rand = rng.random
     nbytes = 0
+    quiet = windows(opts.outages, opts.start_ns)
     for ts, payload, kind in beacon_payloads(opts):
+        if quiet and silenced(ts, quiet):
+            stats.silenced += 1
+            continue
         if drop and rand() < drop:
             stats.dropped += 1
             continue

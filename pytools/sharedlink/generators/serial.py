@@ -24,6 +24,7 @@ from typing import BinaryIO
 from sharedlink.capture.pcapio import atomic_open
 from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, USER_LINKTYPES, SerialCaptureWriter
 from sharedlink.generators.beacon import DEFAULT_START_NS, NS
+from sharedlink.generators.outages import check_outages, silenced, windows
 from sharedlink.generators.scenario import drive_tuples
 from sharedlink.protocols.codec import (
     address_node,
@@ -54,10 +55,12 @@ class SerialGenOptions:
     vehicle: str = "B"
     linktype: int = 147
     start_ns: int = DEFAULT_START_NS
+    outages: tuple[tuple[float, float], ...] = ()  # planted silences of the vehicle (generators/outages.py)
 
     def validate(self) -> None:
         if self.duration <= 0:
             raise ValueError("--duration must be positive")
+        check_outages(self.outages, self.duration)
         if self.rate <= 0:
             raise ValueError("--rate must be positive")
         if self.baud < 300:
@@ -98,7 +101,15 @@ class SerialGenStats:
 
 
 def session_frames(opts: SerialGenOptions) -> Iterator[LineFrame]:
-    """Every frame of the session in time order (before line timing and noise)."""
+    """Every frame of the session in time order (before line timing and noise), less the
+    vehicle's in planted outages (generators/outages.py)."""
+    quiet = windows(opts.outages, opts.start_ns)
+    for lf in _session_frames(opts):
+        if not (quiet and lf.direction == DIR_IN and silenced(lf.ts_ns, quiet)):
+            yield lf
+
+
+def _session_frames(opts: SerialGenOptions) -> Iterator[LineFrame]:
     host, veh = opts.host, opts.vehicle
     t0 = opts.start_ns
     period = round(NS / opts.rate)

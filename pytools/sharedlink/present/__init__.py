@@ -21,10 +21,10 @@ from sharedlink.present.formats import (
     timestamp,
     value,
 )
-from sharedlink.present.tables import Column, Fitted, Table, fit, plain, print_fitted, show, write_csv
+from sharedlink.present.tables import Column, Fitted, Table, fit, plain, print_fitted, show, text_table, write_csv
 
 __all__ = [
     "COUNT", "DURATION", "INTEGER", "NUMERIC", "PROSE", "REAL", "TEXT", "TIME", "VALUE", "Column", "Fitted", "Table",
-    "cell", "count", "duration", "fit", "integer", "plain", "print_fitted", "real", "show", "timestamp", "value",
-    "write_csv",
+    "cell", "count", "duration", "fit", "integer", "plain", "print_fitted", "real", "show", "text_table", "timestamp",
+    "value", "write_csv",
 ]

@@ -33,7 +33,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
-from sharedlink.present.formats import NUMERIC, PROSE, TEXT, cell, datetime_ns, one_line
+from sharedlink.present.formats import COUNT, NUMERIC, PROSE, REAL, TEXT, cell, datetime_ns, one_line
 
 #: no column narrower than this (headers and cells of one character read as noise)
 MIN_WIDTH = 3
@@ -208,6 +208,24 @@ def write_csv(table: Table, out: TextIO) -> None:
     w.writerow([c.header for c in table.columns])
     kinds = [c.kind for c in table.columns]
     w.writerows([_machine(x, k) for x, k in zip(row, kinds)] for row in table.rows)
+
+
+def text_table(title: str, headers: list[str], rows: list[list[str]], more: str = "") -> Table:
+    """A table of cells already written as text: a column whose every cell is a whole number
+    is a count (right-aligned, the one thousands-separator rule), one of decimal numbers
+    right-aligned as written, the rest text; headers all empty: a names-and-values list."""
+    def every(i: int, test) -> bool:
+        return bool(rows) and all(test(r[i]) for r in rows if r[i] != "")
+
+    def decimal(x: str) -> bool:
+        return x.replace(".", "", 1).lstrip("-").isdigit()
+
+    kinds = [TEXT if i == 0 else COUNT if every(i, str.isdigit) else REAL if every(i, decimal) else PROSE
+             for i in range(len(headers))]
+    t = Table(title, [Column(h, k) for h, k in zip(headers, kinds)], more=more, header=any(headers))
+    for r in rows:
+        t.add(*(int(x) if k == COUNT and x else x for x, k in zip(r, kinds)))
+    return t
 
 
 def show(tables: Iterable[Table], out: TextIO | None = None, *, terminal: bool | None = None,

@@ -22,10 +22,11 @@ class DirCounts:
     [frames, number and time of the last one] (of the frames :meth:`Decoder.count` took);
     ``held``: name -> values carried in the frames :meth:`Decoder.count_run` took; ``changed``:
     name -> the texts it changed to, in order; ``gaps``: the sync gaps of its full frames (ns);
-    ``size``: the bytes of a full set's values now."""
+    ``size``: the bytes of a full set's values now; ``stamps``: its frames' times in capture
+    order (link health, analysis/health.py)."""
 
     __slots__ = ("conv", "src", "dst", "table", "first_ts", "last_ts", "frames", "bytes", "full", "late", "gaps",
-                 "full_bytes", "layouts", "held", "changed", "size", "last_full")
+                 "full_bytes", "layouts", "held", "changed", "size", "last_full", "stamps")
 
     def __init__(self, conv: tuple, src: str, dst: str, h: Direction, ts: int, size: int) -> None:
         self.conv, self.src, self.dst, self.table = conv, src, dst, h.table
@@ -37,6 +38,7 @@ class DirCounts:
         self.changed: dict[str, list[str]] = {}
         self.size = size
         self.last_full: tuple[int, int] | None = None
+        self.stamps: list[int] = []
 
     @property
     def pair(self) -> str:
@@ -103,6 +105,7 @@ class CountsSink:
             seen[0] += 1
             seen[1], seen[2] = number, ts
         c.frames += 1
+        c.stamps.append(ts)
         c.bytes += len(raw)
         if ts > c.last_ts:
             c.last_ts = ts
@@ -172,6 +175,7 @@ class CountsSink:
         first = number + 1  # the run's records are numbered first, first + 1, ...
         number += n
         c.frames += n
+        c.stamps += stamps
         c.bytes += wire - 42 * n  # (the frames: the records less their Ethernet, IP and UDP headers)
         lo, hi = min(stamps), max(stamps)
         if lo < c.first_ts:
