@@ -22,3 +22,11 @@ REPO = TESTS.parent
 def repo() -> Path:
     """The repository root."""
     return REPO
+
+
+@pytest.fixture
+def tiers(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
+    """Frames the decoder's fast tiers take, counted by tier (``sl_checks.count_tiers``)."""
+    from sl_checks import count_tiers
+
+    return count_tiers(monkeypatch)
