@@ -31,10 +31,15 @@ from tshark_util import (
     write_pcap,
 )
 
+# its module fixtures' tshark runs (shared by every test here) made once: one pytest-xdist worker
+# (make test: --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("dissector")
+
 B009 = (
     b"[:AB|N0|T2|QAutoGpsLat|D38.34698779|T2|QAutoGpsLon|D-77.05734791|T2|QAutoGpsHead|D57"
     b"|T2|QAutoGpsVel|D0|CF8]\r\n"
 )
+
 VARS = ["AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"]
 
 

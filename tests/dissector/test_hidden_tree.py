@@ -26,6 +26,10 @@ SERIAL_LUA = REPO / "dissector" / "serial.lua"
 INPUTS = sorted((REPO / "captures").glob("*.pcap")) + sorted(
     p for p in (REPO / "tests" / "dissector" / "golden" / "inputs").iterdir() if p.suffix in (".pcap", ".pcapng")
 ) + sorted((REPO / "tests" / "fuzz" / "fuzz-regressions").glob("*.pcap"))
+
+# its module fixtures' tshark runs (shared by every test here) made once: one pytest-xdist worker
+# (make test: --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("hidden_tree")
 # generated fault captures: sharedlink gen options
 GENERATED = {
     "named-faults": ["--frames", "400", "--compress", "--drop", "0.2", "--bad-checksum", "0.05", "--seed", "5"],
