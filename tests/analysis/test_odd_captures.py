@@ -11,7 +11,7 @@ back and forth, and a pcapng file with three interfaces of three link types. On 
   failures, late frames, noise, kinds, pairs and per-variable counts (docs/fields-sharedlink.md,
   "Counts");
 * `diff`'s change records through the compiled layouts and the block tier equal the reference
-  decoder's (test_core_changes.same_changes), `ingest` keeps as many frames and `export` (jsonl)
+  decoder's (sl_checks.same_changes), `ingest` keeps as many frames and `export` (jsonl)
   as many of each kind.
 
 What Wireshark does and we follow: fragments are reassembled (ip.defragment on by default), the
