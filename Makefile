@@ -91,7 +91,7 @@ lint: deps
 	luacheck -q dissector
 
 test: deps lint
-	$(BIN)/pytest -q -n 2 --durations=25 tests
+	$(BIN)/pytest -q -n 2 --dist loadgroup --durations=25 tests
 
 bench: deps
 	$(PY) bench/bench.py

@@ -11,8 +11,8 @@ set -uo pipefail
 cd "$(dirname "$0")/.." || exit 2
 PY=${PY:-.venv/bin/python}
 read -r -a releases <<<"${MATRIX_RELEASES:-host trixie sid}"
-# the test files that run tshark: through tests/tshark_util.py, the fuzz harness or the variable
-mapfile -t tests < <(grep -rl -E 'tshark_util|fuzz_harness|SHAREDLINK_TSHARK' --include='test_*.py' tests | sort)
+# the test files that run tshark: through tests/tshark_util.py (or sl_checks.py), the fuzz harness or the variable
+mapfile -t tests < <(grep -rl -E 'tshark_util|sl_checks|fuzz_harness|SHAREDLINK_TSHARK' --include='test_*.py' tests | sort)
 [ ${#tests[@]} -gt 0 ] || { echo "test-matrix: no test file runs tshark" >&2; exit 2; }
 echo "test-matrix: ${#tests[@]} test files: ${tests[*]}"
 

@@ -1,8 +1,11 @@
 """Shared test set-up. The test folders mirror the package (protocols/, capture/, generators/,
 analysis/, dissector/ for the Lua side, tools/, fuzz/); helpers live in ``tshark_util`` (tshark
-runs, each checked for Lua errors), ``sl_captures`` (test data builders) and ``sl_pipes`` (a
-standard output whose reader lags, for Ctrl-C tests), importable from every test file because
-this folder is on ``sys.path``."""
+runs, each checked for Lua errors), ``sl_captures`` (test data builders), ``sl_vectors`` (the
+shared vector tables), ``sl_pipes`` (a standard output whose reader lags, for Ctrl-C tests;
+reading lines as they come), ``sl_agreement`` (the two decoders' frames side by side) and
+``sl_checks`` (the tap's report, MCAP read back, change records against the reference, odd
+captures), importable from every test file because this folder is on ``sys.path``. No test file
+imports another (tests/tools/test_test_layout.py)."""
 
 from __future__ import annotations
 
@@ -22,3 +25,11 @@ REPO = TESTS.parent
 def repo() -> Path:
     """The repository root."""
     return REPO
+
+
+@pytest.fixture
+def tiers(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
+    """Frames the decoder's fast tiers take, counted by tier (``sl_checks.count_tiers``)."""
+    from sl_checks import count_tiers
+
+    return count_tiers(monkeypatch)

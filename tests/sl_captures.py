@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
 from sharedlink.generators.beacon import DEFAULT_START_NS
+from sharedlink.protocols import blackboard, p2os
 from sharedlink.protocols.codec import (
     Field,
     Frame,
@@ -137,6 +138,54 @@ def sl_stream(draw: st.DrawFn, min_items: int = 1, max_items: int = 12) -> bytes
             parts.append(f[: draw(st.integers(1, len(f) - 1))])
     parts.append(encode_positional("A", "B", ["end"]))
     return b"".join(parts)
+
+
+# P2OS packets and blackboard messages (test_serial_any_split, test_serial_split_tshark)
+
+_serial_noise = st.one_of(st.binary(min_size=1, max_size=12),
+                   st.sampled_from([b"\xfa", b"\xfa\xfb", b"\xfa\xfb\x03", b":", b"\r", b"\r\n", b":03"]))
+
+
+@st.composite
+def p2os_packet(draw: st.DrawFn) -> bytes:
+    kind = draw(st.integers(0, 2))
+    if kind == 0:
+        return p2os.encode_message(p2os.command(draw(st.integers(0, 120))))
+    if kind == 1:
+        return p2os.encode_message(p2os.command(draw(st.integers(0, 120)), draw(st.integers(-3000, 3000))))
+    return p2os.encode_message(p2os.Sip(moving=draw(st.booleans()),
+                                        sonars=tuple((i, draw(st.integers(0, 5000))) for i in range(draw(st.integers(0, 3))))))
+
+
+@st.composite
+def blackboard_message(draw: st.DrawFn) -> bytes:
+    if draw(st.booleans()):
+        return blackboard.build_message(blackboard.SetMessage(draw(st.integers(0, 0xFFFF)), draw(st.integers(0, 255)),
+                                                              draw(st.binary(max_size=8))))
+    return blackboard.build_message(blackboard.RequestMessage(draw(st.integers(0, 0xFFFF)), draw(st.integers(0, 255)),
+                                                              draw(st.integers(0, 255))))
+
+
+@st.composite
+def serial_stream(draw: st.DrawFn, protocol: str, max_items: int = 10) -> tuple[bytes, list[bytes] | None]:
+    """Messages with noise and truncated messages between them (or none: a clean stream, one
+    time in four), ending with a whole message; and the messages when the stream is clean."""
+    message = p2os_packet() if protocol == "p2os" else blackboard_message()
+    clean = draw(st.integers(0, 3)) == 0
+    parts, messages = [], []
+    for _ in range(draw(st.integers(1, max_items))):
+        k = 0 if clean else draw(st.integers(0, 9))
+        if k < 6:
+            messages.append(draw(message))
+            parts.append(messages[-1])
+        elif k < 8:
+            parts.append(draw(_serial_noise))
+        else:
+            m = draw(message)
+            parts.append(m[: draw(st.integers(1, len(m) - 1))])
+    messages.append(draw(message))
+    parts.append(messages[-1])
+    return b"".join(parts), (messages if clean else None)
 
 
 def chunked(data: bytes, cuts: list[int]) -> list[bytes]:

@@ -5,6 +5,7 @@ afterwards (Linux: F_SETPIPE_SZ and /proc/PID/wchan)."""
 from __future__ import annotations
 
 import os
+import select
 import threading
 import time
 
@@ -43,6 +44,23 @@ def wait_writing(pid: int, timeout: float = 30) -> None:
     if seen in ("", "0"):
         pytest.skip("/proc/PID/wchan does not show where a process waits")
     raise AssertionError(f"process {pid} never waited in a pipe write (last seen in {seen!r})")
+
+
+def read_lines(fd: int, n: int, timeout: float = 60) -> bytes:
+    """Bytes read from ``fd`` until they hold ``n`` lines: each read waits on the descriptor
+    becoming readable (select), not on a clock; ``timeout`` only guards against a hang."""
+    got = bytearray()
+    end = time.monotonic() + timeout
+    nl = b"\n"
+    while got.count(nl) < n:
+        left = end - time.monotonic()
+        if left <= 0 or not select.select([fd], [], [], left)[0]:
+            raise AssertionError(f"{got.count(nl)} of {n} lines after {timeout} s: {bytes(got[-500:])!r}")
+        chunk = os.read(fd, 65536)
+        if not chunk:
+            raise AssertionError(f"the end after {got.count(nl)} of {n} lines: {bytes(got[-500:])!r}")
+        got += chunk
+    return bytes(got)
 
 
 def drain(r: int) -> tuple[threading.Thread, bytearray]:

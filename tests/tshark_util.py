@@ -345,3 +345,46 @@ def frame(dst: str, src: str, *fields: str, crlf: bool = True, cs: str | None = 
     body = f":{dst}{src}|" + "".join(f + "|" for f in fields) + "C"
     c = checksum(body) if cs is None else cs
     return ("[" + body + c + "]" + ("\r\n" if crlf else "")).encode("latin-1")
+
+
+def shown_matches(
+    capture: str | Path,
+    filters: Sequence[str],
+    prefs: Mapping[str, Any] | None = None,
+    two_pass: bool = False,
+    extra: Sequence[str] = (),
+    **kw: Any,
+) -> dict[str, list[int]]:
+    """The frames each display filter matches in a shown tree, from one tshark run: ``-V``
+    (every item made with its range and label, as ``-V -Y F`` makes it) and one Lua tap
+    (``Listener``) a filter, each noting the frames its filter matches (with ``two_pass``, the
+    second pass's, as ``-2 -V -Y F`` prints). One run instead of one a filter: the shown tree is
+    the same whatever the filters reference."""
+    with tempfile.TemporaryDirectory(prefix="sharedlink-taps-") as tmp:
+        out = Path(tmp, "matches.txt")
+        script = Path(tmp, "taps.lua")
+        # the taps are made in a protocol's init (before the file is read): the dissectors'
+        # fields are registered only after every script has loaded
+        lines = [f"local out = assert(io.open([==[{out}]==], 'w'))", "out:setvbuf('line')",
+                 "local taps = Proto('sharedlinktesttaps', 'Test taps')", "local made = false",
+                 "function taps.init()", "  if made then return end", "  made = true"]
+        for i, flt in enumerate(filters):
+            assert "]==]" not in flt, flt
+            lines += [f"  local l{i} = Listener.new('frame', [==[{flt}]==])",
+                      f"  function l{i}.packet(pinfo) out:write('{i} ', pinfo.number, '\\n') end"]
+        script.write_text("\n".join([*lines, "end"]) + "\n")
+        tshark(capture, ["-V", "-O", "frame", "-X", f"lua_script:{script}", *extra], prefs=prefs, two_pass=two_pass,
+               **kw)
+        found: dict[str, list[int]] = {flt: [] for flt in filters}
+        for line in out.read_text().splitlines():
+            i, number = line.split()
+            found[filters[int(i)]].append(int(number))
+    return found
+
+
+def env_for(home: Path) -> dict[str, str]:
+    """The environment of a user whose home (and Wireshark's personal folders) is ``home``."""
+    env = dict(os.environ, HOME=str(home), XDG_CONFIG_HOME=str(home / ".config"), LC_ALL="C.UTF-8")
+    for name in ("WIRESHARKCONFIGDIR", "WIRESHARK_CONFIG_DIR"):
+        env.pop(name, None)
+    return env

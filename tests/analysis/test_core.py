@@ -24,7 +24,7 @@ from core_streams import (
     vector_capture,
     write_udp,
 )
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from sl_captures import captures, write_capture
 from sl_vectors import load_streams
 
@@ -153,8 +153,17 @@ def test_core_equals_reference_on_generated_streams(tmp_path_factory, stream):
     compare(path, carried=False)
 
 
+# The full/delta rule's bug (the fast path not marking the slot a fast frame fills first, so a
+# later frame without it came out "full"): found by the draw in 6 of 8 seeds, so its input is
+# kept. Frame 1 goes the reference path, frame 2 fills slot 1 on the fast path, frame 3 is a delta.
+FILLS_A_SLOT = [(0, 1_700_000_000_200_000_000, b"[:AB|N0|D1|D|C27]\r\n"),
+                (0, 1_700_000_000_400_000_000, b"[:AB|N0|D1|D2|C59]\r\n"),
+                (0, 1_700_000_000_600_000_000, b"[:AB|N0|D1|D|C27]\r\n")]
+
+
 @settings(max_examples=100, deadline=None, suppress_health_check=list(HealthCheck))
 @given(positional_streams())
+@example(FILLS_A_SLOT)
 def test_core_equals_reference_on_positional_streams(tmp_path_factory, stream):
     path = write_udp(tmp_path_factory.mktemp("pos") / "s.pcap", stream)
     compare(path)

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_core_changes import _records, same_changes
+from sl_checks import change_records, same_changes
 
 import sharedlink.analysis.compiled_blocks as compiled_blocks
 from sharedlink.capture.packets import UdpBuilder
@@ -84,7 +84,7 @@ def test_a_value_a_reference_frame_changed_between_two_blocks_is_not_reported_ag
     path = _write(tmp_path / "r.pcap", stream)
     assert same_changes(path, blocks=(700, 4096)) == 120 - 1  # (the first frame: reference path)
     assert block_frames[0] >= 80
-    recs = _records(path)
+    recs = change_records(path)
     assert [r for r in recs if b"Lon" in r] == [recs[0], b"AB\x1fLon\x1e5"]  # (the datagram's second frame)
 
 
@@ -97,7 +97,7 @@ def test_a_carried_value_a_reference_frame_changed_in_a_compressed_run(tmp_path,
     path = _write(tmp_path / "c.pcap", stream)
     assert same_changes(path, blocks=(700, 4096)) >= 130
     assert block_frames[0] >= 60
-    assert sum(b"Lon\x1e5" in r for r in _records(path)) == 1
+    assert sum(b"Lon\x1e5" in r for r in change_records(path)) == 1
 
 
 @pytest.mark.parametrize("odd", ["bad_checksum", "other_sender", "control_byte", "bracket", "long_frame", "padding",

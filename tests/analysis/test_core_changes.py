@@ -12,48 +12,15 @@ table) and so are the capture's statistics.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 from core_streams import one_sender, positional_streams, streams, vector_capture, write_udp
 from hypothesis import HealthCheck, given, settings
 from sl_captures import captures, write_capture
+from sl_checks import change_records, flat_changes, same_changes
 from sl_vectors import load_streams
 
-from sharedlink.analysis.changes import ChangeReader, read_changes
-from sharedlink.capture.stream import Chunk
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
-from sharedlink.protocols.state import BEACON_VARIABLES
-
-
-def _flat(path: Path, fast: bool, block: int = 1 << 20, variables=BEACON_VARIABLES) -> tuple:
-    """Everything the reader gives, chunk boundaries left out (they follow the read blocks)."""
-    ts, nums, recs, events, snaps, stats = b"", b"", [], [], [], None
-    for c in read_changes(path, variables, fast=fast, block=block):
-        if isinstance(c, Chunk):
-            ts, nums, recs, events = ts + c.ts, nums + c.numbers, recs + c.records, events + c.events
-            snaps.append((c.start + len(c.records), c.snapshot))
-        else:
-            stats = c.to_dict()
-    return ts, nums, recs, events, snaps, stats
-
-
-def same_changes(path: Path, variables=BEACON_VARIABLES, blocks=(700,)) -> int:
-    """The core's changes equal the reference decoder's, chunk by chunk (the snapshot of every
-    table at each chunk's end included), and with small read blocks (runs of records cut at a
-    block's end); returns how many frames the compiled layouts took."""
-    want = [c.as_tuple() if isinstance(c, Chunk) else c.to_dict() for c in read_changes(path, variables, fast=False)]
-    r = ChangeReader(variables)
-    got = [c.as_tuple() for c in r.chunks(path)] + [r.finish().to_dict()]
-    assert got == want
-    for block in blocks:  # runs of records cut at a block's end; the same chunks
-        assert _flat(path, True, block, variables) == _flat(path, False, block, variables), block
-    return r.dec.fast
-
-
-def _records(path: Path) -> list[bytes]:
-    return [r for c in read_changes(path) if isinstance(c, Chunk) for r in c.records]
 
 
 def test_a_value_a_reference_frame_changed_is_not_reported_again(tmp_path):
@@ -65,7 +32,7 @@ def test_a_value_a_reference_frame_changed_is_not_reported_again(tmp_path):
     lon5 = encode_named("A", "B", [("Lon", 2, "5")])
     path = write_udp(tmp_path / "v.pcap", one_sender(full, full, lat2, lat2 + lon5, full5, full5, lat2))
     assert same_changes(path) >= 4
-    assert _records(path)[4:] == [b"AB\x1fLon\x1e5", b"AB", b"AB", b"AB"]
+    assert change_records(path)[4:] == [b"AB\x1fLon\x1e5", b"AB", b"AB", b"AB"]
 
 
 def test_positional_slot_values_a_reference_frame_changed(tmp_path):
@@ -75,7 +42,7 @@ def test_positional_slot_values_a_reference_frame_changed(tmp_path):
     full5 = encode_positional("A", "B", ["2", "5"])
     path = write_udp(tmp_path / "p.pcap", one_sender(full, full, lat, lat + lon5, full5, lat, full5))
     assert same_changes(path) >= 4
-    assert _records(path)[4:] == [b"AB\x1f#1\x1e5", b"AB", b"AB", b"AB"]
+    assert change_records(path)[4:] == [b"AB\x1f#1\x1e5", b"AB", b"AB", b"AB"]
 
 
 def test_a_type_a_reference_frame_changed_makes_new_layouts(tmp_path):
@@ -96,7 +63,7 @@ def test_a_first_value_in_a_fast_frame_changes_the_full_rule(tmp_path):
     three_b = encode_named("A", "B", [("Lat", 2, "1"), ("Lon", 2, "3"), ("Vel", 2, "8")])
     path = write_udp(tmp_path / "f.pcap", one_sender(two, two, three, two, three_b, two))
     assert same_changes(path) >= 4
-    st = _flat(path, True)[5]
+    st = flat_changes(path, True)[5]
     assert st["full"] == 4  # two, two, three, three_b (the last two-name frame is a delta)
 
 
@@ -105,7 +72,7 @@ def test_positional_first_values_fill_slots(tmp_path):
     two = encode_positional("A", "B", ["1", "2", None])
     path = write_udp(tmp_path / "s.pcap", one_sender(one, one, two, one, two, one))
     assert same_changes(path) >= 3
-    assert _flat(path, True)[5]["full"] == 4
+    assert flat_changes(path, True)[5]["full"] == 4
 
 
 def test_a_declaration_renames_the_slots_of_compiled_positional_frames(tmp_path):

@@ -17,8 +17,7 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from test_odd_captures import tiers as tiers  # (the fixture)
-from test_stats import tap_stats
+from sl_checks import tap_stats
 
 from sharedlink.analysis.decode import Decoded, Decoder
 from sharedlink.analysis.diff import DiffOptions, diff_captures
@@ -104,7 +103,7 @@ def test_export_writes_a_row_for_each(capture, fmt):
 
 
 def test_export_mcap_publishes_a_frames_message_for_each(capture, tmp_path):
-    from test_mcap_export import Mcap
+    from sl_checks import Mcap
 
     path, tap, want = capture
     res = export_file(path, tmp_path / "x.mcap", ExportOptions(fmt="mcap"))
@@ -136,8 +135,7 @@ def test_the_fast_tiers_never_take_a_malformed_frame(tmp_path, tiers):
     """A beacon run by the fast tiers (stats' count_run, diff's compiled layouts and block tier), a
     malformed datagram (a hot frame cut) after every ninth frame: each is one frame of kind
     malformed, under the run's pair, as the tap counts it; the tiers took the runs between."""
-    from test_odd_captures import agree, beacon, ether, udp
-    from test_odd_captures import write_pcap as write_records
+    from sl_checks import agree, beacon, ether, udp, write_records
 
     recs = []
     for i, (ts, raw) in enumerate(beacon("B", "A", 120)):

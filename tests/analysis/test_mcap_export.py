@@ -20,6 +20,7 @@ from core_streams import vector_capture
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sl_captures import BEACON, captures, reference, write_capture
+from sl_checks import Mcap
 from sl_vectors import load_streams
 
 import tshark_util as tu
@@ -28,7 +29,6 @@ from sharedlink.protocols.state import BEACON_VARIABLES
 
 mcap_reader = pytest.importorskip("mcap.reader")
 descriptor_pb2 = pytest.importorskip("google.protobuf.descriptor_pb2")
-from google.protobuf import descriptor_pool, message_factory  # noqa: E402
 
 CLI = [sys.executable, "-m", "sharedlink"]
 REPO = Path(__file__).resolve().parents[2]
@@ -46,37 +46,6 @@ def epoch_ns(text: str) -> int:
     return int(sec) * 10**9 + int((frac + "000000000")[:9])
 
 
-class Mcap:
-    """Everything in an MCAP file, read with the `mcap` package's reader."""
-
-    def __init__(self, path: Path) -> None:
-        with open(path, "rb") as fh:
-            r = mcap_reader.make_reader(fh)
-            self.header = r.get_header()
-            self.summary = r.get_summary()
-            self.msgs: dict[str, list] = defaultdict(list)
-            self.schemas: dict[str, tuple[str, str, str]] = {}
-            self._decoders: dict[str, object] = {}
-            for schema, channel, message in r.iter_messages(log_time_order=False):
-                self.schemas[channel.topic] = (schema.name, schema.encoding, channel.message_encoding)
-                self.msgs[channel.topic].append((message.log_time, self.decode(schema, channel, message.data)))
-
-    def decode(self, schema, channel, data: bytes):
-        if channel.message_encoding == "json":
-            return json.loads(data)
-        assert channel.message_encoding == "protobuf" and schema.encoding == "protobuf"
-        cls = self._decoders.get(schema.name)
-        if cls is None:
-            pool = descriptor_pool.DescriptorPool()
-            for fd in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
-                pool.Add(fd)
-            cls = self._decoders[schema.name] = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
-        return cls.FromString(data)  # type: ignore[attr-defined]
-
-    def counts(self) -> dict[str, int]:
-        """Message counts per topic as the summary's statistics record states them."""
-        by_id = {cid: ch.topic for cid, ch in self.summary.channels.items()}
-        return {by_id[cid]: n for cid, n in self.summary.statistics.channel_message_counts.items()}
 
 
 @pytest.fixture(scope="module")

@@ -74,7 +74,7 @@ def test_csv_reply_rows_hold_their_own_values(capture: Path, tmp_path: Path) -> 
 
 def test_mcap_reply_messages_hold_their_own_values(capture: Path, tmp_path: Path) -> None:
     pytest.importorskip("mcap.reader")
-    from test_mcap_export import Mcap  # (the file read back with the independent reader)
+    from sl_checks import Mcap  # (the file read back with the independent reader)
 
     _export(capture, tmp_path / "r.mcap")
     m = Mcap(tmp_path / "r.mcap")

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_robots_counts import OTHERS, SERIAL
+from sl_robots import OTHERS, SERIAL
 
 import tshark_util as tu
 from sharedlink.generators.blackboard import BlackboardGenOptions, generate_blackboard_file
@@ -70,7 +70,7 @@ def test_fast_jsonl_lines_equal_the_plain_ones(tmp_path):
     """RobotJsonl formats SIPs and ENCODER packets straight into text: the same text as the
     plain path (the row without empty columns through json.dumps), including stalled wheels,
     negative velocities and headings, no sonars and a bad checksum."""
-    from test_robots_counts import _write_tcp
+    from sl_robots import write_tcp
 
     from sharedlink.analysis.decode import Decoder
     from sharedlink.analysis.robot_export import RobotJsonl
@@ -83,7 +83,7 @@ def test_fast_jsonl_lines_equal_the_plain_ones(tmp_path):
     odd = tmp_path / "odd.pcap"
     bad = bytearray(build_packet(Sip(True, 1, 65535, -2048, -300, 250, 99, 0x0101, 0, 0, 179).encode()))
     bad[-1] ^= 1
-    _write_tcp(odd, [(False, bytes(bad)), (False, build_packet(Encoder(-5, 2**31 - 1).encode())),
+    write_tcp(odd, [(False, bytes(bad)), (False, build_packet(Encoder(-5, 2**31 - 1).encode())),
                      (False, build_packet(Sip(False, 7, 8, 5, 0, 0, 120, 0, 0, 1, 0, ((3, 0),)).encode()))], 8101)
     for cap in (path, odd):
         dec = Decoder(carried=False)

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_robots_counts import _write_tcp, tshark_counts
+from sl_robots import tshark_counts, write_tcp
 
 from sharedlink.analysis.stats import capture_stats, render_text
 from sharedlink.generators.blackboard import BlackboardGenOptions, generate_blackboard_file
@@ -81,7 +81,7 @@ def test_sip_gaps_distance_wrap_flags_and_a_bad_checksum(tmp_path):
     bad[-1] ^= 0xFF
     events[5] = (False, bytes(bad))
     path = tmp_path / "sips.pcap"
-    _write_tcp(path, events, 8101)
+    write_tcp(path, events, 8101)
     st = capture_stats(path)
     p = st.to_dict()["p2os"]
     assert p["packets"] == 40 and p["checksum_failures"] == 1

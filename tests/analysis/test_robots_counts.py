@@ -12,8 +12,8 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
+from sl_robots import tshark_counts, write_tcp
 
-import tshark_util as tu
 from sharedlink.analysis.decode import Decoder
 from sharedlink.analysis.robots import RobotLinks
 from sharedlink.analysis.sessions import SessionMessage
@@ -25,25 +25,7 @@ from sharedlink.generators.p2os import P2osGenOptions, generate_p2os_file
 from sharedlink.protocols.p2os import Sip, build_packet
 
 REPO = Path(__file__).resolve().parents[2]
-SCRIPTS = sorted((REPO / "dissector").glob("*.lua"))
-OTHERS = [a for s in SCRIPTS if s.name != "sharedlink.lua" for a in ("-X", f"lua_script:{s}")]
-SERIAL = {"uat:user_dlts": '"User 0 (DLT=147)","slserial","0","","0",""'}
 VECTORS = REPO / "tests" / "vectors" / "p2os.json"
-
-
-def tshark_counts(path: Path, serial: bool = False) -> tuple[Counter, Counter]:
-    """(P2OS packets, blackboard messages) per kind as tshark shows them with every dissector."""
-    rows = tu.fields(path, ["p2os.header", "p2os.direction", "p2os.checksum.status", "blackboard.type"],
-                     prefs=SERIAL if serial else None, extra=OTHERS, two_pass=True)
-    p2 = Counter()
-    bb = Counter()
-    for r in rows:
-        for d, s in zip(r["p2os.direction"], r["p2os.checksum.status"]):
-            p2[("client" if d == "0" else "robot", s == "1")] += 1
-        assert len(r["p2os.header"]) == len(r["p2os.direction"])
-        for t in r["blackboard.type"]:
-            bb[t] += 1
-    return p2, bb
 
 
 def python_counts(path: Path) -> tuple[Counter, Counter]:
@@ -87,14 +69,6 @@ def test_generated_blackboard_sessions_count_as_tshark(tmp_path, transport):
     assert not p2 and sum(bb.values()) == stats.messages
 
 
-def _write_tcp(path: Path, events: list[tuple[bool, bytes]], port: int) -> None:
-    with open(path, "wb") as fh:
-        w = PcapWriter(fh)
-        evs = [(10**18 + i * 10_000_000, c, p) for i, (c, p) in enumerate(events)]
-        for ts, _, frame in session_frames(evs, "tcp", ("127.0.0.1", 40000), ("127.0.0.1", port)):
-            w.write(ts, frame)
-
-
 def vector_packets() -> list[tuple[bool, bytes]]:
     """(from the client, packet bytes) of every vector of tests/vectors/p2os.json."""
     table = json.loads(VECTORS.read_text())
@@ -107,7 +81,7 @@ def test_vectors_whole_and_cut_count_as_tshark(tmp_path, port):
     across segments, several packets in one): on the server port and through the heuristic."""
     events = vector_packets()
     whole = tmp_path / "whole.pcap"
-    _write_tcp(whole, events, port)
+    write_tcp(whole, events, port)
     p2, _ = assert_same(whole)
     assert sum(p2.values()) == len(events)
     rng = random.Random(port)
@@ -122,7 +96,7 @@ def test_vectors_whole_and_cut_count_as_tshark(tmp_path, port):
         side = rng.choice([s for s in (True, False) if sides[s]])
         cut.append((side, sides[side].pop(0)))
     cutp = tmp_path / "cut.pcap"
-    _write_tcp(cutp, cut, port)
+    write_tcp(cutp, cut, port)
     p2, _ = assert_same(cutp)
     assert sum(p2.values()) == 3 * len(events)
 
@@ -135,7 +109,7 @@ def test_a_position_reading_open_bracket_colon_stays_p2os(tmp_path, port):
     vel = bytes.fromhex("FAFB060B3B64006F3B")
     events = [(True, vel)] + [(i % 3 != 0, vel if i % 3 == 0 else sip) for i in range(600)]
     path = tmp_path / "bracket.pcap"
-    _write_tcp(path, events, port)
+    write_tcp(path, events, port)
     p2, _ = assert_same(path)
     assert sum(p2.values()) == len(events)
     st = capture_stats(path)

@@ -20,11 +20,12 @@ from pathlib import Path
 import pytest
 from core_streams import stats_by_reference
 from sl_captures import BEACON, reference
+from sl_checks import tap_stats
 
 from sharedlink.analysis.stats import capture_stats, one_line
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.state import BEACON_VARIABLES
-from tshark_util import REPO, TSHARK_CMD, check_stderr, fields, tshark
+from tshark_util import REPO, TSHARK_CMD, check_stderr, fields
 
 CLI = [sys.executable, "-m", "sharedlink"]
 STATS_LUA = REPO / "dissector" / "sharedlink_stats.lua"
@@ -136,37 +137,6 @@ def test_stats_streams(tmp_path):
 # -- the Lua tap ------------------------------------------------------------------------------
 
 
-def tap_stats(path: Path, flt: str = "", prefs: dict | None = None) -> dict:
-    """Run ``tshark -z sharedlink,stats`` with both scripts and parse its report. The tap writes
-    pairs as the packet list does (``B→A``); they are returned as Python writes them (``B>A``)."""
-    z = "sharedlink,stats" + ("," + flt if flt else "")
-    res = tshark(path, ["-q", "-X", f"lua_script:{STATS_LUA}", "-z", z], prefs=prefs)
-    text = res.stdout
-    assert "SharedLink statistics" in text, text
-    out: dict = {"kinds": {}, "pairs": {}, "vars": {}}
-    section = None
-    header: list[str] = []
-    for line in text.splitlines():
-        if m := re.match(r"(Frames|Checksum failures|Sync late|Noise): (\d+)$", line):
-            out[m.group(1)] = int(m.group(2))
-        elif line in ("Frames per kind", "Frames per node pair", "Variables"):
-            section = line
-        elif line.startswith("  ") and section:
-            cols = re.split(r"\s{2,}", line.strip())
-            if cols[0] in ("Kind", "Pair"):
-                header = cols
-                continue
-            if section == "Frames per kind":
-                out["kinds"][cols[0]] = int(cols[1])
-            elif section == "Frames per node pair":
-                kinds = {k: int(n) for k, n in zip(header[4:], cols[4:]) if int(n)}
-                out["pairs"][cols[0].replace("→", ">")] = (int(cols[1]), int(cols[2]), int(cols[3]), kinds)
-            else:
-                parts = line.split(None, 3)
-                out["vars"][(parts[0].replace("→", ">"), parts[1])] = (int(parts[2]), parts[3] if len(parts) > 3 else "")
-        elif not line.startswith("  "):  # (a section of its own: link health, tests/dissector/test_health_tap.py)
-            section = None
-    return out
 
 
 @pytest.mark.parametrize("variant", sorted(VARIANTS))

@@ -20,30 +20,21 @@ that each example costs one tshark run.
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
+from sl_agreement import lua_frames, python_frames
 from sl_vectors import load_streams, stream_params, write_stream
 
-import tshark_util as tu
-from sharedlink.analysis.decode import Decoded, iter_decoded, parse_variables
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
-from sharedlink.protocols.codec import TYPE_NAMES
-from sharedlink.protocols.state import BEACON_VARIABLES
 
-VARIABLES = "P0:2,P1:0,P2:4,P3"
 NAMED = (("Lat", 2), ("Lon", 2), ("Mode", 4), ("Cnt", 0))
 TEXTS = ["1", "-2", "3.5", "0", "x", "None", "1.5e3", "on", "a\r\nb", "a b"]
 T0 = 1_767_268_800 * 1_000_000_000
-CHECKSUM_WORD = {"1": "good", "0": "bad"}
-TRUE = ("1", "True", "true")
-#: the typed field a value shows (issue 29: types agree too, the default list's included)
-TYPED = {"long": "sharedlink.var.long", "double": "sharedlink.var.double", "string": "sharedlink.var.string"}
 
 # -- captures -----------------------------------------------------------------------------
 
@@ -138,75 +129,14 @@ def write_capture(path: Path, packets: list[tuple[tuple, str, str]]) -> Path:
 # -- the two decoders -----------------------------------------------------------------------
 
 
-_as_list, _walk = tu.as_list, tu.walk
 
 
-def _one(node: dict, key: str) -> Any:
-    vals = _as_list(node.get(key))
-    return vals[0] if vals else None
 
 
-def _placeholder(name: str | None) -> str | None:
-    """A slot past the known list has no name of its own: Python calls it ``var<i>``, the
-    dissector ``#<i>`` (or shows none); both compare as None."""
-    if name is None or re.fullmatch(r"(var|#)[0-9]+", name):
-        return None
-    return name
 
 
-def lua_frames(cap: Path, variables: str | None = VARIABLES, extra: tuple[str, ...] = ()) -> list[list[dict[str, Any]]]:
-    """The dissector's frames (``variables`` None: the preference's default)."""
-    prefs = None if variables is None else {"sharedlink.variables": variables}
-    packets = tu.json_packets(cap, prefs=prefs, two_pass=True, extra=extra)
-    out = []
-    for p in packets:
-        trees = [t for t in _as_list(p["_source"]["layers"].get("sharedlink")) if isinstance(t, dict)]
-        frames = []
-        for t in trees:
-            if "sharedlink.noise" in t:
-                continue
-            status = _walk(t, "sharedlink.checksum.status")
-            has_ck = "sharedlink.checksum" in t or "sharedlink.checksum.text" in t
-            kind = _one(t, "sharedlink.kind")
-            variables = []
-            for v in _as_list(t.get("sharedlink.var")):
-                if not isinstance(v, dict):
-                    continue
-                experts = {k for e in _walk(v, "_ws.expert") if isinstance(e, dict) for k in e}
-                carried = _one(v, "sharedlink.var.carried") in TRUE
-                value = _one(v, "sharedlink.var.value")
-                typed = None if carried else next((t for t, f in TYPED.items() if f in v), None)
-                variables.append(
-                    (_placeholder(_one(v, "sharedlink.var.name")), value, carried,
-                     "sharedlink.var.badvalue" in experts and not carried, typed,
-                     "sharedlink.var.unknown" in experts)
-                )
-            frames.append({
-                "kind": kind,
-                "checksum": CHECKSUM_WORD.get(status[0], "?") if has_ck and status else "missing",
-                "vars": sorted(variables, key=repr) if kind in ("full", "delta", "reply") else None,
-            })
-        out.append(frames)
-    return out
 
 
-def python_frames(cap: Path, n: int, variables: str | None = VARIABLES) -> list[list[dict[str, Any]]]:
-    """Python's frames (``variables`` None: its default, BEACON_VARIABLES)."""
-    out: list[list[dict[str, Any]]] = [[] for _ in range(n)]
-    vs = list(BEACON_VARIABLES) if variables is None else parse_variables(variables)
-    for d in iter_decoded(cap, vs):
-        if not isinstance(d, Decoded) or d.kind == "malformed":  # (left out of both, see test_vector_stream_agrees)
-            continue
-        positional = d.frame is not None and not any(f.letter in "QR" for f in d.frame.fields)
-        variables = [(_placeholder(u.name), u.text, u.carried, u.bad and not u.carried,
-                      None if u.carried or u.bad else TYPE_NAMES.get(u.type_code),
-                      positional and u.index is not None and d.table.past_list(u.index)) for u in d.shown]
-        out[d.number - 1].append({
-            "kind": d.kind,
-            "checksum": {True: "good", False: "bad", None: "missing"}[d.checksum_ok],
-            "vars": sorted(variables, key=repr) if d.kind in ("full", "delta", "reply") else None,
-        })
-    return out
 
 
 # no shrinking: each step would be a tshark run; the failing capture is reported as drawn

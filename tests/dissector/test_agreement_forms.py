@@ -10,8 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from test_agreement import lua_frames, python_frames
-from test_agreement_limits import _session, _write
+from sl_agreement import lua_frames, python_frames, session, write_session
 
 import tshark_util as tu
 
@@ -26,7 +25,7 @@ SESSION = [
 
 
 def test_a_named_frame_after_positional_ones_carries_only_names_sent_by_name(tmp_path: Path) -> None:
-    cap = _write(tmp_path / "forms.pcap", _session(SESSION))
+    cap = write_session(tmp_path / "forms.pcap", session(SESSION))
     rows = tu.fields(cap, ["frame.number"], two_pass=False)
     assert len(rows) == len(SESSION)
     lua, py = lua_frames(cap), python_frames(cap, len(SESSION))

@@ -16,48 +16,25 @@ import subprocess
 import sys
 from pathlib import Path
 
-from test_agreement import lua_frames, python_frames
+from sl_agreement import (
+    OCU,
+    VEHICLE,
+    limit_frame,
+    limit_rows,
+    lua_frames,
+    python_frames,
+    session,
+    udp_builder,
+    write_session,
+)
 
 import tshark_util as tu
 from sharedlink.analysis.decode import Decoded, iter_decoded
 from sharedlink.analysis.stats import capture_stats
-from sharedlink.capture.packets import TcpConversation, UdpBuilder
-from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.capture.packets import TcpConversation
 from sharedlink.capture.serial_format import GIVEN_UP
 from sharedlink.capture.stream import iter_frames
 from sharedlink.protocols.limits import MAX_HELD_BYTES, MAX_NAMES, MAX_PENDING
-
-T0_NS = 1_767_268_800 * 1_000_000_000
-OCU, VEHICLE = ("10.0.0.1", 4000), ("10.0.0.2", 7013)
-
-
-def _frame(body: str) -> bytes:
-    """``[:<body>|C<xx>]`` CR LF with the right checksum."""
-    head = f"[:{body}|C".encode("latin-1")
-    return head + b"%02X]\r\n" % (sum(head[1:]) % 256)
-
-
-def _udp(src: tuple[str, int], dst: tuple[str, int]) -> UdpBuilder:
-    return UdpBuilder(src[0], dst[0], src[1], dst[1])
-
-
-def _session(bodies: list[str]) -> list[bytes]:
-    """Each body a frame between the OCU and the vehicle: ``BA|...`` from the OCU, any other
-    from the vehicle (as ``_frame`` writes it, numbered from 1)."""
-    return [(_udp(OCU, VEHICLE) if x.startswith("BA") else _udp(VEHICLE, OCU)).frame(_frame(x), i + 1)
-            for i, x in enumerate(bodies)]
-
-
-def _write(path: Path, frames: list[bytes]) -> Path:
-    with open(path, "wb") as fh:
-        w = PcapWriter(fh)
-        for i, f in enumerate(frames):
-            w.write(T0_NS + i * 1_000_000, f)
-    return path
-
-
-def _lua(cap: Path, names: tuple[str, ...] = ()) -> list[dict[str, list[str]]]:
-    return tu.fields(cap, ["frame.number", *names], two_pass=False)
 
 
 def _limited(rows: list[dict[str, list[str]]], what: str = "") -> list[int]:
@@ -83,18 +60,18 @@ def test_a_querier_past_max_pending_is_refused_and_counted_alike(tmp_path: Path)
     from the one that finds max_pending (1024) already waiting, each new query is refused (not
     remembered) and counted. A reply to an early name still finds its query; one to a refused
     name, and the poll's reply, as each side links them."""
-    ask, answer = _udp(OCU, VEHICLE), _udp(VEHICLE, OCU)
+    ask, answer = udp_builder(OCU, VEHICLE), udp_builder(VEHICLE, OCU)
     frames = []
     for i in range(520):
-        frames += [ask.frame(_frame("BA|Qpoll"), 2 * i + 1), ask.frame(_frame("BA|N?"), 2 * i + 2)]
+        frames += [ask.frame(limit_frame("BA|Qpoll"), 2 * i + 1), ask.frame(limit_frame("BA|N?"), 2 * i + 2)]
     first_q = len(frames) + 1
-    frames += [ask.frame(_frame(f"BA|Qq{i}"), 1300 + i) for i in range(1100)]
+    frames += [ask.frame(limit_frame(f"BA|Qq{i}"), 1300 + i) for i in range(1100)]
     late = 1100 - (MAX_PENDING - 2)  # the poll and the N? already wait
-    frames += [answer.frame(_frame("AB|Rq5|D1"), 1), answer.frame(_frame("AB|Rq1099|D1"), 2),
-               answer.frame(_frame("AB|Rpoll|D7"), 3)]
-    cap = _write(tmp_path / "queries.pcap", frames)
+    frames += [answer.frame(limit_frame("AB|Rq5|D1"), 1), answer.frame(limit_frame("AB|Rq1099|D1"), 2),
+               answer.frame(limit_frame("AB|Rpoll|D7"), 3)]
+    cap = write_session(tmp_path / "queries.pcap", frames)
 
-    rows = _lua(cap, ("sharedlink.response_to",))
+    rows = limit_rows(cap, ("sharedlink.response_to",))
     refused = list(range(first_q + 1100 - late, first_q + 1100))
     assert _limited(rows, "(max_pending)") == refused
     assert _limited(rows) == refused
@@ -118,15 +95,15 @@ def test_a_tcp_frame_that_never_closes_is_given_up_and_counted_alike(tmp_path: P
     and decode the frames after it."""
     tcp = TcpConversation(*OCU, *VEHICLE)
     frames = tcp.open()
-    good = _frame("AB|N0|T2|QLat|D1.5")
+    good = limit_frame("AB|N0|T2|QLat|D1.5")
     frames.append(tcp.send(False, good))
     for _ in range(2):
         frames.append(tcp.send(False, b"[:AB|N0|T4|QDump|D"))
         frames += [tcp.send(False, b"x" * 1400) for _ in range(60)]
         frames.append(tcp.send(False, b"\r\n" + good))
-    cap = _write(tmp_path / "tcp.pcap", frames)
+    cap = write_session(tmp_path / "tcp.pcap", frames)
 
-    rows = _lua(cap, ("sharedlink.kind",))
+    rows = limit_rows(cap, ("sharedlink.kind",))
     given_up = _limited(rows, "(max_held_bytes)")
     assert len(given_up) == 2 and _limited(rows) == given_up
     goods = [i + 1 for i, r in enumerate(rows) if "full" in r["sharedlink.kind"]]
@@ -149,12 +126,12 @@ def test_numbers_of_ten_digits_alike(tmp_path: Path) -> None:
     "Limit exceeded: N has more than 9 digits", Python ``limits.numbers``); a T of more than 9
     digits is a type that is not a number, as a T past 255 (Lua "Type is not a number" on the
     value, its var.badvalue; Python: no type, the value flagged bad), not a limit hit."""
-    b = _udp(VEHICLE, OCU)
+    b = udp_builder(VEHICLE, OCU)
     bodies = ["AB|N0|T4294967295|QVel|D5", "AB|N0|T12345678901234|QVel|D5", "AB|N4294967295|D1",
               "AB|L4294967295|T2|QLat", "AB|N0|T2|QVel|D6", "AB|N0|T300|QVel|D7", "AB|N0|T0|QVel|T99999999999|QW|D3",
               "BA|T4294967295|RVel|D1", "AB|N0|T9999999999|QP0|T2|QP1", "AB|N0|D5|D6"]
-    cap = _write(tmp_path / "digits.pcap", [b.frame(_frame(x), i + 1) for i, x in enumerate(bodies)])
-    rows = _lua(cap, ("sharedlink.var.name",))
+    cap = write_session(tmp_path / "digits.pcap", [b.frame(limit_frame(x), i + 1) for i, x in enumerate(bodies)])
+    rows = limit_rows(cap, ("sharedlink.var.name",))
     assert _limited(rows) == _limited(rows, "more than 9 digits") == [3, 4]
     not_a_type = [i + 1 for i, r in enumerate(rows) if "Type is not a number" in r["_ws.expert.message"]]
     assert not_a_type == [1, 2, 6, 7, 8, 9]
@@ -177,8 +154,8 @@ HUGE_ORDINAL = ["AB|N4294967295|D1", "AB|N0|D5|D6", "AB|N4294967295|D1", "AB|N0|
 
 
 def _huge_ordinal(tmp_path: Path) -> Path:
-    b = _udp(VEHICLE, OCU)
-    return _write(tmp_path / "ordinal.pcap", [b.frame(_frame(x), i + 1) for i, x in enumerate(HUGE_ORDINAL)])
+    b = udp_builder(VEHICLE, OCU)
+    return write_session(tmp_path / "ordinal.pcap", [b.frame(limit_frame(x), i + 1) for i, x in enumerate(HUGE_ORDINAL)])
 
 
 def test_python_drops_the_values_of_a_huge_ordinal(tmp_path: Path) -> None:
@@ -203,8 +180,8 @@ def test_values_past_max_slots_are_shown_as_sent_and_stored_nowhere_alike(tmp_pa
     a value, not carried; an empty one: carried with no value, as no slot holds one), flag the
     frame, store nothing for them, and carry only the two slots within the limit."""
     bodies = ["AB|N1022|D1|D2|D3|D4", "AB|N0|D5", "AB|N1022|D|D|D|D", "AB|N0|D6|D7"]
-    cap = _write(tmp_path / "slots.pcap", [_udp(VEHICLE, OCU).frame(_frame(x), i + 1) for i, x in enumerate(bodies)])
-    assert _limited(_lua(cap), "(max_slots)") == [1, 3]
+    cap = write_session(tmp_path / "slots.pcap", [udp_builder(VEHICLE, OCU).frame(limit_frame(x), i + 1) for i, x in enumerate(bodies)])
+    assert _limited(limit_rows(cap), "(max_slots)") == [1, 3]
     assert capture_stats(cap).limits.slots == 4
     lua, py = lua_frames(cap, None), python_frames(cap, len(bodies), None)
     assert lua == py
@@ -222,8 +199,8 @@ def test_a_new_name_past_max_names_is_shown_as_sent_and_stored_nowhere_alike(tmp
     carried after, and the frame flagged (Lua) / counted (Python, one a value)."""
     big = "AB|N0|" + "|".join(f"T2|Qn{i}|D1" for i in range(MAX_NAMES))
     bodies = [big, "AB|N0|T2|QZ|D5|T2|Qn0|D2", "AB|N0|QY|D6", "AB|N0|T2|Qn1|D3"]
-    cap = _write(tmp_path / "names.pcap", [_udp(VEHICLE, OCU).frame(_frame(x), i + 1) for i, x in enumerate(bodies)])
-    assert _limited(_lua(cap)) == _limited(_lua(cap), "(max_names)") == [2, 3]
+    cap = write_session(tmp_path / "names.pcap", [udp_builder(VEHICLE, OCU).frame(limit_frame(x), i + 1) for i, x in enumerate(bodies)])
+    assert _limited(limit_rows(cap)) == _limited(limit_rows(cap), "(max_names)") == [2, 3]
     assert capture_stats(cap).limits.names == 2
     lua, py = lua_frames(cap, None), python_frames(cap, len(bodies), None)
     assert lua == py
@@ -247,8 +224,8 @@ UNTYPED_AFTER_TYPED = ["AB|N0|T2|QVel|T0|QLat", "AB|N0|QVel|D5", "AB|N0|T4|QVel|
 
 
 def test_a_named_value_without_t_is_untyped_alike(tmp_path: Path) -> None:
-    frames = _session(UNTYPED_AFTER_TYPED)
-    cap = _write(tmp_path / "untyped.pcap", frames)
+    frames = session(UNTYPED_AFTER_TYPED)
+    cap = write_session(tmp_path / "untyped.pcap", frames)
     lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
     assert lua == py
 
@@ -277,8 +254,8 @@ LAST_T = ["AB|N0|T0|Qthrottle|Qsvp_enb_eng|T4|Qname|T2|Qvel|Qhead", "AB|N0|D1|D2
 
 
 def test_a_name_without_t_takes_the_last_t_alike(tmp_path: Path) -> None:
-    frames = _session(LAST_T)
-    cap = _write(tmp_path / "last_t.pcap", frames)
+    frames = session(LAST_T)
+    cap = write_session(tmp_path / "last_t.pcap", frames)
     lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
     assert lua == py
 
@@ -307,9 +284,9 @@ def test_named_values_past_the_1024th_are_no_slot_limit_hit(tmp_path: Path) -> N
     name at slot 1024 still are (frames 4 and 5)."""
     big = "AB|N0|" + "|".join(f"T2|Qv{i}|D{i}" for i in range(1100))
     bodies = [big, "AB|N1023|T2|Qv0|D1|T2|Qv1|D2", "AB|N2000|T2|Qv2|D3", "AB|N1023|D1|D2", "BA|N1023|Qa|Qb"]
-    frames = _session(bodies)
-    cap = _write(tmp_path / "named.pcap", frames)
-    assert _limited(_lua(cap)) == [4, 5]
+    frames = session(bodies)
+    cap = write_session(tmp_path / "named.pcap", frames)
+    assert _limited(limit_rows(cap)) == [4, 5]
     assert capture_stats(cap).limits.to_dict()["slots"] == 2
     lua, py = lua_frames(cap, None), python_frames(cap, len(bodies), None)
     assert lua[:3] == py[:3]
@@ -327,9 +304,9 @@ ODD_ORDINALS = ["AB|N0|T2|QA|T2|QB", "AB|N?|D1|D2", "AB|N|D1|D2", "AB|Nx|D1|D2",
 
 
 def test_an_ordinal_that_is_not_decimal_digits_is_no_number_alike(tmp_path: Path) -> None:
-    frames = _session(ODD_ORDINALS)
-    cap = _write(tmp_path / "ordinals.pcap", frames)
-    rows = _lua(cap)
+    frames = session(ODD_ORDINALS)
+    cap = write_session(tmp_path / "ordinals.pcap", frames)
+    rows = limit_rows(cap)
     assert _limited(rows) == []
     assert capture_stats(cap).limits.total == 0
     lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
@@ -351,11 +328,11 @@ SHORTENED = ["BA|N0|T2|Qa|T2|Qb|T2|Qc", "BA|N0|D1|D2|D3", "BA|N0|T2|Qa", "AB|N0|
 
 
 def test_a_shortened_list_under_waiting_asks_alike(tmp_path: Path) -> None:
-    frames = _session(SHORTENED)
-    cap = _write(tmp_path / "shortened.pcap", frames)
+    frames = session(SHORTENED)
+    cap = write_session(tmp_path / "shortened.pcap", frames)
     lua, py = lua_frames(cap, None), python_frames(cap, len(frames), None)
     assert lua == py
-    rows = _lua(cap, ("sharedlink.response_to",))
+    rows = limit_rows(cap, ("sharedlink.response_to",))
     ours = [d.response_to for d in iter_decoded(cap) if isinstance(d, Decoded)]
     assert [max(map(int, r["sharedlink.response_to"]), default=None) for r in rows] == ours
     assert _limited(rows) == [12]

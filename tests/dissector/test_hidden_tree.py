@@ -26,6 +26,10 @@ SERIAL_LUA = REPO / "dissector" / "serial.lua"
 INPUTS = sorted((REPO / "captures").glob("*.pcap")) + sorted(
     p for p in (REPO / "tests" / "dissector" / "golden" / "inputs").iterdir() if p.suffix in (".pcap", ".pcapng")
 ) + sorted((REPO / "tests" / "fuzz" / "fuzz-regressions").glob("*.pcap"))
+
+# its module fixtures' tshark runs (shared by every test here) made once: one pytest-xdist worker
+# (make test: --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("hidden_tree")
 # generated fault captures: sharedlink gen options
 GENERATED = {
     "named-faults": ["--frames", "400", "--compress", "--drop", "0.2", "--bad-checksum", "0.05", "--seed", "5"],
@@ -102,10 +106,17 @@ def merged(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def _shown(cap: Path, flt: str, two_pass: bool = False) -> list[int]:
-    out = tu.tshark(cap, ["-X", f"lua_script:{SERIAL_LUA}", "-V", "-O", "frame", "-Y", flt], prefs=PREFS,
-                    two_pass=two_pass, timeout=300).stdout
-    return [int(n) for n in _FRAME.findall(out)]
+@pytest.fixture(scope="module")
+def shown(merged: Path) -> dict[str, list[int]]:
+    """The frames each filter matches with a shown tree (-V), one pass: one tshark run for all."""
+    return tu.shown_matches(merged, FILTERS, prefs=PREFS, extra=["-X", f"lua_script:{SERIAL_LUA}"], timeout=300)
+
+
+@pytest.fixture(scope="module")
+def shown_two_pass(merged: Path) -> dict[str, list[int]]:
+    """The same with two passes (-2 -V): the second pass's matches."""
+    return tu.shown_matches(merged, TWO_PASS, prefs=PREFS, two_pass=True, extra=["-X", f"lua_script:{SERIAL_LUA}"],
+                            timeout=300)
 
 
 def _hidden(cap: Path, flt: str, two_pass: bool = False) -> list[int]:
@@ -115,19 +126,31 @@ def _hidden(cap: Path, flt: str, two_pass: bool = False) -> list[int]:
     return [int(line) for line in out.split()]
 
 
+def test_shown_matches_are_what_minus_v_minus_y_prints(merged: Path, shown: dict[str, list[int]],
+                                                        shown_two_pass: dict[str, list[int]]) -> None:
+    """The shared shown-tree run (one Lua tap a filter) gives the frames ``-V -Y F`` prints, in
+    one pass and in two, for a few filters of each kind."""
+    for flt in (FILTERS[0], "sharedlink.var.carried_from > 100", "sharedlink.noise", "sharedlink.reply.unmatched"):
+        out = tu.tshark(merged, ["-X", f"lua_script:{SERIAL_LUA}", "-V", "-O", "frame", "-Y", flt], prefs=PREFS,
+                        timeout=300).stdout
+        assert [int(n) for n in _FRAME.findall(out)] == shown[flt], flt
+    flt = "sharedlink.response_in || sharedlink.response_to"
+    out = tu.tshark(merged, ["-X", f"lua_script:{SERIAL_LUA}", "-V", "-O", "frame", "-Y", flt], prefs=PREFS,
+                    two_pass=True, timeout=300).stdout
+    assert [int(n) for n in _FRAME.findall(out)] == shown_two_pass[flt], flt
+
+
 @pytest.mark.parametrize("flt", FILTERS)
-def test_hidden_tree_matches_the_frames_a_shown_one_matches(flt: str, merged: Path,
+def test_hidden_tree_matches_the_frames_a_shown_one_matches(flt: str, merged: Path, shown: dict[str, list[int]],
                                                             monkeypatch: pytest.MonkeyPatch) -> None:
-    shown = _shown(merged, flt)
-    assert shown, f"{flt!r} matches no frame: it tests nothing"
-    assert _hidden(merged, flt) == shown, flt
+    assert shown[flt], f"{flt!r} matches no frame: it tests nothing"
+    assert _hidden(merged, flt) == shown[flt], flt
     with monkeypatch.context() as m:   # referenced fields asked again each frame
         m.setenv("SHAREDLINK_PROBE_EACH_FRAME", "1")
-        assert _hidden(merged, flt) == shown, f"{flt} (probe each frame)"
+        assert _hidden(merged, flt) == shown[flt], f"{flt} (probe each frame)"
 
 
 @pytest.mark.parametrize("flt", TWO_PASS)
-def test_hidden_tree_matches_with_two_passes(flt: str, merged: Path) -> None:
-    shown = _shown(merged, flt, two_pass=True)
-    assert shown, f"{flt!r} matches no frame: it tests nothing"
-    assert _hidden(merged, flt, two_pass=True) == shown, flt
+def test_hidden_tree_matches_with_two_passes(flt: str, merged: Path, shown_two_pass: dict[str, list[int]]) -> None:
+    assert shown_two_pass[flt], f"{flt!r} matches no frame: it tests nothing"
+    assert _hidden(merged, flt, two_pass=True) == shown_two_pass[flt], flt

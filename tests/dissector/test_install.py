@@ -12,19 +12,12 @@ from pathlib import Path
 
 import pytest
 
-from tshark_util import REPO, TSHARK_CMD, check_stderr
+from tshark_util import REPO, TSHARK_CMD, check_stderr, env_for
 
 pytestmark = pytest.mark.skipif(shutil.which("make") is None or TSHARK_CMD != [shutil.which("tshark") or "/usr/bin/tshark"],
                                 reason="needs make and the machine's own tshark")
 LUA = sorted(p.name for p in (REPO / "dissector").glob("*.lua"))
 RULES = (REPO / "dissector" / "sharedlink.colorfilters").read_text()
-
-
-def env_for(home: Path) -> dict[str, str]:
-    env = dict(os.environ, HOME=str(home), XDG_CONFIG_HOME=str(home / ".config"), LC_ALL="C.UTF-8")
-    for name in ("WIRESHARKCONFIGDIR", "WIRESHARK_CONFIG_DIR"):
-        env.pop(name, None)
-    return env
 
 
 def make(target: str, home: Path) -> str:

@@ -17,7 +17,7 @@ from tshark_util import TSHARK_CMD, check_stderr
 pytestmark = pytest.mark.skipif(TSHARK_CMD != [shutil.which("tshark") or "/usr/bin/tshark"],
                                 reason="needs the machine's own tshark")
 sys.path.insert(0, str(Path(__file__).parent))
-from test_install import env_for  # noqa: E402
+from tshark_util import env_for  # noqa: E402
 
 
 def cli(home: Path, *args: object) -> subprocess.CompletedProcess:

@@ -16,7 +16,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from test_agreement_limits import _frame, _lua, _udp, _write
+from sl_agreement import limit_frame as _frame
+from sl_agreement import limit_rows as _lua
+from sl_agreement import udp_builder as _udp
+from sl_agreement import write_session as _write
 
 import tshark_util as tu
 from sharedlink.analysis.decode import Decoded, iter_decoded

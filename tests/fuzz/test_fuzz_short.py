@@ -159,16 +159,26 @@ def test_kept_regressions_stay_fixed():
 
 
 def test_kept_parser_inputs_stay_fixed():
+    """Every kept parser input (``codec-TARGET-*.bin``, written by ``make fuzz``) and every seed
+    input of the targets goes through its target again: the replay always runs (no kept input
+    yet is no reason to skip it), and a kept input naming no target fails instead of being
+    passed over."""
     import fuzz_codecs
 
-    kept = sorted(fh.REGRESSIONS_DIR.glob("codec-*.bin")) if fh.REGRESSIONS_DIR.is_dir() else []
-    if not kept:
-        pytest.skip("no kept parser inputs (tests/fuzz/fuzz-regressions/codec-*.bin)")
     targets = fuzz_codecs.targets()
-    for p in kept:
-        name = p.name[len("codec-") :].rsplit("-", 1)[0]
-        if name in targets:
-            targets[name](p.read_bytes())
+    kept = sorted(fh.REGRESSIONS_DIR.glob("codec-*.bin")) if fh.REGRESSIONS_DIR.is_dir() else []
+    unknown = [p.name for p in kept if p.name[len("codec-") :].rsplit("-", 1)[0] not in targets]
+    assert not unknown, f"kept inputs of no target: {unknown}"
+    seeds = fuzz_codecs.seeds()
+    untried = []
+    for name, target in targets.items():
+        inputs = [p.read_bytes() for p in kept if p.name[len("codec-") :].rsplit("-", 1)[0] == name]
+        inputs += seeds.get(name.split(".")[0], [])
+        for data in inputs:
+            target(data)
+        if not inputs:
+            untried.append(name)
+    assert not untried, f"targets with no input to replay: {untried}"
 
 
 # --- the root filesystem wrapper (when `make rootfs` has built the roots) ----------------------

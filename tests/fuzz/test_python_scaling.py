@@ -27,14 +27,23 @@ from pathlib import Path
 
 import pytest
 from scaling import TIME_LIMIT
+from scaling_python import (
+    bad_checksums,
+    bb_unterminated,
+    conversations,
+    new_names,
+    past_the_limit,
+    replies_in_a_big_list,
+    sl_unterminated,
+    write,
+    write_serial,
+)
 
 from sharedlink.analysis.decode import Decoded, iter_decoded
 from sharedlink.analysis.diff import DiffOptions, diff_captures
 from sharedlink.analysis.export import ExportOptions, export
 from sharedlink.analysis.stats import capture_stats
-from sharedlink.capture.packets import UdpBuilder
-from sharedlink.capture.pcapio import PcapWriter
-from sharedlink.capture.serial_format import DIR_OUT, GIVEN_UP, Deframer, SerialCaptureWriter, read_capture
+from sharedlink.capture.serial_format import GIVEN_UP, Deframer, read_capture
 from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
 from sharedlink.protocols.limits import MAX_HELD_BYTES, MAX_NAMES, MAX_SLOTS
 
@@ -44,26 +53,11 @@ GROWTH = 5.0
 #: on CI 6.1x once (stats over 2,000 and 8,000 conversations, whose cost per conversation is flat
 #: from 500 to 32,000 here): a bigger working set costs more per item without more work
 TIME_GROWTH = TIME_LIMIT
-T0 = 1_700_000_000 * 10**9
-STEP = 200_000_000
 
 
 # -- helpers ------------------------------------------------------------------------------------
 
 
-def write(path: Path, payloads: Sequence[bytes | tuple[int, bytes]]) -> Path:
-    """Each payload a UDP datagram 200 ms after the previous; ``(sport, payload)`` picks the
-    sender's port (a conversation each)."""
-    builders: dict[int, UdpBuilder] = {}
-    with open(path, "wb") as fh:
-        w = PcapWriter(fh)
-        for i, item in enumerate(payloads):
-            sport, payload = item if isinstance(item, tuple) else (7013, item)
-            b = builders.get(sport)
-            if b is None:
-                b = builders[sport] = UdpBuilder("10.0.0.1", "10.0.0.9", sport, 7013)
-            w.write(T0 + i * STEP, b.frame(payload, i + 1))
-    return path
 
 
 def cpu_seconds(fn: Callable[[], object]) -> float:
@@ -162,39 +156,14 @@ def diff_self(path: Path) -> object:
 # -- patterns -----------------------------------------------------------------------------------
 
 
-#: the directions new_names takes turns in: at make fuzz's 4N = 48000 frames each holds 16001 names
-#: (past MAX_NAMES: dropped and counted), at make test's 4N = 4000 frames 1335 (every name stored)
-PAIRS = (("A", "B"), ("C", "D"), ("E", "F"))
 
 
-def new_names(n: int) -> list[bytes]:
-    """Every frame sends one name never sent before (and the first name again), the directions
-    of :data:`PAIRS` in turn."""
-    return [encode_named(*PAIRS[i % len(PAIRS)], [("First", 2, "1"), (f"Name{i}", 2, str(i))]) for i in range(n)]
 
 
-def bad_checksums(n: int) -> list[bytes]:
-    """A table of 300 positional names, then frames with a bad checksum (once deep-copied each)."""
-    decl = build_frame(Frame("A", "B", (Field("N", "0"), *[f for i in range(300) for f in (Field("T", "0"),
-                                                                                         Field("Q", f"v{i}"))])))
-    good = encode_positional("A", "B", [str(i) for i in range(300)])
-    bad = good[:-5] + (b"00" if good[-5:-3] != b"00" else b"01") + good[-3:]
-    return [decl, good] + [bad] * n
 
 
-def replies_in_a_big_list(n: int) -> list[bytes]:
-    """A declared list of MAX_SLOTS names, then replies naming its last slot (``names.index``)."""
-    decl = build_frame(Frame("A", "B", (Field("N", "0"), *[f for i in range(MAX_SLOTS) for f in (
-        Field("T", "0"), Field("Q", f"v{i}"))])))
-    return [decl] + [build_frame(Frame("A", "B", (Field("R", f"v{MAX_SLOTS - 1}"), Field("D", str(i)))))
-                     for i in range(n)]
 
 
-def conversations(n: int) -> list[tuple[int, bytes]]:
-    """``n`` conversations (source ports), a full frame each, then one delta each."""
-    full = encode_named("A", "B", [("AutoGpsLat", 2, "1.5"), ("AutoGpsLon", 2, "2.5")])
-    delta = encode_named("A", "B", [("AutoGpsLat", 2, "1.6")])
-    return [(10000 + i, full) for i in range(n)] + [(10000 + i, delta) for i in range(n)]
 
 
 #: N of the new-names checks: stats before 69f9b30 (the full-set size remade for each new name)
@@ -231,34 +200,12 @@ def test_many_conversations_cost_linear_time_and_memory(caps, run):
 # -- serial: held bytes ---------------------------------------------------------------------------
 
 
-def write_serial(path: Path, chunks: Sequence[bytes]) -> Path:
-    """A serial capture (pcapng, USER0), one outbound record per chunk, 1 ms apart."""
-    with open(path, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        for i, c in enumerate(chunks):
-            w.write(c, DIR_OUT, T0 + i * 1_000_000)
-    return path
 
 
-def sl_unterminated(n: int) -> list[bytes]:
-    """A SharedLink frame that never ends, sent one byte a record (serial.lua and the Python
-    deframer rescanned the held bytes each record: 4k to 16k records 0.2 s to 3.2 s here)."""
-    return [b"[:AB|N0|D"] + [b"7"] * n
 
 
-def bb_unterminated(n: int) -> list[bytes]:
-    """The same for a blackboard message (no CR ever)."""
-    return [b":031F00"] + [b"0"] * n
 
 
-def past_the_limit(n: int) -> list[bytes]:
-    """Unfinished frames of 1.5 MAX_HELD_BYTES each, 1 KB records, a good frame after each."""
-    chunk = b"7" * 1024
-    good = encode_positional("A", "B", ["1"])
-    out: list[bytes] = []
-    for _ in range(max(1, n // 100)):
-        out += [b"[:AB|N0|D"] + [chunk] * (3 * MAX_HELD_BYTES // 2048) + [good]
-    return out
 
 
 def serial_records(path: Path) -> object:

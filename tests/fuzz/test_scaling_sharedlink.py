@@ -18,12 +18,17 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import pytest
+from scaling_sharedlink import (
+    LUA_PATTERNS,
+    alternating_declarations,
+    command,
+    far_slot,
+    frame,
+    new_names,
+    write,
+)
 
 import tshark_util as tu
-from sharedlink.capture.packets import UdpBuilder
-from sharedlink.capture.pcapio import PcapWriter
-
-T0_NS = 1_767_268_800 * 1_000_000_000
 
 try:  # the shared helper (tests/fuzz/scaling.py, from the lua-small branch)
     from scaling import check_scaling
@@ -56,57 +61,21 @@ except ImportError:  # pragma: no cover - until it is merged
         raise AssertionError(f"does not scale: {report}")
 
 
-def _frame(body: str) -> bytes:
-    """``[:<body>|C<xx>]`` CR LF with the right checksum (the bytes from ':' through 'C')."""
-    head = f"[:{body}|C".encode("latin-1")
-    return head + b"%02X]\r\n" % (sum(head[1:]) % 256)
 
 
-def _write(path: Path, payloads: Sequence[bytes]) -> Path:
-    b = UdpBuilder("10.0.0.2", "10.0.0.255", 7013, 7013)
-    with open(path, "wb") as fh:
-        w = PcapWriter(fh)
-        for i, p in enumerate(payloads):
-            w.write(T0_NS + i * 10_000_000, b.frame(p, i + 1))
-    return path
 
 
-def _cmd(cap: Path, *args: str) -> list[str]:
-    return [*tu.TSHARK_CMD, "-n", "-X", f"lua_script:{tu.DISSECTOR}", "-r", str(cap), *args]
 
 
 # --- patterns ---------------------------------------------------------------------------------
 
 
-def new_names(n: int) -> list[bytes]:
-    """Every frame sends two names never sent before (and one old one): a copy of the carried
-    names per frame would grow with the frame count."""
-    return [_frame(f"AB|N0|T4|Qa{i}|Dx|T4|Qb{i}|Dy|T4|Qold|D{i}") for i in range(n)]
 
 
-def alternating_declarations(n: int) -> list[bytes]:
-    """Declarations alternating with positional frames: a new list in use every other frame."""
-    out = []
-    for i in range(n):
-        out.append(_frame(f"AB|N0|T2|QLat{i % 7}|T2|QLon{i % 5}") if i % 2 == 0 else _frame(f"AB|N0|D{i}|D{i + 1}"))
-    return out
 
 
-def far_slot(n: int) -> list[bytes]:
-    """One positional frame at a huge slot, then frames with one value each."""
-    return [_frame("AB|N2147483646|D1")] + [_frame(f"AB|N0|D{i}") for i in range(n)]
 
 
-PATTERNS: dict[str, tuple[Callable[[int], list[bytes]], int, tuple[str, ...]]] = {
-    # with the default limits, as users run it (names stop at max_names, 4096, after ~2k frames).
-    # Measured 3.8-4.3x (one pass) and 4.1-4.9x (-2) on a loaded machine: the journal keeps a Lua
-    # string per carried value, and Wireshark's collections of the Lua heap grow with it
-    "new-names": (new_names, 2000, ()),
-    "new-names-2": (new_names, 2000, ("-2",)),
-    "alternating-declarations-2": (alternating_declarations, 4000, ("-2",)),
-    "far-slot": (far_slot, 4000, ()),
-    "far-slot-2": (far_slot, 4000, ("-2",)),
-}
 
 
 
@@ -114,12 +83,12 @@ PATTERNS: dict[str, tuple[Callable[[int], list[bytes]], int, tuple[str, ...]]] =
 # -2 with new names read 4.0-7.4x in time with every name kept, its instructions linear (callgrind,
 # 27 November 2026: 1.526 and 1.522 thousand million a 1,000 frames from 1,000 to 2,000 and from
 # 2,000 to 4,000 frames): within scaling.TIME_LIMIT, the room time gets for the memory hierarchy
-@pytest.mark.parametrize("name", sorted(PATTERNS))
+@pytest.mark.parametrize("name", sorted(LUA_PATTERNS))
 def test_sharedlink_scales_linearly(name: str, tmp_path: Path) -> None:
-    gen, n, args = PATTERNS[name]
+    gen, n, args = LUA_PATTERNS[name]
 
     def make(size: int, tmp: Path) -> list[str]:
-        return _cmd(_write(tmp / f"{name}-{size}.pcap", gen(size)), *args)
+        return command(write(tmp / f"{name}-{size}.pcap", gen(size)), *args)
 
     tu.ensure_loaded()
     print(name, check_scaling(make, n, tmp_path))
@@ -136,19 +105,19 @@ def _limited(cap: Path, *args: str) -> list[int]:
 
 def test_huge_declaration_is_bounded(tmp_path: Path) -> None:
     """``[:AB|N<n>|T0|Qx]`` with n = 2e9 used to fill the list up to n (171 s, 5.9 GB, abort)."""
-    cap = _write(tmp_path / "decl.pcap", [_frame("AB|N2000000000|T0|Qx"), _frame("AB|N0|D1|D2")])
+    cap = write(tmp_path / "decl.pcap", [frame("AB|N2000000000|T0|Qx"), frame("AB|N0|D1|D2")])
     assert _limited(cap) == [1]
     assert _limited(cap, "-2") == [1]
 
 
 def test_max_slots_preference(tmp_path: Path) -> None:
-    cap = _write(tmp_path / "slots.pcap", [_frame("AB|N7|D1"), _frame("AB|N3|D1"), _frame("AB|N0|D1")])
+    cap = write(tmp_path / "slots.pcap", [frame("AB|N7|D1"), frame("AB|N3|D1"), frame("AB|N0|D1")])
     assert _limited(cap, "-o", "sharedlink.max_slots:5") == [1]
     assert _limited(cap) == []
 
 
 def test_max_names_preference(tmp_path: Path) -> None:
-    cap = _write(tmp_path / "names.pcap", new_names(4))
+    cap = write(tmp_path / "names.pcap", new_names(4))
     # 3 names in frame 1 (a0, b0, old), then two new ones a frame: the fourth name is refused
     assert _limited(cap, "-o", "sharedlink.max_names:3") == [2, 3, 4]
     rows = tu.fields(cap, ["sharedlink.var.carried"], extra=["-o", "sharedlink.max_names:3"], two_pass=True)
@@ -156,23 +125,23 @@ def test_max_names_preference(tmp_path: Path) -> None:
 
 
 def test_max_pending_preference(tmp_path: Path) -> None:
-    cap = _write(tmp_path / "queries.pcap", [_frame(f"AB|Qq{i}") for i in range(5)])
+    cap = write(tmp_path / "queries.pcap", [frame(f"AB|Qq{i}") for i in range(5)])
     assert _limited(cap, "-o", "sharedlink.max_pending:3") == [4, 5]
     assert _limited(cap, "-2", "-o", "sharedlink.max_pending:3") == [4, 5]
 
 
 def test_max_conversations_preference(tmp_path: Path) -> None:
-    payloads = [_frame(f"{d}B|N0|T2|QLat|D{i}") for i, d in enumerate("ACDEF")]
-    cap = _write(tmp_path / "dirs.pcap", payloads)
+    payloads = [frame(f"{d}B|N0|T2|QLat|D{i}") for i, d in enumerate("ACDEF")]
+    cap = write(tmp_path / "dirs.pcap", payloads)
     assert _limited(cap, "-o", "sharedlink.max_conversations:2") == [3, 4, 5]
 
 
 def test_journal_gives_the_same_carried_values_as_the_records(tmp_path: Path) -> None:
     """A direction with more than 32 names keeps a journal instead of a record per frame: the
     carried names, values and frames must be what a one-pass tree (the current state) shows."""
-    payloads = [_frame("AB|N0|" + "|".join(f"T4|Qv{k}|D{k}" for k in range(40)))]
-    payloads += [_frame(f"AB|N0|T4|Qv{i % 40}|Dn{i}|T4|Qw{i}|Dz") for i in range(60)]
-    cap = _write(tmp_path / "journal.pcap", payloads)
+    payloads = [frame("AB|N0|" + "|".join(f"T4|Qv{k}|D{k}" for k in range(40)))]
+    payloads += [frame(f"AB|N0|T4|Qv{i % 40}|Dn{i}|T4|Qw{i}|Dz") for i in range(60)]
+    cap = write(tmp_path / "journal.pcap", payloads)
     names = ["sharedlink.kind", "sharedlink.var.name", "sharedlink.var.value", "sharedlink.var.carried_from"]
     one = tu.fields(cap, names, two_pass=False)
     two = tu.fields(cap, names, two_pass=True)
@@ -185,7 +154,7 @@ def test_linear_patterns_stay_correct(tmp_path: Path) -> None:
     """The scaling patterns decode the same in one and two passes."""
     with tempfile.TemporaryDirectory() as d:
         for gen in (new_names, alternating_declarations, far_slot):
-            cap = _write(Path(d) / "p.pcap", gen(50))
+            cap = write(Path(d) / "p.pcap", gen(50))
             lines1 = tu.summary(cap)
             lines2 = tu.summary(cap, two_pass=True)
             assert lines1 == lines2, gen.__name__

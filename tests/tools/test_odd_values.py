@@ -10,7 +10,6 @@ import os
 import struct
 import subprocess
 import sys
-import time
 import tty
 from pathlib import Path
 
@@ -119,7 +118,8 @@ def test_replay_to_a_serial_port_nobody_reads_stops_at_the_first_timeout(tmp_pat
     generate_file(GenOptions(frames=2000), cap)
     master, slave = os.openpty()  # nobody reads the master: the pty fills up
     tty.setraw(slave)
-    t = time.monotonic()
+    # (the subprocess timeout is the hang guard: a timeout per frame would take 2000 x 5 s; the
+    # report says it stopped at the first one)
     r = subprocess.run([*CLI, "replay", "--serial", os.ttyname(slave), "--topspeed", "--json", str(cap)],
                        capture_output=True, text=True, timeout=120)
     os.close(master)
@@ -128,7 +128,6 @@ def test_replay_to_a_serial_port_nobody_reads_stops_at_the_first_timeout(tmp_pat
     out = json.loads(r.stdout)
     assert out["send_errors"] == 1 and "timed out" in out["first_error"]
     assert 0 < out["frames"] < 2000
-    assert time.monotonic() - t < 60  # not 5 s per frame
 
 
 class _InterruptAfter:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 from sl_captures import BEACON, reference
-from sl_pipes import environment, one_page_pipe, read_to_end, wait_writing
+from sl_pipes import environment, one_page_pipe, read_lines, read_to_end, wait_writing
 
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.codec import encode_named
@@ -104,12 +104,14 @@ def check_rows(rows: list[dict], cap: Path, same_times: bool) -> None:
 def test_json_sees_every_replayed_frame(capture):
     port = free_port()
     w = start_watch("--port", port, "--json")
+    shown = b""
     try:
         wait_line(w, "udp port")
         replay(capture, port, "--speed", 20)
-        time.sleep(0.5)
+        shown = read_lines(w.stdout.fileno(), len(reference(capture)))  # type: ignore[union-attr]
     finally:
         out, _err = interrupt(w)
+    out = shown.decode() + out
     rows = [json.loads(line) for line in out.splitlines()]
     check_rows(rows, capture, same_times=False)
     assert [r["number"] for r in rows] == list(range(1, len(rows) + 1))  # one datagram each, none lost
@@ -135,6 +137,7 @@ def test_watch_takes_no_datagram_from_the_program_on_the_port(reuse):
     port = free_port()
     vehicle = _vehicle_socket(port, reuse)
     w = start_watch("--port", port, "--interface", "lo", "--json")
+    shown = b""
     try:
         wait_line(w, "(sniffed)")
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
@@ -143,10 +146,11 @@ def test_watch_takes_no_datagram_from_the_program_on_the_port(reuse):
                 if i % 20 == 19:
                     time.sleep(0.01)  # the vehicle program reads at its pace, not at once
         theirs = [vehicle.recv(65535) for _ in range(200)]
-        time.sleep(0.5)
+        shown = read_lines(w.stdout.fileno(), 200)  # type: ignore[union-attr]
     finally:
         out, _err = interrupt(w)
         vehicle.close()
+    out = shown.decode() + out
     ours = [json.loads(line) for line in out.splitlines()]
     assert len(theirs) == len(ours) == 200
     assert [r["values"]["AutoGpsLat"] for r in ours] == [float(f"38.{i:04d}") for i in range(200)]
@@ -161,16 +165,18 @@ def test_watch_sees_broadcasts_beside_another_listener(capture):
     other.bind(("", port))
     other.settimeout(5)
     w = start_watch("--port", port, "--json")
+    shown = b""
     try:
         wait_line(w, "udp port")
         r = subprocess.run([*CLI, "replay", str(capture), "--to", f"127.255.255.255:{port}", "--broadcast", "--count", "10",
                             "--speed", "20"], capture_output=True, text=True, timeout=120)
         assert r.returncode == 0, r.stderr
         theirs = [other.recv(65535) for _ in range(10)]
-        time.sleep(0.5)
+        shown = read_lines(w.stdout.fileno(), 10)  # type: ignore[union-attr]
     finally:
         out, _err = interrupt(w)
         other.close()
+    out = shown.decode() + out
     ours = [json.loads(line) for line in out.splitlines()]
     assert len(ours) == len(theirs) == 10
     assert [r["changed"] for r in ours][:1] == [BEACON]
@@ -191,14 +197,16 @@ def test_bind_refuses_a_port_another_program_holds(reuse):
 def test_bind_takes_a_free_port():
     port = free_port()
     w = start_watch("--port", port, "--bind-port", "--listen", "127.0.0.1", "--json")
+    shown = b""
     try:
         wait_line(w, "(bound by the watch)")
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
             for i in range(5):
                 tx.sendto(encode_named("A", "B", [("AutoGpsLat", 2, f"1.{i}")]), ("127.0.0.1", port))
-        time.sleep(0.5)
+        shown = read_lines(w.stdout.fileno(), 5)  # type: ignore[union-attr]
     finally:
         out, _err = interrupt(w)
+    out = shown.decode() + out
     assert [json.loads(line)["values"]["AutoGpsLat"] for line in out.splitlines()] == [1.0, 1.1, 1.2, 1.3, 1.4]
 
 
@@ -698,6 +706,7 @@ def test_hostile_datagrams_neither_stop_nor_swell_the_watch(tmp_path):
     ]
     port = free_port()
     w = start_watch("--port", port, "--json")
+    shown = b""
     try:
         wait_line(w, "udp port")
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
@@ -705,10 +714,11 @@ def test_hostile_datagrams_neither_stop_nor_swell_the_watch(tmp_path):
                 tx.sendto(dg, ("127.0.0.1", port))
             for i in range(20):
                 tx.sendto(encode_named("A", "B", [("AutoGpsLat", 2, f"38.{i:04d}")]), ("127.0.0.1", port))
-        time.sleep(1.5)
+        shown = read_lines(w.stdout.fileno(), 32)  # type: ignore[union-attr]  (every datagram shown)
         peak = _peak_rss_mb(w.pid)
     finally:
         out, err = interrupt(w)
+    out = shown.decode() + out
     rows = [json.loads(line) for line in out.splitlines()]
     assert [r["values"]["AutoGpsLat"] for r in rows if "AutoGpsLat" in r["changed"]] == [float(f"38.{i:04d}") for i in range(20)]
     assert len(rows) == 32 and all(r["dropped"] == 0 for r in rows)

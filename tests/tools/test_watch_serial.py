@@ -9,6 +9,8 @@ import subprocess
 import sys
 import time
 
+from sl_pipes import read_lines
+
 from sharedlink.protocols.codec import encode_named
 
 CLI = [sys.executable, "-m", "sharedlink"]
@@ -25,14 +27,14 @@ def test_serial_frames_split_across_writes():
         data = b"noise" + b"".join(frames)
         for k in range(0, len(data), 7):  # frames cut across writes
             os.write(master, data[k : k + 7])
-            time.sleep(0.002)
-        time.sleep(1.0)
+            time.sleep(0.002)  # (pacing, so that the reads cut the frames too: no wait for anything)
+        shown = read_lines(w.stdout.fileno(), len(frames))  # type: ignore[union-attr]
     finally:
         w.send_signal(signal.SIGINT)
         out, err = w.communicate(timeout=60)
         os.close(master)
         os.close(slave)
     assert w.returncode == 0, err  # Ctrl-C ends a watch as it does tcpdump
-    rows = [json.loads(x) for x in out.splitlines()]
+    rows = [json.loads(x) for x in (shown.decode() + out).splitlines()]
     assert [r["values"]["AutoGpsLat"] for r in rows] == [float(f"38.{i:04d}") for i in range(20)]
     assert all(r["checksum"] == "good" and (r["src"], r["dst"]) == ("B", "A") for r in rows)

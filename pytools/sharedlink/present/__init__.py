@@ -21,7 +21,17 @@ from sharedlink.present.formats import (
     timestamp,
     value,
 )
-from sharedlink.present.tables import Column, Fitted, Table, fit, plain, print_fitted, show, text_table, write_csv
+from sharedlink.present.tables import (
+    Column,
+    Fitted,
+    Table,
+    fit,
+    plain,
+    print_fitted,
+    show,
+    text_table,
+    write_csv,
+)
 
 __all__ = [
     "COUNT", "DURATION", "INTEGER", "NUMERIC", "PROSE", "REAL", "TEXT", "TIME", "VALUE", "Column", "Fitted", "Table",

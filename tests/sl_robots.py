@@ -1,0 +1,38 @@
+"""P2OS and blackboard captures beside tshark with every dissector, for the tests that compare
+them (test_robots_counts.py, test_robot_stats.py, test_robot_export.py)."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import tshark_util as tu
+from sharedlink.capture.packets import session_frames
+from sharedlink.capture.pcapio import PcapWriter
+
+REPO = Path(__file__).resolve().parents[1]
+SCRIPTS = sorted((REPO / "dissector").glob("*.lua"))
+OTHERS = [a for s in SCRIPTS if s.name != "sharedlink.lua" for a in ("-X", f"lua_script:{s}")]
+SERIAL = {"uat:user_dlts": '"User 0 (DLT=147)","slserial","0","","0",""'}
+
+def tshark_counts(path: Path, serial: bool = False) -> tuple[Counter, Counter]:
+    """(P2OS packets, blackboard messages) per kind as tshark shows them with every dissector."""
+    rows = tu.fields(path, ["p2os.header", "p2os.direction", "p2os.checksum.status", "blackboard.type"],
+                     prefs=SERIAL if serial else None, extra=OTHERS, two_pass=True)
+    p2 = Counter()
+    bb = Counter()
+    for r in rows:
+        for d, s in zip(r["p2os.direction"], r["p2os.checksum.status"]):
+            p2[("client" if d == "0" else "robot", s == "1")] += 1
+        assert len(r["p2os.header"]) == len(r["p2os.direction"])
+        for t in r["blackboard.type"]:
+            bb[t] += 1
+    return p2, bb
+
+
+def write_tcp(path: Path, events: list[tuple[bool, bytes]], port: int) -> None:
+    with open(path, "wb") as fh:
+        w = PcapWriter(fh)
+        evs = [(10**18 + i * 10_000_000, c, p) for i, (c, p) in enumerate(events)]
+        for ts, _, frame in session_frames(evs, "tcp", ("127.0.0.1", 40000), ("127.0.0.1", port)):
+            w.write(ts, frame)
