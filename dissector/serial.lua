@@ -141,11 +141,15 @@ slserial.prefs.max_held_bytes = Pref.uint("Max held bytes", MAX_HELD_DEFAULT,
 -- expect = see bb_expectation, append = whether the next bytes can be appended to the held ones
 -- without a scan (see can_append), run = the result the records appended since the last scan
 -- share (append_held), iface = the capture interface }
--- A stream is a direction of one interface: two serial lines in one pcapng are two streams each
--- (issue 44; the Python reader keys them the same way).
+-- A stream is a direction (of one interface, by stream_key). The interface is always 0 here: the
+-- documented wslua API gives a dissector no interface id but through a field extractor
+-- (Field.new("frame.interface_id")), and any field extractor makes Wireshark build a tree for
+-- every packet of every capture (tests/dissector/test_stats_tap.py's
+-- test_the_tap_costs_nothing_until_asked). So two serial interfaces whose records interleave in
+-- one pcapng share their streams in the dissector (the Python reader keys them apart): a known
+-- limit, docs/serial-capture-format.md.
 local dirs = {}
 local results = {}  -- [record number] = result table (see first_pass; shared by a run of held records)
-local f_iface = Field.new("frame.interface_id")
 
 local function stream_key(iface, dir)
     return iface * 4 + dir + 1
@@ -723,8 +727,7 @@ end
 
 local function first_pass_result(tvb, pinfo, n, dir)
     local num = pinfo.number
-    local fi = f_iface()
-    local iface = fi and fi.value or 0
+    local iface = 0  -- (see dirs)
     local res = results[num]
     if res then return res end
     if pinfo.visited then

@@ -45,6 +45,8 @@ def _kinds(cap: Path) -> list[str]:
     return kinds
 
 
+@pytest.mark.xfail(strict=True, reason="serial.lua cannot tell interfaces apart: the only documented way to read a "
+                   "record's interface, a field extractor, makes every capture build trees (serial.lua's dirs)")
 def test_two_serial_interfaces_lose_nothing(tmp_path: Path) -> None:
     """Records of two serial interfaces interleaved, each frame cut in three: every frame found
     (serial.lua kept one stream per direction for all interfaces: 0 of them)."""
