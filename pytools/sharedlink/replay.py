@@ -6,10 +6,10 @@ plain datagram socket, so local receivers on loopback get them like any other da
 
 Timing follows the capture (optionally sped up or slowed down), a fixed rate, or no pacing at
 all. Every frame has an absolute deadline on the monotonic clock, computed from the first frame,
-so timing errors never add up with the number of frames. :class:`Pacer` sleeps until shortly
+so timing errors never add up with the number of frames. :class:`~sharedlink.pacing.Pacer` sleeps until shortly
 before each deadline (how early follows how late this machine's sleeps end) and spins for the
 rest, a spin bounded to a small share of each gap: a few percent of a core at most instead of a
-whole one. :func:`latency_hints` asks Linux for prompt wake-ups (timer slack, a short scheduler
+whole one. :func:`~sharedlink.pacing.latency_hints` asks Linux for prompt wake-ups (timer slack, a short scheduler
 slice; optionally real-time priority where permitted).
 
 The timed modes stream the capture (one record at a time); ``topspeed`` pre-reads it in chunks
@@ -21,8 +21,6 @@ from __future__ import annotations
 import errno
 import ipaddress
 import math
-import os
-import platform
 import random
 import signal
 import socket
@@ -30,7 +28,6 @@ import struct
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from socket import inet_ntoa
@@ -41,6 +38,7 @@ from sharedlink.capture.packets import Datagram, PacketDecoder, decode_packet
 from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, LINKTYPE_USER0, NS, CaptureError, read_records
 from sharedlink.defaults import MAX_PPS, MIN_PPS  # noqa: F401 - the steady rates --pps takes
 from sharedlink.errors import UsageError
+from sharedlink.pacing import Pacer, latency_hints
 
 #: LINKTYPE_USER0 .. LINKTYPE_USER15: records taken as raw serial bytes
 USER_LINKTYPES = range(LINKTYPE_USER0, LINKTYPE_USER0 + 16)
@@ -48,9 +46,6 @@ USER_LINKTYPES = range(LINKTYPE_USER0, LINKTYPE_USER0 + 16)
 TOPSPEED_CHUNK = 4096  # payloads pre-read at a time at top speed
 LOOP_CACHE_BYTES = 64 << 20  # at top speed, passes after the first reuse payloads up to this size
 LAG_SAMPLES = 65536  # lags kept for the median (reservoir sample beyond this many frames)
-SPIN_MARGIN_NS = 40_000  # spin this much longer than sleeps are expected to overshoot
-SPIN_MAX_NS = 1_000_000  # never spin longer than this before a deadline
-SPIN_SHARE = 0.02  # ... nor longer than this share of the gap since the previous frame
 
 Target = Any  # what a sink needs to send one payload (an address for UDP); None = cannot send
 
@@ -491,93 +486,6 @@ def _error_kind(exc: OSError) -> str:
     if exc.errno is not None and exc.errno in errno.errorcode:
         return errno.errorcode[exc.errno]
     return type(exc).__name__
-
-
-_SCHED_ATTR = struct.Struct("IIQiIQQQII")  # struct sched_attr (version 1, 56 bytes)
-_SCHED_SYSCALLS = {"x86_64": (314, 315), "aarch64": (274, 275)}  # sched_setattr, sched_getattr
-
-
-@contextmanager
-def latency_hints(realtime: bool = False, slice_ns: int = 100_000, slack_ns: int = 1000) -> Iterator[bool]:
-    """Ask Linux to wake this thread promptly, for its lifetime inside the block; a no-op
-    elsewhere, and everything is restored afterwards.
-
-    Without privileges: sleeps end within ``slack_ns`` of the asked time (timer slack, 50 us
-    by default), and the scheduler slice is ``slice_ns`` (EEVDF custom slice, Linux 6.12+), so
-    a task that wakes may preempt others sooner. With ``realtime``, the thread also asks for
-    SCHED_FIFO, which wins against CPU-bound tasks on a busy machine but needs root,
-    CAP_SYS_NICE or an RLIMIT_RTPRIO; the block's value says whether it was granted."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        prctl, syscall = libc.prctl, libc.syscall
-    except (OSError, AttributeError):
-        yield False
-        return
-    old_slack = prctl(30, 0, 0, 0, 0)  # PR_GET_TIMERSLACK
-    if old_slack > 0:
-        prctl(29, slack_ns, 0, 0, 0)  # PR_SET_TIMERSLACK
-    old_attr = None
-    nrs = _SCHED_SYSCALLS.get(platform.machine())
-    if nrs:
-        buf = ctypes.create_string_buffer(_SCHED_ATTR.size)
-        if syscall(nrs[1], 0, buf, _SCHED_ATTR.size, 0) == 0:
-            attr = list(_SCHED_ATTR.unpack(buf.raw))
-            if attr[1] == 0:  # SCHED_OTHER: keep its nice value, set the slice
-                old_attr = buf.raw
-                attr[0], attr[2], attr[5] = _SCHED_ATTR.size, 0, slice_ns
-                if syscall(nrs[0], 0, ctypes.create_string_buffer(_SCHED_ATTR.pack(*attr)), 0) != 0:
-                    old_attr = None
-    granted = False
-    if realtime and hasattr(os, "sched_setscheduler"):
-        try:
-            old_policy, old_param = os.sched_getscheduler(0), os.sched_getparam(0)
-            prio = min(10, os.sched_get_priority_max(os.SCHED_FIFO))
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
-            granted = True
-        except OSError:
-            pass
-    try:
-        yield granted
-    finally:
-        if granted:
-            try:
-                os.sched_setscheduler(0, old_policy, old_param)
-            except OSError:
-                pass
-        if old_slack > 0:
-            prctl(29, old_slack, 0, 0, 0)
-        if old_attr is not None and nrs:
-            syscall(nrs[0], 0, ctypes.create_string_buffer(old_attr), 0)
-
-
-class Pacer:
-    """Waits for absolute deadlines on the monotonic clock without busy-waiting a core: it
-    sleeps until shortly before the deadline, then spins for the rest. How early it wakes
-    follows how late sleeps actually end on this machine (a running estimate), plus a margin,
-    and never more than ``SPIN_SHARE`` of the gap since the previous deadline (bounding CPU
-    use) nor more than ``SPIN_MAX_NS``."""
-
-    def __init__(self) -> None:
-        self.late_ns = 60_000  # estimate of how late a sleep ends
-
-    def wait(self, deadline: int, gap: int) -> None:
-        clock = time.monotonic_ns
-        now = clock()
-        left = deadline - now
-        if left <= 0:
-            return
-        early = min(self.late_ns + SPIN_MARGIN_NS, SPIN_MAX_NS, int(gap * SPIN_SHARE))
-        if left > early:
-            wake = deadline - early
-            time.sleep((wake - now) / NS)
-            late = clock() - wake
-            # a running mean that one preempted sleep cannot blow up
-            late = min(late, 2 * self.late_ns + SPIN_MARGIN_NS)
-            self.late_ns += (late - self.late_ns) >> 3
-        while clock() < deadline:
-            pass
 
 
 class SigintGate:

@@ -17,7 +17,8 @@ LAYERS = [
     {"capture"},
     {"generators"},
     {"analysis", "present"},
-    {"replay", "extcap", "wireshark", "plugins", "scapy_layer", "fleet", "watch", "robot_watch", "foxglove_server"},
+    {"replay", "pacing", "extcap", "wireshark", "plugins", "scapy_layer", "fleet", "watch", "sniffer", "robot_watch",
+     "foxglove_server"},
     {"commands"},
     {"cli", "__main__"},
 ]

@@ -29,20 +29,15 @@ STRICT = ("analysis/core/", "analysis/decode.py", "analysis/changes.py", "analys
 #: (file, what) -> the size today: "file" (its lines), "lines NAME", "complexity NAME" (NAME:
 #: Class.method, or outer.inner for a nested function)
 DEBT: dict[tuple[str, str], int] = {
-    ("analysis/foxglove_channels.py", "file"): 816,
-    ("analysis/plot.py", "complexity _add"): 16,
-    ("analysis/stats.py", "complexity CaptureStats.add"): 28,
-    ("analysis/stats.py", "lines CaptureStats.add"): 81,
+    ("analysis/stats.py", "complexity CaptureStats.add"): 23,
     ("analysis/transform.py", "complexity _transform_records"): 21,
     ("capture/packets.py", "complexity _decode"): 19,
     ("capture/serial_port.py", "complexity capture"): 20,
     ("capture/serial_port.py", "lines capture"): 89,
-    ("fleet/ingest.py", "complexity _decode_into"): 21,
-    ("fleet/ingest.py", "lines _decode_into"): 84,
+    ("fleet/ingest.py", "complexity _decode_into"): 19,
     ("replay.py", "complexity Replayer._run_timed"): 17,
-    ("replay.py", "file"): 939,
+    ("replay.py", "file"): 854,
     ("watch.py", "complexity run_watch"): 20,
-    ("watch.py", "file"): 937,
 }
 
 _BRANCHES = (ast.If, ast.For, ast.AsyncFor, ast.While, ast.ExceptHandler, ast.match_case)

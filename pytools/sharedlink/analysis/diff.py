@@ -8,20 +8,15 @@ type says so). The report says where the data diverge, how stale one side ran, a
 captures cost in frames and bytes.
 
 It streams: memory does not grow with the captures. By default each capture is read in its
-own process; the parent aligns. When both sides carry equal change records for a run of
-frames (the common case, e.g. a full stream against its compressed form) the run is accepted
-with a few list comparisons instead of frame by frame.
+own process (:mod:`.diff_reader`); the parent aligns. When both sides carry equal change
+records for a run of frames (the common case, e.g. a full stream against its compressed form)
+the run is accepted with a few list comparisons instead of frame by frame.
 """
 
 from __future__ import annotations
 
 import gc
-import marshal
 import math
-import multiprocessing
-import queue
-import signal
-import threading
 from array import array
 from collections import Counter, deque
 from collections.abc import Callable, Iterator, Sequence
@@ -30,6 +25,8 @@ from pathlib import Path
 from statistics import median
 
 from sharedlink.analysis.changes import read_changes
+from sharedlink.analysis.diff_reader import read_remote, sparse_collector
+from sharedlink.analysis.diff_reader import worker as _worker  # noqa: F401 - tests run the reader as diff._worker
 from sharedlink.capture.stream import (
     Chunk,
     SideStats,
@@ -174,129 +171,12 @@ class DiffReport:
         return d
 
 
-# -- reading the two sides ------------------------------------------------------------------
-
-
-def _start_quietly(proc: multiprocessing.process.BaseProcess) -> None:
-    """``proc.start()`` with Ctrl-C and SIGTERM held until it returns, then delivered: raised
-    inside the fork's own hooks (logging's lock release), they were printed as "Exception
-    ignored" and lost, and the command ran on."""
-    if threading.current_thread() is not threading.main_thread():
-        proc.start()
-        return
-    held: list[int] = []
-    old = {sig: signal.signal(sig, lambda signum, _frame: held.append(signum)) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        proc.start()
-    finally:
-        for sig, handler in old.items():
-            if handler is not None:  # None: set outside Python, left as the fork found it
-                signal.signal(sig, handler)
-    for sig in dict.fromkeys(held):
-        signal.raise_signal(sig)
-
-
-#: the youngest generation's threshold while a diff decodes: the collector stays on (the decoders
-#: make reference cycles, a direction's state and its compiled layouts: with it off, a declaration
-#: before every data frame grew the reader by a direction state each, issue 44) but runs seldom
-#: (measured: the default 700 cost 10% more CPU on 200,000 frames, this one nothing measurable)
-GC_THRESHOLD = 50_000
-
-
-def _sparse_collector() -> None:
-    """Keep the collector on, its youngest generation collected every GC_THRESHOLD allocations."""
-    gc.set_threshold(max(GC_THRESHOLD, gc.get_threshold()[0]), *gc.get_threshold()[1:])
-
-
-def _worker(conn, path: str, variables: list, sync_interval: float, fast: bool) -> None:  # pragma: no cover - child
-    """Child process: send one capture's chunks, then its stats, through ``conn``. Ctrl-C to the
-    process group is the parent's to handle (it stops the child), and the parent's SIGTERM ends
-    the child quietly: the handlers inherited from the command would print a traceback here."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    _sparse_collector()  # decoding makes reference cycles: the collector stays on (issue 44)
-    gc.freeze()  # what the process holds now (modules, ...) is never scanned again: each chunk's collect is cheap
-    try:
-        for item in read_changes(path, variables, sync_interval, fast):
-            if isinstance(item, Chunk):
-                conn.send_bytes(marshal.dumps((0, item.as_tuple())))
-                gc.collect()  # a chunk's cycles, while the reader holds little else (cheap: ~1 ms)
-            else:
-                conn.send_bytes(marshal.dumps((1, item.to_dict())))
-    except (KeyboardInterrupt, BrokenPipeError, EOFError):
-        pass
-    except Exception as exc:  # noqa: BLE001 - reported to the parent as the side's error
-        try:
-            conn.send_bytes(marshal.dumps((1, SideStats(path=path, error=f"{path}: {exc}").to_dict())))
-        except OSError:
-            pass
-    finally:
-        conn.close()
-
-
-def _remote(path: str, opts: DiffOptions) -> Iterator[Chunk | SideStats]:
-    """One capture read in a child process. A thread here takes its messages off the pipe
-    as they come (up to a few chunks ahead), so the reader never waits for the aligner."""
-    methods = multiprocessing.get_all_start_methods()
-    ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
-    recv, send = ctx.Pipe(duplex=False)
-    proc = ctx.Process(
-        target=_worker, args=(send, path, list(opts.variables), opts.sync_interval, opts.fast), daemon=True
-    )
-    _start_quietly(proc)
-    send.close()
-    inbox: queue.Queue = queue.Queue(maxsize=4)
-    stop = threading.Event()
-
-    def pump() -> None:
-        item: bytes | None = None
-        while not stop.is_set():
-            try:
-                item = recv.recv_bytes()
-            except (EOFError, OSError):
-                item = None
-            while not stop.is_set():
-                try:
-                    inbox.put(item, timeout=0.1)
-                    break
-                except queue.Full:
-                    continue
-            if item is None:
-                return
-
-    thread = threading.Thread(target=pump, name=f"sharedlink-diff-{Path(path).name}", daemon=True)
-    thread.start()
-    try:
-        while True:
-            data = inbox.get()
-            if data is None:
-                yield SideStats(path=path, error=f"{path}: the reader process stopped unexpectedly")
-                return
-            tag, payload = marshal.loads(data)
-            if tag == 0:
-                yield Chunk.from_tuple(payload)
-            else:
-                yield SideStats(**payload)
-                return
-    finally:
-        stop.set()
-        if proc.is_alive():
-            proc.terminate()
-        # A SIGTERM that reaches the child before it resets its handlers (it inherits
-        # _start_quietly's holding handler from the fork) is only held: the child then blocks
-        # writing to a pipe nobody reads, and a bare join() waited for ever (seen under load
-        # after Ctrl-C to the process group). Kill what the SIGTERM did not stop.
-        proc.join(timeout=2.0)
-        if proc.is_alive():
-            proc.kill()
-            proc.join()
-        thread.join(timeout=1.0)
-        recv.close()
+# -- reading the two sides (in a process each: diff_reader) ----------------------------------
 
 
 def _source(path: str, opts: DiffOptions) -> Iterator[Chunk | SideStats]:
     if opts.parallel:
-        return _remote(path, opts)
+        return read_remote(path, opts.variables, opts.sync_interval, opts.fast)
     return read_changes(path, opts.variables, opts.sync_interval, opts.fast)
 
 
@@ -787,7 +667,7 @@ def diff_captures(a: str | Path, b: str | Path, opts: DiffOptions | None = None,
     opts = opts or DiffOptions()
     opts.validate()
     thresholds = gc.get_threshold()
-    _sparse_collector()  # millions of short-lived objects, and the decoders' cycles: on, seldom
+    sparse_collector()  # millions of short-lived objects, and the decoders' cycles: on, seldom
     sources = [_source(str(a), opts), _source(str(b), opts)]
     try:
         aligner = _BulkAligner if opts.bulk else _Aligner

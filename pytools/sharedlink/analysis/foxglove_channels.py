@@ -43,18 +43,16 @@ from foxglove.channels import PoseInFrameChannel
 from foxglove.messages import (
     LocationFix,
     LocationFixPositionCovarianceType,
-    Pose,
-    PoseInFrame,
-    Quaternion,
     Timestamp,
     Vector3,
 )
 
 from sharedlink.analysis.decode import VALUE_KINDS, Columns, Decoded, DirColumns
-from sharedlink.analysis.sessions import Ack, SessionMessage
+from sharedlink.analysis.robot_foxglove import blackboard_json, command_json, server_json, sip_json, sip_pose
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import NS
 from sharedlink.errors import UsageError
-from sharedlink.protocols import blackboard, p2os
+from sharedlink.protocols import p2os
 from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG, guess_value, parse_typed
 from sharedlink.protocols.state import Variable
 
@@ -769,63 +767,3 @@ class FoxgloveChannels:
             if m.error:
                 row["error"] = m.error
             self._log(self._channel(m, "server", SERVER_SCHEMA), json.dumps(row).encode(), m.ts_ns)
-
-
-# -- message contents ------------------------------------------------------------------------------
-
-
-def _text(b: bytes) -> str:
-    return b.decode("latin-1")
-
-
-def sip_pose(s: p2os.Sip, ts_ns: int) -> PoseInFrame:
-    """A SIP's position (mm -> m) and heading (rotation about z) in frame ``odom``."""
-    half = math.radians(s.heading_deg) / 2
-    return PoseInFrame(
-        timestamp=_stamp(ts_ns),
-        frame_id="odom",
-        pose=Pose(position=Vector3(x=s.xpos / 1000.0, y=s.ypos / 1000.0, z=0.0),
-                  orientation=Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half))),
-    )
-
-
-def sip_json(s: p2os.Sip) -> dict[str, Any]:
-    return {
-        "moving": s.moving, "x_mm": s.xpos, "y_mm": s.ypos, "heading_deg": s.heading_deg, "lvel_mm_s": s.lvel,
-        "rvel_mm_s": s.rvel, "battery_v": s.volts, "stall_bumpers": s.stall_bumpers, "control": s.control,
-        "flags": s.flags, "compass": s.compass, "sonars": [{"number": n, "range_mm": r} for n, r in s.sonars],
-        "grip_state": s.grip_state, "anport": s.anport, "analog": s.analog, "digin": s.digin, "digout": s.digout,
-    }
-
-
-def command_json(c: p2os.Command) -> dict[str, Any]:
-    value: Any = _text(c.value) if isinstance(c.value, bytes) else c.value
-    return {"command": c.number, "name": c.name, "argtype": p2os.ARG_TYPES.get(c.argtype or -1), "value": value}
-
-
-def server_json(msg: Any) -> dict[str, Any]:
-    if isinstance(msg, p2os.SyncReply):
-        return {"type": "sync", "sync": msg.number, "strings": [_text(s) for s in msg.strings]}
-    if isinstance(msg, p2os.Encoder):
-        return {"type": "encoder", "left": msg.left, "right": msg.right}
-    if isinstance(msg, p2os.Config):
-        return {"type": "config", **{k: (_text(v) if isinstance(v, bytes) else v) for k, v in msg.values}}
-    if isinstance(msg, p2os.Raw):
-        return {"type": "raw", "type_byte": msg.type, "data": msg.data.hex()}
-    return {"type": "undecoded"}
-
-
-def blackboard_json(m: SessionMessage) -> dict[str, Any]:
-    msg = m.message
-    if isinstance(msg, blackboard.SetMessage):
-        return {"type": "set", "address": msg.address, "node": msg.node, "data": msg.data.hex()}
-    if isinstance(msg, blackboard.RequestMessage):
-        return {"type": "request", "address": msg.address, "node": msg.node, "count": msg.count}
-    req = m.request
-    addr = req.address if req is not None else None
-    if isinstance(msg, Ack):
-        return {"type": "ack", "address": addr, "crc": msg.crc}
-    if isinstance(msg, blackboard.ReadResponse):
-        return {"type": "response", "address": addr, "data": msg.data.hex()}
-    return {"type": "undecoded", "data": m.raw.hex()}
-

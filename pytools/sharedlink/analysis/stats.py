@@ -242,19 +242,7 @@ class CaptureStats:
                 p.sync_gaps += 1
             if p.max_sync_gap_s is None or gap > p.max_sync_gap_s:
                 p.max_sync_gap_s = gap
-        if kind == "declaration":
-            self._full.clear()  # lists changed (here or, for L, the other way): sizes again
-        full = self._full.get(id(d.table))
-        if full is not None and (full.table is not d.table or not full.same(d.table)):
-            full = None
-            del self._full[id(d.table)]
-        if full is not None and kind != "reply":  # a reply's values are shown, never stored (issue 29)
-            full.update(d.updates)
-        if kind in DATA_KINDS:
-            if full is None:
-                full = self._full[id(d.table)] = _FullSize(d.table)
-            self.value_bytes += size
-            self.full_bytes += full.size + (2 if d.raw.endswith(b"\r\n") else 0)
+        self._sizes(d, kind, size)
         variables = self.variables
         for u in d.updates:
             if u.carried or u.text is None:
@@ -279,6 +267,24 @@ class CaptureStats:
                 if v.max is None or xf > v.max:
                     v.max = xf
 
+
+    def _sizes(self, d: Decoded, kind: str, size: int) -> None:
+        """:meth:`add`'s size counts of a frame whose checksum is not wrong: the full set of its
+        table follows its updates (a declaration starts them all again); a data frame's bytes go
+        to ``value_bytes``, those of the full set it stands for to ``full_bytes``."""
+        if kind == "declaration":
+            self._full.clear()  # lists changed (here or, for L, the other way): sizes again
+        full = self._full.get(id(d.table))
+        if full is not None and (full.table is not d.table or not full.same(d.table)):
+            full = None
+            del self._full[id(d.table)]
+        if full is not None and kind != "reply":  # a reply's values are shown, never stored (issue 29)
+            full.update(d.updates)
+        if kind in DATA_KINDS:
+            if full is None:
+                full = self._full[id(d.table)] = _FullSize(d.table)
+            self.value_bytes += size
+            self.full_bytes += full.size + (2 if d.raw.endswith(b"\r\n") else 0)
 
     def add_unframed(self, item: StreamFrame) -> None:
         """Bytes of a record that hold no well-formed frame (a noise :class:`StreamFrame`, as

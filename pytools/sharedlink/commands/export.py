@@ -82,18 +82,7 @@ def run(args: argparse.Namespace) -> int:
     if fmt is None:
         fmt = format_from_suffix(args.output, _SUFFIXES, "csv", None)
     columns = name_list(args.select)
-    if args.output is not None and args.output.is_dir():
-        raise UsageError(f"{args.output}: is a directory")
-    if fmt in BINARY_FORMATS:
-        if args.output is None or is_stdout(args.output):
-            raise UsageError(f"--format {fmt} is binary: give the file with -o")
-        if args.changes or columns is not None:
-            raise UsageError(f"--format {fmt} writes every frame and variable: no --changes or --select")
-    if args.outages and (fmt not in ("jsonl", "csv") or (fmt == "csv" and args.changes)):
-        raise UsageError(f"--outages: outage rows are written in --format jsonl or csv (csv: not with --changes), not {fmt}"
-                         + (" --changes" if args.changes else ""))
-    if fmt == "mcap":
-        require("foxglove", "sharedlink export --format mcap")
+    _check_options(args, fmt, columns)
     refuse_overwrite(args.output, args.capture)
     opts = ExportOptions(fmt=fmt, changes=args.changes, variables=variables, columns=columns, sync_interval=sync,
                          lat=args.lat, lon=args.lon, heading=args.heading, velocity=args.velocity,
@@ -132,6 +121,23 @@ def run(args: argparse.Namespace) -> int:
         print(f"sharedlink: error: {result.error} (the {result.frames} frames before it were exported)", file=sys.stderr)
         return EXIT_USAGE
     return EXIT_OK
+
+
+def _check_options(args: argparse.Namespace, fmt: str, columns: list[str] | None) -> None:
+    """UsageError for options the format cannot take (or an output that is a directory); the
+    foxglove extra required for mcap."""
+    if args.output is not None and args.output.is_dir():
+        raise UsageError(f"{args.output}: is a directory")
+    if fmt in BINARY_FORMATS:
+        if args.output is None or is_stdout(args.output):
+            raise UsageError(f"--format {fmt} is binary: give the file with -o")
+        if args.changes or columns is not None:
+            raise UsageError(f"--format {fmt} writes every frame and variable: no --changes or --select")
+    if args.outages and (fmt not in ("jsonl", "csv") or (fmt == "csv" and args.changes)):
+        raise UsageError(f"--outages: outage rows are written in --format jsonl or csv (csv: not with --changes), not {fmt}"
+                         + (" --changes" if args.changes else ""))
+    if fmt == "mcap":
+        require("foxglove", "sharedlink export --format mcap")
 
 
 def _required(fmt: str, columns: list[str] | None, given: dict[str, list[str]]) -> list[str]:

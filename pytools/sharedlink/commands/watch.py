@@ -78,7 +78,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _source(args: argparse.Namespace) -> Any:
-    from sharedlink.watch import CaptureSource, SerialSource, UdpSniffer, UdpSource
+    from sharedlink.sniffer import UdpSniffer
+    from sharedlink.watch import CaptureSource, SerialSource, UdpSource
 
     if args.capture is not None and args.serial:
         raise UsageError("--from and --serial: one source at a time")

@@ -20,12 +20,9 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import os
-import sys
 import uuid
 from array import array
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from itertools import accumulate
 from operator import itemgetter
@@ -51,6 +48,8 @@ from sharedlink.fleet.dataset import (
     save_manifest,
     sweep,
 )
+from sharedlink.fleet.heap import glibc as _glibc  # noqa: F401 - tests/fleet/test_ingest.py imports it here
+from sharedlink.fleet.heap import heap_kept
 from sharedlink.fleet.robot_rows import PacketRows, packet_columns
 from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG
 from sharedlink.protocols.state import BEACON_VARIABLES
@@ -111,58 +110,13 @@ def ingest_capture(task: Task, progress: Callable[[int, int], None] | None = Non
     run = uuid.uuid4().hex[:8]
     rows = _Rows(Path(task.root), task.path, task.vehicle, f"{task.id}-{run}", task.batch_rows)
     try:
-        with _heap_kept():
+        with heap_kept():
             _decode_into(task, entry, rows, progress)
             entry.files += rows.close()
     except BaseException:
         rows.abort()
         raise
     return Outcome(task.path, "damaged" if entry.error else "ingested", entry, entry.error)
-
-
-#: glibc's mallopt parameters (malloc.h)
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
-#: what glibc keeps while a task decodes, in a process started with a small trim threshold
-_KEPT_HEAP = 64 << 20
-_GLIBC_MMAP_THRESHOLD = 128 * 1024  # glibc's default
-
-
-@contextmanager
-def _heap_kept() -> Iterator[None]:
-    """Dask's nanny starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (glibc hands freed
-    heap back to the OS at once, and its mmap threshold stays at 128 KiB): then every block,
-    batch and column buffer a task allocates is fresh pages, and a frame costs about 25 % more
-    CPU than in a ``--workers`` process (measured: page faults doubled; a local pool started with
-    that variable slows the same). While a task decodes, such a process keeps up to
-    :data:`_KEPT_HEAP` of freed heap for reuse; after it, its own setting again, and the heap is
-    trimmed as it would have been. Elsewhere (no variable, no glibc) nothing changes."""
-    wanted = os.environ.get("MALLOC_TRIM_THRESHOLD_", "")
-    libc = _glibc() if wanted.isdigit() and int(wanted) < _KEPT_HEAP else None
-    if libc is None:
-        yield
-        return
-    libc.mallopt(_M_TRIM_THRESHOLD, _KEPT_HEAP)
-    libc.mallopt(_M_MMAP_THRESHOLD, _KEPT_HEAP // 2)
-    try:
-        yield
-    finally:
-        libc.mallopt(_M_MMAP_THRESHOLD, _GLIBC_MMAP_THRESHOLD)
-        libc.mallopt(_M_TRIM_THRESHOLD, int(wanted))
-        libc.malloc_trim(0)
-
-
-def _glibc():
-    """The C library when it is glibc (it has ``mallopt`` and ``malloc_trim``), else None."""
-    if not sys.platform.startswith("linux"):
-        return None
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL("libc.so.6")
-        libc.mallopt, libc.malloc_trim  # noqa: B018 - glibc's, absent from musl
-    except (OSError, AttributeError):
-        return None
-    return libc
 
 
 def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callable[[int, int], None] | None = None
@@ -199,18 +153,7 @@ def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callabl
                         day_start = lo - lo % DAY_NS
                         day_end = day_start + DAY_NS
                         day = _day(lo)
-                    if hi < day_end:
-                        part = parts.get((day, c.src, c.dst))
-                        if part is None:
-                            part = parts[(day, c.src, c.dst)] = _Part(day, c.src, c.dst)
-                        part.add_columns(c, base)
-                    else:  # (the batch crosses midnight: frame by frame)
-                        for i, tsi in enumerate(ts):
-                            d = _day(tsi)
-                            part = parts.get((d, c.src, c.dst))
-                            if part is None:
-                                part = parts[(d, c.src, c.dst)] = _Part(d, c.src, c.dst)
-                            part.add_columns(c, base, i)
+                    _add_columns(parts, c, base, day if hi < day_end else None)
                     held -= len(ts) + len(c.name)
                 if held <= 0:
                     rows.flush_largest()
@@ -255,6 +198,23 @@ def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callabl
         entry.first_ns = entry.first_ns if entry.first_ns is not None else first_ns
         entry.last_ns = last_ns if last_ns is not None else entry.last_ns
     entry.values += rows.close_counts()
+
+
+def _add_columns(parts: dict[tuple[str, str, str], _Part], c: DirColumns, base: int, day: str | None) -> None:
+    """A direction's columns of a batch into the partition of ``day``, made if need be; a batch
+    that crosses midnight (``day`` None) frame by frame into the partition of each frame's day."""
+    if day is not None:
+        part = parts.get((day, c.src, c.dst))
+        if part is None:
+            part = parts[(day, c.src, c.dst)] = _Part(day, c.src, c.dst)
+        part.add_columns(c, base)
+        return
+    for i, tsi in enumerate(c.ts_ns):
+        d = _day(tsi)
+        part = parts.get((d, c.src, c.dst))
+        if part is None:
+            part = parts[(d, c.src, c.dst)] = _Part(d, c.src, c.dst)
+        part.add_columns(c, base, i)
 
 
 def _typed(type_code: int | None, text: str) -> tuple[int | None, float | None, str | None]:
