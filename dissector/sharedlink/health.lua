@@ -165,17 +165,20 @@ end
 -- one the state module just set its direction's sync clock to (d.lastfull, state.lua's
 -- sync_clock and state_data): not read again (speed trick, measured: a wslua call a packet less;
 -- test_health_tap.py would see a clock that moved elsewhere).
+local function packet_time(pinfo, num, kind, cs_status, d)
+    if last_num == num then return last_t end  -- (a packet's second frame)
+    local t = (kind == "full" and cs_status ~= 0 and d and d.lastfull) or PG.rel_ts(pinfo)
+    last_num, last_t = num, t
+    if not last_end or t > last_end then last_end = t end
+    return t
+end
+
 function H.frame(pinfo, num, sk, dstb, srcb, d, visited, cs_status, rec, kind)
     if visited then
         local m = marks[num]
         return m and m[sk]
     end
-    local t = last_t
-    if last_num ~= num then
-        t = (kind == "full" and cs_status ~= 0 and d and d.lastfull) or PG.rel_ts(pinfo)
-        last_num, last_t = num, t
-        if not last_end or t > last_end then last_end = t end
-    end
+    local t = packet_time(pinfo, num, kind, cs_status, d)
     local L = d and d.hl or link_of(pinfo, num, dstb, srcb, d)
     L.frames = L.frames + 1
     if cs_status == 1 and L.fast and not (rec and rec.late) then
@@ -197,15 +200,17 @@ function H.frame(pinfo, num, sk, dstb, srcb, d, visited, cs_status, rec, kind)
 end
 
 -- The expert and the generated duration on tree (the packet's, or the root Wireshark gave when
--- there is no tree: then the expert alone).
+-- there is no tree: then the expert alone). One expert summary for every outage, "Link silent"
+-- (issue 41: -z expert lists one row per problem); the duration is the field's value, its item
+-- reads "Link silent for 4.20 s".
 function H.mark(tree, root, dur)
-    local text = s_format("Link silent for %.2f s", dur)
     if tree then
         local ti = tree:add(hf.outage_duration, dur)
+        ti:set_text(s_format("Link silent for %.2f s", dur))
         ti:set_generated()
-        TI.add_proto_expert_info(ti, ei.outage, text)
+        TI.add_proto_expert_info(ti, ei.outage)
     elseif root then
-        TI.add_proto_expert_info(root, ei.outage, text)
+        TI.add_proto_expert_info(root, ei.outage)
     end
 end
 

@@ -82,18 +82,18 @@ def test_plot_breaks_lines_at_outages(cap):
     """plot: no line across an outage (a NaN point inside it), and the link-quality strip."""
     import math
 
-    from sharedlink.analysis.plot import QUALITY_LABEL, broken, build_figure, collect
+    from sharedlink.analysis.plot import QUALITY_LABEL, TimeAxis, broken, build_figure, collect
     from sharedlink.capture.pcapio import NS
 
     data = collect(cap)
     outs = data.health.outages()
     assert len(outs) == 2
-    fig = build_figure(data, ["AutoGpsLat"])
+    fig = build_figure(data, ["AutoGpsLat"], elapsed=True)  # (x: seconds since the first frame)
     assert [ax.get_label() for ax in fig.axes].count(QUALITY_LABEL) == 1
-    (line,) = [ax for ax in fig.axes if ax.get_ylabel() == "AutoGpsLat"][0].get_lines()
+    (line,) = [ax for ax in fig.axes if ax.get_ylabel().split("\n")[0] == "AutoGpsLat"][0].get_lines()
     xs, ys = line.get_xdata(), line.get_ydata()
     for o in outs:
-        a, b = (o.start_ns - data.t0_ns) / NS, (o.start_ns + o.duration_ns - data.t0_ns) / NS
+        a, b = TimeAxis.of(data, True).x(((o.start_ns - data.t0_ns) / NS, (o.start_ns + o.duration_ns - data.t0_ns) / NS))
         inside = [y for x, y in zip(xs, ys) if a < x < b]
         assert inside and all(math.isnan(y) for y in inside)
     ts, vs = broken([0.0, 1.0, 5.0], [1.0, 2.0, 3.0], [(1.0, 5.0)])

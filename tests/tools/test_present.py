@@ -117,7 +117,7 @@ def test_stats_on_a_terminal(longs, columns):
     assert re.search(r"duration\s+│\s+7\.800s", text), text
     if columns == 200:
         assert "left out" not in text and "cut to fit" not in text
-        for header in ("kinds", "max gap", "last", "changes"):
+        for header in ("kinds", "longest full-set interval", "last", "changes"):
             assert header in text
 
 
@@ -261,7 +261,7 @@ def test_plot_reads_in_clock_time_with_units_and_one_legend(figure, faulty):
     from sharedlink.analysis.plot import build_figure
 
     data, fig = figure
-    track, *panels, events = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    track, *panels, events = [ax for ax in fig.axes if ax.get_label() not in ("<colorbar>", "<link quality>")]
     assert track.get_xlabel() == "longitude (°)" and track.get_ylabel() == "latitude (°)"
     assert [ax.get_ylabel() for ax in panels] == ["AutoGpsLat\n(°)", "AutoGpsLon\n(°)", "AutoGpsHead\n(°)",
                                                   "AutoGpsVel\n(mph)"]

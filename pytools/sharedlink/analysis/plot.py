@@ -446,7 +446,7 @@ def build_figure(data: PlotData, variables: Sequence[str] | None = None, title: 
         vax.tick_params(labelbottom=False)
     if strip:
         qax = fig.add_subplot(gs[1 + n], sharex=first)
-        _draw_quality(qax, data, axis)
+        _draw_quality(qax, data, axis, colours)
         qax.tick_params(labelbottom=False)
     eax = fig.add_subplot(gs[1 + n + strip], sharex=first)
     eax.set_label("events")
@@ -490,16 +490,15 @@ def _marker_label(what: str, seen: int, drawn: int, suffix: str) -> str:
 QUALITY_LABEL = "<link quality>"
 
 
-def _draw_quality(ax, data: PlotData, axis: TimeAxis) -> None:
-    """Frames per second per link (Shepherd's link quality while up), outages shaded red."""
+def _draw_quality(ax, data: PlotData, axis: TimeAxis, colours: dict[str, str]) -> None:
+    """Frames per second per link (Shepherd's link quality while up), outages shaded red; each
+    link in its node pair's colour (the figure's one legend names them)."""
     ax.set_label(QUALITY_LABEL)
     t0 = (data.t0_ns or 0) / NS
-    many = len(data.health.links) > 1
     for h in data.health.sorted_links():
         secs = list(quality(h))
         ax.step(axis.x([x.second - t0 for x in secs]), [math.nan if x.down_s is not None else x.frames for x in secs],
-                where="post", linewidth=1.0,
-                label=f"{h.link} {h.pair}" if many else None)
+                where="post", linewidth=1.0, color=colours.get(h.pair))
         for o in h.outages:
             a = (o.start_ns - (data.t0_ns or 0)) / NS
             x0, x1 = axis.x((a, a + o.duration_ns / NS))
@@ -508,8 +507,6 @@ def _draw_quality(ax, data: PlotData, axis: TimeAxis) -> None:
     ax.set_ylabel("frames/s", fontsize="small")
     ax.set_title(f"link quality ({n} outage{'s' if n != 1 else ''})", loc="left", fontsize="small")
     ax.grid(True, linewidth=0.3)
-    if many:
-        ax.legend(loc="upper right", fontsize="x-small")
 
 
 def broken(ts: list[float], vs: list[float], spans: list[tuple[float, float]]) -> tuple[list[float], list[float]]:

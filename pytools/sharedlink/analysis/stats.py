@@ -544,7 +544,7 @@ def tables(st: CaptureStats) -> list[Table]:
         ["checksum failures", fmt.count(st.checksum_failures)],
         ["no checksum", fmt.count(st.checksum_missing)],
         ["sync late frames", fmt.count(st.sync_late)],
-        ["sync gaps (> %s)" % fmt.duration(st.sync_interval + SYNC_SLACK_S), fmt.count(st.sync_gaps)],
+        ["late full sets (> %s apart)" % fmt.duration(st.sync_interval + SYNC_SLACK_S), fmt.count(st.sync_gaps)],
         ["compression ratio", "" if ratio is None else "%.3f (%.1f %% saved)" % (ratio, 100 * (1 - ratio))],
         ["noise", f"{fmt.count(st.noise_segments)} segments, {fmt.count(st.noise_bytes)} bytes"],
         ["other records", fmt.count(st.other_records)],
@@ -560,7 +560,7 @@ def tables(st: CaptureStats) -> list[Table]:
     pairs = Table("Frames per node pair", [
         Column("pair"), Column("frames", COUNT), Column("bytes", COUNT, drop=3), Column("rate Hz", REAL, drop=4),
         Column("kinds", PROSE, drop=5), Column("bad checksum", COUNT), Column("sync late", COUNT, drop=1),
-        Column("sync gaps", COUNT, drop=2), Column("max gap", DURATION, drop=0)], more="--json has every column")
+        Column("late full sets", COUNT, drop=2), Column("longest full-set interval", DURATION, drop=0)], more="--json has every column")
     for _, p in sorted(st.pairs.items()):
         pairs.add(p.pair, p.frames, p.bytes, p.rate_hz, " ".join(f"{k}={fmt.count(n)}" for k, n in sorted(p.kinds.items())),
                   p.checksum_failures, p.sync_late, p.sync_gaps, p.max_sync_gap_s)

@@ -17,6 +17,8 @@ EXAMPLES: dict[str, list[tuple[str, str]]] = {
              ("sharedlink diff drive.pcap small.pcap --json", "the report as JSON")],
     "stats": [("sharedlink stats drive.pcap", "frames, rates, checksums, variables"),
               ("sharedlink stats drive.pcap --fail-on checksum,late", "exit 1 on bad checksums or late full sets (CI)")],
+    "health": [("sharedlink health drive.pcap", "link quality per second, outages and learnt rates"),
+               ("sharedlink health drive.pcap -o quality.csv --plot quality.png", "the same as CSV and a PNG strip")],
     "export": [("sharedlink export drive.pcap -o drive.csv", "one row per frame"),
                ("sharedlink export drive.pcap --changes --select AutoGpsVel -o speed.jsonl", "one row per change"),
                ("sharedlink export drive.pcap -o track.geojson", "the GPS track for a map")],

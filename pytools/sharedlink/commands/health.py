@@ -16,9 +16,11 @@ from sharedlink.commands import (
     add_force_option,
     add_json_option,
     add_outage_after_option,
+    add_quiet_option,
     capture_input,
     decode_options,
     honours_force,
+    note,
     plural,
     warn_empty,
 )
@@ -41,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_outage_after_option(p)
     add_decode_options(p)
     add_json_option(p, "the links and outages")
+    add_quiet_option(p)
     p.set_defaults(func=run)
 
 
@@ -101,8 +104,7 @@ def _report(args: argparse.Namespace, ch, written: int | None) -> None:
     what = [f"{args.output}: {plural(written, 'row')}"] if written is not None else []
     if args.plot is not None:
         what.append(f"{args.plot}: the quality strip")
-    print(f"wrote {', '.join(what)} ({plural(len(ch.health.links), 'link')}, {plural(len(outages), 'outage')})",
-          file=sys.stderr)
+    note(f"wrote {', '.join(what)} ({plural(len(ch.health.links), 'link')}, {plural(len(outages), 'outage')})")
 
 
 def _table(ch) -> None:

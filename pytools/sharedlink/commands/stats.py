@@ -1,5 +1,5 @@
 """``sharedlink stats``: frames per kind and node pair, rates, bytes, compression, checksum
-failures, sync gaps and per-variable min/max/last of a capture."""
+failures, late full sets and per-variable min/max/last of a capture."""
 
 from __future__ import annotations
 

@@ -222,7 +222,12 @@ def text_table(title: str, headers: list[str], rows: list[list[str]], more: str 
 
     kinds = [TEXT if i == 0 else COUNT if every(i, str.isdigit) else REAL if every(i, decimal) else PROSE
              for i in range(len(headers))]
-    t = Table(title, [Column(h, k) for h, k in zip(headers, kinds)], more=more, header=any(headers))
+    n = len(headers)
+    # to fit a narrow terminal, nothing cut: the columns after the second left out from the last,
+    # then (a table of four columns and more) the first
+    drops = [n - 2 if n >= 4 else None, None] + [n - 1 - i for i in range(2, n)]
+    columns = [Column(h, k, drop=r) for h, k, r in zip(headers, kinds, drops)]
+    t = Table(title, columns, more=more or "--json has every column", header=any(headers))
     for r in rows:
         t.add(*(int(x) if k == COUNT and x else x for x, k in zip(r, kinds)))
     return t
