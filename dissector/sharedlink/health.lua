@@ -167,7 +167,8 @@ end
 -- test_health_tap.py would see a clock that moved elsewhere).
 local function packet_time(pinfo, num, kind, cs_status, d)
     if last_num == num then return last_t end  -- (a packet's second frame)
-    local t = (kind == "full" and cs_status ~= 0 and d and d.lastfull) or PG.rel_ts(pinfo)
+    -- the time the state module read for this packet (d.tnow, or a good full frame's d.lastfull)
+    local t = d and (d.tnum == num and d.tnow or kind == "full" and cs_status ~= 0 and d.lastfull) or PG.rel_ts(pinfo)
     last_num, last_t = num, t
     if not last_end or t > last_end then last_end = t end
     return t

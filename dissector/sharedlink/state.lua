@@ -56,7 +56,7 @@ S.reset()
 local NO_SUBSETS = {}   -- (named.subs of a layout with none: never written)
 local function new_dir()
     return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, nkey = {}, seen = {}, filled = {}, maxslot = -1,
-        first = nil, lastfull = nil, list = nil, sgen = 0, wl = false }
+        first = nil, lastfull = nil, list = nil, sgen = 0, wl = false, tnow = 0, tnum = 0 }
 end
 
 -- A new direction at byaddr[key]; past max_conversations one that is kept nowhere (d.over: made
@@ -470,6 +470,7 @@ do
     -- with its late sync: rec.late).
     local function sync_clock(pinfo, d, num, sk, full, cs_status, rec)
         local now = g_rel_ts(pinfo)
+        d.tnow, d.tnum = now, num   -- (the packet's time, for health.lua: not read again)
         local first = d.first
         if not first then first = now; d.first = now end
         if full then
@@ -791,6 +792,7 @@ do
         -- another layout's values were stored since sub's line was made: it is made again
         if d.wl ~= named then d.wl = named; sub.line, sub.run = false, false end
         local now = g_rel_ts(pinfo)
+        d.tnow, d.tnum = now, num   -- (the packet's time, for health.lua: not read again)
         local last = d.lastfull or d.first   -- (a delta: the sync clock as sync_clock's)
         if not last then last = now; d.first = now end
         local nm = 0
