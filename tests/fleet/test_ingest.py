@@ -24,9 +24,9 @@ import pytest
 
 from sharedlink.analysis.stats import capture_stats
 from sharedlink.cli import main as cli_main
-from sharedlink.fleet.dataset import load_manifest
+from sharedlink.fleet.dataset import link_name, load_manifest, old_links, save_manifest
 from sharedlink.fleet.ingest import ingest
-from sharedlink.fleet.query import run_query
+from sharedlink.fleet.query import renamed_links, run_query
 from tshark_util import REPO, fields
 
 CLI = [sys.executable, "-m", "sharedlink"]
@@ -124,9 +124,13 @@ def test_queries_agree_with_stats(fleet, dataset):
 
 def test_partitions_and_typed_values(fleet, dataset):
     parts = q(dataset, "SELECT DISTINCT vehicle, CAST(day AS VARCHAR), link FROM frames WHERE vehicle LIKE 'v%' ORDER BY ALL")
-    assert ("v3", "2026-03-02", "D-A") in parts and ("v3", "2026-03-03", "D-A") in parts  # across midnight
+    assert ("v3", "2026-03-02", "D_to_A") in parts and ("v3", "2026-03-03", "D_to_A") in parts  # across midnight
     assert {r[0] for r in parts} == {"v1", "v2", "v3"}
-    assert q(dataset, "SELECT count(*) FROM frames WHERE day <> CAST(time AS DATE) OR link <> src || '-' || dst") == [(0,)]
+    assert q(dataset, "SELECT count(*) FROM frames WHERE day <> CAST(time AS DATE) OR link <> src || '_to_' || dst") == [(0,)]
+    assert q(dataset, "SELECT count(*) FROM values WHERE link <> src || '_to_' || dst") == [(0,)]
+    assert all(link_name(s, d) == f"{s}_to_{d}" for s, d in q(dataset, "SELECT DISTINCT src, dst FROM frames"))
+    assert {p.name for p in (dataset / "frames").glob("day=*/link=*")} >= {"link=B_to_A", "link=D_to_A"}
+    assert not list(dataset.glob("*/day=*/link=?-?"))  # (the spelling before issue 41)
     # every value of a good frame; none of a bad one; typed columns agree with the text
     assert q(dataset, """SELECT count(*) FROM values v JOIN frames f USING (capture, seq)
                          WHERE f.checksum_ok = false""") == [(0,)]
@@ -200,17 +204,113 @@ def test_damaged_capture_is_kept_up_to_the_damage_and_reported(fleet, tmp_path):
 def test_stray_files_of_an_interrupted_ingest_are_swept(fleet, tmp_path):
     ds = tmp_path / "ds"
     assert ingest([fleet / "v1"], ds).ok
-    stray = ds / "frames" / "day=2026-03-02" / "link=B-A" / ".deadbeef-00000000.parquet"
+    stray = ds / "frames" / "day=2026-03-02" / "link=B_to_A" / ".deadbeef-00000000.parquet"
     stray.write_bytes(b"half")
     report = ingest([fleet / "v1"], ds)
     assert report.swept == 1 and not stray.exists()
 
 
+# -- the pair's spelling before issue 41: link=B-A ------------------------------------------------------------
+
+
+def old_style(dataset: Path, to: Path) -> Path:
+    """A copy of ``dataset`` as ingest wrote it before issue 41: the frames' and values'
+    partitions ``link=B-A`` (the folders renamed, the manifest's file lists with them); the
+    packets' ``link=<protocol>`` as they are."""
+    shutil.copytree(dataset, to)
+    for d in sorted(to.glob("*/day=*/link=*_to_*")):
+        assert d.parent.parent.name in ("frames", "values")
+        d.rename(d.with_name(d.name.replace("_to_", "-")))
+    manifest = load_manifest(to)
+    for e in manifest.captures.values():
+        e.files = [f.replace("_to_", "-") if f.startswith(("frames/", "values/")) else f for f in e.files]
+    save_manifest(to, manifest)
+    assert old_links(manifest) and not old_links(load_manifest(dataset))
+    assert all((to / f).is_file() for e in manifest.captures.values() for f in e.files)
+    return to
+
+
+OLD_LINK_QUERIES = [
+    SUMMARY := """SELECT capture, vehicle, pair, CAST(day AS VARCHAR), count(*), sum(size), sum(hash(raw))
+                  FROM frames GROUP BY ALL ORDER BY ALL""",
+    VALUES_SUMMARY := """SELECT capture, name, count(*), round(sum(value_double), 6), sum(hash(text))
+                         FROM values GROUP BY ALL ORDER BY ALL""",
+    "SELECT link, pair, src, dst, count(*) FROM frames GROUP BY ALL ORDER BY ALL",
+    "SELECT link, count(*), sum(hash(text)) FROM values GROUP BY ALL ORDER BY ALL",
+    "SELECT vehicle, count(*) FROM frames WHERE link = 'C_to_A' GROUP BY ALL ORDER BY ALL",
+    "SELECT link, protocol, count(*) FROM packets GROUP BY ALL ORDER BY ALL",
+    "SELECT * FROM captures ORDER BY path",
+]
+
+
+def test_a_dataset_of_the_old_spelling_reads_the_same(dataset, tmp_path):
+    old = old_style(dataset, tmp_path / "old")
+    assert sorted(p.name for p in old.glob("frames/day=*/link=*")) == sorted(
+        p.name.replace("_to_", "-") for p in dataset.glob("frames/day=*/link=*"))
+    assert sorted(old.glob("packets/**/*.parquet")) == [old / p.relative_to(dataset)
+                                                         for p in sorted(dataset.glob("packets/**/*.parquet"))]
+    for sql in OLD_LINK_QUERIES:
+        assert q(old, sql) == q(dataset, sql), sql
+    assert q(old, "SELECT count(*) FROM frames WHERE link LIKE '%-%'") == [(0,)]
+    # the packets' link is the protocol, in either dataset
+    assert {r[0] for r in q(old, "SELECT DISTINCT link FROM packets")} <= {"p2os", "blackboard"}
+
+
+def test_ingest_into_a_dataset_of_the_old_spelling(fleet, dataset, tmp_path):
+    """Incremental: the captures there stay (their files, link=B-A, as they were); a new one
+    goes to link=B_to_A partitions; one ingested again moves to them; every query the same."""
+    old = old_style(dataset, tmp_path / "old")
+    before = load_manifest(old)
+    extra = tmp_path / "more" / "v4" / "extra.pcap"
+    extra.parent.mkdir(parents=True)
+    assert cli_main(["gen", str(extra), "--duration", "5", "--src", "E", "--seed", "11",
+                     "--start", "2026-03-04T08:00:00Z"]) == 0
+    assert ingest([fleet, extra.parent.parent], old).count("ingested") == 1
+    after = load_manifest(old)
+    assert {k: e.files for k, e in after.captures.items() if k in before.captures} == {
+        k: e.files for k, e in before.captures.items()}
+    assert after.captures[str(extra.resolve())].files and all(
+        "/link=E_to_A/" in f for f in after.captures[str(extra.resolve())].files)
+    new = tmp_path / "new"
+    assert ingest([extra.parent.parent], new).ok and ingest([fleet], new).ok
+    for sql in OLD_LINK_QUERIES:
+        assert q(old, sql) == q(new, sql), sql
+    # captures of the old spelling ingested again: their files move, the old ones go
+    v1 = [str(p.resolve()) for p in sorted((fleet / "v1").glob("*.pcap"))]
+    assert ingest([fleet / "v1"], old, force=True).count("ingested") == len(v1)
+    assert all("_to_" in f for k in v1 for f in load_manifest(old).captures[k].files if not f.startswith("packets/"))
+    assert not any((old / f).exists() for k in v1 for f in after.captures[k].files)
+    assert old_links(load_manifest(old))  # (the other captures' files)
+    for sql in OLD_LINK_QUERIES:
+        assert q(old, sql) == q(new, sql), sql
+
+
+def test_a_query_with_the_old_spelling_of_a_link(dataset, tmp_path):
+    """``WHERE link = 'B-A'`` (scripts written before issue 41) answers as ``link = 'B_to_A'``
+    until the next release, with the one deprecation line; nothing else is respelled."""
+    assert renamed_links("SELECT 'B-A' AS x FROM frames f WHERE f.\"link\" NOT IN ('C-A', 'D-A') -- 'B-A'") == (
+        "SELECT 'B-A' AS x FROM frames f WHERE f.\"link\" NOT IN ('C_to_A', 'D_to_A') -- 'B-A'",
+        [("C-A", "C_to_A"), ("D-A", "D_to_A")])
+    for sql in ("SELECT day FROM frames WHERE day = '2026-03-02'", "SELECT 1 WHERE link LIKE 'B-%'",
+                "SELECT 'B-A' = link", "SELECT pair FROM frames WHERE pair = 'B-A'"):
+        assert renamed_links(sql) == (sql, []), sql
+    sql = "SELECT vehicle, count(*) AS n FROM frames WHERE link = '{}' GROUP BY ALL ORDER BY ALL"
+    old = old_style(dataset, tmp_path / "old")
+    for ds in (dataset, old):
+        want = q(ds, sql.format("B_to_A"))
+        assert want and q(ds, sql.format("B-A")) == want
+        assert run_query(ds, sql.format("B-A")).renamed == [("B-A", "B_to_A")]
+        r = subprocess.run([*CLI, "query", str(ds), sql.format("B-A"), "--format", "json"], capture_output=True,
+                           text=True, timeout=120)
+        assert r.returncode == 0 and [(d["vehicle"], d["n"]) for d in json.loads(r.stdout)] == want
+        assert r.stderr == ("sharedlink: warning: link = 'B-A' is deprecated, use link = 'B_to_A' or pair = 'B>A' "
+                            "(the old spelling goes in the next release)\n")
+        r = subprocess.run([*CLI, "query", str(ds), sql.format("B_to_A")], capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0 and r.stderr == ""
+
+
 # -- parallel: processes and Dask -----------------------------------------------------------------------
 
-SUMMARY = """SELECT capture, vehicle, pair, CAST(day AS VARCHAR), count(*), sum(size), sum(hash(raw))
-             FROM frames GROUP BY ALL ORDER BY ALL"""
-VALUES_SUMMARY = "SELECT capture, name, count(*), round(sum(value_double), 6), sum(hash(text)) FROM values GROUP BY ALL ORDER BY ALL"
 
 
 def test_two_workers_give_the_same_dataset(fleet, dataset, tmp_path):

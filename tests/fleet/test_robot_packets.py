@@ -11,6 +11,8 @@ import sys
 from pathlib import Path
 
 from sharedlink.analysis.stats import capture_stats
+from sharedlink.fleet.dataset import load_manifest, old_links, save_manifest
+from sharedlink.fleet.ingest import ingest
 from sharedlink.fleet.query import run_query
 from sharedlink.generators.blackboard import BlackboardGenOptions, generate_blackboard_file
 from sharedlink.generators.p2os import P2osGenOptions, generate_p2os_file
@@ -69,3 +71,29 @@ def test_packets_table_holds_what_stats_counts(tmp_path):
         for c in capture_stats(cap).to_dict()["p2os"]["commands"]:
             total[c["name"]] = total.get(c["name"], 0) + c["count"]
     assert {r["command"]: r["n"] for r in json.loads(out.stdout)} == total
+
+
+def test_packets_link_is_the_protocol_beside_either_spelling_of_a_pair(tmp_path):
+    """Issue 41 respells the frames' and values' link (``link=B_to_A``, before ``link=B-A``);
+    the packets' ``link=<protocol>`` stays, in a dataset of either spelling."""
+    p = tmp_path / "p.pcap"
+    beacon = tmp_path / "beacon.pcap"
+    generate_p2os_file(P2osGenOptions(duration=3, seed=3), p)
+    assert subprocess.run([*CLI, "gen", "-o", str(beacon), "--duration", "3"], capture_output=True).returncode == 0
+    ds = tmp_path / "ds"
+    assert ingest([p, beacon], ds).ok
+    assert sorted(d.relative_to(ds).as_posix() for d in ds.glob("*/day=*/link=*")) == [
+        "frames/day=2026-01-01/link=B_to_A", "packets/day=2026-01-01/link=p2os", "values/day=2026-01-01/link=B_to_A"]
+    sql = "SELECT link, protocol, count(*) FROM packets GROUP BY ALL"
+    want = list(run_query(ds, sql).rows())
+    assert [r[:2] for r in want] == [("p2os", "p2os")]
+    # as ingest wrote it before issue 41
+    for d in ds.glob("*/day=*/link=*_to_*"):
+        d.rename(d.with_name(d.name.replace("_to_", "-")))
+    manifest = load_manifest(ds)
+    for e in manifest.captures.values():
+        e.files = [f.replace("_to_", "-") for f in e.files]
+    save_manifest(ds, manifest)
+    assert old_links(manifest) and {d.name for d in ds.glob("packets/day=*/link=*")} == {"link=p2os"}
+    assert list(run_query(ds, sql).rows()) == want
+    assert list(run_query(ds, "SELECT DISTINCT link FROM frames").rows()) == [("B_to_A",)]

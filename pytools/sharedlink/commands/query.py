@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from sharedlink.commands import EXIT_OK, number
+from sharedlink.commands import EXIT_OK, deprecated, number
 from sharedlink.errors import UsageError
 from sharedlink.extras import require
 
@@ -47,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
     )
 
     result = run_query(args.dataset, args.sql, ns_times=True)
+    for old, new in result.renamed:  # (link = 'B-A': the partition's spelling before issue 41)
+        deprecated(f"link = '{old}'", f"link = '{new}' or pair = '{old[0]}>{old[-1]}'")
     if args.fmt == "csv":
         write_csv(result, sys.stdout)
     elif args.fmt == "json":

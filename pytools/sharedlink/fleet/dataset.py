@@ -3,14 +3,16 @@
 Layout (``docs/fleet.md``)::
 
     DATASET/_manifest.json                     which captures are in, and their files
-    DATASET/frames/day=2026-01-01/link=B-A/<capture id>-<run>.parquet
-    DATASET/values/day=2026-01-01/link=B-A/<capture id>-<run>.parquet
+    DATASET/frames/day=2026-01-01/link=B_to_A/<capture id>-<run>.parquet
+    DATASET/values/day=2026-01-01/link=B_to_A/<capture id>-<run>.parquet
     DATASET/packets/day=2026-01-01/link=p2os/<capture id>-<run>.parquet   (P2OS, blackboard)
 
-* ``day`` is the frame's UTC date, ``link`` its node pair as ``SRC-DST`` (``B-A``: from B to A;
-  ``>`` is kept out of directory names). Both come from the path (Hive partitioning), not from the
-  files, so every engine that reads Hive partitions (DuckDB, pyarrow, Dask, Polars, Spark) sees
-  them as columns.
+* ``day`` is the frame's UTC date, ``link`` its node pair as identifiers spell it, ``SRC_to_DST``
+  (``B_to_A``: from B to A; ``>`` is kept out of directory names; docs/cli.md "Words"). Both come
+  from the path (Hive partitioning), not from the files, so every engine that reads Hive
+  partitions (DuckDB, pyarrow, Dask, Polars, Spark) sees them as columns. Datasets written before
+  issue 41 have ``link=B-A`` folders (:func:`old_links`): their manifest lists those files, read
+  as they are, and ``sharedlink query``'s ``link`` column says ``B_to_A`` for them too.
 * The manifest is the truth: a query reads the files it lists. A capture's files are written
   under hidden names (``.<name>``, which Parquet readers skip) and renamed when complete; the
   manifest is replaced atomically; then the files it no longer lists are deleted. A crash leaves
@@ -143,8 +145,29 @@ def __getattr__(name: str) -> object:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
+def link_name(src: str, dst: str) -> str:
+    """A node pair as identifiers spell it: ``B_to_A`` (from B to A), the ``link`` partition of
+    the frames and values tables (``pair`` says ``B>A``)."""
+    return f"{src}_to_{dst}"
+
+
+def old_links(manifest: Manifest) -> bool:
+    """Whether the frames or values files the manifest lists include some in a partition of the
+    spelling before ``link_name``'s, ``link=B-A`` (a dataset written before, or ingested into
+    since). New partitions always hold ``_to_`` (``_`` is never percent-encoded)."""
+    return any("_to_" not in _link_of(f) for table in ("frames", "values") for f in manifest.files(table))
+
+
+def _link_of(path: str) -> str:
+    """The ``link=`` partition value of a table file's path (as written: percent-encoded)."""
+    for part in path.split("/"):
+        if part.startswith("link="):
+            return part[5:]
+    return "_to_"  # (no link partition: nothing old to read)
+
+
 def partition_dir(day: str, link: str) -> str:
-    """``day=2026-01-01/link=B-A``: a partition's directory below a table's. The link is
+    """``day=2026-01-01/link=B_to_A``: a partition's directory below a table's. The link is
     percent-encoded past letters, digits and ``-_.~`` (a malformed frame's ``?``, any byte a
     header names: no glob, no ``/``), as Hive readers (DuckDB, pyarrow) decode it."""
     return f"day={day}/link={quote(link, safe='-')}"

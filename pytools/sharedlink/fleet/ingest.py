@@ -42,6 +42,7 @@ from sharedlink.fleet.dataset import (
     SCHEMAS,
     CaptureEntry,
     Manifest,
+    link_name,
     load_manifest,
     locked,
     partition_dir,
@@ -423,7 +424,7 @@ class _Rows:
         if part is None or not part.seq:
             return
         n = len(part.seq)
-        link = f"{part.src}-{part.dst}"
+        link = link_name(part.src, part.dst)
         convs = self.convs
         for c in set(part.conv):
             if c not in convs:

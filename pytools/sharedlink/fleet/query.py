@@ -2,9 +2,12 @@
 
 :func:`connect` gives a DuckDB connection with three views:
 
-* ``frames`` and ``values``: the dataset's tables over exactly the files the manifest lists (a
-  consistent snapshot even while an ingest runs), with the Hive partition columns ``day`` (DATE)
-  and ``link`` and a ``time`` column (TIMESTAMP_NS, UTC) computed from ``time_ns``;
+* ``frames``, ``values`` and ``packets``: the dataset's tables over exactly the files the manifest
+  lists (a consistent snapshot even while an ingest runs), with the Hive partition columns ``day``
+  (DATE) and ``link`` and a ``time`` column (TIMESTAMP_NS, UTC) computed from ``time_ns``. The
+  frames' and values' ``link`` is ``B_to_A`` (:func:`~sharedlink.fleet.dataset.link_name`), in
+  a dataset with partitions of the old spelling (``link=B-A``) too: there it is made from
+  ``src`` and ``dst``;
 * ``captures``: the manifest, one row per capture (path, vehicle, size, hash, frames, values,
   records, first_ns, last_ns, error).
 
@@ -26,6 +29,7 @@ import datetime as _dt
 import decimal
 import json
 import os
+import re
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -33,7 +37,16 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from sharedlink.errors import UsageError
-from sharedlink.fleet.dataset import COLUMNS, DUCKDB_TYPES, MANIFEST, TABLES, Manifest, require_dataset
+from sharedlink.fleet.dataset import (
+    COLUMNS,
+    DUCKDB_TYPES,
+    MANIFEST,
+    TABLES,
+    Manifest,
+    link_name,
+    old_links,
+    require_dataset,
+)
 
 #: rows fetched from DuckDB at a time
 FETCH_ROWS = 10_000
@@ -60,13 +73,18 @@ def _database(root: Path, manifest: Manifest, cache_metadata: bool = False) -> A
         files = {table: [str(root / f) for f in manifest.files(table)] for table in TABLES}
         if cache_metadata and sum(map(len, files.values())) <= METADATA_CACHE_FILES:
             con.execute("SET parquet_metadata_cache = true")
+        old = old_links(manifest)
         for table in TABLES:
             if files[table]:
                 listed = ", ".join(_quote(f) for f in files[table])
                 source = f"read_parquet([{listed}], hive_partitioning = true)"
             else:  # no rows yet: the same columns, empty
                 source = f"({_empty(table)})"
-            con.execute(f'CREATE VIEW "{table}" AS SELECT *, make_timestamp_ns(time_ns) AS time FROM {source}')
+            columns = "*"
+            if old and table != "packets":  # (link=B-A partitions: the link made from the rows, one spelling;
+                # a dataset of new partitions only keeps the partition's, which DuckDB prunes files by)
+                columns = f"* REPLACE ({_sql_link('src', 'dst')} AS link)"
+            con.execute(f'CREATE VIEW "{table}" AS SELECT {columns}, make_timestamp_ns(time_ns) AS time FROM {source}')
         # (the manifest's entries as JSON, typed and unnested by DuckDB: no row made in Python)
         rows = json.dumps([{c: getattr(e, c) for c in _CAPTURE_COLUMNS} for e in manifest.captures.values()])
         con.execute("CREATE TABLE _captures AS SELECT unnest(from_json(?::JSON, ?), recursive := true)",
@@ -76,6 +94,11 @@ def _database(root: Path, manifest: Manifest, cache_metadata: bool = False) -> A
         con.close()
         raise
     return con
+
+
+def _sql_link(src: str, dst: str) -> str:
+    """:func:`~sharedlink.fleet.dataset.link_name` in SQL (tests check they agree)."""
+    return f"CAST({src} || '_to_' || {dst} AS VARCHAR)"
 
 
 def _quote(text: str) -> str:
@@ -149,12 +172,65 @@ def _single_select(con: Any, sql: str) -> bool:
     return len(statements) == 1 and statements[0].type == duckdb.StatementType.SELECT
 
 
+#: a node pair as the link partition spelled it before issue 41: a node, "-", a node (``B-A``)
+_OLD_LINK = re.compile(r"(.)-(.)", re.S)
+
+
+def renamed_links(sql: str) -> tuple[str, list[tuple[str, str]]]:
+    """``sql`` with the old spelling of a link (``'B-A'``) respelled (``'B_to_A'``) where a
+    ``link`` column is compared with it: ``link = 'B-A'`` (``<>``, ``!=`` too), ``link IN ('B-A',
+    ...)`` (``NOT IN`` too), the column qualified or quoted or not; and the (old, new) spellings
+    respelled, once each. Nothing else is touched (``'B-A' = link``, LIKE patterns): the old
+    spelling works where scripts wrote it, until the next release (docs/fleet.md "Renamed")."""
+    import duckdb
+
+    try:
+        tokens = duckdb.tokenize(sql)
+    except duckdb.Error:
+        return sql, []  # (run as it is: the error is the statement's)
+    ends = [pos for pos, _ in tokens[1:]] + [len(sql)]
+    toks = [(pos, sql[pos:end].rstrip(), kind) for (pos, kind), end in zip(tokens, ends)
+            if kind != duckdb.token_type.comment]
+    string, edits, renamed = duckdb.token_type.string_const, [], []
+    for i, (pos, lit, kind) in enumerate(toks):
+        m = _OLD_LINK.fullmatch(lit[1:-1]) if kind == string and len(lit) > 2 and lit[0] == lit[-1] == "'" else None
+        if m is None or not _compared_with_link(toks, i):
+            continue
+        new = link_name(m[1], m[2])
+        edits.append((pos, pos + len(lit), _quote(new)))
+        if (m[0], new) not in renamed:
+            renamed.append((m[0], new))
+    for start, end, text in reversed(edits):
+        sql = sql[:start] + text + sql[end:]
+    return sql, renamed
+
+
+def _compared_with_link(toks: list[tuple[int, str, Any]], i: int) -> bool:
+    """Whether the string token ``i`` is the right side of ``link =`` (``<>``, ``!=``) or in
+    the list of ``link IN (...)``."""
+    import duckdb
+
+    j = i - 1
+    while j >= 1 and toks[j][1] == "," and toks[j - 1][2] == duckdb.token_type.string_const:
+        j -= 2
+    if j >= 1 and toks[j][1] == "(" and toks[j - 1][1].upper() == "IN":
+        j -= 2
+        if j >= 0 and toks[j][1].upper() == "NOT":
+            j -= 1
+    elif j >= 0 and toks[j][1] in ("=", "==", "<>", "!=") and j == i - 1:
+        j -= 1
+    else:
+        return False
+    return j >= 0 and toks[j][2] == duckdb.token_type.identifier and toks[j][1].strip('"').lower() == "link"
+
+
 @dataclass
 class QueryResult:
     columns: list[str]
     batches: Iterator[list[tuple]]  # rows, FETCH_ROWS at a time
     types: list[str] = field(default_factory=list)  # DuckDB's type of each column
     ns_times: frozenset[int] = frozenset()  # columns whose values are ns since 1970 (TIMESTAMP_NS, UTC)
+    renamed: list[tuple[str, str]] = field(default_factory=list)  # old link spellings respelled (renamed_links)
 
     def rows(self) -> Iterator[tuple]:
         """The rows, the ``ns_times`` columns as ns since 1970 (ints)."""
@@ -174,10 +250,12 @@ def run_query(root: str | Path, sql: str, ns_times: bool = False) -> QueryResult
     """Run ``sql`` over the dataset at ``root``; UsageError for a bad dataset or statement.
     ``ns_times``: a single SELECT's TIMESTAMP_NS columns come as ns since 1970 (ints, their
     indices in ``QueryResult.ns_times``), not as datetimes to the microsecond (what the command
-    prints: every digit)."""
+    prints: every digit). A link compared with its old spelling (``link = 'B-A'``) is compared
+    with its new one (:func:`renamed_links`; the pairs in ``QueryResult.renamed``)."""
     import duckdb
 
     root = Path(root)
+    sql, renamed = renamed_links(sql)
     kept = _snapshot(root)
     single = _single_select(kept, sql)
     con = kept.cursor() if single else _database(root, require_dataset(root))
@@ -191,7 +269,7 @@ def run_query(root: str | Path, sql: str, ns_times: bool = False) -> QueryResult
         raise UsageError(f"query: {exc}") from None
     if cur.description is None:  # a statement without a result
         con.close()
-        return QueryResult([], iter(()))
+        return QueryResult([], iter(()), renamed=renamed)
 
     def batches() -> Iterator[list[tuple]]:
         try:
@@ -203,10 +281,11 @@ def run_query(root: str | Path, sql: str, ns_times: bool = False) -> QueryResult
             con.close()
 
     if described is None:
-        return QueryResult([d[0] for d in cur.description], batches(), [str(d[1]) for d in cur.description])
+        return QueryResult([d[0] for d in cur.description], batches(), [str(d[1]) for d in cur.description],
+                           renamed=renamed)
     # (the wrapped query's names are its expressions': the statement's own, as described)
     return QueryResult([c for c, _ in described], batches(), [t for _, t in described],
-                       frozenset(i for i, (_, t) in enumerate(described) if t == "TIMESTAMP_NS"))
+                       frozenset(i for i, (_, t) in enumerate(described) if t == "TIMESTAMP_NS"), renamed)
 
 
 def _with_ns_times(con: Any, sql: str) -> tuple[str, list[tuple[str, str]] | None]:
