@@ -5,6 +5,7 @@ checksums, frames without CR LF, numbers written in different ways."""
 
 from __future__ import annotations
 
+import random
 import re
 import struct
 from dataclasses import dataclass, field
@@ -14,6 +15,7 @@ from hypothesis import strategies as st
 
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.capture.serial_format import SerialCaptureWriter
 from sharedlink.generators.beacon import DEFAULT_START_NS
 from sharedlink.protocols import blackboard, p2os
 from sharedlink.protocols.codec import (
@@ -257,3 +259,18 @@ def reference(path: Path) -> list[RefFrame]:
             fr.values = dict(values)
             out.append(fr)
     return out
+
+
+def write_interleaved(path: Path, streams: dict[int, list[bytes]], seed: int) -> Path:
+    """A serial capture (pcapng) of the chunks of each direction in ``streams``, the directions'
+    records interleaved at random (``seed``), each chunk one record."""
+    rng = random.Random(seed)
+    queues = {d: list(chunks) for d, chunks in streams.items()}
+    ts = 1_700_000_000 * 10**9
+    with open(path, "wb") as fh:
+        w = SerialCaptureWriter(fh, flush=False)
+        while any(queues.values()):
+            d = rng.choice([k for k, q in queues.items() if q])
+            ts += rng.randint(1000, 2_000_000)
+            w.write(queues[d].pop(0), d, ts)
+    return path

@@ -4,13 +4,12 @@ link type preference. All dissector/*.lua files are loaded, as a user's plugin f
 
 from __future__ import annotations
 
-import random
 import subprocess
 from pathlib import Path
 
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
-from sl_captures import chunked, reference_frames, sl_stream
+from sl_captures import chunked, reference_frames, sl_stream, write_interleaved
 
 import tshark_util as tu
 from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWriter, read_capture
@@ -49,18 +48,6 @@ def dissector_frames(rs: list[dict]) -> dict[str, list[bytes]]:
         for h in r["slserial.frame"]:
             out[r["slserial.direction"][0]].append(bytes.fromhex(h.replace(":", "")))
     return out
-
-
-def write_interleaved(path: Path, streams: dict[int, list[bytes]], seed: int) -> None:
-    rng = random.Random(seed)
-    queues = {d: list(chunks) for d, chunks in streams.items()}
-    ts = 1_700_000_000 * 10**9
-    with open(path, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        while any(queues.values()):
-            d = rng.choice([k for k, q in queues.items() if q])
-            ts += rng.randint(1000, 2_000_000)
-            w.write(queues[d].pop(0), d, ts)
 
 
 # two tshark runs; no shrinking (each step would be a tshark run): the failing case is printed whole

@@ -6,13 +6,12 @@ the protocol), with noise and truncated messages between messages."""
 
 from __future__ import annotations
 
-import random
 from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
-from sl_captures import blackboard_message, chunked, p2os_packet, serial_stream
+from sl_captures import blackboard_message, chunked, p2os_packet, serial_stream, write_interleaved
 
 import tshark_util as tu
 from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWriter, read_capture
@@ -21,19 +20,6 @@ REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = [a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua"
            for a in ("-X", f"lua_script:{s}")]
 P2P = {DIR_IN: "1", DIR_OUT: "0"}
-
-
-def write_interleaved(path: Path, streams: dict[int, list[bytes]], seed: int) -> Path:
-    rng = random.Random(seed)
-    queues = {d: list(chunks) for d, chunks in streams.items()}
-    ts = 1_700_000_000 * 10**9
-    with open(path, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        while any(queues.values()):
-            d = rng.choice([k for k, q in queues.items() if q])
-            ts += rng.randint(1000, 2_000_000)
-            w.write(queues[d].pop(0), d, ts)
-    return path
 
 
 @st.composite
