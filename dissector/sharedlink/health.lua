@@ -252,7 +252,7 @@ function H.report(out, table_lines)
     out[#out + 1] = ""
     out[#out + 1] = "Link health"
     local rows = { { "Link", "Pair", "Frames", "Rate Hz", "Outages", "Outage s", "Longest s", "Available %",
-        "Bad checksum %", "Late full sets" } }
+        "Bad checksum %", "Sync late frames" } }
     local outages = { { "Link", "Pair", "Start s", "Duration s", "" } }
     for _, L in ipairs(ls) do
         rows[#rows + 1] = { L.name, (L.pair:gsub(">", ARROW)), tostring(L.frames),

@@ -130,7 +130,7 @@ def test_tap_agrees_with_stats(caps, name):
         assert row[0] == str(lk["frames"]) and row[2] == str(lk["outages"])
         assert row[1] == ("%.3f" % lk["rate_hz"] if lk["rate_hz"] else "")
         assert row[3] == "%.3f" % lk["outage_s"] and row[5] == "%.2f" % (100 * lk["availability"])
-        assert row[6] == "%.2f" % lk["bad_checksum_pct"] and row[7] == str(lk["late_full_sets"])
+        assert row[6] == "%.2f" % lk["bad_checksum_pct"] and row[7] == str(lk["sync_late"])
 
 
 def test_threshold_preference_is_outage_after(caps):

@@ -159,7 +159,7 @@ class LinkHealth:
             "availability": avail,
             "bad_checksum": self.bad_checksum,
             "bad_checksum_pct": 100.0 * self.bad_checksum / self.frames if self.frames else 0.0,
-            "late_full_sets": self.late,
+            "sync_late": self.late,  # frames while a full set was overdue (as stats' sync_late)
             "checksum_missing": self.checksum_missing,
             "notes": [CHECKSUM_HABIT] if self.checksum_missing else [],
         }
@@ -350,7 +350,7 @@ def feed_counted(health: Health, batch) -> None:
 
 #: the link table's headers (stats; the tap's report has the same columns)
 LINK_HEADERS = ["link", "pair", "frames", "rate Hz", "outages", "outage s", "longest s", "available %",
-                "bad checksum %", "late full sets"]
+                "bad checksum %", "sync late frames"]
 
 
 def health_dict(health: Health | None) -> dict:
