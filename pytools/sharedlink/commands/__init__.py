@@ -452,8 +452,11 @@ def warn_empty(path: Path | str, count: int, what: str = "SharedLink frames") ->
 
 
 def plural(n: int, word: str, words: str | None = None) -> str:
-    """``1 frame``, ``2 frames``."""
-    return f"{n} {word if n == 1 else (words or word + 's')}"
+    """``1 frame``, ``2 frames``, ``19,842 frames`` (the tables' thousands-separator rule:
+    sharedlink.present.count)."""
+    from sharedlink.present.formats import count
+
+    return f"{count(n)} {word if n == 1 else (words or word + 's')}"
 
 
 def report(summary: dict, as_json: bool, line: str) -> None:

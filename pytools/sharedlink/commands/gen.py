@@ -30,6 +30,7 @@ from sharedlink.commands import (
     start_time,
 )
 from sharedlink.errors import UsageError
+from sharedlink.present.formats import count
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -144,12 +145,12 @@ def run(args: argparse.Namespace) -> int:
         "silenced": stats.silenced,
         "bad_checksums": stats.bad_checksums,
     }
-    kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
+    kinds = ", ".join(f"{count(v)} {k}" for k, v in stats.kinds.items())
     report(
         summary, args.json,
-        f"wrote {args.out}: {plural(stats.frames, 'frame')} ({kinds}), {stats.bytes} payload bytes"
-        + (f", {stats.dropped} dropped" if stats.dropped else "")
-        + (f", {stats.silenced} silenced in {plural(len(args.outage), 'outage')}" if args.outage else "")
+        f"wrote {args.out}: {plural(stats.frames, 'frame')} ({kinds}), {count(stats.bytes)} payload bytes"
+        + (f", {count(stats.dropped)} dropped" if stats.dropped else "")
+        + (f", {count(stats.silenced)} silenced in {plural(len(args.outage), 'outage')}" if args.outage else "")
         + (f", {stats.bad_checksums} bad checksums" if stats.bad_checksums else ""),
     )
     return 0

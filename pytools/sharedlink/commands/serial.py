@@ -153,7 +153,7 @@ def run_capture(args: argparse.Namespace) -> int:
         "by_direction": stats.by_direction,
         "stopped_by": stats.stopped_by,
     }
-    report(summary, args.json, f"wrote {args.out}: {stats.records} records, {stats.bytes} bytes (stopped: {stats.stopped_by or 'end'})")
+    report(summary, args.json, f"wrote {args.out}: {plural(stats.records, 'record')}, {plural(stats.bytes, 'byte')} (stopped: {stats.stopped_by or 'end'})")
     return 0
 
 
