@@ -24,7 +24,7 @@ VENV_BIN = Path(sys.executable).parent
 SKIP = {
     "make test": "the whole suite, this test included",
     "source .venv/bin/activate": "changes the calling shell only (a shell builtin, nothing to check)",
-    "sudo apt install pipx": "a system package: test_install.py runs the pipx lines with Debian's pipx, or with pipx from PyPI",
+    "sudo apt install pipx": "a system package: test_lean_install.py runs the pipx lines with Debian's pipx, or with pipx from PyPI",
     "pipx install .": "run by tests/tools/test_lean_install.py into a temporary PIPX_HOME (the lean core, then its commands)",
     "pipx ensurepath": "run by tests/tools/test_lean_install.py with the install line (a temporary HOME)",
     "sharedlink watch --foxglove": None,  # run below until its server is up, then stopped (it serves until Ctrl-C)
