@@ -1,7 +1,7 @@
 """What people read (issue 41, items 1 and 2): one format per kind of number, tables fitted to a
 terminal (a real pseudo-terminal, COLUMNS 80 and 200) and plain or CSV on a pipe, for stats,
 diff and query; and plots of a long faulty capture: markers thinned (counted from the figure's
-artists), clock time, units, one legend, bounded CPU."""
+artists), clock time, units, one legend."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ import datetime as dt
 import io
 import os
 import re
-import resource
 import subprocess
 import sys
 from pathlib import Path
@@ -212,17 +211,13 @@ def faulty(tmp_path_factory) -> Path:
     return path
 
 
-def test_plot_of_a_long_faulty_capture_in_bounded_cpu(faulty, tmp_path):
-    """The issue's 1M frames in under 10 s of CPU: here 200,000 frames, the command's whole
-    process (start-up, reading, drawing, the PNG) under 6 s of CPU (2.4 s here; before issue 41: 12.6 s)."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+def test_plot_of_a_long_faulty_capture(faulty, tmp_path):
+    """The command on a long faulty capture (its speed, 1M frames under 10 s of CPU, is
+    `make bench`'s plot line: bench/bench_plot.py)."""
     r = run("plot", faulty, "-o", tmp_path / "f.png", "--json")
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     assert r.returncode == 0, r.stderr
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     summary = __import__("json").loads(r.stdout)
     assert summary["frames"] > 190_000 and summary["checksum_failures"] > 1000 and summary["dropped_frames"] > 1000
-    assert cpu < 6.0, f"{cpu:.1f} s of CPU for {summary['frames']} frames"
 
 
 @pytest.fixture(scope="module")
