@@ -20,7 +20,7 @@ from typing import Any
 import pyarrow as pa
 
 from sharedlink.analysis.decode import Columns, Decoded
-from sharedlink.analysis.health import Health, feed_decoded, quality
+from sharedlink.analysis.health import Health, feed_columns, feed_decoded, quality
 from sharedlink.capture.pcapio import NS
 from sharedlink.fleet.dataset import LINKS_COLUMNS, OUTAGES_COLUMNS, link_name
 
@@ -45,8 +45,7 @@ class HealthRows:
         for item in items:
             t = type(item)
             if t is Columns:
-                for c in item.dirs.values():
-                    health.run(health.link(c.conv, c.src, c.dst), c.ts_ns, sum(c.late))
+                feed_columns(health, item)
             elif t is Decoded:
                 feed_decoded(health, item)
             yield item
