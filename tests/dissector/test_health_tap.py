@@ -198,3 +198,41 @@ def test_export_csv_rows_are_stats_outages(caps, name):
     plain = list(csv.DictReader(io.StringIO(run_cli("export", "--format", "csv", caps[name]).stdout)))
     frames = [{k: v for k, v in r.items() if k != "duration_s"} for r in rows if r["kind"] != "outage"]
     assert frames == plain
+
+
+@pytest.fixture(scope="module")
+def dataset(caps, tmp_path_factory) -> Path:
+    """Every capture above ingested into one fleet dataset."""
+    ds = tmp_path_factory.mktemp("fleet") / "ds"
+    r = run_cli("ingest", "-o", ds, *caps.values())
+    assert r.returncode == 0, r.stderr
+    return ds
+
+
+@pytest.mark.parametrize("name", [*CAPTURES, "open"])
+def test_ingest_outages_are_stats_outages(caps, dataset, name):
+    """ingest's outages table: the outages of stats (count, links, open or not, start and duration
+    to the microsecond; here to the nanosecond); its links table: the per-second rows of
+    `sharedlink health -o -`, and per link the frames stats counts."""
+    from sharedlink.fleet.query import run_query
+
+    path = caps[name]
+    want, links = python_outages(path)
+    first = next(iter(read_records(path))).ts_ns
+    where = "WHERE capture = '%s'" % str(path).replace("'", "''")
+    rows = list(run_query(dataset, "SELECT conversation, pair, time_ns, duration_ns, open, end_ns, link FROM outages "
+                                   f"{where} ORDER BY ALL").rows())
+    got = sorted((c, p, (t - first) / NS, d / NS, o) for c, p, t, d, o, _end, _link in rows)
+    assert got == want
+    for _c, p, t, d, o, end, link in rows:
+        assert link == p.replace(">", "_to_") and (end is None) == o and (o or end - t == d)
+    if name != "lossy":
+        assert want, "the capture has outages"
+    per_second = [json.loads(x) for x in run_cli("health", "-o", "-", path).stdout.splitlines()]
+    rows = run_query(dataset, "SELECT conversation, pair, time_ns // 1000000000, frames, state, quality, down_s "
+                              f"FROM links {where} ORDER BY conversation, pair, time_ns").rows()
+    assert [tuple(r) for r in rows] == [(s["link"], s["pair"], s["second"], s["frames"], s["state"], s["quality"],
+                                         s["down_s"]) for s in sorted(per_second, key=lambda s: (s["link"], s["pair"]))]
+    frames = dict(((c, p), n) for c, p, n in run_query(
+        dataset, f"SELECT conversation, pair, sum(frames) FROM links {where} GROUP BY ALL").rows())
+    assert frames == {(lk["link"], lk["pair"]): lk["frames"] for lk in links}

@@ -346,6 +346,13 @@ def feed_counted(health: Health, batch) -> None:
         health.run(health.link(c.conv, c.src, c.dst), c.stamps, c.late)
 
 
+def feed_columns(health: Health, batch) -> None:
+    """A :class:`~sharedlink.analysis.decode.Columns` batch (the columns mode: ``export`` to
+    MCAP, ``ingest``): each direction's run of frame times."""
+    for c in batch.dirs.values():
+        health.run(health.link(c.conv, c.src, c.dst), c.ts_ns, sum(c.late))
+
+
 # -- what stats shows ----------------------------------------------------------------------------
 
 #: the link table's headers (stats; the tap's report has the same columns)

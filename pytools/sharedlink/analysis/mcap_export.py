@@ -6,7 +6,8 @@ SharedLink frame on the channels of :class:`~sharedlink.analysis.foxglove_channe
 foxglove-sdk's MCAP writer (zstd chunks at level 1, indexed) records with log time = capture time (ns).
 When that pass met traffic that is not SharedLink (noise or other records), a second pass,
 :func:`sharedlink.analysis.sessions.iter_sessions`, adds the P2OS and blackboard sessions (MCAP
-readers order messages by log time, so the two passes need not interleave).
+readers order messages by log time, so the two passes need not interleave). The SharedLink links'
+per-second link quality (:mod:`sharedlink.analysis.foxglove_health`) is written at the end.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from foxglove.mcap import MCAPWriteOptions
 from sharedlink.analysis.decode import Columns, Decoded, Decoder
 from sharedlink.analysis.export import ExportOptions, ExportResult
 from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
+from sharedlink.analysis.foxglove_health import publish_quality
+from sharedlink.analysis.health import Health, feed_columns, feed_decoded
 from sharedlink.analysis.sessions import iter_sessions
 from sharedlink.capture.pcapio import CaptureError, atomic_open
 from sharedlink.errors import UsageError
@@ -37,9 +40,11 @@ def channel_options(opts: ExportOptions) -> ChannelOptions:
                           max_channels=MCAP_MAX_CHANNELS)
 
 
-def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOptions, result: ExportResult) -> None:
-    """Every frame and session message of ``path`` onto ``channels``; damage after the first
-    record sets ``result.error`` (what came before it is published)."""
+def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOptions, result: ExportResult,
+                    health: Health | None = None) -> None:
+    """Every frame and session message of ``path`` onto ``channels`` (and its SharedLink frames
+    into ``health``); damage after the first record sets ``result.error`` (what came before it
+    is published)."""
     other = False
     seen = result.seen if opts.require else None
     try:
@@ -49,12 +54,16 @@ def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOp
             if t is Columns:  # (the frames the core's fast path took: rows, no Decoded)
                 result.frames += item.frames  # type: ignore[union-attr]
                 channels.columns(item)  # type: ignore[arg-type]
+                if health is not None:
+                    feed_columns(health, item)
                 if seen is not None:
                     for c in item.dirs.values():  # type: ignore[union-attr]
                         seen.update(c.name)
             elif t is Decoded:
                 result.frames += 1
                 channels.frame(item)  # type: ignore[arg-type]
+                if health is not None:
+                    feed_decoded(health, item)
                 if seen is not None:
                     seen.update(u.name for u in item.updates if u.text is not None)  # type: ignore[union-attr]
             else:
@@ -82,7 +91,9 @@ def export_mcap(path: str | Path, dest: str | Path, opts: ExportOptions) -> Expo
     with atomic_open(dest, "wb") as fh:
         writer = foxglove.open_mcap(fh, context=ctx, writer_options=MCAPWriteOptions(profile=PROFILE, compression_level=ZSTD_LEVEL))
         try:
-            publish_capture(path, channels, opts, result)
+            health = Health(timeline=True)
+            publish_capture(path, channels, opts, result, health)
+            publish_quality(channels, health)  # (one link_quality topic per link: foxglove_health.py)
             missing = [n for n in opts.require if n not in result.seen]
             if missing and result.error is None:  # the file is not left behind (atomic_open)
                 have = ", ".join(sorted(result.seen)) or "none"

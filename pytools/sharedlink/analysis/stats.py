@@ -32,6 +32,7 @@ from pathlib import Path
 from sharedlink.analysis.decode import DATA_KINDS, NS, SYNC_SLACK_S, Counted, Decoded, Decoder
 from sharedlink.analysis.health import Health, feed_counted, feed_decoded, health_dict, health_table
 from sharedlink.analysis.malformed import PIECE, other_protocol, talk_key, unframed_pieces
+from sharedlink.analysis.robot_health import feed_session
 from sharedlink.analysis.robot_stats import RobotStats, robot_tables
 from sharedlink.analysis.robots import ROBOT_PROTOCOLS, RobotLinks
 from sharedlink.analysis.sessions import SessionMessage
@@ -496,6 +497,7 @@ def capture_stats(
                 st.other_records += 1
             elif type(item) is SessionMessage:
                 st.robots.add(item)
+                feed_session(st.health, item)  # (P2OS, blackboard links: analysis/robot_health.py)
             elif item.error == PIECE:  # noise beside a malformed frame the core cut
                 st.noise_segments += 1
                 st.noise_bytes += len(item.raw)
@@ -521,7 +523,7 @@ def capture_stats(
         counts = st.other_protocols.setdefault(name, [0, 0])
         counts[0] += n
         counts[1] += b
-    st.health.finish_once(st.last_ns)
+    st.health.finish_once()  # (the latest frame or robot message)
     return st
 
 
@@ -576,7 +578,7 @@ def tables(st: CaptureStats) -> list[Table]:
                       v.last or "")  # (control characters escaped as every table cell)
     if st.frames == 0 and st.robots.packets:  # a P2OS or blackboard capture: no empty SharedLink tables
         summary.title = f"Capture statistics: {st.path}"
-        return [summary, *robot_tables(st.robots)]
+        return [summary, *robot_tables(st.robots), *health_table(st.health.finish_once())]
     return [summary, kinds, pairs, variables, *robot_tables(st.robots), *health_table(st.health.finish_once(st.last_ns))]
 
 

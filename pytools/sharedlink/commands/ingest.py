@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "ingest",
-        help="decode captures into a Parquet dataset (frames, values and packets tables)",
+        help="decode captures into a Parquet dataset (frames, values, packets, links and outages tables)",
         description="Decode every capture into the Parquet dataset DATASET (Hive-partitioned by day and node pair; "
         "tables frames and values; see docs/fleet.md). Incremental: a capture already in the dataset with the same "
         "content is skipped, a changed one has its rows replaced. A damaged capture keeps the rows before the damage "

@@ -166,10 +166,16 @@ def _run(args: argparse.Namespace) -> int:
         decoder = Decoder(variables, sync, carried=False)  # the outputs read values from the table
         outputs: list = []
         sessions: list = []
+        tick = None
         if args.foxglove:
+            from sharedlink.analysis.foxglove_health import LiveQuality
+
             server, channels = _foxglove(args)
             outputs.append(served(channels.frame, stats))
             sessions.append(served(channels.session, stats))
+            quality = LiveQuality(channels)  # a link_quality channel per link, each second once ended
+            outputs.append(served(quality.frame, stats))
+            tick = quality.tick
         if not args.quiet:  # what is watched (the Foxglove server's address is always said)
             print(f"sharedlink watch: {source.description}", file=sys.stderr, flush=True)
         if args.json:  # Ctrl-C waits until a batch's lines are written whole (see run_watch)
@@ -185,9 +191,9 @@ def _run(args: argparse.Namespace) -> int:
 
                 robot = RobotJsonl([], lambda: None)  # P2OS, blackboard: export's lines
                 sessions.append(lambda m: write(robot.fast_line(m) or robot.line(m)))
-                run_watch(source, decoder, outputs, out=out, stats=stats, session_outputs=sessions)
+                run_watch(source, decoder, outputs, tick=tick, out=out, stats=stats, session_outputs=sessions)
             return _damage(source)
-        _live(source, decoder, outputs, sync, sessions, stats)
+        _live(source, decoder, outputs, sync, sessions, stats, tick)
         return _damage(source)
     finally:
         if server is not None:
@@ -206,7 +212,8 @@ def _damage(source: Any) -> int:
     return EXIT_USAGE
 
 
-def _live(source: Any, decoder: Decoder, outputs: list, sync: float, sessions: list, stats: Any) -> int:
+def _live(source: Any, decoder: Decoder, outputs: list, sync: float, sessions: list, stats: Any,
+          also: Any = None) -> int:
     from rich.console import Console, Group
     from rich.live import Live
 
@@ -226,6 +233,8 @@ def _live(source: Any, decoder: Decoder, outputs: list, sync: float, sessions: l
 
     with Live(render(source.now_ns()), console=console, auto_refresh=False, transient=False) as live:
         def tick(now_ns: int) -> None:
+            if also is not None:  # (--foxglove's link quality)
+                also(now_ns)
             live.update(render(now_ns), refresh=True)
 
         run_watch(source, decoder, outputs, tick=tick, stats=view.stats, session_outputs=sessions)

@@ -1,4 +1,4 @@
-"""A fleet dataset on disk: its two Parquet tables, their Hive partitions and the manifest.
+"""A fleet dataset on disk: its Parquet tables, their Hive partitions and the manifest.
 
 Layout (``docs/fleet.md``)::
 
@@ -6,6 +6,8 @@ Layout (``docs/fleet.md``)::
     DATASET/frames/day=2026-01-01/link=B_to_A/<capture id>-<run>.parquet
     DATASET/values/day=2026-01-01/link=B_to_A/<capture id>-<run>.parquet
     DATASET/packets/day=2026-01-01/link=p2os/<capture id>-<run>.parquet   (P2OS, blackboard)
+    DATASET/links/day=2026-01-01/link=B_to_A/<capture id>-<run>.parquet   (link health per second)
+    DATASET/outages/day=2026-01-01/link=B_to_A/<capture id>-<run>.parquet
 
 * ``day`` is the frame's UTC date, ``link`` its node pair as identifiers spell it, ``SRC_to_DST``
   (``B_to_A``: from B to A; ``>`` is kept out of directory names; docs/cli.md "Words"). Both come
@@ -37,7 +39,7 @@ from sharedlink.errors import UsageError
 # -- layout --------------------------------------------------------------------------------------
 MANIFEST = "_manifest.json"
 LOCK = "_lock"
-TABLES = ("frames", "values", "packets")
+TABLES = ("frames", "values", "packets", "links", "outages")
 #: manifest format version
 VERSION = 1
 #: partition keys, in directory order
@@ -126,7 +128,37 @@ PACKETS_COLUMNS = (
     ("error", "string"),
     ("raw", "binary"),
 )
-COLUMNS = {"frames": FRAMES_COLUMNS, "values": VALUES_COLUMNS, "packets": PACKETS_COLUMNS}
+#: link health (issue 43, analysis/health.py, fleet/health_rows.py): one row per SharedLink link and
+#: second (epoch-aligned, from the link's first frame's second to the capture's end)
+LINKS_COLUMNS = (
+    ("capture", "string"),
+    ("vehicle", "string"),
+    ("time_ns", "int64"),  # the second's start, UTC ns since 1970
+    ("conversation", "string"),  # the link: "10.0.0.2:7013 > 255.255.255.255:7013", "serial inbound"
+    ("src", "string"),
+    ("dst", "string"),
+    ("pair", "string"),
+    ("frames", "int32"),  # frames received in the second
+    ("state", "string"),  # up, down (an outage in progress at the second's end, no frame in it)
+    ("quality", "float64"),  # Shepherd's Link Quality: frames while up, seconds of outage while down
+    ("down_s", "float64"),  # null while up: the seconds since the outage began
+)
+#: one row per outage of a SharedLink link (as stats --json's "outages")
+OUTAGES_COLUMNS = (
+    ("capture", "string"),
+    ("vehicle", "string"),
+    ("time_ns", "int64"),  # the start: the link's last frame before the silence
+    ("conversation", "string"),
+    ("src", "string"),
+    ("dst", "string"),
+    ("pair", "string"),
+    ("end_ns", "int64"),  # the frame after it; null when open at the capture's end
+    ("duration_ns", "int64"),  # to end_ns, or to the capture's end
+    ("duration_s", "float64"),
+    ("open", "bool_"),
+)
+COLUMNS = {"frames": FRAMES_COLUMNS, "values": VALUES_COLUMNS, "packets": PACKETS_COLUMNS, "links": LINKS_COLUMNS,
+           "outages": OUTAGES_COLUMNS}
 #: DuckDB's names of the Arrow types above
 DUCKDB_TYPES = {"string": "VARCHAR", "int64": "BIGINT", "int32": "INTEGER", "int8": "TINYINT", "float64": "DOUBLE",
                 "bool_": "BOOLEAN", "binary": "BLOB"}

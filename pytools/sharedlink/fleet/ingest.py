@@ -49,6 +49,7 @@ from sharedlink.fleet.dataset import (
     save_manifest,
     sweep,
 )
+from sharedlink.fleet.health_rows import HealthRows
 from sharedlink.fleet.heap import glibc as _glibc  # noqa: F401 - tests/fleet/test_ingest.py imports it here
 from sharedlink.fleet.heap import heap_kept
 from sharedlink.fleet.robot_rows import PacketRows, packet_columns
@@ -134,7 +135,7 @@ def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callabl
     dec = Decoder(task.variables, task.sync_interval)
     dec.robots = RobotLinks(messages=True)  # type: ignore[attr-defined]  # P2OS, blackboard: the packets table
     try:
-        for item in dec.capture(task.path, progress, columns=True):
+        for item in rows.health.fed(dec.capture(task.path, progress, columns=True)):
             t = type(item)
             if t is Columns:
                 base = seq
@@ -412,6 +413,7 @@ class _Rows:
         self.repeated: set[str] = set()  # value texts met once (typed values are kept from the second time)
         self.values = 0  # values rows written
         self.packets = PacketRows()  # the packets table's rows held
+        self.health = HealthRows()  # the links and outages tables, written at the end
 
     def held(self) -> int:
         return sum(p.held() for p in self.parts.values())
@@ -546,6 +548,8 @@ class _Rows:
         for key in list(self.parts):
             self._flush(key)
         self.flush_packets()
+        for table, part, cols, n in self.health.tables(self.capture, self.vehicle):
+            self._write(table, part, cols, n)
         return self.values
 
     def close(self) -> list[str]:

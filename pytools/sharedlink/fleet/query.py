@@ -2,12 +2,12 @@
 
 :func:`connect` gives a DuckDB connection with three views:
 
-* ``frames``, ``values`` and ``packets``: the dataset's tables over exactly the files the manifest
+* ``frames``, ``values``, ``packets``, ``links`` and ``outages``: the dataset's tables over exactly the files the manifest
   lists (a consistent snapshot even while an ingest runs), with the Hive partition columns ``day``
   (DATE) and ``link`` and a ``time`` column (TIMESTAMP_NS, UTC) computed from ``time_ns``. The
   frames' and values' ``link`` is ``B_to_A`` (:func:`~sharedlink.fleet.dataset.link_name`), in
   a dataset with partitions of the old spelling (``link=B-A``) too: there it is made from
-  ``src`` and ``dst``;
+  ``src`` and ``dst``; ``outages`` has an ``end_time`` too (from ``end_ns``);
 * ``captures``: the manifest, one row per capture (path, vehicle, size, hash, frames, values,
   records, first_ns, last_ns, error).
 
@@ -60,7 +60,7 @@ METADATA_CACHE_FILES = 2048
 
 
 def connect(root: str | Path) -> Any:
-    """An in-memory DuckDB connection with the views ``frames``, ``values`` and ``captures``."""
+    """An in-memory DuckDB connection with the views of the tables and ``captures``."""
     root = Path(root)
     return _database(root, require_dataset(root))
 
@@ -84,7 +84,9 @@ def _database(root: Path, manifest: Manifest, cache_metadata: bool = False) -> A
             if old and table != "packets":  # (link=B-A partitions: the link made from the rows, one spelling;
                 # a dataset of new partitions only keeps the partition's, which DuckDB prunes files by)
                 columns = f"* REPLACE ({_sql_link('src', 'dst')} AS link)"
-            con.execute(f'CREATE VIEW "{table}" AS SELECT {columns}, make_timestamp_ns(time_ns) AS time FROM {source}')
+            extra = ", make_timestamp_ns(end_ns) AS end_time" if table == "outages" else ""
+            con.execute(f'CREATE VIEW "{table}" AS SELECT {columns}, make_timestamp_ns(time_ns) AS time{extra} '
+                        f'FROM {source}')
         # (the manifest's entries as JSON, typed and unnested by DuckDB: no row made in Python)
         rows = json.dumps([{c: getattr(e, c) for c in _CAPTURE_COLUMNS} for e in manifest.captures.values()])
         con.execute("CREATE TABLE _captures AS SELECT unnest(from_json(?::JSON, ?), recursive := true)",

@@ -1,0 +1,130 @@
+"""Link health as Foxglove channels (issue 43): one ``link_quality`` topic per SharedLink link,
+beside the direction's ``values`` and ``frames`` (``/sharedlink/B_to_A/link_quality``; a second
+conversation carrying the pair: ``B_to_A_2``, as :class:`~sharedlink.analysis.foxglove_channels.FoxgloveChannels`
+names it), one JSON message per second (log time: the second's start, epoch-aligned) with the
+Shepherd link quality of :func:`sharedlink.analysis.health.quality`::
+
+    {"frames": 5, "quality": 5, "state": "up", "down_s": null}
+    {"frames": 0, "quality": 2.0, "state": "down", "down_s": 2.0}
+
+``frames`` and ``quality`` plot as lines in Foxglove's Plot panel, ``state`` in its State
+Transitions panel. ``export --format mcap`` writes them when the capture is done
+(:func:`publish_quality`); ``watch --foxglove`` sends each second once it has ended, by the
+frame after it or by the clock while the link is silent (:class:`LiveQuality`): the same
+messages, but for the last second, never ended.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from typing import Any
+
+import foxglove
+
+from sharedlink.analysis.health import FLOOR_S, Health, LinkHealth, Second, feed_decoded, quality
+from sharedlink.capture.pcapio import NS
+
+LINK_QUALITY_SCHEMA = {
+    "type": "object",
+    "title": "sharedlink.LinkQuality",
+    "properties": {
+        "frames": {"type": "integer", "minimum": 0},
+        "quality": {"type": "number", "minimum": 0},
+        "state": {"type": "string", "enum": ["up", "down"]},
+        "down_s": {"type": ["number", "null"]},
+    },
+    "required": ["frames", "quality", "state", "down_s"],
+}
+
+
+def second_json(s: Second) -> bytes:
+    return json.dumps({"frames": s.frames, "quality": s.quality, "state": "up" if s.down_s is None else "down",
+                       "down_s": s.down_s}).encode()
+
+
+def link_topic(channels: Any, key: tuple, h: LinkHealth) -> str:
+    """The link's topic: below its direction's channels when it has them, else by its pair."""
+    dr = channels._dirs.get(key)  # (conv, src, dst): the directions' key, the links' too
+    if dr is not None:
+        return dr.frames_topic.rsplit("/", 1)[0] + "/link_quality"
+    return "/sharedlink/" + h.pair.replace(">", "_to_").replace("*", "other") + "/link_quality"
+
+
+def quality_channel(channels: Any, key: tuple, h: LinkHealth) -> Any:
+    """A new ``link_quality`` channel of ``channels``' context, counted with its channels."""
+    channels._open(1)
+    conv, src, dst = key
+    topic = link_topic(channels, key, h)
+    meta = {"src": src, "dst": dst, "link": h.link, "conversation": " ".join(map(str, conv or ()))}
+    ch = foxglove.Channel(topic, schema=LINK_QUALITY_SCHEMA, metadata=meta, context=channels.ctx)
+    channels._counts[topic] = 0
+    return ch
+
+
+def publish_quality(channels: Any, health: Health) -> None:
+    """Every link's per-second quality (``health`` kept a timeline), onto ``channels``' context."""
+    health.finish_once()
+    for key, h in sorted(health.links.items(), key=lambda kv: (kv[1].link, kv[1].pair)):
+        ch = quality_channel(channels, key, h)
+        topic = ch.topic()
+        for s in quality(h):
+            ch.log(second_json(s), log_time=s.second * NS)
+            channels._counts[topic] += 1
+
+
+#: seconds sent at most at once for one link (a clock that jumps: the latest are sent)
+LIVE_BACKLOG_S = 3600
+
+
+class LiveQuality:
+    """``watch --foxglove``'s link quality: :meth:`frame` after the channels' own frame (so the
+    direction's topic is known), :meth:`tick` with the clock (capture time for ``--from``). A
+    second is sent once it has ended: its frames, or (none) down when the silence at its end is
+    an outage by the link's threshold then (the rule of :func:`~sharedlink.analysis.health.quality`)."""
+
+    def __init__(self, channels: Any) -> None:
+        self.channels = channels
+        self.health = Health()
+        self.low_ns = int(FLOOR_S * NS)
+        #: id(link) -> [channel, the next second to send, frames per second not sent yet]
+        self.links: dict[int, list] = {}
+
+    def frame(self, d: Any) -> None:
+        h = self.health.link(d.conv, d.src, d.dst)
+        st = self.links.get(id(h))
+        sec = d.ts_ns // NS
+        if st is None:
+            st = self.links[id(h)] = [quality_channel(self.channels, (d.conv, d.src, d.dst), h), sec, Counter()]
+        else:
+            self._send(h, st, sec)  # the seconds this frame ends (judged before it counts)
+        feed_decoded(self.health, d)
+        if sec >= st[1]:
+            st[2][sec] += 1
+
+    def tick(self, now_ns: int) -> None:
+        for h in list(self.health.links.values()):
+            st = self.links.get(id(h))
+            if st is not None:
+                self._send(h, st, now_ns // NS)
+
+    def _send(self, h: LinkHealth, st: list, until: int) -> None:
+        """Send the link's seconds before ``until``."""
+        ch, sec, counts = st
+        if until <= sec:
+            return
+        sec = max(sec, until - LIVE_BACKLOG_S)
+        topic = ch.topic()
+        for s in range(sec, until):
+            frames = counts.pop(s, 0)
+            at = (s + 1) * NS
+            down = None
+            gap = at - h.last_ns if h.last_ns is not None else 0
+            limit = h.threshold_ns(None)
+            if not frames and gap > self.low_ns and limit is not None and gap > limit:
+                down = round(gap / NS, 3)
+            ch.log(second_json(Second(h.link, h.pair, s, frames, down)), log_time=s * NS)
+            self.channels._counts[topic] += 1
+        for s in [k for k in counts if k < until]:
+            del counts[s]
+        st[1] = until

@@ -1,0 +1,94 @@
+"""The ``links`` and ``outages`` tables of a fleet dataset (issue 43): link health
+(:mod:`sharedlink.analysis.health`, the one definition ``stats`` uses) of an ingested capture's
+SharedLink links, fed as the frames are decoded and written when the capture is done.
+
+* ``links``: one row per link and second (epoch-aligned) from the link's first frame's second to
+  the capture's end: the frames in it and its Shepherd link quality, ``state`` up or down;
+* ``outages``: one row per outage of a link (``open`` when it lasts to the capture's end).
+
+Both are partitioned as the frames, ``day=YYYY-MM-DD/link=B_to_A`` (the day of the second, or of
+the outage's start); columns :data:`~sharedlink.fleet.dataset.LINKS_COLUMNS` and
+:data:`~sharedlink.fleet.dataset.OUTAGES_COLUMNS`.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from collections.abc import Iterable, Iterator
+from typing import Any
+
+import pyarrow as pa
+
+from sharedlink.analysis.decode import Columns, Decoded
+from sharedlink.analysis.health import Health, feed_columns, feed_decoded, quality
+from sharedlink.capture.pcapio import NS
+from sharedlink.fleet.dataset import LINKS_COLUMNS, OUTAGES_COLUMNS, link_name
+
+
+def _day(s: int) -> str:
+    return _dt.datetime.fromtimestamp(s, _dt.timezone.utc).strftime("%Y-%m-%d")
+
+
+class HealthRows:
+    """A capture's link health, fed by :meth:`fed` (the decoder's items as they pass: its
+    frames, and its fast path's :class:`~sharedlink.analysis.core.columns.DirColumns`), its
+    rows made by :meth:`tables`."""
+
+    def __init__(self) -> None:
+        self.health = Health(timeline=True)
+        self.written = False
+
+    def fed(self, items: Iterable[Any]) -> Iterator[Any]:
+        """``items`` (a :meth:`~sharedlink.analysis.decode.Decoder.capture` in columns mode),
+        each fed to the link health on its way."""
+        health = self.health
+        for item in items:
+            t = type(item)
+            if t is Columns:
+                feed_columns(health, item)
+            elif t is Decoded:
+                feed_decoded(health, item)
+            yield item
+
+    def _src_dst(self) -> Iterator[tuple[Any, str, str]]:
+        for (_conv, src, dst), h in sorted(self.health.links.items(), key=lambda kv: (kv[1].link, kv[1].pair)):
+            yield h, src, dst
+
+    def tables(self, capture: str, vehicle: str) -> Iterator[tuple[str, tuple[str, str], dict[str, pa.Array], int]]:
+        """(table, (day, link partition), columns, rows) of the finished capture (end: its latest
+        frame); nothing the second time."""
+        if self.written:
+            return
+        self.written = True
+        self.health.finish_once()
+        links: dict[tuple[str, str], list[dict[str, Any]]] = {}
+        outages: dict[tuple[str, str], list[dict[str, Any]]] = {}
+        for h, src, dst in self._src_dst():
+            link = link_name(src, dst)
+            base = {"conversation": h.link, "src": src, "dst": dst, "pair": h.pair}
+            for s in quality(h):
+                links.setdefault((_day(s.second), link), []).append({
+                    **base, "time_ns": s.second * NS, "frames": s.frames, "state": "up" if s.down_s is None else "down",
+                    "quality": float(s.quality), "down_s": s.down_s})
+            for o in h.outages:
+                outages.setdefault((_day(o.start_ns // NS), link), []).append({
+                    **base, "time_ns": o.start_ns, "end_ns": o.end_ns, "duration_ns": o.duration_ns,
+                    "duration_s": o.duration_ns / NS, "open": o.end_ns is None})
+        for part, rows in sorted(links.items()):
+            yield "links", part, health_columns("links", rows, capture, vehicle), len(rows)
+        for part, rows in sorted(outages.items()):
+            rows.sort(key=lambda r: (r["time_ns"], r["conversation"]))
+            yield "outages", part, health_columns("outages", rows, capture, vehicle), len(rows)
+
+
+def health_columns(table: str, rows: list[dict[str, Any]], capture: str, vehicle: str) -> dict[str, pa.Array]:
+    """The rows as the table's columns (``capture`` and ``vehicle`` as dictionary arrays)."""
+    n = len(rows)
+    zeros = pa.repeat(pa.scalar(0, pa.int32()), n)
+    cols: dict[str, pa.Array] = {
+        "capture": pa.DictionaryArray.from_arrays(zeros, pa.array([capture], pa.string())),
+        "vehicle": pa.DictionaryArray.from_arrays(zeros, pa.array([vehicle], pa.string())),
+    }
+    for name, kind in (LINKS_COLUMNS if table == "links" else OUTAGES_COLUMNS)[2:]:
+        cols[name] = pa.array([r[name] for r in rows], getattr(pa, kind)())
+    return cols
