@@ -4,9 +4,8 @@ One streaming pass of the decoding core (:class:`sharedlink.analysis.decode.Deco
 columns mode: the frames its fast path takes come as rows, no per-frame object) publishes every
 SharedLink frame on the channels of :class:`~sharedlink.analysis.foxglove_channels.FoxgloveChannels`, which
 foxglove-sdk's MCAP writer (zstd chunks at level 1, indexed) records with log time = capture time (ns).
-When that pass met traffic that is not SharedLink (noise or other records), a second pass,
-:func:`sharedlink.analysis.sessions.iter_sessions`, adds the P2OS and blackboard sessions (MCAP
-readers order messages by log time, so the two passes need not interleave).
+The P2OS and blackboard sessions come in the same pass, from the core's robot links
+(:class:`sharedlink.analysis.robots.RobotLinks`, as ``stats`` and ``export jsonl`` read them).
 """
 
 from __future__ import annotations
@@ -19,7 +18,8 @@ from foxglove.mcap import MCAPWriteOptions
 from sharedlink.analysis.decode import Columns, Decoded, Decoder
 from sharedlink.analysis.export import ExportOptions, ExportResult
 from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
-from sharedlink.analysis.sessions import iter_sessions
+from sharedlink.analysis.robots import RobotLinks
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import CaptureError, atomic_open
 from sharedlink.errors import UsageError
 
@@ -40,10 +40,10 @@ def channel_options(opts: ExportOptions) -> ChannelOptions:
 def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOptions, result: ExportResult) -> None:
     """Every frame and session message of ``path`` onto ``channels``; damage after the first
     record sets ``result.error`` (what came before it is published)."""
-    other = False
     seen = result.seen if opts.require else None
     try:
         dec = Decoder(opts.variables, opts.sync_interval, carried=False)
+        dec.robots = RobotLinks(messages=True)  # type: ignore[attr-defined]
         for item in dec.capture(path, opts.progress, columns=True):
             t = type(item)
             if t is Columns:  # (the frames the core's fast path took: rows, no Decoded)
@@ -57,20 +57,13 @@ def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOp
                 channels.frame(item)  # type: ignore[arg-type]
                 if seen is not None:
                     seen.update(u.name for u in item.updates if u.text is not None)  # type: ignore[union-attr]
-            else:
-                other = True
+            elif t is SessionMessage:  # P2OS, blackboard (the core's robot links)
+                result.frames += 1
+                channels.session(item)  # type: ignore[arg-type]
     except CaptureError as exc:
         if exc.record is None and result.frames == 0:
             raise
         result.error = str(exc)
-        return
-    if other:
-        try:
-            for m in iter_sessions(path):
-                result.frames += 1
-                channels.session(m)
-        except CaptureError as exc:  # pragma: no cover - the first pass met the damage first
-            result.error = str(exc)
 
 
 def export_mcap(path: str | Path, dest: str | Path, opts: ExportOptions) -> ExportResult:
