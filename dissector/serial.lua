@@ -441,13 +441,29 @@ local function scan_bb_stream(st, s)
     return pieces, hold + base, over
 end
 
+-- a P2OS packet's direction from its content (p2os.lua's guess_client): the robot's packet
+-- types and SYNC2 echoes carrying strings are the server's, the rest client commands
+local function p2os_from_client(s, off, plen)
+    if plen < 1 then return true end
+    local t = s_byte(s, off)
+    if t == 0x32 or t == 0x33 or t == 0x20 or t == 0x90 or t == 0x80 or t == 0x8D or t == 0xE0 or t == 0xF0 then
+        return false
+    end
+    if t == 2 and plen > 1 then
+        local arg = s_byte(s, off + 1)
+        if arg ~= 0x3B and arg ~= 0x1B and arg ~= 0x2B then return false end
+    end
+    return true
+end
+
 local function piece_good(name, s, a, len)
     if name == "sharedlink" then
         return sl_good(s, a, len)
     elseif name == "p2os" then
         local count = s_byte(s, a + 2)
-        if count > 200 then return false end
         local plen = count - 2
+        -- the 200-byte limit is the robot's for client commands; server packets run to 255
+        if count > 200 and p2os_from_client(s, a + 3, plen) then return false end
         local written = s_byte(s, a + 3 + plen) * 256 + s_byte(s, a + 4 + plen)
         return p2os_checksum(s, a + 3, plen) == written
     else

@@ -12,6 +12,7 @@ unanswered ones. ``--json`` writes each packet as ``export --format jsonl`` does
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -105,3 +106,19 @@ def has_robot_traffic(path: str | Path, records: int = PROBE_RECORDS) -> bool:
     except (CaptureError, OSError):
         return False
     return False
+
+
+def with_robots(batches: Iterator[Any], robots: Any) -> Iterator[Any]:
+    """A live UDP source's batches (``watch --port``) with the datagrams of P2OS and blackboard
+    conversations (claimed by ``robots``, a :class:`~sharedlink.analysis.robots.RobotLinks` in
+    messages mode) replaced by their :class:`SessionMessage` s: the robot panel and JSON lines."""
+    udp = robots.udp
+    for batch in batches:
+        out: list[Any] = []
+        for item in batch:
+            got = udp(item.number, item.ts_ns, item.conv, item.data)
+            if got is None:
+                out.append(item)
+            else:
+                out += got
+        yield out

@@ -166,7 +166,12 @@ class UdpSniffer:
             u = datagram(data)
             return None if u is None else (("udp", u[0], u[1], u[2], u[3]), u[4])
 
-        return socket_batches(self, SNAPLEN, take, timeout)
+        from sharedlink.analysis.robots import RobotLinks
+        from sharedlink.robot_watch import with_robots
+
+        if not hasattr(self, "robots"):  # P2OS, blackboard over UDP: their messages (robot_watch.with_robots)
+            self.robots = RobotLinks(messages=True)
+        return with_robots(socket_batches(self, SNAPLEN, take, timeout), self.robots)
 
     def kernel_drops(self) -> int:
         """Packets the filter passed that the kernel dropped from the full receive buffer since

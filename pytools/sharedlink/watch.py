@@ -269,6 +269,9 @@ class UdpSource:
         self._inode = os.fstat(self.sock.fileno()).st_ino
         self._drops = 0
         self.description = f"udp port {port}{f' on {host}' if host else ''} (bound by the watch)"
+        from sharedlink.analysis.robots import RobotLinks
+
+        self.robots = RobotLinks(messages=True)  # P2OS, blackboard over UDP (robot_watch.with_robots)
 
     def batches(self, timeout: float) -> Iterator[Batch]:
         """Everything that arrived (as :class:`RawDatagram` s, up to 512), drained without
@@ -281,7 +284,8 @@ class UdpSource:
         def take(data: bytes, addr: Any) -> tuple[tuple, bytes]:
             return ("udp", addr[0], addr[1], "", port), data
 
-        return socket_batches(self, 65535, take, timeout)
+        from sharedlink.robot_watch import with_robots  # P2OS, blackboard: their SessionMessages
+        return with_robots(socket_batches(self, 65535, take, timeout), self.robots)
 
     def kernel_drops(self) -> int:
         """Datagrams the kernel dropped from the full receive buffer since the last call (the

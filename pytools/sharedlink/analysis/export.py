@@ -87,6 +87,7 @@ class ExportResult:
     error: str | None = None  # the capture is damaged here; everything before it was written
     seen: set[str] = field(default_factory=set)  # variable names given a value (with opts.require)
     packets: int = 0  # P2OS packets and blackboard messages (csv/jsonl rows: robot_export.py)
+    robot_rows_left_out: int = 0  # csv of a capture with SharedLink frames too: its robot rows, not written
 
 
 def _checksum(d: Decoded) -> str:
@@ -634,6 +635,7 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
         else:
             if isinstance(robots, RobotCsv):  # SharedLink frames too: the CSV keeps SharedLink's columns
                 result.rows -= robots.rows
+                result.robot_rows_left_out = robots.rows  # (the command warns: jsonl holds both)
             writer.close()
         if isinstance(robots, RobotCsv):
             robots.close()

@@ -4,10 +4,10 @@ One streaming pass of the decoding core (:class:`sharedlink.analysis.decode.Deco
 columns mode: the frames its fast path takes come as rows, no per-frame object) publishes every
 SharedLink frame on the channels of :class:`~sharedlink.analysis.foxglove_channels.FoxgloveChannels`, which
 foxglove-sdk's MCAP writer (zstd chunks at level 1, indexed) records with log time = capture time (ns).
-When that pass met traffic that is not SharedLink (noise or other records), a second pass,
-:func:`sharedlink.analysis.sessions.iter_sessions`, adds the P2OS and blackboard sessions (MCAP
-readers order messages by log time, so the two passes need not interleave). The SharedLink links'
-per-second link quality (:mod:`sharedlink.analysis.foxglove_health`) is written at the end.
+The P2OS and blackboard sessions come in the same pass, from the core's robot links
+(:class:`sharedlink.analysis.robots.RobotLinks`, as ``stats`` and ``export jsonl`` read them).
+The SharedLink links' per-second link quality (:mod:`sharedlink.analysis.foxglove_health`) is
+written at the end.
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ from sharedlink.analysis.export import ExportOptions, ExportResult
 from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
 from sharedlink.analysis.foxglove_health import publish_quality
 from sharedlink.analysis.health import Health, feed_columns, feed_decoded
-from sharedlink.analysis.sessions import iter_sessions
+from sharedlink.analysis.robots import RobotLinks
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import CaptureError, atomic_open
 from sharedlink.errors import UsageError
 
@@ -45,10 +46,10 @@ def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOp
     """Every frame and session message of ``path`` onto ``channels`` (and its SharedLink frames
     into ``health``); damage after the first record sets ``result.error`` (what came before it
     is published)."""
-    other = False
     seen = result.seen if opts.require else None
     try:
         dec = Decoder(opts.variables, opts.sync_interval, carried=False)
+        dec.robots = RobotLinks(messages=True)  # type: ignore[attr-defined]
         for item in dec.capture(path, opts.progress, columns=True):
             t = type(item)
             if t is Columns:  # (the frames the core's fast path took: rows, no Decoded)
@@ -66,20 +67,13 @@ def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOp
                     feed_decoded(health, item)
                 if seen is not None:
                     seen.update(u.name for u in item.updates if u.text is not None)  # type: ignore[union-attr]
-            else:
-                other = True
+            elif t is SessionMessage:  # P2OS, blackboard (the core's robot links)
+                result.frames += 1
+                channels.session(item)  # type: ignore[arg-type]
     except CaptureError as exc:
         if exc.record is None and result.frames == 0:
             raise
         result.error = str(exc)
-        return
-    if other:
-        try:
-            for m in iter_sessions(path):
-                result.frames += 1
-                channels.session(m)
-        except CaptureError as exc:  # pragma: no cover - the first pass met the damage first
-            result.error = str(exc)
 
 
 def export_mcap(path: str | Path, dest: str | Path, opts: ExportOptions) -> ExportResult:

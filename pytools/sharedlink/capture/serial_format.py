@@ -104,7 +104,7 @@ class Piece:
         if isinstance(f, Frame):
             return f.checksum is not None and f.checksum.ok is True
         if isinstance(f, p2os.Packet):
-            return bool(f.ok) and not f.too_long
+            return bool(f.ok) and not f.ignored(p2os.guess_from_client(f.payload))  # 200: client commands only
         if f is not None:
             return f.ok is True
         return False

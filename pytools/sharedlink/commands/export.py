@@ -115,6 +115,10 @@ def run(args: argparse.Namespace) -> int:
         if result.packets:
             source += f", {plural(result.packets, 'P2OS/blackboard packet')}"
         note(f"wrote {args.output}: {plural(n, what)} from {source} ({fmt})")
+    if result.robot_rows_left_out:  # a mixed capture's CSV keeps SharedLink's columns
+        print(f"sharedlink: warning: {args.capture}: {plural(result.robot_rows_left_out, 'P2OS/blackboard packet')} "
+              "left out of the CSV (it has SharedLink's columns, the capture SharedLink frames too): --format jsonl "
+              "writes both, in capture order", file=sys.stderr)
     if fmt != "mcap" and not result.error:  # MCAP holds P2OS and blackboard channels too
         warn_empty(args.capture, result.frames + result.packets)  # (robot packets: no warning)
     if result.error:

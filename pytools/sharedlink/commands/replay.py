@@ -31,15 +31,18 @@ from sharedlink.errors import UsageError
 
 if TYPE_CHECKING:  # (sharedlink.replay loads when the command runs: every command's start-up pays for what is imported here)
     from sharedlink.replay import ReplayStats, SerialSink, UdpSink
+    from sharedlink.replay_tcp import TcpSink
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "replay",
         help="send a capture's frames over UDP or a serial line, with the capture's timing",
-        description="Send the SharedLink payloads of a pcap/pcapng capture (its UDP payloads; records on a USER "
+        description="Send the payloads of a pcap/pcapng capture (its UDP payloads; records on a USER "
         "link type 147-162 as raw serial bytes) through an ordinary UDP socket, no root needed, or to a serial "
-        "port. Timing follows the capture against absolute deadlines (no drift), or --speed/--pps/--topspeed.",
+        "port. A capture whose payloads are TCP (a P2OS robot on TCP 8101, blackboard over TCP) is replayed as "
+        "its client: one TCP connection to --to HOST[:PORT] (default 127.0.0.1 on the captured server port) "
+        "carrying the client-to-server segments; the server's side is not sent. Timing follows the capture against absolute deadlines (no drift), or --speed/--pps/--topspeed.",
         epilog="Exit codes: 0 every frame sent, 1 some frames could not be sent (send errors), 2 bad usage or a "
         "missing/damaged capture (the frames before the damage are still sent), 130 interrupted (Ctrl-C; the "
         "summary is still printed).",
@@ -47,7 +50,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("capture", type=Path, help="pcap or pcapng file (-: standard input)")
     dest = p.add_argument_group("destination")
     dest.add_argument("--to", metavar="HOST[:PORT]", default=None,
-                      help="destination (default 127.0.0.1, on the port each frame had in the capture)")
+                      help="destination (default 127.0.0.1, on the port each frame had in the capture; a TCP capture: "
+                      "the server to connect to, default its captured server port)")
     dest.add_argument("--broadcast", action="store_true", help="allow a broadcast destination (sets SO_BROADCAST)")
     dest.add_argument("--multicast", action="store_true", help="allow a multicast group as the destination")
     dest.add_argument("--bind", metavar="ADDR", default=None, help="source address (ADDR or ADDR:PORT) or interface name")
@@ -101,7 +105,7 @@ def _check_direction(args: argparse.Namespace) -> None:
                          "records): give --direction in or --direction out, one port takes one direction")
 
 
-def _sink(args: argparse.Namespace) -> UdpSink | SerialSink:
+def _sink(args: argparse.Namespace) -> UdpSink | SerialSink | TcpSink:
     from sharedlink.replay import USER_LINKTYPES, SerialSink, UdpSink, first_linktype, split_host_port
 
     if args.serial:
@@ -112,6 +116,13 @@ def _sink(args: argparse.Namespace) -> UdpSink | SerialSink:
         _check_direction(args)
         return SerialSink(args.serial, args.baud)
     host, port = split_host_port(args.to) if args.to else ("127.0.0.1", None)
+    if args.tcp_port is not None:  # a TCP capture: its client's side over one connection
+        from sharedlink.replay_tcp import TcpSink
+
+        if args.broadcast or args.multicast:
+            raise UsageError(f"{args.source} is a TCP capture, replayed over one TCP connection: --broadcast and "
+                             "--multicast do not apply")
+        return TcpSink(host, port or args.tcp_port, bind=args.bind)
     if port is None:
         try:
             lt = first_linktype(args.capture)
@@ -146,6 +157,11 @@ def _run(args: argparse.Namespace) -> int:
     )
     opts.validate()
     flt = FrameFilter.build(args.filter_port, args.filter_src)
+    args.tcp_port = None
+    if not args.serial:
+        from sharedlink.replay_tcp import tcp_server_port
+
+        args.tcp_port = tcp_server_port(args.capture)
     sink = _sink(args)
     progress = None if args.quiet else _Progress(args.source.name, sink.description, opts.mode)
     try:
@@ -155,7 +171,12 @@ def _run(args: argparse.Namespace) -> int:
                   "--topspeed play without the capture's gaps)", file=sys.stderr, flush=True)
 
         direction = None if args.direction is None else SERIAL_DIRECTIONS[args.direction]
-        replayer = Replayer(CaptureFrames(args.capture, flt, direction), sink, opts, progress=progress,
+        frames: Any = CaptureFrames(args.capture, flt, direction)
+        if args.tcp_port is not None:
+            from sharedlink.replay_tcp import TcpFrames
+
+            frames = TcpFrames(args.capture, args.tcp_port, flt)
+        replayer = Replayer(frames, sink, opts, progress=progress,
                             progress_interval=progress.interval if progress else 1.0, long_wait=long_wait)
         stats = replayer.run()
     finally:
@@ -168,11 +189,11 @@ def _run(args: argparse.Namespace) -> int:
         json.dump(summary, sys.stdout)
         print()
     elif not args.quiet:
-        print(_summary_text(stats), file=sys.stderr)
+        print(_summary_text(stats, _WHAT_SKIPPED[args.tcp_port is not None]), file=sys.stderr)
     if stats.attempted == 0 and not stats.capture_error and not stats.interrupted:
         c = stats.counts
-        print(f"sharedlink: warning: nothing to replay in {args.source}: {c.records} records, {c.skipped} without a "
-              f"UDP payload, {c.filtered} left out by the filter", file=sys.stderr)
+        print(f"sharedlink: warning: nothing to replay in {args.source}: {c.records} records, {c.skipped} without "
+              f"{_WHAT_SKIPPED[args.tcp_port is not None]}, {c.filtered} left out by the filter", file=sys.stderr)
     if stats.flat_times:
         print(f"sharedlink: warning: {args.source}: the capture's times do not advance ({stats.flat_times} frames at one "
               "time): they were sent back to back, at full speed; give --pps N for a steady rate", file=sys.stderr)
@@ -195,7 +216,11 @@ def _ms(ns: int | None) -> str:
     return "-" if ns is None else f"{ns / 1e6:.3f} ms"
 
 
-def _summary_text(st: ReplayStats) -> str:
+#: what a skipped record lacks: a UDP capture's, a TCP capture's (a record with no new client-to-server bytes)
+_WHAT_SKIPPED = {False: "a UDP payload", True: "new client-to-server bytes"}
+
+
+def _summary_text(st: ReplayStats, skipped: str = _WHAT_SKIPPED[False]) -> str:
     lines = [
         f"{'stopped' if st.interrupted else 'sent'}: {st.frames:,} frames, {st.bytes:,} bytes in {st.elapsed_s:.3f} s "
         f"({st.rate_fps:,.1f} frames/s, {st.rate_bps:,.0f} bytes/s), {st.passes} pass{'es' if st.passes != 1 else ''}",
@@ -204,7 +229,7 @@ def _summary_text(st: ReplayStats) -> str:
         lines.append(f"lag behind schedule: median {_ms(st.lag_median_ns)}, max {_ms(st.lag_max_ns)}; cpu {st.cpu_s:.3f} s")
     c = st.counts
     if c.skipped or c.filtered:
-        lines.append(f"left out: {c.skipped:,} records without a UDP payload, {c.filtered:,} by the filter")
+        lines.append(f"left out: {c.skipped:,} records without {skipped}, {c.filtered:,} by the filter")
     if st.send_errors:
         kinds = ", ".join(f"{n} {k}" for k, n in sorted(st.errors.items()))
         lines.append(f"send errors: {st.send_errors:,} ({kinds}); first: {st.first_error}")

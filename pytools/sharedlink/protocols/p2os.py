@@ -160,7 +160,7 @@ class Packet:
 
     @property
     def too_long(self) -> bool:
-        """A count over 200 (what serial protocol detection does not trust)."""
+        """A count over 200 (over the robot's limit if it is a client command: see :meth:`ignored`)."""
         return self.count > MAX_COUNT
 
     def ignored(self, from_client: bool) -> bool:

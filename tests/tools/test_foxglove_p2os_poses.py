@@ -1,0 +1,56 @@
+"""Issue 42: `watch --foxglove` of a P2OS link serves the robot's poses as `foxglove.PoseInFrame`
+to a client this project did not write (the `websockets` package offering
+`foxglove.websocket.v1`), decoded with the official protobuf classes: each pose is a SIP of the
+capture at its capture time (x, y in metres from export's `x_mm`, `y_mm`)."""
+
+from __future__ import annotations
+
+import json
+import struct
+import subprocess
+import sys
+
+import pytest
+
+if sys.version_info < (3, 10):  # foxglove-schemas-protobuf (the official classes) needs Python 3.10
+    pytest.skip("foxglove-schemas-protobuf needs Python 3.10+", allow_module_level=True)
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+from test_foxglove_server import CLI, Watch, advertised
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect
+
+
+def test_p2os_poses_reach_a_foxglove_client(tmp_path):
+    cap = tmp_path / "p.pcap"
+    r = subprocess.run([*CLI, "gen", "-o", str(cap), "-q", "--protocol", "p2os", "--duration", "4"], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    rows = tmp_path / "p.jsonl"
+    subprocess.run([*CLI, "export", "-o", str(rows), str(cap)], check=True, capture_output=True, timeout=120)
+    sips = {row["ts_ns"]: row for line in rows.read_text().splitlines()
+            if "x_mm" in (row := json.loads(line)) and row["checksum"] == "good"}
+    assert sips
+    w = Watch("--from", cap, "--speed", 2)
+    got = []
+    try:
+        with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.websocket.v1"]) as ws:
+            chans = advertised(ws, {"/p2os/1/pose"})
+            pose = chans["/p2os/1/pose"]
+            assert pose["schemaName"] == "foxglove.PoseInFrame"
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 5, "channelId": pose["id"]}]}))
+            while True:
+                try:
+                    m = ws.recv(timeout=30)
+                except ConnectionClosed:  # the capture ended: the server closed
+                    break
+                if isinstance(m, bytes):
+                    op, sub, log_time = struct.unpack_from("<BIQ", m)
+                    assert (op, sub) == (1, 5)
+                    got.append((log_time, PoseInFrame.FromString(m[13:])))
+    finally:
+        w.stop(ends=True)
+    assert len(got) > 5
+    for t, p in got:  # every pose a SIP of the capture, at its time
+        row = sips[t]
+        assert p.pose.position.x == pytest.approx(row["x_mm"] / 1000)
+        assert p.pose.position.y == pytest.approx(row["y_mm"] / 1000)
