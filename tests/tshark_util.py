@@ -361,6 +361,7 @@ def shown_matches(
     second pass's, as ``-2 -V -Y F`` prints). One run instead of one a filter: the shown tree is
     the same whatever the filters reference."""
     with tempfile.TemporaryDirectory(prefix="sharedlink-taps-") as tmp:
+        os.chmod(tmp, 0o777)  # (tshark may run as another user: make test-matrix's roots run it as sharedlink)
         out = Path(tmp, "matches.txt")
         script = Path(tmp, "taps.lua")
         # the taps are made in a protocol's init (before the file is read): the dissectors'
