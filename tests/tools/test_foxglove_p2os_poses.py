@@ -15,7 +15,7 @@ import pytest
 if sys.version_info < (3, 10):  # foxglove-schemas-protobuf (the official classes) needs Python 3.10
     pytest.skip("foxglove-schemas-protobuf needs Python 3.10+", allow_module_level=True)
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
-from test_foxglove_server import CLI, Watch, advertised
+from sl_foxglove import CLI, Watch, advertised
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 

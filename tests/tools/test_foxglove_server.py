@@ -6,7 +6,6 @@ writes for the same capture; the server's log under a flood of bad subscriptions
 from __future__ import annotations
 
 import json
-import signal
 import struct
 import subprocess
 import sys
@@ -20,58 +19,12 @@ if sys.version_info < (3, 10):  # foxglove-schemas-protobuf (the official classe
 from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
 from mcap.reader import make_reader
 from sl_captures import reference
+from sl_foxglove import CLI, Watch, advertised
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
 from sharedlink.foxglove_server import offered, rewrite_answer, rewrite_request
 from sharedlink.generators.beacon import GenOptions, generate_file
-
-CLI = [sys.executable, "-m", "sharedlink"]
-
-
-class Watch:
-    """``sharedlink watch ARGS --foxglove --foxglove-port 0`` with its server's port."""
-
-    def __init__(self, *args: object) -> None:
-        self.p = subprocess.Popen([*CLI, "watch", *map(str, args), "--json", "--foxglove", "--foxglove-port", "0"],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        while True:
-            line = self.p.stderr.readline()  # type: ignore[union-attr]
-            assert line, f"watch ended early: rc={self.p.poll()}"
-            if "Foxglove WebSocket server on ws://" in line:
-                self.port = int(line.strip().rsplit(":", 1)[1])
-                return
-
-    def stop(self, ends: bool = False) -> str:
-        """Ctrl-C, or (``ends``) the capture's end; its stderr after the server line."""
-        if ends:
-            _out, err = self.p.communicate(timeout=60)
-            assert self.p.returncode == 0, err
-        else:
-            self.p.send_signal(signal.SIGINT)
-            _out, err = self.p.communicate(timeout=60)
-            assert self.p.returncode == 0, err  # Ctrl-C ends a watch (as tcpdump)
-        assert "Traceback" not in err, err
-        return err
-
-
-def advertised(ws, until: set[str] | None = None, seconds: float = 10.0) -> dict[str, dict]:
-    """Channels advertised within ``seconds`` (sooner once every topic of ``until`` is there)."""
-    chans: dict[str, dict] = {}
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline and not (until is not None and until <= set(chans)):
-        try:
-            m = ws.recv(timeout=max(0.05, deadline - time.monotonic()))
-        except TimeoutError:
-            break
-        if isinstance(m, str):
-            j = json.loads(m)
-            if j["op"] == "advertise":
-                chans.update({c["topic"]: c for c in j["channels"]})
-            elif j["op"] == "unadvertise":
-                for topic in [t for t, c in chans.items() if c["id"] in j["channelIds"]]:
-                    del chans[topic]
-    return chans
 
 
 def exported(tmp_path: Path, cap: Path) -> dict[str, str]:

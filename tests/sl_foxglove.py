@@ -1,0 +1,58 @@
+"""The `watch --foxglove` server from a test's side (test_foxglove_server.py,
+test_foxglove_p2os_poses.py): the command with its server's port, and the channels a client
+sees advertised."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+CLI = [sys.executable, "-m", "sharedlink"]
+
+
+class Watch:
+    """``sharedlink watch ARGS --foxglove --foxglove-port 0`` with its server's port."""
+
+    def __init__(self, *args: object) -> None:
+        self.p = subprocess.Popen([*CLI, "watch", *map(str, args), "--json", "--foxglove", "--foxglove-port", "0"],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        while True:
+            line = self.p.stderr.readline()  # type: ignore[union-attr]
+            assert line, f"watch ended early: rc={self.p.poll()}"
+            if "Foxglove WebSocket server on ws://" in line:
+                self.port = int(line.strip().rsplit(":", 1)[1])
+                return
+
+    def stop(self, ends: bool = False) -> str:
+        """Ctrl-C, or (``ends``) the capture's end; its stderr after the server line."""
+        if ends:
+            _out, err = self.p.communicate(timeout=60)
+            assert self.p.returncode == 0, err
+        else:
+            self.p.send_signal(signal.SIGINT)
+            _out, err = self.p.communicate(timeout=60)
+            assert self.p.returncode == 0, err  # Ctrl-C ends a watch (as tcpdump)
+        assert "Traceback" not in err, err
+        return err
+
+
+def advertised(ws, until: set[str] | None = None, seconds: float = 10.0) -> dict[str, dict]:
+    """Channels advertised within ``seconds`` (sooner once every topic of ``until`` is there)."""
+    chans: dict[str, dict] = {}
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and not (until is not None and until <= set(chans)):
+        try:
+            m = ws.recv(timeout=max(0.05, deadline - time.monotonic()))
+        except TimeoutError:
+            break
+        if isinstance(m, str):
+            j = json.loads(m)
+            if j["op"] == "advertise":
+                chans.update({c["topic"]: c for c in j["channels"]})
+            elif j["op"] == "unadvertise":
+                for topic in [t for t, c in chans.items() if c["id"] in j["channelIds"]]:
+                    del chans[topic]
+    return chans
