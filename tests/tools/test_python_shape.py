@@ -25,12 +25,12 @@ MAX_FILE_LINES, MAX_LINES, MAX_COMPLEXITY = 800, 80, 15
 #: files (relative to the package) that may owe nothing
 STRICT = ("analysis/core/", "analysis/decode.py", "analysis/changes.py", "analysis/lists.py",
           "capture/pcap_blocks.py", "capture/pcapio.py", "capture/serial_import.py", "protocols/codec.py",
-          "commands/diff.py", "commands/watch.py", "analysis/compiled_blocks.py", "__init__.py")
+          "commands/diff.py", "commands/watch.py", "analysis/compiled_blocks.py", "analysis/transform.py",
+          "__init__.py")
 #: (file, what) -> the size today: "file" (its lines), "lines NAME", "complexity NAME" (NAME:
 #: Class.method, or outer.inner for a nested function)
 DEBT: dict[tuple[str, str], int] = {
     ("analysis/stats.py", "complexity CaptureStats.add"): 23,
-    ("analysis/transform.py", "complexity _transform_records"): 21,
     ("capture/packets.py", "complexity _decode"): 19,
     ("capture/serial_port.py", "complexity capture"): 20,
     ("capture/serial_port.py", "lines capture"): 89,

@@ -24,17 +24,17 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import BinaryIO
 
+from sharedlink.analysis.core.expand import FullSets
+from sharedlink.analysis.core.records import RUN, open_capture
 from sharedlink.analysis.decode import Decoder, format_time
-from sharedlink.capture.packets import PacketDecoder, network_offset, ones_complement_checksum
+from sharedlink.capture.packets import Datagram, PacketDecoder, network_offset, ones_complement_checksum
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
     NS,
     CaptureError,
     PcapngWriter,
     PcapWriter,
-    Record,
     open_output,
-    open_records,
     refuse_overwrite,
 )
 from sharedlink.capture.serial_format import USER_LINKTYPES
@@ -107,9 +107,15 @@ class Rewriter:
         self.src_decoder = Decoder(variables, sync_interval, carried=False)  # the data, as the input carries it
         self.out_decoder = Decoder(variables, sync_interval, carried=False)  # what a receiver of the output knows
         self.src, self.out = self.src_decoder.link, self.out_decoder.link  # (their tables)
+        self.follow_out = mode == "compress"  # (expand writes full sets: what a receiver knows does not matter)
         self.next_sync: dict[tuple[Hashable, str, str], int] = {}
         self.form: dict[tuple[Hashable, str, str], str] = {}  # the form each direction uses
         self.stats = TransformStats()
+
+    def named_form(self, key: tuple) -> bool:
+        """Whether the direction ``(conversation, source, destination)`` has been written in the
+        named form (so a bare ``N0`` of it is written as a named full set)."""
+        return self.form.get(key) == "named"
 
     def frame(self, frame: Frame, raw: bytes, ts_ns: int, rewritable: bool = True, conv: Hashable = None) -> bytes:
         """The bytes to write for ``frame`` (``raw`` as read). ``conv`` keys the state: the
@@ -132,7 +138,8 @@ class Rewriter:
         if layout is None or not rewritable:
             st.copied += value
             self.src_decoder.decode(sf)
-            self.out_decoder.decode(sf)
+            if self.follow_out:
+                self.out_decoder.decode(sf)
             st.bytes_out += len(raw)
             return raw
         ckey = conversation_key(conv)
@@ -159,9 +166,10 @@ class Rewriter:
         new = Frame(frame.dst, frame.src, fields, frame.crlf)
         data = build_frame(new)
         # the output as a receiver reads it: from its bytes (its checksum checked, so the core's fast
-        # path learns the direction and takes the frames after it)
-        for _d in self.out_decoder.decode_datagram(0, ts_ns, conv, data):
-            pass
+        # path learns the direction and takes the frames after it); a full set needs none of it
+        if self.follow_out:
+            for _d in self.out_decoder.decode_datagram(0, ts_ns, conv, data):
+                pass
         st.rewritten += 1
         st.full += full
         st.delta += not full
@@ -278,98 +286,153 @@ def transform_capture(
     sync_interval: float = 1.0,
     variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES,
     progress: Callable[[int, int], None] | None = None,
+    runs: bool = True,
 ) -> TransformStats:
     """Rewrite capture ``src`` into ``dst`` (same format: pcap or pcapng);
     ``progress(bytes read, records)`` is called every few thousand records. Raises
     :class:`~sharedlink.capture.pcapio.CaptureError` when the input is missing or not a capture
     (``dst`` is then left as it was: the output goes to a temporary file renamed at the end)
     and :class:`TransformError` when the output cannot be written. A capture damaged further
-    on gives the records before the damage, with ``error`` set in the stats."""
+    on gives the records before the damage, with ``error`` set in the stats. ``runs`` False:
+    every frame one at a time (expand's run taker off: the reference the tests compare it with)."""
     rw = Rewriter(mode, sync_interval, variables)
-    st = rw.stats
+    return rewrite_capture(rw, src, dst, FullSets(rw.src_decoder, rw.named_form) if runs and mode == "expand" else None,
+                           progress)
+
+
+def rewrite_capture(rw: Rewriter, src: str | Path, dst: str | Path, taker: FullSets | None = None,
+                    progress: Callable[[int, int], None] | None = None) -> TransformStats:
+    """:func:`transform_capture` with its :class:`Rewriter` and, for expand, its run taker
+    (:class:`~sharedlink.analysis.core.expand.FullSets` on ``rw.src_decoder``; None: every
+    frame through ``rw``)."""
     s, d = str(src), Path(dst)
     refuse_overwrite(d, s)
-    fmt, records = open_records(s)  # read once: a pipe will do
+    fmt, records = open_capture(s, taker.run if taker is not None else None)  # read once: a pipe will do
     with open_output(d) as fh:
-        _transform_records(rw, s, fmt, records, fh, progress)
-    return st
+        _Transform(rw, s, fmt, fh, taker).records(records, progress)
+    return rw.stats
 
 
-def _transform_records(rw: Rewriter, s: str, fmt: str, records: Iterator[Record], fh: BinaryIO,
-                       progress: Callable[[int, int], None] | None = None) -> None:
-    """Rewrite the records of capture ``s`` into ``fh``."""
-    st = rw.stats
-    read = 24  # bytes of the input read, about (pcap's headers; pcapng's blocks are a little longer)
-    writer: PcapWriter | PcapngWriter | None = None
-    linktype = None
-    interfaces: dict[tuple[int, int], int] = {}  # (input interface, link type) -> output interface
-    chunk: list[bytes] = []
-    decode = PacketDecoder().decode  # IP fragments reassembled
-    serial = SerialSplitter()  # serial records: copied, their frames followed and counted
-    while True:
-        try:
-            rec = next(records)
-        except StopIteration:
-            break
-        except CaptureError as exc:
-            if exc.record is None:
-                raise
-            st.error = str(exc)
-            break
-        st.records += 1
-        read += 16 + len(rec.data)
-        if writer is None:
-            linktype = rec.linktype
-            writer = PcapngWriter(fh, linktype) if fmt == "pcapng" else PcapWriter(fh, linktype)
-            interfaces[(rec.interface, rec.linktype)] = 0
-        iface = interfaces.get((rec.interface, rec.linktype))
+class _Transform:
+    """The records of capture ``s`` rewritten into ``fh``: the writer (made at the first record,
+    in the input's format), its interfaces and the chunk of records not yet written."""
+
+    def __init__(self, rw: Rewriter, s: str, fmt: str, fh: BinaryIO, taker: FullSets | None) -> None:
+        self.rw, self.s, self.fmt, self.fh, self.taker = rw, s, fmt, fh, taker
+        self.writer: PcapWriter | PcapngWriter | None = None
+        self.linktype = LINKTYPE_ETHERNET
+        self.interfaces: dict[tuple[int, int], int] = {}  # (input interface, link type) -> output interface
+        self.chunk: list[bytes] = []
+        self.decode = PacketDecoder().decode  # IP fragments reassembled
+        self.serial = SerialSplitter()  # serial records: copied, their frames followed and counted
+
+    def records(self, records: Iterator[tuple], progress: Callable[[int, int], None] | None) -> None:
+        st = self.rw.stats
+        read = 24  # bytes of the input read, about (pcap's headers; pcapng's blocks are a little longer)
+        chunk = self.chunk
+        while True:
+            try:
+                number, ts_ns, linktype, data, flags, interface = next(records)
+            except StopIteration:
+                break
+            except CaptureError as exc:
+                if exc.record is None:
+                    raise
+                st.error = str(exc)
+                break
+            if linktype == RUN:  # the run taker took ts_ns records (flags: their bytes)
+                self._run(ts_ns)
+                read += flags + 16 * ts_ns
+            else:
+                st.records += 1
+                read += 16 + len(data)
+                self._record(number, ts_ns, linktype, data, flags, interface)
+            if len(chunk) >= 4096:
+                self.fh.write(b"".join(chunk))
+                chunk.clear()
+                if progress is not None:
+                    progress(read, st.records)
+        _follow_serial(self.rw, self.serial.flush())
+        self._writer(LINKTYPE_ETHERNET)  # (a capture of no record: its header)
+        self.fh.write(b"".join(chunk))
+
+    def _writer(self, linktype: int) -> PcapWriter | PcapngWriter:
+        """The writer, made at the first record (or at the end of a capture of none)."""
+        if self.writer is None:
+            self.linktype = linktype
+            fh = self.fh
+            self.writer = PcapngWriter(fh, linktype) if self.fmt == "pcapng" else PcapWriter(fh, linktype)
+        return self.writer
+
+    def _iface(self, number: int, linktype: int, interface: int) -> int:
+        """The output interface of record ``number`` (the input's ``interface``, ``linktype``):
+        in a pcapng file, an interface added for a new one."""
+        writer = self._writer(linktype)
+        if not self.interfaces:  # (the first record's is the writer's first)
+            self.interfaces[(interface, linktype)] = 0
+        iface = self.interfaces.get((interface, linktype))
         if iface is None:  # pcapng: one more interface (a pcap has one link type)
             if not isinstance(writer, PcapngWriter):
-                raise TransformError(f"{s}: record {rec.number} is on link type {rec.linktype}, not {linktype}")
-            chunk.append(writer.interface(rec.linktype))
-            iface = interfaces[(rec.interface, rec.linktype)] = writer.interfaces - 1
-        data = rec.data
-        if rec.linktype in USER_LINKTYPES:
-            _follow_serial(rw, serial.feed(rec.number, rec.ts_ns, rec.linktype, data, rec.flags, rec.interface))
-            dg = None
+                raise TransformError(f"{self.s}: record {number} is on link type {linktype}, not {self.linktype}")
+            self.chunk.append(writer.interface(linktype))
+            iface = self.interfaces[(interface, linktype)] = writer.interfaces - 1
+        return iface
+
+    def _run(self, frames: int) -> None:
+        """A run the run taker took: its records written, counted as the one at a time are."""
+        taker, st = self.taker, self.rw.stats
+        assert taker is not None
+        st.records += frames
+        st.frames += frames
+        st.value_frames += frames
+        st.rewritten += frames
+        st.full += frames
+        st.bytes_in += taker.bytes_in
+        st.bytes_out += taker.bytes_out
+        taker.bytes_in = taker.bytes_out = 0
+        self.chunk += taker.out
+        taker.out.clear()
+
+    def _record(self, number: int, ts_ns: int, linktype: int, data: bytes, flags: int, interface: int) -> None:
+        """One record rewritten (its UDP value frames) or copied (its frames followed)."""
+        iface = self._iface(number, linktype, interface)
+        if linktype in USER_LINKTYPES:
+            _follow_serial(self.rw, self.serial.feed(number, ts_ns, linktype, data, flags, interface))
         else:
-            dg = decode(rec.linktype, data)
-        if dg is not None and dg.payload and b"[" in dg.payload:
-            conv = (dg.proto, dg.src, dg.sport, dg.dst, dg.dport)
-            # UDP in plain headers is rewritten; fragments and IPv6 extension headers copied
-            if dg.proto == "udp" and _udp_header(rec.linktype, data) is not None:
-                parts = []
-                for seg in iter_segments(dg.payload):
-                    raw = dg.payload[seg.start : seg.end]
-                    parts.append(raw if seg.frame is None else rw.frame(seg.frame, raw, rec.ts_ns, conv=conv))
-                payload = b"".join(parts)
-                if payload != dg.payload:
-                    try:
-                        new = replace_udp_payload(rec.linktype, data, payload)
-                    except PayloadTooLarge as exc:  # an expanded (or full) set past 64 KB
-                        raise TransformError(f"{s}: record {rec.number}: the rewritten frames take {exc}: nothing "
-                                             "written") from None
-                    if new is None:
-                        raise TransformError(f"{s}: record {rec.number}: cannot rewrite this UDP packet's headers")
-                    data = new
-            else:  # TCP and the rest: frames are copied; both views follow them
-                for seg in iter_segments(dg.payload):
-                    if seg.frame is not None:
-                        rw.frame(seg.frame, dg.payload[seg.start : seg.end], rec.ts_ns, False, conv)
+            dg = self.decode(linktype, data)
+            if dg is not None and dg.payload and b"[" in dg.payload:
+                data = self._datagram(number, ts_ns, linktype, data, dg)
         try:
-            chunk.append(writer.record(rec.ts_ns, data, rec.flags, iface))
+            self.chunk.append(self.writer.record(ts_ns, data, flags, iface))  # type: ignore[union-attr]
         except struct.error:  # a time stamp the output format cannot hold
-            raise OutputError(f"{s}: record {rec.number}: its time stamp ({format_time(rec.ts_ns)}) cannot be written "
-                              f"as a nanosecond {fmt} (pcap ends in 2106, pcapng in 2554)") from None
-        if len(chunk) >= 4096:
-            fh.write(b"".join(chunk))
-            chunk.clear()
-            if progress is not None:
-                progress(read, st.records)
-    _follow_serial(rw, serial.flush())
-    if writer is None:
-        writer = PcapngWriter(fh, LINKTYPE_ETHERNET) if fmt == "pcapng" else PcapWriter(fh, LINKTYPE_ETHERNET)
-    fh.write(b"".join(chunk))
+            raise OutputError(f"{self.s}: record {number}: its time stamp ({format_time(ts_ns)}) cannot be written "
+                              f"as a nanosecond {self.fmt} (pcap ends in 2106, pcapng in 2554)") from None
+
+    def _datagram(self, number: int, ts_ns: int, linktype: int, data: bytes, dg: Datagram) -> bytes:
+        """A datagram's packet with its value frames rewritten: UDP in plain headers; frames in
+        fragments, IPv6 extension headers and TCP are copied (both views follow them)."""
+        rw = self.rw
+        conv = (dg.proto, dg.src, dg.sport, dg.dst, dg.dport)
+        if dg.proto != "udp" or _udp_header(linktype, data) is None:
+            for seg in iter_segments(dg.payload):
+                if seg.frame is not None:
+                    rw.frame(seg.frame, dg.payload[seg.start : seg.end], ts_ns, False, conv)
+            return data
+        parts = []
+        for seg in iter_segments(dg.payload):
+            raw = dg.payload[seg.start : seg.end]
+            parts.append(raw if seg.frame is None else rw.frame(seg.frame, raw, ts_ns, conv=conv))
+        payload = b"".join(parts)
+        if payload == dg.payload:
+            return data
+        try:
+            new = replace_udp_payload(linktype, data, payload)
+        except PayloadTooLarge as exc:  # an expanded (or full) set past 64 KB
+            raise TransformError(f"{self.s}: record {number}: the rewritten frames take {exc}: nothing "
+                                 "written") from None
+        if new is None:
+            raise TransformError(f"{self.s}: record {number}: cannot rewrite this UDP packet's headers")
+        return new
 
 
 def _follow_serial(rw: Rewriter, items: list) -> None:

@@ -7,6 +7,7 @@
 - ``direction``: one direction as the fast tiers follow it (its layouts, its sync clock);
 - ``checksum``, ``patterns``: the one checksum rule and record test of the fast tiers;
 - ``fastpath``, ``counts``, ``columns``, ``compiled`` (with ``lanes``): the fast tiers in front of the
-  reference path, one a mode (Decoded frames, counts, columns, changes);
+  reference path, one a mode (Decoded frames, counts, columns, changes); ``expand``: expand's run
+  taker, on the counts and columns tiers' lanes;
 - ``decoder``: ``Decoder``, the whole; ``capture``: its record loop; ``timefmt``: times as written.
 """
