@@ -5,6 +5,7 @@ positional frames, bad checksums and two frames in a datagram between the runs' 
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import pytest
@@ -18,6 +19,7 @@ from sharedlink.analysis.decode import Decoder
 from sharedlink.analysis.transform import Rewriter, TransformError, TransformStats, rewrite_capture
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.errors import OutputError
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.codec import encode_named
 
@@ -126,3 +128,23 @@ def test_a_full_set_past_one_datagram_is_refused_at_the_same_record(tmp_path):
             rewrite_capture(rw, src, tmp_path / f"{taker}.pcap", FullSets(rw.src_decoder, rw.named_form) if taker else None)
         errors.append(str(exc.value).replace(f"{taker}.pcap", ""))
     assert errors[0] == errors[1] and "record 33" in errors[0]
+
+
+def test_a_time_past_the_nanosecond_pcap_is_refused_at_the_same_record(tmp_path):
+    """A microsecond pcap whose last second is 2**32 - 1 with a fraction past a second (a damaged
+    one): its time is past what a nanosecond pcap holds."""
+    b = UdpBuilder("10.0.0.1", "10.0.0.9", 7013, 7013)
+    src = tmp_path / "in.pcap"
+    with open(src, "wb") as fh:
+        fh.write(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, 1))
+        for i in range(40):
+            pkt = b.frame(encode_named("A", "B", [("Lat", 2, str(i % 3))]), i + 1)
+            frac = 1_500_000 if i >= 30 else i
+            fh.write(struct.pack("<IIII", 0xFFFFFFFF, frac, len(pkt), len(pkt)) + pkt)
+    errors = []
+    for taker in (True, False):
+        rw = Rewriter("expand")
+        with pytest.raises(OutputError) as exc:
+            rewrite_capture(rw, src, tmp_path / f"{taker}.pcap", FullSets(rw.src_decoder, rw.named_form) if taker else None)
+        errors.append(str(exc.value))
+    assert errors[0] == errors[1] and "record 31" in errors[0]

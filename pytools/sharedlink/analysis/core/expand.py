@@ -33,6 +33,8 @@ if TYPE_CHECKING:
 RUN_FRAMES = 4096
 #: the longest UDP payload an IPv4 packet without options holds
 MAX_PAYLOAD = 0xFFFF - 28
+#: the first time a nanosecond pcap record cannot hold (ns)
+PCAP_END = (1 << 32) * NS
 #: a record written: its pcap header (nanoseconds), then the packet's Ethernet header, and the
 #: IPv4 and UDP headers' 16-bit fields (each as :data:`SWAP16` gives it: big-endian), addresses
 #: and ports
@@ -77,8 +79,8 @@ class FullSets:
         cols = list(zip(*groups))
         filled, last = zip(*(_forward_fill(cols[i], cur[i]) for i in valued)) if valued else ((), ())
         payloads = _payloads(_template(lane, valued), filled, n)
-        if max(map(len, payloads)) > MAX_PAYLOAD:
-            return None  # (a full set past one datagram: the frame-at-a-time path says where)
+        if max(map(len, payloads)) > MAX_PAYLOAD or max(stamps) >= PCAP_END:
+            return None  # (a full set past one datagram, a time past 2106: the frame-at-a-time path says where)
         offs = accumulate(map((58).__add__, map(len, raws[:-1])), initial=off)  # (records: 58 bytes, then the frame)
         self.out += map(_record, repeat(buf), offs, stamps, raws, payloads, repeat(_sums(buf, off)))
         self.bytes_in += wire - 42 * n
@@ -111,7 +113,7 @@ def _template(lane: ColLane, valued: list[int]) -> str:
 
 def _payloads(template: str, filled: tuple, n: int) -> list[bytes]:
     """Each frame of a run as the full set its values fill in, checksum and CR LF made."""
-    bodies = [(template % row).encode("latin-1") for row in zip(*filled)] if filled else [template.encode()] * n
+    bodies = [(template % row).encode("latin-1") for row in zip(*filled)] if filled else [template.encode("latin-1")] * n
     # the checksum is the byte sum after "[" (91): adler32's low half is 1 + the sum, its high
     # half a multiple of 256, for up to ADLER_MAX bytes
     if max(map(len, bodies)) <= ADLER_MAX:
