@@ -1,13 +1,14 @@
-"""The one walker of classic pcap records: a file read a block at a time, its records cut from
-the blocks, and the one set of texts for a damaged one.
+"""The one walker of capture records, pcap and pcapng (serial captures are pcapng): a file read a
+block at a time, its records cut from the blocks, and the one set of texts for a damaged one.
 
-:func:`walk_pcap` serves :func:`sharedlink.capture.pcapio.read_records` (as
-:class:`~sharedlink.capture.pcapio.Record` s) and the decoding core (as tuples, with a run taker
-offered each record first: :func:`sharedlink.analysis.core.records.capture_records`);
-:class:`PcapBlocks` is the block loop itself, for a reader that walks a block its own way
+:func:`walk_records` (:func:`walk_pcap` for classic pcap, :func:`walk_pcapng`) serves
+:func:`sharedlink.capture.pcapio.read_records` (as :class:`~sharedlink.capture.pcapio.Record` s)
+and the decoding core (as tuples, with a run taker offered each record of a classic pcap file
+first: :func:`sharedlink.analysis.core.records.capture_records`); :class:`PcapBlocks` is the block
+loop itself, for a reader that walks a block its own way
 (:class:`sharedlink.analysis.changes.ChangeReader`). Damage is reported the same way by all:
-every record before it first, then a :class:`~sharedlink.capture.pcapio.CaptureError` from
-:func:`implausible` or :func:`truncated`.
+every record before it first, then a :class:`~sharedlink.capture.pcapio.CaptureError` (a classic
+pcap file's from :func:`implausible` or :func:`truncated`).
 """
 
 from __future__ import annotations
@@ -16,7 +17,21 @@ import struct
 from collections.abc import Callable, Iterator
 from typing import Any, BinaryIO
 
-from sharedlink.capture.pcapio import NS, CaptureError, Record, pcap_header
+from sharedlink.capture.pcapio import (
+    BT_EPB,
+    BT_IDB,
+    BT_PB,
+    BT_SPB,
+    FRAME_BLOCKS,
+    NS,
+    PCAPNG_BOM,
+    PCAPNG_SHB,
+    CaptureError,
+    Record,
+    _interface,
+    _packet,
+    pcap_header,
+)
 
 #: bytes of a classic pcap file read at a time
 PCAP_BLOCK = 1 << 20
@@ -123,3 +138,114 @@ def walk_pcap(fh: BinaryIO, name: str, head: bytes, offer: Callable | None = Non
     finally:
         if closing:
             fh.close()
+
+
+#: a pcapng file's first four bytes (the section header block's type reads the same either way)
+PCAPNG_HEAD = PCAPNG_SHB.to_bytes(4, "little")
+
+
+def walk_records(fh: BinaryIO, name: str, head: bytes, offer: Callable | None = None, records: bool = False,
+                 closing: bool = False) -> Iterator[Any]:
+    """The records of capture ``name``, pcap or pcapng, whose first bytes ``head`` (at least
+    four) were read: :func:`walk_pcapng` or :func:`walk_pcap` (``offer`` is for classic pcap
+    files only), the same items either way."""
+    if head[:4] == PCAPNG_HEAD:
+        return walk_pcapng(fh, name, head, records, closing=closing)
+    if len(head) < 24:
+        head += fh.read(24 - len(head))
+    return walk_pcap(fh, name, head, offer, records, closing=closing)
+
+
+def walk_pcapng(fh: BinaryIO, name: str, head: bytes, records: bool = False, size: int = PCAP_BLOCK,
+                closing: bool = False) -> Iterator[Any]:
+    """The records of a pcapng file whose first bytes ``head`` were read: as :func:`walk_pcap`
+    gives them, ``(number, ts_ns, link type, data, flags, interface)`` each or with ``records`` a
+    :class:`~sharedlink.capture.pcapio.Record`; read a block of the file at a time
+    (:class:`PcapBlocks`). Blocks that are no packet but that Wireshark numbers take a number;
+    a new section starts its interfaces anew. Raises
+    :class:`~sharedlink.capture.pcapio.CaptureError` after every record before the damage."""
+    try:
+        blocks = PcapBlocks(fh, name, size)
+        blocks.rest = head
+        walk = _PcapngWalk(name)
+        for buf in blocks:
+            for rec in walk.blocks(buf, blocks.eof):
+                yield rec if records else (rec.number, rec.ts_ns, rec.linktype, rec.data, rec.flags, rec.interface)
+            blocks.keep(buf, walk.off)
+    finally:
+        if closing:
+            fh.close()
+
+
+class _PcapngWalk:
+    """The state of a pcapng walk: the section's byte order, its interfaces and their SnapLens,
+    the records numbered so far; :meth:`blocks` walks a buffer's whole blocks."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.endian = "<"
+        self.interfaces: list[tuple[int, int, int]] = []  # (link type, units per second, offset in ns)
+        self.snaplens: list[int] = []  # each interface's SnapLen (0: none)
+        self.number = 0
+        self.first = True
+        self.off = 0  # where the last walk stopped
+
+    def blocks(self, buf: bytes, eof: bool) -> Iterator[Record]:
+        """The records of ``buf``'s whole blocks (``eof``: no more bytes come: a block cut short
+        is damage); :attr:`off` is where the walk stopped."""
+        off, end = 0, len(buf)
+        name = self.name
+        while off < end:
+            where = None if self.first else self.number + 1
+            if end - off < 8:
+                if eof:
+                    raise CaptureError(name, where, "truncated block header")
+                break
+            if self.first or buf[off : off + 4] == PCAPNG_HEAD:
+                total = self._section(buf, off, eof, where)
+                if total is None:
+                    break
+                off += total
+                continue
+            btype, total = struct.unpack_from(self.endian + "II", buf, off)
+            if total < 12 or total % 4 or total > MAX_RECORD:
+                raise CaptureError(name, self.number + 1, f"bad block length {total} (damaged file)")
+            if end - off < total:
+                if eof:
+                    raise CaptureError(name, self.number + 1, f"truncated block ({end - off} of {total} bytes)")
+                break
+            body = buf[off + 8 : off + total - 4]
+            off += total
+            if btype == BT_IDB:
+                self.interfaces.append(_interface(body, self.endian, name, self.number + 1))
+                self.snaplens.append(struct.unpack_from(self.endian + "I", body, 4)[0])
+            elif btype in (BT_EPB, BT_PB, BT_SPB):
+                self.number += 1
+                yield _packet(btype, body, self.endian, self.interfaces, self.snaplens, name, self.number)
+            elif btype in FRAME_BLOCKS:
+                self.number += 1  # no packet, but Wireshark gives it a frame number
+            # other blocks (name resolution, statistics, secrets) are skipped
+        self.off = off
+
+    def _section(self, buf: bytes, off: int, eof: bool, where: int | None) -> int | None:
+        """A section header block at ``off``: its length, its byte order and a new section's
+        (empty) interfaces taken; None when it is not whole yet."""
+        name, have = self.name, len(buf) - off
+        if have < 12:
+            if eof:
+                raise CaptureError(name, where, "truncated section header")
+            return None
+        for endian in ("<", ">"):
+            if struct.unpack_from(endian + "I", buf, off + 8)[0] == PCAPNG_BOM:
+                break
+        else:
+            raise CaptureError(name, where, "bad pcapng byte-order magic")
+        total = struct.unpack_from(endian + "I", buf, off + 4)[0]
+        if total < 28 or total % 4:
+            raise CaptureError(name, where, f"bad section header length {total}")
+        if have < total:
+            if eof:
+                raise CaptureError(name, where, "truncated section header")
+            return None
+        self.endian, self.interfaces, self.snaplens, self.first = endian, [], [], False
+        return total

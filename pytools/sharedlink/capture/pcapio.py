@@ -483,13 +483,14 @@ def capture_format(p: str, head: bytes) -> str:
 
 def records_from(fh: BinaryIO, p: str, head: bytes = b"") -> Iterator[Record]:
     """The records of capture ``p`` open as ``fh``, whose first bytes ``head`` were read
-    already (a pipe cannot seek back to them)."""
+    already (a pipe cannot seek back to them): the one record walker's
+    (:func:`sharedlink.capture.pcap_blocks.walk_records`)."""
+    from sharedlink.capture.pcap_blocks import walk_records  # (it builds on this module)
+
     src: Any = _Prefixed(head, fh) if head else fh
     first = src.read(4)
-    if capture_format(p, first) == "pcapng":
-        yield from _read_pcapng(src, p, first)
-    else:
-        yield from _read_pcap(src, p, first)
+    capture_format(p, first)
+    yield from walk_records(src, p, first, records=True)
 
 
 def _open_input(p: str) -> BinaryIO:
@@ -545,71 +546,6 @@ def pcap_header(p: str, header: bytes) -> tuple[str, int, int]:
     if linktype not in KNOWN_LINKTYPES:
         raise CaptureError(p, None, f"unknown link type {linktype} (damaged header?)")
     return endian, (1 if magic == PCAP_MAGIC_NS else 1000), linktype
-
-
-def _read_pcap(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
-    from sharedlink.capture.pcap_blocks import walk_pcap  # (it builds on this module)
-
-    yield from walk_pcap(fh, p, head + fh.read(20), records=True)
-
-
-def _read_pcapng(fh: BinaryIO, p: str, head: bytes) -> Iterator[Record]:
-    endian = "<"
-    interfaces: list[tuple[int, int, int]] = []  # (linktype, units per second, offset in ns)
-    snaplens: list[int] = []  # each interface's SnapLen (0: none)
-    number = 0
-    read = fh.read
-    h = head + read(4)
-    first = True
-    while True:
-        if not first:
-            h = read(8)
-            if not h:
-                return
-        where = number + 1 if not first else None
-        if len(h) < 8:
-            raise CaptureError(p, where, "truncated block header")
-        if first or struct.unpack("<I", h[:4])[0] == PCAPNG_SHB:
-            endian = _section(read, h, p, where)  # a new section: its interfaces anew
-            interfaces, snaplens, first = [], [], False
-            continue
-        btype, total = struct.unpack(endian + "II", h)
-        if total < 12 or total % 4 or total > 0x4000000:
-            raise CaptureError(p, number + 1, f"bad block length {total} (damaged file)")
-        body = read(total - 8)
-        if len(body) < total - 8:
-            raise CaptureError(p, number + 1, f"truncated block ({len(body) + 8} of {total} bytes)")
-        body = body[:-4]
-        if btype == BT_IDB:
-            interfaces.append(_interface(body, endian, p, number + 1))
-            snaplens.append(struct.unpack(endian + "I", body[4:8])[0])
-        elif btype in (BT_EPB, BT_PB, BT_SPB):
-            number += 1
-            yield _packet(btype, body, endian, interfaces, snaplens, p, number)
-        elif btype in FRAME_BLOCKS:
-            number += 1  # no packet, but Wireshark gives it a frame number
-        # other blocks (name resolution, statistics, secrets) are skipped
-
-
-def _section(read: Any, h: bytes, p: str, where: int | None) -> str:
-    """A section header block whose first 8 bytes ``h`` were read: read the rest, return its
-    byte order."""
-    bom = read(4)
-    if len(bom) < 4:
-        raise CaptureError(p, where, "truncated section header")
-    if struct.unpack("<I", bom)[0] == PCAPNG_BOM:
-        endian = "<"
-    elif struct.unpack(">I", bom)[0] == PCAPNG_BOM:
-        endian = ">"
-    else:
-        raise CaptureError(p, where, "bad pcapng byte-order magic")
-    total = struct.unpack(endian + "I", h[4:8])[0]
-    if total < 28 or total % 4:
-        raise CaptureError(p, where, f"bad section header length {total}")
-    body = read(total - 12)
-    if len(body) < total - 12:
-        raise CaptureError(p, where, "truncated section header")
-    return endian
 
 
 def _interface(body: bytes, endian: str, p: str, number: int) -> tuple[int, int, int]:
