@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 from sharedlink.analysis.sessions import Ack, SessionMessage
 from sharedlink.capture.pcapio import NS
-from sharedlink.present import Table, text_table
+from sharedlink.present import COUNT, PROSE, Column, Table
 from sharedlink.protocols import blackboard, p2os
 
 #: a SIP interval longer than this is a gap (the robot sends one every 100 ms by default)
@@ -304,39 +304,22 @@ def _num(x: float | None, fmt: str = "%.6g") -> str:
 
 
 def robot_tables(rs: RobotStats) -> list[Table]:
-    """The sections as tables (sharedlink.present), after the SharedLink ones."""
-    out: list[tuple[str, list[str], list[list[str]]]] = []
+    """The sections as tables (sharedlink.present), after the SharedLink ones: each column of the
+    kind its cells are (a names-and-values list's values written as text)."""
     d = rs.to_dict()
+    out: list[Table] = []
     p = d.get("p2os")
     if p is not None:
-        sip, pose, vel, bat, fl = p["sip"], p["pose"], p["velocity_mm_s"], p["battery_v"], p["flags"]
-        summary = [
-            ["packets", "%d (%s)" % (p["packets"], ", ".join(f"{k} {n}" for k, n in p["by_side"].items()))],
-            ["bytes", str(p["bytes"])],
-            ["checksum failures", str(p["checksum_failures"])],
-            ["commands P2OS ignores (> 200 bytes)", str(p["ignored_commands"])],
-            ["undecoded payloads", str(p["undecoded"])],
-            ["SIPs", "%d, %s Hz" % (sip["count"], _num(sip["rate_hz"], "%.3f"))],
-            ["SIP gaps (> %g s)" % SIP_GAP_S, "%d (longest %s s)" % (sip["gaps"], _num(sip["max_gap_s"], "%.3f"))],
-            ["x range (mm, robot frame)", "%s .. %s" % (_num(pose["x_min_mm"], "%.0f"), _num(pose["x_max_mm"], "%.0f"))],
-            ["y range (mm, robot frame)", "%s .. %s" % (_num(pose["y_min_mm"], "%.0f"), _num(pose["y_max_mm"], "%.0f"))],
-            ["distance travelled", "%.0f mm" % pose["distance_mm"]],
-            ["velocity (mm/s)", "min %s, mean %s, max %s" % (_num(vel["min"]), _num(vel["mean"], "%.1f"), _num(vel["max"]))],
-            ["battery (V)", "first %s, last %s, min %s" % (_num(bat["first"]), _num(bat["last"]), _num(bat["min"]))],
-            ["stall left / right", "%d / %d SIPs" % (fl["stall_left"], fl["stall_right"])],
-            ["motors enabled / moving", "%d / %d SIPs" % (fl["motors_enabled"], fl["moving"])],
-            ["serial noise", "%d pieces, %d bytes" % (p["serial_noise"]["pieces"], p["serial_noise"]["bytes"])],
-        ]
-        out.append(("P2OS statistics", ["", ""], summary))
-        out.append(("P2OS packets per type", ["side", "type", "packets"],
-                    [[t["side"], t["type"], str(t["packets"])] for t in p["types"]]))
-        out.append(("P2OS commands", ["command", "count", "response", "responses"],
-                    [[c["name"], str(c["count"]), c["response"] or "", "" if c["responses"] is None else str(c["responses"])]
-                     for c in p["commands"]]))
+        out.append(_listing("P2OS statistics", _p2os_summary(p)))
+        out.append(_typed("P2OS packets per type", [Column("side"), Column("type", PROSE), Column("packets", COUNT, drop=0)],
+                          [[t["side"], t["type"], t["packets"]] for t in p["types"]]))
+        out.append(_typed("P2OS commands", [Column("command", drop=2), Column("count", COUNT), Column("response", PROSE, drop=1),
+                                            Column("responses", COUNT, drop=0)],
+                          [[c["name"], c["count"], c["response"], c["responses"]] for c in p["commands"]]))
     b = d.get("blackboard")
     if b is not None:
         a = b["answer_ms"]
-        summary = [
+        out.append(_listing("Blackboard statistics", [
             ["messages and answers", str(b["packets"])],
             ["bytes", str(b["bytes"])],
             ["checksum failures", str(b["checksum_failures"])],
@@ -345,9 +328,41 @@ def robot_tables(rs: RobotStats) -> list[Table]:
             ["repeated", str(b["repeated"])],
             ["unanswered", str(b["unanswered"])],
             ["answer time (ms)", "min %s, mean %s, max %s" % (_num(a["min"], "%.3f"), _num(a["mean"], "%.3f"), _num(a["max"], "%.3f"))],
-        ]
-        out.append(("Blackboard statistics", ["", ""], summary))
-        out.append(("Blackboard messages per type", ["side", "type", "messages"],
-                    [[t["side"], t["type"], str(t["messages"])] for t in b["types"]]))
-    return [text_table(*t) for t in out]
+        ]))
+        out.append(_typed("Blackboard messages per type", [Column("side"), Column("type", PROSE),
+                                                           Column("messages", COUNT, drop=0)],
+                          [[t["side"], t["type"], t["messages"]] for t in b["types"]]))
+    return out
 
+
+def _p2os_summary(p: dict) -> list[list[str]]:
+    sip, pose, vel, bat, fl = p["sip"], p["pose"], p["velocity_mm_s"], p["battery_v"], p["flags"]
+    return [
+        ["packets", "%d (%s)" % (p["packets"], ", ".join(f"{k} {n}" for k, n in p["by_side"].items()))],
+        ["bytes", str(p["bytes"])],
+        ["checksum failures", str(p["checksum_failures"])],
+        ["commands P2OS ignores (> 200 bytes)", str(p["ignored_commands"])],
+        ["undecoded payloads", str(p["undecoded"])],
+        ["SIPs", "%d, %s Hz" % (sip["count"], _num(sip["rate_hz"], "%.3f"))],
+        ["SIP gaps (> %g s)" % SIP_GAP_S, "%d (longest %s s)" % (sip["gaps"], _num(sip["max_gap_s"], "%.3f"))],
+        ["x range (mm, robot frame)", "%s .. %s" % (_num(pose["x_min_mm"], "%.0f"), _num(pose["x_max_mm"], "%.0f"))],
+        ["y range (mm, robot frame)", "%s .. %s" % (_num(pose["y_min_mm"], "%.0f"), _num(pose["y_max_mm"], "%.0f"))],
+        ["distance travelled", "%.0f mm" % pose["distance_mm"]],
+        ["velocity (mm/s)", "min %s, mean %s, max %s" % (_num(vel["min"]), _num(vel["mean"], "%.1f"), _num(vel["max"]))],
+        ["battery (V)", "first %s, last %s, min %s" % (_num(bat["first"]), _num(bat["last"]), _num(bat["min"]))],
+        ["stall left / right", "%d / %d SIPs" % (fl["stall_left"], fl["stall_right"])],
+        ["motors enabled / moving", "%d / %d SIPs" % (fl["motors_enabled"], fl["moving"])],
+        ["serial noise", "%d pieces, %d bytes" % (p["serial_noise"]["pieces"], p["serial_noise"]["bytes"])],
+    ]
+
+
+def _listing(title: str, rows: list[list[str]]) -> Table:
+    """A names-and-values list (no headers; the values written as text)."""
+    return _typed(title, [Column(""), Column("", PROSE)], rows, header=False)
+
+
+def _typed(title: str, columns: list[Column], rows: list[list], header: bool = True) -> Table:
+    t = Table(title, columns, more="--json has every column", header=header)
+    for r in rows:
+        t.add(*r)
+    return t
