@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from sharedlink.analysis.core.direction import Direction, Layout, full_set, is_late
+from sharedlink.analysis.core.direction import Direction, Layout, full_set, is_late, write_back
 from sharedlink.analysis.core.lanes import BATCH_FRAMES, ColLane, lane_at, walk_run
 from sharedlink.protocols.state import Variable, VariableTable
 
@@ -216,16 +216,7 @@ class ColumnsSink:
         self.rows, self.taken = {}, 0
         dirs = {}
         for h, c in rows.items():
-            table = c.table
-            vars_ = table.vars
-            for lay, (number, ts) in sorted(c.layouts.items(), key=lambda kv: kv[1][0]):
-                for name in lay.names:
-                    v = vars_[name]
-                    if v.set_in is None or number > v.set_in:  # (a run of column_run may have set it since)
-                        v.set_in, v.set_at = number, ts
-            if c.last_full is not None:
-                table.last_full_at, table.last_full_in = c.last_full[1], c.last_full[0]
-            table.named = True
+            write_back(c.table, ((lay, number, ts) for lay, (number, ts) in c.layouts.items()), c.last_full)
             h.last.clear()  # (the Updates kept for reuse hold values the batch replaced)
             self.fast += len(c.number)
             dirs[(c.conv, c.src, c.dst)] = c

@@ -12,7 +12,7 @@ from itertools import compress, repeat
 from operator import is_not, mul, ne, sub
 from typing import NamedTuple
 
-from sharedlink.analysis.core.direction import Direction, Layout, full_set, is_late, named_size
+from sharedlink.analysis.core.direction import Direction, Layout, full_set, is_late, named_size, write_back
 from sharedlink.analysis.core.lanes import BATCH_FRAMES, ColLane, lane_at, walk_run
 
 
@@ -132,16 +132,7 @@ class CountsSink:
         b = {(c.conv, c.src, c.dst): c for c in self.batch.values()}
         self.batch = {}
         for c in b.values():
-            table = c.table
-            vars_ = table.vars
-            for lay, (_n, number, ts) in sorted(c.layouts.items(), key=lambda kv: kv[1][1]):
-                for name in lay.names:
-                    v = vars_[name]
-                    if v.set_in is None or number > v.set_in:  # (a run of count_run may have set it since)
-                        v.set_in, v.set_at = number, ts
-            if c.last_full is not None:
-                table.last_full_at, table.last_full_in = c.last_full[1], c.last_full[0]
-            table.named = True
+            write_back(c.table, ((lay, number, ts) for lay, (_n, number, ts) in c.layouts.items()), c.last_full)
             self.fast += c.frames
         return b
 

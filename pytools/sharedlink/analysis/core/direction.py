@@ -11,6 +11,7 @@ one verdict on a frame that is not a full set.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 from sharedlink.protocols.state import Update, VariableTable
@@ -77,6 +78,23 @@ class Direction:
         self.pos: dict[int, Layout] = {}  # positional layouts by slot count
         self.last: dict[str, Update] = {}
         self.stamp: tuple[int, int] = (-1, -1)  # (len(table.vars), len(table.sent_names)) ``last`` was made for
+
+
+def write_back(table: VariableTable, layouts: Iterable[tuple[Layout, int, int]], last_full: tuple[int, int] | None
+               ) -> None:
+    """The end of a batch of named frames a sink took (counts, columns): for each layout, given
+    with the number and time of its last frame, the frames that last set its variables (a run
+    taker may have set one later already); the direction's last full set ``(number, time)``; its
+    named form."""
+    vars_ = table.vars
+    for lay, number, ts in sorted(layouts, key=lambda x: x[1]):
+        for name in lay.names:
+            v = vars_[name]
+            if v.set_in is None or number > v.set_in:
+                v.set_in, v.set_at = number, ts
+    if last_full is not None:
+        table.last_full_at, table.last_full_in = last_full[1], last_full[0]
+    table.named = True
 
 
 def named_size(name: str, type_code: int | None, text: str | None) -> int:
