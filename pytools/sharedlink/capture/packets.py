@@ -299,54 +299,71 @@ def _decode(linktype: int, data: bytes, reasm: Reassembler | None) -> Datagram |
             return None
         etype, off = found
     if etype == _ETYPE_IPV4:
-        vihl = data[off]
-        if vihl >> 4 != 4:
-            return None
-        ihl = (vihl & 15) * 4
-        tlen = struct.unpack_from("!H", data, off + 2)[0]
-        frag = struct.unpack_from("!H", data, off + 6)[0]
-        proto = data[off + 9]
-        src = socket.inet_ntoa(data[off + 12 : off + 16])
-        dst = socket.inet_ntoa(data[off + 16 : off + 20])
-        end = min(off + tlen, len(data)) if tlen >= ihl else len(data)
-        off += ihl
-        if frag & 0x3FFF:  # an offset or more fragments
-            if reasm is None:
-                return None
-            ident = struct.unpack_from("!H", data, off - ihl + 4)[0]
-            whole = reasm.add((4, src, dst, ident, proto), (frag & 0x1FFF) * 8, data[off:end], bool(frag & 0x2000))
-            if whole is None:
-                return None
-            data, off, end = whole, 0, len(whole)
-        if proto == _IPPROTO_AH:
-            proto, off = data[off], off + (data[off + 1] + 2) * 4
+        ip = _ipv4(data, off, reasm)
     elif etype == _ETYPE_IPV6:
-        proto = data[off + 6]
-        plen = struct.unpack_from("!H", data, off + 4)[0]
-        src = socket.inet_ntop(socket.AF_INET6, data[off + 8 : off + 24])
-        dst = socket.inet_ntop(socket.AF_INET6, data[off + 24 : off + 40])
-        off += 40
-        end = min(off + plen, len(data)) if plen else len(data)  # 0: a jumbogram
-        while proto in _IPV6_EXTENSIONS:
-            nxt = data[off]
-            if proto == _IPV6_FRAGMENT:
-                fo, ident = struct.unpack_from("!HI", data, off + 2)
-                off += 8
-                if fo & 0xFFF9:  # an offset or more fragments: not an atomic fragment
-                    if reasm is None:
-                        return None
-                    whole = reasm.add((6, src, dst, ident), fo & 0xFFF8, data[off:end], bool(fo & 1))
-                    if whole is None:
-                        return None
-                    data, off, end = whole, 0, len(whole)
-            elif proto == _IPPROTO_AH:
-                off += (data[off + 1] + 2) * 4
-            else:
-                off += (data[off + 1] + 1) * 8
-            proto = nxt
+        ip = _ipv6(data, off, reasm)
     else:
         return None
-    return _transport(proto, src, dst, data, off, end)
+    return None if ip is None else _transport(*ip)
+
+
+#: what an IP header gives the transport: protocol, addresses, the bytes, where its header starts and ends
+_Ip = tuple[int, str, str, bytes, int, int]
+
+
+def _ipv4(data: bytes, off: int, reasm: Reassembler | None) -> _Ip | None:
+    """An IPv4 packet at ``off``: its transport (a fragment completed by ``reasm``, None until then)."""
+    vihl = data[off]
+    if vihl >> 4 != 4:
+        return None
+    ihl = (vihl & 15) * 4
+    tlen = struct.unpack_from("!H", data, off + 2)[0]
+    frag = struct.unpack_from("!H", data, off + 6)[0]
+    proto = data[off + 9]
+    src = socket.inet_ntoa(data[off + 12 : off + 16])
+    dst = socket.inet_ntoa(data[off + 16 : off + 20])
+    end = min(off + tlen, len(data)) if tlen >= ihl else len(data)
+    off += ihl
+    if frag & 0x3FFF:  # an offset or more fragments
+        if reasm is None:
+            return None
+        ident = struct.unpack_from("!H", data, off - ihl + 4)[0]
+        whole = reasm.add((4, src, dst, ident, proto), (frag & 0x1FFF) * 8, data[off:end], bool(frag & 0x2000))
+        if whole is None:
+            return None
+        data, off, end = whole, 0, len(whole)
+    if proto == _IPPROTO_AH:
+        proto, off = data[off], off + (data[off + 1] + 2) * 4
+    return proto, src, dst, data, off, end
+
+
+def _ipv6(data: bytes, off: int, reasm: Reassembler | None) -> _Ip | None:
+    """An IPv6 packet at ``off``: its transport after the extension headers (a fragment
+    completed by ``reasm``, None until then)."""
+    proto = data[off + 6]
+    plen = struct.unpack_from("!H", data, off + 4)[0]
+    src = socket.inet_ntop(socket.AF_INET6, data[off + 8 : off + 24])
+    dst = socket.inet_ntop(socket.AF_INET6, data[off + 24 : off + 40])
+    off += 40
+    end = min(off + plen, len(data)) if plen else len(data)  # 0: a jumbogram
+    while proto in _IPV6_EXTENSIONS:
+        nxt = data[off]
+        if proto == _IPV6_FRAGMENT:
+            fo, ident = struct.unpack_from("!HI", data, off + 2)
+            off += 8
+            if fo & 0xFFF9:  # an offset or more fragments: not an atomic fragment
+                if reasm is None:
+                    return None
+                whole = reasm.add((6, src, dst, ident), fo & 0xFFF8, data[off:end], bool(fo & 1))
+                if whole is None:
+                    return None
+                data, off, end = whole, 0, len(whole)
+        elif proto == _IPPROTO_AH:
+            off += (data[off + 1] + 2) * 4
+        else:
+            off += (data[off + 1] + 1) * 8
+        proto = nxt
+    return proto, src, dst, data, off, end
 
 
 def _transport(proto: int, src: str, dst: str, data: bytes, off: int, end: int) -> Datagram | None:
