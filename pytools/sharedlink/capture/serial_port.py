@@ -71,18 +71,9 @@ def capture(
     ``duration`` seconds or ``count`` records; ``on_ready`` is called once the ports are open.
     Raises ``serial.SerialException`` / ``OSError`` when a port cannot be opened."""
     stats = CaptureStats()
-    ports = []
+    ports: list = []
     try:
-        if tap:
-            a, b = open_port(tap[0], baud), open_port(tap[1], baud)
-            ports = [a, b]
-            routes = {0: (a, b, DIR_IN), 1: (b, a, DIR_OUT)}
-        else:
-            if device is None:
-                raise ValueError("no device to capture")
-            a = open_port(device, baud)
-            ports = [a]
-            routes = {0: (a, None, DIR_IN)}
+        routes = _routes(device, baud, tap, ports)
         sel = selectors.DefaultSelector()
         for i, (src, _dst, _d) in routes.items():
             sel.register(src.fileno(), selectors.EVENT_READ, i)  # type: ignore[attr-defined]
@@ -91,50 +82,16 @@ def capture(
             if on_ready:
                 on_ready()
             while not stop.reason:
-                if count is not None and stats.records >= count:
-                    stats.stopped_by = "count"
+                wait = _wait(stats, count, deadline)
+                if wait is None:
                     break
-                wait = 0.2
-                if deadline is not None:
-                    left = deadline - time.monotonic()
-                    if left <= 0:
-                        stats.stopped_by = "duration"
-                        break
-                    wait = min(wait, left)
                 try:
                     events = sel.select(wait)
                 except InterruptedError:  # pragma: no cover - PEP 475 retries
                     continue
                 for key, _mask in events:
-                    src, dst, d = routes[key.data]
-                    try:
-                        data = os.read(key.fd, 65536)
-                    except BlockingIOError:
-                        continue
-                    except OSError as exc:
-                        # a pty whose other end closed: EIO; the line is gone
-                        stats.stopped_by = f"read error: {exc.strerror or exc}"
-                        stop.reason = stop.reason or "eof"
+                    if not _relay(key.fd, routes[key.data], writer, stats, stop, on_record):
                         break
-                    if not data:
-                        stats.stopped_by = "end of file"
-                        stop.reason = stop.reason or "eof"
-                        break
-                    ts = time.time_ns()
-                    if dst is not None:
-                        _write_all(dst.fileno(), data)  # type: ignore[attr-defined]
-                    try:
-                        writer.write(data, d, ts)
-                    except BrokenPipeError:  # the reader of a fifo went away
-                        stats.stopped_by = "reader closed the output"
-                        stop.reason = stop.reason or "epipe"
-                        break
-                    stats.records += 1
-                    stats.bytes += len(data)
-                    name = DIRECTION_NAMES[d]
-                    stats.by_direction[name] = stats.by_direction.get(name, 0) + len(data)
-                    if on_record:
-                        on_record(d, data)
             if stop.reason and not stats.stopped_by:
                 stats.stopped_by = stop.reason
         sel.close()
@@ -145,6 +102,73 @@ def capture(
             except Exception:  # pragma: no cover - closing a port that went away
                 pass
     return stats
+
+
+def _routes(device: str | None, baud: int, tap: tuple[str, str] | None, ports: list) -> dict[int, tuple]:
+    """The ports opened (each appended to ``ports`` as it opens, to be closed): selector key ->
+    (port read, port written or None, direction recorded)."""
+    if tap:
+        a = open_port(tap[0], baud)
+        ports.append(a)
+        b = open_port(tap[1], baud)
+        ports.append(b)
+        return {0: (a, b, DIR_IN), 1: (b, a, DIR_OUT)}
+    if device is None:
+        raise ValueError("no device to capture")
+    a = open_port(device, baud)
+    ports.append(a)
+    return {0: (a, None, DIR_IN)}
+
+
+def _wait(stats: CaptureStats, count: int | None, deadline: float | None) -> float | None:
+    """How long to wait for the ports now; None when ``count`` records or the deadline are
+    reached (said in ``stats.stopped_by``)."""
+    if count is not None and stats.records >= count:
+        stats.stopped_by = "count"
+        return None
+    if deadline is None:
+        return 0.2
+    left = deadline - time.monotonic()
+    if left <= 0:
+        stats.stopped_by = "duration"
+        return None
+    return min(0.2, left)
+
+
+def _relay(fd: int, route: tuple, writer: SerialCaptureWriter, stats: CaptureStats, stop: _Stop,
+           on_record: Callable[[int, bytes], None] | None) -> bool:
+    """Read what port ``fd`` has, pass it on (a tap) and record it; False when the capture ends
+    (the line gone, the output's reader gone: said in ``stats`` and ``stop``)."""
+    _src, dst, d = route
+    try:
+        data = os.read(fd, 65536)
+    except BlockingIOError:
+        return True
+    except OSError as exc:
+        # a pty whose other end closed: EIO; the line is gone
+        stats.stopped_by = f"read error: {exc.strerror or exc}"
+        stop.reason = stop.reason or "eof"
+        return False
+    if not data:
+        stats.stopped_by = "end of file"
+        stop.reason = stop.reason or "eof"
+        return False
+    ts = time.time_ns()
+    if dst is not None:
+        _write_all(dst.fileno(), data)  # type: ignore[attr-defined]
+    try:
+        writer.write(data, d, ts)
+    except BrokenPipeError:  # the reader of a fifo went away
+        stats.stopped_by = "reader closed the output"
+        stop.reason = stop.reason or "epipe"
+        return False
+    stats.records += 1
+    stats.bytes += len(data)
+    name = DIRECTION_NAMES[d]
+    stats.by_direction[name] = stats.by_direction.get(name, 0) + len(data)
+    if on_record:
+        on_record(d, data)
+    return True
 
 
 def _write_all(fd: int, data: bytes) -> None:
