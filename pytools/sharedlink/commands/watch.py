@@ -171,9 +171,10 @@ def _run(args: argparse.Namespace) -> int:
             from sharedlink.analysis.foxglove_health import LiveQuality
 
             server, channels = _foxglove(args)
+            quality = LiveQuality(channels)  # a link_quality channel per link, each second once ended
+            outputs.append(served(quality.gap, stats))  # (an outage's gap before the frame that ends it)
             outputs.append(served(channels.frame, stats))
             sessions.append(served(channels.session, stats))
-            quality = LiveQuality(channels)  # a link_quality channel per link, each second once ended
             outputs.append(served(quality.frame, stats))
             tick = quality.tick
         if not args.quiet:  # what is watched (the Foxglove server's address is always said)
