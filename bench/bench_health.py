@@ -124,7 +124,7 @@ def instruction_lines(work: Path, homes: dict[str, dict[str, str]]) -> list[Resu
     small, large = 1_000, 5_000
     started = load_now()
     caps = {n: outage_drive(work / f"health-instr-{n}.pcap", n) for n in (small, large)}
-    whos = [w for w in ("lua", "syslog", "base") if w in homes or w == "syslog"]
+    whos = ["lua", "syslog", *(["base"] if "base" in homes else [])]
     jobs = {}
     for name, opts, _t in PASSES:
         for who in whos:
@@ -157,5 +157,7 @@ if __name__ == "__main__":
     from bench import line
 
     with tempfile.TemporaryDirectory(prefix="sharedlink-bench-") as tmp:
-        for r in run(Path(tmp)):
-            print(line(r), flush=True)
+        base = base_tree(Path(tmp), ["pytools", "dissector"])
+        for lines in (stats_lines, dissector_lines):  # (each group printed as it ends)
+            for r in lines(Path(tmp), base):
+                print(line(r), flush=True)

@@ -8,18 +8,20 @@ Shepherd link quality of :func:`sharedlink.analysis.health.quality`::
     {"frames": 0, "quality": 2.0, "state": "down", "down_s": 2.0}
 
 ``frames`` and ``quality`` plot as lines in Foxglove's Plot panel, ``state`` in its State
-Transitions panel.
+Transitions panel. ``export --format mcap`` writes them when the capture is done
+(:func:`publish_quality`); ``watch --foxglove`` sends each second once it has ended, by the
+frame after it or by the clock while the link is silent (:class:`LiveQuality`): the same
+messages, but for the last second, never ended.
 
 No line across an outage: plotting tools join a series' samples by straight lines, which would
 draw a silence as data. Each outage of a link puts one *gap* message on its direction's
 ``values`` topic, 1 ns after the outage's start (the last frame before the silence), with every
 variable whose value is a number as the text ``"NaN"`` (:data:`GAP_VALUE`; JSON has no NaN):
-Foxglove's Plot reads a string as a number, ``"NaN"`` as NaN, and leaves its line open there,
-from the last sample before the silence to the first after it (``export`` writes them after the
-pass, :func:`publish_gaps`; ``watch --foxglove`` once a silence becomes an outage). ``export --format mcap`` writes them when the capture is done
-(:func:`publish_quality`); ``watch --foxglove`` sends each second once it has ended, by the
-frame after it or by the clock while the link is silent (:class:`LiveQuality`): the same
-messages, but for the last second, never ended.
+Foxglove's Plot (the open-source Studio and its fork Lichtblick: getChartValue) reads a string as a
+number, ``"NaN"`` as NaN, and leaves its line open there (PlotJuggler not checked),
+from the last sample before the silence to the first after it. ``export`` writes them after the
+pass (:func:`publish_gaps`); ``watch --foxglove`` once a silence becomes an outage by the clock,
+or before the frame that ends one the clock did not see (:meth:`LiveQuality.gap`).
 """
 
 from __future__ import annotations
