@@ -4,14 +4,18 @@ same comparable shape, and the limit sessions' capture builders (an OCU and a ve
 
 from __future__ import annotations
 
+import json
 import re
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
 import tshark_util as tu
 from sharedlink.analysis.decode import Decoded, iter_decoded, parse_variables
+from sharedlink.analysis.stats import capture_stats
 from sharedlink.capture.packets import UdpBuilder
-from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.capture.pcapio import NS, PcapWriter, read_records
 from sharedlink.protocols.codec import TYPE_NAMES
 from sharedlink.protocols.state import BEACON_VARIABLES
 
@@ -133,3 +137,59 @@ def write_session(path: Path, frames: list[bytes]) -> Path:
 def limit_rows(cap: Path, names: tuple[str, ...] = ()) -> list[dict[str, list[str]]]:
     """tshark's frame numbers and ``names`` a frame (one pass), for the limit sessions."""
     return tu.fields(cap, ["frame.number", *names], two_pass=False)
+
+
+# -- link health (issue 43): the outages of stats and of the -z sharedlink,stats tap ------------
+
+CLI = [sys.executable, "-m", "sharedlink"]
+REPO = Path(__file__).resolve().parents[1]
+STATS = REPO / "dissector" / "sharedlink_stats.lua"
+SERIAL = REPO / "dissector" / "serial.lua"
+ARROW = "\u2192"
+
+
+def python_outages(path: Path, *extra: object) -> tuple[list[tuple], list[dict]]:
+    """stats --json's links, and its outages (from the same run's integer-ns figures): link, pair,
+    start in seconds from the first record, duration, open."""
+    r = subprocess.run([*CLI, "stats", "--json", str(path), *map(str, extra)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    st = capture_stats(path, outage_after=float(extra[1]) if extra else None)
+    first = next(iter(read_records(path))).ts_ns
+    outs = sorted((o.link, o.pair, (o.start_ns - first) / NS, o.duration_ns / NS, o.end_ns is None)
+                  for o in st.health.outages())
+    assert [(o["link"], o["pair"], o["duration_s"]) for o in d["outages"]] == [
+        (o.link, o.pair, o.duration_ns / NS) for o in st.health.outages()]
+    return outs, d["links"]
+
+
+def same_outages(got: list[tuple], want: list[tuple]) -> None:
+    """The same outages: count, links, open or not, start and duration to the microsecond."""
+    assert len(got) == len(want), (got, want)
+    for g, w in zip(got, want):
+        assert (g[0], g[1], g[4]) == (w[0], w[1], w[4])
+        assert abs(g[2] - w[2]) <= 0.6e-6 and abs(g[3] - w[3]) <= 0.6e-6, (g, w)
+
+
+def health_tap(path: Path, prefs: dict | None = None) -> tuple[list[tuple], dict[tuple, list[str]], str]:
+    res = tu.tshark(path, ["-q", "-X", f"lua_script:{SERIAL}", "-X", f"lua_script:{STATS}", "-z", "sharedlink,stats",
+                           "-z", "expert"], prefs=prefs)
+    text = res.stdout
+    links: dict[tuple, list[str]] = {}
+    outs = []
+    section = None
+    for line in text.splitlines():
+        if line in ("Link health",) or line.startswith("Outages ("):
+            section = line[:7]
+            continue
+        if not line.startswith("  ") or section is None:
+            section = None if not line.startswith("  ") else section
+            continue
+        cols = re.split(r"\s{2,}", line.strip())
+        if cols[0] == "Link" or cols[0].startswith("Note:"):
+            continue
+        if section == "Link he":
+            links[(cols[0], cols[1].replace(ARROW, ">"))] = cols[2:]
+        else:
+            outs.append((cols[0], cols[1].replace(ARROW, ">"), float(cols[2]), float(cols[3]), cols[-1] == "(open)"))
+    return sorted(outs), links, text

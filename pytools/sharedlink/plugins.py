@@ -192,25 +192,56 @@ def uninstall(f: Folders) -> Report:
 
 #: the configuration profile ``install --profile`` makes (issue 43): its name and files
 PROFILE = "SharedLink"
-PROFILE_FILES = ("preferences", "dfilter_buttons", "colorfilters")
+PROFILE_FILES = ("preferences", "dfilter_buttons", "colorfilters", "io_graphs")
+#: the release whose I/O graphs table (``io_graphs``) has a tenth column, asAOT ("Avg over Time"),
+#: after the nine of 3.6-4.4 that ``dissector/profile/io_graphs`` is written in: a record with more
+#: columns than a release knows is an error there ("more fields than required"); 4.6 reads a record
+#: of nine with its default for the tenth (its I/O graph dialog's defaults, kept for older profiles)
+IO_GRAPHS_AOT = (4, 6)
+
+
+def tshark_version(tshark: str = "tshark") -> tuple[int, int] | None:
+    """The Wireshark release (major, minor) of ``tshark --version``, or None when it says none."""
+    exe = shutil.which(tshark)
+    if exe is None:
+        return None
+    try:
+        out = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=60).stdout
+    except (OSError, subprocess.SubprocessError):
+        return None
+    m = re.search(r"\(Wireshark\) (\d+)\.(\d+)", out)
+    return (int(m.group(1)), int(m.group(2))) if m else None
+
+
+def io_graphs_text(version: tuple[int, int] | None) -> str:
+    """The profile's ``io_graphs`` for a release (None: unknown, the columns of 3.6-4.4, which
+    4.6 and later read too): each record with the asAOT column ("Disabled") from 4.6 on."""
+    text = (dissector_dir() / "profile" / "io_graphs").read_text()
+    if version is None or version < IO_GRAPHS_AOT:
+        return text
+    return "".join(ln if ln.startswith("#") or not ln.strip() else ln.rstrip("\r\n") + ',"Disabled"\n'
+                   for ln in text.splitlines(keepends=True))
 
 
 def profile_dir(f: Folders) -> Path:
     return f.config / "profiles" / PROFILE
 
 
-def install_profile(f: Folders) -> Report:
-    """The SharedLink profile (columns, filter buttons, coloring rules with the outage rule) into
+def install_profile(f: Folders, version: tuple[int, int] | None = None) -> Report:
+    """The SharedLink profile (columns, filter buttons, coloring rules with the outage rule, I/O
+    graphs in the columns of ``version``, the Wireshark release) into
     ``<Personal configuration>/profiles/SharedLink`` (Edit > Configuration Profiles)."""
     report = Report()
     dest = profile_dir(f)
     try:
         dest.mkdir(parents=True, exist_ok=True)
         for name in PROFILE_FILES:
-            _write(dest / name, (dissector_dir() / "profile" / name).read_text())
+            text = io_graphs_text(version) if name == "io_graphs" else (dissector_dir() / "profile" / name).read_text()
+            _write(dest / name, text)
     except OSError as exc:
         raise PluginsError(f"{exc.filename or ''}: {exc.strerror or exc}") from None
-    report.add(f"installed the {PROFILE} configuration profile into {dest}")
+    cols = "of Wireshark 4.6+" if version is not None and version >= IO_GRAPHS_AOT else "of Wireshark 3.6-4.4"
+    report.add(f"installed the {PROFILE} configuration profile into {dest} (I/O graphs in the columns {cols})")
     return report
 
 

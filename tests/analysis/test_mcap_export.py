@@ -277,11 +277,14 @@ def test_spliced_location_fix_equals_the_whole_encoding(lat, lon, head, speed, t
 def _sharedlink_messages(path: Path) -> dict[str, list]:
     """The SharedLink messages (topic, log time, bytes) in the file's order, all topics
     together (so an order across directions counts), under the key ``"all"``; and per topic.
-    (Not the link_quality topics: written at the end from link health, test_mcap_link_quality.py.)"""
+    (Not the link_quality topics nor the values' gap messages at outages, under ``"gaps"``: written
+    at the end from link health, test_mcap_link_quality.py, test_mcap_outage_gaps.py.)"""
     out: dict[str, list] = defaultdict(list)
     with open(path, "rb") as fh:
         for _schema, channel, message in mcap_reader.make_reader(fh).iter_messages(log_time_order=False):
-            if channel.topic.startswith("/sharedlink/") and not channel.topic.endswith("/link_quality"):
+            if b'"NaN"' in message.data and "NaN" in json.loads(message.data).values():
+                out["gaps"].append((channel.topic, message.log_time))
+            elif channel.topic.startswith("/sharedlink/") and not channel.topic.endswith("/link_quality"):
                 out["all"].append((channel.topic, message.log_time, message.data))
                 out[channel.topic].append((message.log_time, message.data))
     return out
@@ -316,11 +319,12 @@ def _same_as_reference(tmp_path: Path, cap: Path, variables=BEACON_VARIABLES) ->
     export_mcap(cap, tmp_path / "new.mcap", ExportOptions(variables=list(variables)))
     want_counts = _reference_mcap(cap, tmp_path / "ref.mcap", variables)
     got, want = _sharedlink_messages(tmp_path / "new.mcap"), _sharedlink_messages(tmp_path / "ref.mcap")
+    gaps = Counter(t for t, _ in got.pop("gaps", []))
     assert got.keys() == want.keys()
     for topic in want:
         assert got[topic] == want[topic], topic
     counts = Mcap(tmp_path / "new.mcap").counts()
-    assert {t: n for t, n in counts.items() if t.startswith("/sharedlink/") and not t.endswith("/link_quality")
+    assert {t: n - gaps[t] for t, n in counts.items() if t.startswith("/sharedlink/") and not t.endswith("/link_quality")
             } == want_counts
     return len(got["all"])
 

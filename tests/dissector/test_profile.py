@@ -33,9 +33,9 @@ def test_profile_install_columns_uninstall(tmp_path):
     cap = tmp_path / "o.pcap"
     cli(home, "gen", "-o", cap, "--duration", 20, "--outage", "5:3")
     out = cli(home, "plugins", "install", "--profile").stdout
-    assert "SharedLink configuration profile" in out
+    assert "SharedLink configuration profile" in out and "I/O graphs in the columns of Wireshark 3.6-4.4" in out
     prof = Path(cli(home, "plugins", "path", "--json").stdout.split('"profile": "')[1].split('"')[0])
-    assert sorted(p.name for p in prof.iterdir()) == ["colorfilters", "dfilter_buttons", "preferences"]
+    assert sorted(p.name for p in prof.iterdir()) == ["colorfilters", "dfilter_buttons", "io_graphs", "preferences"]
     r = subprocess.run([*TSHARK_CMD, "-n", "-C", "SharedLink", "-r", str(cap), "-Y", "sharedlink.outage"],
                        capture_output=True, text=True, env=env_for(home), timeout=120)
     assert r.returncode == 0, r.stderr

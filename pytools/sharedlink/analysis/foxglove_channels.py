@@ -351,6 +351,7 @@ class _Direction:
     nframes: int = 0
     nlocations: int = 0
     nmalformed: int = 0  # frames of kind malformed: a frames message, no values message
+    ngaps: int = 0  # values messages that break the plotted lines at an outage (foxglove_health)
     log_location: Any = None
     pair: str = ""  # "B>A"
     src: str = ""
@@ -722,7 +723,7 @@ class FoxgloveChannels:
         out = dict(self._counts)
         for dr in self._dirs.values():
             out[dr.frames_topic] = dr.nframes
-            out[dr.values_topic] = dr.nframes - dr.nmalformed
+            out[dr.values_topic] = dr.nframes - dr.nmalformed + dr.ngaps
             if dr.location is not None:
                 out[dr.location_topic] = dr.nlocations
         return out

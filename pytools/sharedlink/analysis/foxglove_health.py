@@ -12,6 +12,16 @@ Transitions panel. ``export --format mcap`` writes them when the capture is done
 (:func:`publish_quality`); ``watch --foxglove`` sends each second once it has ended, by the
 frame after it or by the clock while the link is silent (:class:`LiveQuality`): the same
 messages, but for the last second, never ended.
+
+No line across an outage: plotting tools join a series' samples by straight lines, which would
+draw a silence as data. Each outage of a link puts one *gap* message on its direction's
+``values`` topic, 1 ns after the outage's start (the last frame before the silence), with every
+variable whose value is a number as the text ``"NaN"`` (:data:`GAP_VALUE`; JSON has no NaN):
+Foxglove's Plot (the open-source Studio and its fork Lichtblick: getChartValue) reads a string as a
+number, ``"NaN"`` as NaN, and leaves its line open there (PlotJuggler not checked),
+from the last sample before the silence to the first after it. ``export`` writes them after the
+pass (:func:`publish_gaps`); ``watch --foxglove`` once a silence becomes an outage by the clock,
+or before the frame that ends one the clock did not see (:meth:`LiveQuality.gap`).
 """
 
 from __future__ import annotations
@@ -73,6 +83,36 @@ def publish_quality(channels: Any, health: Health) -> None:
             channels._counts[topic] += 1
 
 
+#: a numeric variable's value in a gap message
+GAP_VALUE = "NaN"
+_NUMBER = (int, float)
+
+
+def gap_json(typed: dict[str, Any]) -> bytes | None:
+    """The gap message of a direction whose last typed values are ``typed`` (None: no number)."""
+    names = [n for n, v in typed.items() if type(v) in _NUMBER]
+    return json.dumps(dict.fromkeys(names, GAP_VALUE)).encode() if names else None
+
+
+def log_gap(channels: Any, key: tuple, start_ns: int) -> bool:
+    """A gap message on the values topic of direction ``key`` for an outage from ``start_ns``."""
+    dr = channels._dirs.get(key)
+    body = gap_json(dr.typed) if dr is not None else None
+    if body is None:
+        return False
+    dr.log_values(body, start_ns + 1)
+    dr.ngaps += 1
+    return True
+
+
+def publish_gaps(channels: Any, health: Health) -> None:
+    """A gap message for every outage of every link (``health`` finished: the open ones too)."""
+    health.finish_once()
+    for key, h in health.links.items():
+        for o in h.outages:
+            log_gap(channels, key, o.start_ns)
+
+
 #: seconds sent at most at once for one link (a clock that jumps: the latest are sent)
 LIVE_BACKLOG_S = 3600
 
@@ -89,6 +129,28 @@ class LiveQuality:
         self.low_ns = int(FLOOR_S * NS)
         #: id(link) -> [channel, the next second to send, frames per second not sent yet]
         self.links: dict[int, list] = {}
+        #: id(link) -> the start (ns) of the last outage whose gap message was sent
+        self.gapped: dict[int, int] = {}
+
+    def _silent(self, h: LinkHealth, now_ns: int) -> bool:
+        """Whether the link's silence up to ``now_ns`` is an outage by its threshold then."""
+        if h.last_ns is None:
+            return False
+        gap = now_ns - h.last_ns
+        limit = h.threshold_ns(None)
+        return gap > self.low_ns and limit is not None and gap > limit
+
+    def _gap(self, h: LinkHealth, key: tuple) -> None:
+        """The gap message of the link's current silence, once (its start: the link's last frame)."""
+        if self.gapped.get(id(h)) != h.last_ns and log_gap(self.channels, key, h.last_ns):  # type: ignore[arg-type]
+            self.gapped[id(h)] = h.last_ns  # type: ignore[assignment]
+
+    def gap(self, d: Any) -> None:
+        """Before the channels' own frame: a frame that ends an outage the clock did not see
+        (a silence shorter than the ticks, a capture sent fast) sends its gap message first."""
+        h = self.health.links.get((d.conv, d.src, d.dst))
+        if h is not None and self._silent(h, d.ts_ns):
+            self._gap(h, (d.conv, d.src, d.dst))
 
     def frame(self, d: Any) -> None:
         h = self.health.link(d.conv, d.src, d.dst)
@@ -103,10 +165,12 @@ class LiveQuality:
             st[2][sec] += 1
 
     def tick(self, now_ns: int) -> None:
-        for h in list(self.health.links.values()):
+        for key, h in list(self.health.links.items()):
             st = self.links.get(id(h))
             if st is not None:
                 self._send(h, st, now_ns // NS)
+                if self._silent(h, now_ns):
+                    self._gap(h, key)
 
     def _send(self, h: LinkHealth, st: list, until: int) -> None:
         """Send the link's seconds before ``until``."""

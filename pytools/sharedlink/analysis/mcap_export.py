@@ -6,8 +6,8 @@ SharedLink frame on the channels of :class:`~sharedlink.analysis.foxglove_channe
 foxglove-sdk's MCAP writer (zstd chunks at level 1, indexed) records with log time = capture time (ns).
 The P2OS and blackboard sessions come in the same pass, from the core's robot links
 (:class:`sharedlink.analysis.robots.RobotLinks`, as ``stats`` and ``export jsonl`` read them).
-The SharedLink links' per-second link quality (:mod:`sharedlink.analysis.foxglove_health`) is
-written at the end.
+The SharedLink links' per-second link quality (:mod:`sharedlink.analysis.foxglove_health`) and
+the gap messages that break the values' lines at each outage are written at the end.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from foxglove.mcap import MCAPWriteOptions
 from sharedlink.analysis.decode import Columns, Decoded, Decoder
 from sharedlink.analysis.export import ExportOptions, ExportResult
 from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
-from sharedlink.analysis.foxglove_health import publish_quality
+from sharedlink.analysis.foxglove_health import publish_gaps, publish_quality
 from sharedlink.analysis.health import Health, feed_columns, feed_decoded
 from sharedlink.analysis.robots import RobotLinks
 from sharedlink.analysis.sessions import SessionMessage
@@ -88,6 +88,7 @@ def export_mcap(path: str | Path, dest: str | Path, opts: ExportOptions) -> Expo
             health = Health(timeline=True)
             publish_capture(path, channels, opts, result, health)
             publish_quality(channels, health)  # (one link_quality topic per link: foxglove_health.py)
+            publish_gaps(channels, health)  # (the values' lines broken at each outage)
             missing = [n for n in opts.require if n not in result.seen]
             if missing and result.error is None:  # the file is not left behind (atomic_open)
                 have = ", ".join(sorted(result.seen)) or "none"

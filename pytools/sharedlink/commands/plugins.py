@@ -26,7 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the tshark whose folders are used (default: tshark on PATH)")
     p.add_argument("--profile", action="store_true",
                    help="install: also the SharedLink configuration profile (columns, filter buttons for bad checksum, "
-                   "late full set and outage, coloring rules); uninstall removes it whether given or not")
+                   "late full set and outage, coloring rules, I/O graphs of frames a second and outages in the columns of "
+                   "the tshark's Wireshark release); uninstall removes it whether given or not")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=run)
 
@@ -45,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     report = plugins.install(f) if args.action == "install" else plugins.uninstall(f)
     if args.action == "install" and args.profile:
-        report.lines += plugins.install_profile(f).lines
+        report.lines += plugins.install_profile(f, plugins.tshark_version(args.tshark)).lines
     elif args.action == "uninstall":
         report.lines += plugins.uninstall_profile(f).lines
     if args.json:

@@ -69,6 +69,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     out = p.add_argument_group("output")
     add_json_option(out, "one line per frame (instead of the view)")
     add_quiet_option(out)
+    out.add_argument("--outages", action="store_true",
+                     help="with --json: each outage of a link as a line of its own (kind: outage, as export --outages "
+                     "writes it) before the frame that ends it; with a CAPTURE the open ones at its end")
     out.add_argument("--foxglove", action="store_true", help="serve the stream over the Foxglove WebSocket protocol")
     out.add_argument("--foxglove-port", type=int, default=8765, metavar="PORT", help="its port (default 8765; 0: any free)")
     out.add_argument("--foxglove-host", default="127.0.0.1", metavar="ADDR", help="its address (default 127.0.0.1)")
@@ -157,6 +160,8 @@ def _run(args: argparse.Namespace) -> int:
     from sharedlink.watch import JsonLines, WatchStats, run_watch, served
 
     variables, sync = decode_options(args)
+    if args.outages and not args.json:
+        raise UsageError("--outages: outage lines are written with --json (the view shows each link's outages)")
     if args.foxglove:  # before the source opens
         require("foxglove", "sharedlink watch --foxglove")
     source = _source(args)
@@ -171,9 +176,10 @@ def _run(args: argparse.Namespace) -> int:
             from sharedlink.analysis.foxglove_health import LiveQuality
 
             server, channels = _foxglove(args)
+            quality = LiveQuality(channels)  # a link_quality channel per link, each second once ended
+            outputs.append(served(quality.gap, stats))  # (an outage's gap before the frame that ends it)
             outputs.append(served(channels.frame, stats))
             sessions.append(served(channels.session, stats))
-            quality = LiveQuality(channels)  # a link_quality channel per link, each second once ended
             outputs.append(served(quality.frame, stats))
             tick = quality.tick
         if not args.quiet:  # what is watched (the Foxglove server's address is always said)
@@ -186,12 +192,15 @@ def _run(args: argparse.Namespace) -> int:
                 def emit(d: Decoded) -> None:
                     write(line(d, stats.dropped) + "\n")
 
+                feed = _outage_lines(outputs, write) if args.outages else None
                 outputs.append(emit)
                 from sharedlink.analysis.robot_export import RobotJsonl
 
                 robot = RobotJsonl([], lambda: None)  # P2OS, blackboard: export's lines
                 sessions.append(lambda m: write(robot.fast_line(m) or robot.line(m)))
                 run_watch(source, decoder, outputs, tick=tick, out=out, stats=stats, session_outputs=sessions)
+                if feed is not None:  # (the capture ended: its open outages)
+                    feed()
             return _damage(source)
         _live(source, decoder, outputs, sync, sessions, stats, tick)
         return _damage(source)
@@ -201,6 +210,27 @@ def _run(args: argparse.Namespace) -> int:
         source.close()
         if stats.summary():  # also after Ctrl-C: what the view or the lines could not show
             print(f"sharedlink watch: {stats.summary()}", file=sys.stderr, flush=True)
+
+
+def _outage_lines(outputs: list, write: Any) -> Any:
+    """An output, before the frame lines, writing the outages each frame ends (export's rows);
+    returns what writes the open ones (at a capture's end)."""
+    import json
+
+    from sharedlink.analysis.health import OutageFeed, outage_row
+
+    feed = OutageFeed()
+
+    def outages(d: Decoded) -> None:
+        for o in feed.feed(d):
+            write(json.dumps(outage_row(o)) + "\n")
+
+    def finish() -> None:
+        for o in feed.finish():
+            write(json.dumps(outage_row(o)) + "\n")
+
+    outputs.append(outages)
+    return finish
 
 
 def _damage(source: Any) -> int:
