@@ -22,7 +22,9 @@
 --  * SharedLink: a frame runs from the last "[" before a "]" to that "]", and takes a CR LF
 --    after it; a "[...]" that is not a frame (no ":DS" header) is noise. A frame whose "]"
 --    is the last byte seen (or "]" CR) waits for the next bytes (its CR LF).
---  * P2OS: FA FB, count, count bytes; a count below 2 is noise; a truncated packet waits.
+--  * P2OS: FA FB, count, count bytes; a count below 2 is noise; a truncated packet waits; a
+--    header cut off before a packet is noise up to the next FA FB inside its claimed span that
+--    starts a whole packet with a good checksum (p2os_resync_at).
 --  * Blackboard: ":" or ";" (the last one before the CR), hex digits, CR, and an LF if it
 --    came with the CR (a message does not wait for one); text that does not parse is noise.
 --    A slave's binary answers (not in the Python reader, to which they are noise): a good
@@ -280,6 +282,34 @@ local function p2os_checksum(s, a, len)
     return c
 end
 
+-- whether a whole packet with a good checksum starts at h (an FA FB there)
+local function p2os_good_at(s, h)
+    local n = #s
+    if h + 2 > n then return false end
+    local count = s_byte(s, h + 2)
+    if count < 2 or h + 2 + count > n then return false end
+    local plen = count - 2
+    return p2os_checksum(s, h + 3, plen) == s_byte(s, h + 3 + plen) * 256 + s_byte(s, h + 4 + plen)
+end
+
+-- A header cut off before a packet (its FA read as a count of 250 would swallow the packets
+-- after it): when the packet at h is not whole and good, the first FA FB inside the span its
+-- count claims that starts a whole good packet, or nil; "wait" (not final) when an FA FB before
+-- any such one starts a packet not all there yet. The rule of p2os.lua resync_at and the
+-- Python p2os.resync_at (tests/dissector/test_p2os_cut_header.py).
+local function p2os_resync_at(s, h, final)
+    if p2os_good_at(s, h) then return nil end
+    local n = #s
+    local stop = h + 2 + s_byte(s, h + 2)
+    local k = s_find(s, "\250\251", h + 1, true)
+    while k and k + 1 <= stop do
+        if not final and (k + 2 > n or k + 2 + s_byte(s, k + 2) > n) then return "wait" end
+        if p2os_good_at(s, k) then return k end
+        k = s_find(s, "\250\251", k + 1, true)
+    end
+    return nil
+end
+
 local function scan_p2os(s, final)
     local n = #s
     local pieces = {}
@@ -292,8 +322,14 @@ local function scan_p2os(s, final)
             break
         end
         local count = s_byte(s, h + 2)
+        local k = count >= 2 and p2os_resync_at(s, h, final)
         if count < 2 then
             pos = h + 3
+        elseif k == "wait" then
+            hold = h
+            break
+        elseif k then
+            pos = k -- (h .. k - 1 stays noise)
         else
             local e = h + 2 + count
             if e > n then
