@@ -451,20 +451,51 @@ local function bb_answer_good(s, e, at)
     return sum % 256 == 0
 end
 
+-- where an unfinished text message that may still complete starts: the ":" or ";" before the
+-- hex digits that run to the end of s (no CR yet), or nil
+local function text_prefix_start(s)
+    local i = #s
+    while i >= 1 and is_hex(s_byte(s, i)) do
+        i = i - 1
+    end
+    local c = i >= 1 and s_byte(s, i)
+    if c == B_COLON or c == B_SEMI then return i end
+    return nil
+end
+
 -- blackboard direction: the expected answer (held until all its bytes are in) is a frame;
--- text and noise before and after it as scan_blackboard finds them
+-- text and noise before and after it as scan_blackboard finds them. Text wins: bytes where the
+-- answer would be that belong to a whole text message are that message (the Python reader
+-- frames text only; e.g. the first message of the direction that starts second), and a wrong
+-- answer that may still become one (":" or ";" and hex digits so far) waits for more bytes.
 local function scan_bb_stream(st, s)
     local e = st.expect
     if not e then return scan_blackboard(s, false) end
     local n = #s
     local at = e.at
     if at > n + 1 then at = n + 1 end
-    local pieces = {}
-    if at > 1 then
-        pieces = scan_blackboard(s_sub(s, 1, at - 1), true)
+    local last = at + e.len - 1
+    local text, text_hold, text_over = scan_blackboard(s, false)
+    for _, p in ipairs(text) do
+        if p[3] and p[1] <= last and p[1] + p[2] - 1 >= at then
+            st.expect = nil
+            return text, text_hold, text_over
+        end
     end
-    if n - at + 1 < e.len then
-        return pieces, at
+    local wait = n < last
+    local from = at
+    if wait or not bb_answer_good(s, e, at) then
+        local p = text_prefix_start(s)
+        if p and p <= last and (p < at or not wait) then
+            wait, from = true, p < at and p or at
+        end
+    end
+    local pieces = {}
+    if from > 1 then
+        pieces = scan_blackboard(s_sub(s, 1, from - 1), true)
+    end
+    if wait then
+        return pieces, from
     end
     add_piece(pieces, at, e.len, true)
     pieces[#pieces][4] = true -- an answer, not a message
