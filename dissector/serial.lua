@@ -143,13 +143,23 @@ slserial.prefs.max_held_bytes = Pref.uint("Max held bytes", MAX_HELD_DEFAULT,
 -- expect = see bb_expectation, append = whether the next bytes can be appended to the held ones
 -- without a scan (see can_append), run = the result the records appended since the last scan
 -- share (append_held), iface = the capture interface }
--- A stream is a direction (of one interface, by stream_key). The interface is always 0 here: the
--- documented wslua API gives a dissector no interface id but through a field extractor
--- (Field.new("frame.interface_id")), and any field extractor makes Wireshark build a tree for
--- every packet of every capture (tests/dissector/test_stats_tap.py's
--- test_the_tap_costs_nothing_until_asked). So two serial interfaces whose records interleave in
--- one pcapng share their streams in the dissector (the Python reader keys them apart): a known
--- limit, docs/serial-capture-format.md.
+-- A stream is a direction of one interface (stream_key). The documented wslua API gives a
+-- dissector a record's interface only through a field extractor (Pinfo has no interface on
+-- 4.0-4.6; Field.new is refused once dissection has begun, so it cannot be made on the first
+-- serial record), and any field extractor makes Wireshark build a tree for every packet of
+-- every capture (tests/dissector/test_stats_tap.py's test_the_tap_costs_nothing_until_asked;
+-- +45 % CPU on a summary pass). So it is made on request only: SHAREDLINK_SERIAL_INTERFACES=1 in
+-- the environment Wireshark starts from (read at load, the only time Field.new is allowed).
+-- Without it the interface is 0 for every record: two serial interfaces whose records interleave
+-- in one pcapng share their streams (a known limit, docs/serial-capture-format.md).
+local interface_field = os.getenv("SHAREDLINK_SERIAL_INTERFACES") == "1" and Field.new("frame.interface_id") or nil
+
+local function record_interface()
+    if not interface_field then return 0 end
+    local fi = interface_field()
+    return fi and tonumber(fi.value) or 0
+end
+
 local dirs = {}
 local results = {}  -- [record number] = result table (see first_pass; shared by a run of held records)
 
@@ -810,9 +820,9 @@ end
 
 local function first_pass_result(tvb, pinfo, n, dir)
     local num = pinfo.number
-    local iface = 0  -- (see dirs)
     local res = results[num]
     if res then return res end
+    local iface = record_interface()
     if pinfo.visited then
         -- a record the first pass never saw (should not happen): dissect it alone
         local saved = dirs
