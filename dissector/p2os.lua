@@ -263,10 +263,12 @@ end
 -- when an FA FB before any such one starts a packet not all there yet. The rule of serial.lua
 -- p2os_resync_at and the Python p2os.resync_at (tests/dissector/test_p2os_cut_header.py).
 local function resync_at(tvb, h, n, can_more)
-    if h + 3 > n or good_at(tvb, h, n) then return nil end
+    if h + 3 > n then return nil end
     local stop = h + 3 + u8(tvb, h + 2)
     if stop > n then stop = n end
     local k = find_header(tvb, h + 1, stop)
+    -- (no FA FB inside: nothing to resynchronise on, the checksum not needed)
+    if not k or good_at(tvb, h, n) then return nil end
     while k do
         if can_more and (k + 3 > n or k + 3 + u8(tvb, k + 2) > n) then return "wait" end
         if good_at(tvb, k, n) then return k end

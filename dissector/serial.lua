@@ -308,10 +308,11 @@ end
 -- any such one starts a packet not all there yet. The rule of p2os.lua resync_at and the
 -- Python p2os.resync_at (tests/dissector/test_p2os_cut_header.py).
 local function p2os_resync_at(s, h, final)
-    if p2os_good_at(s, h) then return nil end
     local n = #s
     local stop = h + 2 + s_byte(s, h + 2)
     local k = s_find(s, "\250\251", h + 1, true)
+    -- (no FA FB inside: nothing to resynchronise on, the checksum not needed)
+    if not k or k + 1 > stop or p2os_good_at(s, h) then return nil end
     while k and k + 1 <= stop do
         if not final and (k + 2 > n or k + 2 + s_byte(s, k + 2) > n) then return "wait" end
         if p2os_good_at(s, k) then return k end

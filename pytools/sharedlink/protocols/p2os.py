@@ -220,10 +220,12 @@ def resync_at(buf: bytes, h: int, final: bool = True) -> int:
     ``final``) when an FA FB before any such one starts a packet not all there yet (more bytes
     decide). p2os.lua and serial.lua apply the same rule."""
     n = len(buf)
-    if h + 3 > n or _good_at(buf, h):
+    if h + 3 > n:
         return -1
     stop = min(h + 3 + buf[h + 2], n)
     k = buf.find(HEADER, h + 1, stop)
+    if k < 0 or _good_at(buf, h):  # no FA FB inside: the checksum is not needed
+        return -1
     while k >= 0:
         if not final and (k + 3 > n or k + 3 + buf[k + 2] > n):
             return -2
