@@ -7,9 +7,10 @@
 -- into pinfo.p2p_dir).
 --
 -- Each direction (of each interface with SHAREDLINK_SERIAL_INTERFACES=1: see dirs) is a byte
--- stream. On the first pass the stream is cut into frames (and the noise between them) by the protocol's framing rules; a frame split across records is held
--- back until its last byte arrives and shown in that record as a reassembled data source
--- with links to the records it came from. The bytes completed in a record are handed, in one
+-- stream. On the first pass the stream is cut into frames (and the noise between them) by
+-- the protocol's framing rules; a frame split across records is held back until its last
+-- byte arrives and shown in that record as a reassembled data source with links to the
+-- records it came from. The bytes completed in a record are handed, in one
 -- call, to the protocol's own dissector by name (Dissector.get("sharedlink" / "p2os" /
 -- "blackboard"), looked up at dissection time); when that dissector is not loaded the bytes
 -- are shown as data.
