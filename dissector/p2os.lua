@@ -249,6 +249,34 @@ local function find_header(tvb, off, n)
     return nil
 end
 
+-- whether a whole packet with a good checksum starts at h (an FA FB there)
+local function good_at(tvb, h, n)
+    if h + 3 > n then return false end
+    local count = u8(tvb, h + 2)
+    if count < 2 or h + 3 + count > n then return false end
+    return p2os_checksum(tvb, h + 3, count - 2) == tvb:range(h + 1 + count, 2):uint()
+end
+
+-- A header cut off before a packet (its FA read as a count of 250 would swallow the packets
+-- after it): when the packet at h is not whole and good, the first FA FB inside the span its
+-- count claims that starts a whole good packet, or nil; "wait" (when more bytes can come)
+-- when an FA FB before any such one starts a packet not all there yet. The rule of serial.lua
+-- p2os_resync_at and the Python p2os.resync_at (tests/dissector/test_p2os_cut_header.py).
+local function resync_at(tvb, h, n, can_more)
+    if h + 3 > n then return nil end
+    local stop = h + 3 + u8(tvb, h + 2)
+    if stop > n then stop = n end
+    local k = find_header(tvb, h + 1, stop)
+    -- (no FA FB inside: nothing to resynchronise on, the checksum not needed)
+    if not k or good_at(tvb, h, n) then return nil end
+    while k do
+        if can_more and (k + 3 > n or k + 3 + u8(tvb, k + 2) > n) then return "wait" end
+        if good_at(tvb, k, n) then return k end
+        k = find_header(tvb, k + 1, stop)
+    end
+    return nil
+end
+
 local function to_signed16(v)
     if v >= 32768 then
         return v - 65536
@@ -693,6 +721,22 @@ local function info_text(infos, dirs)
     return table.concat(parts, "; ")
 end
 
+-- a header cut off before a packet at h (resync_at): junk up to the packet, and where to go
+-- on; "more" after asking TCP for more bytes; nil when h is no such header
+local function skip_cut_header(tvb, pinfo, tree, h, n, can_more, infos)
+    if h + 3 > n or u8(tvb, h + 2) < 2 then return nil end
+    local k = resync_at(tvb, h, n, can_more)
+    if k == "wait" then
+        pinfo.desegment_offset = h
+        pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
+        return "more"
+    elseif k then
+        tree:add(pf.junk, tvb:range(h, k - h)):add_proto_expert_info(ex.junk)
+        infos[#infos + 1] = "junk"
+    end
+    return k
+end
+
 -- whole buffer: packets and the bytes between them. Returns bytes consumed, or the buffer
 -- length after asking TCP for more.
 local function dissect_buffer(tvb, pinfo, tree)
@@ -726,7 +770,12 @@ local function dissect_buffer(tvb, pinfo, tree)
             tree:add(pf.junk, tvb:range(off, h - off)):add_proto_expert_info(ex.junk)
             infos[#infos + 1] = "junk"
         end
-        if h + 3 > n or h + 3 + u8(tvb, h + 2) > n then
+        local k = skip_cut_header(tvb, pinfo, tree, h, n, can_more, infos)
+        if k == "more" then
+            break
+        elseif k then
+            off = k
+        elseif h + 3 > n or h + 3 + u8(tvb, h + 2) > n then
             local need = 1
             if h + 3 <= n then
                 need = h + 3 + u8(tvb, h + 2) - n
@@ -749,15 +798,14 @@ local function dissect_buffer(tvb, pinfo, tree)
             t:add_proto_expert_info(ex.truncated)   -- (its byte count: p2os.count)
             infos[#infos + 1] = "truncated packet"
             break
-        end
-        local count = u8(tvb, h + 2)
-        if count < 2 then
+        elseif u8(tvb, h + 2) < 2 then
             local t = tree:add(p2os, tvb:range(h, 3))
             t:add(pf.header, tvb:range(h, 2))
             t:add(pf.count, tvb:range(h + 2, 1)):add_proto_expert_info(ex.count_small)
             infos[#infos + 1] = "bad count"
             off = h + 3
         else
+            local count = u8(tvb, h + 2)
             infos[#infos + 1], dirs[#infos + 1] = dissect_one(tvb, pinfo, tree, h, count)
             off = h + 3 + count
         end

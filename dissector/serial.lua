@@ -6,10 +6,11 @@
 -- from the line, the direction in the EPB flags (inbound / outbound; Wireshark turns them
 -- into pinfo.p2p_dir).
 --
--- Each direction of each interface is a byte stream. On the first pass the stream is cut into frames (and the
--- noise between them) by the protocol's framing rules; a frame split across records is held
--- back until its last byte arrives and shown in that record as a reassembled data source
--- with links to the records it came from. The bytes completed in a record are handed, in one
+-- Each direction (of each interface with SHAREDLINK_SERIAL_INTERFACES=1: see dirs) is a byte
+-- stream. On the first pass the stream is cut into frames (and the noise between them) by
+-- the protocol's framing rules; a frame split across records is held back until its last
+-- byte arrives and shown in that record as a reassembled data source with links to the
+-- records it came from. The bytes completed in a record are handed, in one
 -- call, to the protocol's own dissector by name (Dissector.get("sharedlink" / "p2os" /
 -- "blackboard"), looked up at dissection time); when that dissector is not loaded the bytes
 -- are shown as data.
@@ -22,7 +23,9 @@
 --  * SharedLink: a frame runs from the last "[" before a "]" to that "]", and takes a CR LF
 --    after it; a "[...]" that is not a frame (no ":DS" header) is noise. A frame whose "]"
 --    is the last byte seen (or "]" CR) waits for the next bytes (its CR LF).
---  * P2OS: FA FB, count, count bytes; a count below 2 is noise; a truncated packet waits.
+--  * P2OS: FA FB, count, count bytes; a count below 2 is noise; a truncated packet waits; a
+--    header cut off before a packet is noise up to the next FA FB inside its claimed span that
+--    starts a whole packet with a good checksum (p2os_resync_at).
 --  * Blackboard: ":" or ";" (the last one before the CR), hex digits, CR, and an LF if it
 --    came with the CR (a message does not wait for one); text that does not parse is noise.
 --    A slave's binary answers (not in the Python reader, to which they are noise): a good
@@ -141,13 +144,23 @@ slserial.prefs.max_held_bytes = Pref.uint("Max held bytes", MAX_HELD_DEFAULT,
 -- expect = see bb_expectation, append = whether the next bytes can be appended to the held ones
 -- without a scan (see can_append), run = the result the records appended since the last scan
 -- share (append_held), iface = the capture interface }
--- A stream is a direction (of one interface, by stream_key). The interface is always 0 here: the
--- documented wslua API gives a dissector no interface id but through a field extractor
--- (Field.new("frame.interface_id")), and any field extractor makes Wireshark build a tree for
--- every packet of every capture (tests/dissector/test_stats_tap.py's
--- test_the_tap_costs_nothing_until_asked). So two serial interfaces whose records interleave in
--- one pcapng share their streams in the dissector (the Python reader keys them apart): a known
--- limit, docs/serial-capture-format.md.
+-- A stream is a direction of one interface (stream_key). The documented wslua API gives a
+-- dissector a record's interface only through a field extractor (Pinfo has no interface on
+-- 4.0-4.6; Field.new is refused once dissection has begun, so it cannot be made on the first
+-- serial record), and any field extractor makes Wireshark build a tree for every packet of
+-- every capture (tests/dissector/test_stats_tap.py's test_the_tap_costs_nothing_until_asked;
+-- +45 % CPU on a summary pass). So it is made on request only: SHAREDLINK_SERIAL_INTERFACES=1 in
+-- the environment Wireshark starts from (read at load, the only time Field.new is allowed).
+-- Without it the interface is 0 for every record: two serial interfaces whose records interleave
+-- in one pcapng share their streams (a known limit, docs/serial-capture-format.md).
+local interface_field = os.getenv("SHAREDLINK_SERIAL_INTERFACES") == "1" and Field.new("frame.interface_id") or nil
+
+local function record_interface()
+    if not interface_field then return 0 end
+    local fi = interface_field()
+    return fi and tonumber(fi.value) or 0
+end
+
 local dirs = {}
 local results = {}  -- [record number] = result table (see first_pass; shared by a run of held records)
 
@@ -280,6 +293,35 @@ local function p2os_checksum(s, a, len)
     return c
 end
 
+-- whether a whole packet with a good checksum starts at h (an FA FB there)
+local function p2os_good_at(s, h)
+    local n = #s
+    if h + 2 > n then return false end
+    local count = s_byte(s, h + 2)
+    if count < 2 or h + 2 + count > n then return false end
+    local plen = count - 2
+    return p2os_checksum(s, h + 3, plen) == s_byte(s, h + 3 + plen) * 256 + s_byte(s, h + 4 + plen)
+end
+
+-- A header cut off before a packet (its FA read as a count of 250 would swallow the packets
+-- after it): when the packet at h is not whole and good, the first FA FB inside the span its
+-- count claims that starts a whole good packet, or nil; "wait" (not final) when an FA FB before
+-- any such one starts a packet not all there yet. The rule of p2os.lua resync_at and the
+-- Python p2os.resync_at (tests/dissector/test_p2os_cut_header.py).
+local function p2os_resync_at(s, h, final)
+    local n = #s
+    local stop = h + 2 + s_byte(s, h + 2)
+    local k = s_find(s, "\250\251", h + 1, true)
+    -- (no FA FB inside: nothing to resynchronise on, the checksum not needed)
+    if not k or k + 1 > stop or p2os_good_at(s, h) then return nil end
+    while k and k + 1 <= stop do
+        if not final and (k + 2 > n or k + 2 + s_byte(s, k + 2) > n) then return "wait" end
+        if p2os_good_at(s, k) then return k end
+        k = s_find(s, "\250\251", k + 1, true)
+    end
+    return nil
+end
+
 local function scan_p2os(s, final)
     local n = #s
     local pieces = {}
@@ -292,8 +334,14 @@ local function scan_p2os(s, final)
             break
         end
         local count = s_byte(s, h + 2)
+        local k = count >= 2 and p2os_resync_at(s, h, final)
         if count < 2 then
             pos = h + 3
+        elseif k == "wait" then
+            hold = h
+            break
+        elseif k then
+            pos = k -- (h .. k - 1 stays noise)
         else
             local e = h + 2 + count
             if e > n then
@@ -415,20 +463,51 @@ local function bb_answer_good(s, e, at)
     return sum % 256 == 0
 end
 
+-- where an unfinished text message that may still complete starts: the ":" or ";" before the
+-- hex digits that run to the end of s (no CR yet), or nil
+local function text_prefix_start(s)
+    local i = #s
+    while i >= 1 and is_hex(s_byte(s, i)) do
+        i = i - 1
+    end
+    local c = i >= 1 and s_byte(s, i)
+    if c == B_COLON or c == B_SEMI then return i end
+    return nil
+end
+
 -- blackboard direction: the expected answer (held until all its bytes are in) is a frame;
--- text and noise before and after it as scan_blackboard finds them
+-- text and noise before and after it as scan_blackboard finds them. Text wins: bytes where the
+-- answer would be that belong to a whole text message are that message (the Python reader
+-- frames text only; e.g. the first message of the direction that starts second), and a wrong
+-- answer that may still become one (":" or ";" and hex digits so far) waits for more bytes.
 local function scan_bb_stream(st, s)
     local e = st.expect
     if not e then return scan_blackboard(s, false) end
     local n = #s
     local at = e.at
     if at > n + 1 then at = n + 1 end
-    local pieces = {}
-    if at > 1 then
-        pieces = scan_blackboard(s_sub(s, 1, at - 1), true)
+    local last = at + e.len - 1
+    local text, text_hold, text_over = scan_blackboard(s, false)
+    for _, p in ipairs(text) do
+        if p[3] and p[1] <= last and p[1] + p[2] - 1 >= at then
+            st.expect = nil
+            return text, text_hold, text_over
+        end
     end
-    if n - at + 1 < e.len then
-        return pieces, at
+    local wait = n < last
+    local from = at
+    if wait or not bb_answer_good(s, e, at) then
+        local p = text_prefix_start(s)
+        if p and p <= last and (p < at or not wait) then
+            wait, from = true, p < at and p or at
+        end
+    end
+    local pieces = {}
+    if from > 1 then
+        pieces = scan_blackboard(s_sub(s, 1, from - 1), true)
+    end
+    if wait then
+        return pieces, from
     end
     add_piece(pieces, at, e.len, true)
     pieces[#pieces][4] = true -- an answer, not a message
@@ -602,20 +681,24 @@ local function region_result(st, s, dir, num, pieces, hold, prefix_len)
     local region_len = hold - 1
     local res = {
         dir = dir, proto = st.proto, pieces = pieces, region_len = region_len,
-        prefix_len = prefix_len, held_from = region_len > prefix_len and region_len - prefix_len or 0,
+        held_from = region_len > prefix_len and region_len - prefix_len or 0,
     }
     if prefix_len > 0 and region_len > 0 then
         res.region = s_sub(s, 1, region_len)
-        -- record number, offset in the region, length of each record's share (3 entries a record)
-        local frags, nf, count = {}, 0, 0
+        -- each record's share, in order (the shares are contiguous from the region's start), as
+        -- the subtree's text lists them: "#12(26), #13(18), #14(8)" (a string: about 8 bytes a
+        -- record, where a table of numbers took 110 with frames sent a byte a record). A record
+        -- whose first bytes completed an earlier region shares from the region's start.
+        local list, count = {}, 0
         for _, r in ipairs(st.recs) do
             if r[2] <= region_len then
+                local first = r[2] > 1 and r[2] or 1
                 local last = r[3] < region_len and r[3] or region_len
-                frags[nf + 1], frags[nf + 2], frags[nf + 3] = r[1], r[2] - 1, last - r[2] + 1
-                nf, count = nf + 3, count + 1
+                count = count + 1
+                list[count] = "#" .. r[1] .. "(" .. (last - first + 1) .. ")"
             end
         end
-        res.frags, res.nfrags = frags, count
+        res.frags, res.nfrags = table.concat(list, ", "), count
     end
     -- records whose held bytes complete here learn where
     if region_len > 0 then
@@ -661,7 +744,7 @@ local function first_pass(raw, dir, num, iface)
     local pieces, hold, over = scan_direction(st, s, n, dir)
     local run = st.run
     res = region_result(st, s, dir, num, pieces, hold, prefix_len)
-    res.over = over
+    if over then res.over = true end -- (set only then: a result of 8 fields has a hash of 8)
     keep_tail(st, s, hold)
     if hold == 1 and not over then
         -- nothing completed, every byte held: the record joins the run of held records (their
@@ -695,17 +778,17 @@ end
 -- #12(26), #13(18), #14(8)]", a "[Frame: N, payload: a-b (n bytes)]" row per record, the
 -- count and the length
 local function add_fragments(t, rtvb, res)
-    local list, frags, count = {}, res.frags, res.nfrags
-    for i = 1, count do list[i] = "#" .. frags[3 * i - 2] .. "(" .. frags[3 * i] .. ")" end
+    local count = res.nfrags
     local ft = t:add(hf.fragments, rtvb:range(0, res.region_len))
     ft:set_generated()
-    ft:set_text(count .. " Reassembled fragments (" .. plural(res.region_len, "byte") .. "): "
-        .. table.concat(list, ", "))
-    for i = 1, count do
-        local num, off, len = frags[3 * i - 2], frags[3 * i - 1], frags[3 * i]
+    ft:set_text(count .. " Reassembled fragments (" .. plural(res.region_len, "byte") .. "): " .. res.frags)
+    local off = 0
+    for num, len in string.gmatch(res.frags, "#(%d+)%((%d+)%)") do
+        num, len = tonumber(num), tonumber(len)
         local fi = ft:add(hf.fragment, rtvb:range(off, len), num)
         fi:set_generated()
         fi:append_text(", payload: " .. off .. "-" .. (off + len - 1) .. " (" .. plural(len, "byte") .. ")")
+        off = off + len
     end
     ft:add(hf.fragment_count, count):set_generated()
     ft:add(hf.reassembled_length, res.region_len):set_generated()
@@ -743,9 +826,9 @@ end
 
 local function first_pass_result(tvb, pinfo, n, dir)
     local num = pinfo.number
-    local iface = 0  -- (see dirs)
     local res = results[num]
     if res then return res end
+    local iface = record_interface()
     if pinfo.visited then
         -- a record the first pass never saw (should not happen): dissect it alone
         local saved = dirs

@@ -67,6 +67,7 @@ def _clean_env() -> dict[str, str]:
     env["XDG_CONFIG_HOME"] = str(_config_dir)
     env["HOME"] = str(_config_dir)
     env.pop("WIRESHARK_RUN_FROM_BUILD_DIRECTORY", None)
+    env.pop("SHAREDLINK_SERIAL_INTERFACES", None)  # serial.lua's opt-in field extractor: tests ask for it
     env["LC_ALL"] = "C.UTF-8"
     return env
 

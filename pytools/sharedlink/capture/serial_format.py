@@ -156,7 +156,7 @@ def scan_p2os(buf: bytes, final: bool) -> tuple[list[tuple[int, int, Decoded | N
     out: list[tuple[int, int, Decoded | None, str]] = []
     n = len(buf)
     hold = n
-    for c in p2os.iter_chunks(buf):
+    for c in p2os.iter_chunks(buf, final):
         if not final and c.packet is None and c.reason.startswith("truncated") and n - c.offset <= MAX_HELD_BYTES:
             hold = c.offset
             break

@@ -203,9 +203,43 @@ class Chunk:
     reason: str = ""
 
 
-def iter_chunks(buf: bytes) -> Iterator[Chunk]:
+def _good_at(buf: bytes, h: int) -> bool:
+    """Whether a whole packet with a good checksum starts at ``h`` (an FA FB there)."""
+    n = len(buf)
+    if h + 3 > n or buf[h + 2] < 2 or h + 3 + buf[h + 2] > n:
+        return False
+    end = h + 3 + buf[h + 2]
+    return checksum(buf[h + 3 : end - 2]) == int.from_bytes(buf[end - 2 : end], "big")
+
+
+def resync_at(buf: bytes, h: int, final: bool = True) -> int:
+    """Where a cut-off header at ``h`` ends: the first FA FB inside the span its count claims
+    that starts a whole packet with a good checksum, when the packet at ``h`` is not itself
+    whole and good (``FA FB`` cut off before a packet reads its header's FA as a count of 250
+    and would swallow the packets after it); -1 when there is none; -2 (only when not
+    ``final``) when an FA FB before any such one starts a packet not all there yet (more bytes
+    decide). p2os.lua and serial.lua apply the same rule."""
+    n = len(buf)
+    if h + 3 > n:
+        return -1
+    stop = min(h + 3 + buf[h + 2], n)
+    k = buf.find(HEADER, h + 1, stop)
+    if k < 0 or _good_at(buf, h):  # no FA FB inside: the checksum is not needed
+        return -1
+    while k >= 0:
+        if not final and (k + 3 > n or k + 3 + buf[k + 2] > n):
+            return -2
+        if _good_at(buf, k):
+            return k
+        k = buf.find(HEADER, k + 1, stop)
+    return -1
+
+
+def iter_chunks(buf: bytes, final: bool = True) -> Iterator[Chunk]:
     """Split a byte stream into packets and the bytes between them; nothing is lost: the
-    chunks' data concatenated is ``buf``. A truncated last packet comes out as noise."""
+    chunks' data concatenated is ``buf``. A truncated last packet comes out as noise; a header
+    cut off before a packet (:func:`resync_at`) too. Not ``final`` (more bytes may follow): a
+    packet whose cut-off header only more bytes can tell comes out as truncated."""
     buf = bytes(buf)
     n = len(buf)
     i = 0
@@ -223,6 +257,14 @@ def iter_chunks(buf: bytes) -> Iterator[Chunk]:
         if count < 2:
             yield Chunk(h, buf[h : h + 3], None, f"count {count} leaves no room for the checksum")
             i = h + 3
+            continue
+        k = resync_at(buf, h, final)
+        if k == -2:
+            yield Chunk(h, buf[h:], None, "truncated: a packet inside it not all there yet")
+            return
+        if k > 0:
+            yield Chunk(h, buf[h:k], None, "a header cut off before a packet")
+            i = k
             continue
         end = h + 3 + count
         if end > n:
