@@ -38,11 +38,17 @@ class _Session:
 class RobotView:
     """The robot panel of ``watch`` (see the module doc)."""
 
-    def __init__(self) -> None:
+    def __init__(self, outage_after: float | None = None) -> None:
+        from sharedlink.analysis.health import Health
+
         self.rows = RobotRows()
         self.sessions: dict[int, _Session] = {}
+        self.health = Health(outage_after)  # the robot links' health (analysis/robot_health.py): LINK DOWN
 
     def update(self, m: SessionMessage) -> None:
+        from sharedlink.analysis.robot_health import feed_session
+
+        feed_session(self.health, m)
         row = self.rows.row(m)
         s = self.sessions.get(m.session)
         if s is None:
@@ -73,6 +79,23 @@ class RobotView:
             if s.protocol == "blackboard" and s.waiting:
                 out.append("  waiting for the slave's answer")
             out.append("  " + ", ".join(f"{k} {v}" for k, v in sorted(s.types.items())))
+            out += self.link_lines(s, now_ns)
+        return out
+
+    def link_lines(self, s: _Session, now_ns: int) -> list[str]:
+        """Link health of a session's paced links (the P2OS robot's SIPs, both blackboard sides):
+        learnt rate, outages, and while one lasts ``LINK DOWN`` and for how long."""
+        from sharedlink.analysis.health import live_down_s
+
+        out = []
+        conv = ("robot", s.protocol, s.label)
+        for (c, _side, _), h in sorted(self.health.links.items(), key=lambda kv: kv[1].pair):
+            if c != conv:
+                continue
+            down = live_down_s(h, now_ns, self.health.fixed_ns)
+            rate = h.rate_hz
+            line = f"  link {h.pair}: {'%.1f/s' % rate if rate else '-'} learnt, outages {len(h.outages) + (down is not None)}"
+            out.append(line + (f"  LINK DOWN {down:.1f} s" if down is not None else ""))
         return out
 
     def render(self, now_ns: int) -> Any:

@@ -182,6 +182,7 @@ class _Writer:
     def __init__(self, out: IO[str], opts: ExportOptions, columns: list[str]) -> None:
         self.out, self.opts, self.columns = out, opts, columns
         self.t0: int | None = None
+        self.robot_rows: Any = None  # the P2OS/blackboard rows beside these (robot_export.py)
 
     def base(self, d: Decoded) -> dict[str, Any]:
         if self.t0 is None:
@@ -614,7 +615,8 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
         if isinstance(writer, (_GeoJson, _Kml)):
             robots = writer.robots = RobotTrack()
         else:
-            robots = RobotJsonl(writer._held, writer.flush) if isinstance(writer, _Jsonl) else RobotCsv()
+            robots = RobotJsonl(writer._held, writer.flush) if isinstance(writer, _Jsonl) else RobotCsv(opts.outages)
+    writer.robot_rows = robots
     if opts.outages and type(writer) in (_Jsonl, _Csv):  # outage rows (kind: outage, link health)
         frames = _with_outages(itertools.chain([first] if first is not None else [], frames), writer, result)
         first = None
@@ -648,11 +650,16 @@ def _with_outages(frames: Iterator[Decoded], writer: _Jsonl | _Csv, result: Expo
     """The frames, an outage's row (analysis/health.py) written before the frame that ends it and
     the open ones at the end."""
     from sharedlink.analysis.health import OutageFeed, outage_row
+    from sharedlink.analysis.robot_health import session_outages
 
     feed = OutageFeed(writer.opts.outage_after)
     csv_ = isinstance(writer, _Csv)
+    robots = writer.robot_rows
     for d in frames:
-        if type(d) is SessionMessage:  # a P2OS/blackboard packet: no SharedLink link's frame
+        if type(d) is SessionMessage:  # a P2OS/blackboard packet: its robot link (analysis/robot_health.py)
+            for o in session_outages(feed, d):
+                _outage(writer, robots, o, d.number, csv_)
+                result.rows += 1
             yield d
             continue
         for o in feed.feed(d):
@@ -660,8 +667,18 @@ def _with_outages(frames: Iterator[Decoded], writer: _Jsonl | _Csv, result: Expo
             result.rows += 1
         yield d
     for o in feed.finish():
-        writer.outage(_csv_row(o, None) if csv_ else outage_row(o))
+        _outage(writer, robots, o, None, csv_)
         result.rows += 1
+
+
+def _outage(writer: _Jsonl | _Csv, robots: Any, o, number: int | None, csv_: bool) -> None:
+    """An outage's row: a robot link's in a CSV among the robot rows (their columns), else the writer's."""
+    from sharedlink.analysis.health import outage_row
+
+    if csv_ and isinstance(robots, RobotCsv) and o.link.partition(" ")[0] in ("p2os", "blackboard"):
+        robots.outage(o, number)
+    else:
+        writer.outage(_csv_row(o, number) if csv_ else outage_row(o))
 
 
 def _csv_row(o, number: int | None) -> dict:
