@@ -147,9 +147,11 @@ _jstr = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
 
 
 def _robot_rows(opts: ExportOptions) -> bool:
-    """Whether P2OS and blackboard packets are rows too (csv, jsonl: one row a frame, every column)
-    or an odometry track (geojson, kml without --changes)."""
-    return opts.fmt in ("csv", "jsonl", "geojson", "kml") and not opts.changes and opts.columns is None
+    """Whether P2OS and blackboard packets are rows too (csv, jsonl without --changes: one row a
+    frame, every column) or an odometry track (geojson, kml: a track keeps every point)."""
+    if opts.columns is not None:
+        return False
+    return opts.fmt in ("geojson", "kml") or (opts.fmt in ("csv", "jsonl") and not opts.changes)
 
 
 def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded | SessionMessage]:
@@ -487,6 +489,7 @@ class _GeoJson(_Jsonl):
         if pos is None:
             return 0
         lat, lon = pos
+        self.track.add(d.pair, lon, lat, d.ts_ns)  # the track keeps every point (--changes too; KML's the same)
         if self.opts.changes:
             rows = list(self.change_rows(d))
             if not rows:
@@ -497,7 +500,6 @@ class _GeoJson(_Jsonl):
             props = self.frame_row(d)
             props["values"] = self.values(d)
         self._feature({"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon, lat]}, "properties": props})
-        self.track.add(d.pair, lon, lat, d.ts_ns)
         return 1
 
     def close(self) -> None:
@@ -542,9 +544,7 @@ class _Kml(_Writer):
     def write(self, d: Decoded) -> int:
         if d.checksum_ok is False or d.kind not in _DATA_KINDS:
             return 0
-        if self.opts.changes and not any(u.name in (self.opts.lat, self.opts.lon) for u in d.changes()):
-            return 0
-        pos = _position(d, self.opts)
+        pos = _position(d, self.opts)  # (--changes too: the track keeps every point, as GeoJSON's)
         if pos is None:
             return 0
         self.track.add(d.pair, pos[1], pos[0], d.ts_ns)
