@@ -43,7 +43,7 @@ class RobotView:
 
         self.rows = RobotRows()
         self.sessions: dict[int, _Session] = {}
-        self.health = Health(outage_after)  # the robot links' health (analysis/robot_health.py): LINK DOWN
+        self.health = Health(outage_after, timeline=True)  # the robot links' health (robot_health.py): quality, LINK DOWN
 
     def update(self, m: SessionMessage) -> None:
         from sharedlink.analysis.robot_health import feed_session
@@ -84,17 +84,24 @@ class RobotView:
 
     def link_lines(self, s: _Session, now_ns: int) -> list[str]:
         """Link health of a session's paced links (the P2OS robot's SIPs, both blackboard sides):
-        learnt rate, outages, and while one lasts ``LINK DOWN`` and for how long."""
+        the link quality (its frames in the last whole second), learnt rate, outages, and while one
+        lasts ``LINK DOWN`` and for how long."""
         from sharedlink.analysis.health import live_down_s
 
         out = []
         conv = ("robot", s.protocol, s.label)
+        last = now_ns // NS - 1
         for (c, _side, _), h in sorted(self.health.links.items(), key=lambda kv: kv[1].pair):
             if c != conv:
                 continue
+            seconds = h.seconds or {}
+            if len(seconds) > 120:  # (the last minute is plenty)
+                for k in [k for k in seconds if k < last - 60]:
+                    del seconds[k]
             down = live_down_s(h, now_ns, self.health.fixed_ns)
             rate = h.rate_hz
-            line = f"  link {h.pair}: {'%.1f/s' % rate if rate else '-'} learnt, outages {len(h.outages) + (down is not None)}"
+            line = (f"  link {h.pair}: quality {seconds.get(last, 0)}/s, {'%.1f/s' % rate if rate else '-'} learnt, "
+                    f"outages {len(h.outages) + (down is not None)}")
             out.append(line + (f"  LINK DOWN {down:.1f} s" if down is not None else ""))
         return out
 

@@ -204,6 +204,10 @@ def test_watch_shows_the_outages(caps, name):
     lines = _panel(view, round((first + 1.5) * NS))  # (10 Hz links: the 1 s floor is their threshold)
     assert len(lines) == len(PAIRS[name.split("-")[0]]) and all("LINK DOWN" in x for x in lines), lines
     assert all("outages 1" in x for x in lines)
+    sec = int(first) - 1  # a whole second before the silence: Shepherd's quality, its frames
+    got = _panel(view, (sec + 1) * NS + NS // 2)
+    assert sum(int(re.search(r"quality (\d+)/s", x).group(1)) for x in got) == sum(
+        1 for m in msgs if m.side != "client" and m.ts_ns // NS == sec) > 5
     view = RobotView()
     for m in msgs:
         view.update(m)
