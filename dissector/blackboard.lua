@@ -61,6 +61,7 @@ local pf = {
     response_in = ProtoField.framenum("blackboard.response_in", "Answered in frame", base.NONE, frametype.RESPONSE),
     repeat_of = ProtoField.framenum("blackboard.repeat_of", "Repeat of frame", base.NONE, frametype.DUP_ACK),
     junk = ProtoField.bytes("blackboard.junk", "Bytes outside any message"),
+    outage_duration = ProtoField.double("blackboard.outage.duration", "Outage duration (s)"),
     -- the values of the expert infos, in fields of their own (issue 41: one summary a problem)
     non_hex = ProtoField.uint8("blackboard.non_hex.char", "Non-hex character", base.HEX),
     non_hex_count = ProtoField.uint32("blackboard.non_hex.count", "Non-hex characters in all", base.DEC),
@@ -101,6 +102,7 @@ local ex = {
     unanswered = ProtoExpert.new("blackboard.unanswered", "Request superseded before an answer",
         expert.group.SEQUENCE, expert.severity.NOTE),
     limit = ProtoExpert.new("blackboard.limit", "Limit exceeded", expert.group.PROTOCOL, expert.severity.WARN),
+    outage = ProtoExpert.new("blackboard.outage", "Link silent", expert.group.SEQUENCE, expert.severity.WARN),
 }
 local expert_list = {}
 for _, e in pairs(ex) do
@@ -348,7 +350,7 @@ local function add_fields(tvb, t, m)
         t:add(pf.data, dtvb:range(0, ndata))
     end
     local status, written = add_checksum(t, brange(#bytes, 1), bytes)
-    m.written, m.count = written, count
+    m.written, m.count, m.status = written, count, status
     local what = (m.kind == SET) and ("set " .. istr(ndata)) or ("request " .. istr(count))
     local summary = what .. " bytes at 0x" .. string.format("%04X", address) .. " node " .. istr(node)
     if status == 0 then
@@ -399,6 +401,22 @@ local function remember(tvb, pinfo, t, m, back)
     end
 end
 
+-- link health (issue 43 on blackboard links): each message (master) and answer (slave) goes to
+-- SharedLink's health module when sharedlink.lua is loaded (the definition is written once there:
+-- dissector/sharedlink/health.lua, H.robot); the first one after an outage gets the expert
+-- blackboard.outage and the generated blackboard.outage.duration.  Without sharedlink.lua: nothing.
+local function link_health(tvb, pinfo, t, off, side, status)
+    local health = package.loaded["sharedlink.health"]
+    if type(health) ~= "table" or not health.robot then return end
+    local gone = health.robot(pinfo, istr(off) .. "/" .. istr(tvb:len()), "blackboard", side, status)
+    if gone then
+        local ti = t:add(pf.outage_duration, gone)
+        ti:set_text(string.format("Link silent for %.2f s", gone))
+        ti:set_generated()
+        ti:add_proto_expert_info(ex.outage)
+    end
+end
+
 -- a text message at off (type character there); stop is the end of the buffer.
 -- Returns: bytes used and the summary, or nil when the CR is not there yet and more may come
 local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_limit)
@@ -432,6 +450,7 @@ local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_l
         return m.used, m.name .. " (malformed)"
     end
     local summary, good = add_fields(tvb, t, m)
+    link_health(tvb, pinfo, t, off, "master", m.status)
     -- conversation: a good message waits for its answer from the other side
     local _, back = keys(pinfo)
     m.hextext = m.ndig > 0 and tvb:range(off, 1 + m.ndig):string() or ""
@@ -478,6 +497,7 @@ local function dissect_binary(tvb, pinfo, tree, off, stop, rec, can_more)
             ai:add_proto_expert_info(ex.ack_bad)   -- (the set message: blackboard.request_in)
         end
         t:add(pf.checksum_status, tvb:range(off, 1), status):set_generated()
+        link_health(tvb, pinfo, t, off, "slave", status)
         summary = "ack 0x" .. hex2(a) .. ((status == 1) and "" or " [wrong]")
     else
         t:add(pf.type, tvb:range(off, n), "response")
@@ -507,6 +527,7 @@ local function dissect_binary(tvb, pinfo, tree, off, stop, rec, can_more)
             ci:add_proto_expert_info(ex.response_bad)   -- (blackboard.checksum and .calculated)
         end
         t:add(pf.checksum_status, cr, status):set_generated()
+        link_health(tvb, pinfo, t, off, "slave", status)
         summary = "response " .. istr(rec.count) .. " bytes" .. ((status == 1) and "" or " [bad checksum]")
     end
     add_request_link()

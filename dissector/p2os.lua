@@ -121,6 +121,7 @@ local pf = {
     enc_right = ProtoField.int32("p2os.encoder.right", "Right encoder", base.DEC),
     data = ProtoField.bytes("p2os.data", "Data"),
     junk = ProtoField.bytes("p2os.junk", "Bytes outside any packet"),
+    outage_duration = ProtoField.double("p2os.outage.duration", "Outage duration (s)"),
 }
 
 -- CONFIG packet: leading fields in ARIA's order (the rest shown raw)
@@ -181,6 +182,7 @@ local ex = {
     direction_guess = ProtoExpert.new("p2os.direction.guessed", "Direction guessed from the content",
         expert.group.SEQUENCE, expert.severity.CHAT),
     limit = ProtoExpert.new("p2os.limit", "Limit exceeded", expert.group.PROTOCOL, expert.severity.WARN),
+    outage = ProtoExpert.new("p2os.outage", "Link silent", expert.group.SEQUENCE, expert.severity.WARN),
 }
 local expert_list = {}
 for _, e in pairs(ex) do
@@ -644,6 +646,22 @@ local function note_sync2(pinfo, tree, key)
     end
 end
 
+-- link health (issue 43 on P2OS links): the robot's packets, its SIPs the heartbeat, go to
+-- SharedLink's health module when sharedlink.lua is loaded (the definition is written once there:
+-- dissector/sharedlink/health.lua, H.robot); the first packet after an outage gets the expert
+-- p2os.outage and the generated p2os.outage.duration.  Without sharedlink.lua: nothing.
+local function link_health(pinfo, pt, where, status)
+    local health = package.loaded["sharedlink.health"]
+    if type(health) ~= "table" or not health.robot then return end
+    local gone = health.robot(pinfo, where, "p2os", "robot", status)
+    if gone then
+        local ti = pt:add(pf.outage_duration, gone)
+        ti:set_text(string.format("Link silent for %.2f s", gone))
+        ti:set_generated()
+        ti:add_proto_expert_info(ex.outage)
+    end
+end
+
 local function dissect_one(tvb, pinfo, tree, h, count)
     local total = 3 + count
     local pt = tree:add(p2os, tvb:range(h, total))
@@ -700,6 +718,9 @@ local function dissect_one(tvb, pinfo, tree, h, count)
         summary = summary .. " [bad checksum]"
     end
     pt:add(pf.checksum_status, crange, status):set_generated()
+    if not client then
+        link_health(pinfo, pt, h .. "/" .. tvb:len(), status)
+    end
     if too_big then
         summary = summary .. " [count > 200]"
     end

@@ -23,7 +23,8 @@ if type(token) ~= "table" or token.sharedlink_module ~= true then return end
 
 local U, PG, TI = M.util, M.wsapi.PG, M.wsapi.TI
 local hf, ei, sl = M.fields.hf, M.fields.ei, M.proto
-local tostring, s_format, s_char, t_sort, floor = tostring, string.format, string.char, table.sort, math.floor
+local tostring, s_format, s_char, s_byte, t_sort, floor = tostring, string.format, string.char, string.byte, table.sort,
+    math.floor
 local ARROW = U.ARROW
 
 ------------------------------------------------------------------------------
@@ -44,6 +45,8 @@ sl.prefs.outage_after = Pref.string("Outage after (s)", "",
 local H = {}
 local links, order, marks, fixed, low, last_num, last_t, last_end
 local l_num, l_key   -- the current packet's address and port key (made once a packet)
+local r_num, r_label -- robot links (H.robot): the current packet's session label (made once a packet)
+local r_marks        -- [frame] = { [where] = the outage duration the robot packet at where ends }
 
 -- The threshold from the preference: a number of seconds above 0, else the learnt rule (nil); a
 -- text that is no such number is reported once and the learnt rule used.
@@ -60,8 +63,8 @@ local function read_threshold()
 end
 
 function H.reset()
-    links, order, marks = {}, {}, {}
-    last_num, last_t, last_end, l_num, l_key = nil, nil, nil, nil, nil
+    links, order, marks, r_marks = {}, {}, {}, {}
+    last_num, last_t, last_end, l_num, l_key, r_num, r_label = nil, nil, nil, nil, nil, nil, nil
     fixed = read_threshold()
     low = (fixed or FLOOR) + EPS   -- no interval at most this long is an outage
 end
@@ -87,10 +90,9 @@ end
 
 local function letter(b) return b and s_char(b) or "?" end
 
--- The link of a frame, by its key (and kept as its direction's d.hl when the state keeps one).
-local function link_of(pinfo, num, dstb, srcb, d)
-    local name = packet_key(pinfo, num)
-    local pair = letter(srcb) .. ">" .. letter(dstb)
+-- The link named name with pair, made on its first frame (past max_conversations links: the one
+-- link "(links past the limit)").
+local function link_named(name, pair)
     local key = name .. "\t" .. pair
     local L = links[key]
     if not L and #order >= M.prefs.LIM.max_conversations then   -- (as analysis/health.py's MAX_LINKS)
@@ -103,6 +105,12 @@ local function link_of(pinfo, num, dstb, srcb, d)
         links[key] = L
         order[#order + 1] = key
     end
+    return L
+end
+
+-- The link of a frame, by its key (and kept as its direction's d.hl when the state keeps one).
+local function link_of(pinfo, num, dstb, srcb, d)
+    local L = link_named(packet_key(pinfo, num), letter(srcb) .. ">" .. letter(dstb))
     if d then d.hl = L end
     return L
 end
@@ -213,6 +221,61 @@ function H.mark(tree, root, dur)
     elseif root then
         TI.add_proto_expert_info(root, ei.outage)
     end
+end
+
+------------------------------------------------------------------------------
+-- Robot links (issue 42; twin: analysis/robot_health.py): p2os.lua and blackboard.lua, plugins of
+-- their own, find this module as package.loaded["sharedlink.health"] (when sharedlink.lua is
+-- loaded) and give it each packet of a paced side: the P2OS robot's (its SIPs are P2OS's
+-- heartbeat; the client's commands keep no pace and are left out) and both blackboard sides.  A
+-- link is named as Python names it: the protocol and the session ("p2os tcp 10.0.0.1:8101 -
+-- 10.0.0.2:45678", the lower address and port first; "blackboard serial interface 0": serial.lua
+-- knows no other interface), its pair the side ("robot>client", "master>slave", "slave>master").
+------------------------------------------------------------------------------
+local OTHER_SIDE = { robot = "client", master = "slave", slave = "master" }
+local PT_TCP = 2   -- pinfo.port_type of a TCP segment (epan's port_type enum; 4.0 to 4.6)
+
+-- byte order, whatever the locale (Lua's < on strings is strcoll's)
+local function bytes_less(a, b)
+    for i = 1, math.min(#a, #b) do
+        local x, y = s_byte(a, i), s_byte(b, i)
+        if x ~= y then return x < y end
+    end
+    return #a < #b
+end
+
+local function istr(n) return tostring(floor(n)) end
+
+local function session_label(pinfo)
+    local sport, dport = pinfo.src_port, pinfo.dst_port
+    if sport == 0 and dport == 0 then return "serial interface 0" end
+    local a, b = tostring(pinfo.src), tostring(pinfo.dst)
+    if bytes_less(b, a) or (a == b and dport < sport) then a, b, sport, dport = b, a, dport, sport end
+    local proto = pinfo.port_type == PT_TCP and "tcp " or "udp "
+    return proto .. a .. ":" .. istr(sport) .. " - " .. b .. ":" .. istr(dport)
+end
+
+-- One P2OS packet or blackboard message of a paced side (side: "robot", "master", "slave"), its
+-- checksum status (1 good, 0 bad); where: the packet's place in the frame (a text the caller
+-- makes the same on every pass).  The outage it ends (seconds), or nil; on every pass.
+function H.robot(pinfo, where, protocol, side, cs_status)
+    local num = pinfo.number
+    if pinfo.visited then
+        local m = r_marks[num]
+        return m and m[where]
+    end
+    if r_num ~= num then r_num, r_label = num, session_label(pinfo) end
+    local L = link_named(protocol .. " " .. r_label, side .. ">" .. (OTHER_SIDE[side] or "?"))
+    local t = pinfo.rel_ts
+    if not last_end or t > last_end then last_end = t end
+    L.frames = L.frames + 1
+    local out = frame_slow(L, t, cs_status, nil, nil)
+    if out then
+        local m = r_marks[num]
+        if not m then m = {}; r_marks[num] = m end
+        m[where] = out
+    end
+    return out
 end
 
 ------------------------------------------------------------------------------

@@ -38,11 +38,17 @@ class _Session:
 class RobotView:
     """The robot panel of ``watch`` (see the module doc)."""
 
-    def __init__(self) -> None:
+    def __init__(self, outage_after: float | None = None) -> None:
+        from sharedlink.analysis.health import Health
+
         self.rows = RobotRows()
         self.sessions: dict[int, _Session] = {}
+        self.health = Health(outage_after, timeline=True)  # the robot links' health (robot_health.py): quality, LINK DOWN
 
     def update(self, m: SessionMessage) -> None:
+        from sharedlink.analysis.robot_health import feed_session
+
+        feed_session(self.health, m)
         row = self.rows.row(m)
         s = self.sessions.get(m.session)
         if s is None:
@@ -73,6 +79,30 @@ class RobotView:
             if s.protocol == "blackboard" and s.waiting:
                 out.append("  waiting for the slave's answer")
             out.append("  " + ", ".join(f"{k} {v}" for k, v in sorted(s.types.items())))
+            out += self.link_lines(s, now_ns)
+        return out
+
+    def link_lines(self, s: _Session, now_ns: int) -> list[str]:
+        """Link health of a session's paced links (the P2OS robot's SIPs, both blackboard sides):
+        the link quality (its frames in the last whole second), learnt rate, outages, and while one
+        lasts ``LINK DOWN`` and for how long."""
+        from sharedlink.analysis.health import live_down_s
+
+        out = []
+        conv = ("robot", s.protocol, s.label)
+        last = now_ns // NS - 1
+        for (c, _side, _), h in sorted(self.health.links.items(), key=lambda kv: kv[1].pair):
+            if c != conv:
+                continue
+            seconds = h.seconds or {}
+            if len(seconds) > 120:  # (the last minute is plenty)
+                for k in [k for k in seconds if k < last - 60]:
+                    del seconds[k]
+            down = live_down_s(h, now_ns, self.health.fixed_ns)
+            rate = h.rate_hz
+            line = (f"  link {h.pair}: quality {seconds.get(last, 0)}/s, {'%.1f/s' % rate if rate else '-'} learnt, "
+                    f"outages {len(h.outages) + (down is not None)}")
+            out.append(line + (f"  LINK DOWN {down:.1f} s" if down is not None else ""))
         return out
 
     def render(self, now_ns: int) -> Any:

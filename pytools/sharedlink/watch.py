@@ -101,7 +101,8 @@ def big_receive_buffer(sock: socket.socket) -> None:
 class Backlog:
     """The datagrams a live UDP source received and the decoder has not taken yet, a queue per
     conversation (sender and receiver address and port) served in turn, so a sender flooding
-    the port delays the others by one datagram a turn, not by its whole flood.
+    the port delays the others by one datagram a turn, not by its whole flood. Both directions of
+    a sniffed conversation share a queue (arrival order: a blackboard answer before the next message).
 
     At most :data:`BACKLOG_DATAGRAMS` and :data:`BACKLOG_BYTES`: past either the oldest datagram
     of the longest queue is dropped; none older than ``max_lag_s`` is handed out (dropped).
@@ -126,15 +127,16 @@ class Backlog:
 
     def put(self, dg: RawDatagram) -> None:
         queues = self.queues
-        q = queues.get(dg.conv)
-        if q is None:
-            q = queues[dg.conv] = deque()
+        q = queues.get(key := dg.conv)
+        if q is None and (q := queues.get(rev := (key[0], key[3], key[4], key[1], key[2]))) is not None:
+            key = rev  # the other direction's queue while it holds datagrams: one queue, arrival order kept
+        elif q is None:
+            q = queues[key] = deque()
         q.append(dg)
-        self.count += 1
-        self.bytes += len(dg.data)
+        self.count, self.bytes = self.count + 1, self.bytes + len(dg.data)
         longest = self._longest
         if longest is None or longest not in queues or len(q) > len(queues[longest]):
-            self._longest = dg.conv
+            self._longest = key
         while self.count > self.max_items or (self.bytes > self.max_bytes and self.count > 1):
             self._drop_longest()
 
@@ -168,8 +170,7 @@ class Backlog:
                     self.stale += 1
                 if q:
                     dg = q.popleft()
-                    self.count -= 1
-                    self.bytes -= len(dg.data)
+                    self.count, self.bytes = self.count - 1, self.bytes - len(dg.data)
                     out.append(dg)
                     if q:
                         queues[key] = q  # its next turn comes after the others'

@@ -95,7 +95,8 @@ def test_threshold_option_and_fail_on(tmp_path):
     (["gen", "-o", "{out}", "--outage=-1:2"], "negative"),
     (["gen", "-o", "{out}", "--duration", "30", "--outage", "29:2"], "past the end"),
     (["gen", "-o", "{out}", "--outage", "ten"], "START:DURATION"),
-    (["gen", "-o", "{out}", "--protocol", "p2os", "--outage", "1:1"], "SharedLink"),
+    (["gen", "-o", "{out}", "--protocol", "p2os", "--duration", "5", "--outage", "4:2"], "past the end"),  # (issue 42:
+    (["gen", "-o", "{out}", "--protocol", "blackboard", "--outage", "1:-1"], "more than 0"),  # robot sessions too)
 ])
 def test_bad_values(tmp_path, args, message):
     cap = gen(tmp_path / "a.pcap")

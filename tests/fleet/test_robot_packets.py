@@ -83,8 +83,9 @@ def test_packets_link_is_the_protocol_beside_either_spelling_of_a_pair(tmp_path)
     ds = tmp_path / "ds"
     assert ingest([p, beacon], ds).ok
     assert sorted(d.relative_to(ds).as_posix() for d in ds.glob("*/day=*/link=*")) == [
-        "frames/day=2026-01-01/link=B_to_A", "links/day=2026-01-01/link=B_to_A", "packets/day=2026-01-01/link=p2os",
-        "values/day=2026-01-01/link=B_to_A"]
+        "frames/day=2026-01-01/link=B_to_A", "links/day=2026-01-01/link=B_to_A",
+        "links/day=2026-01-01/link=robot_to_client", "packets/day=2026-01-01/link=p2os",
+        "values/day=2026-01-01/link=B_to_A"]  # (links: the robot's SIP stream too, issue 43 on P2OS)
     sql = "SELECT link, protocol, count(*) FROM packets GROUP BY ALL"
     want = list(run_query(ds, sql).rows())
     assert [r[:2] for r in want] == [("p2os", "p2os")]

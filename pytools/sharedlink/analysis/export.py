@@ -147,9 +147,11 @@ _jstr = json.encoder.encode_basestring_ascii  # type: ignore[attr-defined]
 
 
 def _robot_rows(opts: ExportOptions) -> bool:
-    """Whether P2OS and blackboard packets are rows too (csv, jsonl: one row a frame, every column)
-    or an odometry track (geojson, kml without --changes)."""
-    return opts.fmt in ("csv", "jsonl", "geojson", "kml") and not opts.changes and opts.columns is None
+    """Whether P2OS and blackboard packets are rows too (csv, jsonl without --changes: one row a
+    frame, every column) or an odometry track (geojson, kml: a track keeps every point)."""
+    if opts.columns is not None:
+        return False
+    return opts.fmt in ("geojson", "kml") or (opts.fmt in ("csv", "jsonl") and not opts.changes)
 
 
 def _frames(path: str | Path, opts: ExportOptions, result: ExportResult) -> Iterator[Decoded | SessionMessage]:
@@ -182,6 +184,7 @@ class _Writer:
     def __init__(self, out: IO[str], opts: ExportOptions, columns: list[str]) -> None:
         self.out, self.opts, self.columns = out, opts, columns
         self.t0: int | None = None
+        self.robot_rows: Any = None  # the P2OS/blackboard rows beside these (robot_export.py)
 
     def base(self, d: Decoded) -> dict[str, Any]:
         if self.t0 is None:
@@ -486,6 +489,7 @@ class _GeoJson(_Jsonl):
         if pos is None:
             return 0
         lat, lon = pos
+        self.track.add(d.pair, lon, lat, d.ts_ns)  # the track keeps every point (--changes too; KML's the same)
         if self.opts.changes:
             rows = list(self.change_rows(d))
             if not rows:
@@ -496,7 +500,6 @@ class _GeoJson(_Jsonl):
             props = self.frame_row(d)
             props["values"] = self.values(d)
         self._feature({"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon, lat]}, "properties": props})
-        self.track.add(d.pair, lon, lat, d.ts_ns)
         return 1
 
     def close(self) -> None:
@@ -541,9 +544,7 @@ class _Kml(_Writer):
     def write(self, d: Decoded) -> int:
         if d.checksum_ok is False or d.kind not in _DATA_KINDS:
             return 0
-        if self.opts.changes and not any(u.name in (self.opts.lat, self.opts.lon) for u in d.changes()):
-            return 0
-        pos = _position(d, self.opts)
+        pos = _position(d, self.opts)  # (--changes too: the track keeps every point, as GeoJSON's)
         if pos is None:
             return 0
         self.track.add(d.pair, pos[1], pos[0], d.ts_ns)
@@ -614,7 +615,8 @@ def _write(path: str | Path, out: IO[str], opts: ExportOptions, columns: list[st
         if isinstance(writer, (_GeoJson, _Kml)):
             robots = writer.robots = RobotTrack()
         else:
-            robots = RobotJsonl(writer._held, writer.flush) if isinstance(writer, _Jsonl) else RobotCsv()
+            robots = RobotJsonl(writer._held, writer.flush) if isinstance(writer, _Jsonl) else RobotCsv(opts.outages)
+    writer.robot_rows = robots
     if opts.outages and type(writer) in (_Jsonl, _Csv):  # outage rows (kind: outage, link health)
         frames = _with_outages(itertools.chain([first] if first is not None else [], frames), writer, result)
         first = None
@@ -648,11 +650,16 @@ def _with_outages(frames: Iterator[Decoded], writer: _Jsonl | _Csv, result: Expo
     """The frames, an outage's row (analysis/health.py) written before the frame that ends it and
     the open ones at the end."""
     from sharedlink.analysis.health import OutageFeed, outage_row
+    from sharedlink.analysis.robot_health import session_outages
 
     feed = OutageFeed(writer.opts.outage_after)
     csv_ = isinstance(writer, _Csv)
+    robots = writer.robot_rows
     for d in frames:
-        if type(d) is SessionMessage:  # a P2OS/blackboard packet: no SharedLink link's frame
+        if type(d) is SessionMessage:  # a P2OS/blackboard packet: its robot link (analysis/robot_health.py)
+            for o in session_outages(feed, d):
+                _outage(writer, robots, o, d.number, csv_)
+                result.rows += 1
             yield d
             continue
         for o in feed.feed(d):
@@ -660,8 +667,18 @@ def _with_outages(frames: Iterator[Decoded], writer: _Jsonl | _Csv, result: Expo
             result.rows += 1
         yield d
     for o in feed.finish():
-        writer.outage(_csv_row(o, None) if csv_ else outage_row(o))
+        _outage(writer, robots, o, None, csv_)
         result.rows += 1
+
+
+def _outage(writer: _Jsonl | _Csv, robots: Any, o, number: int | None, csv_: bool) -> None:
+    """An outage's row: a robot link's in a CSV among the robot rows (their columns), else the writer's."""
+    from sharedlink.analysis.health import outage_row
+
+    if csv_ and isinstance(robots, RobotCsv) and o.link.partition(" ")[0] in ("p2os", "blackboard"):
+        robots.outage(o, number)
+    else:
+        writer.outage(_csv_row(o, number) if csv_ else outage_row(o))
 
 
 def _csv_row(o, number: int | None) -> dict:

@@ -178,18 +178,33 @@ class RobotCsv(RobotRows):
     """CSV rows spooled; :meth:`finish` writes the header and them (a capture with no SharedLink
     frame: the whole CSV is this one)."""
 
-    def __init__(self) -> None:
+    def __init__(self, outages: bool = False) -> None:
         super().__init__()
         self.spool = tempfile.TemporaryFile("w+b")  # noqa: SIM115 (closed in finish/close)
         self.buf = io.StringIO()
         self.w = csv.writer(self.buf, lineterminator="\n")
+        self.columns = COLUMNS + (["duration_s"] if outages else [])  # (export --outages: outage rows)
 
     def write(self, m: SessionMessage) -> int:
         row = self.row(m)
-        self.w.writerow(["" if row.get(c) is None else row.get(c) for c in COLUMNS])
+        self.w.writerow(["" if row.get(c) is None else row.get(c) for c in self.columns])
         if self.rows % _HELD == 0:
             self._spill()
         return 1
+
+    def outage(self, o: Any, number: int | None) -> None:
+        """A robot link's outage (:class:`~sharedlink.analysis.health.Outage`) as a row of type
+        ``outage``: the message that ends it (none when open), its start's time, the link and the
+        side that went silent, its ``duration_s``."""
+        ts = o.start_ns
+        if self.t0 is None:
+            self.t0 = ts
+        protocol, _, label = o.link.partition(" ")
+        row = {"protocol": protocol, "number": number, "time": format_time(ts), "ts_ns": ts,
+               "t": round((ts - self.t0) / 1e9, 9), "link": label, "side": o.pair.partition(">")[0], "type": "outage",
+               "duration_s": repr(o.duration_ns / 1e9)}
+        self.rows += 1
+        self.w.writerow(["" if row.get(c) is None else row.get(c) for c in self.columns])
 
     def _spill(self) -> None:
         self.spool.write(self.buf.getvalue().encode("utf-8"))
@@ -199,7 +214,7 @@ class RobotCsv(RobotRows):
     def finish(self, out: IO[str]) -> None:
         self._spill()
         self.spool.seek(0)
-        csv.writer(out, lineterminator="\n").writerow(COLUMNS)
+        csv.writer(out, lineterminator="\n").writerow(self.columns)
         with io.TextIOWrapper(self.spool, encoding="utf-8", newline="") as rows:
             shutil.copyfileobj(rows, out, 1 << 20)
 

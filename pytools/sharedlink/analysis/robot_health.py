@@ -6,6 +6,12 @@ table, ``--json``'s ``"links"`` and ``"outages"``) lists their links and outages
 A robot link is one side of one session: ``link`` is the protocol and the session's label
 (``"p2os tcp 127.0.0.1:45678 - 127.0.0.1:8101"``, ``"blackboard serial interface 0"``), ``pair``
 the direction by side (``robot>client``, ``client>robot``; ``master>slave``, ``slave>master``).
+Every link-health output takes robot links through this module (the one definition: :mod:`health`'s
+functions, fed here): ``stats`` (:func:`feed_session`), ``health`` (its table, rows and strip),
+``export --outages`` (:func:`session_outages`), ``ingest``'s ``links`` and ``outages`` tables and
+``watch``'s robot panel (:func:`robot_link`, LINK DOWN); the Wireshark tap's twin is
+``dissector/sharedlink/health.lua``'s ``H.robot``, fed by p2os.lua and blackboard.lua.
+
 The definition is SharedLink's (learnt rate, threshold, outages, checksum habit), on the links
 that keep a pace: the P2OS robot's (its SIPs, about 10 a second, are P2OS's heartbeat) and both
 sides of a blackboard session (the master polls, the slave answers). A P2OS client sends
@@ -18,21 +24,42 @@ from __future__ import annotations
 
 from collections import Counter
 
-from sharedlink.analysis.health import MAX_LINKS, Health, LinkHealth
+from sharedlink.analysis.health import MAX_LINKS, Health, LinkHealth, Outage, OutageFeed
 from sharedlink.analysis.sessions import SessionMessage
 
 #: the other side of each side
 OTHER_SIDE = {"client": "robot", "robot": "client", "master": "slave", "slave": "master"}
 
 
-def feed_session(health: Health, m: SessionMessage) -> None:
+def robot_key(m: SessionMessage) -> tuple:
+    """The :class:`Health` key of a robot message's link (whichever side)."""
+    return ("robot", m.protocol, m.label), m.side, ""
+
+
+def robot_link(health: Health, m: SessionMessage) -> LinkHealth | None:
+    """The link of ``m`` 's side in ``health`` (None: not fed yet, or a P2OS client's)."""
+    return health.links.get(robot_key(m))
+
+
+def feed_session(health: Health, m: SessionMessage) -> LinkHealth | None:
     """One P2OS packet or blackboard message (its checksum verdict: ``m.ok``); a P2OS client's
-    are left out (see the module doc)."""
+    are left out (see the module doc). The link it moved, or None."""
     if m.side == "client":
-        return
-    key = (("robot", m.protocol, m.label), m.side, "")
+        return None
+    key = robot_key(m)
     if key not in health.links and len(health.links) < MAX_LINKS:
         h = health.links[key] = LinkHealth(f"{m.protocol} {m.label}", f"{m.side}>{OTHER_SIDE.get(m.side, '?')}")
         if health.timeline:
             h.seconds = Counter()
-    health.frame(health.link(*key), m.ts_ns, m.ok)
+    h = health.link(*key)
+    health.frame(h, m.ts_ns, m.ok)
+    return h
+
+
+def session_outages(feed: OutageFeed, m: SessionMessage) -> list[Outage]:
+    """``export --outages``: the outages robot message ``m`` ends (:class:`OutageFeed` 's, beside
+    the SharedLink frames it is fed)."""
+    h = robot_link(feed.health, m)
+    n = len(h.outages) if h is not None else 0
+    h = feed_session(feed.health, m)
+    return h.outages[n:] if h is not None and len(h.outages) > n else []

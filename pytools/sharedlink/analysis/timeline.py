@@ -15,6 +15,9 @@ from pathlib import Path
 from sharedlink.analysis.decode import Counted, Decoded, Decoder
 from sharedlink.analysis.health import Health, LinkHealth, Second, feed_counted, feed_decoded, quality
 from sharedlink.analysis.malformed import PIECE, other_protocol, talk_key, unframed_pieces
+from sharedlink.analysis.robot_health import feed_session
+from sharedlink.analysis.robots import RobotLinks
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import NS, CaptureError
 from sharedlink.capture.serial_format import GIVEN_UP
 from sharedlink.capture.stream import StreamFrame
@@ -42,11 +45,13 @@ def capture_health(
     progress: Callable[[int, int], None] | None = None,
     outage_after: float | None = None,
 ) -> CaptureHealth:
-    """Link health with the per-second counts of every link of one capture (a damaged file:
-    everything before the damage, ``error`` set; a missing one raises CaptureError)."""
+    """Link health with the per-second counts of every link of one capture, P2OS and blackboard
+    links too (analysis/robot_health.py; a damaged file: everything before the damage, ``error``
+    set; a missing one raises CaptureError)."""
     health = Health(outage_after, timeline=True)
     out = CaptureHealth(str(path), health)
     dec = Decoder(variables, sync_interval, carried=False)
+    dec.robots = RobotLinks(messages=True)  # type: ignore[attr-defined]
     talks: dict[tuple, str] = {}
     try:
         for item in dec.capture(path, progress, counts=True):
@@ -54,6 +59,8 @@ def capture_health(
                 feed_counted(health, item)
             elif isinstance(item, Decoded):
                 feed_decoded(health, item)
+            elif type(item) is SessionMessage:
+                feed_session(health, item)
             elif isinstance(item, StreamFrame):
                 _malformed(health, item, talks)
     except CaptureError as exc:

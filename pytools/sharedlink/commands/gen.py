@@ -69,7 +69,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="time of the first beacon, UTC ISO 8601 (e.g. 2026-03-02T08:00:00Z; default 2026-01-01T12:00:00Z)")
     p.add_argument("--outage", action="append", default=[], metavar="T:D", type=_outage,
                    help="plant a silence of D seconds T seconds after the start (repeatable): the beacon's direction, "
-                   "on --transport serial the vehicle's (its data and replies)")
+                   "on --transport serial the vehicle's (its data and replies); --protocol p2os/blackboard: both directions "
+                   "(the line cut; a blackboard answer goes with its message)")
     add_json_option(p)
     add_quiet_option(p)
     p.set_defaults(func=run)
@@ -104,8 +105,6 @@ def run(args: argparse.Namespace) -> int:
     if args.transport == "serial" and args.protocol == "sharedlink":
         return run_gen_serial(args)
     if args.protocol != "sharedlink":
-        if args.outage:
-            raise UsageError("--outage plants silences in SharedLink sessions only")
         return run_session(args, fmt)
     if args.transport not in (None, "udp"):
         raise UsageError("SharedLink beacons are generated over udp")
@@ -163,13 +162,15 @@ def run_session(args: argparse.Namespace, fmt: str) -> int:
 
     opts: P2osGenOptions | BlackboardGenOptions
     if args.protocol == "p2os":
-        opts = P2osGenOptions(duration=args.duration, seed=args.seed, fmt=fmt, transport=args.transport or "tcp", baud=args.baud)
+        opts = P2osGenOptions(duration=args.duration, seed=args.seed, fmt=fmt, transport=args.transport or "tcp", baud=args.baud,
+                              outages=tuple(args.outage))
         if args.port is not None:
             opts.port = args.port
         generate = generate_p2os_file
     else:
         opts = BlackboardGenOptions(
-            duration=args.duration, seed=args.seed, fmt=fmt, transport=args.transport or "udp", baud=args.baud
+            duration=args.duration, seed=args.seed, fmt=fmt, transport=args.transport or "udp", baud=args.baud,
+            outages=tuple(args.outage),
         )
         if args.port is not None:
             opts.port = args.port
@@ -184,9 +185,11 @@ def run_session(args: argparse.Namespace, fmt: str) -> int:
         "frames": stats.frames,
         "payload_bytes": stats.bytes,
         "kinds": stats.kinds,
+        "silenced": stats.silenced,
     }
     kinds = ", ".join(f"{v} {k}" for k, v in stats.kinds.items())
-    report(summary, args.json, f"wrote {args.out}: {plural(stats.frames, 'frame')} over {opts.transport} port {opts.port} ({kinds})")
+    quiet = f", {stats.silenced} silenced in {plural(len(args.outage), 'outage')}" if args.outage else ""
+    report(summary, args.json, f"wrote {args.out}: {plural(stats.frames, 'frame')} over {opts.transport} port {opts.port} ({kinds}){quiet}")
     return 0
 
 

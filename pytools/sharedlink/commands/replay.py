@@ -40,9 +40,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="send a capture's frames over UDP or a serial line, with the capture's timing",
         description="Send the payloads of a pcap/pcapng capture (its UDP payloads; records on a USER "
         "link type 147-162 as raw serial bytes) through an ordinary UDP socket, no root needed, or to a serial "
-        "port. A capture whose payloads are TCP (a P2OS robot on TCP 8101, blackboard over TCP) is replayed as "
-        "its client: one TCP connection to --to HOST[:PORT] (default 127.0.0.1 on the captured server port) "
-        "carrying the client-to-server segments; the server's side is not sent. Timing follows the capture against absolute deadlines (no drift), or --speed/--pps/--topspeed.",
+        "port. A capture whose payloads are TCP (a P2OS robot on TCP 8101, blackboard over TCP) is replayed over TCP, "
+        "--side client by default: one TCP connection to --to HOST[:PORT] (default 127.0.0.1 on the captured server "
+        "port) carrying the client-to-server segments; --side server plays the robot: it listens on --bind ADDR[:PORT] "
+        "(default 127.0.0.1 on the captured server port) and sends the server's segments to the client that connects; "
+        "--side both plays the whole conversation over loopback (a listener on --to and a connection to it). "
+        "Timing follows the capture against absolute deadlines (no drift), or --speed/--pps/--topspeed.",
         epilog="Exit codes: 0 every frame sent, 1 some frames could not be sent (send errors), 2 bad usage or a "
         "missing/damaged capture (the frames before the damage are still sent), 130 interrupted (Ctrl-C; the "
         "summary is still printed).",
@@ -55,6 +58,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     dest.add_argument("--broadcast", action="store_true", help="allow a broadcast destination (sets SO_BROADCAST)")
     dest.add_argument("--multicast", action="store_true", help="allow a multicast group as the destination")
     dest.add_argument("--bind", metavar="ADDR", default=None, help="source address (ADDR or ADDR:PORT) or interface name")
+    dest.add_argument("--side", choices=("client", "server", "both"), default=None,
+                      help="a TCP capture: the side to play (default client: connect to --to and send the client's "
+                      "segments; server: listen on --bind, default 127.0.0.1 on the captured server port, and send the "
+                      "server's segments, a robot's SIPs, to the client that connects; both: the conversation over a "
+                      "listener on --to and a connection to it)")
     dest.add_argument("--serial", metavar="DEVICE", default=None, help="write the bytes to this serial port or pty instead")
     dest.add_argument("--baud", type=BAUD, default=9600, help="with --serial: baud rate (default 9600)")
     dest.add_argument("--direction", choices=sorted(SERIAL_DIRECTIONS), default=None,
@@ -116,13 +124,11 @@ def _sink(args: argparse.Namespace) -> UdpSink | SerialSink | TcpSink:
         _check_direction(args)
         return SerialSink(args.serial, args.baud)
     host, port = split_host_port(args.to) if args.to else ("127.0.0.1", None)
-    if args.tcp_port is not None:  # a TCP capture: its client's side over one connection
-        from sharedlink.replay_tcp import TcpSink
-
-        if args.broadcast or args.multicast:
-            raise UsageError(f"{args.source} is a TCP capture, replayed over one TCP connection: --broadcast and "
-                             "--multicast do not apply")
-        return TcpSink(host, port or args.tcp_port, bind=args.bind)
+    if args.tcp_port is not None:  # a TCP capture: a side of it (or both) over TCP
+        return _tcp_sink(args, host, port)
+    if args.side is not None:
+        raise UsageError(f"--side: {args.source} is not a TCP capture (its UDP payloads or serial records are sent as "
+                         "they are)")
     if port is None:
         try:
             lt = first_linktype(args.capture)
@@ -134,6 +140,25 @@ def _sink(args: argparse.Namespace) -> UdpSink | SerialSink | TcpSink:
                 "give one with --to HOST:PORT, or write them to a serial port with --serial"
             )
     return UdpSink(host, port, bind=args.bind, broadcast=args.broadcast, multicast=args.multicast)
+
+
+def _tcp_sink(args: argparse.Namespace, host: str, port: int | None) -> Any:
+    """The sink of a TCP capture's ``--side`` (replay_tcp.py)."""
+    from sharedlink.replay import split_host_port
+    from sharedlink.replay_tcp import TcpPairSink, TcpServerSink, TcpSink
+
+    if args.broadcast or args.multicast:
+        raise UsageError(f"{args.source} is a TCP capture, replayed over TCP: --broadcast and --multicast do not apply")
+    side = args.side or "client"
+    if side == "client":
+        return TcpSink(host, port or args.tcp_port, bind=args.bind)
+    if side == "both":
+        return TcpPairSink(host, port or args.tcp_port, args.tcp_port, bind=args.bind)
+    if args.to:
+        raise UsageError("--side server listens for a client: give its address with --bind ADDR[:PORT], not --to")
+    bhost, bport = split_host_port(args.bind, "--bind") if args.bind else ("127.0.0.1", None)
+    return TcpServerSink(bhost, args.tcp_port if bport is None else bport,
+                         announce=lambda text: print(f"sharedlink replay: {text}", file=sys.stderr, flush=True))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -175,7 +200,7 @@ def _run(args: argparse.Namespace) -> int:
         if args.tcp_port is not None:
             from sharedlink.replay_tcp import TcpFrames
 
-            frames = TcpFrames(args.capture, args.tcp_port, flt)
+            frames = TcpFrames(args.capture, args.tcp_port, flt, args.side or "client")
         replayer = Replayer(frames, sink, opts, progress=progress,
                             progress_interval=progress.interval if progress else 1.0, long_wait=long_wait)
         stats = replayer.run()
@@ -216,8 +241,8 @@ def _ms(ns: int | None) -> str:
     return "-" if ns is None else f"{ns / 1e6:.3f} ms"
 
 
-#: what a skipped record lacks: a UDP capture's, a TCP capture's (a record with no new client-to-server bytes)
-_WHAT_SKIPPED = {False: "a UDP payload", True: "new client-to-server bytes"}
+#: what a skipped record lacks: a UDP capture's, a TCP capture's (a record with no new bytes of the side played)
+_WHAT_SKIPPED = {False: "a UDP payload", True: "new bytes of the side played"}
 
 
 def _summary_text(st: ReplayStats, skipped: str = _WHAT_SKIPPED[False]) -> str:

@@ -1,6 +1,6 @@
 """The ``links`` and ``outages`` tables of a fleet dataset (issue 43): link health
 (:mod:`sharedlink.analysis.health`, the one definition ``stats`` uses) of an ingested capture's
-SharedLink links, fed as the frames are decoded and written when the capture is done.
+SharedLink links and its P2OS and blackboard links (:mod:`sharedlink.analysis.robot_health`), fed as the frames are decoded and written when the capture is done.
 
 * ``links``: one row per link and second (epoch-aligned) from the link's first frame's second to
   the capture's end: the frames in it and its Shepherd link quality, ``state`` up or down;
@@ -21,6 +21,8 @@ import pyarrow as pa
 
 from sharedlink.analysis.decode import Columns, Decoded
 from sharedlink.analysis.health import Health, feed_columns, feed_decoded, quality
+from sharedlink.analysis.robot_health import feed_session
+from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import NS
 from sharedlink.fleet.dataset import LINKS_COLUMNS, OUTAGES_COLUMNS, link_name
 
@@ -48,10 +50,13 @@ class HealthRows:
                 feed_columns(health, item)
             elif t is Decoded:
                 feed_decoded(health, item)
+            elif t is SessionMessage:  # P2OS, blackboard links (analysis/robot_health.py)
+                feed_session(health, item)
             yield item
 
     def _src_dst(self) -> Iterator[tuple[Any, str, str]]:
-        for (_conv, src, dst), h in sorted(self.health.links.items(), key=lambda kv: (kv[1].link, kv[1].pair)):
+        for h in self.health.sorted_links():  # (a robot link's pair: "robot>client", "master>slave")
+            src, _, dst = h.pair.partition(">")
             yield h, src, dst
 
     def tables(self, capture: str, vehicle: str) -> Iterator[tuple[str, tuple[str, str], dict[str, pa.Array], int]]:

@@ -30,6 +30,7 @@ from typing import BinaryIO
 from sharedlink.capture.packets import write_session
 from sharedlink.capture.pcapio import NS, atomic_open
 from sharedlink.generators.beacon import DEFAULT_START_NS
+from sharedlink.generators.outages import check_outages, cut_line
 from sharedlink.generators.serial import write_line_session
 from sharedlink.protocols.blackboard import RequestMessage, SetMessage
 
@@ -56,8 +57,10 @@ class BlackboardGenOptions:
     master_port: int = 40100
     lost_ack: float = 0.02  # fraction of acknowledgements lost (besides the sixth)
     start_ns: int = DEFAULT_START_NS
+    outages: tuple[tuple[float, float], ...] = ()  # planted silences, both directions (generators/outages.py)
 
     def validate(self) -> None:
+        check_outages(self.outages, self.duration)
         if not 0 < self.duration <= 86_400:
             raise ValueError("--duration must be positive (at most a day)")
         if self.fmt not in ("pcap", "pcapng"):
@@ -80,6 +83,7 @@ class BlackboardStats:
     messages: int = 0  # text messages and binary answers
     bytes: int = 0
     kinds: dict[str, int] = field(default_factory=dict)
+    silenced: int = 0  # messages not sent in planted outages
 
 
 def session_messages(opts: BlackboardGenOptions) -> Iterator[tuple[int, bool, bytes, str]]:
@@ -154,7 +158,7 @@ def session_messages(opts: BlackboardGenOptions) -> Iterator[tuple[int, bool, by
 def generate_blackboard(opts: BlackboardGenOptions, out: BinaryIO) -> BlackboardStats:
     opts.validate()
     stats = BlackboardStats()
-    messages = list(session_messages(opts))
+    messages, stats.silenced = cut_line(list(session_messages(opts)), opts.outages, opts.start_ns, answers=True)
     for _, _, data, kind in messages:
         stats.messages += 1
         stats.bytes += len(data)

@@ -5,6 +5,10 @@ The direction silenced: the beacon's (its only one) on UDP; on a serial link the
 (vehicle to host: its data frames and its replies), as a radio fading out loses what the vehicle
 sends first. A frame whose nominal time ``t`` (seconds from the start, before jitter)
 falls in ``T <= t < T + D`` is not sent.
+
+A P2OS or blackboard session (``--protocol p2os|blackboard``, :func:`cut_line`): the line is cut,
+both directions: no packet or message sent in ``T <= t < T + D`` (from the session's first packet's
+time, its start) is in the capture, and a blackboard answer goes with the message it answers.
 """
 
 from __future__ import annotations
@@ -51,3 +55,21 @@ def silenced(ts_ns: int, wins: list[tuple[int, int]]) -> bool:
         if a <= ts_ns < b:
             return True
     return False
+
+
+def cut_line(events: Sequence[tuple], outages: Outages, t0_ns: int, answers: bool = False) -> tuple[list, int]:
+    """A P2OS or blackboard session's events (time ns first, whether the client's or master's
+    second) without those in the planted silences, and how many were left out. ``answers``
+    (blackboard): an event of the other side (a slave's answer) is left out with the message
+    before it."""
+    wins = windows(outages, t0_ns)
+    if not wins:
+        return list(events), 0
+    out = []
+    dropped = False
+    for e in events:
+        if e[1] or not answers:
+            dropped = silenced(e[0], wins)
+        if not dropped:
+            out.append(e)
+    return out, len(events) - len(out)

@@ -25,6 +25,7 @@ from typing import BinaryIO
 from sharedlink.capture.packets import write_session
 from sharedlink.capture.pcapio import NS, atomic_open
 from sharedlink.generators.beacon import DEFAULT_START_NS
+from sharedlink.generators.outages import check_outages, cut_line
 from sharedlink.generators.serial import write_line_session
 from sharedlink.protocols.p2os import (
     MOBILESIM_PORT,
@@ -64,8 +65,10 @@ class P2osGenOptions:
     robot_name: str = "MobileSim"
     robot_class: str = "Pioneer"
     robot_subclass: str = "p3dx-sh"
+    outages: tuple[tuple[float, float], ...] = ()  # planted silences, both directions (generators/outages.py)
 
     def validate(self) -> None:
+        check_outages(self.outages, self.duration)
         if not 0 < self.duration <= 86_400:
             raise ValueError("--duration must be positive (at most a day)")
         if self.fmt not in ("pcap", "pcapng"):
@@ -84,6 +87,7 @@ class P2osStats:
     packets: int = 0  # P2OS packets
     bytes: int = 0  # P2OS bytes
     kinds: dict[str, int] = field(default_factory=dict)
+    silenced: int = 0  # packets not sent in planted outages
 
 
 @dataclass
@@ -360,7 +364,7 @@ def generate_p2os(opts: P2osGenOptions, out: BinaryIO) -> P2osStats:
     """Write the session capture to ``out``."""
     opts.validate()
     stats = P2osStats()
-    packets = list(session_packets(opts))
+    packets, stats.silenced = cut_line(list(session_packets(opts)), opts.outages, opts.start_ns)
     for _, _, pkt, kind in packets:
         stats.packets += 1
         stats.bytes += len(pkt)

@@ -1,0 +1,217 @@
+"""Link health of P2OS and blackboard links (issues 42 and 43) agrees in every output: the
+Wireshark tap (-z sharedlink,stats with p2os.lua, blackboard.lua and serial.lua, its link table
+and outages), `stats --json`, `health` (its rows and --json), `export --outages` (jsonl rows, a
+robot CSV's rows of type outage), `ingest`'s outages and links tables and `watch`'s robot panel
+(LINK DOWN while a silence lasts): the same outages (count, link, side, start and duration to the
+microsecond) on generated P2OS and blackboard sessions over TCP, UDP and serial with silences
+planted by `gen --outage`. Every tshark run is checked for Lua errors (tshark_util)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+
+import tshark_util as tu
+from sharedlink.analysis.sessions import iter_sessions
+from sharedlink.capture.pcapio import NS, read_records
+from sharedlink.fleet.query import run_query
+from sharedlink.robot_watch import RobotView
+
+REPO = Path(__file__).resolve().parents[2]
+SCRIPTS = [REPO / "dissector" / n for n in ("p2os.lua", "blackboard.lua", "serial.lua", "sharedlink_stats.lua")]
+CLI = [sys.executable, "-m", "sharedlink"]
+ARROW = "\u2192"
+OUTAGES = ["--outage", "8:3", "--outage", "14:1.5"]
+#: name -> gen arguments (20 s sessions with two silences, the line cut both ways)
+CAPTURES = {
+    "p2os-tcp": ["--protocol", "p2os", "--transport", "tcp"],
+    "p2os-serial": ["--protocol", "p2os", "--transport", "serial"],
+    "blackboard-udp": ["--protocol", "blackboard", "--transport", "udp"],
+    "blackboard-tcp": ["--protocol", "blackboard", "--transport", "tcp", "--seed", "3"],
+    "blackboard-serial": ["--protocol", "blackboard", "--transport", "serial"],
+}
+#: paced sides a session's link health follows
+PAIRS = {"p2os": {"robot>client"}, "blackboard": {"master>slave", "slave>master"}}
+
+
+def run_cli(*args: object) -> subprocess.CompletedProcess:
+    r = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr
+    return r
+
+
+@pytest.fixture(scope="module")
+def caps(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("robot_health")
+    out = {}
+    for name, args in CAPTURES.items():
+        p = d / f"{name}.pcapng"
+        run_cli("gen", "-o", p, "--duration", "20", *args, *OUTAGES)
+        out[name] = p
+    return out
+
+
+@pytest.fixture(scope="module")
+def dataset(caps, tmp_path_factory) -> Path:
+    ds = tmp_path_factory.mktemp("robot_fleet") / "ds"
+    run_cli("ingest", "-o", ds, *caps.values())
+    return ds
+
+
+def stats(path: Path) -> dict:
+    return json.loads(run_cli("stats", "--json", path).stdout)
+
+
+def relative(path: Path, outages: list[dict]) -> list[tuple]:
+    """Outages as (link, pair, start s from the first record, duration s, open), sorted."""
+    first = next(iter(read_records(path))).ts_ns / NS
+    return sorted((o["link"], o["pair"], o["start"] - first, o["duration_s"], o["end"] is None) for o in outages)
+
+
+def same(got: list[tuple], want: list[tuple]) -> None:
+    assert len(got) == len(want), (got, want)
+    for g, w in zip(got, want):
+        assert (g[0], g[1], g[4]) == (w[0], w[1], w[4]), (g, w)
+        assert abs(g[2] - w[2]) <= 1e-6 and abs(g[3] - w[3]) <= 1e-6, (g, w)
+
+
+def tap(path: Path) -> tuple[list[tuple], dict[tuple, list[str]], str]:
+    """The tap's outages (as :func:`relative`) and link rows."""
+    args = ["-q", "-z", "sharedlink,stats", "-z", "expert"]
+    for s in SCRIPTS:
+        args[:0] = ["-X", f"lua_script:{s}"]
+    text = tu.tshark(path, args).stdout
+    links: dict[tuple, list[str]] = {}
+    outs = []
+    section = None
+    for line in text.splitlines():
+        if line == "Link health" or line.startswith("Outages ("):
+            section = line[:7]
+            continue
+        if not line.startswith("  ") or section is None:
+            section = None
+            continue
+        cols = re.split(r"\s{2,}", line.strip())
+        if cols[0] == "Link" or cols[0].startswith("Note:"):
+            continue
+        if section == "Link he":
+            links[(cols[0], cols[1].replace(ARROW, ">"))] = cols[2:]
+        else:
+            outs.append((cols[0], cols[1].replace(ARROW, ">"), float(cols[2]), float(cols[3]), cols[-1] == "(open)"))
+    return sorted(outs), links, text
+
+
+@pytest.mark.parametrize("name", CAPTURES)
+def test_tap_is_stats(caps, name):
+    path = caps[name]
+    d = stats(path)
+    protocol = name.split("-")[0]
+    want = relative(path, d["outages"])
+    assert {lk["pair"] for lk in d["links"]} == PAIRS[protocol]
+    assert all(lk["link"].startswith(protocol + " ") and lk["outages"] == 2 for lk in d["links"])
+    assert len(want) == 2 * len(PAIRS[protocol]) and not any(o[4] for o in want)
+    got, links, text = tap(path)
+    same(got, want)
+    assert set(links) == {(lk["link"], lk["pair"]) for lk in d["links"]}
+    for lk in d["links"]:
+        row = links[(lk["link"], lk["pair"])]
+        assert row[0] == str(lk["frames"]) and row[1] == "%.3f" % lk["rate_hz"] and row[2] == str(lk["outages"])
+        assert row[3] == "%.3f" % lk["outage_s"] and row[5] == "%.2f" % (100 * lk["availability"])
+        assert row[6] == "%.2f" % lk["bad_checksum_pct"]
+    # the expert on the packet after each silence, counted by Expert Information
+    m = re.search(r"^\s+(\d+)\s+\S+\s+(P2OS|BLACKBOARD)\s+Link silent", text, re.M | re.I)
+    assert m and int(m.group(1)) == len(want), text
+
+
+@pytest.mark.parametrize("name", ["p2os-tcp", "blackboard-udp"])
+def test_expert_and_duration_field(caps, name):
+    """p2os.outage / blackboard.outage with the generated .outage.duration on the packet after a
+    silence, in one pass and in two, the same durations as stats."""
+    protocol = name.split("-")[0]
+    want = sorted(round(o["duration_s"], 6) for o in stats(caps[name])["outages"])
+    field = f"{protocol}.outage.duration"
+    extra = [a for s in SCRIPTS[:3] for a in ("-X", f"lua_script:{s}")]
+    for two_pass in (False, True):
+        rows = tu.fields(caps[name], [field], display_filter=field, two_pass=two_pass, extra=extra)
+        got = sorted(round(float(x), 6) for r in rows for x in r[field])
+        assert got == want
+        assert all("Link silent" in r["_ws.expert.message"] for r in rows)
+
+
+@pytest.mark.parametrize("name", CAPTURES)
+def test_health_export_ingest_are_stats(caps, dataset, name):
+    path = caps[name]
+    d = stats(path)
+    want = relative(path, d["outages"])
+    h = json.loads(run_cli("health", "--json", path).stdout)
+    same(relative(path, h["outages"]), want)
+    assert [(lk["link"], lk["pair"], lk["frames"]) for lk in h["links"]] == [
+        (lk["link"], lk["pair"], lk["frames"]) for lk in d["links"]]
+    rows = [json.loads(x) for x in run_cli("export", "--format", "jsonl", "--outages", path).stdout.splitlines()]
+    outs = [x for x in rows if x.get("kind") == "outage"]
+    same(relative(path, outs), want)
+    for k, x in enumerate(rows):  # each outage row comes before the message that ends it, of its side
+        if x.get("kind") == "outage":
+            nxt = next(y for y in rows[k + 1:] if y.get("kind") != "outage" and y["side"] == x["src"])
+            assert nxt["ts_ns"] / NS == pytest.approx(x["end"], abs=1e-6)
+    table = list(csv.DictReader(io.StringIO(run_cli("export", "--format", "csv", "--outages", path).stdout)))
+    outs = sorted((r for r in table if r["type"] == "outage"), key=lambda r: (int(r["ts_ns"]), r["side"]))
+    assert len(outs) == len(want)
+    for r, o in zip(outs, sorted(d["outages"], key=lambda o: (o["start"], o["pair"]))):
+        assert (f"{r['protocol']} {r['link']}", r["side"], float(r["duration_s"])) == (
+            o["link"], o["pair"].partition(">")[0], o["duration_s"])
+        assert abs(int(r["ts_ns"]) / NS - o["start"]) < 1e-6
+    assert len(table) - len(outs) == sum(1 for _ in iter_sessions(path))  # every message a row as before
+    where = "WHERE capture = '%s'" % str(path).replace("'", "''")
+    got = run_query(dataset, f"SELECT conversation, pair, time_ns, duration_ns, open FROM outages {where}").rows()
+    first = next(iter(read_records(path))).ts_ns
+    same(sorted((c, p, (t - first) / NS, n / NS, o) for c, p, t, n, o in got), want)
+    per_second = [json.loads(x) for x in run_cli("health", "-o", "-", path).stdout.splitlines()]
+    assert {s["pair"] for s in per_second} == PAIRS[name.split("-")[0]]
+    got = run_query(dataset, "SELECT conversation, pair, time_ns // 1000000000, frames, state, quality, down_s "
+                             f"FROM links {where} ORDER BY conversation, pair, time_ns").rows()
+    assert [tuple(r) for r in got] == [(s["link"], s["pair"], s["second"], s["frames"], s["state"], s["quality"],
+                                        s["down_s"]) for s in sorted(per_second, key=lambda s: (s["link"], s["pair"]))]
+
+
+def _panel(view: RobotView, now_ns: int) -> list[str]:
+    console = Console(record=True, width=200)
+    console.print(view.render(now_ns))
+    return [x for x in console.export_text().splitlines() if x.strip().startswith("link ")]
+
+
+@pytest.mark.parametrize("name", ["p2os-tcp", "blackboard-serial"])
+def test_watch_shows_the_outages(caps, name):
+    """watch's robot panel, fed the session's messages as they come: LINK DOWN on each paced link
+    while a silence lasts (once past its threshold), then as many outages as stats counts."""
+    path = caps[name]
+    d = stats(path)
+    msgs = list(iter_sessions(path))
+    first = min(o["start"] for o in d["outages"])
+    view = RobotView()
+    for m in msgs:
+        if m.ts_ns / NS > first + 0.5:  # (inside the 3 s silence: every side has sent its last)
+            break
+        view.update(m)
+    lines = _panel(view, round((first + 1.5) * NS))  # (10 Hz links: the 1 s floor is their threshold)
+    assert len(lines) == len(PAIRS[name.split("-")[0]]) and all("LINK DOWN" in x for x in lines), lines
+    assert all("outages 1" in x for x in lines)
+    sec = int(first) - 1  # a whole second before the silence: Shepherd's quality, its frames
+    got = _panel(view, (sec + 1) * NS + NS // 2)
+    assert sum(int(re.search(r"quality (\d+)/s", x).group(1)) for x in got) == sum(
+        1 for m in msgs if m.side != "client" and m.ts_ns // NS == sec) > 5
+    view = RobotView()
+    for m in msgs:
+        view.update(m)
+    lines = _panel(view, msgs[-1].ts_ns)
+    want = {lk["pair"]: lk["outages"] for lk in d["links"]}
+    assert {x.split()[1].rstrip(":"): int(re.search(r"outages (\d+)", x).group(1)) for x in lines} == want
+    assert not any("LINK DOWN" in x for x in lines)
