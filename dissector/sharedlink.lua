@@ -141,14 +141,14 @@ local B_PIPE, B_COLON, B_CR, B_LF = U.B_PIPE, U.B_COLON, U.B_CR, U.B_LF
 local B_A, B_P = U.B_A, U.B_P
 local Pm, S, I, T, R = M.parse, M.state, M.info, M.tree, M.records
 local health_frame, health_mark = M.health.frame, M.health.mark
-local P = Pm.P
+local F = Pm.F   -- the frame record (parse.lua): what is known of the frame being dissected
 local PG, TI = M.wsapi.PG, M.wsapi.TI
 local parse_frame, kind_of_fields, bylen = Pm.parse_frame, Pm.kind_of_fields, Pm.bylen
+local checksum_facts = Pm.checksum_facts
 local state_data, state_other, state_later_pass = S.state_data, S.state_other, S.state_later_pass
-local info_frame, info_layout, info_finish = I.info_frame, I.info_layout, I.finish
+local info_frame, info_layout, info_finish, first_piece = I.info_frame, I.info_layout, I.finish, I.first_piece
 local tree_frame, has_experts, T_SHOWN, T_HIDDEN, T_NONE = T.tree_frame, T.has_experts, T.SHOWN, T.HIDDEN, T.NONE
 local set_crlf_frames = T.set_crlf_frames
-local PT_UDP = 3   -- pinfo.port_type of a UDP datagram (epan's port_type enum; 4.0 to 4.6)
 
 sl.fields = M.fields.register(hf)
 sl.experts = M.fields.register(ei)
@@ -164,18 +164,19 @@ function sl.init()
     M.health.reset()
 end
 
--- A frame the parser took (not a layout's): the kind its fields tell (nil: a data frame, full or
--- delta as the state tells), whether it is a data frame, whether both address bytes are nodes A-P
--- (nil: cut short), whether it is full without state (a data frame with N0 or none, no empty
--- positional D and no named variable left out; the state-based verdict is stored when it
--- differs), and the first pass's state writer for it: state_data (a data frame between nodes),
--- else state_other.
+-- A frame the parser took (not a layout's): into the frame record, the kind its fields tell
+-- (F.fkind; nil: a data frame, full or delta as the state tells), whether it is a data frame
+-- (F.is_data), whether both address bytes are nodes A-P (F.addrs_ok; false when cut short).
+-- Returns whether it is full without state (a data frame with N0 or none, no empty positional D
+-- and no named variable left out; the state-based verdict is stored when it differs), and the
+-- first pass's state writer for it: state_data (a data frame between nodes), else state_other.
 local function fields_facts(malformed_msg, dstb, srcb)
     local kind, is_data = kind_of_fields(malformed_msg)
     local nodes = (dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P) or false
-    local n_ord = P.n_ord
-    local full_local = P.nd > 0 and (n_ord == nil or n_ord == 0) and P.n_empty_d == 0
-    return kind, is_data, nodes, full_local, (is_data and nodes) and state_data or state_other
+    F.fkind, F.is_data, F.addrs_ok = kind, is_data, nodes
+    local n_ord = F.n_ord
+    local full_local = F.nd > 0 and (n_ord == nil or n_ord == 0) and F.n_empty_d == 0
+    return full_local, (is_data and nodes) and state_data or state_other
 end
 
 -- The index of the last byte of a frame closed at b, its line end included (CR LF, CR or LF).
@@ -187,32 +188,60 @@ local function line_end(s, b)
 end
 
 -- A terminated frame with no CR LF after it tells the tree module whether CR LF frames the
--- packet's bytes (not on UDP).
+-- packet's bytes (not on UDP: wsapi.is_udp).
 local function tell_crlf(pinfo, terminated)
-    if terminated then set_crlf_frames(pinfo.port_type ~= PT_UDP) end
+    if terminated then set_crlf_frames(not wsapi.is_udp(pinfo)) end
 end
+
+-- The packet being dissected (set by dissect, read by dissect_frame; upvalues, not arguments:
+-- the same for every frame of the packet): its Tvb, Pinfo, the tree to build in (nil: none, see
+-- dissect), the tree Wireshark gave (for the expert infos of a frame with no tree), its payload.
+local pk_tvb, pk_pinfo, pk_tree, pk_root, pk_s
 
 -- wslua attributes the entry reads each frame, through wsapi's getters (PG), as upvalues once
 -- wsapi.init has chosen them on the first packet (set by dissect)
 local pg_number, pg_visited, pg_visible
 local MODE = { [true] = T_SHOWN, [false] = T_HIDDEN }   -- a tree's mode by whether it is shown
 
+-- The rest of a frame once its state is known (the frame record filled: dissect_frame): the Info
+-- (info.lua) unless in_info (the layout's piece is in it), the tree (tree.lua).  vis: the tree is
+-- shown; quiet: a layout's frame with no possible expert.  Returns e, piece (dissect_frame's).
+local function frame_output(piece, in_info, quiet, vis)
+    if not in_info then info_frame(F) end
+    -- Tree: shown, hidden (nobody sees it) or none (tshark's summary pass: built only for a frame
+    -- with expert infos, on root, where only the experts stay); one builder (tree.lua)
+    local tree, mode = pk_tree, T_NONE
+    if tree then
+        mode = MODE[vis]
+    else
+        if not pk_root then return F.e, piece end
+        -- a layout's frame with no possible expert (speed trick, measured): quiet (values its
+        -- layout proves, a good upper-case checksum), CR LF after it, no record (late sync,
+        -- limit); otherwise has_experts tells
+        if quiet and F.crlf and not F.rec then return F.e, piece end
+        if not has_experts(F) then return F.e, piece end
+        tree = pk_root
+    end
+    tree_frame(mode, tree, pk_tvb, F)
+    return F.e, piece
+end
+
 -- f: a string holding the frame at f[1..fl] ('[' .. ']' when terminated, else up to
 -- where it stops; bytes after fl may follow when terminated); a: index of f[1] in the
--- payload s; e: index in s of the last byte including the line end.  tree: nil when there is
--- none (see dissect); root: the tree Wireshark gave, for the expert infos of a frame then.
--- payload: f is the payload s, fl its length, and the frame it starts with is taken only when the
+-- payload (pk_s); e: index in it of the last byte including the line end; sk: the frame's key.
+-- payload: f is the payload, fl its length, and the frame it starts with is taken only when the
 -- layout cache has it (parse_frame); then fl and e are found here, and nil returned when it does
--- not.  Returns e.
-local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, root, payload)
+-- not.  Returns e, and the Info piece of a payload's first frame (first_piece).
+local function dissect_frame(f, fl, a, e, terminated, sk, payload)
+    local pinfo, tree = pk_pinfo, pk_tree
     -- a tree that is shown (-V, -T fields/json, the GUI's details) gets every range and
     -- label; one nobody sees (-Y, coloring rules, taps) takes the fast paths too.  The
     -- protocol item is added once the frame is known (the full tree: with its text)
     local vis = tree and pg_visible(tree)   -- (nil: no tree)
 
-    -- the layout cache's code for the frame's length (bylen), else parse_frame (speed trick,
-    -- measured: the cache's code called here, not through parse_frame)
-    local bodyend, dstb, srcb, malformed_msg, cs_val, cs_calc, cs_status, quiet, full_local, le =
+    -- the take function of the layout that matched a frame of this length last (bylen), else
+    -- parse_frame (speed trick, measured: the layout's called here, not through parse_frame)
+    local bodyend, dstb, srcb, malformed_msg, cs_status, quiet, full_local, le =
         (terminated and bylen[fl] or parse_frame)(f, fl, terminated, vis, payload)
     if payload then
         if not bodyend then return nil end
@@ -220,53 +249,40 @@ local function dissect_frame(f, fl, a, e, terminated, tvb, pinfo, tree, sk, s, r
         e = fl + #le   -- (the layout's pattern took the line end: as line_end's)
     end
     local num = pg_number(pinfo)
-    -- a layout's frame: a data frame between nodes A-P (its head is the layout's); full_local
-    -- from the layout (nil from the parser); any other frame from fields_facts, with the state
-    -- writer's function for it on the first pass (a later pass: state_later_pass).  One argument
-    -- list for the three: the answers go straight into the locals (speed trick, measured)
-    local fkind, is_data, addrs_ok, state = nil, true, true, state_data
-    if full_local == nil then fkind, is_data, addrs_ok, full_local, state = fields_facts(malformed_msg, dstb, srcb) end
+    -- a layout's frame: a data frame between nodes A-P (fill_layout's F.fkind, is_data,
+    -- addrs_ok); full_local from the layout (nil from the parser); any other frame's facts from
+    -- fields_facts, with the state writer's function for it on the first pass (a later pass:
+    -- state_later_pass).  One argument list for the three: the answers go straight into the
+    -- locals (speed trick, measured)
+    local state = state_data
+    if full_local == nil then full_local, state = fields_facts(malformed_msg, dstb, srcb) end
     local visited = pg_visited(pinfo)
     if visited then state = state_later_pass end
-    local kind, rec, list, d, miss_n, ne, nm = state(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree,
-        fkind, is_data, addrs_ok)
+    local kind, rec, list, d, miss_n, ne, nm = state(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
     -- link health (health.lua): the outage this frame ends, if any, marked on every pass
     local gone = health_frame(pinfo, num, sk, dstb, srcb, d, visited, cs_status, rec, kind)
-    if gone then health_mark(tree, root, gone) end
+    if gone then health_mark(tree, pk_root, gone) end
 
-    -- Info: the piece of the payload's first frame from its layout's Info code, which the packet's
-    -- Info is when no other frame follows (dissect writes it: speed trick, measured); else info.lua's
-    local piece = payload and P.first_piece(kind, rec, miss_n)
-    if not piece and not info_layout(kind, rec, miss_n) then
-        info_frame(f, bodyend, kind, is_data, rec, list, dstb, srcb, miss_n)
-    end
+    -- Info: the piece of the payload's first frame from its layout (I.first_piece), which the
+    -- packet's Info is when no other frame follows (dissect writes it: speed trick, measured);
+    -- else a named layout's (info_layout), else info.lua's pieces (frame_output)
+    local piece = payload and first_piece(kind, rec, miss_n)
+    local in_info = piece or info_layout(kind, rec, miss_n)
 
-    -- CR LF after its ']' (line_end)?  Whether CR LF frames the packet's bytes
-    -- (sharedlink.crlf.missing is noted only then) is told the tree module before each frame
-    -- that lacks one.  Speed trick (measured): pinfo.port_type is a call into wslua's __index,
-    -- read only then
-    local crlf = true
-    if e ~= a + fl + 1 then crlf = false; tell_crlf(pinfo, terminated) end
-    -- Tree: shown, hidden (nobody sees it) or none (tshark's summary pass: built only for a frame
-    -- with expert infos, on root, where only the experts stay); one builder (tree.lua)
-    local mode
-    if tree then
-        mode = MODE[vis]
-    else
-        mode = T_NONE
-        if not root then return e, piece end
-        -- a layout's frame with no possible expert (speed trick, measured): quiet (values its
-        -- layout proves, a good upper-case checksum), CR LF after it, no record (late sync,
-        -- limit); otherwise has_experts tells
-        if quiet and crlf and not rec then return e, piece end
-        if not has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status) then
-            return e, piece
-        end
-        tree = root
-    end
-    tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, visited, kind,
-        dstb, srcb, list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
-    return e, piece
+    -- CR LF after its ']' (line_end, or the layout's pattern)?  Whether CR LF frames the packet's
+    -- bytes (sharedlink.crlf.missing is noted only then) is told the tree module before each
+    -- frame that lacks one.  Speed trick (measured): pinfo.port_type is a call into wslua's
+    -- __index, read only then
+    local crlf = e == a + fl + 1
+    if not crlf then tell_crlf(pinfo, terminated) end
+    -- the commonest frame, done: its Info made, no tree, no possible expert (see frame_output)
+    if in_info and not tree and (not pk_root or (quiet and crlf and not rec)) then return e, piece end
+    F.kind, F.rec, F.list, F.d, F.miss_n, F.ne, F.nm = kind, rec, list, d, miss_n, ne, nm
+    F.f, F.fl, F.a, F.e, F.terminated, F.crlf, F.s = f, fl, a, e, terminated, crlf, pk_s
+    F.bodyend, F.dstb, F.srcb, F.malformed, F.cs_status, F.num, F.visited = bodyend, dstb, srcb, malformed_msg,
+        cs_status, num, visited
+    checksum_facts()
+    return frame_output(piece, in_info, quiet, vis)
 end
 ------------------------------------------------------------------------------
 -- Payload scanning
@@ -289,7 +305,7 @@ end
 
 -- A frame at s[a..] that no ']' closes: held for the next TCP segment while within
 -- max_held_bytes (returns nil), else decoded as it is (returns the next position).
-local function unclosed_frame(s, n, a, tvb, pinfo, t, sk, tree)
+local function unclosed_frame(s, n, a, pinfo, sk, tree)
     if pinfo.can_desegment > 0 then
         if (n - a) < cfg.LIM.max_held_bytes then
             pinfo.desegment_offset = a - 1
@@ -299,7 +315,7 @@ local function unclosed_frame(s, n, a, tvb, pinfo, t, sk, tree)
         TI.add_proto_expert_info(tree, ei.limit, "Limit exceeded: an unterminated frame of over " ..
             cfg.LIM.max_held_bytes .. " bytes (max_held_bytes), decoded as it is")
     end
-    dissect_frame(s_sub(s, a, n), n - a + 1, a, n, false, tvb, pinfo, t, sk, s, tree)
+    dissect_frame(s_sub(s, a, n), n - a + 1, a, n, false, sk)
     return n + 1
 end
 
@@ -333,13 +349,13 @@ local function scan(s, n, tvb, pinfo, t, tree, pos)
             local e = line_end(s, b)
             -- a payload that starts with the frame is the frame's text itself (no copy)
             local f = a == 1 and s or s_sub(s, a, b)
-            dissect_frame(f, b - a + 1, a, e, true, tvb, pinfo, t, sk_base + a, s, tree)
+            dissect_frame(f, b - a + 1, a, e, true, sk_base + a)
             pos = e + 1
         elseif na then
-            dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, tvb, pinfo, t, sk_base + a, s, tree)
+            dissect_frame(s_sub(s, a, na - 1), na - a, a, na - 1, false, sk_base + a)
             pos = na
         else
-            pos = unclosed_frame(s, n, a, tvb, pinfo, t, sk_base + a, tree)
+            pos = unclosed_frame(s, n, a, pinfo, sk_base + a, tree)
         end
     end
 end
@@ -370,7 +386,8 @@ local function dissect(tvb, pinfo, tree)
     in_packet = true
     -- the layout cache first, for the frame the payload starts with (dissect_frame's payload); its
     -- Info piece (piece: from its layout's Info code) is the packet's Info when it is the only frame
-    local e, piece = dissect_frame(s, n, 1, nil, true, tvb, pinfo, t, n * 1048576 + 1, s, tree, true)
+    pk_tvb, pk_pinfo, pk_tree, pk_root, pk_s = tvb, pinfo, t, tree, s
+    local e, piece = dissect_frame(s, n, 1, nil, true, n * 1048576 + 1, true)
     if piece then
         if e == n then
             cols.info = piece

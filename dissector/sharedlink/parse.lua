@@ -1,6 +1,6 @@
--- SharedLink dissector module: parse, one frame's fields and variables into P (its arrays and
--- facts): the layout cache in front of the field-by-field parser; the checksum verdict and the
--- kind the fields tell.
+-- SharedLink dissector module: parse, one frame's fields and variables into F, the frame record
+-- (its arrays and facts): the layout cache in front of the field-by-field parser; the checksum
+-- verdict (the one rule) and the kind the fields tell.
 -- Loaded by sharedlink.lua (load_module); Wireshark also runs every .lua file of a plugin folder's
 -- subfolders as a plugin of its own: this file then does nothing.
 
@@ -14,41 +14,52 @@ local ARROW, CTRL, LETTER, B_PIPE, B_A, B_P = U.ARROW, U.CTRL, U.LETTER, U.B_PIP
 local L_N, L_T, L_Q, L_R, L_D, L_C, L_L, L_E, L_M, L_P, L_G = U.L_N, U.L_T, U.L_Q, U.L_R, U.L_D, U.L_C, U.L_L,
     U.L_E, U.L_M, U.L_P, U.L_G
 local valid_type, byte_sum, str_sum, checksum_value = U.valid_type, U.byte_sum, U.str_sum, U.checksum_value
-local INFO_MAX = U.INFO_MAX
+local INFO_MAX, UHEXV, SUM_OF = U.INFO_MAX, U.UHEXV, U.SUM_OF
 local to_ordinal, pat_escape = U.to_ordinal, U.pat_escape
 local HUGE_INDEX = 4294967295   -- the largest index the uint32 sharedlink.var.index holds
 
 ------------------------------------------------------------------------------
--- What parsing found in the current frame (P; read by state, info and tree), in reused arrays (no
--- per-frame table churn):
---   fields (FL letter byte, false = empty; FS/FE its first and last index in the frame), P.nf;
+-- F, the frame record: one table describing the frame being decoded, filled in order by parse
+-- (its fields, variables and the facts they tell), the entry (its place in the packet and the
+-- kind its fields tell) and the state writer (its state's answers), and read by state, info and
+-- tree (tree_frame, has_experts and info_frame take it as their argument).  Reused for every
+-- frame (no per-frame table churn); its arrays are also each module's upvalues (speed trick,
+-- measured: a table field is a hash lookup).  Nothing keeps it past the frame.
+-- Parse (parse_reset clears the facts; a layout's frame: fill_layout):
+--   fields: FL letter byte (false = empty), FS/FE its first and last index in the frame; nf;
 --   FV/FC (tree: the variable starting at field i / a field a variable covers);
 --   variables: VT type text, VN name (false: positional), VV value (false: no D), VI index, VR is
---   a reply; VTf/VQf/VDf the field numbers of T, Q/R, D (0: none), P.nv;
--- and the facts (parse_reset): n_ord/l_ord the N/L ordinals (n_text: N's text); has_e..has_r an
--- E, M, P, G or R field; nq/nd Q and D fields; n_pos positional D fields, n_empty_d empty ones;
--- cpos/ctext the checksum field's start and text;
--- cmd_start the first E/M field; ord_text N? or L? (a list request); layout: the cached layout
--- that parsed the frame (else false), named: the same when it is a named one (else nil),
--- filled: the layout whose facts P holds (parse_frame); odd: a field whose tree item carries an expert info
--- (an empty field, an unknown letter, an ordinal or type that is not a number); limit: why the
--- frame is past a limit its fields alone tell (a "Limit exceeded: ..." text), else false.
+--   a reply; VTf/VQf/VDf the field numbers of T, Q/R, D (0: none); nv;
+--   n_ord/l_ord the N/L ordinals (n_text: N's text; huge_ord: past 9 digits; n_nan: no number);
+--   has_e..has_r an E, M, P, G or R field; nq/nd Q and D fields; n_pos positional D fields,
+--   n_empty_d empty ones; cmd_start the first E/M field; ord_text N? or L? (a list request);
+--   layout: the cached layout that parsed the frame (else false), named: the same when it is a
+--   named one (else nil), filled: the layout whose facts F holds; vlen: a layout's values'
+--   length; odd: a field whose tree item carries an expert info (an empty field, an unknown
+--   letter, an ordinal or type that is not a number); limit: why the frame is past a limit its
+--   fields alone tell (a "Limit exceeded: ..." text), else false;
+--   the checksum (checksum_verdict): cpos/ctext the C field's start and text, cs_val its value,
+--   cs_calc the calculated one, cs_plain two upper-case hex digits (nil: no C field).
+-- The entry (dissect_frame; a layout's frame: fill_layout): fkind the kind the fields tell (nil:
+--   a data frame), is_data, addrs_ok (both addresses nodes A-P); for info and tree: f, fl, a, e,
+--   s, terminated, bodyend, malformed (why it is malformed, else nil), dstb/srcb, num, visited,
+--   crlf (CR LF after its ']'); and the state's answers kind, rec, list, d, miss_n, ne, nm.
 ------------------------------------------------------------------------------
 local FL, FS, FE, FV, FC = {}, {}, {}, {}, {}
 local VT, VN, VV, VI, VR, VTf, VQf, VDf = {}, {}, {}, {}, {}, {}, {}, {}
-local P = { nv = 0, nf = 0, FL = FL, FS = FS, FE = FE, FV = FV, FC = FC, VT = VT, VN = VN, VV = VV, VI = VI,
+local F = { nv = 0, nf = 0, FL = FL, FS = FS, FE = FE, FV = FV, FC = FC, VT = VT, VN = VN, VV = VV, VI = VI,
     VR = VR, VTf = VTf, VQf = VQf, VDf = VDf }
 
 -- The layout cache (per capture, reset by Pm.reset): mru: node pair -> its recent layouts, newest
 -- first (up to MAX_LAYOUTS: a compressed stream's deltas cycle through a few subsets of the
--- variables); bylen: frame length -> the hit code (sh.hit) of the layout that matched last
+-- variables); bylen: frame length -> the take function (sh.take) of the layout that matched last
 -- (nbylen entries; its head, checked before its pattern, tells the node pair: speed trick,
 -- measured, no string.byte call a frame for the pair's letters).
 -- bylen is an upvalue of its own (speed trick, measured: one table lookup a frame less), one
 -- table for the capture (emptied in place), which the entry reads too (Pm.bylen: parse_frame).
 local LY, bylen = {}, {}
 local MAX_LAYOUTS = 8
-local Pm = { P = P, LY = LY, bylen = bylen }
+local Pm = { F = F, LY = LY, bylen = bylen }
 local function bylen_clear()
     for k in pairs(bylen) do bylen[k] = nil end
     LY.nbylen = 0
@@ -64,19 +75,16 @@ Pm.reset()
 -- packet's frames).
 local FAST = not wsapi.env.no_fast
 local MARKS = { fast = wsapi.env.fast_mark, fast_hit = false }
-
--- P.first_piece: a named layout's first_piece (named_code), else none.
-local function NO_PIECE() return nil end
-P.first_piece = NO_PIECE
+local FAST_MARK = MARKS.fast
 
 local function parse_reset()
-    P.nf, P.nv = 0, 0
-    P.n_ord, P.l_ord, P.n_text, P.huge_ord, P.n_nan = nil, nil, nil, nil, nil
-    P.has_e, P.has_m, P.has_p, P.has_g, P.has_r = false, false, false, false, false
-    P.nq, P.nd, P.n_empty_d, P.n_pos = 0, 0, 0, 0
-    P.cpos, P.ctext, P.cmd_start, P.ord_text = nil, nil, nil, false
-    P.layout, P.named, P.filled, P.first_piece = false, nil, nil, NO_PIECE
-    P.odd, P.limit = false, false
+    F.nf, F.nv = 0, 0
+    F.n_ord, F.l_ord, F.n_text, F.huge_ord, F.n_nan = nil, nil, nil, nil, nil
+    F.has_e, F.has_m, F.has_p, F.has_g, F.has_r = false, false, false, false, false
+    F.nq, F.nd, F.n_empty_d, F.n_pos = 0, 0, 0, 0
+    F.cpos, F.ctext, F.cmd_start, F.ord_text = nil, nil, nil, false
+    F.layout, F.named, F.filled = false, nil, nil
+    F.odd, F.limit = false, false
 end
 
 -- The header: last index of the content, the address bytes (nil when cut short), the index of
@@ -115,36 +123,36 @@ local g_t, g_tf, g_q, g_qf, g_r, g_idx, g_lt
 -- type"; docs/fields-sharedlink.md, "Values"): VT its text, VTf 0.
 local function add_var(t, q, v, r, tf, qf, df)
     if q and tf == 0 then t = g_lt end
-    local nv = P.nv + 1
-    P.nv = nv
+    local nv = F.nv + 1
+    F.nv = nv
     VT[nv], VN[nv], VV[nv], VI[nv], VR[nv] = t, q, v, g_idx, r
     VTf[nv], VQf[nv], VDf[nv] = tf, qf, df
 end
 
 -- A complete T/Q/D triplet at p (t1 |Q t2 |D t3, ending at fe).
 local function take_triplet(p, fe, t1, t2, t3)
-    local nf = P.nf
+    local nf = F.nf
     add_var(t1, t2, t3, false, nf + 1, nf + 2, nf + 3)
     g_idx = g_idx + 1
-    P.nq, P.nd = P.nq + 1, P.nd + 1
-    if valid_type(t1) then g_lt = t1 else g_lt, P.odd = false, true end
+    F.nq, F.nd = F.nq + 1, F.nd + 1
+    if valid_type(t1) then g_lt = t1 else g_lt, F.odd = false, true end
     local q1 = p + #t1 + 2
     local d1 = q1 + #t2 + 2
     FL[nf + 1], FS[nf + 1], FE[nf + 1] = L_T, p, q1 - 2
     FL[nf + 2], FS[nf + 2], FE[nf + 2] = L_Q, q1, d1 - 2
     FL[nf + 3], FS[nf + 3], FE[nf + 3] = L_D, d1, fe
-    P.nf = nf + 3
+    F.nf = nf + 3
     g_t, g_tf = false, 0   -- no T pending (a stale g_tf gave a later Q/D variable this triplet's T field)
 end
 
 -- A D field (text t1, field nf): a variable's value, or a command's argument.
 local function take_data(t1, nf)
-    P.nd = P.nd + 1
-    if P.has_e or P.has_m then return end
+    F.nd = F.nd + 1
+    if F.has_e or F.has_m then return end
     add_var(g_t, g_q, t1, g_r, g_tf, g_qf, nf)
     if not g_q then
-        P.n_pos = P.n_pos + 1
-        if t1 == "" then P.n_empty_d = P.n_empty_d + 1 end
+        F.n_pos = F.n_pos + 1
+        if t1 == "" then F.n_empty_d = F.n_empty_d + 1 end
     end
     g_idx = g_idx + 1
     g_t, g_q, g_r, g_tf, g_qf = false, false, false, 0, 0
@@ -164,11 +172,11 @@ end
 
 -- An ordinal as the state reads it: decimal digits only (as a T, and as Python's
 -- codec.parse_int: +5, 1e3, 0x10 or 5.5 are no number: 0, the field odd, and an N that is no
--- number makes no full set, P.n_nan), else to_ordinal's.
+-- number makes no full set, F.n_nan), else to_ordinal's.
 local function state_ordinal(text, c)
     if text == "" or s_find(text, "[^0-9]") then
-        P.odd = true
-        if c == L_N then P.n_nan = true end
+        F.odd = true
+        if c == L_N then F.n_nan = true end
         return 0
     end
     return to_ordinal(text)
@@ -176,24 +184,24 @@ end
 
 -- An N or L field: its ordinal sets the next variable's index (the first one of each only).
 local function take_ordinal(c, t1)
-    if not ordinal_ok(t1) then P.odd = true end
+    if not ordinal_ok(t1) then F.odd = true end
     local huge = #t1 > 9 and not s_find(t1, "[^0-9]")
     if huge then
-        P.odd, P.limit = true, "Limit exceeded: " .. (c == L_N and "N" or "L") .. " has more than 9 digits"
+        F.odd, F.limit = true, "Limit exceeded: " .. (c == L_N and "N" or "L") .. " has more than 9 digits"
     end
     if c == L_N then
-        if P.n_ord then return end
-        P.n_ord, P.n_text = state_ordinal(t1, c), t1
-        g_idx = P.n_ord
+        if F.n_ord then return end
+        F.n_ord, F.n_text = state_ordinal(t1, c), t1
+        g_idx = F.n_ord
     else
-        if P.l_ord then return end
-        P.l_ord = state_ordinal(t1, c)
-        g_idx = P.l_ord
+        if F.l_ord then return end
+        F.l_ord = state_ordinal(t1, c)
+        g_idx = F.l_ord
     end
     -- past max_slots whatever to_ordinal keeps (an unset 32-bit field, N4294967295): its slots
-    -- are dropped, not stored from 0, and the frame is no full set (P.huge_ord)
-    if huge then g_idx, P.huge_ord = HUGE_INDEX, true end
-    if not tonumber(t1) then P.ord_text = true end
+    -- are dropped, not stored from 0, and the frame is no full set (F.huge_ord)
+    if huge then g_idx, F.huge_ord = HUGE_INDEX, true end
+    if not tonumber(t1) then F.ord_text = true end
 end
 
 -- One field other than a triplet: letter c at p, its text t1, ending at fe (field number nf).
@@ -203,21 +211,21 @@ local function take_field(c, p, fe, t1, bodyend, nf)
     elseif c == L_Q or c == L_R then
         if g_q then flush_name(); g_t, g_tf = false, 0 end
         g_q, g_qf, g_r = t1, nf, c == L_R
-        if g_r then P.has_r = true else P.nq = P.nq + 1 end
+        if g_r then F.has_r = true else F.nq = F.nq + 1 end
     elseif c == L_T then
         if g_q then flush_name(); g_q, g_r, g_qf = false, false, 0 end
         g_t, g_tf = t1, nf
-        if valid_type(t1) then g_lt = t1 else g_lt, P.odd = false, true end
+        if valid_type(t1) then g_lt = t1 else g_lt, F.odd = false, true end
     elseif c == L_N or c == L_L then
         take_ordinal(c, t1)
     elseif c == L_C and fe == bodyend then
-        P.cpos, P.ctext = p, t1
+        F.cpos, F.ctext = p, t1
     elseif c == L_E or c == L_M then
-        if c == L_E then P.has_e = true else P.has_m = true end
-        if not P.cmd_start then P.cmd_start = p end
-    elseif c == L_P then P.has_p = true
-    elseif c == L_G then P.has_g = true
-    else P.odd = true   -- an unknown letter, or C before the last field
+        if c == L_E then F.has_e = true else F.has_m = true end
+        if not F.cmd_start then F.cmd_start = p end
+    elseif c == L_P then F.has_p = true
+    elseif c == L_G then F.has_g = true
+    else F.odd = true   -- an unknown letter, or C before the last field
     end
 end
 
@@ -234,11 +242,11 @@ local function parse_fields(f, p, bodyend)
         else
             _, fe, t1 = s_find(f, "^[^]|]([^]|]*)", p)
             if fe and fe > bodyend then fe = nil end
-            local nf = P.nf + 1
-            P.nf = nf
+            local nf = F.nf + 1
+            F.nf = nf
             if not fe then   -- an empty field
                 FL[nf], FS[nf], FE[nf] = false, p, p - 1
-                P.odd = true
+                F.odd = true
                 p = p + 1
             else
                 FL[nf], FS[nf], FE[nf] = c, p, fe
@@ -255,8 +263,8 @@ end
 -- text: addresses, N, and per variable T and Q (named), nothing (positional), or no variable at
 -- all (bare: [:AB|N0|Cxx]).  It is learnt from a frame the parser took whose fields carry no
 -- expert info; a later frame of the node pair with that layout is matched by one anchored
--- pattern, and its captures go into P as the parser would have put them (the fields' places only
--- for a shown tree: fast_positions).  A cache: whatever it holds, P is what the parser gives.
+-- pattern, and its captures go into F as the parser would have put them (the fields' places only
+-- for a shown tree: fast_positions).  A cache: whatever it holds, F is what the parser gives.
 -- Speed tricks (measured, summary pass): the layout's head up to its first value is found as
 -- plain text and the rest matched from there (a pattern matches text one character at a time);
 -- the layout that matched a frame of the same length is tried first (a compressed stream
@@ -277,105 +285,73 @@ local VALUE = "([ -Z\\^-{}-~\128-\255]*)"
 local DOUBLE = "(%-?[0-9]+%.?[0-9]*)"
 local CHECKSUM = "|C([^]|[]*)%](\r?\n?)"
 
--- A layout's frame, matched and taken into P: code made once per layout, on its first match
--- (layout_hit; kept in sh.hit), as the parser would have left P (see parse_frame).  Speed tricks
--- (measured): the layout's head, pattern, sums and facts are constants of the code (no table read
--- for them), its captures stay in its locals (no call passes them on), and the values are summed as
--- one string, one SUM_OF call instead of one a value (-2.3 thousand instructions a frame, summary
--- pass), a string padded past Lua's 40 bytes for interned strings (sh.npad bytes of "\0" after the
--- values of the frame that taught the layout, LONG in all): Lua makes it without hashing it into
--- its string table, which a short string new each frame fills (-1.7 thousand instructions a
--- frame, time -2.7 %, summary pass).  The pattern takes the line end after the ']' (CR LF, CR,
--- LF or "", as the entry's line_end: no string.byte call).  sh.hit(f, fl, terminated, vis, payload, try) returns what
--- parse_frame returns; when f does not have the layout, nil with try, else parse_frame's answer
--- (a tail call: the entry tries the layout that matched the same length last first).
-local parse_frame, fill_code   -- (below)
-local HIT_ENV = { "sh", "VV", "VT", "VN", "VI", "VR", "P", "SUM_OF", "s_byte", "byte_sum", "s_match", "s_find",
-    "UHEXV", "checksum_value", "positional_empty", "fast_positions", "parse_frame", "MARKS", "CARRIED_TAIL",
-    "NO_PIECE" }
--- The checksum part of the hit code: the values' sum (unless the checksum is not validated: the
--- preference's value is a constant of the code, which Pm.reset drops when it changes) and the
--- answers for each verdict (ret: the answers before the verdict's).
-local function verdict_code(sh, n, ret, full)
-    if not cfg.validate then return ret .. "nil, 2, false, " .. full .. ", le end" end
-    return (n > 0 and ("local sum " ..
-            "if vlen <= 40 then sum = SUM_OF[vlen](s_byte(all, 1, vlen)) else sum = byte_sum(all, 1, vlen) end ")
-            or "local sum = 0 ") ..
-        "local cs_calc = (" .. sh.fixed .. " + sum) % 256 " ..
-        "if cs_val ~= cs_calc then " .. ret .. "cs_calc, 0, false, " .. full .. ", le end " ..
-        ret .. "cs_calc, 1, quiet, " .. full .. ", le end "
-end
-
+-- A layout's frame, matched and taken into F (the frame record).  The only code made per layout is
+-- its matcher (sh.match, made on its first use: layout_matcher): the head found as plain text,
+-- the anchored pattern from there, the captures into VV; it returns the checksum text, the line
+-- end and the values joined.  Everything else is the ordinary code below (layout_frame): the
+-- layout's facts into F (fill_layout), the checksum verdict (checksum_verdict, the one rule), the
+-- full verdict.  Speed tricks (measured): the head, pattern and captures are constants and
+-- locals of the matcher (no table read, no call passes the captures on); the values are summed
+-- as one string, one SUM_OF call instead of one a value (-2.3 thousand instructions a frame,
+-- summary pass), a string padded past Lua's 40 bytes for interned strings (sh.npad bytes of "\0"
+-- after the values of the frame that taught the layout, LONG in all): Lua makes it without
+-- hashing it into its string table, which a short string new each frame fills (-1.7 thousand
+-- instructions a frame, time -2.7 %, summary pass).  The pattern takes the line end after the
+-- ']' (CR LF, CR, LF or "", as the entry's line_end: no string.byte call).
+local parse_frame   -- (below)
 local LONG = 44   -- (a layout's values joined and padded: longer than 40 bytes, give or take 3)
--- The hit code's vlen (the values' length) and, when the checksum is validated, all (the values
--- joined and padded, for its sum); a named layout's uvlen.
-local function vlen_code(sh, n, vs)
-    local code
-    if n == 0 then
-        code = " local vlen = 0 "
-    elseif cfg.validate then
-        code = " local all = " .. t_concat(vs, " .. ") ..
-            (sh.npad > 0 and (" .. PAD local vlen = #all - " .. sh.npad .. " ") or " local vlen = #all ")
-    else
-        code = " local vlen = #" .. t_concat(vs, " + #") .. " "
-    end
-    return code .. (sh.named and "uvlen = vlen " or "")
+
+-- The one checksum rule (docs/fields-sharedlink.md, "Bad checksums"; BUL-009): the sum of the
+-- bytes from ':' through the 'C' of the checksum field, modulo 256, against the field's text
+-- read as hex.  Returns the status (1 good, 0 bad, 2 unverified: validate_checksum off), whether
+-- the text is two upper-case hex digits (plain: the form without sharedlink.checksum.format),
+-- its value (nil: not 1 to 8 hex digits) and the calculated one (nil: not validated).  sum: the
+-- bytes' sum, not reduced (ignored when not validated), which the frame record keeps (F.cs_sum;
+-- checksum_facts gives the rest to info and tree).
+local function checksum_verdict(ctext, sum)
+    local plain = UHEXV[ctext]
+    local cs_val = plain or checksum_value(ctext)
+    if not cfg.validate then return 2, plain ~= nil, cs_val, nil end
+    local cs_calc = sum % 256
+    return cs_val == cs_calc and 1 or 0, plain ~= nil, cs_val, cs_calc
 end
 
-local function hit_code(sh)
-    local n, vs, sets = sh.n, {}, {}
-    for k = 1, n do
-        vs[k], sets[k] = "v" .. k, "VV[" .. k .. "] = v" .. k
-        -- a named layout's values for its store and Info code (upvalues: no table read)
-        if sh.named then sets[k] = sets[k] .. " u" .. k .. " = v" .. k end
-    end
-    local miss = "if try then return nil end return parse_frame(f, fl, terminated, vis, payload) end "
-    local ret = "return cpos + #ctext, " .. sh.dstb .. ", " .. sh.srcb .. ", nil, cs_val, "
-    local full = sh.named and tostring(sh.full0) or "full"
-    return "function(f, fl, terminated, vis, payload, try) " ..
-        "if s_find(f, HEAD, 1, true) ~= 1 then " .. miss ..
-        "local " .. (n > 0 and (t_concat(vs, ", ") .. ", ") or "") .. "ctext, le = s_match(f, PAT, AT) " ..
-        "if not ctext then " .. miss .. t_concat(sets, " ") ..
-        vlen_code(sh, n, vs) ..
-        (MARKS.fast and "MARKS.fast_hit = true " or "") ..
-        "local cpos = " .. (sh.flen - 1) .. " + vlen " ..
-        "P.ctext = ctext P.cpos = cpos " ..
-        "if P.filled ~= sh then " .. fill_code(sh) .. "end " ..
-        (sh.named and "" or ("local full = positional_empty(" .. n .. ") and " .. tostring(sh.full0) .. " ")) ..
-        "if vis then fast_positions(sh) end " ..
-        -- (quiet, a layout with no possible expert: a good upper-case checksum adds none)
-        (sh.quiet and "local cs_val, quiet = UHEXV[ctext], true " ..
-            "if not cs_val then cs_val, quiet = checksum_value(ctext), false end "
-            or "local cs_val, quiet = UHEXV[ctext] or checksum_value(ctext), false ") ..
-        verdict_code(sh, n, ret, full)
+-- The checksum's facts into F (cs_plain, cs_val, cs_calc; nil with no C field), for info and the
+-- tree: the frames that need them (the entry).
+function Pm.checksum_facts()
+    if not F.cpos then F.cs_plain, F.cs_val, F.cs_calc = nil, nil, nil; return end
+    local _, plain, cs_val, cs_calc = checksum_verdict(F.ctext, F.cs_sum)
+    F.cs_plain, F.cs_val, F.cs_calc = plain, cs_val, cs_calc
 end
 
--- A named layout's store (the state writer's store of a layout of known names: a direction's
--- vals and from) and Info code (piece(kind, rec, miss_n): the frame's Info piece, as info.lua's
--- info_pieces makes it, for a full frame that carries nothing or a delta, its tail " (+n
--- carried)" after the values, with no late sync record, when it fits INFO_MAX; else nil;
--- first_piece: the same for the entry, off with SHAREDLINK_FAST_MARK, whose mark I.finish puts),
--- in the hit code's chunk: the values are its upvalues u1..un (uvlen their length), the names
--- and the Info's pieces constants (speed trick, measured: no table read, no loop, one
--- concatenation).
-local function named_code(sh)
-    local n, store, info, dinfo = sh.n, {}, {}, {}
-    for k = 1, n do
-        store[k] = string.format("vals[%q] = u%d from[%q] = num", sh.N[k], k, sh.N[k])
-        info[2 * k - 1], info[2 * k] = string.format("%q", sh.pieces[k]), "u" .. k
-        dinfo[2 * k - 1], dinfo[2 * k] = string.format("%q", sh.dpieces[k]), "u" .. k
-    end
-    return "local function store(vals, from, num) " .. t_concat(store, " ") .. " end " ..
-        "local function piece(kind, rec, miss_n) " ..
-        "if rec and rec.late then return nil end " ..
-        "if kind == 'full' then " ..
-        "if miss_n ~= 0 or uvlen > " .. sh.info_room .. " then return nil end " ..
-        "return " .. t_concat(info, " .. ") .. " end " ..
-        "if kind ~= 'delta' then return nil end " ..
-        "local tail = miss_n > 0 and (CARRIED_TAIL[miss_n] or (' (+' .. miss_n .. ' carried)')) or '' " ..
-        "if uvlen + #tail > " .. sh.dinfo_room .. " then return nil end " ..
-        "return " .. t_concat(dinfo, " .. ") .. " .. tail end " ..
-        "local first_piece = " .. (MARKS.fast and "function() return nil end " or "piece ")
+-- A layout's matcher, made on its first use: a chunk of several lines named after its layout
+-- (an error reads "layout [:AB|N0|T2|QLat|D...:5:"), its environment one table (E: the names the
+-- code reads, taken into locals once).
+local function layout_matcher(sh)
+    local n, vs, lines = sh.n, {}, {}
+    for k = 1, n do vs[k] = "v" .. k end
+    local caps = n > 0 and (t_concat(vs, ", ") .. ", ") or ""
+    lines[1] = "local VV, s_find, s_match, HEAD, PAT, AT, PAD = VV, s_find, s_match, HEAD, PAT, AT, PAD"
+    lines[2] = "return function(f)"
+    lines[3] = "    if s_find(f, HEAD, 1, true) ~= 1 then return nil end"
+    lines[4] = "    local " .. caps .. "ctext, le = s_match(f, PAT, AT)"
+    lines[5] = "    if not ctext then return nil end"
+    for k = 1, n do lines[5 + k] = "    VV[" .. k .. "] = v" .. k end
+    local joined = n > 0 and (t_concat(vs, " .. ") .. (sh.pad and " .. PAD" or "")) or '""'
+    lines[n + 6] = "    return ctext, le, " .. joined
+    lines[n + 7] = "end"
+    local E = { VV = VV, s_find = s_find, s_match = s_match, HEAD = sh.head, PAT = sh.pat, AT = sh.at, PAD = sh.pad }
+    local name = "=layout " .. sh.head .. (n > 0 and (sh.named and "|..." or "|D...") or "")
+    sh.match = assert(load(t_concat(lines, "\n"), name, "t", E))()
+    return sh.match
+end
+
+-- A positional layout's frame: its empty D fields (F.n_empty_d; full without state needs none).
+local function positional_empty(n)
+    local n_empty_d = 0
+    for k = 1, n do if VV[k] == "" then n_empty_d = n_empty_d + 1 end end
+    F.n_empty_d = n_empty_d
+    return n_empty_d == 0
 end
 
 -- The fields' places in a frame the layout cache parsed (N, T/Q/D triplets or D fields, C), for
@@ -402,69 +378,75 @@ local function fast_positions(sh)
         p = p + #v + 2
         i = i + 1
     end
-    FL[i + 1], FS[i + 1], FE[i + 1] = L_C, p, p + #P.ctext
-    P.nf = i + 1
+    FL[i + 1], FS[i + 1], FE[i + 1] = L_C, p, p + #F.ctext
+    F.nf = i + 1
 end
 
--- A layout's names, types, indexes and facts into P: code made once per layout, in its hit code
--- (hit_code; speed trick, measured: a compressed stream's deltas change layout every frame), the
--- names and types constants in it.  Returns the code's text (VT, VN, VI, VR, P and sh its
--- upvalues).
-function fill_code(sh)
-    local n, st, sn, code = sh.n, sh.T, sh.N, {}
-    -- one assignment a field (a multiple one moves every value first), constants where known
-    for k = 1, n do
-        code[k] = string.format("VT[%d] = %s VN[%d] = %s VI[%d] = %d VR[%d] = false", k,
-            st[k] and string.format("%q", st[k]) or "nil", k, sn[k] and string.format("%q", sn[k]) or "nil",
-            k, sh.ord + k - 1, k)
+-- A layout's names, types, indexes and facts into F, as the parser leaves them for such a frame
+-- (parse_reset, then what a data frame of N, variables and C has); they stay while the next frames
+-- have the layout (F.filled, cleared by parse_reset; speed trick, measured).  After another
+-- layout's frame (F.layout) only what differs between layouts is written (speed trick, measured:
+-- a compressed stream changes layout every frame).
+local function fill_layout(sh)
+    if not F.layout then
+        parse_reset()
+        F.fkind, F.is_data, F.addrs_ok = nil, true, true   -- (a data frame between nodes A-P)
     end
-    return t_concat(code, " ") ..
-        " P.n_ord = sh.ord P.n_text = sh.ntext P.nv = " .. n .. " P.nd = " .. n ..
-        " P.layout = sh P.odd = false P.limit = false " ..
-        (sh.named and ("P.nq = " .. n .. " P.n_pos = 0 P.n_empty_d = 0 P.named = sh " ..
-                       "P.first_piece = sh.first_piece ")
-                   or ("P.nq = 0 P.n_pos = " .. n .. " P.named = nil P.first_piece = NO_PIECE ")) ..
-        "P.filled = sh "
+    local n, st, sn, ord = sh.n, sh.T, sh.N, sh.ord
+    for k = 1, n do VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], ord + k - 1, false end
+    F.nv, F.nd, F.n_ord, F.n_text, F.layout, F.filled = n, n, ord, sh.ntext, sh, sh
+    if sh.named then
+        F.nq, F.n_pos, F.n_empty_d, F.named = n, 0, 0, sh
+    else
+        F.nq, F.n_pos, F.named = 0, n, nil
+    end
 end
 
--- A positional layout's frame: its empty D fields (P.n_empty_d; full without state needs none).
-local function positional_empty(n)
-    local n_empty_d = 0
-    for k = 1, n do if VV[k] == "" then n_empty_d = n_empty_d + 1 end end
-    P.n_empty_d = n_empty_d
-    return n_empty_d == 0
+-- The function that takes a frame of layout sh (sh.take, made when the layout is learnt; the
+-- layout's fields its upvalues: speed trick, measured, no table read for them), called as
+-- parse_frame is (try: nil when f does not have the layout, else parse_frame's answer, a tail
+-- call).  Returns what parse_frame returns.
+local function layout_frame(sh)
+    local npad, flen1, full0, named, fixed, n = sh.npad, sh.flen1, sh.full0, sh.named, sh.fixed, sh.n
+    local quiet, dstb, srcb = sh.quiet, sh.dstb, sh.srcb
+    local match
+    match = function(f1) match = layout_matcher(sh); return match(f1) end   -- (made on its first use)
+    return function(f, fl, terminated, vis, payload, try)
+        local ctext, le, all = match(f)
+        if not ctext then
+            if try then return nil end
+            return parse_frame(f, fl, terminated, vis, payload)
+        end
+        if F.filled ~= sh then fill_layout(sh) end
+        local vlen = #all - npad
+        local cpos = flen1 + vlen
+        F.ctext, F.cpos, F.vlen = ctext, cpos, vlen
+        if FAST_MARK then MARKS.fast_hit = true end
+        local full = full0
+        if not named then full = positional_empty(n) and full end
+        if vis then fast_positions(sh) end
+        local sum = fixed
+        if vlen > 40 then sum = sum + byte_sum(all, 1, vlen)
+        elseif vlen > 0 then sum = sum + SUM_OF[vlen](s_byte(all, 1, vlen)) end
+        F.cs_sum = sum
+        local cs_status, plain = checksum_verdict(ctext, sum)
+        -- (quiet, a layout with no possible expert: a good upper-case checksum adds none)
+        return cpos + #ctext, dstb, srcb, nil, cs_status, quiet and cs_status == 1 and plain, full, le
+    end
 end
-
--- A layout's code, made on its first match: its hit code (hit_code) in sh.hit and, for a named
--- layout (at least one value), its store and Info code (named_code) in sh.store, sh.piece and
--- sh.first_piece, one chunk.
-local function layout_hit(sh)
-    local ups = {}
-    for k = 1, sh.n do ups[k] = "u" .. k end
-    local code = "local " .. t_concat(HIT_ENV, ", ") .. " = ... " ..
-        "local HEAD, PAT, AT, PAD = sh.head, sh.pat, sh.at, sh.pad " ..
-        (sh.named and ("local uvlen, " .. t_concat(ups, ", ") .. " " .. named_code(sh)) or "") ..
-        "local hit = " .. hit_code(sh) .. " " ..
-        (sh.named and "return hit, store, piece, first_piece" or "return hit")
-    sh.hit, sh.store, sh.piece, sh.first_piece = assert(load(code, "=layout_hit", "t", {}))(sh, VV, VT, VN, VI, VR,
-        P, U.SUM_OF, s_byte, byte_sum, s_match, s_find, U.UHEXV, checksum_value, positional_empty,
-        fast_positions, parse_frame, MARKS, U.CARRIED_TAIL, NO_PIECE)
-    return sh.hit
-end
-
 ------------------------------------------------------------------------------
 -- Learning a layout (from a frame the parser took).
 ------------------------------------------------------------------------------
 -- Whether every variable of the parsed frame is a T/Q/D triplet with a valid type (named), or a
 -- D alone (positional).
 local function all_named()
-    for k = 1, P.nv do
+    for k = 1, F.nv do
         if not (VT[k] and VN[k] and VV[k] and valid_type(VT[k])) or VR[k] then return false end
     end
     return true
 end
 local function all_positional()
-    for k = 1, P.nv do
+    for k = 1, F.nv do
         if VT[k] or VN[k] or not VV[k] then return false end
     end
     return true
@@ -473,16 +455,16 @@ end
 -- Which layout the parsed frame has: "named" (N, T/Q/D triplets, C), "positional" (N, D fields,
 -- C), "bare" (N0, C), or nil (none the cache keeps: at most 8 variables).
 local function layout_kind(f)
-    local nv, nf = P.nv, P.nf
-    if not (P.n_text and P.cpos) or P.ord_text or s_byte(f, 6) ~= L_N or nv > 8 then return nil end
-    if nv == 0 then return (nf == 2 and P.n_ord == 0) and "bare" or nil end
-    if nf == 3 * nv + 2 and P.n_pos == 0 and all_named() then return "named" end
-    if nf == nv + 2 and P.n_pos == nv and P.nq == 0 and not P.has_r and all_positional() then return "positional" end
+    local nv, nf = F.nv, F.nf
+    if not (F.n_text and F.cpos) or F.ord_text or s_byte(f, 6) ~= L_N or nv > 8 then return nil end
+    if nv == 0 then return (nf == 2 and F.n_ord == 0) and "bare" or nil end
+    if nf == 3 * nv + 2 and F.n_pos == 0 and all_named() then return "named" end
+    if nf == nv + 2 and F.n_pos == nv and F.nq == 0 and not F.has_r and all_positional() then return "positional" end
     return nil
 end
 
--- The Info pieces of a named layout (sh) for its Info code (named_code), and the room its values
--- have in INFO_MAX.
+-- The Info pieces of a named layout (sh), what info.lua's layout_piece puts before each value,
+-- and the room its values have in INFO_MAX.
 local function named_info(sh, dstb, srcb)
     local sn, nv = sh.N, sh.n
     local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
@@ -508,11 +490,11 @@ end
 
 -- A new layout from the parsed frame f of kind (layout_kind): its head, pattern and sums.
 local function new_layout(f, kind, dstb, srcb)
-    local nv = P.nv
+    local nv = F.nv
     local named = kind == "named"
-    local head = "[:" .. LETTER[dstb] .. LETTER[srcb] .. "|N" .. P.n_text
+    local head = "[:" .. LETTER[dstb] .. LETTER[srcb] .. "|N" .. F.n_text
     local st, sn, tv, parts = {}, {}, {}, {}
-    local fixed = byte_sum(f, 2, P.cpos)
+    local fixed = byte_sum(f, 2, F.cpos)
     for k = 1, nv do
         local tq = ""
         if named then
@@ -527,15 +509,16 @@ local function new_layout(f, kind, dstb, srcb)
     local vlen = 0
     for k = 1, nv do vlen = vlen + #VV[k] end
     local sh = { head = head, at = #head + 1, pat = "^" .. t_concat(parts), n = nv, named = named, T = st, N = sn,
-        TV = named and tv or nil, has_long = named and has_long(tv), ord = P.n_ord, ntext = P.n_text,
-        fixed = fixed % 256, flen = P.cpos + 1 - vlen, dstb = dstb, srcb = srcb, npad = LONG - vlen }
+        TV = named and tv or nil, has_long = named and has_long(tv), ord = F.n_ord, ntext = F.n_text,
+        fixed = fixed % 256, flen1 = F.cpos - vlen, dstb = dstb, srcb = srcb,
+        npad = nv > 0 and math.max(0, LONG - vlen) or 0 }
     if sh.npad > 0 then sh.pad = s_rep("\0", sh.npad) end
-    sh.hit = function(...) return layout_hit(sh)(...) end
     -- quiet: no value of the layout can carry an expert info (var.badvalue; see tree's has_experts)
     sh.quiet = named and not sh.has_long
-    sh.full0 = nv > 0 and P.n_ord == 0   -- full without state, but for empty positional D fields
+    sh.full0 = nv > 0 and F.n_ord == 0   -- full without state, but for empty positional D fields
     sh.key = sh.head .. "\0" .. sh.pat
     if named then named_info(sh, dstb, srcb) end
+    sh.take = layout_frame(sh)   -- (last: it keeps the layout's fields)
     return sh
 end
 
@@ -561,15 +544,13 @@ end
 -- A frame: the layout cache, else the header and the parser (which teaches the cache).
 ------------------------------------------------------------------------------
 -- Checksum verdict of a frame the parser took, before the state (a frame with a bad checksum
--- changes no state): the value of the checksum text (nil: not hex), the calculated value, the
--- status (1 good, 0 bad, 2 unverified; nil: no C field).
-local function checksum_verdict(f)
-    local cpos = P.cpos
-    if not cpos then return nil, nil, nil end
-    local cs_val = checksum_value(P.ctext)
-    if not cfg.validate then return cs_val, nil, 2 end
-    local cs_calc = byte_sum(f, 2, cpos) % 256
-    return cs_val, cs_calc, (cs_val == cs_calc) and 1 or 0
+-- changes no state): checksum_verdict's, nil with no C field.
+local function parsed_checksum(f)
+    local cpos = F.cpos
+    if not cpos then return nil end
+    local sum = cfg.validate and byte_sum(f, 2, cpos) or 0
+    F.cs_sum = sum
+    return (checksum_verdict(F.ctext, sum))
 end
 
 -- A frame the layout cache does not have: the header, then the fields (parse_frame's answers).
@@ -581,25 +562,25 @@ local function parse_fields_of(f, fl, terminated)
     -- named value (a name and its D) is no slot, whatever its index (indexes only grow: the loop
     -- walks the variables past max_slots only)
     local max_slots = cfg.LIM.max_slots
-    if P.nv > 0 and VI[P.nv] >= max_slots and not P.limit then
-        local decl = P.n_ord or P.l_ord
-        for v = P.nv, 1, -1 do
+    if F.nv > 0 and VI[F.nv] >= max_slots and not F.limit then
+        local decl = F.n_ord or F.l_ord
+        for v = F.nv, 1, -1 do
             if VI[v] < max_slots then break end
             if not VN[v] or (decl and not VV[v]) then
-                P.odd, P.limit = true, "Limit exceeded: a slot or ordinal at or past " .. max_slots .. " (max_slots)"
+                F.odd, F.limit = true, "Limit exceeded: a slot or ordinal at or past " .. max_slots .. " (max_slots)"
                 break
             end
         end
     end
     -- a node pair's frame whose fields carry no expert info teaches the cache its layout
-    if p == 6 and not malformed_msg and not P.odd and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P then
+    if p == 6 and not malformed_msg and not F.odd and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P then
         learn_layout(f, dstb * 256 + srcb, dstb, srcb)
     end
-    return bodyend, dstb, srcb, malformed_msg, checksum_verdict(f)
+    return bodyend, dstb, srcb, malformed_msg, parsed_checksum(f)
 end
 
 -- Parse a frame.  Returns the last index of the content, the address bytes, why it is malformed
--- (nil: it is not), the checksum verdict (checksum_verdict) and, for a layout's frame, whether
+-- (nil: it is not), the checksum status (checksum_verdict; the rest in F) and, for a layout's frame, whether
 -- it can have no expert info (quiet: see the entry), is full without state (else nil) and the
 -- line end after its ']' (the layout's pattern takes it).
 -- vis: a shown tree (it needs the fields' places).  payload: f is the whole payload and fl its
@@ -608,15 +589,16 @@ end
 -- check).
 --
 -- The layout cache: the layout that matched the same length last is tried first (fl: the index of
--- the frame's ']', or the payload's length; its code, sh.hit, checks the head; the entry calls
--- it), then the node pair's recent ones.  A frame it has goes into P: its values (VV), its variables
--- and the facts a layout's frame has (a data frame: N, then T/Q/D triplets or D fields, then C;
--- the facts only other kinds have, has_e..has_r, l_ord, cmd_start, ord_text, are read for those
--- alone), and its checksum verdict is the layout's fixed sum plus the values'.  Speed tricks
--- (measured): the layout's names, types, indexes and facts stay in P while the next frames have
--- its layout (P.filled, cleared by the parser): such a frame writes its values and its
--- checksum's facts; the layout's code answers for parse_frame (a tail call: no answer copied).
--- The entry calls the layout's code (sh.hit) itself when bylen has one for fl (speed trick,
+-- the frame's ']', or the payload's length; its matcher checks the head; the entry calls its
+-- take function, sh.take, for it), then the node pair's recent ones.  A frame it has goes into F:
+-- its values (VV), its variables and the facts a layout's frame has (a data frame: N, then
+-- T/Q/D triplets or D fields, then C; the facts only other kinds have, has_e..has_r, l_ord,
+-- cmd_start, ord_text, are read for those alone), and its checksum verdict is the layout's fixed
+-- sum plus the values'.  Speed tricks
+-- (measured): the layout's names, types, indexes and facts stay in F while the next frames have
+-- its layout (F.filled, cleared by the parser): such a frame writes its values and its
+-- checksum's facts.
+-- The entry calls the layout's take function itself when bylen has one for fl (speed trick,
 -- measured: one call a frame less); parse_frame is the rest: the node pair's recent layouts,
 -- newest first (the one that matches comes first and is remembered for fl), else the parser.
 function parse_frame(f, fl, terminated, vis, payload)
@@ -628,13 +610,13 @@ function parse_frame(f, fl, terminated, vis, payload)
     if mru then
         for k = 1, #mru do
             local sh = mru[k]
-            local bodyend, dstb, srcb, m, cs_val, cs_calc, cs_status, quiet, full, le =
-                sh.hit(f, fl, terminated, vis, payload, true)
+            local bodyend, dstb, srcb, m, cs_status, quiet, full, le =
+                sh.take(f, fl, terminated, vis, payload, true)
             if bodyend then
                 if k > 1 then table.remove(mru, k); table.insert(mru, 1, sh) end
                 if LY.nbylen >= 4096 then bylen_clear() end
-                bylen[fl], LY.nbylen = sh.hit, LY.nbylen + 1
-                return bodyend, dstb, srcb, m, cs_val, cs_calc, cs_status, quiet, full, le
+                bylen[fl], LY.nbylen = sh.take, LY.nbylen + 1
+                return bodyend, dstb, srcb, m, cs_status, quiet, full, le
             end
         end
     end
@@ -644,18 +626,18 @@ end
 
 -- The kind the fields alone tell; a data frame (full or delta, told by the state) gives nil, true.
 local function kind_of_fields(malformed_msg)
-    if P.layout then return nil, true end   -- a layout's frame is a data frame
+    if F.layout then return nil, true end   -- a layout's frame is a data frame
     if malformed_msg then return "malformed", false end
-    if P.has_e or P.has_m then return "command", false end
-    if P.has_p then return "ping", false end
-    if P.has_g then return "pong", false end
-    if P.has_r then return "reply", false end
-    local nd, nq, ord_text = P.nd, P.nq, P.ord_text
-    if nd == 0 and nq > 0 and (P.l_ord or P.n_ord) and not ord_text then return "declaration", false end
+    if F.has_e or F.has_m then return "command", false end
+    if F.has_p then return "ping", false end
+    if F.has_g then return "pong", false end
+    if F.has_r then return "reply", false end
+    local nd, nq, ord_text = F.nd, F.nq, F.ord_text
+    if nd == 0 and nq > 0 and (F.l_ord or F.n_ord) and not ord_text then return "declaration", false end
     if nd == 0 and (nq > 0 or ord_text) then return "query", false end
-    if nd > 0 or P.n_ord then return nil, true end
+    if nd > 0 or F.n_ord then return nil, true end
     return "other", false
 end
 
-Pm.parse_frame, Pm.fast_positions, Pm.kind_of_fields, Pm.MARKS = parse_frame, fast_positions, kind_of_fields, MARKS
+Pm.parse_frame, Pm.kind_of_fields, Pm.MARKS = parse_frame, kind_of_fields, MARKS
 return Pm

@@ -7,11 +7,11 @@ local token, M = ...
 if type(token) ~= "table" or token.sharedlink_module ~= true then return end
 
 local U, cfg, wsapi, tostring = M.util, M.prefs, M.wsapi, tostring
-local floor, valid_type, VT, VN = math.floor, U.valid_type, M.parse.P.VT, M.parse.P.VN
-local VV, VI, VR = M.parse.P.VV, M.parse.P.VI, M.parse.P.VR
+local F = M.parse.F   -- the frame record (parse.lua)
+local floor, valid_type, VT, VN = math.floor, U.valid_type, F.VT, F.VN
+local VV, VI, VR, slot_name = F.VV, F.VI, F.VR, U.slot_name
 local LETTER = U.LETTER
 
-local P = M.parse.P
 local LIM = cfg.LIM   -- the limits and their per-capture facts (prefs; the same table for ever)
 local R = M.records
 local PG = wsapi.PG
@@ -31,7 +31,7 @@ local stamp_ctr = 0
 -- declaration, a new capture, the preferences); a direction keeps the one it found (d.lcur) while
 -- d.lgen is the same (speed trick, measured: no three table lookups a frame, list_in_use)
 local lists_gen = 0
-local NO_VALUES = { n = 0, N = {}, store = function() end }   -- (state_data; its subs emptied by S.reset)
+local NO_VALUES = { n = 0, N = {} }   -- (state_data; its subs emptied by S.reset)
 local S = {}
 function S.lists_changed() lists_gen = lists_gen + 1 end
 function S.reset()
@@ -146,7 +146,7 @@ end
 -- slots as it has (ordinal + D fields); another frame gets none (#i, no warning).
 local NOLIST = { t = {} }
 local function frame_list(list)
-    if list.by_length and P.n_pos > 0 and (P.n_ord or 0) + P.n_pos ~= #list then return NOLIST end
+    if list.by_length and F.n_pos > 0 and (F.n_ord or 0) + F.n_pos ~= #list then return NOLIST end
     return list
 end
 
@@ -171,7 +171,7 @@ end
 local function replace_values(d, old, list)
     local keep, vals, from, npos = {}, d.vals, d.from, d.npos
     local eff, marked = d.eff or old, {}
-    for slot in pairs(d.filled) do marked[eff[slot + 1] or ("#" .. slot)] = true end
+    for slot in pairs(d.filled) do marked[slot_name(eff, slot)] = true end
     for k = 1, #list do keep[list[k]] = true end
     for name in pairs(vals) do
         if not keep[name] and npos[name] == nil then vals[name] = nil; from[name] = nil end
@@ -243,7 +243,7 @@ do
     local function missing(d, key, fill)
         pstamp = pstamp + 1
         local npos, nk, present = d.npos, d.nkey, 0
-        for v = 1, P.nv do
+        for v = 1, F.nv do
             local name = VN[v]
             if name and VV[v] and PRESENT[name] ~= pstamp then
                 local i = npos[name]
@@ -308,7 +308,7 @@ do
 
     -- A positional value at slot (named by list): stored, or carried when empty.
     local function positional_value(d, list, slot, val, good, num)
-        local name = list[slot + 1] or ("#" .. slot)
+        local name = slot_name(list, slot)
         if slot > dv_maxslot then dv_maxslot = slot end
         if val == "" then
             if d.filled[slot] then dv_required = true end
@@ -340,11 +340,11 @@ do
     -- Every value of the frame into the state; returns nm and the number of named variables carried.
     local function store_values(d, list, num, sk, good, has_tree, hist, key)
         stamp_ctr = stamp_ctr + 1
-        -- an N past to_ordinal's range (P.huge_ord) stores nothing and is never a full set; nor is
-        -- one that is no number (P.n_nan: N?, Nx, N+0; its values stored from slot 0)
-        dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = stamp_ctr, 0, 0, -1, P.huge_ord or P.n_nan or false
+        -- an N past to_ordinal's range (F.huge_ord) stores nothing and is never a full set; nor is
+        -- one that is no number (F.n_nan: N?, Nx, N+0; its values stored from slot 0)
+        dv_stamp, dv_present, dv_ne, dv_maxslot, dv_required = stamp_ctr, 0, 0, -1, F.huge_ord or F.n_nan or false
         local max_slots = LIM.max_slots
-        for v = 1, P.nv do
+        for v = 1, F.nv do
             local val = VV[v]
             if val then
                 local name = VN[v]
@@ -355,7 +355,7 @@ do
                 end
             end
         end
-        if P.n_pos > 0 then
+        if F.n_pos > 0 then
             if good and dv_maxslot >= 0 then d.eff = list end   -- the names its slots were stored by
             -- positional: a required slot past the frame's last D (d.maxslot is one)
             if dv_maxslot < d.maxslot then dv_required = true end
@@ -406,8 +406,6 @@ do
         return nm
     end
 
-    -- A named layout's values go into the direction (its names are known ones) by the layout's
-    -- store code, named.store (parse's named_code, made with its hit code).
 
     -- After store_values (miss_n named variables carried): whether the direction's names are now
     -- the whole set of the frame's named layout (d.names_is), and the frame's verdicts, full and
@@ -415,9 +413,9 @@ do
     local function stored_verdict(d, named, good, miss_n, full_local)
         -- (never a journal's: state_data takes the whole set without looking for one)
         if named and good and miss_n == 0 and #d.names == named.n and not d.hist then d.names_is = named end
-        local n_ord = P.n_ord
-        local full = P.nd > 0 and (n_ord == nil or n_ord == 0) and not dv_required and miss_n == 0
-        if P.n_pos == 0 then full_local = full_local and miss_n == 0 end
+        local n_ord = F.n_ord
+        local full = F.nd > 0 and (n_ord == nil or n_ord == 0) and not dv_required and miss_n == 0
+        if F.n_pos == 0 then full_local = full_local and miss_n == 0 end
         return full, full_local
     end
 
@@ -427,7 +425,7 @@ do
     -- ne, nm, the number of named variables carried, full_local (the verdict without state), nm for
     -- the record (0 for a journal's).
     local function data_values(d, list, num, sk, good, full_local, has_tree)
-        local named = P.named
+        local named = F.named
         local hist, key = d.hist, nil
         if hist or #d.names > JOURNAL_NAMES then
             key = journal.key(num, sk)
@@ -487,10 +485,13 @@ do
 
     -- State, first pass, a data frame: the sync clock, and the record later passes read (late
     -- sync, carried values, a kind the fields alone do not tell).  Returns state_data's answers (the
-    -- kind, the record, and list, d, miss_n, ne and tree_nm as given: a tail call).
-    -- nm: MISS's entries for the record (0: none, or a journal's, which go in no record).  A frame
-    -- past a limit (lim_hit) gets a table record with it.
-    local function data_record(pinfo, d, num, sk, full, full_local, cs_status, ne, nm, list, miss_n, tree_nm)
+    -- kind, the record, and list, d, and the carried counts: the upvalues dr_miss (named variables
+    -- carried), dr_ne (CARRY's entries), dr_tree_nm (MISS's entries for a tree); a tail call).
+    -- dr_nm: MISS's entries for the record (0: none, or a journal's, which go in no record).  A
+    -- frame past a limit (lim_hit) gets a table record with it.
+    local dr_ne, dr_nm, dr_miss, dr_tree_nm = 0, 0, 0, 0
+    local function data_record(pinfo, d, num, sk, full, full_local, cs_status, list)
+        local ne, nm = dr_ne, dr_nm
         local rec = lim_hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
         rec = sync_clock(pinfo, d, num, sk, full, cs_status, rec)
         local kch = full and "f" or "d"
@@ -499,17 +500,18 @@ do
             rec.kind = kch
             if lim_hit then rec.limit = lim_hit end
         end
-        return full and "full" or "delta", rec, list, d, miss_n, ne, tree_nm
+        return full and "full" or "delta", rec, list, d, dr_miss, ne, dr_tree_nm
     end
 
     -- State, first pass, a data frame the state writer's known paths do not take (state_data): its
     -- values one by one (data_values), then data_record.  (d.wl: see state_data.)
     local function data_general(pinfo, d, num, sk, cs_status, full_local, tree, list)
-        if P.n_pos > 0 and list.by_length then list = frame_list(list) end
+        if F.n_pos > 0 and list.by_length then list = frame_list(list) end
         d.wl = false
         local full, ne, nm, miss_n, full_l, rec_nm = data_values(d, list, num, sk, cs_status ~= 0, full_local,
             tree ~= nil)
-        return data_record(pinfo, d, num, sk, full, full_l, cs_status, ne, rec_nm, list, miss_n, nm)
+        dr_ne, dr_nm, dr_miss, dr_tree_nm = ne, rec_nm, miss_n, nm
+        return data_record(pinfo, d, num, sk, full, full_l, cs_status, list)
     end
 
     -- State, first pass, a known subset's delta (state_data) that has a table record: a late sync
@@ -543,7 +545,7 @@ do
     -- address to the declarer's, letters reversed, whatever the ports).  Either is its letter
     -- pair's latest.  docs/fields-sharedlink.md, "Lists by receiver".
     local function learn_declaration(pinfo, num, dstb, srcb, dst, src)
-        local l_ord, n_ord = P.l_ord, P.n_ord
+        local l_ord, n_ord = F.l_ord, F.n_ord
         local dd, rkey, rl, base_list
         if l_ord then
             rl = dst .. src
@@ -563,14 +565,14 @@ do
             types[k] = base_list.t and base_list.t[k]
         end
         local maxi = #newlist
-        for v = 1, P.nv do
+        for v = 1, F.nv do
             if VN[v] and VI[v] < LIM.max_slots then
                 newlist[VI[v] + 1] = VN[v]
                 types[VI[v] + 1] = VT[v] and valid_type(VT[v]) or nil
                 if VI[v] + 1 > maxi then maxi = VI[v] + 1 end
             end
         end
-        for k = 1, maxi do newlist[k] = newlist[k] or ("#" .. (k - 1)) end
+        for k = 1, maxi do newlist[k] = slot_name(newlist, k - 1) end
         newlist.canon = canonical_list(newlist, types, maxi)
         if dd then
             dd.list = newlist
@@ -623,12 +625,12 @@ do
 
     -- A list request (L? or N?) and the declaration that answers it (L? the N list, N? the L list).
     local function link_list_request(pinfo, num, sk, kind, rec, qk, ak)
-        if kind == "query" and P.nq == 0 then
+        if kind == "query" and F.nq == 0 then
             rec = rec or get_rec(num, sk, true)
             rec.num, rec.t = num, pinfo.rel_ts
-            ask(qk, P.l_ord and "#N" or "#L", rec)
+            ask(qk, F.l_ord and "#N" or "#L", rec)
         elseif kind == "declaration" then
-            local qrec = answered(ak, P.l_ord and "#L" or "#N")
+            local qrec = answered(ak, F.l_ord and "#L" or "#N")
             if qrec then
                 rec = rec or get_rec(num, sk, true)
                 qrec.req_in, rec.req_to, rec.req_rt = num, qrec.num, pinfo.rel_ts - qrec.t
@@ -642,7 +644,7 @@ do
     local function link_query_reply(pinfo, num, sk, kind, dst, src, rec)
         local qk, ak = ask_keys(pinfo, src, dst)
         if kind ~= "reply" then rec = link_list_request(pinfo, num, sk, kind, rec, qk, ak) end
-        for v = 1, P.nv do
+        for v = 1, F.nv do
             local name = VN[v]
             if name then
                 if VR[v] then
@@ -721,9 +723,10 @@ do
     -- reply, query, declaration, command..., or a data frame whose addresses are not nodes A-P:
     -- kind nil, full or delta as full_local tells; addrs_ok: both addresses are nodes A-P).  Returns
     -- the kind, the record (nil: none), the list in use, the direction state (malformed, reply),
-    -- and 0, 0, 0 (as state_data's).  The arguments are state_data's, then the kind the fields
-    -- tell (fields_facts), whether it is a data frame, and addrs_ok.
-    function state_other(pinfo, num, sk, cs_status, dstb, srcb, full_local, _, kind, _, addrs_ok)
+    -- and 0, 0, 0 (as state_data's).  The arguments are state_data's; the frame record tells the
+    -- kind the fields tell (F.fkind: fields_facts) and addrs_ok.
+    function state_other(pinfo, num, sk, cs_status, dstb, srcb, full_local)
+        local kind, addrs_ok = F.fkind, F.addrs_ok
         local good = cs_status ~= 0
         lim_hit = false
         local rec, list, d = nil, cfg.list, nil
@@ -754,7 +757,7 @@ do
     -- bad; tree: nil when there is none).  Returns the kind, the record (nil: none), the list in
     -- use, the direction state, the named variables carried, and ne/nm (see data_values).
     -- A named layout's frame with a good checksum has its values stored by the layout's code
-    -- (named.store) when its names are known ones (speed trick, measured: no data_values call):
+    -- (the loop below) when its names are known ones (speed trick, measured: no data_values call):
     --  * the direction's whole known set (d.names_is; never a journal's, whose names outnumber any
     --    layout's), the commonest frame: nothing carried, only the sync clock changes (as
     --    sync_clock's: no data_record call with a dozen arguments);
@@ -772,23 +775,31 @@ do
         local d = get_dir(pinfo, num, dstb, srcb)
         local list = d.lcur
         if d.lgen ~= lists_gen then list = data_list(d, num, sk, dstb, srcb) end
-        local named = P.named or (P.nv == 0 and NO_VALUES)
+        local named = F.named or (F.nv == 0 and NO_VALUES)
         if cs_status == 0 or not named then
             return data_general(pinfo, d, num, sk, cs_status, full_local, tree, list)
         end
-        if d.names_is == named then
-            named.store(d.vals, d.from, num)
+        local sub = nil
+        if d.names_is ~= named then
+            sub = (named.subs or NO_SUBSETS)[d]
+            if not sub or sub.gen ~= d.sgen then sub = known_subset(d, named) end
+            if not sub then return data_general(pinfo, d, num, sk, cs_status, full_local, tree, list) end
+        end
+        -- the layout's values (VV, in its names' order: known names) into the direction
+        local vals, from, names = d.vals, d.from, named.N
+        for k = 1, named.n do
+            local name = names[k]
+            vals[name], from[name] = VV[k], num
+        end
+        if not sub then
             d.wl = named
             if full_local then
                 d.lastfull = g_rel_ts(pinfo)   -- (d.first, read only while there is none, not needed)
                 return "full", nil, list, d, 0, 0, 0
             end
-            return data_record(pinfo, d, num, sk, full_local, full_local, cs_status, 0, 0, list, 0, 0)
+            dr_ne, dr_nm, dr_miss, dr_tree_nm = 0, 0, 0, 0
+            return data_record(pinfo, d, num, sk, full_local, full_local, cs_status, list)
         end
-        local sub = (named.subs or NO_SUBSETS)[d]
-        if not sub or sub.gen ~= d.sgen then sub = known_subset(d, named) end
-        if not sub then return data_general(pinfo, d, num, sk, cs_status, full_local, tree, list) end
-        named.store(d.vals, d.from, num)
         -- another layout's values were stored since sub's line was made: it is made again
         if d.wl ~= named then d.wl = named; sub.line, sub.run = false, false end
         local now = g_rel_ts(pinfo)
@@ -825,7 +836,7 @@ local function later_dir(pinfo, num, sk, is_data, dstb, srcb, has_tree, miss_n)
     local d = get_dir(pinfo, num, dstb, srcb)
     local list = frame_list(list_at(d, num, sk))
     local nm = 0
-    if is_data and d.jkey and P.n_pos == 0 then
+    if is_data and d.jkey and F.n_pos == 0 then
         local key = journal.key(num, sk)
         if key >= d.jkey then miss_n, nm = journal.missing(d, key, has_tree) end
     end
@@ -836,13 +847,14 @@ end
 -- (looked up only where it names something: positional values, or a tree to show indexes).  A
 -- data frame's kind: the record's, else the verdict without state.  The arguments and answers are
 -- state_other's (ne: 0).
-local function state_later_pass(pinfo, num, sk, _, dstb, srcb, full_local, tree, kind, is_data, addrs_ok)
+local function state_later_pass(pinfo, num, sk, _, dstb, srcb, full_local, tree)
+    local kind, is_data, addrs_ok = F.fkind, F.is_data, F.addrs_ok
     local has_tree = tree ~= nil
     local rec = get_rec(num, sk, false)
     local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
     local nm, list, d = 0, cfg.list, nil
     if (is_data or kind == "malformed" or kind == "reply") and addrs_ok
-        and (has_tree or P.n_pos > 0 or LIM.journal or kind == "reply") then
+        and (has_tree or F.n_pos > 0 or LIM.journal or kind == "reply") then
         list, d, miss_n, nm = later_dir(pinfo, num, sk, is_data, dstb, srcb, has_tree, miss_n)
     end
     if is_data then

@@ -8,20 +8,17 @@ local token, M = ...
 if type(token) ~= "table" or token.sharedlink_module ~= true then return end
 
 local U, cfg, wsapi, hf = M.util, M.prefs, M.wsapi, M.fields.hf
-local UHEXV = U.UHEXV   -- (two upper-case hex digits -> their value)
-local ei, sl, s_byte, s_sub = M.fields.ei, M.proto, string.byte, string.sub
+local ei, sl, s_sub = M.fields.ei, M.proto, string.sub
 -- (the rarely used ones, string.format, tostring, U.ARROW, U.nstime_of, U.zrange, read where used:
 -- the main chunk keeps under 150 locals)
 local tonumber = tonumber
-local floor, B_CR, B_LF = math.floor, U.B_CR, U.B_LF
+local floor = math.floor
 local B_A, B_P = U.B_A, U.B_P
 local LETTER, valid_type, parse_long = U.LETTER, U.valid_type, U.parse_long
-local FL, FS = M.parse.P.FL, M.parse.P.FS
-local FE, FV, FC, VT = M.parse.P.FE, M.parse.P.FV, M.parse.P.FC, M.parse.P.VT
-local VN, VV, VI, VR = M.parse.P.VN, M.parse.P.VV, M.parse.P.VI, M.parse.P.VR
-local VTf, VQf, VDf = M.parse.P.VTf, M.parse.P.VQf, M.parse.P.VDf
-
-local P = M.parse.P
+local F = M.parse.F   -- the frame record (parse.lua): tree_frame's and has_experts' argument
+local FL, FS, FE, FV, FC, VT = F.FL, F.FS, F.FE, F.FV, F.FC, F.VT
+local VN, VV, VI, VR = F.VN, F.VV, F.VI, F.VR
+local VTf, VQf, VDf, slot_name = F.VTf, F.VQf, F.VDf, U.slot_name
 local VALUE = cfg.VALUE   -- name -> its value field (sharedlink.value.<name>), made at load
 local crlf_frames = true   -- see set_crlf_frames
 local CARRY, MISS = M.records.CARRY, M.records.MISS
@@ -68,7 +65,7 @@ local SHOWN, HIDDEN, NONE = 1, 2, 3
 -- pattern), so only a long can fail (speed trick, measured: tonumber on a value is ~1,150
 -- instructions).
 local function named_values_have_experts(tv)
-    for v = 1, P.nv do
+    for v = 1, F.nv do
         if tv[v] == 0 and not parse_long(VV[v]) then return true end
     end
     return false
@@ -89,9 +86,9 @@ local function expert_type(v, list)
 end
 
 function values_have_experts(kind, list)
-    local named = P.named
+    local named = F.named
     if named then return named.has_long and named_values_have_experts(named.TV) end
-    for v = 1, P.nv do
+    for v = 1, F.nv do
         local val = VV[v]
         if val or kind == "declaration" or VR[v] then
             local vtype = expert_type(v, list)
@@ -181,6 +178,42 @@ local c_csrc, c_d, c_f, c_ke, c_list, c_num, c_o, c_places
 local c_ti, c_tv, c_tvb
 
 ------------------------------------------------------------------------------
+-- The frame's expert conditions, as data: X[name] is true when the frame gets that expert info
+-- from the tree's head or trailer (set by frame_experts, the one place each condition is written;
+-- has_experts and the tree read them).  The experts of single fields and variables (an empty or
+-- unknown field, a type or ordinal that is no number, var.badvalue, var.unknown) are the field's
+-- own: the frame has one when F.odd, or values_have_experts.
+------------------------------------------------------------------------------
+local X_NAMES = { "malformed", "dst_invalid", "src_invalid", "fields", "limit", "rec_limit", "sync_late",
+    "unanswered", "checksum_bad", "checksum_format", "checksum_missing", "crlf_missing" }
+local X = {}
+for _, name in ipairs(X_NAMES) do X[name] = false end
+local function not_node(b) return b ~= nil and (b < B_A or b > B_P) end
+
+-- The conditions of frame fr (the frame record, with the state's answers) into X; returns whether
+-- any holds.
+local function frame_experts(fr)
+    local rec, cpos, terminated = fr.rec, fr.cpos, fr.terminated
+    local malformed = fr.malformed ~= nil
+    X.malformed, X.dst_invalid, X.src_invalid = malformed, not_node(fr.dstb), not_node(fr.srcb)
+    X.fields, X.limit = fr.odd, fr.limit ~= false
+    if rec then
+        X.rec_limit, X.sync_late, X.unanswered = rec.limit ~= nil, rec.late ~= nil, rec.unmatched ~= nil
+    else
+        X.rec_limit, X.sync_late, X.unanswered = false, false, false
+    end
+    X.checksum_bad = cpos ~= nil and fr.cs_status == 0
+    X.checksum_format = cpos ~= nil and not fr.cs_plain
+    X.checksum_missing = cpos == nil and terminated and not malformed
+    -- CR LF after the ']' (the entry's fr.crlf) where CR LF frames the packet's bytes (set_crlf_frames)
+    X.crlf_missing = terminated and crlf_frames and not fr.crlf
+    for k = 1, #X_NAMES do
+        if X[X_NAMES[k]] then return true end
+    end
+    return false
+end
+
+------------------------------------------------------------------------------
 -- The head: the protocol item, the addresses, the kind, malformed.
 ------------------------------------------------------------------------------
 -- An address: "Destination: A (node 1)", the node number folded into the letter's line, its field
@@ -239,8 +272,7 @@ end
 
 local function tree_head()
     local mode, tvb, kind, dstb, srcb = C.mode, c_tvb, C.kind, C.dstb, C.srcb
-    local dnode = dstb and dstb >= B_A and dstb <= B_P
-    local snode = srcb and srcb >= B_A and srcb <= B_P
+    local dnode, snode = dstb ~= nil and not X.dst_invalid, srcb ~= nil and not X.src_invalid
     local ti
     if mode == SHOWN then
         ti = ti_add(C.tree, sl, tvb(C.a - 1, C.e - C.a + 1),
@@ -259,7 +291,7 @@ local function tree_head()
     elseif REF[hf.kind] ~= false then
         hadd(ti, hf.kind, kind)
     end
-    if C.malformed_msg then ti_expert(ti, ei.malformed, C.malformed_msg) end
+    if X.malformed then ti_expert(ti, ei.malformed, C.malformed_msg) end
 end
 
 ------------------------------------------------------------------------------
@@ -431,7 +463,7 @@ end
 -- A variable's value (its D), or what a declaration or a reply without value shows.
 local function var_value(vt, v, name, vtype)
     local shown = c_shown
-    local val, label = VV[v], shown and (name or ("#" .. VI[v]))
+    local val, label = VV[v], shown and (name or slot_name(c_list, VI[v]))
     if not val then
         if shown then ti_text(vt, label .. (VR[v] and " (reply without value)" or " (declared)")) end
         local resp_in = C.resp_in
@@ -462,7 +494,7 @@ end
 local function var_naming(v, name, index)
     if not name then
         local list = c_list
-        return list[index + 1] or ("#" .. index), index, list.t[index + 1]
+        return slot_name(list, index), index, list.t[index + 1]
     end
     if VR[v] then return name, index, M.state.list_type(c_list, name) end
     local d = c_d
@@ -634,7 +666,7 @@ do
 local TYPED = { [0] = hf.var_long, [2] = H_var_double, [4] = hf.var_string }
 
 -- Whether nobody references the value field (sharedlink.value.<name>) of a variable of the
--- frame (n: P.nv) or, with miss, of a named variable it left out (name, value, frame, ...; n entries).
+-- frame (n: F.nv) or, with miss, of a named variable it left out (name, value, frame, ...; n entries).
 function C.value_fields_unseen(n, miss)
     local list = c_list
     local step = miss and 3 or 1
@@ -649,15 +681,15 @@ end
 
 function layout_vars_unseen()
     if REF ~= NO_REF then
-        if not C.value_fields_unseen(P.nv) then return false end
+        if not C.value_fields_unseen(F.nv) then return false end
         if REF[H_var] ~= false or REF[H_var_name] ~= false or REF[H_var_index] ~= false
             or REF[H_var_value] ~= false or (c_tv and REF[H_ftype] ~= false) then
             return false
         end
-        if P.n_empty_d > 0 and (REF[H_var_carried] ~= false or REF[H_var_carried_from] ~= false) then return false end
+        if F.n_empty_d > 0 and (REF[H_var_carried] ~= false or REF[H_var_carried_from] ~= false) then return false end
         local tv, lt = c_tv, c_list.t
         if tv or lt then
-            for v = 1, P.nv do
+            for v = 1, F.nv do
                 local t = tv and tv[v] or (not tv and lt[VI[v] + 1])
                 if t and REF[TYPED[t]] ~= false then return false end
             end
@@ -677,12 +709,12 @@ end
 
 local function layout_fields()
     if REF[H_ordinal] ~= false then
-        local n = P.n_ord   -- 0 also for an N past what to_ordinal keeps
-        if n == 0 and P.n_text ~= "0" then n = floor(tonumber(P.n_text)) end
+        local n = F.n_ord   -- 0 also for an N past what to_ordinal keeps
+        if n == 0 and F.n_text ~= "0" then n = floor(tonumber(F.n_text)) end
         hadd(c_ti, H_ordinal, n)
     end
     if layout_vars_unseen() then return end
-    for v = 1, P.nv do tree_variable(v) end
+    for v = 1, F.nv do tree_variable(v) end
 end
 
 -- A layout's frame, shown (its places from parse): N, its variables in order (a variable's first
@@ -690,13 +722,13 @@ end
 -- measured: -V).
 local function shown_layout_fields()
     local ns, ne = FS[1], FE[1]
-    local n = P.n_ord   -- the layout's N: digits only, its number unless 0 (0 also for an N past
-    if n ~= 0 or P.n_text == "0" then   -- what to_ordinal keeps): no tonumber, floor (speed trick, measured)
+    local n = F.n_ord   -- the layout's N: digits only, its number unless 0 (0 also for an N past
+    if n ~= 0 or F.n_text == "0" then   -- what to_ordinal keeps): no tonumber, floor (speed trick, measured)
         ti_add(c_ti, H_ordinal, c_tvb(c_o + ns + 1, ne - ns), n)
     else
-        number_field(U.L_N, ns, ne, P.n_text, c_tvb(c_o + ns + 1, ne - ns))
+        number_field(U.L_N, ns, ne, F.n_text, c_tvb(c_o + ns + 1, ne - ns))
     end
-    for v = 1, P.nv do
+    for v = 1, F.nv do
         local first = VTf[v]
         if first == 0 then first = VDf[v] end
         tree_variable(v, FS[first])
@@ -705,10 +737,10 @@ end
 
 local function tree_fields()
     if not c_places then return layout_fields() end
-    if P.layout then return shown_layout_fields() end
-    local kind, cpos = C.kind, P.cpos
-    for i = 1, P.nf do FV[i] = 0; FC[i] = false end
-    for v = 1, P.nv do
+    if F.layout then return shown_layout_fields() end
+    local kind, cpos = C.kind, F.cpos
+    for i = 1, F.nf do FV[i] = 0; FC[i] = false end
+    for v = 1, F.nv do
         if VV[v] or kind == "declaration" or VR[v] then
             local first = VTf[v] ~= 0 and VTf[v] or (VQf[v] ~= 0 and VQf[v] or VDf[v])
             FV[first] = v
@@ -716,7 +748,7 @@ local function tree_fields()
             if VDf[v] ~= 0 and VDf[v] ~= first then FC[VDf[v]] = true end
         end
     end
-    for i = 1, P.nf do
+    for i = 1, F.nf do
         local fs = FS[i]
         local v = FV[i]
         if v ~= 0 then
@@ -798,7 +830,7 @@ local function shown_checksum(cpos, ctext)
     else
         ct = ti_add(ti, hf.checksum_text, cr, ctext)
     end
-    if not UHEXV[ctext] then   -- (the text as written in a field of its own, issue 41)
+    if X.checksum_format then   -- (the text as written in a field of its own, issue 41)
         if byte_val then ti_add(ct, hf.checksum_text, cr, ctext) end
         ti_expert(ct, ei.checksum_format)
     end
@@ -828,7 +860,7 @@ local function hidden_checksum(ctext)
     elseif REF[hf.checksum_text] ~= false then
         ct = hadd(ti, hf.checksum_text, ctext)
     end
-    if not UHEXV[ctext] then
+    if X.checksum_format then
         if val and val <= 255 then hitem(ti, hf.checksum_text, ctext) end
         ti_expert(ct or ti, ei.checksum_format)
     end
@@ -839,15 +871,14 @@ local function hidden_checksum(ctext)
     local cs_calc = C.cs_calc
     if REF[H_checksum_calc] ~= false then hadd(ti, H_checksum_calc, cs_calc) end
     if REF[H_checksum_status] ~= false then hadd(ti, H_checksum_status, cs_status) end
-    if cs_status ~= 1 then ti_expert(ct or ti, ei.checksum_bad) end
+    if X.checksum_bad then ti_expert(ct or ti, ei.checksum_bad) end
 end
 
 local function tree_trailer()
-    local ti, rec, s, a, e, fl = c_ti, C.rec, C.s, C.a, C.e, C.fl
-    local terminated, shown = C.terminated, c_shown
-    if P.limit then ti_expert(ti, ei.limit, P.limit) end
-    if rec and rec.limit then ti_expert(ti, ei.limit, rec.limit) end
-    if rec and rec.late then
+    local ti, rec, shown = c_ti, C.rec, c_shown
+    if X.limit then ti_expert(ti, ei.limit, F.limit) end
+    if X.rec_limit then ti_expert(ti, ei.limit, rec.limit) end
+    if X.sync_late then
         -- one summary a problem (issue 41): the time since the last full frame in sharedlink.sync.gap
         local gap = U.nstime_of(rec.late)
         if shown then
@@ -859,51 +890,46 @@ local function tree_trailer()
         end
         ti_expert(ti, ei.sync_late)
     end
-    if P.cpos then
-        if shown then shown_checksum(P.cpos, P.ctext) else hidden_checksum(P.ctext) end
+    if F.cpos then
+        if shown then shown_checksum(F.cpos, F.ctext) else hidden_checksum(F.ctext) end
     else
         if shown then ti_gen(ti_add(ti, H_checksum_status, 2))
         else hitem(ti, H_checksum_status, 2) end
-        if terminated and not C.malformed_msg then ti_expert(ti, ei.checksum_missing) end
+        if X.checksum_missing then ti_expert(ti, ei.checksum_missing) end
     end
-    -- line terminator
-    local b = a + fl - 1
-    if terminated and crlf_frames then
-        local c1, c2 = nil, nil
-        if e == b + 2 then c1, c2 = s_byte(s, b + 1, b + 2) end   -- (one call: speed trick, measured)
-        if c1 ~= B_CR or c2 ~= B_LF then ti_expert(ti, ei.crlf_missing) end
-    end
+    if X.crlf_missing then ti_expert(ti, ei.crlf_missing) end   -- (line terminator)
 end
 
 ------------------------------------------------------------------------------
 -- The builder.
 ------------------------------------------------------------------------------
--- The tree of a frame at f[1..fl] (bodyend: its content's last index) that starts at s[a] and ends
--- with its line end at s[e] (as dissect_frame's arguments), as parsed (P: the field and variable
--- arrays, cpos, ctext; a shown tree needs the fields' places, which parse fills for it), with its
--- kind, state and checksum verdict.  mode: SHOWN, HIDDEN or NONE (then tree: the tree Wireshark
--- gave, which keeps no item); visited: pinfo.visited (a hidden tree's cache of referenced fields
--- starts again with each pass).  Called by dissect_frame; what the parts share goes in the c_ upvalues.
-local function tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, visited, kind,
-                          dstb, srcb, list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
+-- The tree of frame fr (the frame record: at f[1..fl], bodyend its content's last index, starting
+-- at s[a] and ending with its line end at s[e], as parsed: the field and variable arrays, cpos,
+-- ctext; a shown tree needs the fields' places, which parse fills for it; with its kind, state
+-- and checksum verdict).  mode: SHOWN, HIDDEN or NONE (then tree: the tree Wireshark gave, which
+-- keeps no item); fr.visited: pinfo.visited (a hidden tree's cache of referenced fields starts
+-- again with each pass).  Called by dissect_frame; what the parts share goes in the c_ upvalues.
+local function tree_frame(mode, tree, tvb, fr)
     if not ti_bound then bind_ti() end
+    frame_experts(fr)
     REF = mode == NONE and NO_REF or LEARNT
     c_shown = mode == SHOWN
     if c_shown then ref_break() end
+    local a, dstb, srcb, rec = fr.a, fr.dstb, fr.srcb, fr.rec
     -- tvb offset of f[i] is o + i
-    C.mode, C.tree, c_tvb, c_o, c_f, C.s, C.a, C.e, C.fl = mode, tree, tvb, a - 2, f, s, a, e, fl
-    c_num, C.visited, C.kind, C.dstb, C.srcb = num, visited, kind, dstb, srcb
+    C.mode, C.tree, c_tvb, c_o, c_f, C.a, C.e = mode, tree, tvb, a - 2, fr.f, a, fr.e
+    c_num, C.visited, C.kind, C.dstb, C.srcb = fr.num, fr.visited, fr.kind, dstb, srcb
     C.dst, C.src = dstb and LETTER[dstb] or "?", srcb and LETTER[srcb] or "?"
-    C.malformed_msg, C.terminated, C.bodyend = malformed_msg, terminated, bodyend
-    c_list, c_d, C.rec, C.nm = list, d, rec, nm
-    C.cs_val, C.cs_calc, C.cs_status = cs_val, cs_calc, cs_status
+    C.malformed_msg, C.bodyend = fr.malformed, fr.bodyend
+    c_list, c_d, C.rec, C.nm = fr.list, fr.d, rec, fr.nm
+    C.cs_val, C.cs_calc, C.cs_status = fr.cs_val, fr.cs_calc, fr.cs_status
     C.resp_in, C.resp_to = rec and rec.resp_in, rec and rec.resp_to
     C.rts, C.unmatched = rec and rec.rt, rec and rec.unmatched
     -- the carried values of empty D fields (value, frame, ...), ke: how many used so far
-    c_csrc, c_ke = rec or (ne > 0 and CARRY), 0
+    c_csrc, c_ke = rec or (fr.ne > 0 and CARRY), 0
     C.cmd_item = nil   -- the E field's item
-    c_tv = P.named and P.named.TV     -- a named layout's types (valid, doubles plain decimals)
-    c_places = mode == SHOWN or not P.layout   -- the fields' places (FL, FS, FE, VTf...) are known
+    c_tv = F.named and F.named.TV     -- a named layout's types (valid, doubles plain decimals)
+    c_places = mode == SHOWN or not F.layout   -- the fields' places (FL, FS, FE, VTf...) are known
     tree_head()
     tree_fields()
     if rec and (rec.req_in or rec.req_to) then C.request_link(rec) end
@@ -914,19 +940,13 @@ end
 ------------------------------------------------------------------------------
 -- Whether a frame with no tree needs one for its expert infos.
 ------------------------------------------------------------------------------
--- With no tree, whether the frame's tree would carry an expert info (true when unsure): then
+-- With no tree, whether frame fr's tree would carry an expert info (true when unsure): then
 -- tree_frame builds it in mode NONE, on the tree Wireshark gave (which keeps no items but reports
--- the experts to Expert Information and -z expert).  Checks what tree_frame adds experts for.
-local function has_experts(s, a, e, fl, terminated, malformed_msg, addrs_ok, kind, list, rec, cs_status)
-    if malformed_msg or not addrs_ok or P.odd or cs_status == 0 or not P.cpos then return true end
-    if rec and (rec.limit or rec.late or rec.unmatched) then return true end
-    local ctext = P.ctext
-    if not UHEXV[ctext] then return true end   -- not two upper-case hex digits
-    local b = a + fl - 1
-    if terminated and crlf_frames and not (e == b + 2 and s_byte(s, b + 1) == B_CR and s_byte(s, b + 2) == B_LF) then
-        return true
-    end
-    return values_have_experts(kind, list)
+-- the experts to Expert Information and -z expert).  The conditions tree_frame reads
+-- (frame_experts), then its variables' (values_have_experts).
+local function has_experts(fr)
+    if frame_experts(fr) then return true end
+    return values_have_experts(fr.kind, fr.list)
 end
 
 -- Whether CR LF frames the bytes of the packet being dissected (docs/fields-sharedlink.md, "Rules

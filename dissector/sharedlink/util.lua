@@ -129,6 +129,12 @@ local LETTER = setmetatable({}, { __index = function(t, b)
 end })
 U.LETTER = LETTER
 
+-- A positional slot's name: its list's (list[index + 1]), else "#index" (docs/fields-sharedlink.md,
+-- "Names from an a-priori list").  The one place a slot is named.
+function U.slot_name(list, index)
+    return list[index + 1] or ("#" .. index)
+end
+
 -- A T field's text as its type number (0-255), nil when it is not one.  Speed trick
 -- (measured, -V): the texts seen are remembered (a few distinct ones a capture, up to 256).
 local VALID_TYPE, valid_type_n = {}, 0

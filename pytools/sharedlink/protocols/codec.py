@@ -530,6 +530,36 @@ def positional_values(fields: Sequence[Field]) -> tuple[int, list[str | None]]:
     return ordinal, values
 
 
+def stray_values(fields: Sequence[Field]) -> tuple[int, list[tuple[int, str | None]]]:
+    """A frame with names: its ``D`` fields that follow no name (``N0|QZ|D1|D2|D3``: ``D2`` and
+    ``D3``), each at its slot (None: empty, carried), and the frame's slot count as a positional
+    frame's (its ordinal plus those ``D`` fields: what names them by an a-priori list).
+
+    BUL-049 places a ``D`` at its position from the ``N`` ordinal: a slot is the ordinal plus the
+    variables before it in the frame (a named value, a name with no value, a ``D``), as the
+    dissector's parser counts them (parse.lua ``take_data``; docs/fields-sharedlink.md,
+    "Values")."""
+    ordinal: int | None = None
+    idx, name = 0, False
+    out: list[tuple[int, str | None]] = []
+    for f in fields:
+        letter = f.letter
+        if letter == "N" and ordinal is None:
+            ordinal = idx = _ordinal(f.text)
+        elif letter in ("Q", "R"):
+            idx += name  # a pending name with no value is a variable of its own
+            name = True
+        elif letter == "T":
+            idx += name
+            name = False
+        elif letter == "D":
+            if not name:
+                out.append((idx, f.text if f.text != "" else None))
+            idx += 1
+            name = False
+    return (ordinal or 0) + len(out), out
+
+
 def declared_list(fields: Sequence[Field]) -> tuple[str, int, list[tuple[str, int | None]]] | None:
     """For a declaration frame: ("N" or "L", start ordinal, [(name, type)])."""
     if frame_kind(fields) != "declaration":

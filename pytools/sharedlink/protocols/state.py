@@ -47,6 +47,7 @@ from sharedlink.protocols.codec import (
     named_values,
     parse_typed,
     positional_values,
+    stray_values,
 )
 from sharedlink.protocols.limits import (
     MAX_CONVERSATIONS,
@@ -291,6 +292,11 @@ class VariableTable:
         if any(f.letter == "Q" for f in fields):
             if frame_ordinal(fields) != 0:
                 return "delta"
+            _, strays = stray_values(fields)
+            if strays:  # named values and positional slots: judged by its slots, as a positional frame
+                top = max(i for i, _ in strays)
+                empty = {i for i, t in strays if t is None}
+                return "full" if all(i <= top and i not in empty for i in self.filled) else "delta"
             sent = self.sent_names
             # every name sent before is present: count the frame's names that were (linear in the frame)
             present = {nv.name for nv in named_values(fields)}
@@ -330,7 +336,13 @@ class VariableTable:
             return []
         bare = not any(f.letter == "D" for f in fields)  # a bare N0: the direction's form, no change
         if any(f.letter == "Q" for f in fields) or (bare and self.named):
-            updates = self._named(fields, number, time_ns, carried, store)
+            # a D after a named value with no name of its own is the positional slot it stands at
+            # (N0|QZ|D1|D2|D3: Z, then slots 1 and 2); such a frame shows what it holds, nothing
+            # carried by name (docs/fields-sharedlink.md, "Values")
+            frame_slots, strays = stray_values(fields) if not bare else (0, [])
+            updates = self._named(fields, number, time_ns, carried and not strays, store)
+            if strays:
+                updates += self._slots(strays, frame_slots, number, time_ns, store)
         else:
             updates = self._positional(fields, number, time_ns, store)
         if kind == "full" and store:
@@ -379,15 +391,19 @@ class VariableTable:
     def _positional(self, fields: Sequence, number: int, time_ns: int, store: bool) -> list[Update]:
         if store:
             self.named = False
-        updates: list[Update] = []
         ordinal, vals = positional_values(fields)
-        frame_slots = ordinal + len(vals)
-        for i, text in enumerate(vals):
-            idx = ordinal + i
+        return self._slots([(ordinal + i, text) for i, text in enumerate(vals)], ordinal + len(vals), number, time_ns,
+                           store)
+
+    def _slots(self, slots: list[tuple[int, str | None]], frame_slots: int, number: int, time_ns: int,
+               store: bool) -> list[Update]:
+        """Positional values (slot, text; None: empty, carried) of a frame of ``frame_slots`` slots."""
+        updates: list[Update] = []
+        for i, (idx, text) in enumerate(slots):
             if idx >= MAX_SLOTS:
                 if store:
-                    self.limits.slots += len(vals) - i
-                for j, past in enumerate(vals[i:], idx):
+                    self.limits.slots += len(slots) - i
+                for j, past in slots[i:]:
                     self._drop(placeholder(j), j, past, None, False)
                 break
             name = self.slot_name(idx, frame_slots)
@@ -402,7 +418,7 @@ class VariableTable:
             u = self._value(name, self.types.get(name), text, number, time_ns, idx, store)
             if u is not None:
                 updates.append(u)
-        if store and vals:
+        if store and slots:
             self._widen(frame_slots)
         return updates
 
