@@ -20,9 +20,11 @@ T0 = 1_700_000_000 * 10**9
 STEP = 200_000_000
 
 
-def write(path: Path, payloads: Sequence[bytes | tuple[int, bytes]]) -> Path:
-    """Each payload a UDP datagram 200 ms after the previous; ``(sport, payload)`` picks the
-    sender's port (a conversation each)."""
+def write(path: Path, payloads: Sequence[bytes | tuple[int, bytes]], step: int = STEP,
+          src: str = "10.0.0.1") -> Path:
+    """Each payload a UDP datagram from ``src`` to 10.0.0.9 port 7013, ``step`` ns (200 ms)
+    after the previous; ``(sport, payload)`` picks the sender's port (a conversation each). The
+    one UDP capture builder of the scaling patterns (memory_patterns.py writes with it too)."""
     builders: dict[int, UdpBuilder] = {}
     with open(path, "wb") as fh:
         w = PcapWriter(fh)
@@ -30,8 +32,8 @@ def write(path: Path, payloads: Sequence[bytes | tuple[int, bytes]]) -> Path:
             sport, payload = item if isinstance(item, tuple) else (7013, item)
             b = builders.get(sport)
             if b is None:
-                b = builders[sport] = UdpBuilder("10.0.0.1", "10.0.0.9", sport, 7013)
-            w.write(T0 + i * STEP, b.frame(payload, i + 1))
+                b = builders[sport] = UdpBuilder(src, "10.0.0.9", sport, 7013)
+            w.write(T0 + i * step, b.frame(payload, i + 1))
     return path
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from sl_robots import write_tcp
 
 from sharedlink.capture.packets import decode_packet, session_frames
 from sharedlink.capture.pcapio import LINKTYPE_USER0, PcapngWriter, PcapWriter, read_records
@@ -295,14 +296,6 @@ def test_session_decoded_end_to_end_by_tshark(session):
 # dissector on hand-made captures
 
 
-def _write_tcp(path: Path, events: list[tuple[bool, bytes]], port: int) -> None:
-    with open(path, "wb") as fh:
-        w = PcapWriter(fh)
-        evs = [(10**18 + i * 10_000_000, c, p) for i, (c, p) in enumerate(events)]
-        for ts, _, frame in session_frames(evs, "tcp", ("127.0.0.1", 40000), ("127.0.0.1", port)):
-            w.write(ts, frame)
-
-
 def test_known_good_and_reassembly_over_tcp(tmp_path):
     """The known-good packets as one client byte stream cut at awkward places (inside the
     header, count and checksum, then at random) with several packets per segment."""
@@ -312,7 +305,7 @@ def test_known_good_and_reassembly_over_tcp(tmp_path):
     cuts = sorted({1, 4, 8, 9, 20, 23, 30, *rng.sample(range(31, len(stream)), 40)}) + [len(stream)]
     pieces = [stream[a:b] for a, b in zip([0, *cuts], cuts)]
     path = tmp_path / "known.pcap"
-    _write_tcp(path, [(True, p) for p in pieces], 8101)
+    write_tcp(path, [(True, p) for p in pieces], 8101)
     rows = p2os_fields(path, ["p2os.command.name", "p2os.arg.int", "p2os.argtype", "p2os.checksum.status"])
     names = [n for r in rows for n in r["p2os.command.name"]]
     # the SYNC names hold until a SYNC2 echo is seen; none is in this stream
@@ -326,13 +319,13 @@ def test_heuristic_on_another_port_and_port_preference(tmp_path):
     path = tmp_path / "other.pcap"
     events = [(True, bytes.fromhex(h)) for h, _ in KNOWN_GOOD]
     events.insert(2, (False, build_packet(SyncReply(2, (b"Robbie", b"Pioneer", b"p2dx")).encode())))
-    _write_tcp(path, events, 9000)
+    write_tcp(path, events, 9000)
     rows = p2os_fields(path, ["p2os.command.name", "p2os.robot.name"])
     assert [n for r in rows for n in r["p2os.command.name"]] == ["SYNC0", "SYNC1", "ENABLE", "VEL", "SETA"]
     assert [n for r in rows for n in r["p2os.robot.name"]] == ["Robbie"]
     # a packet with a bad checksum is not claimed by the heuristic ...
     bad = tmp_path / "bad.pcap"
-    _write_tcp(bad, [(True, bytes.fromhex("FAFB060B3B64006F3C"))] * 2, 9000)
+    write_tcp(bad, [(True, bytes.fromhex("FAFB060B3B64006F3C"))] * 2, 9000)
     rows = fields(bad, ["p2os.checksum.status"], extra=EXTRA)
     assert not any(r["p2os.checksum.status"] for r in rows)
     # ... but the port preference decodes it, flagged
@@ -500,7 +493,7 @@ def test_aria_string_argument_ends_with_its_nul(tmp_path):
         c ^= body[i]
     extra += bytes([c >> 8, c & 0xFF])
     path = tmp_path / "aria.pcap"
-    _write_tcp(path, [(True, say), (True, tty), (True, bytes(extra))], 8101)
+    write_tcp(path, [(True, say), (True, tty), (True, bytes(extra))], 8101)
     rows = p2os_fields(path, ["p2os.command.name", "p2os.arg.string", "p2os.arg.terminator", "p2os.extra",
                               "p2os.checksum.status", "_ws.expert.message"])
     rows = [r for r in rows if r["p2os.command.name"]]

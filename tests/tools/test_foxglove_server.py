@@ -6,7 +6,6 @@ writes for the same capture; the server's log under a flood of bad subscriptions
 from __future__ import annotations
 
 import json
-import struct
 import subprocess
 import sys
 import time
@@ -19,7 +18,7 @@ if sys.version_info < (3, 10):  # foxglove-schemas-protobuf (the official classe
 from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
 from mcap.reader import make_reader
 from sl_captures import reference
-from sl_foxglove import CLI, Watch, advertised
+from sl_foxglove import CLI, Watch, advertised, subscribed
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
@@ -54,18 +53,7 @@ def test_a_client_offering_only_foxglove_websocket_v1_gets_the_positions(drive):
             assert ws.subprotocol == "foxglove.websocket.v1"
             loc = advertised(ws, {"/sharedlink/B_to_A/location"})["/sharedlink/B_to_A/location"]
             assert loc["schemaName"] == "foxglove.LocationFix"
-            ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 3, "channelId": loc["id"]}]}))
-            got = []
-            while True:
-                try:
-                    m = ws.recv(timeout=30)
-                except ConnectionClosed as exc:  # the capture ended: the server closed, properly
-                    assert exc.rcvd is not None, exc
-                    break
-                if isinstance(m, bytes):
-                    op, sub, log_time = struct.unpack_from("<BIQ", m)
-                    assert (op, sub) == (1, 3)
-                    got.append((log_time, LocationFix.FromString(m[13:])))
+            got = [(t, LocationFix.FromString(m)) for t, m in subscribed(ws, loc, 3)]
     except InvalidStatus as exc:  # pragma: no cover - what the SDK's server alone answers
         pytest.fail(f"handshake refused: {exc}")
     finally:
