@@ -30,20 +30,50 @@ def _wchan(pid: int) -> str:
         return ""
 
 
-def wait_writing(pid: int, timeout: float = 30) -> None:
-    """Until process ``pid`` waits inside a write to a pipe (the kernel's ``pipe_write``, or
-    ``anon_pipe_write``). Skips where /proc does not tell (no wchan, or only "0")."""
+def wait_in_kernel(pid: int, where: tuple[str, ...], timeout: float = 30) -> str:
+    """Until process ``pid`` sleeps in one of the kernel functions ``where`` (substrings of
+    /proc/PID/wchan), polled (the kernel has no event for it); its wchan then. Skips where /proc
+    does not tell (no wchan, or only "0")."""
     end = time.monotonic() + timeout
     seen = ""
     while time.monotonic() < end:
         seen = _wchan(pid)
-        if "pipe_write" in seen:
-            time.sleep(0.1)
-            return
-        time.sleep(0.01)
+        if any(w in seen for w in where):
+            return seen
+        time.sleep(0.005)
     if seen in ("", "0"):
         pytest.skip("/proc/PID/wchan does not show where a process waits")
-    raise AssertionError(f"process {pid} never waited in a pipe write (last seen in {seen!r})")
+    raise AssertionError(f"process {pid} never waited in {where} (last seen in {seen!r})")
+
+
+def wait_writing(pid: int, timeout: float = 30) -> None:
+    """Until process ``pid`` waits inside a write to a pipe (the kernel's ``pipe_write``, or
+    ``anon_pipe_write``)."""
+    wait_in_kernel(pid, ("pipe_write",), timeout)
+
+
+def wait_selecting(pid: int, timeout: float = 30) -> None:
+    """Until process ``pid`` waits for input in select/poll/epoll (a capture loop's idle state:
+    its ports opened and set up)."""
+    wait_in_kernel(pid, ("epoll_wait", "ep_poll", "do_select", "do_sys_poll", "poll_schedule"), timeout)
+
+
+def signal_taken(pid: int, sig: int, timeout: float = 30) -> None:
+    """Until signal ``sig`` sent to process ``pid`` is no longer pending (its handler has run
+    in the kernel's view: the signal came while the process was where it was), polled from
+    /proc/PID/status; returns at once when the process is gone."""
+    bit = 1 << (sig - 1)
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        try:
+            status = open(f"/proc/{pid}/status").read()
+        except OSError:
+            return
+        pending = [int(line.split()[1], 16) for line in status.splitlines() if line.startswith(("SigPnd:", "ShdPnd:"))]
+        if "State:\tZ" in status or not any(p & bit for p in pending):
+            return
+        time.sleep(0.001)
+    raise AssertionError(f"signal {sig} still pending in process {pid} after {timeout} s")
 
 
 def read_lines(fd: int, n: int, timeout: float = 60) -> bytes:
