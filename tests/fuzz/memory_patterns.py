@@ -194,7 +194,7 @@ def check_memory(make: Callable[[int, Path], Sequence[str]], n: int, tmp: Path, 
     """Raise ScalingError when the pattern at 4N takes more than twice N's peak memory plus
     ``slack_kb``, or more than ``time_limit`` times N's CPU time beyond a size-1 baseline (a
     failure is measured once more: the machine may be busy). ``beyond_start``: the peaks are
-    taken beyond the baseline's (the fast form in ``make test``, whose sizes are too small for a
+    taken beyond the baseline's (the fast form in ``make test-long``, whose sizes are too small for a
     leak to show against tshark's 150 MB start-up)."""
     tmp.mkdir(parents=True, exist_ok=True)
     cmds = {size: list(make(size, tmp)) for size in (1, n, 4 * n)}

@@ -2,7 +2,7 @@
 stage): each pattern (defined here, and checked by test_python_scaling.py) written at its make-fuzz size N and 4N and run as
 the ``sharedlink`` command a user runs (a fresh process; CPU time and peak RSS beyond a one-frame
 baseline, ``scaling.check_scaling``). test_python_scaling.py checks the same patterns in-process
-at the smaller sizes (the ``n in make test`` column is those sizes, for the record)."""
+at the smaller sizes in ``make test-long`` (the ``n in make test-long`` column is those sizes, for the record)."""
 
 from __future__ import annotations
 
@@ -118,7 +118,7 @@ def make(pattern: Callable[[int], Sequence], *command: str,
     return run
 
 
-# name -> (make, n in make test, n in make fuzz, growth limit)
+# name -> (make, n in make test-long, n in make fuzz, growth limit)
 PATTERNS: dict[str, tuple[Callable[[int, Path], list[str]], int, int, float]] = {
     # 4N = 48000 frames: 16000 new names per direction, past MAX_NAMES (dropped and counted)
     "stats-new-names": (make(new_names, "stats", "{}"), 1000, 12000, 5.0),

@@ -134,6 +134,7 @@ def test_random_payloads_on_our_ports(work: Path, transport: str):
     _assert_clean(outcomes)
 
 
+@pytest.mark.long
 def test_64k_adversarial_payloads_take_linear_time(work: Path):
     """All patterns at 4 KB x 16 copies and at 64 KB x 1: the same bytes, so linear code takes
     the same time for both; quadratic code would take 16 times as long for the 64 KB file."""

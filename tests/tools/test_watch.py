@@ -554,6 +554,7 @@ def _peak_rss_mb(pid: int) -> float:
     raise AssertionError("no VmHWM")
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("how", ["sniff", "bind"])
 def test_flood_of_new_names_is_dropped_and_counted_and_later_frames_are_decoded(how, tmp_path):
     """Issue 31: a sender floods 20,000 datagrams, each with a name never sent before (a
