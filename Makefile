@@ -20,7 +20,7 @@ all: help
 help:
 	@echo "make demo      generate a beacon capture and decode it with tshark and the dissector"
 	@echo "make test      lint and run the test suite (about 4 min on 2 quiet cores; not the long and install tests)"
-	@echo "make test-long the long tests: scaling and memory patterns at size, live floods (docs/testing.md)"
+	@echo "make test-long the long tests (scaling and memory patterns at size, live floods) and the property tests at full size"
 	@echo "make test-install  the tests that build packages and virtualenvs (pipx, a wheel, make's venv)"
 	@echo "make test-all  all three (what .ci/run runs, with make test-matrix)"
 	@echo "make bench     print speed and memory ratios"
@@ -100,8 +100,9 @@ PYTEST := $(BIN)/pytest -q -n 2 --dist loadgroup
 test: deps lint
 	$(PYTEST) --durations=25 -m "not long and not install" tests
 
+# the long tests, and the property tests (hypothesis) at their full figures (make test: 0.4 of them)
 test-long: deps
-	$(PYTEST) --durations=10 -m long tests
+	SHAREDLINK_EXAMPLES=1 $(PYTEST) --durations=10 -m "long or hypothesis" tests
 
 test-install: deps
 	$(PYTEST) --durations=10 -m install tests
@@ -160,3 +161,4 @@ fuzz: deps
 	@$(PY) -c 'import atheris' 2>/dev/null || $(PIP_EDITABLE) '.[all,fuzz]' \
 	  || echo "atheris could not be installed: the Python parsers are fuzzed with hypothesis"
 	$(PY) scripts/fuzz.py $(FUZZ_ARGS)
+	SHAREDLINK_EXAMPLES=10 $(PYTEST) -m hypothesis tests  # the property tests at ten times their figures

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from sl_captures import examples
 from sl_robots import write_tcp
 
 from sharedlink.capture.packets import decode_packet, session_frames
@@ -158,27 +159,27 @@ sips = st.builds(
 )
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300), deadline=None)
 @given(commands)
 def test_command_round_trip(cmd):
     pkt = parse_packet(build_packet(cmd.encode()))
     assert pkt.ok and decode_command(pkt.payload) == cmd
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(sips)
 def test_sip_round_trip(sip):
     pkt = parse_packet(build_packet(sip.encode()))
     assert pkt.ok and decode_payload(pkt.payload, from_client=False) == sip
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300), deadline=None)
 @given(st.binary(max_size=253))
 def test_packet_round_trip(payload):
     assert parse_packet(build_packet(payload)).payload == payload
 
 
-@settings(max_examples=500, deadline=None)
+@settings(max_examples=examples(500), deadline=None)
 @given(st.binary(max_size=300) | st.binary(max_size=40).map(lambda b: b"\xfa\xfb" + b))
 def test_nothing_but_p2os_error_escapes(data):
     for fn in (parse_packet, decode_command, decode_sip, lambda d: decode_payload(d, False)):
