@@ -76,6 +76,36 @@ def signal_taken(pid: int, sig: int, timeout: float = 30) -> None:
     raise AssertionError(f"signal {sig} still pending in process {pid} after {timeout} s")
 
 
+def wait_created(folder: str | os.PathLike, wanted, timeout: float = 60) -> str:
+    """The first name in ``folder`` for which ``wanted(name)`` holds, waiting for its creation on
+    an inotify descriptor (select, Linux; a poll of the folder elsewhere)."""
+    import ctypes
+    import ctypes.util
+
+    found = next((n for n in os.listdir(folder) if wanted(n)), None)
+    if found:
+        return found
+    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+    fd = libc.inotify_init1(os.O_NONBLOCK) if hasattr(libc, "inotify_init1") else -1
+    try:
+        if fd >= 0:
+            libc.inotify_add_watch(fd, os.fsencode(folder), 0x100 | 0x80)  # IN_CREATE | IN_MOVED_TO
+        end = time.monotonic() + timeout
+        while (left := end - time.monotonic()) > 0:
+            found = next((n for n in os.listdir(folder) if wanted(n)), None)
+            if found:
+                return found
+            if fd >= 0:
+                if select.select([fd], [], [], left)[0]:
+                    os.read(fd, 65536)
+            else:  # pragma: no cover - no inotify
+                time.sleep(0.01)
+    finally:
+        if fd >= 0:
+            os.close(fd)
+    raise AssertionError(f"nothing wanted created in {folder} within {timeout} s")
+
+
 def read_lines(fd: int, n: int, timeout: float = 60) -> bytes:
     """Bytes read from ``fd`` until they hold ``n`` lines: each read waits on the descriptor
     becoming readable (select), not on a clock; ``timeout`` only guards against a hang."""
