@@ -76,25 +76,23 @@ def signal_taken(pid: int, sig: int, timeout: float = 30) -> None:
     raise AssertionError(f"signal {sig} still pending in process {pid} after {timeout} s")
 
 
-def wait_created(folder: str | os.PathLike, wanted, timeout: float = 60) -> str:
-    """The first name in ``folder`` for which ``wanted(name)`` holds, waiting for its creation on
-    an inotify descriptor (select, Linux; a poll of the folder elsewhere)."""
+def _on_inotify(path: str | os.PathLike, mask: int, check, timeout: float, what: str):
+    """``check()``'s first true answer, asked again at each inotify event ``mask`` on ``path``
+    (select on its descriptor, Linux; a poll elsewhere)."""
     import ctypes
     import ctypes.util
 
-    found = next((n for n in os.listdir(folder) if wanted(n)), None)
-    if found:
-        return found
     libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
     fd = libc.inotify_init1(os.O_NONBLOCK) if hasattr(libc, "inotify_init1") else -1
     try:
-        if fd >= 0:
-            libc.inotify_add_watch(fd, os.fsencode(folder), 0x100 | 0x80)  # IN_CREATE | IN_MOVED_TO
+        if fd >= 0 and libc.inotify_add_watch(fd, os.fsencode(path), mask) < 0:  # (no such path yet: a poll)
+            os.close(fd)
+            fd = -1
         end = time.monotonic() + timeout
         while (left := end - time.monotonic()) > 0:
-            found = next((n for n in os.listdir(folder) if wanted(n)), None)
-            if found:
-                return found
+            got = check()
+            if got:
+                return got
             if fd >= 0:
                 if select.select([fd], [], [], left)[0]:
                     os.read(fd, 65536)
@@ -103,7 +101,18 @@ def wait_created(folder: str | os.PathLike, wanted, timeout: float = 60) -> str:
     finally:
         if fd >= 0:
             os.close(fd)
-    raise AssertionError(f"nothing wanted created in {folder} within {timeout} s")
+    raise AssertionError(f"{what} not within {timeout} s")
+
+
+def wait_created(folder: str | os.PathLike, wanted, timeout: float = 60) -> str:
+    """The first name in ``folder`` for which ``wanted(name)`` holds, waiting for its creation."""
+    return _on_inotify(folder, 0x100 | 0x80, lambda: next((n for n in os.listdir(folder) if wanted(n)), None), timeout,
+                       f"a file wanted in {folder}")  # IN_CREATE | IN_MOVED_TO
+
+
+def wait_written(path: str | os.PathLike, done, timeout: float = 10) -> bool:
+    """Until ``done()`` holds, asked again each time ``path`` is written to (IN_MODIFY)."""
+    return _on_inotify(path, 0x2, lambda: bool(done()) or None, timeout, f"what was wanted of {path}")
 
 
 def read_lines(fd: int, n: int, timeout: float = 60) -> bytes:

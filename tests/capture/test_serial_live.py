@@ -16,7 +16,15 @@ import tty
 from pathlib import Path
 
 import pytest
-from sl_pipes import environment, one_page_pipe, read_to_end, signal_taken, wait_selecting, wait_writing
+from sl_pipes import (
+    environment,
+    one_page_pipe,
+    read_to_end,
+    signal_taken,
+    wait_selecting,
+    wait_writing,
+    wait_written,
+)
 
 import tshark_util as tu
 from sharedlink.capture.pcapio import CaptureError, read_records
@@ -83,12 +91,9 @@ def captured(path: Path) -> int:
 
 
 def wait_captured(path: Path, n: int, timeout: float = 10) -> None:
-    """Until the records on disk hold ``n`` bytes (each record is flushed as it is written),
-    polled: a file has no event for it. ``timeout`` guards a hang; the test's checks then say
-    what is missing."""
-    end = time.monotonic() + timeout
-    while captured(path) < n and time.monotonic() < end:
-        time.sleep(0.02)
+    """Until the records in ``path`` hold ``n`` bytes (each record is flushed as it is written),
+    asked again each time the file is written to."""
+    wait_written(path, lambda: captured(path) >= n, timeout)
 
 
 def frames(n: int, tag: str) -> list[bytes]:
@@ -211,20 +216,26 @@ def test_extcap_answers_wireshark_and_captures_into_a_fifo(tmp_path):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     received = bytearray()
 
+    grown = threading.Condition()
+
     def drain() -> None:
         with open(fifo, "rb", buffering=0) as fh:  # as Wireshark does: read until the extcap closes it
             while chunk := fh.read(4096):
-                received.extend(chunk)
+                with grown:
+                    received.extend(chunk)
+                    grown.notify_all()
 
     def wait_received(n: int, timeout: float = 10) -> None:
-        """Until the pcapng read from the fifo so far holds ``n`` bytes of records (polled)."""
+        """Until the pcapng read from the fifo so far holds ``n`` bytes of records, asked again
+        each time the reader gets more."""
         so_far = tmp_path / "so-far.pcapng"
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
+
+        def enough() -> bool:
             so_far.write_bytes(bytes(received))
-            if captured(so_far) >= n:
-                return
-            time.sleep(0.01)
+            return captured(so_far) >= n
+
+        with grown:
+            assert grown.wait_for(enough, timeout), f"{n} bytes never came through the fifo"
 
     reader = threading.Thread(target=drain, daemon=True)
     reader.start()
