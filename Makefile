@@ -19,7 +19,7 @@ all: help
 
 help:
 	@echo "make demo      generate a beacon capture and decode it with tshark and the dissector"
-	@echo "make test      lint and run the test suite (about 4 min on 2 quiet cores; not the long and install tests)"
+	@echo "make test      lint and run the test suite (not the long and install tests: docs/testing.md)"
 	@echo "make test-long the long tests (scaling and memory patterns at size, live floods) and the property tests at full size"
 	@echo "make test-install  the tests that build packages and virtualenvs (pipx, a wheel, make's venv)"
 	@echo "make test-all  all three (what .ci/run runs, with make test-matrix)"

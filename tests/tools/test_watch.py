@@ -6,6 +6,7 @@ capture), not against the package's decoder."""
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import os
 import shutil
@@ -20,7 +21,15 @@ from pathlib import Path
 import pytest
 from sl_captures import BEACON, reference
 from sl_foxglove import advertised
-from sl_pipes import environment, one_page_pipe, read_lines, read_to_end, signal_taken, wait_writing
+from sl_pipes import (
+    environment,
+    one_page_pipe,
+    read_lines,
+    read_to_end,
+    signal_taken,
+    wait_writing,
+    wait_written,
+)
 
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.codec import encode_named
@@ -586,18 +595,15 @@ def test_flood_of_new_names_is_dropped_and_counted_and_later_frames_are_decoded(
             for dg in normal:
                 tx2.sendto(dg, ("127.0.0.1", port))
                 time.sleep(0.002)
-        shown = 0
-        while time.monotonic() < sent_at + 30 and shown < 50:
-            time.sleep(0.2)
-            shown = out_path.read_text().count('"src": "D"')
+        with contextlib.suppress(AssertionError):  # (then the checks below say what is missing)
+            wait_written(out_path, lambda: out_path.read_text().count('"src": "D"') >= 50, 30)
         took = time.monotonic() - sent_at
         time.sleep(2.5)  # what is left of the flood has waited past --max-lag by then
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx3:
             for dg in last:
                 tx3.sendto(dg, ("127.0.0.1", port))
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and out_path.read_text().count('"src": "F"') < len(last):
-            time.sleep(0.2)
+        with contextlib.suppress(AssertionError):
+            wait_written(out_path, lambda: out_path.read_text().count('"src": "F"') >= len(last), 10)
         time.sleep(0.3)  # the kernel's drop count is read every 0.25 s
         peak = _peak_rss_mb(w.pid)
     finally:
