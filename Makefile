@@ -13,13 +13,16 @@ DISSECTORS := $(wildcard dissector/*.lua)
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: all demo test lint bench captures install uninstall deps tshark venv clean help rootfs test-matrix fuzz mutate man
+.PHONY: all demo test test-long test-install test-all lint bench captures install uninstall deps tshark venv clean help rootfs test-matrix fuzz mutate man
 
 all: help
 
 help:
 	@echo "make demo      generate a beacon capture and decode it with tshark and the dissector"
-	@echo "make test      lint and run the whole test suite"
+	@echo "make test      lint and run the test suite (not the long and install tests: docs/testing.md)"
+	@echo "make test-long the long tests (scaling and memory patterns at size, live floods) and the property tests at full size"
+	@echo "make test-install  the tests that build packages and virtualenvs (pipx, a wheel, make's venv)"
+	@echo "make test-all  all three (what .ci/run runs, with make test-matrix)"
 	@echo "make bench     print speed and memory ratios"
 	@echo "make captures  regenerate captures/ (byte-identical)"
 	@echo "make man       remake docs/sharedlink.1, the man page, from the command's parsers"
@@ -90,8 +93,21 @@ lint: deps
 	$(BIN)/ruff check pytools tests bench
 	luacheck -q dissector
 
+# make test leaves out the tests marked long or install (tests/conftest.py): each has its target,
+# and .ci/run runs them all (docs/testing.md says which tests and why)
+PYTEST := $(BIN)/pytest -q -n 2 --dist loadgroup
+
 test: deps lint
-	$(BIN)/pytest -q -n 2 --dist loadgroup --durations=25 tests
+	$(PYTEST) --durations=25 -m "not long and not install" tests
+
+# the long tests, and the property tests (hypothesis) at their full figures (make test: 0.4 of them)
+test-long: deps
+	SHAREDLINK_EXAMPLES=1 $(PYTEST) --durations=10 -m "long or hypothesis" tests
+
+test-install: deps
+	$(PYTEST) --durations=10 -m install tests
+
+test-all: test test-long test-install
 
 bench: deps
 	$(PY) bench/bench.py
@@ -145,3 +161,4 @@ fuzz: deps
 	@$(PY) -c 'import atheris' 2>/dev/null || $(PIP_EDITABLE) '.[all,fuzz]' \
 	  || echo "atheris could not be installed: the Python parsers are fuzzed with hypothesis"
 	$(PY) scripts/fuzz.py $(FUZZ_ARGS)
+	SHAREDLINK_EXAMPLES=10 $(PYTEST) -m hypothesis tests  # the property tests at ten times their figures

@@ -33,3 +33,10 @@ def tiers(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
     from sl_checks import count_tiers
 
     return count_tiers(monkeypatch)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """The markers that sort the long tests out of `make test` into their own targets (the
+    Makefile; docs/testing.md says which and why; `.ci/run` runs them all)."""
+    config.addinivalue_line("markers", "install: builds a package or a virtualenv (pipx, pip, a wheel): `make test-install`")
+    config.addinivalue_line("markers", "long: long by nature (live floods, scaling and memory patterns at size): `make test-long`")

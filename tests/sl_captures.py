@@ -5,6 +5,7 @@ checksums, frames without CR LF, numbers written in different ways."""
 
 from __future__ import annotations
 
+import os
 import random
 import re
 import struct
@@ -102,6 +103,17 @@ def write_capture(path: Path, datagrams: list[tuple[int, bytes]]) -> Path:
         for i, (ts, payload) in enumerate(datagrams):
             w.write(ts, b.frame(payload, i + 1))
     return path
+
+
+#: how many examples a property test draws, against the figure it names: 0.4 of it in make test
+#: (the default), all of it in make test-long, ten times it in make fuzz (the Makefile sets
+#: SHAREDLINK_EXAMPLES); a bug a draw once found stays as an @example whatever the figure
+EXAMPLES_SCALE = float(os.environ.get("SHAREDLINK_EXAMPLES", "0.4"))
+
+
+def examples(n: int) -> int:
+    """``n`` examples scaled by :data:`EXAMPLES_SCALE` (at least 20)."""
+    return max(20, round(n * EXAMPLES_SCALE))
 
 
 # -- stream strategies (test_serial, test_serial_dissector) ---------------------------------------

@@ -1,14 +1,17 @@
 """The `watch --foxglove` server from a test's side (test_foxglove_server.py,
-test_foxglove_p2os_poses.py): the command with its server's port, and the channels a client
-sees advertised."""
+test_foxglove_p2os_poses.py, test_watch_link_quality.py): the command with its server's port,
+the channels a client sees advertised, and the messages of one subscribed channel."""
 
 from __future__ import annotations
 
 import json
 import signal
+import struct
 import subprocess
 import sys
 import time
+
+from websockets.exceptions import ConnectionClosed
 
 CLI = [sys.executable, "-m", "sharedlink"]
 
@@ -56,3 +59,21 @@ def advertised(ws, until: set[str] | None = None, seconds: float = 10.0) -> dict
                 for topic in [t for t, c in chans.items() if c["id"] in j["channelIds"]]:
                     del chans[topic]
     return chans
+
+
+def subscribed(ws, channel: dict, sub: int = 5, timeout: float = 30) -> list[tuple[int, bytes]]:
+    """Subscribe to ``channel`` (as ``sub``) and read its messages until the server closes (the
+    capture ended), properly (a close frame): (log time in ns, the message's payload) each.
+    ``timeout`` guards a hang between two messages."""
+    ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": sub, "channelId": channel["id"]}]}))
+    got: list[tuple[int, bytes]] = []
+    while True:
+        try:
+            m = ws.recv(timeout=timeout)
+        except ConnectionClosed as exc:
+            assert exc.rcvd is not None, exc
+            return got
+        if isinstance(m, bytes):
+            op, sid, log_time = struct.unpack_from("<BIQ", m)
+            assert (op, sid) == (1, sub)
+            got.append((log_time, m[13:]))

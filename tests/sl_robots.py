@@ -1,5 +1,5 @@
 """P2OS and blackboard captures beside tshark with every dissector, for the tests that compare
-them (test_robots_counts.py, test_robot_stats.py, test_robot_export.py)."""
+them (test_robots_counts.py, test_robot_stats.py, test_robot_export.py, test_p2os.py)."""
 
 from __future__ import annotations
 
@@ -30,9 +30,12 @@ def tshark_counts(path: Path, serial: bool = False) -> tuple[Counter, Counter]:
     return p2, bb
 
 
-def write_tcp(path: Path, events: list[tuple[bool, bytes]], port: int) -> None:
+def write_tcp(path: Path, events: list[tuple[bool, bytes]], port: int, times: list[int] | None = None) -> None:
+    """A TCP session of ``(from the client, payload)`` events to ``port``: 10 ms apart, or at
+    ``times`` (ns from 10**18)."""
+    stamps = times if times is not None else [i * 10_000_000 for i in range(len(events))]
     with open(path, "wb") as fh:
         w = PcapWriter(fh)
-        evs = [(10**18 + i * 10_000_000, c, p) for i, (c, p) in enumerate(events)]
+        evs = [(10**18 + t, c, p) for t, (c, p) in zip(stamps, events)]
         for ts, _, frame in session_frames(evs, "tcp", ("127.0.0.1", 40000), ("127.0.0.1", port)):
             w.write(ts, frame)

@@ -158,6 +158,35 @@ def write_stream(stream: Stream, path: Path) -> Path:
     return Path(path)
 
 
+def write_streams_apart(streams: list[Stream], path: Path) -> Path:
+    """The UDP and TCP streams in one capture, each in addresses of its own (stream k's a.b.c.d
+    becomes 10.k.c.d, ports kept: the dissectors keep each conversation's state apart), their
+    packets interleaved by time: one tshark run a mode for them all."""
+    records: list[tuple[int, int, bytes]] = []
+    for k, stream in enumerate(streams, 1):
+        transport = stream.get("transport", "udp")
+        if transport not in ("udp", "tcp"):
+            raise ValueError(f"{stream['name']}: {transport} streams stay in captures of their own")
+        seqs: dict[tuple[str, int, str, int], int] = {}
+        for i, p in enumerate(stream["packets"]):
+            (sip, sport), (dip, dport) = (
+                (f"10.{k}.{'.'.join(h.split('.')[2:])}", port) for h, port in (_endpoint(p["src"]), _endpoint(p["dst"])))
+            data = payload_bytes(p["payload"])
+            if transport == "udp":
+                frame = UdpBuilder(sip, dip, sport, dport).frame(data, i + 1)
+            else:
+                key, rkey = (sip, sport, dip, dport), (dip, dport, sip, sport)
+                seq, ack = seqs.setdefault(key, 1000), seqs.setdefault(rkey, 5000)
+                frame = TcpBuilder(sip, dip, sport, dport).segment(seq, ack, 0x18, data, i + 1)
+                seqs[key] = seq + len(data)
+            records.append((timestamp_ns(p), k, frame))
+    with open(path, "wb") as fh:
+        w = PcapWriter(fh)
+        for ts, _k, frame in sorted(records, key=lambda r: r[:2]):
+            w.write(ts, frame)
+    return Path(path)
+
+
 def expected_frames(stream: Stream) -> list[tuple[int, int, dict[str, Any]]]:
     """(packet number, frame index within the packet, expected frame) for every frame."""
     return [(n, k, f) for n, p in enumerate(stream["packets"], 1) for k, f in enumerate(p["frames"])]

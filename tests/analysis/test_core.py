@@ -25,7 +25,7 @@ from core_streams import (
     write_udp,
 )
 from hypothesis import HealthCheck, example, given, settings
-from sl_captures import captures, write_capture
+from sl_captures import captures, examples, write_capture
 from sl_vectors import load_streams
 
 from sharedlink.analysis.decode import Decoded, Decoder, ReferenceDecoder, iter_decoded
@@ -145,7 +145,7 @@ def test_positional_fast_frames_fill_slots_for_the_full_rule(tmp_path):
     assert [d.kind for d in _decoded(path)] == ["full", "full", "full", "delta", "full", "delta"]
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(max_examples=examples(150), deadline=None, suppress_health_check=list(HealthCheck))
 @given(streams())
 def test_core_equals_reference_on_generated_streams(tmp_path_factory, stream):
     path = write_udp(tmp_path_factory.mktemp("core") / "s.pcap", stream)
@@ -161,7 +161,7 @@ FILLS_A_SLOT = [(0, 1_700_000_000_200_000_000, b"[:AB|N0|D1|D|C27]\r\n"),
                 (0, 1_700_000_000_600_000_000, b"[:AB|N0|D1|D|C27]\r\n")]
 
 
-@settings(max_examples=100, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(max_examples=examples(100), deadline=None, suppress_health_check=list(HealthCheck))
 @given(positional_streams())
 @example(FILLS_A_SLOT)
 def test_core_equals_reference_on_positional_streams(tmp_path_factory, stream):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import pytest
 from core_streams import one_sender, positional_streams, streams, vector_capture, write_udp
 from hypothesis import HealthCheck, given, settings
-from sl_captures import captures, write_capture
+from sl_captures import captures, examples, write_capture
 from sl_checks import change_records, flat_changes, same_changes
 from sl_vectors import load_streams
 
@@ -103,13 +103,13 @@ def test_two_senders_interleaved_keep_their_own_layouts(tmp_path):
     assert same_changes(write_udp(tmp_path / "i.pcap", stream)) >= 18
 
 
-@settings(max_examples=120, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(max_examples=examples(120), deadline=None, suppress_health_check=list(HealthCheck))
 @given(streams())
 def test_core_changes_equal_the_reference_on_generated_streams(tmp_path_factory, stream):
     same_changes(write_udp(tmp_path_factory.mktemp("ch") / "s.pcap", stream))
 
 
-@settings(max_examples=100, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(max_examples=examples(100), deadline=None, suppress_health_check=list(HealthCheck))
 @given(positional_streams())
 def test_core_changes_equal_the_reference_on_positional_streams(tmp_path_factory, stream):
     same_changes(write_udp(tmp_path_factory.mktemp("chp") / "s.pcap", stream))

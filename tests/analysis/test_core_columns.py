@@ -22,7 +22,7 @@ import pytest
 from core_streams import reference_items, spy_runs, vector_capture, write_udp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from sl_captures import captures, write_capture
+from sl_captures import captures, examples, write_capture
 from sl_vectors import load_streams
 
 from sharedlink.analysis.decode import Columns, Decoded, Decoder, ReferenceDecoder
@@ -101,7 +101,7 @@ def compare(path: Path, carried: bool = True, variables=BEACON_VARIABLES) -> int
     return batched
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(max_examples=examples(150), deadline=None, suppress_health_check=list(HealthCheck))
 @given(streams(), st.booleans())
 def test_columns_equal_the_reference_on_generated_streams(tmp_path_factory, stream, carried):
     compare(write_udp(tmp_path_factory.mktemp("col") / "s.pcap", stream), carried)

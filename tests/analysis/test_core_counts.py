@@ -23,7 +23,7 @@ import pytest
 from core_streams import reference_items, spy_runs, stats_by_reference, write_udp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from sl_captures import captures, write_capture
+from sl_captures import captures, examples, write_capture
 from sl_vectors import load_streams, write_stream
 
 from sharedlink.analysis.decode import Counted, Decoded, Decoder, ReferenceDecoder
@@ -131,7 +131,7 @@ def compare(path: Path, variables=BEACON_VARIABLES) -> tuple[int, int]:
     return sum(took), counted
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(max_examples=examples(150), deadline=None, suppress_health_check=list(HealthCheck))
 @given(streams())
 def test_counts_equal_the_reference_on_generated_streams(tmp_path_factory, stream):
     compare(write_udp(tmp_path_factory.mktemp("cnt") / "s.pcap", stream))

@@ -19,7 +19,7 @@ import pytest
 from core_streams import vector_capture
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from sl_captures import BEACON, captures, reference, write_capture
+from sl_captures import BEACON, captures, examples, reference, write_capture
 from sl_checks import Mcap
 from sl_vectors import load_streams
 
@@ -249,7 +249,7 @@ def test_value_fragment_is_the_typed_value_as_json(type_code):
         assert (type(got), got) == (type(want), want), t
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300), deadline=None)
 @given(st.one_of(st.just(0.0), st.floats(-90, 90), st.integers(-90, 90)), st.one_of(st.just(0.0), st.floats(-180, 180)),
        st.one_of(st.none(), st.just(0.0), st.floats(-720, 720)), st.one_of(st.none(), st.just(0), st.floats(0, 200)),
        st.integers(0, (1 << 32) * 10**9 - 1), st.sampled_from(["B>A", "C>A", ""]))
@@ -399,7 +399,7 @@ def test_columns_mode_messages_equal_the_reference_frames_for_values_of_every_ki
     assert _same_as_reference(tmp_path, cap) > 3 * 1000
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=examples(400), deadline=None)
 @given(st.lists(st.one_of(st.sampled_from(["38.34698779", "-77.0573", "0.0", "-0.0", "10.25", "0.5"]),
                           st.text("0123456789.-+eE_ ", max_size=7)), min_size=1, max_size=6))
 def test_run_wide_doubles_take_only_what_the_row_by_row_typing_writes_as_sent(texts):

@@ -13,7 +13,7 @@ import sys
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from sl_captures import chunked, reference_frames, sl_stream
+from sl_captures import chunked, examples, reference_frames, sl_stream
 
 from sharedlink.capture.pcapio import read_records
 from sharedlink.capture.serial_format import (
@@ -39,7 +39,7 @@ CLI = [sys.executable, "-m", "sharedlink"]
 # -- the deframer --------------------------------------------------------------------------------
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(300), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(sl_stream(), st.lists(st.integers(0, 10_000), max_size=40), st.sampled_from(["sharedlink", "auto"]))
 def test_any_split_gives_the_frames_of_the_whole_stream(data, cuts, protocol):
     d = Deframer(protocol)
@@ -57,7 +57,7 @@ def test_any_split_gives_the_frames_of_the_whole_stream(data, cuts, protocol):
             assert p.frame == parse_frame(p.data) and p.records
 
 
-@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(100), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(sl_stream(max_items=6), st.binary(max_size=20), st.sampled_from(["sharedlink", "blackboard"]),
        st.lists(st.integers(1, 3), min_size=1, max_size=8))
 def test_held_bytes_appended_without_a_scan_give_what_a_scan_gives(data, garbage, protocol, sizes):
@@ -82,7 +82,7 @@ def test_held_bytes_appended_without_a_scan_give_what_a_scan_gives(data, garbage
         (p.start, p.data, p.frame, p.reason, p.records) for p in want]
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=examples(150), deadline=None)
 @given(sl_stream(max_items=6), st.binary(min_size=1, max_size=30), st.lists(st.integers(0, 10_000), max_size=20))
 def test_a_truncated_tail_or_garbage_loses_no_frame_around_it(data, garbage, cuts):
     frames = reference_frames(data)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from sl_captures import chunked, serial_stream
+from sl_captures import chunked, examples, serial_stream
 
 from sharedlink.capture.serial_format import Deframer
 from sharedlink.protocols import blackboard, p2os
@@ -32,7 +32,7 @@ def cases(draw: st.DrawFn) -> tuple[str, bytes, list[bytes] | None, list[int]]:
     return protocol, data, messages, draw(st.lists(st.integers(0, 10_000), max_size=40))
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(300), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cases())
 def test_any_split_of_a_p2os_or_blackboard_stream_gives_the_frames_of_the_whole(case):
     protocol, data, messages, cuts = case

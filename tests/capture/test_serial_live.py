@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import select
 import signal
 import subprocess
 import sys
@@ -15,7 +16,15 @@ import tty
 from pathlib import Path
 
 import pytest
-from sl_pipes import environment, one_page_pipe, read_to_end, wait_writing
+from sl_pipes import (
+    environment,
+    one_page_pipe,
+    read_to_end,
+    signal_taken,
+    wait_selecting,
+    wait_writing,
+    wait_written,
+)
 
 import tshark_util as tu
 from sharedlink.capture.pcapio import CaptureError, read_records
@@ -45,14 +54,14 @@ def wait_ready(proc: subprocess.Popen) -> None:
 
 
 def wait_open(pid: int, path: str, timeout: float = 20) -> None:
-    """Until process ``pid`` has ``path`` open (the extcap prints nothing), then a little more
-    for its port set-up (which flushes the input)."""
+    """Until process ``pid`` has ``path`` open (the extcap prints nothing) and, its port set up
+    (which flushes the input), waits for input."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         try:
             fds = os.listdir(f"/proc/{pid}/fd")
             if any(os.readlink(f"/proc/{pid}/fd/{fd}") == path for fd in fds):
-                time.sleep(0.3)
+                wait_selecting(pid, timeout)
                 return
         except OSError:
             pass
@@ -61,14 +70,12 @@ def wait_open(pid: int, path: str, timeout: float = 20) -> None:
 
 
 def read_all(fd: int, n: int, timeout: float = 10) -> bytes:
-    os.set_blocking(fd, False)
+    """``n`` bytes from ``fd``, each read when select says it is readable."""
     out = b""
     end = time.monotonic() + timeout
-    while len(out) < n and time.monotonic() < end:
-        try:
+    while len(out) < n and (left := end - time.monotonic()) > 0:
+        if select.select([fd], [], [], left)[0]:
             out += os.read(fd, 4096)
-        except BlockingIOError:
-            time.sleep(0.01)
     return out
 
 
@@ -81,6 +88,12 @@ def captured(path: Path) -> int:
     except CaptureError:
         pass
     return n
+
+
+def wait_captured(path: Path, n: int, timeout: float = 10) -> None:
+    """Until the records in ``path`` hold ``n`` bytes (each record is flushed as it is written),
+    asked again each time the file is written to."""
+    wait_written(path, lambda: captured(path) >= n, timeout)
 
 
 def frames(n: int, tag: str) -> list[bytes]:
@@ -99,11 +112,7 @@ def test_capture_one_port_records_what_was_written(tmp_path):
             for part in (f[: i % 9 + 1], f[i % 9 + 1 :]):  # frames split across writes
                 os.write(m, part)
                 sent += part
-            time.sleep(0.005)
-        # wait until everything is on disk (each record is flushed as it is written)
-        end = time.monotonic() + 10
-        while time.monotonic() < end and captured(out) < len(sent):
-            time.sleep(0.05)
+            wait_captured(out, len(sent))  # (recorded: the next frame a record of its own)
         proc.send_signal(signal.SIGTERM)
         stdout, stderr = proc.communicate(timeout=20)
     finally:
@@ -138,7 +147,7 @@ def test_ctrl_c_while_stdout_is_full_leaves_the_record_whole(tmp_path, unbuffere
         os.write(m, sent)  # read 4095 bytes at once: a record longer than the pipe's room
         wait_writing(proc.pid)
         proc.send_signal(signal.SIGINT)  # Ctrl-C inside the write
-        time.sleep(0.3)
+        signal_taken(proc.pid, signal.SIGINT)
     finally:
         try:
             got, stderr = read_to_end(proc, r, 30)
@@ -170,7 +179,7 @@ def test_tap_relays_both_ways_and_records_both_directions(tmp_path):
         os.write(ma, a_to_b[50:])
         got_b = read_all(mb, len(a_to_b))
         got_a = read_all(ma, len(b_to_a))
-        time.sleep(0.2)
+        wait_captured(out, len(a_to_b) + len(b_to_a))  # (relayed first, then recorded)
         proc.send_signal(signal.SIGINT)  # Ctrl-C
         _, stderr = proc.communicate(timeout=20)
     finally:
@@ -207,10 +216,26 @@ def test_extcap_answers_wireshark_and_captures_into_a_fifo(tmp_path):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     received = bytearray()
 
+    grown = threading.Condition()
+
     def drain() -> None:
-        with open(fifo, "rb") as fh:  # as Wireshark does: read until the extcap closes it
+        with open(fifo, "rb", buffering=0) as fh:  # as Wireshark does: read until the extcap closes it
             while chunk := fh.read(4096):
-                received.extend(chunk)
+                with grown:
+                    received.extend(chunk)
+                    grown.notify_all()
+
+    def wait_received(n: int, timeout: float = 10) -> None:
+        """Until the pcapng read from the fifo so far holds ``n`` bytes of records, asked again
+        each time the reader gets more."""
+        so_far = tmp_path / "so-far.pcapng"
+
+        def enough() -> bool:
+            so_far.write_bytes(bytes(received))
+            return captured(so_far) >= n
+
+        with grown:
+            assert grown.wait_for(enough, timeout), f"{n} bytes never came through the fifo"
 
     reader = threading.Thread(target=drain, daemon=True)
     reader.start()
@@ -219,10 +244,10 @@ def test_extcap_answers_wireshark_and_captures_into_a_fifo(tmp_path):
         sent = b""
         for f in frames(12, "e"):
             os.write(m, f[:11])
-            time.sleep(0.003)
+            wait_received(len(sent) + 11)  # (recorded: the frame cut across two records)
             os.write(m, f[11:])
             sent += f
-        time.sleep(0.5)
+        wait_received(len(sent))
         proc.send_signal(signal.SIGTERM)  # how Wireshark stops an extcap
         _, stderr = proc.communicate(timeout=20)
         reader.join(timeout=20)
@@ -251,9 +276,7 @@ def test_killed_capture_is_still_readable(tmp_path):
         wait_ready(proc)
         data = b"".join(frames(6, "k"))
         os.write(m, data)
-        end = time.monotonic() + 10
-        while time.monotonic() < end and captured(out) < len(data):
-            time.sleep(0.05)
+        wait_captured(out, len(data))
         proc.kill()
         proc.communicate(timeout=20)
     finally:
@@ -286,7 +309,10 @@ def test_tshark_captures_a_serial_port_through_the_extcap(tmp_path):
         end = time.monotonic() + 30
         while proc.poll() is None and time.monotonic() < end:
             os.write(m, f)  # until tshark has its three packets (bytes before the port opened are lost)
-            time.sleep(0.15)
+            try:
+                proc.wait(timeout=0.15)
+            except subprocess.TimeoutExpired:
+                pass
         _, stderr = proc.communicate(timeout=30)
     finally:
         os.close(m)
@@ -316,9 +342,7 @@ def test_capture_ends_cleanly_when_the_line_goes_away(tmp_path):
     try:
         wait_ready(proc)
         os.write(m, f)
-        end = time.monotonic() + 10
-        while time.monotonic() < end and captured(out) < len(f):
-            time.sleep(0.05)
+        wait_captured(out, len(f))
     finally:
         os.close(m)  # the device disappears (a USB adapter pulled out)
     stdout, stderr = proc.communicate(timeout=20)

@@ -10,6 +10,8 @@ pass adds (a query's "Response in").
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +19,9 @@ import pytest
 from sl_vectors import expected_frames, load_streams, stream_ids, stream_params, write_stream
 
 import tshark_util as tu
+
+# (one worker for the file: its two-pass runs are shared between two tests, in a module fixture)
+pytestmark = pytest.mark.xdist_group("vectors")
 
 REPO = Path(__file__).resolve().parents[2]
 OTHERS = [a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua"
@@ -131,9 +136,25 @@ def _decode(stream: dict[str, Any], tmp_path: Path, two_pass: bool) -> list[list
     return [[_actual(t) for t in _frame_trees(p["_source"]["layers"])] for p in packets]
 
 
+@pytest.fixture(scope="module")
+def decoded_runs(tmp_path_factory: pytest.TempPathFactory) -> Callable[[dict[str, Any], bool], list[list[dict[str, Any]]]]:
+    """``_decode`` once per stream and pass count (both tests below read the two-pass run): a
+    copy each time."""
+    tmp = tmp_path_factory.mktemp("vectors")
+    memo: dict[tuple[str, bool], list[list[dict[str, Any]]]] = {}
+
+    def get(stream: dict[str, Any], two_pass: bool) -> list[list[dict[str, Any]]]:
+        key = (stream["name"], two_pass)
+        if key not in memo:
+            memo[key] = _decode(stream, tmp, two_pass)
+        return copy.deepcopy(memo[key])
+
+    return get
+
+
 @pytest.mark.parametrize("stream", stream_params(STREAMS, "tshark"))
-def test_vector_stream(stream: dict[str, Any], tmp_path: Path) -> None:
-    decoded = _decode(stream, tmp_path, two_pass=True)
+def test_vector_stream(stream: dict[str, Any], decoded_runs) -> None:
+    decoded = decoded_runs(stream, True)
     for num, pkt in enumerate(stream["packets"], 1):
         assert len(decoded[num - 1]) == len(pkt["frames"]), f"packet {num}: frames {decoded[num - 1]}"
     for num, k, exp in expected_frames(stream):
@@ -141,9 +162,9 @@ def test_vector_stream(stream: dict[str, Any], tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("stream", STREAMS, ids=stream_ids(STREAMS))
-def test_vector_stream_one_pass_equals_two_pass(stream: dict[str, Any], tmp_path: Path) -> None:
-    one = _decode(stream, tmp_path, two_pass=False)
-    two = _decode(stream, tmp_path, two_pass=True)
+def test_vector_stream_one_pass_equals_two_pass(stream: dict[str, Any], decoded_runs) -> None:
+    one = decoded_runs(stream, False)
+    two = decoded_runs(stream, True)
     for frames in (one, two):
         for f in (f for p in frames for f in p):
             f.pop("response_in")

@@ -16,7 +16,7 @@ import pyarrow.dataset as pads
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
-from sl_captures import captures, write_capture
+from sl_captures import captures, examples, write_capture
 
 from sharedlink.analysis.decode import ReferenceDecoder
 from sharedlink.capture.stream import iter_frames
@@ -122,7 +122,7 @@ def test_typed_columns_of_odd_texts(type_code):
         assert [type(x) for x in got] == [type(x) for x in want] and got == want, t
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(st.lists(st.floats(allow_nan=False, allow_infinity=False), min_size=1, max_size=20),
        st.sampled_from(["%r", "%.17g", "%.3e", "%+.10f", "%.0f", "%.1f", "%E"]))
 def test_arrow_reads_doubles_as_float_does(xs, form):
@@ -138,7 +138,7 @@ def test_arrow_reads_doubles_as_float_does(xs, form):
     assert vlong.null_count == vstring.null_count == len(texts)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300), deadline=None)
 @given(st.lists(st.one_of(st.text(alphabet="0123456789+-.eE \n_x\u0663", max_size=8), st.text(max_size=6)), min_size=1,
                 max_size=20))
 def test_arrow_takes_as_doubles_the_texts_that_fit_the_double_type(texts):

@@ -23,15 +23,14 @@ for _p in (FUZZ, TESTS):
         sys.path.insert(0, str(_p))
 
 from scaling import TIME_LIMIT, Run, ScalingError, measure  # noqa: E402
+from scaling_python import T0, write, write_serial  # noqa: E402, F401 (write_serial: scaling_memory.py)
 
 import tshark_util as tu  # noqa: E402
-from sharedlink.capture.packets import UdpBuilder  # noqa: E402
-from sharedlink.capture.pcapio import LINKTYPE_USER0, PcapngWriter, PcapWriter  # noqa: E402
-from sharedlink.capture.serial_format import DIR_OUT, SerialCaptureWriter  # noqa: E402
+from sharedlink.capture.pcapio import LINKTYPE_USER0, PcapngWriter  # noqa: E402
+from sharedlink.capture.serial_format import DIR_OUT  # noqa: E402
 
 REPO = TESTS.parent
 CLI = [sys.executable, "-m", "sharedlink"]
-T0 = 1_700_000_000 * 10**9
 STEP = 10_000_000
 #: the slack of the memory rule in ``make fuzz``: 4N may take twice N's peak plus this
 SLACK_KB = 50 * 1024
@@ -44,27 +43,9 @@ def frame(body: str) -> bytes:
 
 
 def write_udp(path: Path, payloads: Sequence[bytes | tuple[int, bytes]]) -> Path:
-    """Each payload a UDP datagram 10 ms after the previous; ``(sport, payload)`` picks the
-    sender's port (a querier or conversation each)."""
-    builders: dict[int, UdpBuilder] = {}
-    with open(path, "wb") as fh:
-        w = PcapWriter(fh)
-        for i, item in enumerate(payloads):
-            sport, payload = item if isinstance(item, tuple) else (7013, item)
-            b = builders.get(sport)
-            if b is None:
-                b = builders[sport] = UdpBuilder("10.0.0.2", "10.0.0.9", sport, 7013)
-            w.write(T0 + i * STEP, b.frame(payload, i + 1))
-    return path
-
-
-def write_serial(path: Path, chunks: Sequence[bytes]) -> Path:
-    """A serial capture (pcapng, USER0), one outbound record per chunk."""
-    with open(path, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        for i, c in enumerate(chunks):
-            w.write(c, DIR_OUT, T0 + i * 1_000_000)
-    return path
+    """Each payload a UDP datagram 10 ms after the previous (``scaling_python.write``);
+    ``(sport, payload)`` picks the sender's port (a querier or conversation each)."""
+    return write(path, payloads, step=STEP, src="10.0.0.2")
 
 
 def write_interfaces(path: Path, chunks: Sequence[tuple[int, bytes]], interfaces: int) -> Path:
@@ -213,7 +194,7 @@ def check_memory(make: Callable[[int, Path], Sequence[str]], n: int, tmp: Path, 
     """Raise ScalingError when the pattern at 4N takes more than twice N's peak memory plus
     ``slack_kb``, or more than ``time_limit`` times N's CPU time beyond a size-1 baseline (a
     failure is measured once more: the machine may be busy). ``beyond_start``: the peaks are
-    taken beyond the baseline's (the fast form in ``make test``, whose sizes are too small for a
+    taken beyond the baseline's (the fast form in ``make test-long``, whose sizes are too small for a
     leak to show against tshark's 150 MB start-up)."""
     tmp.mkdir(parents=True, exist_ok=True)
     cmds = {size: list(make(size, tmp)) for size in (1, n, 4 * n)}

@@ -1,7 +1,7 @@
 """Issue 44's memory patterns for ``make fuzz`` (scripts/fuzz.py's scaling stage reads every
 ``tests/fuzz/scaling_*.py`` with a PATTERNS table; this one's ``check`` is the memory rule of
 memory_patterns.check_memory: 4N at most twice N's peak memory plus 50 MB, 8x its CPU time).
-test_memory_patterns.py runs the patterns with an ``n in make test`` at that small size (a few
+test_memory_patterns.py runs (in ``make test-long``) the patterns with an ``n in make test-long`` at that small size (a few
 seconds each), its memory compared beyond start-up; the others (0) only in ``make fuzz``: at the
 small sizes their leaks and quadratics were below the timer and the slack (the diff reader's cycles
 and the total of pending queries have targeted tests there instead)."""
@@ -23,7 +23,7 @@ def env() -> dict[str, str]:
 
 _IFACES = mp.serial_interfaces(mp.many_interfaces)
 
-# name -> (make, n in make test (0: make fuzz only), n in make fuzz, growth limit: unused by check_memory)
+# name -> (make, n in make test-long (0: make fuzz only), n in make fuzz, growth limit: unused by check_memory)
 PATTERNS: dict[str, tuple[Callable[[int, Path], list[str]], int, int, float]] = {
     "tshark-repeated-declaration": (mp.make_tshark(mp.repeated_declaration), 300, 20000, 2.0),
     "tshark-repeated-declaration-2": (mp.make_tshark(mp.repeated_declaration, "-2"), 0, 20000, 2.0),

@@ -2,7 +2,7 @@
 stage): each pattern (defined here, and checked by test_python_scaling.py) written at its make-fuzz size N and 4N and run as
 the ``sharedlink`` command a user runs (a fresh process; CPU time and peak RSS beyond a one-frame
 baseline, ``scaling.check_scaling``). test_python_scaling.py checks the same patterns in-process
-at the smaller sizes (the ``n in make test`` column is those sizes, for the record)."""
+at the smaller sizes in ``make test-long`` (the ``n in make test-long`` column is those sizes, for the record)."""
 
 from __future__ import annotations
 
@@ -20,9 +20,11 @@ T0 = 1_700_000_000 * 10**9
 STEP = 200_000_000
 
 
-def write(path: Path, payloads: Sequence[bytes | tuple[int, bytes]]) -> Path:
-    """Each payload a UDP datagram 200 ms after the previous; ``(sport, payload)`` picks the
-    sender's port (a conversation each)."""
+def write(path: Path, payloads: Sequence[bytes | tuple[int, bytes]], step: int = STEP,
+          src: str = "10.0.0.1") -> Path:
+    """Each payload a UDP datagram from ``src`` to 10.0.0.9 port 7013, ``step`` ns (200 ms)
+    after the previous; ``(sport, payload)`` picks the sender's port (a conversation each). The
+    one UDP capture builder of the scaling patterns (memory_patterns.py writes with it too)."""
     builders: dict[int, UdpBuilder] = {}
     with open(path, "wb") as fh:
         w = PcapWriter(fh)
@@ -30,8 +32,8 @@ def write(path: Path, payloads: Sequence[bytes | tuple[int, bytes]]) -> Path:
             sport, payload = item if isinstance(item, tuple) else (7013, item)
             b = builders.get(sport)
             if b is None:
-                b = builders[sport] = UdpBuilder("10.0.0.1", "10.0.0.9", sport, 7013)
-            w.write(T0 + i * STEP, b.frame(payload, i + 1))
+                b = builders[sport] = UdpBuilder(src, "10.0.0.9", sport, 7013)
+            w.write(T0 + i * step, b.frame(payload, i + 1))
     return path
 
 
@@ -116,7 +118,7 @@ def make(pattern: Callable[[int], Sequence], *command: str,
     return run
 
 
-# name -> (make, n in make test, n in make fuzz, growth limit)
+# name -> (make, n in make test-long, n in make fuzz, growth limit)
 PATTERNS: dict[str, tuple[Callable[[int, Path], list[str]], int, int, float]] = {
     # 4N = 48000 frames: 16000 new names per direction, past MAX_NAMES (dropped and counted)
     "stats-new-names": (make(new_names, "stats", "{}"), 1000, 12000, 5.0),

@@ -53,7 +53,7 @@ def far_slot(n: int) -> list[bytes]:
     return [frame("AB|N2147483646|D1")] + [frame(f"AB|N0|D{i}") for i in range(n)]
 
 
-#: name -> (frames of size n, n in make test, tshark options)
+#: name -> (frames of size n, n in make test-long, tshark options)
 LUA_PATTERNS: dict[str, tuple[Callable[[int], list[bytes]], int, tuple[str, ...]]] = {
     # with the default limits, as users run it (names stop at max_names, 4096, after ~2k frames).
     # Measured 3.8-4.3x (one pass) and 4.1-4.9x (-2) on a loaded machine: the journal keeps a Lua
@@ -76,7 +76,7 @@ def _make(name: str) -> Callable[[int, Path], list[str]]:
     return make
 
 
-# name -> (make, n in make test, n in make fuzz, growth limit)
+# name -> (make, n in make test-long, n in make fuzz, growth limit)
 PATTERNS: dict[str, tuple[Callable[[int, Path], list[str]], int, int, float]] = {
     name: (_make(name), n, 4 * n, 5.0)
     for name, (_gen, n, _args) in LUA_PATTERNS.items()

@@ -111,7 +111,7 @@ def make_serial_unterminated(protocol: str, *args: str) -> Callable[[int, Path],
     return make
 
 
-# name -> (make, n in make test, n in make fuzz, growth limit). The -2 run of many endpoints
+# name -> (make, n in make test-long, n in make fuzz, growth limit). The -2 run of many endpoints
 # gets 6x: tshark itself, with no Lua at all, grows 5.9x from 12k to 48k distinct endpoints
 # with -2 (its conversation and address tables), and ours measured 4.3x to 4.7x (ff41cb3: 58x);
 # in make fuzz the endpoints stay near the sizes for the same reason (10k to 40k: 4.8x)

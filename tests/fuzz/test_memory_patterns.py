@@ -23,6 +23,7 @@ from sharedlink.protocols.state import PendingAsks
 FAST_SLACK_KB = 8 * 1024
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("name", sorted(k for k, v in sm.PATTERNS.items() if v[1]))
 def test_memory_bounded(name: str, tmp_path: Path) -> None:
     make, n, _big, _limit = sm.PATTERNS[name]

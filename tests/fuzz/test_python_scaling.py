@@ -177,20 +177,24 @@ def test_new_names_pattern_keeps_every_name(caps):
     assert capture_stats(capture(new_names, 4 * NEW_NAMES_N, caps)).limits.total == 0
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("run", [stats, export_changes, diff_self, watch_decode], ids=["stats", "export", "diff", "watch"])
 def test_new_names_every_frame_cost_linear_time(caps, run):
     assert_linear(run, new_names, NEW_NAMES_N, caps, n_memory=1000)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("run", [stats, export_changes], ids=["stats", "export"])
 def test_bad_checksum_frames_cost_what_they_hold(caps, run):
     assert_linear(run, bad_checksums, 300, caps, n_memory=100)
 
 
+@pytest.mark.long
 def test_replies_in_a_big_list_cost_linear_time(caps):
     assert_linear(stats, replies_in_a_big_list, 8000, caps, n_memory=1000)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("run", [stats, export_changes, diff_self],
                          ids=["stats", "export", "diff"])
 def test_many_conversations_cost_linear_time_and_memory(caps, run):
@@ -228,6 +232,7 @@ def bb_deframer(path: Path) -> object:
     return serial_deframer(path, "blackboard")
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("pattern,run", [
     (sl_unterminated, serial_records), (sl_unterminated, serial_deframer), (sl_unterminated, stats),
     (bb_unterminated, serial_records), (bb_unterminated, bb_deframer),
@@ -327,6 +332,7 @@ def test_an_interceptty_log_of_one_direction_imports_in_linear_time(tmp_path):
     assert [c.ts_ns for c in chunks] == [1000 * k * MAX_HELD_BYTES for k in (1, 2, 3)] + [1000 * 200_000]
 
 
+@pytest.mark.long
 def test_mcap_of_more_conversations_than_mcap_has_channels_loses_nothing_silently(tmp_path):
     """Past MCAP's 65535 channels (three a conversation here) foxglove-sdk lost every message of a
     new channel with one 'McapError(TooManyChannels)' line each, and the export said it wrote

@@ -83,6 +83,7 @@ except ImportError:  # pragma: no cover - until it is merged
 # -2 with new names read 4.0-7.4x in time with every name kept, its instructions linear (callgrind,
 # 27 November 2026: 1.526 and 1.522 thousand million a 1,000 frames from 1,000 to 2,000 and from
 # 2,000 to 4,000 frames): within scaling.TIME_LIMIT, the room time gets for the memory hierarchy
+@pytest.mark.long
 @pytest.mark.parametrize("name", sorted(LUA_PATTERNS))
 def test_sharedlink_scales_linearly(name: str, tmp_path: Path) -> None:
     gen, n, args = LUA_PATTERNS[name]

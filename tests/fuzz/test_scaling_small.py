@@ -14,6 +14,7 @@ from scaling import check_scaling
 import tshark_util as tu
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("name", sorted(ss.PATTERNS))
 def test_linear(name: str, tmp_path: Path):
     make, n, _big, limit = ss.PATTERNS[name]

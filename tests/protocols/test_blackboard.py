@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from sl_captures import examples
 
 from sharedlink.capture.packets import session_frames
 from sharedlink.capture.pcapio import LINKTYPE_USER0, PcapngWriter, PcapWriter, read_records
@@ -100,14 +101,14 @@ messages = st.builds(SetMessage, st.integers(0, 0xFFFF), st.integers(0, 255), st
 )
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300), deadline=None)
 @given(messages)
 def test_round_trip(msg):
     back = parse_message(build_message(msg))
     assert back == msg and back.ok
 
 
-@settings(max_examples=500, deadline=None)
+@settings(max_examples=examples(500), deadline=None)
 @given(
     st.binary(max_size=80)
     | st.text(alphabet="0123456789ABCDEFabcdefG:;\r\n ", max_size=40).map(lambda t: (":" + t).encode())

@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from sl_captures import examples
 
 from sharedlink.protocols.codec import (
     Field,
@@ -184,7 +185,7 @@ def test_round_trip(frame):
     assert len(segs) == 1 and segs[0].frame == frame
 
 
-@settings(max_examples=400, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(400), suppress_health_check=[HealthCheck.too_slow])
 @given(st.binary(max_size=200))
 def test_random_bytes_raise_only_sharedlink_error(data):
     try:
@@ -196,7 +197,7 @@ def test_random_bytes_raise_only_sharedlink_error(data):
     assert all(a.end == b.start for a, b in zip(segs, segs[1:]))
 
 
-@settings(max_examples=400)
+@settings(max_examples=examples(400))
 @given(frame_st, st.data())
 def test_mutated_frames_raise_only_sharedlink_error(frame, data):
     raw = bytearray(build_frame(frame))

@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from sl_captures import examples
+from sl_robots import write_tcp
 
 from sharedlink.capture.packets import decode_packet, session_frames
 from sharedlink.capture.pcapio import LINKTYPE_USER0, PcapngWriter, PcapWriter, read_records
@@ -157,27 +159,27 @@ sips = st.builds(
 )
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300), deadline=None)
 @given(commands)
 def test_command_round_trip(cmd):
     pkt = parse_packet(build_packet(cmd.encode()))
     assert pkt.ok and decode_command(pkt.payload) == cmd
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(sips)
 def test_sip_round_trip(sip):
     pkt = parse_packet(build_packet(sip.encode()))
     assert pkt.ok and decode_payload(pkt.payload, from_client=False) == sip
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300), deadline=None)
 @given(st.binary(max_size=253))
 def test_packet_round_trip(payload):
     assert parse_packet(build_packet(payload)).payload == payload
 
 
-@settings(max_examples=500, deadline=None)
+@settings(max_examples=examples(500), deadline=None)
 @given(st.binary(max_size=300) | st.binary(max_size=40).map(lambda b: b"\xfa\xfb" + b))
 def test_nothing_but_p2os_error_escapes(data):
     for fn in (parse_packet, decode_command, decode_sip, lambda d: decode_payload(d, False)):
@@ -295,14 +297,6 @@ def test_session_decoded_end_to_end_by_tshark(session):
 # dissector on hand-made captures
 
 
-def _write_tcp(path: Path, events: list[tuple[bool, bytes]], port: int) -> None:
-    with open(path, "wb") as fh:
-        w = PcapWriter(fh)
-        evs = [(10**18 + i * 10_000_000, c, p) for i, (c, p) in enumerate(events)]
-        for ts, _, frame in session_frames(evs, "tcp", ("127.0.0.1", 40000), ("127.0.0.1", port)):
-            w.write(ts, frame)
-
-
 def test_known_good_and_reassembly_over_tcp(tmp_path):
     """The known-good packets as one client byte stream cut at awkward places (inside the
     header, count and checksum, then at random) with several packets per segment."""
@@ -312,7 +306,7 @@ def test_known_good_and_reassembly_over_tcp(tmp_path):
     cuts = sorted({1, 4, 8, 9, 20, 23, 30, *rng.sample(range(31, len(stream)), 40)}) + [len(stream)]
     pieces = [stream[a:b] for a, b in zip([0, *cuts], cuts)]
     path = tmp_path / "known.pcap"
-    _write_tcp(path, [(True, p) for p in pieces], 8101)
+    write_tcp(path, [(True, p) for p in pieces], 8101)
     rows = p2os_fields(path, ["p2os.command.name", "p2os.arg.int", "p2os.argtype", "p2os.checksum.status"])
     names = [n for r in rows for n in r["p2os.command.name"]]
     # the SYNC names hold until a SYNC2 echo is seen; none is in this stream
@@ -326,13 +320,13 @@ def test_heuristic_on_another_port_and_port_preference(tmp_path):
     path = tmp_path / "other.pcap"
     events = [(True, bytes.fromhex(h)) for h, _ in KNOWN_GOOD]
     events.insert(2, (False, build_packet(SyncReply(2, (b"Robbie", b"Pioneer", b"p2dx")).encode())))
-    _write_tcp(path, events, 9000)
+    write_tcp(path, events, 9000)
     rows = p2os_fields(path, ["p2os.command.name", "p2os.robot.name"])
     assert [n for r in rows for n in r["p2os.command.name"]] == ["SYNC0", "SYNC1", "ENABLE", "VEL", "SETA"]
     assert [n for r in rows for n in r["p2os.robot.name"]] == ["Robbie"]
     # a packet with a bad checksum is not claimed by the heuristic ...
     bad = tmp_path / "bad.pcap"
-    _write_tcp(bad, [(True, bytes.fromhex("FAFB060B3B64006F3C"))] * 2, 9000)
+    write_tcp(bad, [(True, bytes.fromhex("FAFB060B3B64006F3C"))] * 2, 9000)
     rows = fields(bad, ["p2os.checksum.status"], extra=EXTRA)
     assert not any(r["p2os.checksum.status"] for r in rows)
     # ... but the port preference decodes it, flagged
@@ -500,7 +494,7 @@ def test_aria_string_argument_ends_with_its_nul(tmp_path):
         c ^= body[i]
     extra += bytes([c >> 8, c & 0xFF])
     path = tmp_path / "aria.pcap"
-    _write_tcp(path, [(True, say), (True, tty), (True, bytes(extra))], 8101)
+    write_tcp(path, [(True, say), (True, tty), (True, bytes(extra))], 8101)
     rows = p2os_fields(path, ["p2os.command.name", "p2os.arg.string", "p2os.arg.terminator", "p2os.extra",
                               "p2os.checksum.status", "_ws.expert.message"])
     rows = [r for r in rows if r["p2os.command.name"]]

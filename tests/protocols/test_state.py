@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from sl_captures import examples
 
 from sharedlink.protocols.codec import (
     Field,
@@ -356,7 +357,7 @@ def list_sessions(draw):
     return steps
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(list_sessions())
 def test_a_new_list_keeps_values_by_name_and_drops_the_rest(steps):
     """The rule of issue 29 against a model kept by name: a name the new list keeps keeps its

@@ -6,7 +6,6 @@ capture at its capture time (x, y in metres from export's `x_mm`, `y_mm`)."""
 from __future__ import annotations
 
 import json
-import struct
 import subprocess
 import sys
 
@@ -15,8 +14,7 @@ import pytest
 if sys.version_info < (3, 10):  # foxglove-schemas-protobuf (the official classes) needs Python 3.10
     pytest.skip("foxglove-schemas-protobuf needs Python 3.10+", allow_module_level=True)
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
-from sl_foxglove import CLI, Watch, advertised
-from websockets.exceptions import ConnectionClosed
+from sl_foxglove import CLI, Watch, advertised, subscribed
 from websockets.sync.client import connect
 
 
@@ -31,22 +29,11 @@ def test_p2os_poses_reach_a_foxglove_client(tmp_path):
             if "x_mm" in (row := json.loads(line)) and row["checksum"] == "good"}
     assert sips
     w = Watch("--from", cap, "--speed", 2)
-    got = []
     try:
         with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.websocket.v1"]) as ws:
-            chans = advertised(ws, {"/p2os/1/pose"})
-            pose = chans["/p2os/1/pose"]
+            pose = advertised(ws, {"/p2os/1/pose"})["/p2os/1/pose"]
             assert pose["schemaName"] == "foxglove.PoseInFrame"
-            ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 5, "channelId": pose["id"]}]}))
-            while True:
-                try:
-                    m = ws.recv(timeout=30)
-                except ConnectionClosed:  # the capture ended: the server closed
-                    break
-                if isinstance(m, bytes):
-                    op, sub, log_time = struct.unpack_from("<BIQ", m)
-                    assert (op, sub) == (1, 5)
-                    got.append((log_time, PoseInFrame.FromString(m[13:])))
+            got = [(t, PoseInFrame.FromString(m)) for t, m in subscribed(ws, pose)]
     finally:
         w.stop(ends=True)
     assert len(got) > 5

@@ -141,6 +141,7 @@ def pipx(tmp_path_factory) -> list[str]:
     return [str(venv / "bin" / "pipx")]
 
 
+@pytest.mark.install
 def test_the_readme_pipx_lines_install_the_lean_core(tmp_path, pipx):
     src = tmp_path / "checkout"  # a copy: the build leaves nothing in the real checkout
     src.mkdir()
@@ -170,6 +171,7 @@ def test_the_readme_pipx_lines_install_the_lean_core(tmp_path, pipx):
     assert r.returncode == 0, r.stderr
 
 
+@pytest.mark.install
 def test_the_makefiles_editable_install_is_quiet(tmp_path):
     """make demo/test/install make .venv with the Makefile's PIP_EDITABLE line: pip -q, and
     setuptools' boxed "Editable installation" warning filtered, so nothing is printed."""

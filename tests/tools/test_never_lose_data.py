@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+from sl_pipes import wait_created
 
 from sharedlink.generators.beacon import GenOptions, generate_file
 from tshark_util import fields
@@ -157,10 +158,8 @@ def test_full_disk_leaves_the_old_file_and_nothing_else(capture, tmp_path, comma
 def test_signal_while_writing_cleans_up(tmp_path, sig, code):
     out = tmp_path / "big.pcap"
     proc = subprocess.Popen([*CLI, "gen", "--frames", "20000000", "-o", str(out)], stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 60
-    while not any(p.name.endswith(".part") for p in tmp_path.iterdir()):
-        assert time.monotonic() < deadline and proc.poll() is None
-        time.sleep(0.05)
+    wait_created(tmp_path, lambda name: name.endswith(".part"))
+    assert proc.poll() is None
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == code, err
@@ -349,7 +348,7 @@ def test_ctrl_c_to_diffs_process_group_is_one_line(tmp_path):
         while len(_children(proc.pid)) < 2:  # both readers running
             assert proc.poll() is None and time.monotonic() < deadline
             time.sleep(0.01)
-        time.sleep(delay)
+        time.sleep(delay)  # (the moment of the Ctrl-C: at once, soon, well into the run; no wait for anything)
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=60)
         assert proc.returncode == 130, err

@@ -174,6 +174,7 @@ def build_wheel(tmp_path: Path) -> Path:
     return wheel
 
 
+@pytest.mark.install
 def test_the_wheel_carries_the_wireshark_files_and_works_from_a_fresh_venv(tmp_path):
     wheel = build_wheel(tmp_path)
     assert wheel.name == f"sharedlink-{sharedlink.__version__}-py3-none-any.whl"

@@ -204,9 +204,12 @@ def test_query_table_on_a_pipe_is_plain(dataset):
 
 @pytest.fixture(scope="module")
 def faulty(tmp_path_factory) -> Path:
-    """A long faulty capture: about 200,000 frames, 1 % bad checksums, 1 % dropped."""
+    """A long faulty capture: 11 hours (an axis in hours) at 1.25 Hz, 50,000 frames, 1 % bad
+    checksums, 1 % dropped (some 500 of each: more than the 300 markers a kind the plot keeps;
+    1M frames are make bench's)."""
     path = tmp_path_factory.mktemp("faulty") / "faulty.pcap"
-    r = run("gen", "-o", path, "--duration", "40000", "--compress", "--bad-checksum", "0.01", "--drop", "0.01")
+    r = run("gen", "-o", path, "--duration", "40000", "--rate", "1.25", "--compress", "--bad-checksum", "0.01",
+            "--drop", "0.01")
     assert r.returncode == 0, r.stderr
     return path
 
@@ -217,7 +220,7 @@ def test_plot_of_a_long_faulty_capture(faulty, tmp_path):
     r = run("plot", faulty, "-o", tmp_path / "f.png", "--json")
     assert r.returncode == 0, r.stderr
     summary = __import__("json").loads(r.stdout)
-    assert summary["frames"] > 190_000 and summary["checksum_failures"] > 1000 and summary["dropped_frames"] > 1000
+    assert summary["frames"] > 47_000 and summary["checksum_failures"] > 300 and summary["dropped_frames"] > 300
 
 
 @pytest.fixture(scope="module")

@@ -47,7 +47,9 @@ SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 
 
 class Receiver:
-    """A UDP socket on 127.0.0.1 read by a thread: (arrival ns, payload, source) per datagram."""
+    """A UDP socket on 127.0.0.1 read by a thread: (arrival ns, payload, source) per datagram.
+    :meth:`wait` waits on the datagrams' arrival (a condition the thread signals), then on a
+    marker datagram this receiver sends itself: what was sent before it has been read by then."""
 
     def __init__(self, host: str = "127.0.0.1", family: int = socket.AF_INET) -> None:
         self.sock = socket.socket(family, socket.SOCK_DGRAM)
@@ -55,6 +57,9 @@ class Receiver:
         self.sock.bind((host, 0))
         self.port = self.sock.getsockname()[1]
         self.got: list[tuple[int, bytes, tuple]] = []
+        self._arrived = threading.Condition()
+        self._marker = b"\0receiver marker %d\0" % id(self)
+        self._markers = 0
         self._stop = False
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -63,7 +68,7 @@ class Receiver:
         """Arrival times are the kernel's (SO_TIMESTAMPNS), so a busy interpreter does not
         blur them."""
         self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
-        self.sock.settimeout(0.05)
+        self.sock.settimeout(0.05)  # (how often the thread looks at _stop)
         while not self._stop:
             try:
                 data, anc, _, addr = self.sock.recvmsg(1 << 17, 64)
@@ -76,13 +81,24 @@ class Receiver:
                 if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
                     sec, nsec = struct.unpack("qq", value[:16])
                     ts = sec * 1_000_000_000 + nsec
-            self.got.append((ts, data, addr))
+            with self._arrived:
+                if data == self._marker:
+                    self._markers += 1
+                else:
+                    self.got.append((ts, data, addr))
+                self._arrived.notify_all()
 
     def wait(self, count: int, timeout: float = 5.0) -> list[bytes]:
-        end = time.monotonic() + timeout
-        while len(self.got) < count and time.monotonic() < end:
-            time.sleep(0.01)
-        time.sleep(0.05)  # anything beyond the expected count shows up too
+        """The payloads once ``count`` have come (or ``timeout`` passed), and everything sent
+        before this call returns (a sender that has finished: all it sent, and nothing more)."""
+        with self._arrived:
+            self._arrived.wait_for(lambda: len(self.got) >= count, timeout)
+            seen = self._markers
+        family = self.sock.family
+        with socket.socket(family, socket.SOCK_DGRAM) as s:
+            s.sendto(self._marker, self.sock.getsockname()[:2])
+        with self._arrived:
+            assert self._arrived.wait_for(lambda: self._markers > seen, 30), "the marker datagram never came"
         return self.payloads
 
     @property
@@ -231,7 +247,7 @@ def test_captured_ports_and_filters(tmp_path, rx, rx2, udp):
         want = [p for port, src, p in frames if keep(port, src)]
         out = json.loads(r.stdout)
         assert (out["frames"], out["filtered"], out["skipped"]) == (len(want), 30 - len(want), 4), args
-        assert rx.wait(len(want), timeout=2 if want else 0.2) == want, args
+        assert rx.wait(len(want)) == want, args
 
 
 def test_bind_source_address_and_interface(tmp_path, rx):
@@ -438,7 +454,7 @@ def test_ctrl_c_stops_cleanly(tmp_path, rx):
     assert "Traceback" not in err
     summary = json.loads(out)
     assert summary["interrupted"] is True and summary["frames"] >= 30
-    time.sleep(0.1)
+    rx.wait(0)  # (what was sent has been read)
     assert summary["frames"] == len(rx.got)  # every frame counted was received, and no other
 
 
@@ -457,8 +473,7 @@ class _SignallingSink:
     def send(self, payload: bytes, _t) -> int:
         self.got.append(payload)
         if len(self.got) == self.at:
-            os.kill(os.getpid(), signal.SIGINT)
-            time.sleep(0.01)  # the handler runs here, inside the send
+            signal.raise_signal(signal.SIGINT)  # its handler runs before this returns: inside the send
         return len(payload)
 
     def close(self) -> None:
