@@ -339,8 +339,10 @@ def test_ctrl_c_to_diffs_process_group_is_one_line(tmp_path):
     130 and one line (before, a reader printed a traceback: the parent's SIGTERM, meant to stop
     it, ran the command's own handler inside it)."""
     a, b = tmp_path / "a.pcap", tmp_path / "b.pcap"
-    generate_file(GenOptions(frames=150_000, compress=True), a)
-    generate_file(GenOptions(frames=150_000), b)
+    # big enough that the diff runs well past the last moment (150,000 frames took 0.45 s since
+    # the readers got faster: a Ctrl-C after it ended met Python's own SIGINT at exit, -2)
+    generate_file(GenOptions(frames=600_000, compress=True), a)
+    generate_file(GenOptions(frames=600_000), b)
     for delay in (0.0, 0.02, 0.3):
         proc = subprocess.Popen([*CLI, "diff", str(a), str(b)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                 start_new_session=True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import stat
 import struct
 import sys
@@ -287,13 +288,18 @@ def open_output(path: str | Path, mode: str = "wb", inputs: Iterable[str | Path 
         raise
     except OSError as exc:
         raise OutputError(f"{path}: {exc.strerror or exc}") from None
+    # Ctrl-C or SIGTERM held while the temporary file is made, so one arriving then is taken
+    # inside the try whose finally removes the file (a signal between mkstemp and the try left it)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
     try:
         target = Path(os.path.realpath(p.parent)) / p.name if replace_link else Path(os.path.realpath(p))
         fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
     except OSError as exc:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         raise OutputError(f"{path}: {exc.strerror or exc}") from None
     tmp = Path(tmp_name)
     try:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         try:
             os.chmod(tmp, _new_file_mode(target))
             with open(fd, mode, **kw) as fh:
