@@ -117,8 +117,6 @@ def test_a_shown_tree_ends_the_run(home: dict[str, str], capture: Path) -> None:
     assert all(re.fullmatch(r"-?\d+\.\d+", v) for v in column(out[2], 0)), out[2]
 
 
-@pytest.mark.xfail(strict=True, reason="known limit (docs/architecture.md): a field nobody referenced "
-                   "before, referenced from the very next frame on, with no shown tree in between")
 def test_a_field_never_referenced_before_from_the_next_frame_on(home: dict[str, str], capture: Path) -> None:
     out = sharkd_session(home, capture, [frames(0, NUMBER), frames(3, VALUE, NUMBER)])
     assert all(re.fullmatch(r"-?\d+\.\d+", v) for v in column(out[1], 0)), out[1]
