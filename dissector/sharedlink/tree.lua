@@ -139,17 +139,33 @@ setmetatable(LEARNT, { __index = function(t, field)
     return r
 end })
 
+-- The fields a hidden data frame's tree always asks about (the head's, N's, a variable's, the
+-- checksum's), asked at once when a hidden tree starts: a call each, not the metamethod's
+-- (speed trick, measured: about 1.1k instructions a field less where every dissection asks).
+local ASK_FIRST = { H_dst, hf.dst_node, H_src, hf.src_node, hf.kind, H_ordinal, H_var, H_var_name,
+    H_var_index, H_var_value, H_ftype, H_var_double, H_checksum, H_checksum_calc, H_checksum_status }
+
 -- Start a tree (shown or hidden): tvb, the packet's Tvb (the same object for the frames of one
--- packet: one dissection); tree, its root item; first, a hidden tree of a first pass
+-- packet: one dissection); tree, its root item; hidden, a hidden tree; first, of a first pass
 -- (pinfo.visited false).  Forgets what was asked unless the dissection is primed as the last.
-local function ref_start(tree, tvb, first)
+local function ref_start(tree, tvb, hidden, first)
     if rawequal(tvb, ref_tvb) and not EACH_FRAME then return end   -- the packet's next frame
     ref_tvb, ref_root = tvb, tree
-    local keep = first and KEEP_FIRST_PASS
+    local keep = hidden and first and KEEP_FIRST_PASS
     if keep and ref_kept then return end   -- the same first pass: primed alike
-    for k = 1, n_asked do LEARNT[ASKED[k]] = nil end
+    local learnt, asked = LEARNT, ASKED
+    for k = 1, n_asked do learnt[asked[k]] = nil end
     n_asked = 0
     ref_kept = keep
+    if hidden then
+        local ask = ti_ref
+        for k = 1, #ASK_FIRST do
+            local field = ASK_FIRST[k]
+            learnt[field] = ask(tree, field)
+            asked[k] = field
+        end
+        n_asked = #ASK_FIRST
+    end
 end
 
 -- A hidden item: field = value under parent when somebody references the field (REF), the
@@ -875,7 +891,7 @@ end
 local function tree_frame(mode, tree, tvb, f, s, a, e, fl, terminated, bodyend, malformed_msg, num, visited, kind,
                           dstb, srcb, list, d, rec, ne, nm, cs_val, cs_calc, cs_status)
     if not ti_bound then bind_ti() end
-    if mode == NONE then REF = NO_REF else REF = LEARNT; ref_start(tree, tvb, mode == HIDDEN and not visited) end
+    if mode == NONE then REF = NO_REF else REF = LEARNT; ref_start(tree, tvb, mode == HIDDEN, not visited) end
     c_shown = mode == SHOWN
     -- tvb offset of f[i] is o + i
     C.mode, C.tree, c_tvb, c_o, c_f, C.s, C.a, C.e, C.fl = mode, tree, tvb, a - 2, f, s, a, e, fl
