@@ -9,6 +9,7 @@ read_globals = {
     "base", "expert", "frametype", "ftypes", "bit",
     "DESEGMENT_ONE_MORE_SEGMENT", "ENC_ASCII", "ENC_UTF_8", "ENC_NA", "ENC_BIG_ENDIAN", "ENC_LITTLE_ENDIAN",
     "get_version", "set_plugin_info", "info", "warn", "message", "debug", "critical", "report_failure", "Dir",
+    "gui_enabled",
 }
 
 -- issue 27's shape for the three small dissectors (tests/dissector/test_shape_small.py)

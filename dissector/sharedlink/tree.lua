@@ -28,11 +28,12 @@ local CARRY, MISS = M.records.CARRY, M.records.MISS
 -- as upvalues (speed trick, measured: -V, one table read less a call, ~90 a frame), taken once
 -- wsapi.init has checked them on the first packet (bind_ti, called by tree_frame).
 local TI = wsapi.TI   -- see wsapi (2)
-local ti_add, ti_hide, ti_gen, ti_text, ti_append, ti_expert
+local ti_add, ti_hide, ti_gen, ti_text, ti_append, ti_expert, ti_ref   -- (ti_ref: wsapi.referenced)
 local ti_bound = false
 local function bind_ti()
     ti_add, ti_hide, ti_gen, ti_text = TI.add, TI.set_hidden, TI.set_generated, TI.set_text
     ti_append, ti_expert = TI.append_text, TI.add_proto_expert_info
+    ti_ref = wsapi.referenced
     ti_bound = wsapi.ready
 end
 
@@ -106,70 +107,73 @@ function values_have_experts(kind, list)
 end
 end
 
--- Which fields somebody references, learnt by the probe (wsapi.referenced, which answers true
--- when unsure): field -> true/false, nil while not known.  In a tree nobody sees Wireshark adds
--- a field only when the filters, coloring rules, custom columns, taps or field extractors primed
--- for that dissection reference it (docs/architecture.md, "The referenced-field cache").
--- What was learnt is kept over a run of consecutive frames (frame n + 1 after frame n, the same
--- pass: pinfo.visited) with no shown tree in between, the way tshark's passes and the GUI's
--- background colouring of the packet list go; a field ever found referenced (SEEN) and learnt
--- unreferenced since is asked again in each dissection, so a run that references it again is
--- seen (a field learnt referenced that no longer is only costs its item: shown, never lost).
--- Anything else (another frame, another pass, a shown tree; SHAREDLINK_PROBE_EACH_FRAME=1: every
--- frame) starts again.
+-- Which fields somebody references: field -> true/false, asked of Wireshark (wsapi.referenced,
+-- which answers true when unsure) the first time a frame's tree needs to know.  In a tree nobody
+-- sees Wireshark adds a field only when the filters, coloring rules, custom columns, taps or
+-- field extractors primed for that dissection reference it, and a dissection may be primed
+-- otherwise than the one before it (a sharkd request's columns, the GUI's new column or coloring
+-- rule, a pass's filter): what was asked is kept for the rest of the dissection (the frames of
+-- one packet), and past it only over a first pass outside the GUI (wsapi.first_pass_fixed:
+-- tshark's pass with its filters, taps and extractors fixed at start, or its -2's first pass),
+-- where every dissection is primed alike.  Anything else asks again, so no field is ever lost
+-- (docs/architecture.md, "The referenced-field cache").  A field is asked only where an item of
+-- it is about to be made (REF[field] is read there), so the values of unreferenced fields are
+-- not computed.  SHAREDLINK_PROBE_EACH_FRAME=1: asked again in every frame.
 local LEARNT = {}
 local NO_REF = {}     -- mode NONE: nothing is referenced
 for _, field in pairs(hf) do NO_REF[field] = false end
 local REF = LEARNT    -- the one in use for the frame being built
 local EACH_FRAME = wsapi.env.probe_each_frame
-local SEEN, IS_SEEN, n_seen = {}, {}, 0   -- the fields ever found referenced, in a list and a set
-local ref_num, ref_visited, ref_tvb = -1, nil, nil   -- the last hidden dissection: frame, pass, Tvb
+local KEEP_FIRST_PASS = wsapi.first_pass_fixed and not EACH_FRAME
+local ASKED, n_asked = {}, 0   -- the fields LEARNT holds, to forget them
+local ref_tvb, ref_root, ref_kept = nil, nil, false   -- the dissection: its Tvb, its root; kept over a first pass
+setmetatable(LEARNT, { __index = function(t, field)
+    if field == nil then return nil end
+    local r = ti_ref(ref_root, field)
+    t[field] = r
+    n_asked = n_asked + 1
+    ASKED[n_asked] = field
+    return r
+end })
 
--- Start a hidden tree: forget what may have changed since the last frame.  tvb: the packet's Tvb,
--- the same object for the frames of one packet (one dissection).
-local function ref_start(tvb, num, visited)
+-- The fields a hidden data frame's tree always asks about (the head's, N's, a variable's, the
+-- checksum's), asked at once when a hidden tree starts: a call each, not the metamethod's
+-- (speed trick, measured: about 1.1k instructions a field less where every dissection asks).
+local ASK_FIRST = { H_dst, hf.dst_node, H_src, hf.src_node, hf.kind, H_ordinal, H_var, H_var_name,
+    H_var_index, H_var_value, H_ftype, H_var_double, H_checksum, H_checksum_calc, H_checksum_status }
+
+-- Start a tree (shown or hidden): tvb, the packet's Tvb (the same object for the frames of one
+-- packet: one dissection); tree, its root item; hidden, a hidden tree; first, of a first pass
+-- (pinfo.visited false).  Forgets what was asked unless the dissection is primed as the last.
+local function ref_start(tree, tvb, hidden, first)
     if rawequal(tvb, ref_tvb) and not EACH_FRAME then return end   -- the packet's next frame
-    ref_tvb = tvb
-    if EACH_FRAME or visited ~= ref_visited or num ~= ref_num + 1 then
-        for k in pairs(LEARNT) do LEARNT[k] = nil end
-        ref_visited = visited
-    else
-        for k = 1, n_seen do   -- a field found referenced before, learnt unreferenced: ask again
-            local field = SEEN[k]
-            if LEARNT[field] == false then LEARNT[field] = nil end
+    ref_tvb, ref_root = tvb, tree
+    local keep = hidden and first and KEEP_FIRST_PASS
+    if keep and ref_kept then return end   -- the same first pass: primed alike
+    local learnt, asked = LEARNT, ASKED
+    for k = 1, n_asked do learnt[asked[k]] = nil end
+    n_asked = 0
+    ref_kept = keep
+    if hidden then
+        local ask = ti_ref
+        for k = 1, #ASK_FIRST do
+            local field = ASK_FIRST[k]
+            learnt[field] = ask(tree, field)
+            asked[k] = field
         end
+        n_asked = #ASK_FIRST
     end
-    ref_num = num
 end
 
--- A shown tree (the GUI's packet details, -V) ends a run: what follows learns again.
-local function ref_break() ref_num, ref_tvb = -1, nil end
-
--- A hidden item: field = value under parent, for a field not
--- known to be unreferenced (the caller checks REF[field] ~= false first, so an unreferenced
--- field costs no call); the first item of a field tells whether it is referenced.  Returns the
--- item, or nil when nobody references the field.
+-- A hidden item: field = value under parent when somebody references the field (REF), the
+-- item; nil when nobody does.  (The callers of the commonest items check REF[field] first, so
+-- an unreferenced field's value is not even computed.)
 local function hadd(parent, field, value)
-    local it
-    if value == nil then it = ti_add(parent, field) else it = ti_add(parent, field, value) end
-    local r = REF[field]
-    if r == nil then
-        r = wsapi.referenced(it, parent)
-        REF[field] = r
-        if r and not IS_SEEN[field] then
-            IS_SEEN[field] = true
-            n_seen = n_seen + 1
-            SEEN[n_seen] = field
-        end
-    end
-    return r and it or nil
+    if not REF[field] then return nil end
+    if value == nil then return ti_add(parent, field) end
+    return ti_add(parent, field, value)
 end
-
--- A hidden item when its field is not known to be unreferenced (hadd), for the rarer items.
-local function hitem(parent, field, value)
-    if REF[field] == false then return nil end
-    return hadd(parent, field, value)
-end
+local hitem = hadd
 
 -- The frame being built (set by tree_frame; upvalues, not a table's fields: speed trick, measured)
 local C = {}   -- the rest of it
@@ -283,7 +287,6 @@ local function tree_head()
         ti = ti_add(C.tree, sl)
     end
     c_ti = ti
-    if mode == HIDDEN then ref_start(tvb, c_num, C.visited) end
     tree_address(c_o + 3, dstb, C.dst, dnode, H_dst, hf.dst_node, "Destination")
     tree_address(c_o + 4, srcb, C.src, snode, H_src, hf.src_node, "Source")
     if mode == SHOWN then
@@ -907,14 +910,13 @@ end
 -- at s[a] and ending with its line end at s[e], as parsed: the field and variable arrays, cpos,
 -- ctext; a shown tree needs the fields' places, which parse fills for it; with its kind, state
 -- and checksum verdict).  mode: SHOWN, HIDDEN or NONE (then tree: the tree Wireshark gave, which
--- keeps no item); fr.visited: pinfo.visited (a hidden tree's cache of referenced fields starts
--- again with each pass).  Called by dissect_frame; what the parts share goes in the c_ upvalues.
+-- keeps no item); fr.visited: pinfo.visited (what a hidden tree asked of Wireshark is kept over a
+-- first pass only).  Called by dissect_frame; what the parts share goes in the c_ upvalues.
 local function tree_frame(mode, tree, tvb, fr)
     if not ti_bound then bind_ti() end
     frame_experts(fr)
-    REF = mode == NONE and NO_REF or LEARNT
+    if mode == NONE then REF = NO_REF else REF = LEARNT; ref_start(tree, tvb, mode == HIDDEN, not fr.visited) end
     c_shown = mode == SHOWN
-    if c_shown then ref_break() end
     local a, dstb, srcb, rec = fr.a, fr.dstb, fr.srcb, fr.rec
     -- tvb offset of f[i] is o + i
     C.mode, C.tree, c_tvb, c_o, c_f, C.a, C.e = mode, tree, tvb, a - 2, fr.f, a, fr.e

@@ -64,6 +64,29 @@ end
 -- (speed trick, measured: no Lua call between the entry and it).
 local function has_tree(tree) return not wsapi.no_tree(tree) end
 
+-- (4) Whether somebody references a field in this dissection: TreeItem:referenced (documented
+-- since 2.4: proto_field_is_referenced, true in a shown tree), asked of the dissection's root
+-- item (tree.lua, REF).  In a tree nobody sees Wireshark adds a field only when it is referenced
+-- (proto.c, TRY_TO_FAKE_THIS_ITEM: a field primed by a filter, coloring rule, custom column, tap
+-- or extractor of that dissection); referenced answers true for every such field, so a field it
+-- calls unreferenced would be faked anyway.  Called through the class table as (2), checked on
+-- the first packet (init); a release without it: referenced (every field added: slower, never
+-- wrong).
+local function always() return true end
+wsapi.referenced = method(TreeItem, "referenced")
+local function check_referenced(tree)
+    local ok, f = pcall(function() return tree.referenced end)
+    if not ok or type(f) ~= "function" then return always end
+    if f == wsapi.referenced then return f end
+    return function(t, field) return t:referenced(field) end
+end
+-- Whether every dissection of a first pass (pinfo.visited false) is primed alike, so what the
+-- first asked holds for the rest: outside the GUI (gui_enabled(), documented), where a first pass
+-- is tshark's (its filters, taps, columns and extractors fixed at start; -2: the read filter's
+-- pass), rawshark's or sharkd's load (its requests dissect visited frames).  The GUI's first pass
+-- may change under a live capture (a new tap or coloring rule): there every dissection asks.
+wsapi.first_pass_fixed = not (gui_enabled and gui_enabled())
+
 function wsapi.init(pinfo, tree, tvb)
     for _, name in ipairs({ "number", "visited", "rel_ts", "src_port", "dst_port", "src", "dst", "cols",
         "p2p_dir" }) do
@@ -75,26 +98,14 @@ function wsapi.init(pinfo, tree, tvb)
     end
     if tvb.raw ~= wsapi.tvb_raw then wsapi.tvb_raw = function(t, ...) return t:raw(...) end end
     wsapi.has_tree = hidden_tells and PG.hidden or has_tree
+    wsapi.referenced = check_referenced(tree)
     wsapi.ready = true
 end
 
--- (4) The referenced-field probe.  In a tree nobody sees, Wireshark adds a field only when a
--- filter, coloring rule or tap references it; for any other it hands back the parent item
--- (proto.c, TRY_TO_FAKE_THIS_ITEM), whose text is the parent's text.  So an item whose text
--- differs from its parent's is a real one (checked on 4.0, 4.4 and 4.6).  When either text
--- is missing (a release whose items carry none) the probe cannot tell: referenced.
-function wsapi.referenced(item, parent)
-    local t, parent_text = item.text, parent.text
-    if type(t) ~= "string" or type(parent_text) ~= "string" then return true end
-    return t ~= parent_text
-end
--- What the probe learnt is kept over a run of consecutive frames (tree.lua, ref_start; the
--- argument in docs/architecture.md, "The referenced-field cache"), in tshark and the GUI alike.
-
 -- (5) Environment switches, for the tests (docs/architecture.md): SHAREDLINK_NO_FAST=1 (the layout
 -- cache off: every frame parsed field by field), SHAREDLINK_FAST_MARK=1 (mark the Info of the
--- packets the cache parsed), SHAREDLINK_PROBE_EACH_FRAME=1 (the referenced fields learnt again in
--- every frame: no run of frames keeps them).
+-- packets the cache parsed), SHAREDLINK_PROBE_EACH_FRAME=1 (the referenced fields asked again in
+-- every frame, not once a dissection).
 local function env(name) return os.getenv("SHAREDLINK_" .. name) == "1" end
 wsapi.env = { no_fast = env("NO_FAST"), fast_mark = env("FAST_MARK"), probe_each_frame = env("PROBE_EACH_FRAME") }
 

@@ -2,12 +2,12 @@
 
 One builder (dissector/sharedlink/tree.lua) makes the shown tree (``-V``: every item with its range
 and label) and the hidden one (``-Y`` alone, coloring rules, taps: values only, and a field nobody
-references is not added at all, as the referenced-field probe tells).  For each display filter
+references is not added at all, as Wireshark tells: TreeItem:referenced).  For each display filter
 below, over every capture of captures/, the golden inputs, the fuzz regressions and freshly
 generated fault captures (concatenated into one file), the frames ``-Y F`` matches with a hidden
-tree must be the frames ``-V -Y F`` matches with a shown one: in one pass (what the probe learnt
-kept over the run of frames), with the probe asked again each frame
-(``SHAREDLINK_PROBE_EACH_FRAME=1``) and with two passes (``-2``).
+tree must be the frames ``-V -Y F`` matches with a shown one: in one pass (the answers kept over
+the first pass), with the fields asked again each frame (``SHAREDLINK_PROBE_EACH_FRAME=1``) and
+with two passes (``-2``: the second pass asks each dissection).
 """
 
 from __future__ import annotations

@@ -1,12 +1,15 @@
-"""The referenced-field cache across dissections whose filters change (issue 27, docs/architecture.md,
-"The referenced-field cache"), seen through sharkd, which dissects frames on request with the custom
-columns each request names, as the GUI's packet list does with its columns and coloring rules.
+"""The referenced-field cache across dissections whose filters change (issues 27 and 40,
+docs/architecture.md, "The referenced-field cache"), seen through sharkd, which dissects frames on
+request with the custom columns each request names, as the GUI's packet list does with its columns
+and coloring rules.
 
-In a tree nobody sees, Wireshark adds only the fields somebody references; the dissector learns which
-(wsapi.referenced) and keeps what it learnt over a run of consecutive frames.  Two rules keep that from
-going stale when the next frame's dissection references other fields: a field ever found referenced
-is learnt again in each dissection, and a shown tree (a frame's details) ends the run.  Each test
-below fails without its rule: the custom column of ``sharedlink.value.AutoGpsLat`` comes back empty.
+In a tree nobody sees, Wireshark adds only the fields somebody references; the dissector asks which
+(wsapi.referenced: TreeItem:referenced) and keeps the answers for the dissection, and over a first
+pass outside the GUI only (tshark's, where every dissection is primed alike).  sharkd's requests
+dissect visited frames, so each asks again: a field referenced before or never, from the very next
+frame on or after a shown tree, is seen.  The second and third tests fail when the answers are kept
+from one request's dissections to the next, the first when a field found referenced is not asked
+again: the custom column of ``sharedlink.value.AutoGpsLat`` comes back empty.
 """
 
 from __future__ import annotations
@@ -117,8 +120,6 @@ def test_a_shown_tree_ends_the_run(home: dict[str, str], capture: Path) -> None:
     assert all(re.fullmatch(r"-?\d+\.\d+", v) for v in column(out[2], 0)), out[2]
 
 
-@pytest.mark.xfail(strict=True, reason="known limit (docs/architecture.md): a field nobody referenced "
-                   "before, referenced from the very next frame on, with no shown tree in between")
 def test_a_field_never_referenced_before_from_the_next_frame_on(home: dict[str, str], capture: Path) -> None:
     out = sharkd_session(home, capture, [frames(0, NUMBER), frames(3, VALUE, NUMBER)])
     assert all(re.fullmatch(r"-?\d+\.\d+", v) for v in column(out[1], 0)), out[1]

@@ -194,8 +194,8 @@ def _matched_shown(cap: Path, prefs: dict | None) -> dict[str, set[int]]:
     return {flt: set(found) for flt, found in tu.shown_matches(cap, FILTERS, prefs=prefs, extra=OTHERS).items()}
 
 
-# The referenced fields learnt are kept over a run of consecutive frames; with
-# SHAREDLINK_PROBE_EACH_FRAME they are learnt again in every frame: both must match.
+# Which fields are referenced is kept over tshark's first pass; with SHAREDLINK_PROBE_EACH_FRAME
+# it is asked again in every frame: both must match.
 @pytest.mark.parametrize("each_frame", [False, True], ids=["pass-cache", "each-frame"])
 @pytest.mark.parametrize("form", ["named", "positional"])
 def test_hidden_tree_matches_shown_tree(form: str, each_frame: bool, tmp_path: Path,
