@@ -205,8 +205,8 @@ local MODE = { [true] = T_SHOWN, [false] = T_HIDDEN }   -- a tree's mode by whet
 
 -- The rest of a frame once its state is known (the frame record filled: dissect_frame): the Info
 -- (info.lua) unless in_info (the layout's piece is in it), the tree (tree.lua).  vis: the tree is
--- shown; quiet: a layout's frame with no possible expert.  Returns e, piece (dissect_frame's).
-local function frame_output(piece, in_info, quiet, vis)
+-- shown; calm: a frame with no possible expert (F.calm).  Returns e, piece (dissect_frame's).
+local function frame_output(piece, in_info, calm, vis)
     if not in_info then info_frame(F) end
     -- Tree: shown, hidden (nobody sees it) or none (tshark's summary pass: built only for a frame
     -- with expert infos, on root, where only the experts stay); one builder (tree.lua)
@@ -215,10 +215,9 @@ local function frame_output(piece, in_info, quiet, vis)
         mode = MODE[vis]
     else
         if not pk_root then return F.e, piece end
-        -- a layout's frame with no possible expert (speed trick, measured): quiet (values its
-        -- layout proves, a good upper-case checksum), CR LF after it, no record (late sync,
-        -- limit); otherwise has_experts tells
-        if quiet and F.crlf and not F.rec then return F.e, piece end
+        -- a layout's frame with no possible expert (speed trick, measured: F.calm, see
+        -- dissect_frame); otherwise has_experts tells
+        if calm then return F.e, piece end
         if not has_experts(F) then return F.e, piece end
         tree = pk_root
     end
@@ -275,14 +274,17 @@ local function dissect_frame(f, fl, a, e, terminated, sk, payload)
     -- __index, read only then
     local crlf = e == a + fl + 1
     if not crlf then tell_crlf(pinfo, terminated) end
-    -- the commonest frame, done: its Info made, no tree, no possible expert (see frame_output)
-    if in_info and not tree and (not pk_root or (quiet and crlf and not rec)) then return e, piece end
-    F.kind, F.rec, F.list, F.d, F.miss_n, F.ne, F.nm = kind, rec, list, d, miss_n, ne, nm
+    -- calm: a layout's frame with no possible expert (speed trick, measured): quiet (values its
+    -- layout proves, a good upper-case checksum), CR LF after it, no record (late sync, limit).
+    -- The commonest frame, done: its Info made, no tree, no possible expert
+    local calm = quiet and crlf and not rec
+    if in_info and not tree and (not pk_root or calm) then return e, piece end
+    F.kind, F.rec, F.list, F.d, F.miss_n, F.ne, F.nm, F.calm = kind, rec, list, d, miss_n, ne, nm, calm
     F.f, F.fl, F.a, F.e, F.terminated, F.crlf, F.s = f, fl, a, e, terminated, crlf, pk_s
     F.bodyend, F.dstb, F.srcb, F.malformed, F.cs_status, F.num, F.visited = bodyend, dstb, srcb, malformed_msg,
         cs_status, num, visited
     checksum_facts()
-    return frame_output(piece, in_info, quiet, vis)
+    return frame_output(piece, in_info, calm, vis)
 end
 ------------------------------------------------------------------------------
 -- Payload scanning

@@ -43,7 +43,8 @@ local HUGE_INDEX = 4294967295   -- the largest index the uint32 sharedlink.var.i
 -- The entry (dissect_frame; a layout's frame: fill_layout): fkind the kind the fields tell (nil:
 --   a data frame), is_data, addrs_ok (both addresses nodes A-P); for info and tree: f, fl, a, e,
 --   s, terminated, bodyend, malformed (why it is malformed, else nil), dstb/srcb, num, visited,
---   crlf (CR LF after its ']'); and the state's answers kind, rec, list, d, miss_n, ne, nm.
+--   crlf (CR LF after its ']'), calm (a layout's frame with no possible expert: tree's
+--   frame_experts skips it); and the state's answers kind, rec, list, d, miss_n, ne, nm.
 ------------------------------------------------------------------------------
 local FL, FS, FE, FV, FC = {}, {}, {}, {}, {}
 local VT, VN, VV, VI, VR, VTf, VQf, VDf = {}, {}, {}, {}, {}, {}, {}, {}
