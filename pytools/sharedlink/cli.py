@@ -83,7 +83,10 @@ def _leaves(parser: argparse.ArgumentParser, name: str = "") -> list[tuple[str, 
     return [leaf for s in subs for sub, p in s.choices.items() for leaf in _leaves(p, f"{name} {sub}".strip())]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The whole command's parser; with ``command`` (the first word given, as :func:`main`
+    passes it) only that command's parser under it, when it names one: a run loads and builds
+    one command, not all (its parsing is the same; ``completion`` needs them all)."""
     parser = _Parser(
         prog="sharedlink",
         description="Generate, replay, compare and decode SharedLink beacon captures.",
@@ -96,9 +99,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for name in COMMANDS:
+    for name in [command] if command in COMMANDS and command != "completion" else COMMANDS:
         importlib.import_module(f"sharedlink.commands.{name}").register(sub)
-    sub.choices["completion"].set_defaults(root_parser=parser)  # what its script completes
+    if "completion" in sub.choices:
+        sub.choices["completion"].set_defaults(root_parser=parser)  # what its script completes
     for name, leaf in _leaves(parser):
         leaf.set_defaults(_parser=leaf)  # (read by _Parser.parse_args: the usage of this command)
         examples = epilog(name)
@@ -116,8 +120,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     SIGTERM end it cleanly: no traceback, no half-written file (130, 143)."""
     previous = _install_sigterm()
     try:
-        parser = build_parser()
-        args = parser.parse_args(argv)
+        words = sys.argv[1:] if argv is None else list(argv)
+        parser = build_parser(words[0] if words else None)
+        args = parser.parse_args(words)
         set_quiet(args)
         if args.command is None:  # bare `sharedlink`: the commands, as --help lists them
             parser.print_help()
