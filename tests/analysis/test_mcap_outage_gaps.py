@@ -102,7 +102,7 @@ def test_watch_sends_the_gap_live(tmp_path):
     cap = tmp_path / "o.pcap"
     run_cli("gen", "-o", cap, "--duration", "12", "--outage", "6:3")
     outages = json.loads(run_cli("stats", "--json", cap).stdout)["outages"]
-    p = subprocess.Popen([*CLI, "watch", "--from", str(cap), "--speed", "4", "--json", "--foxglove", "--foxglove-port",
+    p = subprocess.Popen([*CLI, "watch", "--from", str(cap), "--speed", "1", "--json", "--foxglove", "--foxglove-port",
                           "0"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     got: list[tuple[int, dict]] = []
     try:

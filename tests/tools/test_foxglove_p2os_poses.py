@@ -20,7 +20,7 @@ from websockets.sync.client import connect
 
 def test_p2os_poses_reach_a_foxglove_client(tmp_path):
     cap = tmp_path / "p.pcap"
-    r = subprocess.run([*CLI, "gen", "-o", str(cap), "-q", "--protocol", "p2os", "--duration", "4"], capture_output=True,
+    r = subprocess.run([*CLI, "gen", "-o", str(cap), "-q", "--protocol", "p2os", "--duration", "8"], capture_output=True,
                        text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     rows = tmp_path / "p.jsonl"
@@ -28,7 +28,7 @@ def test_p2os_poses_reach_a_foxglove_client(tmp_path):
     sips = {row["ts_ns"]: row for line in rows.read_text().splitlines()
             if "x_mm" in (row := json.loads(line)) and row["checksum"] == "good"}
     assert sips
-    w = Watch("--from", cap, "--speed", 2)
+    w = Watch("--from", cap, "--speed", 1)  # 8 s for the client to subscribe (at 2x, 2 s: missed under load)
     try:
         with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.websocket.v1"]) as ws:
             pose = advertised(ws, {"/p2os/1/pose"})["/p2os/1/pose"]
