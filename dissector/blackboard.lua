@@ -409,12 +409,7 @@ local function link_health(tvb, pinfo, t, off, side, status)
     local health = package.loaded["sharedlink.health"]
     if type(health) ~= "table" or not health.robot then return end
     local gone = health.robot(pinfo, istr(off) .. "/" .. istr(tvb:len()), "blackboard", side, status)
-    if gone then
-        local ti = t:add(pf.outage_duration, gone)
-        ti:set_text(string.format("Link silent for %.2f s", gone))
-        ti:set_generated()
-        ti:add_proto_expert_info(ex.outage)
-    end
+    if gone then health.mark(t, nil, gone, pf.outage_duration, ex.outage) end
 end
 
 -- a text message at off (type character there); stop is the end of the buffer.

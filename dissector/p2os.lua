@@ -654,12 +654,7 @@ local function link_health(pinfo, pt, where, status)
     local health = package.loaded["sharedlink.health"]
     if type(health) ~= "table" or not health.robot then return end
     local gone = health.robot(pinfo, where, "p2os", "robot", status)
-    if gone then
-        local ti = pt:add(pf.outage_duration, gone)
-        ti:set_text(string.format("Link silent for %.2f s", gone))
-        ti:set_generated()
-        ti:add_proto_expert_info(ex.outage)
-    end
+    if gone then health.mark(pt, nil, gone, pf.outage_duration, ex.outage) end
 end
 
 local function dissect_one(tvb, pinfo, tree, h, count)

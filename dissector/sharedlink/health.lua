@@ -211,15 +211,17 @@ end
 -- The expert and the generated duration on tree (the packet's, or the root Wireshark gave when
 -- there is no tree: then the expert alone). One expert summary for every outage, "Link silent"
 -- (issue 41: -z expert lists one row per problem); the duration is the field's value, its item
--- reads "Link silent for 4.20 s".
-function H.mark(tree, root, dur)
+-- reads "Link silent for 4.20 s".  field, expert: a robot link's own (p2os.lua's, blackboard.lua's
+-- outage field and expert), else SharedLink's.
+function H.mark(tree, root, dur, field, expert)
+    expert = expert or ei.outage
     if tree then
-        local ti = tree:add(hf.outage_duration, dur)
+        local ti = tree:add(field or hf.outage_duration, dur)
         ti:set_text(s_format("Link silent for %.2f s", dur))
         ti:set_generated()
-        TI.add_proto_expert_info(ti, ei.outage)
+        TI.add_proto_expert_info(ti, expert)
     elseif root then
-        TI.add_proto_expert_info(root, ei.outage)
+        TI.add_proto_expert_info(root, expert)
     end
 end
 
