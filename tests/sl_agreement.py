@@ -175,6 +175,13 @@ def health_tap(path: Path, prefs: dict | None = None) -> tuple[list[tuple], dict
     res = tu.tshark(path, ["-q", "-X", f"lua_script:{SERIAL}", "-X", f"lua_script:{STATS}", "-z", "sharedlink,stats",
                            "-z", "expert"], prefs=prefs)
     text = res.stdout
+    outs, links = tap_tables(text)
+    return outs, links, text
+
+
+def tap_tables(text: str) -> tuple[list[tuple], dict[tuple, list[str]]]:
+    """The outages (link, pair, start, duration, open) and the link rows of the -z sharedlink,stats
+    tap's text."""
     links: dict[tuple, list[str]] = {}
     outs = []
     section = None
@@ -192,4 +199,4 @@ def health_tap(path: Path, prefs: dict | None = None) -> tuple[list[tuple], dict
             links[(cols[0], cols[1].replace(ARROW, ">"))] = cols[2:]
         else:
             outs.append((cols[0], cols[1].replace(ARROW, ">"), float(cols[2]), float(cols[3]), cols[-1] == "(open)"))
-    return sorted(outs), links, text
+    return sorted(outs), links

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 from rich.console import Console
+from sl_agreement import tap_tables
 
 import tshark_util as tu
 from sharedlink.analysis.sessions import iter_sessions
@@ -89,24 +90,8 @@ def tap(path: Path) -> tuple[list[tuple], dict[tuple, list[str]], str]:
     for s in SCRIPTS:
         args[:0] = ["-X", f"lua_script:{s}"]
     text = tu.tshark(path, args).stdout
-    links: dict[tuple, list[str]] = {}
-    outs = []
-    section = None
-    for line in text.splitlines():
-        if line == "Link health" or line.startswith("Outages ("):
-            section = line[:7]
-            continue
-        if not line.startswith("  ") or section is None:
-            section = None
-            continue
-        cols = re.split(r"\s{2,}", line.strip())
-        if cols[0] == "Link" or cols[0].startswith("Note:"):
-            continue
-        if section == "Link he":
-            links[(cols[0], cols[1].replace(ARROW, ">"))] = cols[2:]
-        else:
-            outs.append((cols[0], cols[1].replace(ARROW, ">"), float(cols[2]), float(cols[3]), cols[-1] == "(open)"))
-    return sorted(outs), links, text
+    outs, links = tap_tables(text)
+    return outs, links, text
 
 
 @pytest.mark.parametrize("name", CAPTURES)
