@@ -8,14 +8,13 @@ back, as the post office and its client would; the rows are export's. Needs root
 from __future__ import annotations
 
 import json
-import os
-import select
 import signal
 import socket
 import subprocess
 import sys
 
 import pytest
+from sl_pipes import read_lines
 
 from sharedlink.capture.pcapio import read_records
 from sharedlink.generators.blackboard import BlackboardGenOptions, generate_blackboard_file
@@ -30,19 +29,6 @@ def _can_sniff() -> bool:
     except (OSError, AttributeError):
         return False
     return True
-
-
-def _read_lines(fd: int, n: int) -> list[str]:
-    buf = b""
-    while buf.count(b"\n") < n:
-        r, _, _ = select.select([fd], [], [], 20)
-        if not r:
-            break
-        chunk = os.read(fd, 65536)
-        if not chunk:
-            break
-        buf += chunk
-    return buf.decode().splitlines()
 
 
 @pytest.mark.skipif(not _can_sniff(), reason="sniffing needs root or CAP_NET_RAW")
@@ -69,7 +55,7 @@ def test_sniffed_blackboard_keeps_identical_consecutive_datagrams(tmp_path):
                     master.sendto(payload, ("127.0.0.1", sport))
                 else:
                     slave.sendto(payload, ("127.0.0.1", mport))
-            lines = _read_lines(w.stdout.fileno(), len(want))  # type: ignore[union-attr]
+            lines = read_lines(w.stdout.fileno(), len(want)).decode().splitlines()  # type: ignore[union-attr]
         finally:
             w.send_signal(signal.SIGINT)
             w.communicate(timeout=60)

@@ -6,12 +6,12 @@ the watch binds) replayed over real UDP on loopback to the watch's port."""
 from __future__ import annotations
 
 import json
-import os
-import select
 import signal
 import socket
 import subprocess
 import sys
+
+from sl_pipes import read_lines
 
 from sharedlink.capture.pcapio import PcapWriter, read_records
 from sharedlink.generators.blackboard import BlackboardGenOptions, generate_blackboard_file
@@ -24,19 +24,6 @@ def _free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _read_lines(fd: int, n: int) -> list[str]:
-    buf = b""
-    while buf.count(b"\n") < n:
-        r, _, _ = select.select([fd], [], [], 20)
-        if not r:
-            break
-        chunk = os.read(fd, 65536)
-        if not chunk:
-            break
-        buf += chunk
-    return buf.decode().splitlines()
 
 
 def test_live_udp_blackboard_reaches_the_robot_outputs(tmp_path):
@@ -62,7 +49,7 @@ def test_live_udp_blackboard_reaches_the_robot_outputs(tmp_path):
         r = subprocess.run([*CLI, "replay", str(cap), "--to", f"127.0.0.1:{port}", "--pps", "2000", "-q"],
                            capture_output=True, text=True, timeout=120)
         assert r.returncode == 0, r.stderr
-        lines = _read_lines(w.stdout.fileno(), len(want))  # type: ignore[union-attr]
+        lines = read_lines(w.stdout.fileno(), len(want)).decode().splitlines()  # type: ignore[union-attr]
     finally:
         w.send_signal(signal.SIGINT)
         w.communicate(timeout=60)
