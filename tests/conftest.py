@@ -2,10 +2,11 @@
 analysis/, dissector/ for the Lua side, tools/, fuzz/); helpers live in ``tshark_util`` (tshark
 runs, each checked for Lua errors), ``sl_captures`` (test data builders), ``sl_vectors`` (the
 shared vector tables), ``sl_pipes`` (a standard output whose reader lags, for Ctrl-C tests;
-reading lines as they come), ``sl_agreement`` (the two decoders' frames side by side) and
+reading lines as they come), ``sl_agreement`` (the two decoders' frames side by side),
 ``sl_checks`` (the tap's report, MCAP read back, change records against the reference, odd
-captures), importable from every test file because this folder is on ``sys.path``. No test file
-imports another (tests/tools/test_test_layout.py)."""
+captures) and ``sl_cli`` (the ``sharedlink`` command as a process), importable from every test
+file because this folder is on ``sys.path``. No test file imports another
+(tests/tools/test_test_layout.py)."""
 
 from __future__ import annotations
 

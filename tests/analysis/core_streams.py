@@ -32,6 +32,28 @@ def bad_checksum(raw: bytes) -> bytes:
 
 
 @st.composite
+def reply(draw, src: str, dst: str, names: Sequence[str], values: Sequence[str]) -> bytes:
+    """A reply (``R`` and a ``D``) of one of ``names``."""
+    return build_frame(Frame(dst, src, (Field("R", draw(st.sampled_from(names))), Field("D", draw(st.sampled_from(values))))))
+
+
+@st.composite
+def declaration(draw, src: str, dst: str, names: Sequence[str]) -> bytes:
+    """A declaration of one to four of ``names`` (doubles)."""
+    fields = [Field("N", "0")]
+    for n in draw(st.lists(st.sampled_from(names), unique=True, min_size=1, max_size=4)):
+        fields += [Field("T", "2"), Field("Q", n)]
+    return build_frame(Frame(dst, src, tuple(fields)))
+
+
+@st.composite
+def positional(draw, src: str, dst: str, values: Sequence[str]) -> bytes:
+    """A positional frame of one to four slots (a slot left empty: carried)."""
+    return encode_positional(dst, src, draw(st.lists(st.one_of(st.none(), st.sampled_from(values)), min_size=1,
+                                                     max_size=4)))
+
+
+@st.composite
 def frames(draw, src: str, dst: str, values: tuple[str, ...] = VALUES, kinds: tuple[str, ...] = KINDS) -> bytes:
     """One frame of a kind drawn from ``kinds`` ("long": a named frame of type-0 values)."""
     kind = draw(st.sampled_from(kinds))
@@ -40,18 +62,13 @@ def frames(draw, src: str, dst: str, values: tuple[str, ...] = VALUES, kinds: tu
         raw = encode_named(dst, src, [(n, 0 if kind == "long" else 2, draw(st.sampled_from(values))) for n in names])
         return bad_checksum(raw) if kind == "bad" else raw
     if kind == "reply":
-        return build_frame(Frame(dst, src, (Field("R", draw(st.sampled_from(NAMES))),
-                                            Field("D", draw(st.sampled_from(values))))))
+        return draw(reply(src, dst, NAMES, values))
     if kind == "query":
         return build_frame(Frame(dst, src, (Field("Q", draw(st.sampled_from(NAMES))),)))
     if kind == "declaration":
-        fields = [Field("N", "0")]
-        for n in draw(st.lists(st.sampled_from(NAMES), unique=True, min_size=1, max_size=4)):
-            fields += [Field("T", "2"), Field("Q", n)]
-        return build_frame(Frame(dst, src, tuple(fields)))
+        return draw(declaration(src, dst, NAMES))
     if kind == "positional":
-        return encode_positional(dst, src, draw(st.lists(st.one_of(st.none(), st.sampled_from(values)), min_size=1,
-                                                         max_size=4)))
+        return draw(positional(src, dst, values))
     assert kind == "odd", kind
     return encode_named(dst, src, [(draw(st.sampled_from(NAMES)), 4, draw(st.sampled_from(values)) + " x")])
 

@@ -20,7 +20,16 @@ from collections import defaultdict
 from pathlib import Path
 
 import pytest
-from core_streams import reference_items, spy_runs, stats_by_reference, write_udp
+from core_streams import (
+    bad_checksum,
+    declaration,
+    positional,
+    reference_items,
+    reply,
+    spy_runs,
+    stats_by_reference,
+    write_udp,
+)
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sl_captures import captures, examples, write_capture
@@ -29,15 +38,11 @@ from sl_vectors import load_streams, write_stream
 from sharedlink.analysis.decode import Counted, Decoded, Decoder, ReferenceDecoder
 from sharedlink.analysis.stats import capture_stats
 from sharedlink.generators.beacon import GenOptions, generate_file
-from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
+from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named
 from sharedlink.protocols.state import BEACON_VARIABLES, parse_variables
 
 BEACON = tuple(n for n, _t in BEACON_VARIABLES)  # in the table's order: what runs take
 VALUES = ("1", "2", "2.5", "-3", "10", "1e", "+.5", "38.123456")  # few: unchanged values are the rule
-
-
-def _bad(raw: bytes) -> bytes:
-    return raw[:-5] + (b"00" if raw[-5:-3] != b"00" else b"01") + raw[-3:]
 
 
 @st.composite
@@ -47,7 +52,7 @@ def _frame(draw, src: str, dst: str) -> bytes:
     if kind in ("run", "bad", "long"):
         names = [n for n in BEACON if draw(st.booleans())]  # a subset, in table order
         raw = encode_named(dst, src, [(n, 0 if kind == "long" else 2, draw(st.sampled_from(VALUES))) for n in names])
-        return _bad(raw) if kind == "bad" else raw
+        return bad_checksum(raw) if kind == "bad" else raw
     if kind == "bare":
         return encode_named(dst, src, [])
     if kind == "shuffled":  # out of table order: the single-frame path
@@ -57,16 +62,11 @@ def _frame(draw, src: str, dst: str) -> bytes:
         return encode_named(dst, src, [(BEACON[0], 2, draw(st.sampled_from(VALUES))),
                                        ("Extra", 2, draw(st.sampled_from(VALUES)))])
     if kind == "reply":
-        return build_frame(Frame(dst, src, (Field("R", draw(st.sampled_from(BEACON))),
-                                            Field("D", draw(st.sampled_from(VALUES))))))
+        return draw(reply(src, dst, BEACON, VALUES))
     if kind == "declaration":
-        fields = [Field("N", "0")]
-        for n in draw(st.lists(st.sampled_from(BEACON), unique=True, min_size=1, max_size=4)):
-            fields += [Field("T", "2"), Field("Q", n)]
-        return build_frame(Frame(dst, src, tuple(fields)))
+        return draw(declaration(src, dst, BEACON))
     if kind == "positional":
-        return encode_positional(dst, src, draw(st.lists(st.one_of(st.none(), st.sampled_from(VALUES)), min_size=1,
-                                                         max_size=4)))
+        return draw(positional(src, dst, VALUES))
     # a value the pattern does not take (a space): the reference path changes it
     return encode_named(dst, src, [(draw(st.sampled_from(BEACON)), 2, draw(st.sampled_from(VALUES)) + " x")])
 

@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 import tracemalloc
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -18,11 +16,11 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from sl_captures import BEACON, captures, reference, write_capture
+from sl_cli import run_cli
 
 from sharedlink.analysis.export import ExportOptions, export_file
 from sharedlink.generators.beacon import GenOptions, generate_file
 
-CLI = [sys.executable, "-m", "sharedlink"]
 VARIANTS = {
     "named": dict(),
     "named-compressed": dict(compress=True, drop=0.05, bad_checksum=0.05),
@@ -36,10 +34,6 @@ def capture(request, tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("export") / f"{request.param}.pcap"
     generate_file(GenOptions(duration=40, seed=5, **VARIANTS[request.param]), path)
     return path
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
 
 
 def test_csv_rows_match_the_capture(capture, tmp_path):

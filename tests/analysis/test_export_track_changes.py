@@ -8,21 +8,16 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 from sharedlink.analysis.decode import Decoded, iter_decoded
 
-CLI = [sys.executable, "-m", "sharedlink"]
-
 
 def run(*args: object) -> str:
-    r = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stderr
-    return r.stdout
+    return run_cli(*args, check=True).stdout
 
 
 def geojson_tracks(text: str) -> dict[str, list[tuple[float, float]]]:

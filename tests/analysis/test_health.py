@@ -6,11 +6,10 @@ from __future__ import annotations
 
 import json
 import random
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 from sharedlink.analysis.health import FLOOR_S, Health, quality
 from sharedlink.capture.packets import UdpBuilder
@@ -18,7 +17,6 @@ from sharedlink.capture.pcapio import NS, PcapWriter
 from sharedlink.generators.beacon import DEFAULT_START_NS
 from sharedlink.protocols.codec import checksum
 
-CLI = [sys.executable, "-m", "sharedlink"]
 T0 = DEFAULT_START_NS / NS
 
 #: the real rates issue 43 names: (gen options) -> none of them has an outage or a late full set
@@ -28,10 +26,6 @@ REAL = {
     "bul110-40Hz": ["--rate", "40", "--jitter", "5"],
     "generator-5Hz": [],
 }
-
-
-def run_cli(*args: object) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
 
 
 def stats_json(path: Path, *extra: object) -> dict:

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from collections import Counter, defaultdict
 from pathlib import Path
 
@@ -21,6 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sl_captures import BEACON, captures, examples, reference, write_capture
 from sl_checks import Mcap
+from sl_cli import run_cli
 from sl_vectors import load_streams
 
 import tshark_util as tu
@@ -30,14 +29,9 @@ from sharedlink.protocols.state import BEACON_VARIABLES
 mcap_reader = pytest.importorskip("mcap.reader")
 descriptor_pb2 = pytest.importorskip("google.protobuf.descriptor_pb2")
 
-CLI = [sys.executable, "-m", "sharedlink"]
 REPO = Path(__file__).resolve().parents[2]
 OTHERS = [a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua"
           for a in ("-X", f"lua_script:{s}")]
-
-
-def run_cli(*args: object) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
 
 
 def epoch_ns(text: str) -> int:

@@ -6,22 +6,19 @@ reader; every message valid against its schema (test_foxglove_schemas.py checks 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
+from functools import partial
 
 import pytest
+import sl_cli
 
 mcap_reader = pytest.importorskip("mcap.reader")
 jsonschema = pytest.importorskip("jsonschema")
 
-CLI = [sys.executable, "-m", "sharedlink"]
 NS = 10**9
 
 
-def run_cli(*args: object) -> subprocess.CompletedProcess:
-    r = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stderr
-    return r
+#: every run here must succeed
+run_cli = partial(sl_cli.run_cli, check=True)
 
 
 @pytest.mark.parametrize("gen", [

@@ -13,19 +13,19 @@ import struct
 import subprocess
 import sys
 import time
+from functools import partial
 
 import pytest
+import sl_cli
+from sl_cli import CLI
 
 mcap_reader = pytest.importorskip("mcap.reader")
 
-CLI = [sys.executable, "-m", "sharedlink"]
 NS = 10**9
 
 
-def run_cli(*args: object) -> subprocess.CompletedProcess:
-    r = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stderr
-    return r
+#: every run here must succeed
+run_cli = partial(sl_cli.run_cli, check=True)
 
 
 def is_gap(doc: dict) -> bool:

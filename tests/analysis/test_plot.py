@@ -3,8 +3,6 @@ markers, and one panel per variable."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import matplotlib
@@ -15,11 +13,11 @@ import matplotlib.image as mpimg  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from matplotlib import colormaps  # noqa: E402
+from sl_cli import run_cli
 
 from sharedlink.analysis.plot import BAD_COLOUR, Thinned, build_figure, collect, figure_for_capture  # noqa: E402
 from sharedlink.generators.beacon import GenOptions, generate_file  # noqa: E402
 
-CLI = [sys.executable, "-m", "sharedlink"]
 BEACON = ["AutoGpsLat", "AutoGpsLon", "AutoGpsHead", "AutoGpsVel"]
 
 VARIANTS = {
@@ -50,10 +48,6 @@ def viridis_pixels(img: np.ndarray) -> int:
     ref = colormaps["viridis"](np.linspace(0.1, 0.9, 9))[:, :3]
     d = np.min(np.linalg.norm(rgb[:, None, :] - ref[None, :, :], axis=2), axis=1)
     return int((d < 0.03).sum())
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
 
 
 @pytest.mark.parametrize("variant", sorted(VARIANTS))

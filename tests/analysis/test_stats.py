@@ -21,13 +21,13 @@ import pytest
 from core_streams import stats_by_reference
 from sl_captures import BEACON, reference
 from sl_checks import tap_stats
+from sl_cli import run_cli
 
 from sharedlink.analysis.stats import capture_stats, one_line
 from sharedlink.generators.beacon import GenOptions, generate_file
 from sharedlink.protocols.state import BEACON_VARIABLES
 from tshark_util import REPO, TSHARK_CMD, check_stderr, fields
 
-CLI = [sys.executable, "-m", "sharedlink"]
 STATS_LUA = REPO / "dissector" / "sharedlink_stats.lua"
 COLORFILTERS = REPO / "dissector" / "sharedlink.colorfilters"
 
@@ -52,10 +52,6 @@ def captures(tmp_path_factory) -> dict[str, tuple[Path, object]]:
         p = d / f"{name}.pcap"
         out[name] = (p, generate_file(GenOptions(duration=40, seed=seed, **kw), p))
     return out
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
 
 
 @pytest.mark.parametrize("variant", sorted(VARIANTS))

@@ -13,17 +13,16 @@ from __future__ import annotations
 
 import json
 import struct
-import subprocess
-import sys
 from collections import Counter
 from pathlib import Path
+
+from sl_cli import run_cli
 
 import tshark_util as tu
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import read_records
 from sharedlink.protocols.codec import encode_named, encode_positional
 
-CLI = [sys.executable, "-m", "sharedlink"]
 T = 1_700_000_000
 VALUE_KINDS = ("full", "delta")
 
@@ -150,19 +149,15 @@ def tshark_view(path: Path) -> tuple[list[int], Counter]:
     return times, +per_iface
 
 
-def cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
-
-
 def value_frames_stats(path: Path) -> int:
-    r = cli("stats", path, "--json")
+    r = run_cli("stats", path, "--json")
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     kinds = json.loads(r.stdout)["kinds"]
     return sum(kinds.get(k, 0) for k in VALUE_KINDS)
 
 
 def transform(mode: str, src: Path, dst: Path) -> dict:
-    r = cli(mode, src, "-o", dst, "--json", "--force")
+    r = run_cli(mode, src, "-o", dst, "--json", "--force")
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     return json.loads(r.stdout)
 
@@ -199,7 +194,7 @@ def test_value_frames_of_a_multi_interface_capture_are_tsharks_in_every_command(
         assert got[0] + got[6] == want[0] and {k: v for k, v in got.items() if k not in (0, 6)} == {
             k: v for k, v in want.items() if k != 0}, (out.name, got)
         assert value_frames_stats(out) == total
-        d = cli("diff", cap, out)
+        d = run_cli("diff", cap, out)
         assert d.returncode == 0 and "AGREE" in d.stdout, d.stdout[-2000:] + d.stderr
         assert f"{total} matched value-frame pairs" in d.stdout
 

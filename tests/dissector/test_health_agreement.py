@@ -18,25 +18,24 @@ import select
 import signal
 import socket
 import subprocess
-import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import pytest
-from sl_agreement import health_tap, python_outages, same_outages
+import sl_cli
+from sl_agreement import exported_outages, health_tap, ingest, ingested_outages, python_outages, same_outages
+from sl_cli import CLI
 from sl_vectors import load_streams, write_stream
 
 from sharedlink.capture.pcapio import NS, read_records
 
-CLI = [sys.executable, "-m", "sharedlink"]
 APART_S = 40
 THRESHOLD = "0.15"
 
 
-def run_cli(*args: object) -> subprocess.CompletedProcess:
-    r = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return r
+#: every run here must succeed
+run_cli = partial(sl_cli.run_cli, check=True, timeout=300)
 
 
 @pytest.fixture(scope="module")
@@ -77,30 +76,19 @@ def test_tap_stats_export_watch_on_the_vectors(vector_caps, threshold):
         for lk in links:
             assert tap_links[(lk["link"], lk["pair"])][0] == str(lk["frames"]), (name, lk)
         rows = _stats_rows(cap, *extra)
-        exported = [x for x in map(json.loads, run_cli("export", "--format", "jsonl", "--outages", *extra, cap)
-                                   .stdout.splitlines()) if x["kind"] == "outage"]
-        assert sorted(({k: v for k, v in x.items() if k not in ("kind", "src", "dst")} for x in exported),
-                      key=lambda o: (o["start"], o["link"])) == rows
+        assert exported_outages(run_cli("export", "--format", "jsonl", "--outages", *extra, cap).stdout) == rows
         if not threshold:  # (watch learns each link's threshold; it has no --outage-after)
-            watched = [x for x in map(json.loads, run_cli("watch", cap, "--speed", "1000", "--json", "--outages", "-q")
-                                      .stdout.splitlines()) if x["kind"] == "outage"]
-            assert sorted(({k: v for k, v in x.items() if k not in ("kind", "src", "dst")} for x in watched),
-                          key=lambda o: (o["start"], o["link"])) == rows
+            watched = run_cli("watch", cap, "--speed", "1000", "--json", "--outages", "-q").stdout
+            assert exported_outages(watched) == rows
         seen += len(rows)
     assert seen >= (100 if threshold else 30)  # (links that recur; with the threshold, their own spacings)
 
 
 def test_ingest_on_the_vectors(vector_caps, tmp_path):
-    from sharedlink.fleet.query import run_query
-
-    ds = tmp_path / "ds"
-    run_cli("ingest", "-o", ds, *vector_caps.values())
+    ds = ingest(tmp_path, vector_caps.values())
     for cap in vector_caps.values():
         want, _links = python_outages(cap)
-        first = next(iter(read_records(cap))).ts_ns
-        where = "WHERE capture = '%s'" % str(cap).replace("'", "''")
-        rows = run_query(ds, f"SELECT conversation, pair, time_ns, duration_ns, open FROM outages {where}").rows()
-        assert sorted((c, p, (t - first) / NS, d / NS, o) for c, p, t, d, o in rows) == want
+        assert ingested_outages(ds, cap) == want
 
 
 def test_the_vectors_have_no_outage_alone(tmp_path):

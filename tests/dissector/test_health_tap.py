@@ -8,21 +8,25 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from sl_agreement import (
+    exported_outages,
+    gen_captures,
+    ingest,
+    links_table_is_health,
+    python_outages,
+    same_outages,
+)
 from sl_agreement import health_tap as tap
-from sl_agreement import python_outages, same_outages
+from sl_cli import run_cli
 
 import tshark_util as tu
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import NS, PcapWriter, read_records
 from sharedlink.generators.beacon import DEFAULT_START_NS
 from sharedlink.protocols.codec import checksum
-
-CLI = [sys.executable, "-m", "sharedlink"]
 
 #: generated fault captures: gen arguments
 CAPTURES = {
@@ -36,19 +40,10 @@ CAPTURES = {
 }
 
 
-def run_cli(*args: object) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
-
-
 @pytest.fixture(scope="module")
 def caps(tmp_path_factory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("health")
-    out = {}
-    for name, args in CAPTURES.items():
-        p = d / (name + (".pcapng" if "serial" in args else ".pcap"))
-        r = run_cli("gen", "-o", p, *args)
-        assert r.returncode == 0, r.stderr
-        out[name] = p
+    out = gen_captures(d, CAPTURES)
     out["open"] = open_outage(d / "open.pcap")
     return out
 
@@ -118,10 +113,9 @@ def test_export_rows_are_stats_outages(caps, name):
     ones last; the same outages as stats --json, to the nanosecond of its figures."""
     r = run_cli("stats", "--json", caps[name])
     want = json.loads(r.stdout)["outages"]
-    rows = [json.loads(x) for x in run_cli("export", "--format", "jsonl", "--outages", caps[name]).stdout.splitlines()]
-    got = [x for x in rows if x["kind"] == "outage"]
-    assert sorted(({k: v for k, v in x.items() if k not in ("kind", "src", "dst")} for x in got),
-                  key=lambda o: (o["start"], o["link"])) == want
+    text = run_cli("export", "--format", "jsonl", "--outages", caps[name]).stdout
+    assert exported_outages(text) == want
+    rows = [json.loads(x) for x in text.splitlines()]
     for k, x in enumerate(rows):  # the frame after a closed outage's row is at its end, of its pair
         if x["kind"] == "outage" and x["end"] is not None:
             nxt = next(y for y in rows[k + 1:] if y["kind"] != "outage" and f'{y["src"]}>{y["dst"]}' == x["pair"])
@@ -154,10 +148,7 @@ def test_export_csv_rows_are_stats_outages(caps, name):
 @pytest.fixture(scope="module")
 def dataset(caps, tmp_path_factory) -> Path:
     """Every capture above ingested into one fleet dataset."""
-    ds = tmp_path_factory.mktemp("fleet") / "ds"
-    r = run_cli("ingest", "-o", ds, *caps.values())
-    assert r.returncode == 0, r.stderr
-    return ds
+    return ingest(tmp_path_factory.mktemp("fleet"), caps.values())
 
 
 @pytest.mark.parametrize("name", [*CAPTURES, "open"])
@@ -179,11 +170,7 @@ def test_ingest_outages_are_stats_outages(caps, dataset, name):
         assert link == p.replace(">", "_to_") and (end is None) == o and (o or end - t == d)
     if name != "lossy":
         assert want, "the capture has outages"
-    per_second = [json.loads(x) for x in run_cli("health", "-o", "-", path).stdout.splitlines()]
-    rows = run_query(dataset, "SELECT conversation, pair, time_ns // 1000000000, frames, state, quality, down_s "
-                              f"FROM links {where} ORDER BY conversation, pair, time_ns").rows()
-    assert [tuple(r) for r in rows] == [(s["link"], s["pair"], s["second"], s["frames"], s["state"], s["quality"],
-                                         s["down_s"]) for s in sorted(per_second, key=lambda s: (s["link"], s["pair"]))]
+    links_table_is_health(dataset, path)
     frames = dict(((c, p), n) for c, p, n in run_query(
         dataset, f"SELECT conversation, pair, sum(frames) FROM links {where} GROUP BY ALL").rows())
     assert frames == {(lk["link"], lk["pair"]): lk["frames"] for lk in links}

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 from tshark_util import TSHARK_CMD, check_stderr
 
@@ -21,10 +22,7 @@ from tshark_util import env_for  # noqa: E402
 
 
 def cli(home: Path, *args: object) -> subprocess.CompletedProcess:
-    r = subprocess.run([sys.executable, "-m", "sharedlink", *map(str, args)], capture_output=True, text=True,
-                       env=env_for(home), timeout=120)
-    assert r.returncode == 0, r.stderr
-    return r
+    return run_cli(*args, check=True, env=env_for(home))
 
 
 def test_profile_install_columns_uninstall(tmp_path):

@@ -12,24 +12,30 @@ import csv
 import io
 import json
 import re
-import subprocess
-import sys
+from functools import partial
 from pathlib import Path
 
 import pytest
+import sl_cli
 from rich.console import Console
-from sl_agreement import tap_tables
+from sl_agreement import (
+    ROBOTS,
+    SERIAL,
+    gen_captures,
+    health_tap,
+    ingest,
+    ingested_outages,
+    json_outages,
+    links_table_is_health,
+    reference_outages,
+    same_outages,
+)
 
 import tshark_util as tu
 from sharedlink.analysis.sessions import iter_sessions
-from sharedlink.capture.pcapio import NS, read_records
-from sharedlink.fleet.query import run_query
+from sharedlink.capture.pcapio import NS
 from sharedlink.robot_watch import RobotView
 
-REPO = Path(__file__).resolve().parents[2]
-SCRIPTS = [REPO / "dissector" / n for n in ("p2os.lua", "blackboard.lua", "serial.lua", "sharedlink_stats.lua")]
-CLI = [sys.executable, "-m", "sharedlink"]
-ARROW = "\u2192"
 OUTAGES = ["--outage", "8:3", "--outage", "14:1.5"]
 #: name -> gen arguments (20 s sessions with two silences, the line cut both ways)
 CAPTURES = {
@@ -43,55 +49,23 @@ CAPTURES = {
 PAIRS = {"p2os": {"robot>client"}, "blackboard": {"master>slave", "slave>master"}}
 
 
-def run_cli(*args: object) -> subprocess.CompletedProcess:
-    r = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=180)
-    assert r.returncode == 0, r.stderr
-    return r
+#: every run here must succeed
+run_cli = partial(sl_cli.run_cli, check=True, timeout=180)
 
 
 @pytest.fixture(scope="module")
 def caps(tmp_path_factory) -> dict[str, Path]:
-    d = tmp_path_factory.mktemp("robot_health")
-    out = {}
-    for name, args in CAPTURES.items():
-        p = d / f"{name}.pcapng"
-        run_cli("gen", "-o", p, "--duration", "20", *args, *OUTAGES)
-        out[name] = p
-    return out
+    return gen_captures(tmp_path_factory.mktemp("robot_health"),
+                        {name: ["--duration", "20", *args, *OUTAGES] for name, args in CAPTURES.items()}, ".pcapng")
 
 
 @pytest.fixture(scope="module")
 def dataset(caps, tmp_path_factory) -> Path:
-    ds = tmp_path_factory.mktemp("robot_fleet") / "ds"
-    run_cli("ingest", "-o", ds, *caps.values())
-    return ds
+    return ingest(tmp_path_factory.mktemp("robot_fleet"), caps.values())
 
 
 def stats(path: Path) -> dict:
     return json.loads(run_cli("stats", "--json", path).stdout)
-
-
-def relative(path: Path, outages: list[dict]) -> list[tuple]:
-    """Outages as (link, pair, start s from the first record, duration s, open), sorted."""
-    first = next(iter(read_records(path))).ts_ns / NS
-    return sorted((o["link"], o["pair"], o["start"] - first, o["duration_s"], o["end"] is None) for o in outages)
-
-
-def same(got: list[tuple], want: list[tuple]) -> None:
-    assert len(got) == len(want), (got, want)
-    for g, w in zip(got, want):
-        assert (g[0], g[1], g[4]) == (w[0], w[1], w[4]), (g, w)
-        assert abs(g[2] - w[2]) <= 1e-6 and abs(g[3] - w[3]) <= 1e-6, (g, w)
-
-
-def tap(path: Path) -> tuple[list[tuple], dict[tuple, list[str]], str]:
-    """The tap's outages (as :func:`relative`) and link rows."""
-    args = ["-q", "-z", "sharedlink,stats", "-z", "expert"]
-    for s in SCRIPTS:
-        args[:0] = ["-X", f"lua_script:{s}"]
-    text = tu.tshark(path, args).stdout
-    outs, links = tap_tables(text)
-    return outs, links, text
 
 
 @pytest.mark.parametrize("name", CAPTURES)
@@ -99,12 +73,13 @@ def test_tap_is_stats(caps, name):
     path = caps[name]
     d = stats(path)
     protocol = name.split("-")[0]
-    want = relative(path, d["outages"])
+    want = reference_outages(path)
+    same_outages(json_outages(path, d["outages"]), want)
     assert {lk["pair"] for lk in d["links"]} == PAIRS[protocol]
     assert all(lk["link"].startswith(protocol + " ") and lk["outages"] == 2 for lk in d["links"])
     assert len(want) == 2 * len(PAIRS[protocol]) and not any(o[4] for o in want)
-    got, links, text = tap(path)
-    same(got, want)
+    got, links, text = health_tap(path, robots=True)
+    same_outages(got, want)
     assert set(links) == {(lk["link"], lk["pair"]) for lk in d["links"]}
     for lk in d["links"]:
         row = links[(lk["link"], lk["pair"])]
@@ -123,7 +98,7 @@ def test_expert_and_duration_field(caps, name):
     protocol = name.split("-")[0]
     want = sorted(round(o["duration_s"], 6) for o in stats(caps[name])["outages"])
     field = f"{protocol}.outage.duration"
-    extra = [a for s in SCRIPTS[:3] for a in ("-X", f"lua_script:{s}")]
+    extra = [a for s in (*ROBOTS, SERIAL) for a in ("-X", f"lua_script:{s}")]
     for two_pass in (False, True):
         rows = tu.fields(caps[name], [field], display_filter=field, two_pass=two_pass, extra=extra)
         got = sorted(round(float(x), 6) for r in rows for x in r[field])
@@ -135,14 +110,15 @@ def test_expert_and_duration_field(caps, name):
 def test_health_export_ingest_are_stats(caps, dataset, name):
     path = caps[name]
     d = stats(path)
-    want = relative(path, d["outages"])
+    want = reference_outages(path)
+    same_outages(json_outages(path, d["outages"]), want)
     h = json.loads(run_cli("health", "--json", path).stdout)
-    same(relative(path, h["outages"]), want)
+    same_outages(json_outages(path, h["outages"]), want)
     assert [(lk["link"], lk["pair"], lk["frames"]) for lk in h["links"]] == [
         (lk["link"], lk["pair"], lk["frames"]) for lk in d["links"]]
     rows = [json.loads(x) for x in run_cli("export", "--format", "jsonl", "--outages", path).stdout.splitlines()]
     outs = [x for x in rows if x.get("kind") == "outage"]
-    same(relative(path, outs), want)
+    same_outages(json_outages(path, outs), want)
     for k, x in enumerate(rows):  # each outage row comes before the message that ends it, of its side
         if x.get("kind") == "outage":
             nxt = next(y for y in rows[k + 1:] if y.get("kind") != "outage" and y["side"] == x["src"])
@@ -155,16 +131,9 @@ def test_health_export_ingest_are_stats(caps, dataset, name):
             o["link"], o["pair"].partition(">")[0], o["duration_s"])
         assert abs(int(r["ts_ns"]) / NS - o["start"]) < 1e-6
     assert len(table) - len(outs) == sum(1 for _ in iter_sessions(path))  # every message a row as before
-    where = "WHERE capture = '%s'" % str(path).replace("'", "''")
-    got = run_query(dataset, f"SELECT conversation, pair, time_ns, duration_ns, open FROM outages {where}").rows()
-    first = next(iter(read_records(path))).ts_ns
-    same(sorted((c, p, (t - first) / NS, n / NS, o) for c, p, t, n, o in got), want)
-    per_second = [json.loads(x) for x in run_cli("health", "-o", "-", path).stdout.splitlines()]
+    same_outages(ingested_outages(dataset, path), want)
+    per_second = links_table_is_health(dataset, path)
     assert {s["pair"] for s in per_second} == PAIRS[name.split("-")[0]]
-    got = run_query(dataset, "SELECT conversation, pair, time_ns // 1000000000, frames, state, quality, down_s "
-                             f"FROM links {where} ORDER BY conversation, pair, time_ns").rows()
-    assert [tuple(r) for r in got] == [(s["link"], s["pair"], s["second"], s["frames"], s["state"], s["quality"],
-                                        s["down_s"]) for s in sorted(per_second, key=lambda s: (s["link"], s["pair"]))]
 
 
 def _panel(view: RobotView, now_ns: int) -> list[str]:

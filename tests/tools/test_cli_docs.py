@@ -17,9 +17,11 @@ import socket
 import subprocess
 import sys
 import tty
+from functools import partial
 from pathlib import Path
 
 import pytest
+from sl_cli import CLI, run_cli
 from sl_pipes import on_pty
 
 from sharedlink.capture.pcapio import read_records
@@ -28,7 +30,6 @@ from sharedlink.commands.examples import EXAMPLES
 from sharedlink.problems import PROBLEMS
 
 ROOT = Path(__file__).resolve().parents[2]
-CLI = [sys.executable, "-m", "sharedlink"]
 DOC = (ROOT / "docs" / "cli.md").read_text()
 PARSERS = dict(_leaves(build_parser()))
 
@@ -109,8 +110,8 @@ def test_completion_scripts_name_every_command_and_parse(shell, tmp_path):
         assert check.returncode == 0, check.stderr
 
 
-def _run(*args: object, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=300, **kw)
+#: `sharedlink ARGS`
+_run = partial(run_cli, timeout=300)
 
 
 def test_bare_sharedlink_lists_the_commands_and_exits_0():

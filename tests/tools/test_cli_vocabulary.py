@@ -10,16 +10,16 @@ import io
 import os
 import re
 import subprocess
-import sys
+from functools import partial
 from pathlib import Path
 
 import pytest
+from sl_cli import CLI, run_cli
 from sl_pipes import on_pty
 
 from sharedlink.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[2]
-CLI = [sys.executable, "-m", "sharedlink"]
 DOC = (ROOT / "docs" / "cli.md").read_text()
 OUTPUT_DESTS = {"output", "out", "dataset"}
 #: old spellings: visible in no parser
@@ -134,9 +134,8 @@ def test_old_spellings_still_work_with_a_note(old, new):
     assert old_err.startswith("sharedlink: warning: ") and old_err.endswith("(the old spelling goes in the next release)\n")
 
 
-def _run(*args, stdin=None, cwd=None, env=None) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=300, stdin=stdin,
-                          cwd=cwd, env=env)
+#: `sharedlink ARGS` (``stdin``, ``cwd``, ``env`` as subprocess.run's)
+_run = partial(run_cli, timeout=300)
 
 
 @pytest.fixture(scope="module")

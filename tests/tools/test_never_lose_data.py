@@ -14,15 +14,15 @@ import subprocess
 import sys
 import threading
 import time
+from functools import partial
 from pathlib import Path
 
 import pytest
+from sl_cli import CLI, run_cli
 from sl_pipes import wait_created
 
 from sharedlink.generators.beacon import GenOptions, generate_file
 from tshark_util import fields
-
-CLI = [sys.executable, "-m", "sharedlink"]
 
 
 @pytest.fixture(scope="module")
@@ -36,8 +36,8 @@ def digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def cli(*args: object, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, timeout=120, **kw)
+#: `sharedlink ARGS`, its output as bytes
+cli = partial(run_cli, text=False)
 
 
 def sl_frames(path: Path) -> int:
@@ -143,7 +143,7 @@ def test_full_disk_leaves_the_old_file_and_nothing_else(capture, tmp_path, comma
     out = tmp_path / f"out{suffix}"
     out.write_bytes(b"the previous version")
     args = _writers(capture, out).get(command) or ["gen", "--frames", "5000", "-o", out]
-    r = subprocess.run([*CLI, *map(str, args)], capture_output=True, timeout=120, preexec_fn=_file_size_limit(8000))
+    r = cli(*args, preexec_fn=_file_size_limit(8000))
     assert r.returncode == 2, r.stderr
     assert b"sharedlink: error:" in r.stderr and b"Traceback" not in r.stderr, r.stderr
     assert str(out).encode() in r.stderr

@@ -10,12 +10,12 @@ import datetime as dt
 import io
 import os
 import re
-import subprocess
-import sys
+from functools import partial
 from pathlib import Path
 
 import pytest
 from sl_captures import write_capture
+from sl_cli import CLI, run_cli
 from sl_pipes import on_pty
 
 from sharedlink.present import COUNT, DURATION, PROSE, TEXT, TIME, Column, Table, fit, plain
@@ -23,13 +23,12 @@ from sharedlink.present.formats import count, duration, timestamp, value
 from sharedlink.present.tables import MIN_WIDTH
 from sharedlink.protocols.codec import encode_named
 
-CLI = [sys.executable, "-m", "sharedlink"]
 T0 = 1_767_268_799_990_493_941  # 2026-01-01T11:59:59.990493941Z
 ESC = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
 
 
-def run(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=300)
+#: `sharedlink ARGS` (some of these runs are long)
+run = partial(run_cli, timeout=300)
 
 
 def on_terminal(columns: int, *args) -> str:

@@ -13,12 +13,13 @@ import socket
 import statistics
 import struct
 import subprocess
-import sys
 import threading
 import time
+from functools import partial
 from pathlib import Path
 
 import pytest
+import sl_cli
 
 from sharedlink.capture.packets import TcpConversation, UdpBuilder, decode_packet
 from sharedlink.capture.pcapio import LINKTYPE_USER0, PcapngWriter, PcapWriter, read_records
@@ -39,7 +40,7 @@ from sharedlink.replay import (
     udp_fields,
 )
 
-CLI = [sys.executable, "-m", "sharedlink", "replay"]
+CLI = [*sl_cli.CLI, "replay"]
 T0 = 1_767_268_800 * 1_000_000_000
 MS = 1_000_000
 NS = 1_000_000_000
@@ -144,8 +145,8 @@ def payloads_of(path: Path) -> list[bytes]:
     return [fr.payload for fr in CaptureFrames(path)]
 
 
-def run_cli(*args: str, timeout: float = 30) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout)
+#: `sharedlink replay ARGS`
+run_cli = partial(sl_cli.run_cli, "replay", timeout=30)
 
 
 def mixed_capture(path: Path, ports: tuple[int, int]) -> list[tuple[int, str, bytes]]:

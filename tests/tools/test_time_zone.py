@@ -5,16 +5,13 @@ would be another day and another year)."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import in_zone, run_cli
 
 import tshark_util as tu
 
-CLI = [sys.executable, "-m", "sharedlink"]
 ZONES = ("UTC", "America/Los_Angeles")
 T0 = 1_767_236_400.0  # 2026-01-01T03:00:00Z
 
@@ -28,10 +25,7 @@ def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def run(tz: str, *args: object, cwd: Path | None = None) -> str:
-    r = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120, cwd=cwd,
-                       env={**os.environ, "TZ": tz, "COLUMNS": "200"})
-    assert r.returncode == 0, r.stderr
-    return r.stdout
+    return run_cli(*args, check=True, cwd=cwd, env=in_zone(tz)).stdout
 
 
 COMMANDS = {
