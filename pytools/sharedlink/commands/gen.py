@@ -175,6 +175,8 @@ def run_session(args: argparse.Namespace, fmt: str) -> int:
         if args.port is not None:
             opts.port = args.port
         generate = generate_blackboard_file  # type: ignore[assignment]
+    if args.start is not None:
+        opts.start_ns = args.start
     stats = generate_to(opts, generate, args.out)
     summary = {
         "file": str(args.out),
@@ -214,6 +216,8 @@ def run_gen_serial(args: argparse.Namespace) -> int:
         vehicle=args.src.upper(),
         outages=tuple(args.outage),
     )
+    if args.start is not None:
+        opts.start_ns = args.start
     stats = generate_to(opts, generate_serial_file, args.out)
     summary = {
         "file": str(args.out),
