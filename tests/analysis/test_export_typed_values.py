@@ -1,6 +1,8 @@
 """Every export format's typed values, with and without ``--changes``: a long stays an exact
 integer (past 2**53 too), a double a number, a string a string even when it reads as a number;
-GeoJSON and KML put the typed latitude and longitude where a map tool reads them.
+GeoJSON and KML put the typed latitude and longitude where a map tool reads them; MCAP's values
+channel holds the typed values after every frame, its LocationFix the typed position (MCAP writes
+every frame and variable: ``--changes`` is refused, a usage error).
 
 The capture: a full frame (Lat 38.5, Lon -77.25, Count 2**53 + 1, Mode "0042"), a delta of Count
 (-7), a full frame that moves Lat to 38.75 and Mode to "off".
@@ -11,16 +13,14 @@ from __future__ import annotations
 import csv
 import io
 import json
-import subprocess
-import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 import tshark_util as tu
 
-CLI = [sys.executable, "-m", "sharedlink"]
 BIG = 2**53 + 1
 FRAMES = [
     tu.frame("A", "B", "N0", "T2", "QAutoGpsLat", "D38.5", "T2", "QAutoGpsLon", "D-77.25", "T0", "QCount", f"D{BIG}",
@@ -45,10 +45,7 @@ def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def export(capture: Path, fmt: str, changes: bool) -> str:
-    r = subprocess.run([*CLI, "export", str(capture), "--format", fmt, *(["--changes"] if changes else []), "-o", "-"],
-                       capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stderr
-    return r.stdout
+    return run_cli("export", capture, "--format", fmt, *(["--changes"] if changes else []), "-o", "-", check=True).stdout
 
 
 def exact(values: dict) -> dict:
@@ -104,3 +101,24 @@ def test_kml(capture: Path, changes: bool) -> None:
     assert line[0] == (-77.25, 38.5, 0.0) and line[-1] == (-77.25, 38.75, 0.0)
     assert coords(marks["start"].findtext(".//k:coordinates", namespaces=ns)) == [(-77.25, 38.5, 0.0)]
     assert coords(marks["end"].findtext(".//k:coordinates", namespaces=ns)) == [(-77.25, 38.75, 0.0)]
+
+
+def test_mcap(capture: Path, tmp_path: Path) -> None:
+    pytest.importorskip("mcap.reader")
+    pytest.importorskip("google.protobuf")
+    from sl_checks import Mcap
+
+    out = tmp_path / "typed.mcap"
+    run_cli("export", capture, "-o", out, "-q", check=True)
+    msgs = Mcap(out).msgs
+    assert [exact(v) for _t, v in msgs["/sharedlink/B_to_A/values"]] == [exact(v) for v in AFTER]
+    assert [set(f["changed"]) for _t, f in msgs["/sharedlink/B_to_A/frames"]] == [set(c) for c in CHANGED]
+    assert [(fix.latitude, fix.longitude) for _t, fix in msgs["/sharedlink/B_to_A/location"]] == [
+        (a["AutoGpsLat"], a["AutoGpsLon"]) for a in AFTER]
+
+
+def test_mcap_changes_is_a_usage_error(capture: Path, tmp_path: Path) -> None:
+    out = tmp_path / "typed.mcap"
+    r = run_cli("export", capture, "-o", out, "--changes")
+    assert r.returncode == 2 and "--changes" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not out.exists()
