@@ -1,5 +1,6 @@
 """P2OS and blackboard captures beside tshark with every dissector, for the tests that compare
-them (test_robots_counts.py, test_robot_stats.py, test_robot_export.py, test_p2os.py)."""
+them (test_robots_counts.py, test_robot_stats.py, test_robot_export.py, test_p2os.py, and the
+serial split tests: :func:`serial_frames`)."""
 
 from __future__ import annotations
 
@@ -9,11 +10,28 @@ from pathlib import Path
 import tshark_util as tu
 from sharedlink.capture.packets import session_frames
 from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, read_capture
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPTS = sorted((REPO / "dissector").glob("*.lua"))
 OTHERS = [a for s in SCRIPTS if s.name != "sharedlink.lua" for a in ("-X", f"lua_script:{s}")]
 SERIAL = {"uat:user_dlts": '"User 0 (DLT=147)","slserial","0","","0",""'}
+#: a serial record's direction -> tshark's slserial.direction
+P2P = {DIR_IN: "1", DIR_OUT: "0"}
+
+
+def serial_frames(cap: Path) -> tuple[dict[str, list[bytes]], dict[str, list[bytes]]]:
+    """(Python's, tshark's) frames of a serial capture per direction (slserial.direction's
+    "0", "1"), with every dissector."""
+    py: dict[str, list[bytes]] = {"0": [], "1": []}
+    for _rec, d, piece in read_capture(cap):
+        if piece.is_frame:
+            py[P2P[d]].append(piece.data)
+    lua: dict[str, list[bytes]] = {"0": [], "1": []}
+    for r in tu.fields(cap, ["slserial.direction", "slserial.frame"], extra=OTHERS, two_pass=True):
+        for h in r["slserial.frame"]:
+            lua[r["slserial.direction"][0]].append(bytes.fromhex(h.replace(":", "")))
+    return py, lua
 
 def tshark_counts(path: Path, serial: bool = False) -> tuple[Counter, Counter]:
     """(P2OS packets, blackboard messages) per kind as tshark shows them with every dissector."""

@@ -1,7 +1,8 @@
 """Any split of a P2OS or blackboard serial stream into records gives the pieces of the whole
 stream read as one record (the SharedLink stream's any-split test, test_serial.py, drawing the
 other two protocols): the same frames, nothing lost, nothing doubled, in order, and each frame
-decodes as its codec decodes it alone."""
+decodes as its codec decodes it alone; with the protocol named, and left to detection ("auto",
+as a serial capture is read)."""
 
 from __future__ import annotations
 
@@ -47,3 +48,19 @@ def test_any_split_of_a_p2os_or_blackboard_stream_gives_the_frames_of_the_whole(
     for p in split:
         if p.is_frame:
             assert p.records and decode(protocol, p.data) is not None
+
+
+@settings(max_examples=examples(300), deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases())
+def test_any_split_with_the_protocol_detected_gives_the_frames_of_the_whole(case):
+    """The same with the protocol left to detection ("auto", as serial captures are read): the
+    frames of the whole stream read so, whatever the cuts; a clean stream's messages, its
+    protocol detected."""
+    protocol, data, messages, cuts = case
+    whole = pieces("auto", [data])
+    split = pieces("auto", chunked(data, cuts))
+    assert [p.data for p in split if p.is_frame] == [p.data for p in whole if p.is_frame]
+    assert b"".join(p.data for p in split) == data  # (nothing lost, nothing doubled)
+    if messages is not None:
+        assert [p.data for p in split if p.is_frame] == messages
+        assert {p.protocol for p in split} == {protocol}

@@ -12,6 +12,7 @@ import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 from sl_captures import blackboard_message, chunked, p2os_packet, serial_stream, write_interleaved
+from sl_robots import serial_frames as _frames
 
 import tshark_util as tu
 from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWriter, read_capture
@@ -61,19 +62,6 @@ def test_split_p2os_and_blackboard_streams_decode_alike_in_tshark_and_python(tmp
         assert lua == py
 
     check()
-
-
-def _frames(cap: Path) -> tuple[dict[str, list[bytes]], dict[str, list[bytes]]]:
-    """(Python's, tshark's) frames per direction."""
-    py: dict[str, list[bytes]] = {"0": [], "1": []}
-    for _rec, d, piece in read_capture(cap):
-        if piece.is_frame:
-            py[P2P[d]].append(piece.data)
-    lua: dict[str, list[bytes]] = {"0": [], "1": []}
-    for r in tu.fields(cap, ["slserial.direction", "slserial.frame"], extra=SCRIPTS, two_pass=True):
-        for h in r["slserial.frame"]:
-            lua[r["slserial.direction"][0]].append(bytes.fromhex(h.replace(":", "")))
-    return py, lua
 
 
 def test_blackboard_direction_that_starts_second(tmp_path: Path) -> None:
