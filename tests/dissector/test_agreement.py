@@ -98,9 +98,11 @@ def captures(draw: Any) -> list[tuple[tuple, str, str]]:
     out = []
     for _ in range(draw(st.integers(5, 60))):
         c = draw(st.sampled_from(convs))
-        kind = draw(st.sampled_from(["data"] * 6 + ["other"]))
-        if kind == "data":
-            body = draw(named_body() if c[3] else positional_body())
+        kind = draw(st.sampled_from(["data"] * 6 + ["other", "switch"]))
+        if kind != "other":
+            # "switch": a data frame of the other form (a direction that changes form: a bare N0
+            # takes the form of its direction's last good data frame, issue 40)
+            body = draw(named_body() if c[3] == (kind == "data") else positional_body())
         else:
             body = draw(other_body(c[3]))
         ck = draw(st.sampled_from(["good"] * 8 + ["bad", "missing"]))
