@@ -93,7 +93,9 @@ def python_frames(cap: Path, n: int, variables: str | None = VARIABLES) -> list[
     for d in iter_decoded(cap, vs):
         if not isinstance(d, Decoded) or d.kind == "malformed":  # (left out of both, see test_vector_stream_agrees)
             continue
-        positional = d.frame is not None and not any(f.letter in "QR" for f in d.frame.fields)
+        # (var.unknown is a positional slot's: a bare N shows named values only, issue 40)
+        positional = d.frame is not None and not any(f.letter in "QR" for f in d.frame.fields) and any(
+            f.letter == "D" for f in d.frame.fields)
         variables = [(_placeholder(u.name), u.text, u.carried, u.bad and not u.carried,
                       None if u.carried or u.bad else TYPE_NAMES.get(u.type_code),
                       positional and u.index is not None and d.table.past_list(u.index)) for u in d.shown]

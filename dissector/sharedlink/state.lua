@@ -53,6 +53,8 @@ S.reset()
 -- last good full one.
 -- sgen: bumped when the direction learns a name (its known subsets, kept by each layout in
 -- named.subs[d] with the sgen they were made at, are then made again: known_subset).
+-- pos: the direction's last good data frame had D fields alone (positional), so a bare N0 is a
+-- positional frame of no slot (nil: named, or none yet; store_values).
 local NO_SUBSETS = {}   -- (named.subs of a layout with none: never written)
 local function new_dir()
     return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, nkey = {}, seen = {}, filled = {}, maxslot = -1,
@@ -356,10 +358,24 @@ do
             end
         end
         if F.n_pos > 0 then
-            if good and dv_maxslot >= 0 then d.eff = list end   -- the names its slots were stored by
+            if good then
+                if dv_maxslot >= 0 then d.eff = list end   -- the names its slots were stored by
+                -- the direction's form (d.pos): D fields alone are positional, a named value named
+                if F.nq == 0 then
+                    if not d.pos then d.pos, d.names_is, d.sgen = true, nil, d.sgen + 1 end
+                elseif d.pos then
+                    d.pos = nil
+                end
+            end
             -- positional: a required slot past the frame's last D (d.maxslot is one)
             if dv_maxslot < d.maxslot then dv_required = true end
             return 0, 0
+        end
+        if d.pos then
+            -- a bare N in a positional direction: a positional frame of no slot, nothing carried
+            -- (docs/fields-sharedlink.md, "Values": a bare N0 takes its direction's form)
+            if F.nv == 0 then return 0, 0 end
+            if good then d.pos = nil end
         end
         if #d.names == 0 then return 0, 0 end
         -- named: known variables missing from this frame (a journal: counted; listed only for a
@@ -375,6 +391,7 @@ do
     -- direction: a layout the layout cache drops (parse.lua, MAX_LAYOUTS a node pair) takes its
     -- subsets with it (issue 44: a direction's own table kept every layout it ever met alive).
     local function known_subset(d, named)
+        if d.pos then return nil end   -- (a positional direction: data_general tells the form)
         local names = d.names
         if #names > JOURNAL_NAMES and not d.over then return nil end   -- a journal's (data_values)
         local npos, sn, in_layout = d.npos, named.N, {}
@@ -511,6 +528,9 @@ do
         local full, ne, nm, miss_n, full_l, rec_nm = data_values(d, list, num, sk, cs_status ~= 0, full_local,
             tree ~= nil)
         dr_ne, dr_nm, dr_miss, dr_tree_nm = ne, rec_nm, miss_n, nm
+        -- a bare N in a positional direction with a journal: later passes must not ask the
+        -- journal what it carried (state_later_pass)
+        if F.nv == 0 and d.pos and d.hist then get_rec(num, sk, true).bare = true end
         return data_record(pinfo, d, num, sk, full, full_l, cs_status, list)
     end
 
@@ -768,7 +788,8 @@ do
     --    stays false): a direction past max_conversations (add_dir) is made anew each frame, with
     --    no names, and neither stores a new name.  A data frame with no value at all
     --    (NO_VALUES: [:AB|N0|C..], a compressed stream's delta when nothing changed) is taken as a
-    --    layout of no names, so it carries them all.
+    --    layout of no names, so it carries them all; in a positional direction (d.pos) neither
+    --    path is taken (known_subset gives none): data_general.
     -- Any other frame: data_general.
     function state_data(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
         lim_hit = false
@@ -855,7 +876,8 @@ local function state_later_pass(pinfo, num, sk, _, dstb, srcb, full_local, tree)
     local nm, list, d = 0, cfg.list, nil
     if (is_data or kind == "malformed" or kind == "reply") and addrs_ok
         and (has_tree or F.n_pos > 0 or LIM.journal or kind == "reply") then
-        list, d, miss_n, nm = later_dir(pinfo, num, sk, is_data, dstb, srcb, has_tree, miss_n)
+        list, d, miss_n, nm = later_dir(pinfo, num, sk, is_data and not (rec and rec.bare), dstb, srcb, has_tree,
+            miss_n)
     end
     if is_data then
         local rk = rec and rec.kind

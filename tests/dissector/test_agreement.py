@@ -75,10 +75,10 @@ def other_body(draw: Any, named: bool) -> str:
                 "L?",
                 "N?",
                 f"Q{names[0]}",
-                # a reply in a direction that carries data: shown, never stored (issue 29); its
-                # value fits every type (typing a reply by its direction's list, the rule, is
-                # Python's only so far: the dissector shows no bad value on a reply)
-                f"R{names[1]}|D{draw(st.sampled_from(['1', '-2', '0']))}",
+                # a reply in a direction that carries data: shown, never stored (issue 29), typed
+                # by its direction's list on both sides, a value not of its type a bad value
+                # (docs/fields-sharedlink.md, disagreement 2)
+                f"R{names[1]}|D{draw(st.sampled_from(['1', '-2', '0', 'x', '1.5', '']))}",
                 # declarations: new types for the four positional slots, and one that shortens
                 # the list under once-filled slots (slots past it are gone: issue 29)
                 "N0|T0|QP0|T2|QP1|T4|QP2|T2|QP3",
@@ -98,9 +98,11 @@ def captures(draw: Any) -> list[tuple[tuple, str, str]]:
     out = []
     for _ in range(draw(st.integers(5, 60))):
         c = draw(st.sampled_from(convs))
-        kind = draw(st.sampled_from(["data"] * 6 + ["other"]))
-        if kind == "data":
-            body = draw(named_body() if c[3] else positional_body())
+        kind = draw(st.sampled_from(["data"] * 6 + ["other", "switch"]))
+        if kind != "other":
+            # "switch": a data frame of the other form (a direction that changes form: a bare N0
+            # takes the form of its direction's last good data frame, issue 40)
+            body = draw(named_body() if c[3] == (kind == "data") else positional_body())
         else:
             body = draw(other_body(c[3]))
         ck = draw(st.sampled_from(["good"] * 8 + ["bad", "missing"]))

@@ -17,6 +17,8 @@ which wins where they differ):
   names only frames with as many slots as it has; a slot no list names is ``#i``, untyped;
   text that does not fit its type stays text, flagged ``bad``;
 * a new list replaces the old one: kept names keep their values (by name), dropped ones lose them;
+* a bare ``N`` (no ``D``) is a delta in its direction's form (``VariableTable.named``, the last
+  good data frame's): named, every name sent by name carried; positional (or none yet), nothing;
 * a reply's values are shown, never stored;
 * ``L?`` / ``N?`` are queries and leave the learnt list alone.
 
