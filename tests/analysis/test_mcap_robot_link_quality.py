@@ -90,3 +90,37 @@ def test_robot_link_quality_topics_are_the_health_rows(tmp_path, name):
                 assert doc["down_s"] == pytest.approx(t / NS + 1 - o["start"], abs=1e-3)
             else:
                 assert doc["down_s"] is None and doc["quality"] == doc["frames"]
+
+
+@pytest.mark.parametrize("transport", ["tcp", "udp"])
+def test_sip_lines_break_at_the_robots_outages(tmp_path, transport):
+    """The SharedLink values' rule on a P2OS robot's ``sip`` topic (test_mcap_outage_gaps.py's
+    check): one gap message an outage of the robot>client link, 1 ns after its start (the SIP
+    before the silence), every number of that SIP "NaN"; a blackboard session's one ``messages``
+    topic gets none."""
+    from test_mcap_outage_gaps import check_gaps, is_gap
+
+    cap, out = tmp_path / "p.pcapng", tmp_path / "p.mcap"
+    run_cli("gen", "-o", cap, "--duration", "20", "--protocol", "p2os", "--transport", transport,
+            "--outage", "8:3", "--outage", "14:1.5")
+    run_cli("export", cap, "-o", out)
+    with open(out, "rb") as fh:
+        sips = [(m.log_time, json.loads(m.data)) for _s, _c, m in mcap_reader.make_reader(fh).iter_messages(
+            topics=["/p2os/1/sip"], log_time_order=True)]
+    outages = json.loads(run_cli("stats", "--json", cap).stdout)["outages"]
+    assert len(outages) == 2
+    if transport == "tcp":  # (the SIP and the ENCODER after it in one segment: the outage starts at the SIP)
+        check_gaps(sips, outages)
+    else:  # (a datagram each: it starts at the ENCODER 0.2 ms after the SIP)
+        gaps = [i for i, (_t, doc) in enumerate(sips) if is_gap(doc)]
+        assert len(gaps) == len(outages)
+        for i, o in zip(gaps, sorted(outages, key=lambda o: o["start"])):
+            assert abs(sips[i][0] - 1 - o["start"] * NS) < 1000 and sips[i - 1][0] < sips[i][0]
+            assert sips[i + 1][0] >= o["end"] * NS - 1000 and set(sips[i][1]) == {
+                n for n, v in sips[i - 1][1].items() if type(v) in (int, float)}
+    bb, bbout = tmp_path / "b.pcapng", tmp_path / "b.mcap"
+    run_cli("gen", "-o", bb, "--duration", "12", "--protocol", "blackboard", "--outage", "5:3")
+    run_cli("export", bb, "-o", bbout)
+    with open(bbout, "rb") as fh:
+        assert not [m for _s, c, m in mcap_reader.make_reader(fh).iter_messages() if not c.topic.endswith("/link_quality")
+                    and is_gap(json.loads(m.data))]

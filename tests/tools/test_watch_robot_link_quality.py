@@ -27,14 +27,14 @@ NS = 10**9
 ATTEMPTS = 3
 
 
-def watched(cap, topic: str) -> list[tuple[int, dict]]:
+def watched(cap, topic: str, schema: str = "sharedlink.LinkQuality") -> list[tuple[int, dict]]:
     """The messages of ``topic`` a client subscribed to it as soon as it is advertised gets."""
     for _ in range(ATTEMPTS):
         w = Watch("--from", cap, "--speed", 4)
         try:
             with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.websocket.v1"]) as ws:
                 chan = advertised(ws, {topic}, seconds=30).get(topic)
-                assert chan is not None and chan["schemaName"] == "sharedlink.LinkQuality"
+                assert chan is not None and chan["schemaName"] == schema
                 got = [(t, json.loads(m)) for t, m in subscribed(ws, chan, 7)]
         finally:
             err = w.stop(ends=True)
@@ -62,3 +62,19 @@ def test_watch_serves_a_robot_links_link_quality(tmp_path, protocol, pair):
     downs = [t for t, doc in got if doc["state"] == "down"]
     assert downs and downs == [t for t, doc in want.items() if doc["state"] == "down"]  # the outage, all its seconds
     assert times[-1] >= max(want) - NS  # all but the last second, which never ended
+
+
+def test_watch_breaks_the_sip_lines_at_an_outage(tmp_path):
+    """The robot's silence, seen by the clock: one gap message on /p2os/1/sip (every number
+    "NaN") 1 ns after the outage's start, as `export --format mcap` writes it."""
+    cap = tmp_path / "r.pcapng"
+    r = subprocess.run([*CLI, "gen", "-o", str(cap), "--protocol", "p2os", "--duration", "12", "--outage", "6:3"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    outages = json.loads(subprocess.run([*CLI, "stats", "--json", str(cap)], capture_output=True, text=True,
+                                        timeout=120).stdout)["outages"]
+    assert len(outages) == 1
+    got = watched(cap, "/p2os/1/sip", "p2os.Sip")
+    gaps = [(t, doc) for t, doc in got if "NaN" in doc.values()]
+    assert len(gaps) == 1 and abs(gaps[0][0] - 1 - outages[0]["start"] * NS) < 1000, gaps
+    assert {k for k, v in gaps[0][1].items()} >= {"x_mm", "y_mm", "battery_v"} and set(gaps[0][1].values()) == {"NaN"}

@@ -365,6 +365,7 @@ class _Session:
     prefix: str
     metadata: dict[str, str]
     channels: dict[str, Any] = field(default_factory=dict)
+    sip: dict[str, Any] = field(default_factory=dict)  # p2os: the last SIP's JSON (foxglove_health's gap messages)
 
 
 class FoxgloveChannels:
@@ -760,7 +761,9 @@ class FoxgloveChannels:
         msg = m.message
         if isinstance(msg, p2os.Sip):
             self._log(self._channel(m, "pose", None), sip_pose(msg, m.ts_ns), m.ts_ns)
-            self._log(self._channel(m, "sip", SIP_SCHEMA), json.dumps({**base, **sip_json(msg)}).encode(), m.ts_ns)
+            row = {**base, **sip_json(msg)}
+            self._log(self._channel(m, "sip", SIP_SCHEMA), json.dumps(row).encode(), m.ts_ns)
+            self._sessions[(m.protocol, m.session)].sip = row
         elif isinstance(msg, p2os.Command):
             self._log(self._channel(m, "commands", COMMAND_SCHEMA), json.dumps({**base, **command_json(msg)}).encode(), m.ts_ns)
         else:

@@ -20,7 +20,8 @@ draw a silence as data. Each outage of a link puts one *gap* message on its dire
 variable whose value is a number as the text ``"NaN"`` (:data:`GAP_VALUE`; JSON has no NaN):
 Foxglove's Plot (the open-source Studio and its fork Lichtblick: getChartValue) reads a string as a
 number, ``"NaN"`` as NaN, and leaves its line open there (PlotJuggler not checked),
-from the last sample before the silence to the first after it. ``export`` writes them after the
+from the last sample before the silence to the first after it (a P2OS robot's link: on its
+session's ``sip`` topic, the numbers of the SIP message before it; :func:`log_sip_gap`). ``export`` writes them after the
 pass (:func:`publish_gaps`); ``watch --foxglove`` once a silence becomes an outage by the clock,
 or before the frame that ends one the clock did not see (:meth:`LiveQuality.gap`).
 """
@@ -60,12 +61,18 @@ def _pair_topic(pair: str) -> str:
     return pair.replace(">", "_to_").replace("*", "other")
 
 
-def _session_prefix(channels: Any, protocol: str, label: str) -> str:
-    """The topics' prefix of the robot session ``label`` (``/p2os/1``), as its channels have it."""
+def _session(channels: Any, protocol: str, label: str) -> Any:
+    """The channels of the robot session ``label`` (None: refused, past the channels' limit)."""
     for (proto, _n), s in sorted(channels._sessions.items()):
         if proto == protocol and s.metadata.get("session") == label:
-            return s.prefix
-    return f"/{protocol}/other"  # (a session whose channels were refused: past the channels' limit)
+            return s
+    return None
+
+
+def _session_prefix(channels: Any, protocol: str, label: str) -> str:
+    """The topics' prefix of the robot session ``label`` (``/p2os/1``), as its channels have it."""
+    s = _session(channels, protocol, label)
+    return s.prefix if s is not None else f"/{protocol}/other"
 
 
 def link_topic(channels: Any, key: tuple, h: LinkHealth) -> str:
@@ -119,13 +126,32 @@ def gap_json(typed: dict[str, Any]) -> bytes | None:
 
 
 def log_gap(channels: Any, key: tuple, start_ns: int) -> bool:
-    """A gap message on the values topic of direction ``key`` for an outage from ``start_ns``."""
+    """A gap message on the values topic of direction ``key`` for an outage from ``start_ns``
+    (a P2OS robot's link: on its session's ``sip`` topic, :func:`log_sip_gap`)."""
+    if is_robot_key(key):
+        return log_sip_gap(channels, key, start_ns)
     dr = channels._dirs.get(key)
     body = gap_json(dr.typed) if dr is not None else None
     if body is None:
         return False
     dr.log_values(body, start_ns + 1)
     dr.ngaps += 1
+    return True
+
+
+def log_sip_gap(channels: Any, key: tuple, start_ns: int) -> bool:
+    """A P2OS robot link's outage: a gap message on its session's ``sip`` topic, every number of
+    the last SIP message (position, velocities, battery, ...) as ``"NaN"``, so its plotted lines break
+    there too. Blackboard links get none: their one ``messages`` topic mixes the master's
+    messages and the slave's answers (no series to break)."""
+    conv, side, _ = key
+    s = _session(channels, conv[1], conv[2])
+    ch = s.channels.get("sip") if s is not None and side == "robot" else None
+    body = gap_json(s.sip) if ch is not None else None
+    if body is None:
+        return False
+    ch.log(body, log_time=start_ns + 1)
+    channels._counts[ch.topic()] += 1
     return True
 
 
@@ -199,6 +225,14 @@ class LiveQuality:
         st = self._state(self.health.link(*key), key, d.ts_ns)
         feed_decoded(self.health, d)
         self._count(st, d.ts_ns)
+
+    def session_gap(self, m: Any) -> None:
+        """Before the channels' own message: a robot packet that ends an outage the clock did not
+        see sends the link's gap message first (:meth:`gap`'s rule)."""
+        key = robot_key(m)
+        h = self.health.links.get(key)
+        if h is not None and self._silent(h, m.ts_ns):
+            self._gap(h, key)
 
     def session(self, m: Any) -> None:
         """A P2OS packet or blackboard message (after the channels' own, so its session's topics
