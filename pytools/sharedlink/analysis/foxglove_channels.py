@@ -379,6 +379,7 @@ class FoxgloveChannels:
         self._dirs: dict[tuple[object, str, str], _Direction] = {}
         self._pair_convs: dict[str, int] = {}
         self._sessions: dict[tuple[str, int], _Session] = {}
+        self._labels: dict[tuple[str, str], _Session] = {}  # (protocol, label) -> its first session (foxglove_health)
         self._channels_left = self.opts.max_channels
         #: (frame id, heading, speed) -> _fix_tail, for all directions (_tail), at most _TAILS_MAX
         self._tails: dict[tuple[str, Any, Any], bytes] = {}
@@ -736,6 +737,7 @@ class FoxgloveChannels:
         s = self._sessions.get(key)
         if s is None:
             s = self._sessions[key] = _Session(f"/{m.protocol}/{m.session}", {"session": m.label})
+            self._labels.setdefault((m.protocol, m.label), s)
         ch = s.channels.get(name)
         if ch is None:
             self._open(1)

@@ -63,10 +63,7 @@ def _pair_topic(pair: str) -> str:
 
 def _session(channels: Any, protocol: str, label: str) -> Any:
     """The channels of the robot session ``label`` (None: refused, past the channels' limit)."""
-    for (proto, _n), s in sorted(channels._sessions.items()):
-        if proto == protocol and s.metadata.get("session") == label:
-            return s
-    return None
+    return channels._labels.get((protocol, label))
 
 
 def _session_prefix(channels: Any, protocol: str, label: str) -> str:
