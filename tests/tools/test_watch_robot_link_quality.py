@@ -14,26 +14,19 @@ import pytest
 
 if sys.version_info < (3, 10):  # (as test_foxglove_server.py: the SDK's server)
     pytest.skip("foxglove-sdk's server needs Python 3.10+", allow_module_level=True)
-from sl_foxglove import CLI, Watch, advertised, subscribed
+from sl_foxglove import CLI, Watch, advertised, subscribed, wait_for_channel
 from websockets.sync.client import connect
 
 NS = 10**9
 
 
 def watched(cap, topic: str, schema: str = "sharedlink.LinkQuality") -> list[tuple[int, dict]]:
-    """The messages of ``topic`` a client subscribed to it as soon as it is advertised gets.
-
-    A first client waits for the channel's advertisement, a second one (connected once the channel
-    exists) subscribes: foxglove-sdk's server (0.30) can refuse a subscription to a channel made
-    while the client was connecting ("attempted to subscribe to unknown channel" in its log,
-    nothing said to the client; 1 run in 4 here, the P2OS session's channels all being made in the
-    capture's first 40 ms), never one made before the client connected (8 runs in 8)."""
+    """The messages of ``topic`` a client subscribed to it as soon as it is advertised gets
+    (connected once the channel exists: sl_foxglove.wait_for_channel)."""
     w = Watch("--from", cap, "--speed", 4)
     try:
-        url = f"ws://127.0.0.1:{w.port}"
-        with connect(url, subprotocols=["foxglove.websocket.v1"]) as probe:
-            assert topic in advertised(probe, {topic}, seconds=30)
-        with connect(url, subprotocols=["foxglove.websocket.v1"]) as ws:
+        wait_for_channel(w.port, topic)
+        with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.websocket.v1"]) as ws:
             chan = advertised(ws, {topic}, seconds=30).get(topic)
             assert chan is not None and chan["schemaName"] == schema
             return [(t, json.loads(m)) for t, m in subscribed(ws, chan, 7)]
