@@ -77,3 +77,15 @@ def subscribed(ws, channel: dict, sub: int = 5, timeout: float = 30) -> list[tup
             op, sid, log_time = struct.unpack_from("<BIQ", m)
             assert (op, sid) == (1, sub)
             got.append((log_time, m[13:]))
+
+
+def wait_for_channel(port: int, topic: str, seconds: float = 30) -> None:
+    """Return once ``topic`` is advertised, seen by a client of its own: a client that subscribes
+    should connect after that. foxglove-sdk's server (0.30) can refuse a subscription to a
+    channel made while the client was connecting ("attempted to subscribe to unknown channel" in
+    its log, nothing said to the client: 1 run in 4 for a P2OS session's channels, all made in
+    the capture's first 40 ms), never one made before the client connected (8 runs in 8)."""
+    from websockets.sync.client import connect
+
+    with connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.websocket.v1"]) as probe:
+        assert topic in advertised(probe, {topic}, seconds=seconds), f"{topic} not advertised in {seconds} s"

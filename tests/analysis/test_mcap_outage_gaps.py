@@ -112,6 +112,9 @@ def test_watch_sends_the_gap_live(tmp_path):
             if "Foxglove WebSocket server on ws://" in line:
                 port = int(line.strip().rsplit(":", 1)[1])
                 break
+        from sl_foxglove import wait_for_channel
+
+        wait_for_channel(port, "/sharedlink/B_to_A/values")  # (a client connected once it exists subscribes)
         with connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.websocket.v1"]) as ws:
             chan = None
             deadline = time.monotonic() + 30

@@ -4,7 +4,8 @@ and outages), `stats --json`, `health` (its rows and --json), `export --outages`
 robot CSV's rows of type outage), `ingest`'s outages and links tables and `watch`'s robot panel
 (LINK DOWN while a silence lasts): the same outages (count, link, side, start and duration to the
 microsecond) on generated P2OS and blackboard sessions over TCP, UDP and serial with silences
-planted by `gen --outage`. Every tshark run is checked for Lua errors (tshark_util)."""
+planted by `gen --outage` (P2OS over UDP on port 8101, and on another port in a pcap, where both
+sides tell the robot's packets by their content alone). Every tshark run is checked for Lua errors (tshark_util)."""
 
 from __future__ import annotations
 
@@ -41,6 +42,9 @@ OUTAGES = ["--outage", "8:3", "--outage", "14:1.5"]
 CAPTURES = {
     "p2os-tcp": ["--protocol", "p2os", "--transport", "tcp"],
     "p2os-serial": ["--protocol", "p2os", "--transport", "serial"],
+    "p2os-udp": ["--protocol", "p2os", "--transport", "udp"],
+    # no port and no direction flag to go by: both decide each packet's side from its content
+    "p2os-udp-content": ["--protocol", "p2os", "--transport", "udp", "--port", "9000", "--format", "pcap"],
     "blackboard-udp": ["--protocol", "blackboard", "--transport", "udp"],
     "blackboard-tcp": ["--protocol", "blackboard", "--transport", "tcp", "--seed", "3"],
     "blackboard-serial": ["--protocol", "blackboard", "--transport", "serial"],
@@ -142,7 +146,7 @@ def _panel(view: RobotView, now_ns: int) -> list[str]:
     return [x for x in console.export_text().splitlines() if x.strip().startswith("link ")]
 
 
-@pytest.mark.parametrize("name", ["p2os-tcp", "blackboard-serial"])
+@pytest.mark.parametrize("name", ["p2os-tcp", "p2os-udp-content", "blackboard-serial"])
 def test_watch_shows_the_outages(caps, name):
     """watch's robot panel, fed the session's messages as they come: LINK DOWN on each paced link
     while a silence lasts (once past its threshold), then as many outages as stats counts."""

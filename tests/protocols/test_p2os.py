@@ -420,8 +420,10 @@ def test_cli_gen_protocol_p2os(tmp_path, capsys):
     assert summary["protocol"] == "p2os" and summary["transport"] == "tcp" and summary["port"] == 8101
     assert summary["kinds"]["SIP"] >= 28
     assert out.read_bytes()[:4] == b"\x0a\x0d\x0d\x0a"  # pcapng from the name
-    assert main(["gen", str(tmp_path / "x.pcap"), "--protocol", "p2os", "--transport", "udp"]) == 2
-    assert "tcp" in capsys.readouterr().err
+    assert main(["gen", str(tmp_path / "u.pcap"), "--protocol", "p2os", "--transport", "udp", "--duration", "3", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["transport"] == "udp"  # (test_p2os_udp.py: decoded alike)
+    assert main(["gen", str(tmp_path / "x.pcap"), "--protocol", "p2os", "--transport", "serial", "--format", "pcap"]) == 2
+    assert "pcapng" in capsys.readouterr().err
 
 
 def test_fetched_by_name_on_a_bare_buffer(tmp_path):

@@ -14,7 +14,7 @@ import pytest
 if sys.version_info < (3, 10):  # foxglove-schemas-protobuf (the official classes) needs Python 3.10
     pytest.skip("foxglove-schemas-protobuf needs Python 3.10+", allow_module_level=True)
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
-from sl_foxglove import CLI, Watch, advertised, subscribed
+from sl_foxglove import CLI, Watch, advertised, subscribed, wait_for_channel
 from websockets.sync.client import connect
 
 
@@ -30,6 +30,7 @@ def test_p2os_poses_reach_a_foxglove_client(tmp_path):
     assert sips
     w = Watch("--from", cap, "--speed", 1)  # 8 s for the client to subscribe (at 2x, 2 s: missed under load)
     try:
+        wait_for_channel(w.port, "/p2os/1/pose")  # (a client connected once it exists subscribes)
         with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.websocket.v1"]) as ws:
             pose = advertised(ws, {"/p2os/1/pose"})["/p2os/1/pose"]
             assert pose["schemaName"] == "foxglove.PoseInFrame"

@@ -14,7 +14,7 @@ import pytest
 
 if sys.version_info < (3, 10):  # (as test_foxglove_server.py: the SDK's server)
     pytest.skip("foxglove-sdk's server needs Python 3.10+", allow_module_level=True)
-from sl_foxglove import CLI, Watch, advertised, subscribed
+from sl_foxglove import CLI, Watch, advertised, subscribed, wait_for_channel
 from websockets.sync.client import connect
 
 NS = 10**9
@@ -31,6 +31,7 @@ def test_watch_serves_each_seconds_link_quality(tmp_path):
                                    timeout=120).stdout.splitlines())}
     w = Watch("--from", cap, "--speed", 4)
     try:
+        wait_for_channel(w.port, TOPIC)  # (a client connected once it exists subscribes)
         with connect(f"ws://127.0.0.1:{w.port}", subprotocols=["foxglove.websocket.v1"]) as ws:
             chan = advertised(ws, {TOPIC}, seconds=30).get(TOPIC)
             assert chan is not None and chan["schemaName"] == "sharedlink.LinkQuality"

@@ -365,6 +365,7 @@ class _Session:
     prefix: str
     metadata: dict[str, str]
     channels: dict[str, Any] = field(default_factory=dict)
+    sip: dict[str, Any] = field(default_factory=dict)  # p2os: the last SIP's JSON (foxglove_health's gap messages)
 
 
 class FoxgloveChannels:
@@ -378,6 +379,7 @@ class FoxgloveChannels:
         self._dirs: dict[tuple[object, str, str], _Direction] = {}
         self._pair_convs: dict[str, int] = {}
         self._sessions: dict[tuple[str, int], _Session] = {}
+        self._labels: dict[tuple[str, str], _Session] = {}  # (protocol, label) -> its first session (foxglove_health)
         self._channels_left = self.opts.max_channels
         #: (frame id, heading, speed) -> _fix_tail, for all directions (_tail), at most _TAILS_MAX
         self._tails: dict[tuple[str, Any, Any], bytes] = {}
@@ -735,6 +737,7 @@ class FoxgloveChannels:
         s = self._sessions.get(key)
         if s is None:
             s = self._sessions[key] = _Session(f"/{m.protocol}/{m.session}", {"session": m.label})
+            self._labels.setdefault((m.protocol, m.label), s)
         ch = s.channels.get(name)
         if ch is None:
             self._open(1)
@@ -760,7 +763,9 @@ class FoxgloveChannels:
         msg = m.message
         if isinstance(msg, p2os.Sip):
             self._log(self._channel(m, "pose", None), sip_pose(msg, m.ts_ns), m.ts_ns)
-            self._log(self._channel(m, "sip", SIP_SCHEMA), json.dumps({**base, **sip_json(msg)}).encode(), m.ts_ns)
+            row = {**base, **sip_json(msg)}
+            self._log(self._channel(m, "sip", SIP_SCHEMA), json.dumps(row).encode(), m.ts_ns)
+            self._sessions[(m.protocol, m.session)].sip = row
         elif isinstance(msg, p2os.Command):
             self._log(self._channel(m, "commands", COMMAND_SCHEMA), json.dumps({**base, **command_json(msg)}).encode(), m.ts_ns)
         else:

@@ -1,7 +1,8 @@
 """Link health as Foxglove channels (issue 43): one ``link_quality`` topic per SharedLink link,
 beside the direction's ``values`` and ``frames`` (``/sharedlink/B_to_A/link_quality``; a second
 conversation carrying the pair: ``B_to_A_2``, as :class:`~sharedlink.analysis.foxglove_channels.FoxgloveChannels`
-names it), one JSON message per second (log time: the second's start, epoch-aligned) with the
+names it; a paced P2OS or blackboard link's below its session's topics, by its pair:
+``/p2os/1/robot_to_client/link_quality``, fed by :mod:`~sharedlink.analysis.robot_health`), one JSON message per second (log time: the second's start, epoch-aligned) with the
 Shepherd link quality of :func:`sharedlink.analysis.health.quality`::
 
     {"frames": 5, "quality": 5, "state": "up", "down_s": null}
@@ -19,7 +20,8 @@ draw a silence as data. Each outage of a link puts one *gap* message on its dire
 variable whose value is a number as the text ``"NaN"`` (:data:`GAP_VALUE`; JSON has no NaN):
 Foxglove's Plot (the open-source Studio and its fork Lichtblick: getChartValue) reads a string as a
 number, ``"NaN"`` as NaN, and leaves its line open there (PlotJuggler not checked),
-from the last sample before the silence to the first after it. ``export`` writes them after the
+from the last sample before the silence to the first after it (a P2OS robot's link: on its
+session's ``sip`` topic, the numbers of the SIP message before it; :func:`log_sip_gap`). ``export`` writes them after the
 pass (:func:`publish_gaps`); ``watch --foxglove`` once a silence becomes an outage by the clock,
 or before the frame that ends one the clock did not see (:meth:`LiveQuality.gap`).
 """
@@ -33,6 +35,7 @@ from typing import Any
 import foxglove
 
 from sharedlink.analysis.health import FLOOR_S, Health, LinkHealth, Second, feed_decoded, quality
+from sharedlink.analysis.robot_health import feed_session, is_robot_key, robot_key
 from sharedlink.capture.pcapio import NS
 
 LINK_QUALITY_SCHEMA = {
@@ -53,12 +56,33 @@ def second_json(s: Second) -> bytes:
                        "down_s": s.down_s}).encode()
 
 
+def _pair_topic(pair: str) -> str:
+    """``B>A`` -> ``B_to_A``, ``robot>client`` -> ``robot_to_client`` (the links past the limit: ``other``)."""
+    return pair.replace(">", "_to_").replace("*", "other")
+
+
+def _session(channels: Any, protocol: str, label: str) -> Any:
+    """The channels of the robot session ``label`` (None: refused, past the channels' limit)."""
+    return channels._labels.get((protocol, label))
+
+
+def _session_prefix(channels: Any, protocol: str, label: str) -> str:
+    """The topics' prefix of the robot session ``label`` (``/p2os/1``), as its channels have it."""
+    s = _session(channels, protocol, label)
+    return s.prefix if s is not None else f"/{protocol}/other"
+
+
 def link_topic(channels: Any, key: tuple, h: LinkHealth) -> str:
-    """The link's topic: below its direction's channels when it has them, else by its pair."""
+    """The link's topic: below its direction's channels when it has them, else by its pair; a
+    robot link's (:func:`~sharedlink.analysis.robot_health.robot_key`): below its session's
+    channels, by its pair (``/p2os/1/robot_to_client/link_quality``)."""
     dr = channels._dirs.get(key)  # (conv, src, dst): the directions' key, the links' too
     if dr is not None:
         return dr.frames_topic.rsplit("/", 1)[0] + "/link_quality"
-    return "/sharedlink/" + h.pair.replace(">", "_to_").replace("*", "other") + "/link_quality"
+    conv = key[0]
+    if is_robot_key(key):
+        return f"{_session_prefix(channels, conv[1], conv[2])}/{_pair_topic(h.pair)}/link_quality"
+    return "/sharedlink/" + _pair_topic(h.pair) + "/link_quality"
 
 
 def quality_channel(channels: Any, key: tuple, h: LinkHealth) -> Any:
@@ -66,7 +90,11 @@ def quality_channel(channels: Any, key: tuple, h: LinkHealth) -> Any:
     channels._open(1)
     conv, src, dst = key
     topic = link_topic(channels, key, h)
-    meta = {"src": src, "dst": dst, "link": h.link, "conversation": " ".join(map(str, conv or ()))}
+    if is_robot_key(key):  # (src, dst: the sides; the session's label as its channels have it)
+        src, _, dst = h.pair.partition(">")
+        meta = {"src": src, "dst": dst, "link": h.link, "session": conv[2]}
+    else:
+        meta = {"src": src, "dst": dst, "link": h.link, "conversation": " ".join(map(str, conv or ()))}
     ch = foxglove.Channel(topic, schema=LINK_QUALITY_SCHEMA, metadata=meta, context=channels.ctx)
     channels._counts[topic] = 0
     return ch
@@ -95,13 +123,32 @@ def gap_json(typed: dict[str, Any]) -> bytes | None:
 
 
 def log_gap(channels: Any, key: tuple, start_ns: int) -> bool:
-    """A gap message on the values topic of direction ``key`` for an outage from ``start_ns``."""
+    """A gap message on the values topic of direction ``key`` for an outage from ``start_ns``
+    (a P2OS robot's link: on its session's ``sip`` topic, :func:`log_sip_gap`)."""
+    if is_robot_key(key):
+        return log_sip_gap(channels, key, start_ns)
     dr = channels._dirs.get(key)
     body = gap_json(dr.typed) if dr is not None else None
     if body is None:
         return False
     dr.log_values(body, start_ns + 1)
     dr.ngaps += 1
+    return True
+
+
+def log_sip_gap(channels: Any, key: tuple, start_ns: int) -> bool:
+    """A P2OS robot link's outage: a gap message on its session's ``sip`` topic, every number of
+    the last SIP message (position, velocities, battery, ...) as ``"NaN"``, so its plotted lines break
+    there too. Blackboard links get none: their one ``messages`` topic mixes the master's
+    messages and the slave's answers (no series to break)."""
+    conv, side, _ = key
+    s = _session(channels, conv[1], conv[2])
+    ch = s.channels.get("sip") if s is not None and side == "robot" else None
+    body = gap_json(s.sip) if ch is not None else None
+    if body is None:
+        return False
+    ch.log(body, log_time=start_ns + 1)
+    channels._counts[ch.topic()] += 1
     return True
 
 
@@ -113,6 +160,8 @@ def publish_gaps(channels: Any, health: Health) -> None:
             log_gap(channels, key, o.start_ns)
 
 
+#: the key of Health's link past its limit (Health.link)
+OTHER_KEY = ("", "", "*")
 #: seconds sent at most at once for one link (a clock that jumps: the latest are sent)
 LIVE_BACKLOG_S = 3600
 
@@ -152,17 +201,48 @@ class LiveQuality:
         if h is not None and self._silent(h, d.ts_ns):
             self._gap(h, (d.conv, d.src, d.dst))
 
-    def frame(self, d: Any) -> None:
-        h = self.health.link(d.conv, d.src, d.dst)
+    def _state(self, h: LinkHealth, key: tuple, ts_ns: int) -> list:
+        """The link's [channel, next second, counts]; the seconds a frame at ``ts_ns`` ends sent
+        (judged before it counts)."""
         st = self.links.get(id(h))
-        sec = d.ts_ns // NS
         if st is None:
-            st = self.links[id(h)] = [quality_channel(self.channels, (d.conv, d.src, d.dst), h), sec, Counter()]
+            st = self.links[id(h)] = [quality_channel(self.channels, key, h), ts_ns // NS, Counter()]
         else:
-            self._send(h, st, sec)  # the seconds this frame ends (judged before it counts)
-        feed_decoded(self.health, d)
+            self._send(h, st, ts_ns // NS)
+        return st
+
+    @staticmethod
+    def _count(st: list, ts_ns: int) -> None:
+        sec = ts_ns // NS
         if sec >= st[1]:
             st[2][sec] += 1
+
+    def frame(self, d: Any) -> None:
+        key = (d.conv, d.src, d.dst)
+        st = self._state(self.health.link(*key), key, d.ts_ns)
+        feed_decoded(self.health, d)
+        self._count(st, d.ts_ns)
+
+    def session_gap(self, m: Any) -> None:
+        """Before the channels' own message: a robot packet that ends an outage the clock did not
+        see sends the link's gap message first (:meth:`gap`'s rule)."""
+        key = robot_key(m)
+        h = self.health.links.get(key)
+        if h is not None and self._silent(h, m.ts_ns):
+            self._gap(h, key)
+
+    def session(self, m: Any) -> None:
+        """A P2OS packet or blackboard message (after the channels' own, so its session's topics
+        are known): the paced robot links' quality (robot_health.py's links; a P2OS client's: none)."""
+        key = robot_key(m)
+        h = self.health.links.get(key)
+        st = self._state(h, key, m.ts_ns) if h is not None else None
+        h = feed_session(self.health, m)
+        if h is None:
+            return
+        if st is None:  # (its first message, or a link past the limit: Health's other links)
+            st = self._state(h, key if self.health.links.get(key) is h else OTHER_KEY, m.ts_ns)
+        self._count(st, m.ts_ns)
 
     def tick(self, now_ns: int) -> None:
         for key, h in list(self.health.links.items()):

@@ -6,8 +6,9 @@ SharedLink frame on the channels of :class:`~sharedlink.analysis.foxglove_channe
 foxglove-sdk's MCAP writer (zstd chunks at level 1, indexed) records with log time = capture time (ns).
 The P2OS and blackboard sessions come in the same pass, from the core's robot links
 (:class:`sharedlink.analysis.robots.RobotLinks`, as ``stats`` and ``export jsonl`` read them).
-The SharedLink links' per-second link quality (:mod:`sharedlink.analysis.foxglove_health`) and
-the gap messages that break the values' lines at each outage are written at the end.
+Every link's per-second link quality (:mod:`sharedlink.analysis.foxglove_health`; the SharedLink
+links' and the paced P2OS and blackboard links' of :mod:`sharedlink.analysis.robot_health`) and
+the gap messages that break the SharedLink values' lines at each outage are written at the end.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from sharedlink.analysis.export import ExportOptions, ExportResult
 from sharedlink.analysis.foxglove_channels import ChannelOptions, FoxgloveChannels
 from sharedlink.analysis.foxglove_health import publish_gaps, publish_quality
 from sharedlink.analysis.health import Health, feed_columns, feed_decoded
+from sharedlink.analysis.robot_health import feed_session
 from sharedlink.analysis.robots import RobotLinks
 from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import CaptureError, atomic_open
@@ -43,7 +45,7 @@ def channel_options(opts: ExportOptions) -> ChannelOptions:
 
 def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOptions, result: ExportResult,
                     health: Health | None = None) -> None:
-    """Every frame and session message of ``path`` onto ``channels`` (and its SharedLink frames
+    """Every frame and session message of ``path`` onto ``channels`` (and its links' frames
     into ``health``); damage after the first record sets ``result.error`` (what came before it
     is published)."""
     seen = result.seen if opts.require else None
@@ -70,6 +72,8 @@ def publish_capture(path: str | Path, channels: FoxgloveChannels, opts: ExportOp
             elif t is SessionMessage:  # P2OS, blackboard (the core's robot links)
                 result.frames += 1
                 channels.session(item)  # type: ignore[arg-type]
+                if health is not None:  # (their paced links' health: robot_health.py)
+                    feed_session(health, item)  # type: ignore[arg-type]
     except CaptureError as exc:
         if exc.record is None and result.frames == 0:
             raise

@@ -8,8 +8,9 @@ A robot link is one side of one session: ``link`` is the protocol and the sessio
 the direction by side (``robot>client``, ``client>robot``; ``master>slave``, ``slave>master``).
 Every link-health output takes robot links through this module (the one definition: :mod:`health`'s
 functions, fed here): ``stats`` (:func:`feed_session`), ``health`` (its table, rows and strip),
-``export --outages`` (:func:`session_outages`), ``ingest``'s ``links`` and ``outages`` tables and
-``watch``'s robot panel (:func:`robot_link`, LINK DOWN); the Wireshark tap's twin is
+``export --outages`` (:func:`session_outages`), ``ingest``'s ``links`` and ``outages`` tables,
+``watch``'s robot panel (:func:`robot_link`, LINK DOWN) and the ``link_quality`` topics of
+``export --format mcap`` and ``watch --foxglove`` (:mod:`~sharedlink.analysis.foxglove_health`); the Wireshark tap's twin is
 ``dissector/sharedlink/health.lua``'s ``H.robot``, fed by p2os.lua and blackboard.lua.
 
 The definition is SharedLink's (learnt rate, threshold, outages, checksum habit), on the links
@@ -34,6 +35,12 @@ OTHER_SIDE = {"client": "robot", "robot": "client", "master": "slave", "slave": 
 def robot_key(m: SessionMessage) -> tuple:
     """The :class:`Health` key of a robot message's link (whichever side)."""
     return ("robot", m.protocol, m.label), m.side, ""
+
+
+def is_robot_key(key: tuple) -> bool:
+    """Whether a :class:`Health` key is a robot link's (:func:`robot_key`)."""
+    conv = key[0]
+    return type(conv) is tuple and len(conv) == 3 and conv[0] == "robot"
 
 
 def robot_link(health: Health, m: SessionMessage) -> LinkHealth | None:

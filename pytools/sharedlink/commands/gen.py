@@ -55,8 +55,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--protocol", choices=("sharedlink", "p2os", "blackboard"), default="sharedlink",
                    help="what to generate: SharedLink beacons (default), a P2OS robot session, or a blackboard master/slave session")
     p.add_argument("--transport", choices=("udp", "tcp", "serial"), default=None,
-                   help="sharedlink: udp beacons (default) or serial (a BUL-049 point-to-point session); p2os: tcp (default) or "
-                   "serial; blackboard: udp (default), tcp or serial. Serial captures are pcapng with a USER link type")
+                   help="sharedlink: udp beacons (default) or serial (a BUL-049 point-to-point session); p2os: tcp (default), "
+                   "udp or serial; blackboard: udp (default), tcp or serial. Serial captures are pcapng with a USER link type")
     p.add_argument("--baud", type=BAUD, default=9600, help="--transport serial: line speed (default 9600)")
     p.add_argument("--noise", type=FRACTION, default=0.0, metavar="RATE", help="--transport serial: chance of a burst of line noise before a frame")
     p.add_argument("--src", default="B", help="source node letter A-P (default B)")

@@ -179,7 +179,9 @@ def _run(args: argparse.Namespace) -> int:
             quality = LiveQuality(channels)  # a link_quality channel per link, each second once ended
             outputs.append(served(quality.gap, stats))  # (an outage's gap before the frame that ends it)
             outputs.append(served(channels.frame, stats))
+            sessions.append(served(quality.session_gap, stats))  # (a SIP outage's gap before the packet that ends it)
             sessions.append(served(channels.session, stats))
+            sessions.append(served(quality.session, stats))  # (the robot links': after their session's channels)
             outputs.append(served(quality.frame, stats))
             tick = quality.tick
         if not args.quiet:  # what is watched (the Foxglove server's address is always said)

@@ -73,8 +73,8 @@ class P2osGenOptions:
             raise ValueError("--duration must be positive (at most a day)")
         if self.fmt not in ("pcap", "pcapng"):
             raise ValueError("--format must be pcap or pcapng")
-        if self.transport not in ("tcp", "serial"):
-            raise ValueError("P2OS sessions are generated over tcp or serial")
+        if self.transport not in ("tcp", "udp", "serial"):
+            raise ValueError("P2OS sessions are generated over tcp, udp or serial")
         if self.transport == "serial" and self.fmt != "pcapng":
             raise ValueError("serial captures are pcapng (the direction lives in the packet flags)")
         if not 0 < self.port < 65536 or not 0 < self.client_port < 65536:
@@ -374,8 +374,9 @@ def generate_p2os(opts: P2osGenOptions, out: BinaryIO) -> P2osStats:
         return stats
     events: list[tuple[int, bool, bytes]] = []
     for ts, from_client, pkt, _ in packets:
-        # a SIP and the ENCODER packet written right after it travel in one segment
-        if events and not from_client and not events[-1][1] and ts - events[-1][0] < MS:
+        # a SIP and the ENCODER packet written right after it travel in one TCP segment (over
+        # UDP each packet is a datagram of its own)
+        if opts.transport == "tcp" and events and not from_client and not events[-1][1] and ts - events[-1][0] < MS:
             prev = events.pop()
             events.append((prev[0], False, prev[2] + pkt))
         else:
