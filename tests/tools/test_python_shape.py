@@ -32,7 +32,6 @@ STRICT = ("analysis/core/", "analysis/decode.py", "analysis/changes.py", "analys
 DEBT: dict[tuple[str, str], int] = {
     ("replay.py", "complexity Replayer._run_timed"): 17,
     ("replay.py", "file"): 854,
-    ("watch.py", "complexity run_watch"): 20,
 }
 
 _BRANCHES = (ast.If, ast.For, ast.AsyncFor, ast.While, ast.ExceptHandler, ast.match_case)
