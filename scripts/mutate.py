@@ -53,8 +53,14 @@ TARGETS: dict[str, Target] = {
     "replay": Target(
         "replay.py",
         ("tools/test_replay.py",),
-        ("sharedlink.replay.xǁPacer*", "sharedlink.replay.xǁReplayer*", "sharedlink.replay.xǁReplayOptions*"),
-        "replay scheduling only: Pacer, Replayer and ReplayOptions",
+        ("sharedlink.replay.xǁReplayer*", "sharedlink.replay.xǁReplayOptions*"),
+        "replay scheduling only: Replayer and ReplayOptions",
+    ),
+    "pacing": Target(
+        "pacing.py",
+        ("tools/test_replay.py",),
+        ("sharedlink.pacing.xǁSchedule*", "sharedlink.pacing.xǁPacer*"),
+        "replay's deadlines and its waits for them: Schedule and Pacer",
     ),
 }
 

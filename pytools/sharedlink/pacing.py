@@ -1,6 +1,7 @@
-"""Waiting for a frame's deadline on time, for ``sharedlink replay``'s timed modes
-(:mod:`sharedlink.replay`): :class:`Pacer` sleeps until shortly before each deadline and spins for
-the rest, and :func:`latency_hints` asks Linux for prompt wake-ups while the frames are sent."""
+"""Frames on time, for ``sharedlink replay``'s timed modes (:mod:`sharedlink.replay`, over UDP,
+serial or TCP alike): :class:`Schedule` gives each frame its deadline, :class:`Pacer` sleeps until
+shortly before it and spins for the rest, and :func:`latency_hints` asks Linux for prompt
+wake-ups while the frames are sent."""
 
 from __future__ import annotations
 
@@ -102,3 +103,61 @@ class Pacer:
             self.late_ns += (late - self.late_ns) >> 3
         while clock() < deadline:
             pass
+
+
+class Schedule:
+    """The deadlines of a timed replay's frames on the monotonic clock. Each is absolute,
+    computed from its pass's first frame, so timing errors never add up with the number of
+    frames: the capture's times divided by ``speed``, or one every ``interval`` ns (a fixed
+    rate); never before the previous frame's (out-of-order times). The first deadline is when the
+    first frame is ready; a pass after the first starts the first pass's mean gap between frames
+    and ``delay_ns`` after the previous pass's last frame."""
+
+    __slots__ = ("interval", "inv_speed", "delay_ns", "base", "prev", "mean_gap", "passes", "first_ts", "last_ts",
+                 "count")
+
+    def __init__(self, interval: float | None = None, speed: float = 1.0, delay_ns: int = 0) -> None:
+        self.interval, self.inv_speed, self.delay_ns = interval, 1.0 / speed, delay_ns
+        self.base = self.prev = -1  # the deadlines of the pass's first frame and of the previous frame
+        self.mean_gap = 0
+        self.passes = 0  # passes ended
+        self.first_ts: int | None = None  # the pass's first frame's capture time
+        self.last_ts = -(1 << 63)  # the pass's latest capture time
+        self.count = 0  # the pass's frames so far
+
+    def next(self, ts_ns: int) -> tuple[int, int]:
+        """(deadline, gap since the previous deadline) of the pass's next frame, whose time in
+        the capture is ``ts_ns``."""
+        if self.first_ts is None:
+            self.first_ts = ts_ns
+            if self.base < 0:  # the schedule starts when the first frame is ready
+                self.base = self.prev = time.monotonic_ns()
+        if ts_ns > self.last_ts:
+            self.last_ts = ts_ns
+        if self.interval is not None:
+            deadline = self.base + round(self.count * self.interval)
+        else:
+            deadline = self.base + round((ts_ns - self.first_ts) * self.inv_speed)
+        prev = self.prev
+        if deadline < prev:  # out-of-order timestamps: keep the schedule monotonic
+            deadline = prev
+        self.count += 1
+        self.prev = deadline
+        return deadline, deadline - prev
+
+    @property
+    def flat(self) -> int:
+        """In capture timing, the pass's frames when there are several and their times never
+        advanced past the first frame's (all of them at one time: sent back to back); else 0."""
+        return self.count if self.interval is None and self.count > 1 and self.last_ts == self.first_ts else 0
+
+    def end_pass(self) -> None:
+        """The pass is over: the next starts one mean gap (the first pass's) and ``delay_ns``
+        after its last deadline."""
+        if self.passes == 0:
+            n = self.count
+            self.mean_gap = round(self.interval) if self.interval is not None else (
+                (self.prev - self.base) // (n - 1) if n > 1 else 0)
+        self.passes += 1
+        self.base = self.prev + self.mean_gap + self.delay_ns
+        self.first_ts, self.last_ts, self.count = None, -(1 << 63), 0

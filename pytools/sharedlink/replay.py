@@ -5,7 +5,8 @@ capture; records on a USER link type taken as raw serial bytes) are sent with ``
 plain datagram socket, so local receivers on loopback get them like any other datagram.
 
 Timing follows the capture (optionally sped up or slowed down), a fixed rate, or no pacing at
-all. Every frame has an absolute deadline on the monotonic clock, computed from the first frame,
+all. Every frame has an absolute deadline on the monotonic clock, computed from the first frame
+(:class:`~sharedlink.pacing.Schedule`, the one schedule of every sink: UDP, serial, TCP),
 so timing errors never add up with the number of frames. :class:`~sharedlink.pacing.Pacer` sleeps until shortly
 before each deadline (how early follows how late this machine's sleeps end) and spins for the
 rest, a spin bounded to a small share of each gap: a few percent of a core at most instead of a
@@ -14,6 +15,10 @@ slice; optionally real-time priority where permitted).
 
 The timed modes stream the capture (one record at a time); ``topspeed`` pre-reads it in chunks
 and, when looping over a small capture, keeps the payloads for the later passes.
+
+What to send is here (:class:`CaptureFrames`; a TCP capture's segments:
+:mod:`sharedlink.replay_tcp`), where to send it in :mod:`sharedlink.replay_sinks` (its names
+importable from here too), and how: :class:`Replayer`.
 """
 
 from __future__ import annotations
@@ -23,22 +28,30 @@ import ipaddress
 import math
 import random
 import signal
-import socket
-import struct
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from socket import inet_ntoa
-from typing import Any, NamedTuple, Optional, Union
+from typing import Any, NamedTuple, Optional
 
 from sharedlink._interrupt import Terminated
 from sharedlink.capture.packets import Datagram, PacketDecoder, decode_packet
 from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, LINKTYPE_USER0, NS, CaptureError, read_records
 from sharedlink.defaults import MAX_PPS, MIN_PPS  # noqa: F401 - the steady rates --pps takes
-from sharedlink.errors import UsageError
-from sharedlink.pacing import Pacer, latency_hints
+from sharedlink.pacing import Pacer, Schedule, latency_hints
+from sharedlink.replay_sinks import (
+    ReplayError,
+    SerialSink,
+    Sink,
+    SinkStalled,
+    Target,
+    UdpSink,
+    is_broadcast,
+    is_multicast,
+    split_host_port,
+)
 
 #: LINKTYPE_USER0 .. LINKTYPE_USER15: records taken as raw serial bytes
 USER_LINKTYPES = range(LINKTYPE_USER0, LINKTYPE_USER0 + 16)
@@ -46,13 +59,6 @@ USER_LINKTYPES = range(LINKTYPE_USER0, LINKTYPE_USER0 + 16)
 TOPSPEED_CHUNK = 4096  # payloads pre-read at a time at top speed
 LOOP_CACHE_BYTES = 64 << 20  # at top speed, passes after the first reuse payloads up to this size
 LAG_SAMPLES = 65536  # lags kept for the median (reservoir sample beyond this many frames)
-
-Target = Any  # what a sink needs to send one payload (an address for UDP); None = cannot send
-
-
-class ReplayError(UsageError):
-    """Bad replay setup: an unusable destination, source address or serial port."""
-
 
 class OutFrame(NamedTuple):
     """One payload to send, with what the capture said about it."""
@@ -181,205 +187,6 @@ def first_linktype(path: str | Path) -> int | None:
     for rec in read_records(path):
         return rec.linktype
     return None
-
-
-# -- destinations ---------------------------------------------------------------------------
-
-
-def split_host_port(text: str, what: str = "--to") -> tuple[str, int | None]:
-    """``HOST``, ``HOST:PORT``, ``[V6]:PORT`` or a bare IPv6 address -> (host, port or None)."""
-    host, port = text, None
-    if text.startswith("["):
-        end = text.find("]")
-        if end < 0:
-            raise ReplayError(f"{what} {text!r}: missing ']'")
-        host, rest = text[1:end], text[end + 1 :]
-        if rest:
-            if not rest.startswith(":"):
-                raise ReplayError(f"{what} {text!r}: expected [ADDRESS]:PORT")
-            port = _port(rest[1:], what, text)
-    elif text.count(":") == 1:
-        host, p = text.split(":")
-        port = _port(p, what, text)
-    if not host:
-        raise ReplayError(f"{what} {text!r}: no host")
-    return host, port
-
-
-def _port(p: str, what: str, text: str) -> int:
-    lowest = 0 if what == "--bind" else 1
-    if not p.isdigit() or not lowest <= int(p) < 65536:
-        raise ReplayError(f"{what} {text!r}: port must be {lowest}..65535")
-    return int(p)
-
-
-def _resolve(host: str, port: int, what: str) -> tuple[int, tuple]:
-    try:
-        infos = socket.getaddrinfo(host, port, 0, socket.SOCK_DGRAM)
-    except (socket.gaierror, UnicodeError) as exc:
-        raise ReplayError(f"{what} {host}: cannot resolve ({exc})") from None
-    infos.sort(key=lambda i: i[0] != socket.AF_INET)  # prefer IPv4 when a name has both
-    fam, _, _, _, addr = infos[0]
-    return fam, addr
-
-
-def is_broadcast(host: str, family: int = socket.AF_INET) -> bool:
-    """Whether the kernel routes ``host`` as a broadcast (limited or directed, on any local
-    network): a UDP socket without SO_BROADCAST may not connect to it."""
-    if family != socket.AF_INET:
-        return False
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-        try:
-            probe.connect((host, 9))
-        except PermissionError:
-            return True
-        except OSError:
-            return host == "255.255.255.255"
-    return False
-
-
-def is_multicast(host: str) -> bool:
-    """Whether ``host`` (an address) is a multicast group (224.0.0.0/4, ff00::/8)."""
-    try:
-        return ipaddress.ip_address(host.split("%")[0]).is_multicast
-    except ValueError:
-        return False
-
-
-def _interface_ipv4(name: str) -> str | None:
-    """The IPv4 address of a network interface (Linux SIOCGIFADDR), or None."""
-    try:
-        import fcntl
-
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            res = fcntl.ioctl(s.fileno(), 0x8915, struct.pack("256s", name.encode()[:15]))
-        return socket.inet_ntoa(res[20:24])
-    except (OSError, ImportError):
-        return None
-
-
-class UdpSink:
-    """Sends payloads to ``host`` on the given port, or on each frame's captured port.
-
-    ``broadcast`` must be set for a broadcast destination (SO_BROADCAST), ``multicast`` for a
-    multicast group; without it a :class:`ReplayError` is raised before anything is sent. ``bind`` is a source address,
-    ``ADDR:PORT``, or an interface name.
-    """
-
-    def __init__(self, host: str = "127.0.0.1", port: int | None = None, bind: str | None = None, broadcast: bool = False,
-                 multicast: bool = False) -> None:
-        self.host, self.port = host, port
-        fam, addr = _resolve(host, port or 9, "destination")
-        self.family, self.address = fam, addr[0]
-        if not broadcast and is_broadcast(self.address, fam):
-            raise ReplayError(
-                f"{host} is a broadcast address: replaying there reaches every host on that network; "
-                "add --broadcast if that is what you want"
-            )
-        if not multicast and is_multicast(self.address):
-            raise ReplayError(
-                f"{host} is a multicast group: replaying there reaches every member of it, on the network too; "
-                "add --multicast if that is what you want"
-            )
-        self.sock = socket.socket(fam, socket.SOCK_DGRAM)
-        try:
-            if broadcast:
-                self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
-            try:
-                self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
-            except OSError:
-                pass
-            if bind:
-                self._bind(bind)
-        except BaseException:
-            self.sock.close()
-            raise
-        self._targets: dict[int | None, Target] = {}
-        self.send: Callable[[bytes, Target], Any] = self.sock.sendto
-
-    def _bind(self, spec: str) -> None:
-        ifnames = {n for _, n in socket.if_nameindex()} if hasattr(socket, "if_nameindex") else set()
-        if spec in ifnames:
-            try:
-                self.sock.setsockopt(socket.SOL_SOCKET, getattr(socket, "SO_BINDTODEVICE", 25), spec.encode())
-                return
-            except OSError:
-                addr = _interface_ipv4(spec) if self.family == socket.AF_INET else None
-                if addr is None:
-                    raise ReplayError(f"--bind {spec}: cannot bind to that interface without privileges, and it has no IPv4 address") from None
-                host, port = addr, 0
-        else:
-            host, p = split_host_port(spec, "--bind")
-            port = p or 0
-        try:
-            fam, addr = _resolve(host, port, "--bind")
-            if fam != self.family:
-                raise ReplayError(f"--bind {spec}: not the same address family as the destination {self.host}")
-            self.sock.bind(addr)
-        except OSError as exc:
-            raise ReplayError(f"--bind {spec}: {exc.strerror or exc}") from None
-
-    @property
-    def description(self) -> str:
-        host = f"[{self.address}]" if self.family == socket.AF_INET6 else self.address
-        return f"udp {host}:{self.port if self.port else '<captured port>'}"
-
-    def target(self, frame: OutFrame) -> Target:
-        port = self.port or frame.port
-        t = self._targets.get(port)
-        if t is None and port:
-            t = self._targets[port] = (self.address, port) if self.family == socket.AF_INET else (self.address, port, 0, 0)
-        return t
-
-    def close(self) -> None:
-        self.sock.close()
-
-
-class SinkStalled(OSError):
-    """The destination takes nothing (a serial port nobody reads: the write timed out). The
-    replay stops at the first one instead of waiting out the timeout for every frame."""
-
-
-class SerialSink:
-    """Writes payloads to a serial port or pty (pyserial), raw 8N1 at ``baud``. A write that
-    times out raises :class:`SinkStalled`."""
-
-    def __init__(self, device: str, baud: int = 9600, write_timeout: float = 5.0) -> None:
-        import serial  # pyserial
-
-        try:
-            self.port = serial.Serial(device, baudrate=baud, write_timeout=write_timeout)
-        except (serial.SerialException, ValueError, OSError) as exc:
-            from sharedlink.capture.serial_port import port_error
-
-            raise ReplayError(port_error(device, exc)) from None
-        self.device, self.baud = device, baud
-        write, stalled = self.port.write, serial.SerialTimeoutException
-
-        def send(payload: bytes, _t: Target) -> Any:
-            try:
-                return write(payload)
-            except stalled:
-                raise SinkStalled(f"{device}: write timed out after {write_timeout:g} s: is anything reading the port?") from None
-
-        self.send: Callable[[bytes, Target], Any] = send
-
-    @property
-    def description(self) -> str:
-        return f"serial {self.device} at {self.baud} baud"
-
-    def target(self, frame: OutFrame) -> Target:
-        return True
-
-    def close(self) -> None:
-        try:
-            self.port.flush()
-        except Exception:  # noqa: BLE001 - the port may be gone; closing must not raise
-            pass
-        self.port.close()
-
-
-Sink = Union[UdpSink, SerialSink]
 
 
 # -- the replay ---------------------------------------------------------------------------
@@ -611,10 +418,10 @@ class Replayer:
             yield n
             n += 1
 
-    def _flat(self, npass: int, interval: float | None, count: int, first_ts: int | None, last_ts: int) -> None:
+    def _flat(self, npass: int, schedule: Schedule) -> None:
         """Note a first pass in capture timing whose times never advanced (``flat_times``)."""
-        if npass == 0 and interval is None and count > 1 and last_ts == first_ts:
-            self.stats.flat_times = count
+        if npass == 0:
+            self.stats.flat_times = schedule.flat
 
     # -- the reference path (timed modes): one frame at a time, streaming, absolute deadlines
     def _run_timed(self) -> None:
@@ -622,44 +429,25 @@ class Replayer:
         send, target_of = sink.send, sink.target
         clock, pace = time.monotonic_ns, Pacer().wait
         limit = opts.limit
-        interval = NS / opts.pps if opts.pps else None
-        inv_speed = 1.0 / opts.speed
-        delay = round(opts.loop_delay * NS)
-        base = prev = -1  # the deadlines of the pass's first frame and of the previous frame
-        mean_gap = 0
+        schedule = Schedule(NS / opts.pps if opts.pps else None, opts.speed, round(opts.loop_delay * NS))
+        due = schedule.next
         for npass in self._passes():
-            first_ts = None
-            last_ts = -(1 << 63)  # the latest time of the pass
-            count = 0
             for fr in self.source:
                 if limit is not None and st.attempted >= limit:
-                    self._flat(npass, interval, count, first_ts, last_ts)
+                    self._flat(npass, schedule)
                     return
-                if first_ts is None:
-                    first_ts = fr.ts_ns
-                    if base < 0:  # the schedule starts when the first frame is ready
-                        base = prev = clock()
-                if fr.ts_ns > last_ts:
-                    last_ts = fr.ts_ns
-                if interval is not None:
-                    deadline = base + round(count * interval)
-                else:
-                    deadline = base + round((fr.ts_ns - first_ts) * inv_speed)
-                if deadline < prev:  # out-of-order timestamps: keep the schedule monotonic
-                    deadline = prev
-                count += 1
+                deadline, gap = due(fr.ts_ns)
                 now = clock()
                 if deadline - now >= LONG_WAIT_NS and self.long_wait is not None:
                     self.long_wait(fr.number, (deadline - now) / NS)
                 if now >= self._next_progress and (deadline - now > 2_000_000 or now > self._next_progress + self.progress_ns):
                     self._report(now)  # when there is time to spare, or it is long overdue
-                pace(deadline, deadline - prev)
+                pace(deadline, gap)
                 t = target_of(fr)
                 now = clock()
                 if t is None:
                     st.attempted += 1
                     st.error("no-port", _NO_PORT % fr.number)
-                    prev = deadline
                     continue
                 gate.held = True  # Ctrl-C waits until this frame is sent (or failed) and counted
                 try:
@@ -679,14 +467,11 @@ class Replayer:
                     gate.held = False
                 if gate.pending:
                     raise KeyboardInterrupt
-                prev = deadline
-            if count == 0:
+            if schedule.count == 0:
                 return  # nothing to send: looping would spin forever
-            self._flat(npass, interval, count, first_ts, last_ts)
+            self._flat(npass, schedule)
             st.passes += 1
-            if npass == 0:
-                mean_gap = round(interval) if interval is not None else (prev - base) // (count - 1) if count > 1 else 0
-            base = prev + mean_gap + delay
+            schedule.end_pass()
 
 
 class _TopSpeed:
@@ -849,6 +634,7 @@ __all__ = [
     "UdpSink",
     "first_linktype",
     "is_broadcast",
+    "is_multicast",
     "replay",
     "split_host_port",
 ]

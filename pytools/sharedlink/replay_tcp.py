@@ -33,17 +33,8 @@ from typing import Any
 
 from sharedlink.capture.packets import PacketDecoder
 from sharedlink.capture.pcapio import read_records
-from sharedlink.replay import (
-    USER_LINKTYPES,
-    FrameFilter,
-    OutFrame,
-    ReplayError,
-    SinkStalled,
-    SourceCounts,
-    Target,
-    _resolve,
-    split_host_port,
-)
+from sharedlink.replay import USER_LINKTYPES, FrameFilter, OutFrame, SourceCounts
+from sharedlink.replay_sinks import ReplayError, SinkStalled, Target, _resolve, split_host_port
 
 SYN, ACK = 0x02, 0x10
 SEQ_MOD = 1 << 32
@@ -141,7 +132,7 @@ def _new_bytes(sent_to: dict[tuple[str, int, str], int], key: tuple[str, int, st
 
 class TcpSink:
     """One TCP connection to ``host:port`` (Nagle off); a payload per ``send``. A connection the
-    peer closed or reset raises :class:`~sharedlink.replay.SinkStalled` (the replay stops)."""
+    peer closed or reset raises :class:`~sharedlink.replay_sinks.SinkStalled` (the replay stops)."""
 
     def __init__(self, host: str, port: int, bind: str | None = None, timeout: float = 5.0) -> None:
         fam, addr = _resolve(host, port, "destination")

@@ -4,7 +4,7 @@ Sources give :class:`~sharedlink.capture.stream.StreamFrame` s in batches; one
 :class:`~sharedlink.analysis.decode.Decoder` turns them into
 :class:`~sharedlink.analysis.decode.Decoded` frames (the rules of every other command), which go
 to the outputs: the live terminal view (:class:`LiveView`, drawn with rich), one JSON line per
-frame (:func:`json_line`), and the Foxglove channels
+frame (:func:`~sharedlink.watch_json.json_line`), and the Foxglove channels
 (:class:`~sharedlink.analysis.foxglove_channels.FoxgloveChannels`) behind foxglove-sdk's
 WebSocket server.
 
@@ -25,8 +25,6 @@ WebSocket server.
 from __future__ import annotations
 
 import heapq
-import json
-import math
 import os
 import select
 import socket
@@ -37,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, NamedTuple
 
-from sharedlink.analysis.decode import NS, VALUE_KINDS, Decoded, Decoder, format_time
+from sharedlink.analysis.decode import NS, VALUE_KINDS, Decoded, Decoder
 from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import CaptureError
 from sharedlink.capture.stream import StreamFrame, iter_frames
@@ -45,6 +43,8 @@ from sharedlink.defaults import WATCH_DEFAULT_PORT
 from sharedlink.protocols.codec import Frame
 from sharedlink.protocols.limits import MAX_CONVERSATIONS, MAX_NAMES, LimitCounts
 from sharedlink.replay import SigintGate
+from sharedlink.watch_json import JsonLines as JsonLines  # (--json: its home is watch_json)
+from sharedlink.watch_json import json_line as json_line
 
 DEFAULT_PORT = WATCH_DEFAULT_PORT
 #: how long a change (value, failure, late sync, gap) stays highlighted, seconds
@@ -611,63 +611,6 @@ def _age(ns: int) -> str:
     return f"{s / 3600:.1f} h"
 
 
-# -- JSON lines ------------------------------------------------------------------------------
-
-
-def _typed(v: Any) -> Any:
-    x = v.value
-    return v.text if isinstance(x, float) and not math.isfinite(x) else x
-
-
-def json_line(d: Decoded, dropped: int = 0) -> str:
-    """One frame as a JSON object (the keys of ``export --format jsonl`` rows, without ``t``,
-    plus ``late`` and ``dropped``: the datagrams the watch has dropped so far, falling behind)."""
-    ok = d.checksum_ok
-    return json.dumps({
-        "number": d.number, "time": format_time(d.ts_ns), "ts_ns": d.ts_ns, "src": d.src, "dst": d.dst,
-        "kind": d.kind, "checksum": "none" if ok is None else ("good" if ok else "bad"), "late": d.late,
-        "values": {n: _typed(v) for n, v in d.table.vars.items() if v.text is not None},
-        "changed": [u.name for u in d.changes()], "dropped": dropped,
-    })
-
-
-class JsonLines:
-    """:func:`json_line`, the same text, faster for a direction holding many names: each
-    variable's ``"name": value`` is kept, made again only when its text or type changed (the
-    values object of a 4,096-name table took 11 ms a line, every value typed and encoded again;
-    a line then cost what its table holds, here a lookup a name). Per table at most twice the
-    names it holds (then built anew), so names a table dropped are not kept."""
-
-    def __init__(self) -> None:
-        self._tables: dict[int, tuple[Any, dict[str, tuple[Any, Any, Any, str]]]] = {}
-
-    def __call__(self, d: Decoded, dropped: int = 0) -> str:
-        vars_ = d.table.vars
-        held = self._tables.get(id(d.table))
-        if held is None or held[0] is not d.table or len(held[1]) > 2 * len(vars_) + 64:
-            if len(self._tables) >= MAX_CONVERSATIONS:
-                self._tables.clear()
-            held = self._tables[id(d.table)] = (d.table, {})
-        cache = held[1]
-        dumps = json.dumps
-        parts = []
-        for n, v in vars_.items():
-            text = v.text
-            if text is None:
-                continue
-            c = cache.get(n)
-            if c is None or c[0] is not v or c[1] is not text or c[2] != v.type_code:
-                c = cache[n] = (v, text, v.type_code, dumps(n) + ": " + dumps(_typed(v)))
-            parts.append(c[3])
-        ok = d.checksum_ok
-        head = dumps({
-            "number": d.number, "time": format_time(d.ts_ns), "ts_ns": d.ts_ns, "src": d.src, "dst": d.dst,
-            "kind": d.kind, "checksum": "none" if ok is None else ("good" if ok else "bad"), "late": d.late,
-        })
-        return (head[:-1] + ', "values": {' + ", ".join(parts) + '}, "changed": '
-                + dumps([u.name for u in d.changes()]) + ', "dropped": ' + str(int(dropped)) + "}")
-
-
 # -- the loop --------------------------------------------------------------------------------
 
 
@@ -745,9 +688,7 @@ def run_watch(
     stats = stats if stats is not None else WatchStats()
     stats.limits = decoder.limits
     backlog: Backlog | None = getattr(source, "backlog", None)
-    decode = decoder.decode
     next_tick = time.monotonic()
-    datagram = getattr(decoder, "datagram", None)
     gate = SigintGate()
     try:
         with gate:
@@ -756,27 +697,7 @@ def run_watch(
                 try:
                     if backlog is not None and stats.dropped != backlog.dropped:
                         stats.dropped, stats.detail = backlog.dropped, backlog.breakdown()
-                    for item in batch:
-                        if isinstance(item, RawDatagram):
-                            for d in datagram(item):  # type: ignore[misc]
-                                if isinstance(d, Decoded):
-                                    stats.frames += 1
-                                    for o in outputs:
-                                        o(d)
-                                else:
-                                    stats.noise += 1
-                            continue
-                        if item.__class__ is SessionMessage:
-                            for so in session_outputs:
-                                so(item)  # type: ignore[arg-type]
-                            continue
-                        if item.frame is None:
-                            stats.noise += 1
-                            continue
-                        d = decode(item)
-                        stats.frames += 1
-                        for o in outputs:
-                            o(d)
+                    _decode_batch(batch, decoder, outputs, session_outputs, stats)
                     if out is not None and batch:
                         out.flush()
                     if tick is not None and time.monotonic() >= next_tick:
@@ -798,3 +719,32 @@ def run_watch(
     if tick is not None:
         tick(source.now_ns())
     return stats
+
+
+def _decode_batch(batch: Batch, decoder: Decoder, outputs: list[Callable[[Decoded], None]],
+                  session_outputs: Sequence[Callable[[SessionMessage], None]], stats: WatchStats) -> None:
+    """:func:`run_watch`'s step for one batch: each frame decoded, counted and handed to every
+    output (a live UDP source's raw datagrams through ``decoder.datagram``), each session
+    message to every session output, the rest counted as noise."""
+    decode, datagram = decoder.decode, getattr(decoder, "datagram", None)
+    for item in batch:
+        if isinstance(item, RawDatagram):
+            for d in datagram(item):  # type: ignore[misc]
+                if isinstance(d, Decoded):
+                    stats.frames += 1
+                    for o in outputs:
+                        o(d)
+                else:
+                    stats.noise += 1
+            continue
+        if item.__class__ is SessionMessage:
+            for so in session_outputs:
+                so(item)  # type: ignore[arg-type]
+            continue
+        if item.frame is None:
+            stats.noise += 1
+            continue
+        d = decode(item)
+        stats.frames += 1
+        for o in outputs:
+            o(d)

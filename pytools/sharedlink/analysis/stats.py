@@ -244,6 +244,11 @@ class CaptureStats:
             if p.max_sync_gap_s is None or gap > p.max_sync_gap_s:
                 p.max_sync_gap_s = gap
         self._sizes(d, kind, size)
+        self._values(d, pair)
+
+    def _values(self, d: Decoded, pair: str) -> None:
+        """:meth:`add`'s per-variable sums of a frame whose checksum is not wrong: each value it
+        carries (not one carried forward) counted, its changes, numeric min and max, the last."""
         variables = self.variables
         for u in d.updates:
             if u.carried or u.text is None:

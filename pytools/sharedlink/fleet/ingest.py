@@ -32,7 +32,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from sharedlink.analysis.decode import NS, Columns, Decoded, Decoder, DirColumns
+from sharedlink.analysis.decode import Columns, Decoded, Decoder
 from sharedlink.analysis.robots import RobotLinks
 from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.errors import InputError, UsageError
@@ -52,13 +52,13 @@ from sharedlink.fleet.dataset import (
 from sharedlink.fleet.health_rows import HealthRows
 from sharedlink.fleet.heap import glibc as _glibc  # noqa: F401 - tests/fleet/test_ingest.py imports it here
 from sharedlink.fleet.heap import heap_kept
+from sharedlink.fleet.parts import DAY_NS, Batches, Part, day_of
 from sharedlink.fleet.robot_rows import PacketRows, packet_columns
 from sharedlink.protocols.codec import TYPE_DOUBLE, TYPE_LONG
 from sharedlink.protocols.state import BEACON_VARIABLES
 
 #: file name endings taken as captures when a directory is given
 CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap")
-DAY_NS = 86_400 * NS
 _HASH_CHUNK = 1 << 20
 
 
@@ -125,9 +125,11 @@ def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callabl
                  ) -> None:
     """The capture's frames into ``rows``. The decoder's columns mode: the frames its fast path
     takes come as per-column lists (:class:`~sharedlink.analysis.decode.Columns`), appended to
-    their partition's lists a direction at a time; the other frames one by one."""
+    their partition's lists a direction at a time (:class:`~sharedlink.fleet.parts.Batches`);
+    the other frames one by one."""
     parts = rows.parts
-    day_start = day_end = 0  # the UTC day of the last frame: [start, end) ns
+    batches = Batches(parts)  # the fast path's frames (Columns), a direction at a time
+    day_start = day_end = 0  # the UTC day of the last frame decoded the general way: [start, end) ns
     day = ""
     seq = records = frames = 0
     first_ns = last_ns = None
@@ -138,33 +140,16 @@ def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callabl
         for item in rows.health.fed(dec.capture(task.path, progress, columns=True)):
             t = type(item)
             if t is Columns:
-                base = seq
-                n = item.frames  # type: ignore[union-attr]
-                seq += n
-                frames += n
-                for c in item.dirs.values():  # type: ignore[union-attr]
-                    ts = c.ts_ns
-                    if c.ordinal[0] == 0 and first_ns is None:
-                        first_ns = ts[0]
-                    if c.ordinal[-1] == n - 1:
-                        last_ns = ts[-1]
-                    if c.number[-1] > records:
-                        records = c.number[-1]
-                    lo, hi = min(ts), max(ts)
-                    if not (day_start <= lo and hi < day_end):
-                        day_start = lo - lo % DAY_NS
-                        day_end = day_start + DAY_NS
-                        day = _day(lo)
-                    _add_columns(parts, c, base, day if hi < day_end else None)
-                    held -= len(ts) + len(c.name)
+                first_ns, last_ns, added = batches.add(item, seq, first_ns, last_ns)  # type: ignore[arg-type]
+                seq += item.frames  # type: ignore[union-attr]
+                frames += item.frames  # type: ignore[union-attr]
+                held -= added
                 if held <= 0:
                     rows.flush_largest()
                     held = batch - rows.held()
                 continue
             if t is SessionMessage:
-                rows.packets.add(item, _day(item.ts_ns))  # type: ignore[arg-type,union-attr]
-                if rows.packets.held >= batch:
-                    rows.flush_packets()
+                rows.add_packet(item)  # type: ignore[arg-type]
             if t is not Decoded:
                 n = item[0] if isinstance(item, tuple) else item.number  # type: ignore[union-attr]
                 if n > records:
@@ -181,11 +166,11 @@ def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callabl
             if not day_start <= ts < day_end:
                 day_start = ts - ts % DAY_NS
                 day_end = day_start + DAY_NS
-                day = _day(ts)
+                day = day_of(ts)
             key = (day, d.src, d.dst)
             part = parts.get(key)
             if part is None:
-                part = parts[key] = _Part(day, d.src, d.dst)
+                part = parts[key] = Part(day, d.src, d.dst)
             held -= 1 + part.add_decoded(d, seq)
             if held <= 0:
                 rows.flush_largest()
@@ -194,29 +179,12 @@ def _decode_into(task: Task, entry: CaptureEntry, rows: _Rows, progress: Callabl
     except InputError as exc:  # damage: the rows before it are kept
         entry.error = str(exc)
     finally:
-        entry.records = max(entry.records, records)
+        entry.records = max(entry.records, records, batches.records)
         entry.frames += frames
         entry.packets += rows.packets.count
         entry.first_ns = entry.first_ns if entry.first_ns is not None else first_ns
         entry.last_ns = last_ns if last_ns is not None else entry.last_ns
     entry.values += rows.close_counts()
-
-
-def _add_columns(parts: dict[tuple[str, str, str], _Part], c: DirColumns, base: int, day: str | None) -> None:
-    """A direction's columns of a batch into the partition of ``day``, made if need be; a batch
-    that crosses midnight (``day`` None) frame by frame into the partition of each frame's day."""
-    if day is not None:
-        part = parts.get((day, c.src, c.dst))
-        if part is None:
-            part = parts[(day, c.src, c.dst)] = _Part(day, c.src, c.dst)
-        part.add_columns(c, base)
-        return
-    for i, tsi in enumerate(c.ts_ns):
-        d = _day(tsi)
-        part = parts.get((d, c.src, c.dst))
-        if part is None:
-            part = parts[(d, c.src, c.dst)] = _Part(d, c.src, c.dst)
-        part.add_columns(c, base, i)
 
 
 def _typed(type_code: int | None, text: str) -> tuple[int | None, float | None, str | None]:
@@ -246,95 +214,12 @@ def _typed(type_code: int | None, text: str) -> tuple[int | None, float | None, 
 _DIGITS = frozenset("0123456789.")
 
 
-def _day(ts_ns: int) -> str:
-    import datetime as _dt
-
-    return _dt.datetime.fromtimestamp(ts_ns // NS, _dt.timezone.utc).strftime("%Y-%m-%d")
-
-
 def _conversation(conv: tuple) -> tuple[str, str]:
     """(transport, conversation text) of a frame's ``conv`` tuple (see StreamFrame)."""
     proto = str(conv[0])
     if proto == "serial":
         return proto, f"serial {conv[1]} if{conv[4]}"
     return proto, f"{proto} {conv[1]}:{conv[2]} > {conv[3]}:{conv[4]}"
-
-
-class _Part:
-    """The rows of one partition (day, letters) not yet written, as per-column lists: per frame
-    its ordinal, record number, time, conversation, bytes, kind, checksum verdict, late and how
-    many value rows it has; per value row (frame after frame) name, text, type, carried, changed."""
-
-    __slots__ = ("day", "src", "dst", "seq", "number", "ts", "conv", "raw", "kind", "ok", "late", "nvalues", "name",
-                 "text", "type_code", "carried", "changed")
-
-    def __init__(self, day: str, src: str, dst: str) -> None:
-        self.day, self.src, self.dst = day, src, dst
-        self.seq: list[int] = []
-        self.number: list[int] = []
-        self.ts: list[int] = []
-        self.conv: list[tuple] = []
-        self.raw: list[bytes] = []
-        self.kind: list[str] = []
-        self.ok: list[bool | None] = []
-        self.late: list[bool] = []
-        self.nvalues: list[int] = []
-        self.name: list[str] = []
-        self.text: list[str] = []
-        self.type_code: list[int | None] = []
-        self.carried: list[bool] = []
-        self.changed: list[bool] = []
-
-    def held(self) -> int:
-        return len(self.seq) + len(self.name)
-
-    def add_decoded(self, d: Decoded, seq: int) -> int:
-        """One frame decoded the general way; its value rows (its Updates with a text)."""
-        self.seq.append(seq)
-        self.number.append(d.number)
-        self.ts.append(d.ts_ns)
-        self.conv.append(d.conv)
-        self.raw.append(d.raw)
-        self.kind.append(d.kind)
-        self.ok.append(d.checksum_ok)
-        self.late.append(d.late)
-        k = 0
-        for u in d.updates:
-            if u.text is not None:
-                self.name.append(u.name)
-                self.text.append(u.text)
-                self.type_code.append(u.type_code)
-                self.carried.append(u.carried)
-                self.changed.append(u.changed)
-                k += 1
-        self.nvalues.append(k)
-        return k
-
-    def add_columns(self, c: DirColumns, base: int, i: int | None = None) -> None:
-        """A direction's frames of a batch (``base``: the ordinal before the batch's first), or
-        its frame ``i`` alone."""
-        n = len(c.number)
-        if i is not None:
-            at = sum(c.nvalues[:i])
-            v = slice(at, at + c.nvalues[i])
-            f = slice(i, i + 1)
-            n = 1
-        else:
-            v = f = slice(None)
-        self.seq += [base + 1 + o for o in c.ordinal[f]]
-        self.number += c.number[f]
-        self.ts += c.ts_ns[f]
-        self.conv += [c.conv] * n
-        self.raw += c.raw[f]
-        self.kind += c.kind[f]
-        self.ok += [True] * n
-        self.late += c.late[f]
-        self.nvalues += c.nvalues[f]
-        self.name += c.name[v]
-        self.text += c.text[v]
-        self.type_code += c.type_code[v]
-        self.carried += c.carried[v]
-        self.changed += c.changed[v]
 
 
 #: columns Parquet dictionary-encodes (few distinct values; the others are written plain, which
@@ -406,7 +291,7 @@ class _Rows:
     def __init__(self, root: Path, capture: str, vehicle: str, stem: str, batch_rows: int) -> None:
         self.root, self.capture, self.vehicle, self.stem = root, capture, vehicle, stem
         self.batch_rows = max(1, batch_rows)
-        self.parts: dict[tuple[str, str, str], _Part] = {}
+        self.parts: dict[tuple[str, str, str], Part] = {}
         self.writers: dict[tuple[str, str, str, str], tuple[pq.ParquetWriter, Path, Path]] = {}
         self.convs: dict[tuple, tuple[str, str]] = {}
         self.typed: dict[tuple[int | None, str], tuple[int | None, float | None, str | None]] = {}
@@ -509,7 +394,7 @@ class _Rows:
         vstring = pc.replace_with_mask(pa.nulls(m, pa.string()), not_d, pa.array(list(map(_THIRD, rows)), pa.string()))
         return vlong, vdouble, vstring
 
-    def _fixed(self, part: _Part, n: int) -> dict[str, pa.Array]:
+    def _fixed(self, part: Part, n: int) -> dict[str, pa.Array]:
         """The columns that are one value throughout a partition's rows of this capture (as
         dictionary arrays: see :data:`_AS_DICTIONARY`)."""
         zeros = pa.repeat(pa.scalar(0, pa.int32()), n)
@@ -538,6 +423,13 @@ class _Rows:
         for rows in groups or (n,):
             w[0].write_batch(batch.slice(at, rows), row_group_size=rows)
             at += rows
+
+    def add_packet(self, m: SessionMessage) -> None:
+        """A P2OS or blackboard message's row, in its UTC day's partition; the rows held are
+        written once there are ``batch_rows``."""
+        self.packets.add(m, day_of(m.ts_ns))
+        if self.packets.held >= self.batch_rows:
+            self.flush_packets()
 
     def flush_packets(self) -> None:
         for part, rs in self.packets.take():
