@@ -325,6 +325,7 @@ class _Transform:
         self.chunk: list[bytes] = []
         self.decode = PacketDecoder().decode  # IP fragments reassembled
         self.serial = SerialSplitter()  # serial records: copied, their frames followed and counted
+        self.packets = taker if fmt == "pcapng" else None  # offered each Ethernet record (no block runs)
 
     def records(self, records: Iterator[tuple], progress: Callable[[int, int], None] | None) -> None:
         st = self.rw.stats
@@ -352,6 +353,8 @@ class _Transform:
                 chunk.clear()
                 if progress is not None:
                     progress(read, st.records)
+        if self.packets is not None:
+            self._drain(True)
         _follow_serial(self.rw, self.serial.flush())
         self._writer(LINKTYPE_ETHERNET)  # (a capture of no record: its header)
         self.fh.write(b"".join(chunk))
@@ -379,21 +382,58 @@ class _Transform:
         return iface
 
     def _run(self, frames: int) -> None:
-        """A run the run taker took: its records written, counted as the one at a time are."""
+        """A run the run taker took in a pcap block: its records written, counted as the one at
+        a time are."""
+        self.rw.stats.records += frames
+        self._taken()
+
+    def _taken(self, pcapng: bool = False) -> None:
+        """The frames the run taker took since the last call written (a pcapng file's packets
+        in its records) and counted as the one at a time are."""
         taker, st = self.taker, self.rw.stats
         assert taker is not None
-        st.records += frames
+        frames = taker.frames
         st.frames += frames
         st.value_frames += frames
         st.rewritten += frames
         st.full += frames
         st.bytes_in += taker.bytes_in
         st.bytes_out += taker.bytes_out
-        taker.bytes_in = taker.bytes_out = 0
-        self.chunk += taker.out
+        taker.frames = taker.bytes_in = taker.bytes_out = 0
+        if pcapng:
+            record, ifaces = self.writer.record, self.interfaces  # type: ignore[union-attr]
+            self.chunk += [record(ts, pkt, fl, ifaces[(i, LINKTYPE_ETHERNET)]) for ts, pkt, fl, i in taker.out]
+        else:
+            self.chunk += taker.out
         taker.out.clear()
 
     def _record(self, number: int, ts_ns: int, linktype: int, data: bytes, flags: int, interface: int) -> None:
+        """One record: in a pcapng file offered to the run taker first (:meth:`FullSets.packet`),
+        else :meth:`_rewrite`."""
+        packets = self.packets
+        if packets is not None:
+            if (linktype == LINKTYPE_ETHERNET and (interface, linktype) in self.interfaces
+                    and packets.packet(number, ts_ns, data, flags, interface)):
+                if packets.frames:  # (the run before it, ended by it)
+                    self._taken(True)
+                return
+            self._drain(True)
+        self._rewrite(number, ts_ns, linktype, data, flags, interface)
+
+    def _drain(self, flush: bool) -> None:
+        """A pcapng file: the run taken so far ended (``flush``) and written, or the records of
+        a run given back rewritten one at a time."""
+        packets = self.packets
+        assert packets is not None
+        if flush:
+            packets.flush()
+        if packets.frames:
+            self._taken(True)
+        redo, packets.redo = packets.redo, []
+        for number, ts_ns, data, flags, interface in redo:
+            self._rewrite(number, ts_ns, LINKTYPE_ETHERNET, data, flags, interface)
+
+    def _rewrite(self, number: int, ts_ns: int, linktype: int, data: bytes, flags: int, interface: int) -> None:
         """One record rewritten (its UDP value frames) or copied (its frames followed)."""
         iface = self._iface(number, linktype, interface)
         if linktype in USER_LINKTYPES:

@@ -62,18 +62,15 @@ def lane_at(hot: dict[tuple, Direction], lanes: dict[bytes, ColLane], buf: bytes
     or no pattern (the record goes the usual way)."""
     if len(buf) < off + 62:
         return None
-    start = off + 58
-    key = buf[off + 42 : off + 54] + buf[start + 2 : start + 4]
+    return lane_for(hot, lanes, buf[off + 42 : off + 54] + buf[off + 60 : off + 62])
+
+
+def lane_for(hot: dict[tuple, Direction], lanes: dict[bytes, ColLane], key: bytes) -> ColLane | None:
+    """:func:`lane_at` of a record whose ``key`` (its packet's addresses and ports, 12 bytes as
+    the IPv4 and UDP headers hold them, then its frame's two letters) was read."""
     lane = lanes.get(key)
     # (the direction's state, checked at every run's start)
-    if lane is None:
-        a = key[:12]
-        sport, dport = struct.unpack_from("!HH", a, 8)
-        conv = ("udp", socket.inet_ntoa(a[:4]), sport, socket.inet_ntoa(a[4:8]), dport)
-        letters = key[12:].decode("latin-1")
-        hkey = (conv, letters[1], letters[0])
-    else:
-        hkey = lane.hkey
+    hkey = direction_key(key) if lane is None else lane.hkey
     h = hot.get(hkey)
     if h is None:
         return None
@@ -84,6 +81,16 @@ def lane_at(hot: dict[tuple, Direction], lanes: dict[bytes, ColLane], buf: bytes
             lanes.clear()
         lane = lanes[key] = ColLane(h, hkey, stamp, key)
     return lane if lane.rx is not None else None
+
+
+def direction_key(key: bytes) -> tuple:
+    """The core's key of a direction, ``(conversation, source, destination)``, from a record's
+    ``key`` (:func:`lane_for`)."""
+    a = key[:12]
+    sport, dport = struct.unpack_from("!HH", a, 8)
+    conv = ("udp", socket.inet_ntoa(a[:4]), sport, socket.inet_ntoa(a[4:8]), dport)
+    letters = key[12:].decode("latin-1")
+    return conv, letters[1], letters[0]
 
 
 def walk_run(lane: ColLane, buf: bytes, sbuf: str, off: int, room: int, mult: int, unvalued: list[int]
