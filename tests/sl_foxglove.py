@@ -5,6 +5,7 @@ the channels a client sees advertised, and the messages of one subscribed channe
 from __future__ import annotations
 
 import json
+import math
 import signal
 import struct
 import subprocess
@@ -89,3 +90,30 @@ def wait_for_channel(port: int, topic: str, seconds: float = 30) -> None:
 
     with connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.websocket.v1"]) as probe:
         assert topic in advertised(probe, {topic}, seconds=seconds), f"{topic} not advertised in {seconds} s"
+
+
+#: an MCAP values message's timestamps are ns; an outage's start in stats' seconds
+NS = 10**9
+
+
+def is_gap(doc: dict) -> bool:
+    return "NaN" in doc.values()
+
+
+def check_gaps(values: list[tuple[int, dict]], outages: list[dict]) -> None:
+    """One gap message an outage, right after its start (the frame before the silence), before
+    the frame after it; its keys the numeric variables of the message before it, each NaN as a
+    plotting tool reads it; nothing else NaN."""
+    gaps = [(i, t) for i, (t, doc) in enumerate(values) if is_gap(doc)]
+    assert len(gaps) == len(outages), (gaps, outages)
+    for (i, t), o in zip(gaps, sorted(outages, key=lambda o: o["start"])):
+        assert abs(t - 1 - o["start"] * NS) < 1000  # (stats gives seconds with a float's digits)
+        t0, before = values[i - 1]
+        assert t0 == t - 1
+        doc = values[i][1]
+        assert set(doc) == {n for n, v in before.items() if type(v) in (int, float)} and doc
+        assert all(v == "NaN" and math.isnan(float(v)) for v in doc.values())
+        if o["end"] is not None:
+            assert abs(values[i + 1][0] - o["end"] * NS) < 1000  # the next sample: the frame after it
+        else:
+            assert i == len(values) - 1

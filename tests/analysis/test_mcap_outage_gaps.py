@@ -8,7 +8,6 @@ independent ``mcap`` reader in log-time order, against ``stats --json``'s outage
 from __future__ import annotations
 
 import json
-import math
 import struct
 import subprocess
 import sys
@@ -18,6 +17,7 @@ from functools import partial
 import pytest
 import sl_cli
 from sl_cli import CLI
+from sl_foxglove import check_gaps
 
 mcap_reader = pytest.importorskip("mcap.reader")
 
@@ -26,29 +26,6 @@ NS = 10**9
 
 #: every run here must succeed
 run_cli = partial(sl_cli.run_cli, check=True)
-
-
-def is_gap(doc: dict) -> bool:
-    return "NaN" in doc.values()
-
-
-def check_gaps(values: list[tuple[int, dict]], outages: list[dict]) -> None:
-    """One gap message an outage, right after its start (the frame before the silence), before
-    the frame after it; its keys the numeric variables of the message before it, each NaN as a
-    plotting tool reads it; nothing else NaN."""
-    gaps = [(i, t) for i, (t, doc) in enumerate(values) if is_gap(doc)]
-    assert len(gaps) == len(outages), (gaps, outages)
-    for (i, t), o in zip(gaps, sorted(outages, key=lambda o: o["start"])):
-        assert abs(t - 1 - o["start"] * NS) < 1000  # (stats gives seconds with a float's digits)
-        t0, before = values[i - 1]
-        assert t0 == t - 1
-        doc = values[i][1]
-        assert set(doc) == {n for n, v in before.items() if type(v) in (int, float)} and doc
-        assert all(v == "NaN" and math.isnan(float(v)) for v in doc.values())
-        if o["end"] is not None:
-            assert abs(values[i + 1][0] - o["end"] * NS) < 1000  # the next sample: the frame after it
-        else:
-            assert i == len(values) - 1
 
 
 @pytest.mark.parametrize("gen", [

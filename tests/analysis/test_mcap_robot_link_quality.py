@@ -13,6 +13,7 @@ import subprocess
 import sys
 
 import pytest
+from sl_foxglove import check_gaps, is_gap
 
 mcap_reader = pytest.importorskip("mcap.reader")
 jsonschema = pytest.importorskip("jsonschema")
@@ -94,12 +95,10 @@ def test_robot_link_quality_topics_are_the_health_rows(tmp_path, name):
 
 @pytest.mark.parametrize("transport", ["tcp", "udp"])
 def test_sip_lines_break_at_the_robots_outages(tmp_path, transport):
-    """The SharedLink values' rule on a P2OS robot's ``sip`` topic (test_mcap_outage_gaps.py's
+    """The SharedLink values' rule on a P2OS robot's ``sip`` topic (sl_foxglove.check_gaps'
     check): one gap message an outage of the robot>client link, 1 ns after its start (the SIP
     before the silence), every number of that SIP "NaN"; a blackboard session's one ``messages``
     topic gets none."""
-    from test_mcap_outage_gaps import check_gaps, is_gap
-
     cap, out = tmp_path / "p.pcapng", tmp_path / "p.mcap"
     run_cli("gen", "-o", cap, "--duration", "20", "--protocol", "p2os", "--transport", transport,
             "--outage", "8:3", "--outage", "14:1.5")
