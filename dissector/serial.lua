@@ -34,7 +34,8 @@
 --    and handed over as one frame. A direction not yet recognised whose first bytes are a
 --    right answer (ack = the set's checksum; a read response with a good checksum) is
 --    locked to blackboard at once. An answer is matched only when the record ending its
---    message comes first in the capture.
+--    message comes first in the capture. A direction that completes a good message of its own
+--    talks (a master): it is never expected to answer from then on.
 -- An unfinished frame longer than the max_held_bytes preference (65536) is given up as noise,
 -- with a "Limit exceeded" warning. A record that only lengthens an unfinished frame is appended
 -- to the held bytes without scanning them again (linear time for a frame sent byte by byte).
@@ -641,19 +642,20 @@ local function detect_protocol(st, s, n)
     end
 end
 
--- good messages make the other direction expect their answers (the master's; a direction
--- that answers never gives the other one answers to expect)
+-- good messages make the other direction expect their answers. A direction that completes a
+-- good message of its own talks: it is a master (a slave only answers, in binary), so its bytes
+-- are never taken for answers from then on, whatever the other direction sends (the Python
+-- reader frames text only: a byte of noise in a talking direction is noise to both)
 local function expect_answers(st, s, dir, pieces)
-    local other = (dir == 0 or dir == 1) and not st.slave and dir_state(st.iface, 1 - dir) or nil
-    if not other or other.master or (other.proto ~= nil and other.proto ~= "blackboard") then return end
     for _, p in ipairs(pieces) do
         local c = s_byte(s, p[1])
-        if p[3] and not p[4] and (c == B_COLON or c == B_SEMI) then
-            local e = bb_expectation(s, p[1])
-            if e then
+        local e = p[3] and not p[4] and (c == B_COLON or c == B_SEMI) and bb_expectation(s, p[1])
+        if e then
+            st.master, st.slave, st.expect = true, nil, nil
+            local other = (dir == 0 or dir == 1) and dir_state(st.iface, 1 - dir) or nil
+            if other and not other.master and (other.proto == nil or other.proto == "blackboard") then
                 e.at = other.hlen + 1
-                other.expect = e
-                st.master, other.slave = true, true
+                other.expect, other.slave = e, true
             end
         end
     end
