@@ -572,9 +572,8 @@ local function valid_text_at(tvb, off, stop)
     return sum % 256 == 0
 end
 
--- bytes outside any message, up to the next type character (or the end); returns where it is
-local function dissect_junk(tvb, tree, off, n, infos)
-    local j = find_byte(tvb, off + 1, n, "[:;]") or n
+-- bytes outside any message, from off up to j
+local function add_junk(tvb, tree, off, j, infos)
     local item = tree:add(pf.junk, tvb:range(off, j - off))
     if not string.find(tvb:raw(off, j - off), "[^\r\n]") then
         item:append_text(" (line ends)")
@@ -583,6 +582,26 @@ local function dissect_junk(tvb, tree, off, n, infos)
         infos[#infos + 1] = "bytes outside any message"
     end
     return j
+end
+
+-- bytes outside any message, up to the next type character (or the end); returns where it is
+local function dissect_junk(tvb, tree, off, n, infos)
+    return add_junk(tvb, tree, off, find_byte(tvb, off + 1, n, "[:;]") or n, infos)
+end
+
+-- where the message a type character at off begins starts: the last ':' or ';' before the CR
+-- after it (the rule of serial.lua and the Python readers, docs/fields-p2os-blackboard.md: the
+-- text before it is outside any message); off when there is no CR yet or no other one before it
+local function message_start(tvb, off, n)
+    local cr = find_cr(tvb, off + 1, n)
+    if not cr then return off end
+    local start = off
+    local k = find_byte(tvb, off + 1, cr, "[:;]")
+    while k do
+        start = k
+        k = find_byte(tvb, k + 1, cr, "[:;]")
+    end
+    return start
 end
 
 local function dissect_buffer(tvb, pinfo, tree)
@@ -611,6 +630,8 @@ local function dissect_buffer(tvb, pinfo, tree)
             clear_pending(state, here)
             infos[#infos + 1] = summary
             off = off + used
+        elseif (c == SET or c == REQUEST) and message_start(tvb, off, n) > off then
+            off = add_junk(tvb, tree, off, message_start(tvb, off, n), infos)
         elseif c == SET or c == REQUEST then
             -- a message without its CR is held for more segments up to max_held_bytes
             local more = can_more and n - off <= bb.prefs.max_held_bytes

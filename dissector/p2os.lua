@@ -260,22 +260,27 @@ local function good_at(tvb, h, n)
 end
 
 -- A header cut off before a packet (its FA read as a count of 250 would swallow the packets
--- after it): when the packet at h is not whole and good, the first FA FB inside the span its
--- count claims that starts a whole good packet, or nil; "wait" (when more bytes can come)
--- when an FA FB before any such one starts a packet not all there yet. The rule of serial.lua
--- p2os_resync_at and the Python p2os.resync_at (tests/dissector/test_p2os_cut_header.py).
+-- after it; a span ending on the next header's FA would swallow that packet): when the packet at
+-- h is not whole and good, the first FA FB starting inside the span its count claims (its FA in
+-- the span, its FB maybe just after it) that starts a whole good packet, or nil; "wait" (when
+-- more bytes can come) when an FA FB before any such one starts a packet not all there yet, or
+-- the span ends on an FA that is the last byte so far. The rule of serial.lua p2os_resync_at and
+-- the Python p2os.resync_at (docs/fields-p2os-blackboard.md, "Resynchronisation").
 local function resync_at(tvb, h, n, can_more)
     if h + 3 > n then return nil end
-    local stop = h + 3 + u8(tvb, h + 2)
+    local last = h + 2 + u8(tvb, h + 2) -- the claimed span's last byte
+    local stop = last + 2 -- (find_header: an FA before stop - 1, its FB before stop)
     if stop > n then stop = n end
     local k = find_header(tvb, h + 1, stop)
+    local edge = can_more and last == n - 1 and u8(tvb, last) == 0xFA -- its FB yet to come
     -- (no FA FB inside: nothing to resynchronise on, the checksum not needed)
-    if not k or good_at(tvb, h, n) then return nil end
+    if (not k and not edge) or good_at(tvb, h, n) then return nil end
     while k do
         if can_more and (k + 3 > n or k + 3 + u8(tvb, k + 2) > n) then return "wait" end
         if good_at(tvb, k, n) then return k end
         k = find_header(tvb, k + 1, stop)
     end
+    if edge then return "wait" end
     return nil
 end
 
@@ -792,17 +797,12 @@ local function dissect_buffer(tvb, pinfo, tree)
         elseif k then
             off = k
         elseif h + 3 > n or h + 3 + u8(tvb, h + 2) > n then
-            local need = 1
-            if h + 3 <= n then
-                need = h + 3 + u8(tvb, h + 2) - n
-            end
             if can_more then
+                -- one more segment, not the bytes the count claims: the count may be a cut-off
+                -- header's, and the next segment may bring the FA FB it resynchronises on
+                -- (resync_at; asking for the claimed bytes would wait for bytes that never come)
                 pinfo.desegment_offset = h
-                if h + 3 > n then
-                    pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT -- the count is not there yet
-                else
-                    pinfo.desegment_len = need
-                end
+                pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
                 break
             end
             local t = tree:add(p2os, tvb:range(h, n - h))

@@ -24,8 +24,9 @@
 --    after it; a "[...]" that is not a frame (no ":DS" header) is noise. A frame whose "]"
 --    is the last byte seen (or "]" CR) waits for the next bytes (its CR LF).
 --  * P2OS: FA FB, count, count bytes; a count below 2 is noise; a truncated packet waits; a
---    header cut off before a packet is noise up to the next FA FB inside its claimed span that
---    starts a whole packet with a good checksum (p2os_resync_at).
+--    header cut off before a packet is noise up to the next FA FB starting inside its claimed
+--    span (its FA may be the span's last byte) that starts a whole packet with a good checksum
+--    (p2os_resync_at).
 --  * Blackboard: ":" or ";" (the last one before the CR), hex digits, CR, and an LF if it
 --    came with the CR (a message does not wait for one); text that does not parse is noise.
 --    A slave's binary answers (not in the Python reader, to which they are noise): a good
@@ -34,7 +35,8 @@
 --    and handed over as one frame. A direction not yet recognised whose first bytes are a
 --    right answer (ack = the set's checksum; a read response with a good checksum) is
 --    locked to blackboard at once. An answer is matched only when the record ending its
---    message comes first in the capture.
+--    message comes first in the capture. A direction that completes a good message of its own
+--    talks (a master): it is never expected to answer from then on.
 -- An unfinished frame longer than the max_held_bytes preference (65536) is given up as noise,
 -- with a "Limit exceeded" warning. A record that only lengthens an unfinished frame is appended
 -- to the held bytes without scanning them again (linear time for a frame sent byte by byte).
@@ -304,21 +306,26 @@ local function p2os_good_at(s, h)
 end
 
 -- A header cut off before a packet (its FA read as a count of 250 would swallow the packets
--- after it): when the packet at h is not whole and good, the first FA FB inside the span its
--- count claims that starts a whole good packet, or nil; "wait" (not final) when an FA FB before
--- any such one starts a packet not all there yet. The rule of p2os.lua resync_at and the
--- Python p2os.resync_at (tests/dissector/test_p2os_cut_header.py).
+-- after it; a span ending on the next header's FA would swallow that packet): when the packet at
+-- h is not whole and good, the first FA FB starting inside the span its count claims (its FA in
+-- the span, its FB maybe just after it) that starts a whole good packet, or nil; "wait" (not
+-- final) when an FA FB before any such one starts a packet not all there yet, or the span ends
+-- on an FA that is the last byte so far. The rule of p2os.lua resync_at and the Python
+-- p2os.resync_at (docs/fields-p2os-blackboard.md, "Resynchronisation").
 local function p2os_resync_at(s, h, final)
     local n = #s
-    local stop = h + 2 + s_byte(s, h + 2)
+    local last = h + 2 + s_byte(s, h + 2) -- the claimed span's last byte
     local k = s_find(s, "\250\251", h + 1, true)
+    if k and k > last then k = nil end
+    local edge = not final and last == n and s_byte(s, n) == 0xFA -- its FB yet to come
     -- (no FA FB inside: nothing to resynchronise on, the checksum not needed)
-    if not k or k + 1 > stop or p2os_good_at(s, h) then return nil end
-    while k and k + 1 <= stop do
+    if (not k and not edge) or p2os_good_at(s, h) then return nil end
+    while k and k <= last do
         if not final and (k + 2 > n or k + 2 + s_byte(s, k + 2) > n) then return "wait" end
         if p2os_good_at(s, k) then return k end
         k = s_find(s, "\250\251", k + 1, true)
     end
+    if edge then return "wait" end
     return nil
 end
 
@@ -641,19 +648,20 @@ local function detect_protocol(st, s, n)
     end
 end
 
--- good messages make the other direction expect their answers (the master's; a direction
--- that answers never gives the other one answers to expect)
+-- good messages make the other direction expect their answers. A direction that completes a
+-- good message of its own talks: it is a master (a slave only answers, in binary), so its bytes
+-- are never taken for answers from then on, whatever the other direction sends (the Python
+-- reader frames text only: a byte of noise in a talking direction is noise to both)
 local function expect_answers(st, s, dir, pieces)
-    local other = (dir == 0 or dir == 1) and not st.slave and dir_state(st.iface, 1 - dir) or nil
-    if not other or other.master or (other.proto ~= nil and other.proto ~= "blackboard") then return end
     for _, p in ipairs(pieces) do
         local c = s_byte(s, p[1])
-        if p[3] and not p[4] and (c == B_COLON or c == B_SEMI) then
-            local e = bb_expectation(s, p[1])
-            if e then
+        local e = p[3] and not p[4] and (c == B_COLON or c == B_SEMI) and bb_expectation(s, p[1])
+        if e then
+            st.master, st.slave, st.expect = true, nil, nil
+            local other = (dir == 0 or dir == 1) and dir_state(st.iface, 1 - dir) or nil
+            if other and not other.master and (other.proto == nil or other.proto == "blackboard") then
                 e.at = other.hlen + 1
-                other.expect = e
-                st.master, other.slave = true, true
+                other.expect, other.slave = e, true
             end
         end
     end

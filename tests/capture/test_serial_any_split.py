@@ -6,7 +6,7 @@ as a serial capture is read)."""
 
 from __future__ import annotations
 
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from sl_captures import chunked, examples, serial_stream
 
@@ -33,8 +33,14 @@ def cases(draw: st.DrawFn) -> tuple[str, bytes, list[bytes] | None, list[int]]:
     return protocol, data, messages, draw(st.lists(st.integers(0, 10_000), max_size=40))
 
 
+#: a cut-off P2OS packet whose claimed span ends on the FA of the next good packet's header, cut
+#: right after that FA (the reader waits for the next byte; tests/vectors/p2os-resync.json)
+SPAN_ON_FA = ("p2os", bytes.fromhex("FAFB06003B000000" "FAFB03000000"), None, [9])
+
+
 @settings(max_examples=examples(300), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cases())
+@example(SPAN_ON_FA)
 def test_any_split_of_a_p2os_or_blackboard_stream_gives_the_frames_of_the_whole(case):
     protocol, data, messages, cuts = case
     whole = pieces(protocol, [data])
@@ -52,6 +58,7 @@ def test_any_split_of_a_p2os_or_blackboard_stream_gives_the_frames_of_the_whole(
 
 @settings(max_examples=examples(300), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cases())
+@example(SPAN_ON_FA)
 def test_any_split_with_the_protocol_detected_gives_the_frames_of_the_whole(case):
     """The same with the protocol left to detection ("auto", as serial captures are read): the
     frames of the whole stream read so, whatever the cuts; a clean stream's messages, its

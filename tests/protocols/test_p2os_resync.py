@@ -37,3 +37,35 @@ def test_a_bad_packet_with_a_good_one_inside_gives_way() -> None:
     k = buf.index(inner)
     assert p2os.resync_at(buf, 0) == k
     assert [c.data for c in p2os.iter_chunks(buf) if c.packet] == [inner]
+
+
+SYNC0 = bytes.fromhex("FAFB03000000")
+
+
+def test_a_span_ending_on_the_next_headers_fa_gives_way() -> None:
+    """The claimed span (9 bytes) ends on the FA of a good packet's header, its FB just after:
+    the cut-off bytes are junk and the packet is kept (docs/fields-p2os-blackboard.md,
+    "Resynchronisation"); it was one bad packet ``...00 fa`` and noise ``fb 03 00 00 00``."""
+    cut = bytes.fromhex("FAFB06003B000000")
+    buf = cut + SYNC0
+    assert p2os.resync_at(buf, 0) == len(cut)
+    assert [(c.data, c.packet is not None) for c in p2os.iter_chunks(buf)] == [(cut, False), (SYNC0, True)]
+
+
+def test_more_bytes_decide_when_the_span_ends_on_the_last_fa() -> None:
+    """Not final, the span's last byte an FA that is the last byte so far: wait; final, or the
+    byte after it no FB: the packet as claimed (its checksum bad)."""
+    buf = bytes.fromhex("FAFB06003B000000FA")
+    assert p2os.resync_at(buf, 0, final=False) == -2
+    assert p2os.resync_at(buf, 0) == -1
+    assert p2os.resync_at(buf + b"\x00", 0, final=False) == -1
+    bad_next = buf + bytes.fromhex("FB03000001")  # the header after it starts no good packet
+    assert [(c.data.hex(), c.packet is not None) for c in p2os.iter_chunks(bad_next)] == [
+        (buf.hex(), True), ("fb03000001", False)]
+
+
+def test_a_good_packet_ending_in_fa_is_kept() -> None:
+    good = p2os.build_packet(bytes.fromhex("063B00BF"))
+    assert good[-1] == 0xFA and p2os.parse_packet(good).ok
+    assert p2os.resync_at(good + SYNC0[1:], 0) == -1
+    assert p2os.resync_at(good, 0, final=False) == -1  # a good packet does not wait

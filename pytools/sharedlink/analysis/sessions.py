@@ -83,14 +83,22 @@ class _Session:
 
 def _whole_packets(data: bytes) -> list[int]:
     """The end offsets of the P2OS packets ``data`` is made of, or [] when it is not whole packets
-    only (bytes between them, a bad count, a truncated last packet)."""
+    only (bytes between them, a bad count, a truncated last packet) or when the deframer may
+    read it otherwise: a packet with an FA after its first byte and a bad checksum (an FA FB
+    inside its span, or on its last byte with the FB in the next bytes, may resynchronise:
+    :func:`~sharedlink.protocols.p2os.resync_at`)."""
     n = len(data)
     i = 0
     ends = []
     while i < n:
         if i + 5 > n or data[i] != 0xFA or data[i + 1] != 0xFB or data[i + 2] < 2:
             return []
-        i += 3 + data[i + 2]
+        end = i + 3 + data[i + 2]
+        if end <= n and data.find(b"\xfa", i + 1, end) >= 0 and p2os.checksum(data[i + 3 : end - 2]) != (
+            data[end - 2] << 8 | data[end - 1]
+        ):
+            return []
+        i = end
         ends.append(i)
     return ends if i == n else []
 

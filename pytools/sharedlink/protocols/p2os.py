@@ -213,26 +213,30 @@ def _good_at(buf: bytes, h: int) -> bool:
 
 
 def resync_at(buf: bytes, h: int, final: bool = True) -> int:
-    """Where a cut-off header at ``h`` ends: the first FA FB inside the span its count claims
-    that starts a whole packet with a good checksum, when the packet at ``h`` is not itself
-    whole and good (``FA FB`` cut off before a packet reads its header's FA as a count of 250
-    and would swallow the packets after it); -1 when there is none; -2 (only when not
-    ``final``) when an FA FB before any such one starts a packet not all there yet (more bytes
-    decide). p2os.lua and serial.lua apply the same rule."""
+    """Where a cut-off header at ``h`` ends: the first FA FB that starts inside the span its
+    count claims (its FA in the span; on the span's last byte, its FB just after it) and starts
+    a whole packet with a good checksum, when the packet at ``h`` is not itself whole and good
+    (``FA FB`` cut off before a packet reads its header's FA as a count of 250 and would swallow
+    the packets after it; a span ending on the next header's FA would swallow that packet); -1
+    when there is none; -2 (only when not ``final``) when an FA FB before any such one starts a
+    packet not all there yet, or the span ends on an FA that is the last byte so far (more bytes
+    decide). p2os.lua and serial.lua apply the same rule (docs/fields-p2os-blackboard.md,
+    "Resynchronisation")."""
     n = len(buf)
     if h + 3 > n:
         return -1
-    stop = min(h + 3 + buf[h + 2], n)
-    k = buf.find(HEADER, h + 1, stop)
-    if k < 0 or _good_at(buf, h):  # no FA FB inside: the checksum is not needed
+    last = h + 2 + buf[h + 2]  # the claimed span's last byte
+    k = buf.find(HEADER, h + 1, min(last + 2, n))
+    edge = not final and last == n - 1 and buf[last] == 0xFA  # an FA whose FB is yet to come
+    if (k < 0 and not edge) or _good_at(buf, h):  # no FA FB inside: the checksum is not needed
         return -1
     while k >= 0:
         if not final and (k + 3 > n or k + 3 + buf[k + 2] > n):
             return -2
         if _good_at(buf, k):
             return k
-        k = buf.find(HEADER, k + 1, stop)
-    return -1
+        k = buf.find(HEADER, k + 1, min(last + 2, n))
+    return -2 if edge else -1
 
 
 def iter_chunks(buf: bytes, final: bool = True) -> Iterator[Chunk]:
