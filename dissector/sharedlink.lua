@@ -140,7 +140,7 @@ local tostring, type, B_LBRACK, B_RBRACK = tostring, type, U.B_LBRACK, U.B_RBRAC
 local B_PIPE, B_COLON, B_CR, B_LF = U.B_PIPE, U.B_COLON, U.B_CR, U.B_LF
 local B_A, B_P = U.B_A, U.B_P
 local Pm, S, I, T, R = M.parse, M.state, M.info, M.tree, M.records
-local health_frame, health_mark = M.health.frame, M.health.mark
+local health_frame, health_marked, health_mark = M.health.frame, M.health.marked, M.health.mark
 local F = Pm.F   -- the frame record (parse.lua): what is known of the frame being dissected
 local PG, TI = M.wsapi.PG, M.wsapi.TI
 local parse_frame, kind_of_fields, bylen = Pm.parse_frame, Pm.kind_of_fields, Pm.bylen
@@ -166,14 +166,15 @@ end
 
 -- A frame the parser took (not a layout's): into the frame record, the kind its fields tell
 -- (F.fkind; nil: a data frame, full or delta as the state tells), whether it is a data frame
--- (F.is_data), whether both address bytes are nodes A-P (F.addrs_ok; false when cut short).
+-- (F.is_data), whether both address bytes are nodes A-P (F.addrs_ok; false when cut short), the
+-- address bytes (F.dstb, F.srcb: nil when cut short).
 -- Returns whether it is full without state (a data frame with N0 or none, no empty positional D
 -- and no named variable left out; the state-based verdict is stored when it differs), and the
 -- first pass's state writer for it: state_data (a data frame between nodes), else state_other.
 local function fields_facts(malformed_msg, dstb, srcb)
     local kind, is_data = kind_of_fields(malformed_msg)
     local nodes = (dstb and srcb and dstb >= B_A and dstb <= B_P and srcb >= B_A and srcb <= B_P) or false
-    F.fkind, F.is_data, F.addrs_ok = kind, is_data, nodes
+    F.fkind, F.is_data, F.addrs_ok, F.dstb, F.srcb = kind, is_data, nodes, dstb, srcb
     local n_ord = F.n_ord
     local full_local = F.nd > 0 and (n_ord == nil or n_ord == 0) and F.n_empty_d == 0
     return full_local, (is_data and nodes) and state_data or state_other
@@ -257,9 +258,15 @@ local function dissect_frame(f, fl, a, e, terminated, sk, payload)
     if full_local == nil then full_local, state = fields_facts(malformed_msg, dstb, srcb) end
     local visited = pg_visited(pinfo)
     if visited then state = state_later_pass end
-    local kind, rec, list, d, miss_n, ne, nm = state(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
-    -- link health (health.lua): the outage this frame ends, if any, marked on every pass
-    local gone = health_frame(pinfo, num, sk, dstb, srcb, d, visited, cs_status, rec, kind)
+    local kind, rec, list, d, miss_n, ne, nm, t = state(pinfo, num, sk, cs_status, dstb, srcb, full_local, tree)
+    -- link health (health.lua): the link moves on (first pass: t, the packet's time if the state
+    -- read it); the outage this frame ends, if any, marked on every pass
+    local gone
+    if visited then
+        gone = health_marked(num, sk)
+    else
+        gone = health_frame(pinfo, num, sk, d, t, cs_status, rec, kind)
+    end
     if gone then health_mark(tree, pk_root, gone) end
 
     -- Info: the piece of the payload's first frame from its layout (I.first_piece), which the
@@ -281,8 +288,7 @@ local function dissect_frame(f, fl, a, e, terminated, sk, payload)
     if in_info and not tree and (not pk_root or calm) then return e, piece end
     F.kind, F.rec, F.list, F.d, F.miss_n, F.ne, F.nm, F.calm = kind, rec, list, d, miss_n, ne, nm, calm
     F.f, F.fl, F.a, F.e, F.terminated, F.crlf, F.s = f, fl, a, e, terminated, crlf, pk_s
-    F.bodyend, F.dstb, F.srcb, F.malformed, F.cs_status, F.num, F.visited = bodyend, dstb, srcb, malformed_msg,
-        cs_status, num, visited
+    F.bodyend, F.malformed, F.cs_status, F.num, F.visited = bodyend, malformed_msg, cs_status, num, visited
     checksum_facts()
     return frame_output(piece, in_info, calm, vis)
 end

@@ -14,14 +14,14 @@
 --    interval: a link's first interval is never an outage); from the frame before the silence to
 --    the frame after it; a link silent past its threshold at the capture's end: open, to that end.
 -- First pass only: each frame's link moves on (H.frame); the expert of a frame that ends an outage
--- is kept per frame (marks) and shown on every pass.  Times are pinfo.rel_ts (seconds, a double:
+-- is kept per frame (marks) and shown on every pass (later ones: H.marked).  Times are pinfo.rel_ts (seconds, a double:
 -- exact to far below a nanosecond over a day); comparisons allow half a nanosecond (EPS), as the
 -- Python twin compares integer nanoseconds.
 
 local token, M = ...
 if type(token) ~= "table" or token.sharedlink_module ~= true then return end
 
-local U, PG, TI = M.util, M.wsapi.PG, M.wsapi.TI
+local U, PG, TI, F = M.util, M.wsapi.PG, M.wsapi.TI, M.parse.F
 local hf, ei, sl = M.fields.hf, M.fields.ei, M.proto
 local tostring, s_format, s_char, s_byte, t_sort, floor = tostring, string.format, string.char, string.byte, table.sort,
     math.floor
@@ -43,7 +43,7 @@ sl.prefs.outage_after = Pref.string("Outage after (s)", "",
     .. "larger of 1 s and 3 periods of the link's learnt rate")
 
 local H = {}
-local links, order, marks, fixed, low, last_num, last_t, last_end
+local links, order, marks, fixed, low
 local l_num, l_key   -- the current packet's address and port key (made once a packet)
 local r_num, r_label -- robot links (H.robot): the current packet's session label (made once a packet)
 local r_marks        -- [frame] = { [where] = the outage duration the robot packet at where ends }
@@ -64,7 +64,7 @@ end
 
 function H.reset()
     links, order, marks, r_marks = {}, {}, {}, {}
-    last_num, last_t, last_end, l_num, l_key, r_num, r_label = nil, nil, nil, nil, nil, nil, nil
+    l_num, l_key, r_num, r_label = nil, nil, nil, nil
     fixed = read_threshold()
     low = (fixed or FLOOR) + EPS   -- no interval at most this long is an outage
 end
@@ -91,7 +91,9 @@ end
 local function letter(b) return b and s_char(b) or "?" end
 
 -- The link named name with pair, made on its first frame (past max_conversations links: the one
--- link "(links past the limit)").
+-- link "(links past the limit)").  Its frames: n + skip, n the intervals it had (the last WINDOW
+-- of them in the ring win, the newest at (n - 1) % WINDOW + 1), skip its frames that added
+-- none (its first, and any not later than its latest); last its latest frame's time.
 local function link_named(name, pair)
     local key = name .. "\t" .. pair
     local L = links[key]
@@ -100,7 +102,7 @@ local function link_named(name, pair)
         L = links[key]
     end
     if not L then
-        L = { name = name, pair = pair, frames = 0, win = {}, nwin = 0, wpos = 0, outages = {}, bad = 0, late = 0,
+        L = { name = name, pair = pair, n = 0, skip = 0, win = {}, outages = {}, bad = 0, late = 0,
             had_cs = false, cs_missing = 0, fast = false }
         links[key] = L
         order[#order + 1] = key
@@ -108,15 +110,16 @@ local function link_named(name, pair)
     return L
 end
 
--- The link of a frame, by its key (and kept as its direction's d.hl when the state keeps one).
-local function link_of(pinfo, num, dstb, srcb, d)
-    local L = link_named(packet_key(pinfo, num), letter(srcb) .. ">" .. letter(dstb))
+-- The link of a frame (its address bytes F.dstb, F.srcb), by its key (and kept as its direction's
+-- d.hl when the state keeps one).
+local function link_of(pinfo, num, d)
+    local L = link_named(packet_key(pinfo, num), letter(F.srcb) .. ">" .. letter(F.dstb))
     if d then d.hl = L end
     return L
 end
 
 local function median(L)
-    local w, n = {}, L.nwin
+    local w, n = {}, math.min(L.n, WINDOW)
     for k = 1, n do w[k] = L.win[k] end
     t_sort(w)
     return w[floor(n / 2) + 1]
@@ -125,7 +128,7 @@ end
 -- The longest interval that is no outage now (nil: none is one yet).
 local function threshold(L)
     if fixed then return fixed end
-    if L.nwin == 0 then return nil end
+    if L.n == 0 then return nil end
     local p = PERIODS * median(L)
     return p < FLOOR and FLOOR or p
 end
@@ -149,63 +152,57 @@ local function frame_slow(L, t, cs_status, late, kind)
     end
     if late then L.late = L.late + 1 end
     local last = L.last
-    if not last then L.first, L.last = t, t; return nil end
+    if not last then L.first, L.last, L.skip = t, t, L.skip + 1; return nil end
     local gap = t - last
-    if gap <= 0 then return nil end
+    if gap <= 0 then L.skip = L.skip + 1; return nil end
     local out = nil
     if is_outage(L, gap) then
         L.outages[#L.outages + 1] = { start = last, stop = t, dur = gap }
         out = gap
     end
-    local pos = L.wpos % WINDOW + 1
-    L.win[pos], L.wpos = gap, pos
-    if L.nwin < WINDOW then L.nwin = L.nwin + 1 end
-    L.last = t
-    L.fast = L.had_cs and L.nwin == WINDOW   -- (H.frame's common path may take its next frame)
+    local n = L.n + 1
+    L.win[(n - 1) % WINDOW + 1], L.n, L.last = gap, n, t
+    L.fast = L.had_cs and n >= WINDOW   -- (H.frame's common path may take its next frame)
     return out
 end
 
--- Every frame, every pass: on the first, its link moves on; the outage duration it ends (seconds),
--- or nil.  d: the direction state the state module gave (nil: none).  The common frame (a good
--- checksum on a link that had one, not late, later than the link's latest by no more than the
--- lowest threshold, a full window: L.fast) costs a few table operations here (speed trick,
--- measured: frame_slow is the plain path, and does the same).  A good full frame's time is the
--- one the state module just set its direction's sync clock to (d.lastfull, state.lua's
--- sync_clock and state_data): not read again (speed trick, measured: a wslua call a packet less;
--- test_health_tap.py would see a clock that moved elsewhere).
-local function packet_time(pinfo, num, kind, cs_status, d)
-    if last_num == num then return last_t end  -- (a packet's second frame)
-    -- the time the state module read for this packet (d.tnow, or a good full frame's d.lastfull)
-    local t = d and (d.tnum == num and d.tnow or kind == "full" and cs_status ~= 0 and d.lastfull) or PG.rel_ts(pinfo)
-    last_num, last_t = num, t
-    if not last_end or t > last_end then last_end = t end
-    return t
-end
-
-function H.frame(pinfo, num, sk, dstb, srcb, d, visited, cs_status, rec, kind)
-    if visited then
-        local m = marks[num]
-        return m and m[sk]
-    end
-    local t = packet_time(pinfo, num, kind, cs_status, d)
-    local L = d and d.hl or link_of(pinfo, num, dstb, srcb, d)
-    L.frames = L.frames + 1
-    if cs_status == 1 and L.fast and not (rec and rec.late) then
-        local gap = t - L.last
-        if gap > 0 and gap <= low then
-            local pos = L.wpos
-            pos = pos == WINDOW and 1 or pos + 1
-            L.win[pos], L.wpos, L.last = gap, pos, t
-            return nil
-        end
-    end
-    local out = frame_slow(L, t, cs_status, rec and rec.late, kind)
+-- A frame H.frame's common path does not take (first pass): frame_slow with its link, the outage
+-- it ends kept for later passes (marks).
+local function frame_other(pinfo, num, sk, d, t, cs_status, rec, kind)
+    local L = d and d.hl or link_of(pinfo, num, d)
+    local out = frame_slow(L, t or PG.rel_ts(pinfo), cs_status, rec and rec.late, kind)
     if out then
         local m = marks[num]
         if not m then m = {}; marks[num] = m end
         m[sk] = out
     end
     return out
+end
+
+-- Every frame of the first pass: its link moves on; the outage duration it ends (seconds), or nil.
+-- d: the direction state the state module gave (nil: none), t: the packet's time it read (nil: it
+-- read none; a full frame's is its direction's sync clock, so no second wslua call reads it).  The
+-- common frame (a good checksum on a link that had one, not late, later than the link's latest by
+-- no more than the lowest threshold, a full window: L.fast) adds its interval here (speed trick,
+-- measured: frame_slow is the plain path, and does the same).  A frame's link and address bytes:
+-- its direction's d.hl, else F.dstb, F.srcb (link_of).
+function H.frame(pinfo, num, sk, d, t, cs_status, rec, kind)
+    local L = d and d.hl
+    if L and t and cs_status == 1 and L.fast and not (rec and rec.late) then
+        local gap = t - L.last
+        if gap > 0 and gap <= low then
+            local n = L.n + 1
+            L.win[(n - 1) % WINDOW + 1], L.n, L.last = gap, n, t
+            return nil
+        end
+    end
+    return frame_other(pinfo, num, sk, d, t, cs_status, rec, kind)
+end
+
+-- A later pass: the outage duration the frame (num, sk) ends, as the first pass found it, or nil.
+function H.marked(num, sk)
+    local m = marks[num]
+    return m and m[sk]
 end
 
 -- The expert and the generated duration on tree (the packet's, or the root Wireshark gave when
@@ -268,10 +265,7 @@ function H.robot(pinfo, where, protocol, side, cs_status)
     end
     if r_num ~= num then r_num, r_label = num, session_label(pinfo) end
     local L = link_named(protocol .. " " .. r_label, side .. ">" .. (OTHER_SIDE[side] or "?"))
-    local t = pinfo.rel_ts
-    if not last_end or t > last_end then last_end = t end
-    L.frames = L.frames + 1
-    local out = frame_slow(L, t, cs_status, nil, nil)
+    local out = frame_slow(L, pinfo.rel_ts, cs_status, nil, nil)
     if out then
         local m = r_marks[num]
         if not m then m = {}; r_marks[num] = m end
@@ -288,7 +282,12 @@ end
 function H.links()
     local out = {}
     local keys = {}
-    for k = 1, #order do keys[k] = order[k] end
+    local last_end = nil   -- the capture's latest frame: every frame's time is at most its link's latest
+    for k = 1, #order do
+        keys[k] = order[k]
+        local t = links[order[k]].last
+        if t and (not last_end or t > last_end) then last_end = t end
+    end
     t_sort(keys)
     for _, key in ipairs(keys) do
         local L = links[key]
@@ -303,8 +302,8 @@ function H.links()
         end
         local span = last_end - L.first
         local avail = span > 0 and math.max(0, 1 - total / span) or 1
-        local med = L.nwin > 0 and median(L) or nil
-        out[#out + 1] = { name = L.name, pair = L.pair, frames = L.frames, rate = med and 1 / med, outages = outs,
+        local med = L.n > 0 and median(L) or nil
+        out[#out + 1] = { name = L.name, pair = L.pair, frames = L.n + L.skip, rate = med and 1 / med, outages = outs,
             total = total, longest = longest, avail = avail, bad = L.bad, late = L.late, cs_missing = L.cs_missing }
     end
     return out

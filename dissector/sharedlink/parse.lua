@@ -41,8 +41,9 @@ local HUGE_INDEX = 4294967295   -- the largest index the uint32 sharedlink.var.i
 --   the checksum (checksum_verdict): cpos/ctext the C field's start and text, cs_val its value,
 --   cs_calc the calculated one, cs_plain two upper-case hex digits (nil: no C field).
 -- The entry (dissect_frame; a layout's frame: fill_layout): fkind the kind the fields tell (nil:
---   a data frame), is_data, addrs_ok (both addresses nodes A-P); for info and tree: f, fl, a, e,
---   s, terminated, bodyend, malformed (why it is malformed, else nil), dstb/srcb, num, visited,
+--   a data frame), is_data, addrs_ok (both addresses nodes A-P), dstb/srcb (the address bytes,
+--   before the state: health reads them); for info and tree: f, fl, a, e,
+--   s, terminated, bodyend, malformed (why it is malformed, else nil), num, visited,
 --   crlf (CR LF after its ']'), calm (a layout's frame with no possible expert: tree's
 --   frame_experts skips it); and the state's answers kind, rec, list, d, miss_n, ne, nm.
 ------------------------------------------------------------------------------
@@ -393,6 +394,7 @@ local function fill_layout(sh)
         parse_reset()
         F.fkind, F.is_data, F.addrs_ok = nil, true, true   -- (a data frame between nodes A-P)
     end
+    F.dstb, F.srcb = sh.dstb, sh.srcb
     local n, st, sn, ord = sh.n, sh.T, sh.N, sh.ord
     for k = 1, n do VT[k], VN[k], VI[k], VR[k] = st[k], sn[k], ord + k - 1, false end
     F.nv, F.nd, F.n_ord, F.n_text, F.layout, F.filled = n, n, ord, sh.ntext, sh, sh

@@ -58,7 +58,7 @@ S.reset()
 local NO_SUBSETS = {}   -- (named.subs of a layout with none: never written)
 local function new_dir()
     return { vals = {}, from = {}, names = {}, npos = {}, nfirst = {}, nkey = {}, seen = {}, filled = {}, maxslot = -1,
-        first = nil, lastfull = nil, list = nil, sgen = 0, wl = false, tnow = 0, tnum = 0 }
+        first = nil, lastfull = nil, list = nil, sgen = 0, wl = false }
 end
 
 -- A new direction at byaddr[key]; past max_conversations one that is kept nowhere (d.over: made
@@ -482,10 +482,9 @@ do
 
     -- The sync clock at the current packet (rel_ts) for direction d: a full frame (good checksum)
     -- sets it; a delta past the interval is late.  Returns the record (rec, or a table record
-    -- with its late sync: rec.late).
+    -- with its late sync: rec.late) and the packet's time.
     local function sync_clock(pinfo, d, num, sk, full, cs_status, rec)
         local now = g_rel_ts(pinfo)
-        d.tnow, d.tnum = now, num   -- (the packet's time, for health.lua: not read again)
         local first = d.first
         if not first then first = now; d.first = now end
         if full then
@@ -497,27 +496,29 @@ do
                 rec.late = age
             end
         end
-        return rec
+        return rec, now
     end
 
     -- State, first pass, a data frame: the sync clock, and the record later passes read (late
     -- sync, carried values, a kind the fields alone do not tell).  Returns state_data's answers (the
-    -- kind, the record, and list, d, and the carried counts: the upvalues dr_miss (named variables
-    -- carried), dr_ne (CARRY's entries), dr_tree_nm (MISS's entries for a tree); a tail call).
+    -- kind, the record, and list, d, the carried counts: the upvalues dr_miss (named variables
+    -- carried), dr_ne (CARRY's entries), dr_tree_nm (MISS's entries for a tree), and the packet's
+    -- time; a tail call).
     -- dr_nm: MISS's entries for the record (0: none, or a journal's, which go in no record).  A
     -- frame past a limit (lim_hit) gets a table record with it.
     local dr_ne, dr_nm, dr_miss, dr_tree_nm = 0, 0, 0, 0
     local function data_record(pinfo, d, num, sk, full, full_local, cs_status, list)
         local ne, nm = dr_ne, dr_nm
         local rec = lim_hit and get_rec(num, sk, true) or nil   -- a limit's expert: a table record
-        rec = sync_clock(pinfo, d, num, sk, full, cs_status, rec)
+        local now
+        rec, now = sync_clock(pinfo, d, num, sk, full, cs_status, rec)
         local kch = full and "f" or "d"
         if ne > 0 or nm > 0 or full ~= full_local then rec = data_carried(rec, num, sk, ne, nm, kch) end
         if rec then
             rec.kind = kch
             if lim_hit then rec.limit = lim_hit end
         end
-        return full and "full" or "delta", rec, list, d, dr_miss, ne, dr_tree_nm
+        return full and "full" or "delta", rec, list, d, dr_miss, ne, dr_tree_nm, now
     end
 
     -- State, first pass, a data frame the state writer's known paths do not take (state_data): its
@@ -535,14 +536,15 @@ do
     end
 
     -- State, first pass, a known subset's delta (state_data) that has a table record: a late sync
-    -- (age: the time since its direction's last full frame), or a carried value with a line
-    -- break.  Returns state_data's answers.
-    local function subset_record(d, num, sk, sub, list, nm, age)
+    -- (its age: the time since its direction's last full frame, at now), or a carried value with a
+    -- line break.  Returns state_data's answers.
+    local function subset_record(d, num, sk, sub, list, nm, now)
         local rec = get_rec(num, sk, true)
+        local age = now - (d.lastfull or d.first)
         if age > cfg.sync then rec.late = age end
         carried_record(rec, 0, nm > 0 and nm or carried_subset(d, sub.names))
         rec.kind = "d"
-        return "delta", rec, list, d, sub.n, 0, nm
+        return "delta", rec, list, d, sub.n, 0, nm, now
     end
 
     -- The first list declared with the content (names and types) of list (issue 44): the one a
@@ -775,7 +777,9 @@ do
 
     -- State on the first pass, a data frame between nodes A-P (cs_status: its checksum verdict, 0
     -- bad; tree: nil when there is none).  Returns the kind, the record (nil: none), the list in
-    -- use, the direction state, the named variables carried, and ne/nm (see data_values).
+    -- use, the direction state, the named variables carried, ne/nm (see data_values) and the
+    -- packet's time (pinfo.rel_ts, read once: link health takes it, health.lua's H.frame; the other
+    -- writers read none and give nil).
     -- A named layout's frame with a good checksum has its values stored by the layout's code
     -- (the loop below) when its names are known ones (speed trick, measured: no data_values call):
     --  * the direction's whole known set (d.names_is; never a journal's, whose names outnumber any
@@ -815,8 +819,9 @@ do
         if not sub then
             d.wl = named
             if full_local then
-                d.lastfull = g_rel_ts(pinfo)   -- (d.first, read only while there is none, not needed)
-                return "full", nil, list, d, 0, 0, 0
+                local now = g_rel_ts(pinfo)
+                d.lastfull = now   -- (d.first, read only while there is none, not needed)
+                return "full", nil, list, d, 0, 0, 0, now
             end
             dr_ne, dr_nm, dr_miss, dr_tree_nm = 0, 0, 0, 0
             return data_record(pinfo, d, num, sk, full_local, full_local, cs_status, list)
@@ -824,15 +829,14 @@ do
         -- another layout's values were stored since sub's line was made: it is made again
         if d.wl ~= named then d.wl = named; sub.line, sub.run = false, false end
         local now = g_rel_ts(pinfo)
-        d.tnow, d.tnum = now, num   -- (the packet's time, for health.lua: not read again)
         local last = d.lastfull or d.first   -- (a delta: the sync clock as sync_clock's)
         if not last then last = now; d.first = now end
         local nm = 0
         if tree then nm = carried_subset(d, sub.names) end   -- MISS, for a tree only
         if now - last > cfg.sync or not subset_line(num, sk, sub, d) then
-            return subset_record(d, num, sk, sub, list, nm, now - last)
+            return subset_record(d, num, sk, sub, list, nm, now)
         end
-        return "delta", nil, list, d, sub.n, 0, nm
+        return "delta", nil, list, d, sub.n, 0, nm, now
     end
 end
 
