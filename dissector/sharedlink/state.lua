@@ -339,6 +339,17 @@ do
         return nm, miss_n
     end
 
+    -- A good frame with D fields, after its values are stored: the names its slots were stored by
+    -- (d.eff), and the direction's form (d.pos): D fields alone are positional, a named value named.
+    local function positional_form(d, list)
+        if dv_maxslot >= 0 then d.eff = list end
+        if F.nq == 0 then
+            if not d.pos then d.pos, d.names_is, d.sgen = true, nil, d.sgen + 1 end
+        elseif d.pos then
+            d.pos = nil
+        end
+    end
+
     -- Every value of the frame into the state; returns nm and the number of named variables carried.
     local function store_values(d, list, num, sk, good, has_tree, hist, key)
         stamp_ctr = stamp_ctr + 1
@@ -358,15 +369,7 @@ do
             end
         end
         if F.n_pos > 0 then
-            if good then
-                if dv_maxslot >= 0 then d.eff = list end   -- the names its slots were stored by
-                -- the direction's form (d.pos): D fields alone are positional, a named value named
-                if F.nq == 0 then
-                    if not d.pos then d.pos, d.names_is, d.sgen = true, nil, d.sgen + 1 end
-                elseif d.pos then
-                    d.pos = nil
-                end
-            end
+            if good then positional_form(d, list) end
             -- positional: a required slot past the frame's last D (d.maxslot is one)
             if dv_maxslot < d.maxslot then dv_required = true end
             return 0, 0
@@ -872,6 +875,13 @@ end
 -- (looked up only where it names something: positional values, or a tree to show indexes).  A
 -- data frame's kind: the record's, else the verdict without state.  The arguments and answers are
 -- state_other's (ne: 0).
+-- A data frame's kind on a later pass: its record's, else full when full locally with nothing carried.
+local function later_kind(rec, full_local, miss_n)
+    local rk = rec and rec.kind
+    if rk then return rk == "f" and "full" or "delta" end
+    return (full_local and miss_n == 0) and "full" or "delta"
+end
+
 local function state_later_pass(pinfo, num, sk, _, dstb, srcb, full_local, tree)
     local kind, is_data, addrs_ok = F.fkind, F.is_data, F.addrs_ok
     local has_tree = tree ~= nil
@@ -883,14 +893,7 @@ local function state_later_pass(pinfo, num, sk, _, dstb, srcb, full_local, tree)
         list, d, miss_n, nm = later_dir(pinfo, num, sk, is_data and not (rec and rec.bare), dstb, srcb, has_tree,
             miss_n)
     end
-    if is_data then
-        local rk = rec and rec.kind
-        if rk then
-            kind = rk == "f" and "full" or "delta"
-        else
-            kind = (full_local and miss_n == 0) and "full" or "delta"
-        end
-    end
+    if is_data then kind = later_kind(rec, full_local, miss_n) end
     return kind, rec, list, d, miss_n, 0, nm
 end
 
