@@ -16,6 +16,9 @@ gives out every message as a :class:`SessionMessage` when the record that comple
   byte for a set, ``count`` + 1 for a request). A new master message drops a pending one that
   was never answered (the master repeats after a timeout). Bytes with nothing pending are noise
   and not reported.
+* P2OS over UDP: each datagram is read alone, as p2os.lua does (a packet cut off at a
+  datagram's end is noise, the next datagram starts afresh: docs/fields-p2os-blackboard.md,
+  "Over UDP").
 * TCP segments are taken in capture order; data the stream has already had (a retransmission)
   is skipped, as in :class:`~sharedlink.capture.stream.FrameSplitter`.
 """
@@ -127,9 +130,12 @@ class SessionReader:
             s.index = self.numbered
 
     def feed(
-        self, key: object, label: str, side: object, number: int, ts_ns: int, data: bytes, client: bool | None = None
+        self, key: object, label: str, side: object, number: int, ts_ns: int, data: bytes, client: bool | None = None,
+        datagram: bool = False,
     ) -> list[SessionMessage]:
-        """The messages ``data`` completes. ``client``: whether ``side`` is a P2OS client (None: unknown)."""
+        """The messages ``data`` completes. ``client``: whether ``side`` is a P2OS client (None: unknown).
+        ``datagram``: ``data`` is a whole UDP datagram; P2OS in it is read alone (a packet cut off
+        at its end is noise, never joined with the next datagram's bytes)."""
         s = self._session(key, label)
         if s.protocol == "blackboard" and s.master is not None and side != s.master:
             return self._answer(s, number, ts_ns, data)
@@ -149,7 +155,10 @@ class SessionReader:
                     a = e
                 return out
         out: list[SessionMessage] = []
-        for piece in d.feed(data, number):
+        pieces = d.feed(data, number)
+        if datagram and d.protocol == "p2os":
+            pieces += d.flush()  # a datagram is all there is (docs/fields-p2os-blackboard.md, "Over UDP")
+        for piece in pieces:
             if piece.frame is None or piece.protocol not in ("p2os", "blackboard"):
                 if piece.protocol in ("p2os", "blackboard"):
                     n = self.noise.setdefault(piece.protocol, [0, 0])
@@ -242,4 +251,4 @@ def iter_sessions(path: str | Path) -> Iterator[SessionMessage]:
             continue
         if dg.payload:
             client = True if dg.dport == p2os.MOBILESIM_PORT else False if dg.sport == p2os.MOBILESIM_PORT else None
-            yield from reader.feed(key, label, a, rec.number, rec.ts_ns, dg.payload, client)
+            yield from reader.feed(key, label, a, rec.number, rec.ts_ns, dg.payload, client, dg.proto == "udp")
