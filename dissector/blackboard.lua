@@ -530,8 +530,8 @@ local function dissect_binary(tvb, pinfo, tree, off, stop, rec, can_more)
     return n, summary
 end
 
--- whether a complete, valid text message starts at off (used to tell a master's repeat from a
--- binary answer when the direction is unknown)
+-- whether a complete, valid text message starts at off (used to tell a message, a side talking
+-- or a master repeating itself, from the binary answer awaited there)
 local MAX_TEXT = 1 + 2 * (5 + 255) + 1 -- the longest message: 255 data bytes
 
 local function valid_text_at(tvb, off, stop)
@@ -613,13 +613,14 @@ local function dissect_buffer(tvb, pinfo, tree)
     local can_more = pinfo.can_desegment > 0
     local state = state_for(pinfo)
     local here = keys(pinfo)
-    local direction_known = pinfo.p2p_dir == 0 or pinfo.p2p_dir == 1 or pinfo.src_port ~= 0
     local infos = {}
     local off = 0
     while off < n do
         local c = u8(tvb, off)
         local rec = state[here]
-        local binary = rec ~= nil and (direction_known or not valid_text_at(tvb, off, n))
+        -- a complete, valid message is a message, not the awaited answer: the side talks instead
+        -- of answering (docs/fields-p2os-blackboard.md, "Both directions"; the Python reader too)
+        local binary = rec ~= nil and not valid_text_at(tvb, off, n)
         if binary then
             local used, summary = dissect_binary(tvb, pinfo, tree, off, n, rec, can_more)
             if used == nil then

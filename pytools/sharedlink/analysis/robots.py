@@ -132,7 +132,7 @@ class RobotLinks:
         seg[0] += 1
         seg[1] += len(payload)
         client = True if dport == p2os.MOBILESIM_PORT else False if sport == p2os.MOBILESIM_PORT else None
-        return reader.feed(key, reader.sessions[key].label, a, number, ts_ns, payload, client)
+        return reader.feed(key, reader.sessions[key].label, a, number, ts_ns, payload, client, proto == "udp")
 
     def serial(self, number: int, ts_ns: int, data: bytes, flags: int, interface: int) -> list[SessionMessage]:
         """A serial record (messages mode): the P2OS packets and blackboard messages it completes.

@@ -11,11 +11,16 @@ gives out every message as a :class:`SessionMessage` when the record that comple
   bytes are the client's and inbound the robot's; else the side that sent a server packet (SIP,
   CONFIG, ENCODER, a SYNC2 echo with the robot's name) is the robot, and until one is seen each
   packet's direction is guessed from its payload (:func:`~sharedlink.protocols.p2os.guess_from_client`).
-* Blackboard: the side that sends ``:``/``;`` messages is the master; the other side's bytes
-  are the slave's binary answers, cut by the length the pending message implies (one checksum
-  byte for a set, ``count`` + 1 for a request). A new master message drops a pending one that
-  was never answered (the master repeats after a timeout). Bytes with nothing pending are noise
-  and not reported.
+* Blackboard, per direction as ``blackboard.lua`` has it (docs/fields-p2os-blackboard.md,
+  "Both directions"): either side may send ``:``/``;`` messages (the master of that exchange,
+  "master" in :attr:`SessionMessage.side`); a good message makes the other side's next bytes its
+  binary answer ("slave"), cut by the length the message implies (one checksum byte for a set,
+  ``count`` + 1 for a request). A new message from the same side drops a pending one that was
+  never answered (the master repeats after a timeout). Bytes with nothing pending go to the
+  side's own deframer: messages, or noise (not reported).
+* P2OS over UDP: each datagram is read alone, as p2os.lua does (a packet cut off at a
+  datagram's end is noise, the next datagram starts afresh: docs/fields-p2os-blackboard.md,
+  "Over UDP").
 * TCP segments are taken in capture order; data the stream has already had (a retransmission)
   is skipped, as in :class:`~sharedlink.capture.stream.FrameSplitter`.
 """
@@ -75,9 +80,8 @@ class _Session:
     sides: dict[object, Deframer] = field(default_factory=dict)
     protocol: str | None = None
     robot: object = None  # p2os: the side that sent a server packet
-    master: object = None  # blackboard: the side that sent messages
-    pending: blackboard.Message | None = None
-    answer: bytes = b""
+    pending: dict[object, blackboard.Message] = field(default_factory=dict)  # blackboard: sender -> awaiting an answer
+    answer: dict[object, bytes] = field(default_factory=dict)  # blackboard: answering side -> answer bytes so far
     tcp_next: dict[object, int] = field(default_factory=dict)
 
 
@@ -101,6 +105,21 @@ def _whole_packets(data: bytes) -> list[int]:
         i = end
         ends.append(i)
     return ends if i == n else []
+
+
+def _starts_message(s: _Session, side: object, data: bytes) -> bool:
+    """Whether ``data``, with no answer bytes of ``side`` held, starts with a complete good
+    blackboard message: a message, not the awaited answer (blackboard.lua's rule: the side
+    talks instead of answering)."""
+    if data[:1] not in (b":", b";") or s.answer.get(side):
+        return False
+    cr = data.find(b"\r")
+    if cr < 0:
+        return False
+    try:
+        return bool(blackboard.parse_message(data[: cr + 1]).ok)
+    except blackboard.BlackboardError:
+        return False
 
 
 class SessionReader:
@@ -127,12 +146,18 @@ class SessionReader:
             s.index = self.numbered
 
     def feed(
-        self, key: object, label: str, side: object, number: int, ts_ns: int, data: bytes, client: bool | None = None
+        self, key: object, label: str, side: object, number: int, ts_ns: int, data: bytes, client: bool | None = None,
+        datagram: bool = False,
     ) -> list[SessionMessage]:
-        """The messages ``data`` completes. ``client``: whether ``side`` is a P2OS client (None: unknown)."""
+        """The messages ``data`` completes. ``client``: whether ``side`` is a P2OS client (None: unknown).
+        ``datagram``: ``data`` is a whole UDP datagram; P2OS in it is read alone (a packet cut off
+        at its end is noise, never joined with the next datagram's bytes)."""
         s = self._session(key, label)
-        if s.protocol == "blackboard" and s.master is not None and side != s.master:
-            return self._answer(s, number, ts_ns, data)
+        out: list[SessionMessage] = []
+        if s.protocol == "blackboard" and any(k != side for k in s.pending) and not _starts_message(s, side, data):
+            out, data = self._answer(s, side, number, ts_ns, data)
+            if not data:
+                return out
         d = s.sides.get(side)
         if d is None:
             d = s.sides[side] = Deframer(s.protocol if s.protocol in ("p2os", "blackboard") else "auto")
@@ -140,7 +165,6 @@ class SessionReader:
             ends = _whole_packets(data)
             if ends:  # whole packets and nothing else, nothing held: what the deframer gives, without it
                 d.base += len(data)
-                out = []
                 a = 0
                 for e in ends:
                     payload = data[a + 3 : e - 2]
@@ -148,8 +172,10 @@ class SessionReader:
                     out.append(self._p2os(s, side, client, number, ts_ns, data[a:e], pkt))
                     a = e
                 return out
-        out: list[SessionMessage] = []
-        for piece in d.feed(data, number):
+        pieces = d.feed(data, number)
+        if datagram and d.protocol == "p2os":
+            pieces += d.flush()  # a datagram is all there is (docs/fields-p2os-blackboard.md, "Over UDP")
+        for piece in pieces:
             if piece.frame is None or piece.protocol not in ("p2os", "blackboard"):
                 if piece.protocol in ("p2os", "blackboard"):
                     n = self.noise.setdefault(piece.protocol, [0, 0])
@@ -163,10 +189,10 @@ class SessionReader:
             if piece.protocol == "p2os":
                 out.append(self._p2os(s, side, client, number, ts_ns, piece.data, piece.frame))  # type: ignore[arg-type]
             else:
-                if s.master is None:
-                    s.master = side
                 msg = piece.frame
-                s.pending, s.answer = msg, b""  # type: ignore[assignment]
+                # it waits for its answer (replacing the side's last one); what the side owes stays owed
+                s.pending[side] = msg  # type: ignore[assignment]
+                s.answer = {k: v for k, v in s.answer.items() if k == side}  # the other side answers afresh
                 out.append(SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "master", piece.data,
                                           msg.ok, msg))  # type: ignore[union-attr,arg-type]
         return out
@@ -189,24 +215,30 @@ class SessionReader:
         return SessionMessage(number, ts_ns, s.index, s.label, "p2os", "client" if from_client else "robot", raw,
                               pkt.ok, msg, error)
 
-    def _answer(self, s: _Session, number: int, ts_ns: int, data: bytes) -> list[SessionMessage]:
+    def _answer(
+        self, s: _Session, side: object, number: int, ts_ns: int, data: bytes
+    ) -> tuple[list[SessionMessage], bytes]:
+        """The answers ``side``'s bytes give to the other side's pending message, and the bytes
+        left over once nothing is pending (for ``side``'s own deframer)."""
         out: list[SessionMessage] = []
-        buf = s.answer + data
-        while s.pending is not None and buf:
-            req = s.pending
+        buf = s.answer.pop(side, b"") + data
+        sender = next((k for k in s.pending if k != side), None)
+        while sender is not None and buf:
+            req = s.pending[sender]
             need = 1 if isinstance(req, blackboard.SetMessage) else req.count + 1
             if len(buf) < need:
-                break
+                s.answer[side] = buf
+                return out, b""
             chunk, buf = buf[:need], buf[need:]
             if isinstance(req, blackboard.SetMessage):
                 ans: Payload = Ack(chunk[0], req.checksum)
             else:
                 ans = blackboard.parse_response(req, chunk)
-            s.pending = None
+            del s.pending[sender]
+            sender = None
             out.append(SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "slave", chunk,
                                       ans.ok, ans, request=req))  # type: ignore[union-attr]
-        s.answer = buf if s.pending is not None else b""
-        return out
+        return out, buf
 
     def tcp_new(self, key: object, side: object, seq: int, flags: int, length: int) -> bool:
         """Whether a TCP segment brings data the stream has not had (False: a retransmission)."""
@@ -242,4 +274,4 @@ def iter_sessions(path: str | Path) -> Iterator[SessionMessage]:
             continue
         if dg.payload:
             client = True if dg.dport == p2os.MOBILESIM_PORT else False if dg.sport == p2os.MOBILESIM_PORT else None
-            yield from reader.feed(key, label, a, rec.number, rec.ts_ns, dg.payload, client)
+            yield from reader.feed(key, label, a, rec.number, rec.ts_ns, dg.payload, client, dg.proto == "udp")
