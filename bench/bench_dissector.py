@@ -13,8 +13,10 @@ mode. On a 200,000-frame beacon capture and the same drive compressed (``sharedl
 side by side in one run:
 
 * summary pass, two-pass (``-2``), ``-V``: the same options for both;
-* filtered pass: ``-Y 'sharedlink.checksum.status == 0'`` (what the coloring rules make the GUI
-  do to every packet) against ``-Y 'syslog.msg contains "|C00]"'`` (a test on the syslog text);
+* filtered pass: ``-Y 'sharedlink.checksum.status == 0'`` (a test on a field every frame has, as
+  the bad-checksum coloring rule was until 6 December 2026; it now tests the expert
+  ``sharedlink.checksum.bad``) against ``-Y 'syslog.msg contains "|C00]"'`` (a test on the
+  syslog text);
 * compressed capture, summary pass; peak memory (max RSS) of the summary pass;
 * the stats tap's own cost: the summary pass with every plugin against every plugin but
   ``sharedlink_stats.lua`` (the tap must cost nothing until ``-z sharedlink,stats`` asks);
