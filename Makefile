@@ -60,7 +60,10 @@ define MAKE_VENV
 	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq python3-venv python3-pip >/dev/null; \
 	fi
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install -q --upgrade pip
+	@# a pip that installs editable pyproject packages (PEP 660: 21.3) is kept: upgrading it is a
+	@# round trip to the index and a reinstall for nothing (ensurepip's is 22 or newer since Python 3.11)
+	@$(BIN)/python -c 'import pip, sys; sys.exit(tuple(map(int, pip.__version__.split(".")[:2])) < (21, 3))' \
+	  || $(BIN)/pip install -q --upgrade pip
 endef
 
 # an editable install without setuptools' boxed "Editable installation" warning (lenient mode

@@ -12,19 +12,20 @@ by SIGTERM (cleaned up as on Ctrl-C, replay and watch too).
 
 from __future__ import annotations
 
-import argparse
-import importlib
-import os
-import signal
-import sys
-import threading
-from collections.abc import Sequence
-from typing import Any, NoReturn
-
-from . import __version__
 from ._interrupt import Terminated, quiet_interrupt
 
-with quiet_interrupt():  # Ctrl-C while the command loads: exit 130, no traceback
+# Ctrl-C while the command loads (the standard library's modules too): exit 130, no traceback
+with quiet_interrupt():
+    import argparse
+    import importlib
+    import os
+    import signal
+    import sys
+    import threading
+    from collections.abc import Sequence
+    from typing import Any, NoReturn
+
+    from . import __version__
     from .commands import EXIT_INTERRUPTED, EXIT_OK, EXIT_TERMINATED, EXIT_USAGE, set_quiet
     from .commands.examples import epilog
     from .errors import Error, UsageError
@@ -118,8 +119,9 @@ def _terminate(signum: int, frame: object) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; its exit code. Ctrl-C (even while the parser is being built) and
     SIGTERM end it cleanly: no traceback, no half-written file (130, 143)."""
-    previous = _install_sigterm()
+    previous = None
     try:
+        previous = _install_sigterm()
         words = sys.argv[1:] if argv is None else list(argv)
         parser = build_parser(words[0] if words else None)
         args = parser.parse_args(words)

@@ -353,10 +353,22 @@ def test_a_worker_started_with_a_small_trim_threshold_gives_the_same_dataset(fle
         assert _glibc() is not None  # (else the heap is not kept: slower, not wrong)
 
 
-def test_unreachable_scheduler_is_a_usage_error(fleet, tmp_path):
-    r = subprocess.run([*CLI, "ingest", str(fleet / "v1"), "--to", str(tmp_path / "d"), "--scheduler", "tcp://127.0.0.1:9"],
-                       capture_output=True, text=True, timeout=120)
+@pytest.mark.parametrize("timeout", [pytest.param(None, marks=pytest.mark.long), "0.5"])
+def test_unreachable_scheduler_is_a_usage_error(fleet, tmp_path, timeout):
+    """Given up after --scheduler-timeout (default 10 s: make test-long waits it out)."""
+    wait = [] if timeout is None else ["--scheduler-timeout", timeout]
+    r = subprocess.run([*CLI, "ingest", str(fleet / "v1"), "--to", str(tmp_path / "d"), "--scheduler", "tcp://127.0.0.1:9",
+                        *wait], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "Dask scheduler" in r.stderr and "Traceback" not in r.stderr
+    assert f"after {timeout or 10} s" in r.stderr, r.stderr  # (Dask's words: the timeout it was given)
+
+
+@pytest.mark.parametrize("timeout", ["0", "-1", "nan"])
+def test_scheduler_timeout_must_be_a_positive_number(fleet, tmp_path, timeout):
+    r = subprocess.run([*CLI, "ingest", str(fleet / "v1"), "-o", str(tmp_path / "d"), "--scheduler", "tcp://127.0.0.1:9",
+                        "--scheduler-timeout", timeout], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "argument --scheduler-timeout" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "d").exists()
 
 
 @pytest.mark.parametrize("shape", ["dangling-link", "file"])

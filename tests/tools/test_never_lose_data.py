@@ -181,6 +181,7 @@ sys.exit(main(sys.argv[2:]))
 
 @pytest.mark.parametrize("module", [
     "sharedlink.protocols.codec",  # while the package loads
+    "argparse",  # while the command line loads the standard library's modules
     "sharedlink.commands",  # while the command line loads
     "sharedlink.defaults",  # while the parser is built
     "sharedlink.analysis.stats",  # while the command runs

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
+    SECONDS,
     OldFlag,
     Progress,
     add_decode_options,
@@ -22,7 +23,7 @@ from sharedlink.commands import (
 from sharedlink.commands import report as print_summary
 from sharedlink.errors import UsageError
 from sharedlink.extras import require
-from sharedlink.fleet import BATCH_ROWS
+from sharedlink.fleet import BATCH_ROWS, SCHEDULER_TIMEOUT_S
 
 if TYPE_CHECKING:
     from sharedlink.fleet.ingest import Outcome
@@ -45,6 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run the tasks on this Dask distributed scheduler (e.g. tcp://host:8786) instead; "
                    "its workers must see the captures and DATASET at the same paths")
+    p.add_argument("--scheduler-timeout", type=SECONDS, default=SCHEDULER_TIMEOUT_S, metavar="SECONDS",
+                   help=f"how long to try to reach the --scheduler before giving up (exit 2; default {SCHEDULER_TIMEOUT_S:g})")
     p.add_argument("--vehicle", metavar="NAME",
                    help="the vehicle of every capture given (default: the name of the directory a capture is in)")
     p.add_argument("--reingest", action="store_true", help="decode captures again even when the dataset holds them unchanged")
@@ -88,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
     with Progress(None, quiet=args.quiet or args.json, what="ingesting") as progress:
         progress.total = _total_size(args.inputs)  # (bytes of every capture: the bar's whole)
         report = ingest(
-            args.inputs, args.dataset, workers=args.workers, scheduler=args.scheduler, vehicle=args.vehicle,
+            args.inputs, args.dataset, workers=args.workers, scheduler=args.scheduler,
+            scheduler_timeout=args.scheduler_timeout, vehicle=args.vehicle,
             variables=variables, sync_interval=sync, force=args.reingest, batch_rows=args.batch_rows, on_outcome=say,
             progress=progress,
         )

@@ -37,6 +37,7 @@ from sharedlink.analysis.robots import RobotLinks
 from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.errors import InputError, UsageError
 from sharedlink.fleet import BATCH_ROWS as BATCH_ROWS  # its home is the package (a light import for the CLI)
+from sharedlink.fleet import SCHEDULER_TIMEOUT_S as SCHEDULER_TIMEOUT_S
 from sharedlink.fleet.dataset import (
     MANIFEST,
     SCHEMAS,
@@ -516,6 +517,7 @@ def ingest(
     *,
     workers: int = 1,
     scheduler: str | None = None,
+    scheduler_timeout: float = SCHEDULER_TIMEOUT_S,
     vehicle: str | None = None,
     variables: Sequence[tuple[str, int | None]] = BEACON_VARIABLES,
     sync_interval: float = 1.0,
@@ -528,7 +530,8 @@ def ingest(
 
     ``vehicle`` names the vehicle of every capture; by default a capture's vehicle is the name
     of the directory it is in. Unchanged captures (same content and options) are skipped unless
-    ``force``. ``workers`` local processes, or the Dask scheduler at ``scheduler``.
+    ``force``. ``workers`` local processes, or the Dask scheduler at ``scheduler`` (given up after
+    ``scheduler_timeout`` seconds: a usage error).
     ``progress(bytes, records)``: the bytes and records of the captures read so far (all
     together), with one local worker now and then while a capture is decoded, with more or a
     scheduler as each capture is done.
@@ -548,7 +551,7 @@ def ingest(
         report.swept = sweep(root, manifest)
         tasks = [_task(p, root, manifest, vehicle, opts, variables, sync_interval, force, batch_rows) for p in paths]
         tasks.sort(key=lambda t: -_size(t.path))  # big ones first: better balance
-        run = _run_dask(tasks, scheduler) if scheduler else _run_local(tasks, workers, progress)
+        run = _run_dask(tasks, scheduler, scheduler_timeout) if scheduler else _run_local(tasks, workers, progress)
         done = records = 0
         batch = _ManifestBatch(root, manifest)
         try:
@@ -664,18 +667,13 @@ def _run_local(tasks: list[Task], workers: int, progress: Callable[[int, int], N
             raise
 
 
-#: seconds to reach a Dask scheduler (Dask retries a refused connection until then); a reachable
-#: one answers in milliseconds, so an unreachable one is a usage error soon
-SCHEDULER_TIMEOUT_S = 10
-
-
-def _run_dask(tasks: list[Task], address: str) -> Iterator[Outcome]:
+def _run_dask(tasks: list[Task], address: str, timeout: float = SCHEDULER_TIMEOUT_S) -> Iterator[Outcome]:
     try:
         from distributed import Client, as_completed
     except ImportError:  # pragma: no cover - dask is a dependency
         raise UsageError("--scheduler needs dask[distributed] installed") from None
     try:
-        client = Client(address, timeout=SCHEDULER_TIMEOUT_S)
+        client = Client(address, timeout=timeout)
     except (OSError, TimeoutError, ValueError) as exc:
         raise UsageError(f"--scheduler {address}: cannot reach the Dask scheduler ({exc})") from None
     with client:
