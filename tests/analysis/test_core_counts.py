@@ -186,3 +186,18 @@ def test_counts_equal_the_reference_on_fault_captures(tmp_path, variant):
     runs, counted = compare(path)
     if variant.get("form") != "positional":
         assert runs > 50 and counted > 100
+
+
+def test_a_value_with_no_type_keeps_its_variables_type_in_the_full_set_size(tmp_path):
+    """Found by the property above: full sets, a bare N0, a full set, then a frame giving
+    AutoGpsLat with no T (and a field X): the full set it stands for still holds AutoGpsLat's
+    ``|T2`` (the table keeps the variable's type), on the reference path as in the counts mode
+    (the reference's running size dropped the three bytes)."""
+    full = b"[:AB|N0|T2|QAutoGpsLat|D1.5|T2|QAutoGpsLon|D1.5|T4|QMode|Don|T0|QCount|D0|C45]\r\n"
+    untyped = b"[:AB|N0|QAutoGpsLat|D1.5|X1|C80]\r\n"
+    frames = [full, full, b"[:AB|N0|C76]\r\n", full, untyped]
+    dgs = [(1_767_268_800_200_000_000 + i * 200_000_000, f) for i, f in enumerate(frames)]
+    path = write_capture(tmp_path / "untyped.pcap", dgs)
+    compare(path)
+    want = sum(len(full) for _ in frames)  # every frame stands for the same full set
+    assert capture_stats(path, BEACON_VARIABLES).to_dict()["compression"]["full_bytes"] == want

@@ -444,9 +444,13 @@ class _FullSize:
                     self.size += counts[u.name] * (n - parts.get(u.name, 0))
                     parts[u.name] = n
             return
+        vars_ = self.table.vars
         for u in updates:
             if not u.carried and u.text is not None:
-                n = _named_size(u.name, u.type_code, u.text)
+                # the variable's type as the table keeps it (a value sent with no T keeps its
+                # variable's type: full_size's rule, and the counts mode's)
+                v = vars_.get(u.name)
+                n = _named_size(u.name, v.type_code if v is not None else u.type_code, u.text)
                 self.size += n - parts.get(u.name, 0)
                 parts[u.name] = n
 
