@@ -18,9 +18,9 @@ gives out every message as a :class:`SessionMessage` when the record that comple
   ``count`` + 1 for a request). A new message from the same side drops a pending one that was
   never answered (the master repeats after a timeout). Bytes with nothing pending go to the
   side's own deframer: messages, or noise (not reported).
-* P2OS over UDP: each datagram is read alone, as p2os.lua does (a packet cut off at a
-  datagram's end is noise, the next datagram starts afresh: docs/fields-p2os-blackboard.md,
-  "Over UDP").
+* Over UDP each datagram is read alone, P2OS as p2os.lua does and blackboard as blackboard.lua
+  does (a packet, message or answer cut off at a datagram's end is noise, the next datagram
+  starts afresh: docs/fields-p2os-blackboard.md, "Over UDP").
 * TCP segments are taken in capture order; data the stream has already had (a retransmission)
   is skipped, as in :class:`~sharedlink.capture.stream.FrameSplitter`.
 """
@@ -150,12 +150,12 @@ class SessionReader:
         datagram: bool = False,
     ) -> list[SessionMessage]:
         """The messages ``data`` completes. ``client``: whether ``side`` is a P2OS client (None: unknown).
-        ``datagram``: ``data`` is a whole UDP datagram; P2OS in it is read alone (a packet cut off
-        at its end is noise, never joined with the next datagram's bytes)."""
+        ``datagram``: ``data`` is a whole UDP datagram, read alone (a P2OS packet, a blackboard
+        message or answer cut off at its end is noise, never joined with the next datagram's bytes)."""
         s = self._session(key, label)
         out: list[SessionMessage] = []
         if s.protocol == "blackboard" and any(k != side for k in s.pending) and not _starts_message(s, side, data):
-            out, data = self._answer(s, side, number, ts_ns, data)
+            out, data = self._answer(s, side, number, ts_ns, data, datagram)
             if not data:
                 return out
         d = s.sides.get(side)
@@ -173,7 +173,7 @@ class SessionReader:
                     a = e
                 return out
         pieces = d.feed(data, number)
-        if datagram and d.protocol == "p2os":
+        if datagram and d.protocol in ("p2os", "blackboard"):
             pieces += d.flush()  # a datagram is all there is (docs/fields-p2os-blackboard.md, "Over UDP")
         for piece in pieces:
             if piece.frame is None or piece.protocol not in ("p2os", "blackboard"):
@@ -216,10 +216,12 @@ class SessionReader:
                               pkt.ok, msg, error)
 
     def _answer(
-        self, s: _Session, side: object, number: int, ts_ns: int, data: bytes
+        self, s: _Session, side: object, number: int, ts_ns: int, data: bytes, datagram: bool = False
     ) -> tuple[list[SessionMessage], bytes]:
         """The answers ``side``'s bytes give to the other side's pending message, and the bytes
-        left over once nothing is pending (for ``side``'s own deframer)."""
+        left over once nothing is pending (for ``side``'s own deframer). ``datagram``: an answer
+        cut off at the datagram's end is the answer, truncated (blackboard.lua's
+        ``blackboard.response.truncated``): noise here, the message answered, nothing held."""
         out: list[SessionMessage] = []
         buf = s.answer.pop(side, b"") + data
         sender = next((k for k in s.pending if k != side), None)
@@ -227,7 +229,13 @@ class SessionReader:
             req = s.pending[sender]
             need = 1 if isinstance(req, blackboard.SetMessage) else req.count + 1
             if len(buf) < need:
-                s.answer[side] = buf
+                if datagram:
+                    del s.pending[sender]
+                    n = self.noise.setdefault("blackboard", [0, 0])
+                    n[0] += 1
+                    n[1] += len(buf)
+                else:
+                    s.answer[side] = buf
                 return out, b""
             chunk, buf = buf[:need], buf[need:]
             if isinstance(req, blackboard.SetMessage):
