@@ -17,9 +17,10 @@ import pytest
 from sl_robots import OTHERS
 
 import tshark_util as tu
+from sharedlink.analysis.robots import RobotLinks
 from sharedlink.analysis.sessions import SessionReader, iter_sessions
-from sharedlink.capture.packets import session_frames
-from sharedlink.capture.pcapio import PcapWriter
+from sharedlink.capture.packets import decode_packet, session_frames
+from sharedlink.capture.pcapio import PcapWriter, read_records
 
 REPO = Path(__file__).resolve().parents[2]
 VECTORS = json.loads((REPO / "tests" / "vectors" / "blackboard-udp-datagrams.json").read_text())["vectors"]
@@ -101,6 +102,14 @@ def test_blackboard_lua_and_python_datagram_by_datagram(tmp_path: Path) -> None:
     py: dict[int, list] = defaultdict(list)
     for m in iter_sessions(cap):
         py[m.number].append((m.side, m.raw))
+    core: dict[int, list] = defaultdict(list)  # the decoding core's robot links, datagram by datagram
+    links = RobotLinks(messages=True)
+    for rec in read_records(cap):
+        dg = decode_packet(rec.linktype, rec.data)
+        for m in links.datagram(rec.number, rec.ts_ns, dg) or []:  # type: ignore[arg-type]
+            core[m.number].append((m.side, m.raw))
+    assert core == py
+    assert len(core) > 10
     n = 0
     for k, v in enumerate(VECTORS):
         assert first[BASE_PORT + k] == n + 1, v["name"]
