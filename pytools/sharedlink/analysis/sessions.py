@@ -242,9 +242,11 @@ class SessionReader:
                 out.append(self._p2os(s, side, client, number, ts_ns, piece.data, piece.frame))  # type: ignore[arg-type]
             else:
                 msg = piece.frame
-                # it waits for its answer (replacing the side's last one); what the side owes stays owed
-                s.pending[side] = msg  # type: ignore[assignment]
-                s.answer = {k: v for k, v in s.answer.items() if k == side}  # the other side answers afresh
+                # a good one waits for its answer (replacing the side's last one); what the side owes
+                # stays owed; one with a bad checksum waits for none (blackboard.lua: "the last good message")
+                if msg.ok:  # type: ignore[union-attr]
+                    s.pending[side] = msg  # type: ignore[assignment]
+                    s.answer = {k: v for k, v in s.answer.items() if k == side}  # the other side answers afresh
                 out.append(SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "master", piece.data,
                                           msg.ok, msg))  # type: ignore[union-attr,arg-type]
         return out
