@@ -441,6 +441,9 @@ local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_l
             t:add_proto_expert_info(ex.short)   -- (its bytes: blackboard.hex)
         end
         add_terminator(tvb, t, m, over_limit)
+        -- a malformed message is a message: it keeps its side's link alive, no checksum verdict
+        -- (docs/fields-p2os-blackboard.md, "Malformed messages")
+        link_health(tvb, pinfo, t, off, "master", nil)
         t:append_text(", " .. m.name .. " (malformed)")
         return m.used, m.name .. " (malformed)"
     end
@@ -450,7 +453,7 @@ local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_l
     local _, back = keys(pinfo)
     m.hextext = m.ndig > 0 and tvb:range(off, 1 + m.ndig):string() or ""
     summary = note_previous(tvb, t, m, state[back], summary)
-    if good then
+    if good and cr then   -- a message with no CR is malformed: it waits for no answer
         remember(tvb, pinfo, t, m, back)
     end
     add_terminator(tvb, t, m, over_limit)

@@ -90,6 +90,8 @@ def _blackboard_fields(row: dict[str, Any], m: SessionMessage, _synced: set[int]
         row.update(type="ack", data=m.raw.hex())
     elif isinstance(msg, blackboard.ReadResponse):
         row.update(type="response", count=len(msg.data), data=msg.data.hex())
+    elif msg is None:
+        row.update(type="malformed", error=m.error)
     req = m.request
     if req is not None:
         row["address"], row["node"] = req.address, req.node

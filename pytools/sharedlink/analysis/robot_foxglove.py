@@ -68,4 +68,6 @@ def blackboard_json(m: SessionMessage) -> dict[str, Any]:
         return {"type": "ack", "address": addr, "crc": msg.crc}
     if isinstance(msg, blackboard.ReadResponse):
         return {"type": "response", "address": addr, "data": msg.data.hex()}
+    if msg is None:  # a malformed message (docs/fields-p2os-blackboard.md, "Malformed messages")
+        return {"type": "malformed", "error": m.error, "data": m.raw.hex()}
     return {"type": "undecoded", "data": m.raw.hex()}

@@ -59,6 +59,11 @@ def feed_session(health: Health, m: SessionMessage) -> LinkHealth | None:
         if health.timeline:
             h.seconds = Counter()
     h = health.link(*key)
+    if m.ok is None and m.message is None:  # a malformed message: alive, nothing of the habit
+        had, h.had_checksum = h.had_checksum, False
+        health.frame(h, m.ts_ns, None)
+        h.had_checksum = had
+        return h
     health.frame(h, m.ts_ns, m.ok)
     return h
 

@@ -229,11 +229,13 @@ class BlackboardStats:
     def add(self, m: SessionMessage) -> None:
         self.packets += 1
         self.bytes += len(m.raw)
-        kind = _BB_KINDS.get(type(m.message), "other")
+        kind = _BB_KINDS.get(type(m.message), "malformed")
         key = (m.side, kind)
         self.kinds[key] = self.kinds.get(key, 0) + 1
         if m.ok is False:
             self.checksum_failures += 1
+        if m.message is None:
+            return  # a malformed message waits for no answer (docs/fields-p2os-blackboard.md)
         pend = self._pending.get(m.session)
         if m.side == "master":
             if pend is not None:

@@ -17,10 +17,12 @@ gives out every message as a :class:`SessionMessage` when the record that comple
   binary answer ("slave"), cut by the length the message implies (one checksum byte for a set,
   ``count`` + 1 for a request). A new message from the same side drops a pending one that was
   never answered (the master repeats after a timeout). Bytes with nothing pending go to the
-  side's own deframer: messages, or noise (not reported).
-* P2OS over UDP: each datagram is read alone, as p2os.lua does (a packet cut off at a
-  datagram's end is noise, the next datagram starts afresh: docs/fields-p2os-blackboard.md,
-  "Over UDP").
+  side's own deframer: messages, or noise (not reported); text from a type character that does
+  not read as a good message is a malformed message (``message`` None, ``error`` why: "Malformed
+  messages" in docs/fields-p2os-blackboard.md).
+* Over UDP each datagram is read alone, P2OS as p2os.lua does and blackboard as blackboard.lua
+  does (a packet, message or answer cut off at a datagram's end is noise, the next datagram
+  starts afresh: docs/fields-p2os-blackboard.md, "Over UDP").
 * TCP segments are taken in capture order; data the stream has already had (a retransmission)
   is skipped, as in :class:`~sharedlink.capture.stream.FrameSplitter`.
 """
@@ -122,6 +124,52 @@ def _starts_message(s: _Session, side: object, data: bytes) -> bool:
         return False
 
 
+def malformed_split(data: bytes, at_end: bool) -> list[tuple[bytes, bool]]:
+    """Blackboard bytes outside any good message, as ``blackboard.lua`` reads them with no answer
+    awaited: (bytes, whether a message): a message from a type character (the last one before
+    its CR) through its CR and an LF right after it, or, ``at_end`` (no message follows the
+    bytes), to the end when no CR follows; the rest junk (text with no CR before a good message
+    is cut short by it)."""
+    out: list[tuple[bytes, bool]] = []
+    n, pos = len(data), 0
+    while pos < n:
+        if data[pos] in b":;":
+            cr = data.find(b"\r", pos + 1)
+            if cr >= 0:
+                start = max(data.rfind(b":", pos + 1, cr), data.rfind(b";", pos + 1, cr))
+                if start > pos:
+                    out.append((data[pos:start], False))
+                    pos = start
+                    continue
+                end = cr + 2 if data[cr + 1 : cr + 2] == b"\n" else cr + 1
+            elif at_end:
+                end = n
+            else:
+                out.append((data[pos:], False))
+                break
+            out.append((data[pos:end], True))
+            pos = end
+            continue
+        nxt = [i for i in (data.find(b":", pos + 1), data.find(b";", pos + 1)) if i >= 0]
+        end = min(nxt) if nxt else n
+        out.append((data[pos:end], False))
+        pos = end
+    return out
+
+
+def _text_checksum(raw: bytes) -> bool | None:
+    """A malformed message's checksum verdict as ``blackboard.lua`` gives it: when its text up to
+    the CR is at least 5 bytes of hex (a wrong count, no CR), whether they sum to 0 (mod 256);
+    else None (no verdict)."""
+    text = raw[1:].split(b"\r", 1)[0]
+    if len(text) < 10 or len(text) % 2:
+        return None
+    try:
+        return sum(bytes.fromhex(text.decode("latin-1"))) % 256 == 0
+    except ValueError:
+        return None
+
+
 class SessionReader:
     """Byte streams in, :class:`SessionMessage` s out (see the module doc)."""
 
@@ -150,12 +198,12 @@ class SessionReader:
         datagram: bool = False,
     ) -> list[SessionMessage]:
         """The messages ``data`` completes. ``client``: whether ``side`` is a P2OS client (None: unknown).
-        ``datagram``: ``data`` is a whole UDP datagram; P2OS in it is read alone (a packet cut off
-        at its end is noise, never joined with the next datagram's bytes)."""
+        ``datagram``: ``data`` is a whole UDP datagram, read alone (a P2OS packet, a blackboard
+        message or answer cut off at its end is noise, never joined with the next datagram's bytes)."""
         s = self._session(key, label)
         out: list[SessionMessage] = []
         if s.protocol == "blackboard" and any(k != side for k in s.pending) and not _starts_message(s, side, data):
-            out, data = self._answer(s, side, number, ts_ns, data)
+            out, data = self._answer(s, side, number, ts_ns, data, datagram)
             if not data:
                 return out
         d = s.sides.get(side)
@@ -173,9 +221,13 @@ class SessionReader:
                     a = e
                 return out
         pieces = d.feed(data, number)
-        if datagram and d.protocol == "p2os":
+        if datagram and d.protocol in ("p2os", "blackboard"):
             pieces += d.flush()  # a datagram is all there is (docs/fields-p2os-blackboard.md, "Over UDP")
-        for piece in pieces:
+        last = len(pieces) - 1
+        for i, piece in enumerate(pieces):
+            if piece.frame is None and piece.protocol == "blackboard" and s.protocol == "blackboard":
+                out += self._bb_noise(s, number, ts_ns, piece.data, i == last and not d.buf)
+                continue
             if piece.frame is None or piece.protocol not in ("p2os", "blackboard"):
                 if piece.protocol in ("p2os", "blackboard"):
                     n = self.noise.setdefault(piece.protocol, [0, 0])
@@ -190,11 +242,36 @@ class SessionReader:
                 out.append(self._p2os(s, side, client, number, ts_ns, piece.data, piece.frame))  # type: ignore[arg-type]
             else:
                 msg = piece.frame
-                # it waits for its answer (replacing the side's last one); what the side owes stays owed
-                s.pending[side] = msg  # type: ignore[assignment]
-                s.answer = {k: v for k, v in s.answer.items() if k == side}  # the other side answers afresh
+                # a good one waits for its answer (replacing the side's last one); what the side owes
+                # stays owed; one with a bad checksum waits for none (blackboard.lua: "the last good message")
+                if msg.ok:  # type: ignore[union-attr]
+                    s.pending[side] = msg  # type: ignore[assignment]
+                    s.answer = {k: v for k, v in s.answer.items() if k == side}  # the other side answers afresh
                 out.append(SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "master", piece.data,
                                           msg.ok, msg))  # type: ignore[union-attr,arg-type]
+        return out
+
+    def _bb_noise(self, s: _Session, number: int, ts_ns: int, data: bytes, at_end: bool) -> list[SessionMessage]:
+        """Blackboard bytes no good message holds: their malformed messages (masters' messages
+        of no kind: ``message`` None, ``error`` why; they wait for no answer), the rest noise
+        (docs/fields-p2os-blackboard.md, "Malformed messages"). ``at_end``: nothing follows."""
+        out = []
+        junk = 0
+        for raw, is_msg in malformed_split(data, at_end):
+            if not is_msg:
+                junk += len(raw)
+                continue
+            try:
+                blackboard.parse_message(raw)
+                error = "malformed"
+            except blackboard.BlackboardError as exc:
+                error = exc.reason
+            out.append(SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "master", raw,
+                                      _text_checksum(raw), None, error))
+        if junk:
+            n = self.noise.setdefault("blackboard", [0, 0])
+            n[0] += 1
+            n[1] += junk
         return out
 
     def _p2os(
@@ -216,10 +293,12 @@ class SessionReader:
                               pkt.ok, msg, error)
 
     def _answer(
-        self, s: _Session, side: object, number: int, ts_ns: int, data: bytes
+        self, s: _Session, side: object, number: int, ts_ns: int, data: bytes, datagram: bool = False
     ) -> tuple[list[SessionMessage], bytes]:
         """The answers ``side``'s bytes give to the other side's pending message, and the bytes
-        left over once nothing is pending (for ``side``'s own deframer)."""
+        left over once nothing is pending (for ``side``'s own deframer). ``datagram``: an answer
+        cut off at the datagram's end is the answer, truncated (blackboard.lua's
+        ``blackboard.response.truncated``): noise here, the message answered, nothing held."""
         out: list[SessionMessage] = []
         buf = s.answer.pop(side, b"") + data
         sender = next((k for k in s.pending if k != side), None)
@@ -227,7 +306,13 @@ class SessionReader:
             req = s.pending[sender]
             need = 1 if isinstance(req, blackboard.SetMessage) else req.count + 1
             if len(buf) < need:
-                s.answer[side] = buf
+                if datagram:
+                    del s.pending[sender]
+                    n = self.noise.setdefault("blackboard", [0, 0])
+                    n[0] += 1
+                    n[1] += len(buf)
+                else:
+                    s.answer[side] = buf
                 return out, b""
             chunk, buf = buf[:need], buf[need:]
             if isinstance(req, blackboard.SetMessage):
