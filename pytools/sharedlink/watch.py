@@ -389,17 +389,22 @@ class CaptureSource:
     def batches(self, timeout: float) -> Iterator[Batch]:
         out: Batch = []
         due = time.monotonic() + timeout
-        from sharedlink.watch_capture import CaptureItems
+        from sharedlink.watch_capture import END, NOTHING, CaptureItems, Taker
 
-        items: Iterator[Any] = iter(CaptureItems(self.path, self.sessions))  # read once: a pipe will do
+        items = Taker(CaptureItems(self.path, self.sessions), threaded=str(self.path) == "/dev/stdin")  # read once
         while True:
             try:
-                item = next(items)
-            except StopIteration:
-                break
+                item = items.take(due)
             except CaptureError as exc:  # the frames gathered so far go out first
                 self.error = exc
                 break
+            if item is END:
+                break
+            if item is NOTHING:  # (standard input: nothing came in time)
+                yield out
+                out = []
+                due = time.monotonic() + timeout
+                continue
             if not isinstance(item, (StreamFrame, SessionMessage)):
                 continue
             if self._t0 is None:

@@ -16,6 +16,9 @@ robot traffic, and no longer once that many records showed none.
 from __future__ import annotations
 
 import heapq
+import queue
+import threading
+import time
 from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
@@ -114,3 +117,42 @@ class CaptureItems:
 
 def _ts_ns(item: Any) -> int:
     return item.ts_ns
+
+
+#: what :meth:`Taker.take` returns when nothing came in time, and at the capture's end
+NOTHING, END = object(), object()
+
+
+class Taker:
+    """The items of a :class:`CaptureItems` one at a time. A file is read when an item is
+    wanted; standard input by a thread of its own into a bounded queue, so a live pipe that goes
+    quiet (a link down) leaves the watch free to show what it has and to tick its clock."""
+
+    def __init__(self, items: CaptureItems, threaded: bool, backlog: int = 4096) -> None:
+        self._it = iter(items)
+        self._queue: queue.Queue[Any] | None = None
+        if threaded:
+            self._queue = queue.Queue(backlog)
+            threading.Thread(target=self._read, name="watch-capture", daemon=True).start()
+
+    def _read(self) -> None:
+        put = self._queue.put  # type: ignore[union-attr]
+        try:
+            for item in self._it:
+                put(item)
+            put(END)
+        except Exception as exc:  # CaptureError (damage), handed to the watch
+            put(exc)
+
+    def take(self, until: float) -> Any:
+        """The next item, :data:`END`, or (standard input) :data:`NOTHING` if none came by
+        ``until`` (a monotonic time); raises what the reading raised."""
+        if self._queue is None:
+            return next(self._it, END)
+        try:
+            got = self._queue.get(timeout=max(0.0, until - time.monotonic()))
+        except queue.Empty:
+            return NOTHING
+        if isinstance(got, Exception):
+            raise got
+        return got
