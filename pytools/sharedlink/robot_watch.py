@@ -119,23 +119,29 @@ def has_robot_traffic(path: str | Path, records: int = PROBE_RECORDS) -> bool:
     """Whether a capture's first ``records`` records hold a P2OS or blackboard conversation (as
     the core's robot links claim one) or serial records (which may): then ``watch`` reads its
     sessions too. A capture that cannot be read: False (the frames' reader reports it)."""
-    from sharedlink.analysis.robots import claim
-    from sharedlink.capture.packets import decode_packet
     from sharedlink.capture.pcapio import CaptureError, read_records
-    from sharedlink.capture.serial_format import USER_LINKTYPES
 
     try:
         for i, rec in enumerate(read_records(path)):
             if i >= records:
                 break
-            if rec.linktype in USER_LINKTYPES:
-                return True
-            dg = decode_packet(rec.linktype, rec.data)
-            if dg is not None and claim(dg.proto, dg.sport, dg.dport, dg.payload) is not None:
+            if is_robot_record(rec):
                 return True
     except (CaptureError, OSError):
         return False
     return False
+
+
+def is_robot_record(rec: Any) -> bool:
+    """Whether one capture record is what :func:`has_robot_traffic` looks for."""
+    from sharedlink.analysis.robots import claim
+    from sharedlink.capture.packets import decode_packet
+    from sharedlink.capture.serial_format import USER_LINKTYPES
+
+    if rec.linktype in USER_LINKTYPES:
+        return True
+    dg = decode_packet(rec.linktype, rec.data)
+    return dg is not None and claim(dg.proto, dg.sport, dg.dport, dg.payload) is not None
 
 
 def with_robots(batches: Iterator[Any], robots: Any) -> Iterator[Any]:

@@ -18,13 +18,13 @@ WebSocket server.
   time.
 * Serial: :class:`~sharedlink.capture.serial_format.Deframer` over the bytes read (SharedLink),
   stamped with the arrival time of the chunk that completed the frame.
-* Capture: :func:`~sharedlink.capture.stream.iter_frames` played at the recorded pace (times
+* Capture: :func:`~sharedlink.capture.stream.iter_frames`' frames (and the P2OS and blackboard
+  messages) read once (:mod:`sharedlink.watch_capture`: a pipe will do), played at the recorded pace (times
   ``speed``); frames keep their capture times and the view's clock follows the capture's.
 """
 
 from __future__ import annotations
 
-import heapq
 import os
 import select
 import socket
@@ -38,7 +38,7 @@ from typing import IO, Any, NamedTuple
 from sharedlink.analysis.decode import NS, VALUE_KINDS, Decoded, Decoder
 from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import CaptureError
-from sharedlink.capture.stream import StreamFrame, iter_frames
+from sharedlink.capture.stream import StreamFrame
 from sharedlink.defaults import WATCH_DEFAULT_PORT
 from sharedlink.protocols.codec import Frame
 from sharedlink.protocols.limits import MAX_CONVERSATIONS, MAX_NAMES, LimitCounts
@@ -367,11 +367,13 @@ class CaptureSource:
     A damaged capture: every frame before the damage is handed out (the same ones every run,
     whatever the pace), then the source ends with ``error`` set to the
     :class:`~sharedlink.capture.pcapio.CaptureError` for the caller to report.
-    With ``sessions`` (``--foxglove``), its P2OS and blackboard messages
+    With ``sessions`` (``--foxglove``; None: if it has robot links, see
+    :class:`~sharedlink.watch_capture.CaptureItems`), its P2OS and blackboard messages
     (:class:`~sharedlink.analysis.sessions.SessionMessage`, what ``export --format mcap`` adds)
-    come in the same batches, in time order with the frames."""
+    come in the same batches, in time order with the frames. The capture is read once, front to
+    back (standard input will do)."""
 
-    def __init__(self, path: str | Path, speed: float = 1.0, sessions: bool = False) -> None:
+    def __init__(self, path: str | Path, speed: float = 1.0, sessions: bool | None = False) -> None:
         self.path, self.speed, self.sessions = path, speed, sessions
         self.description = f"{path} at {speed:g}x"
         self._t0: int | None = None  # capture time of the first frame
@@ -387,20 +389,22 @@ class CaptureSource:
     def batches(self, timeout: float) -> Iterator[Batch]:
         out: Batch = []
         due = time.monotonic() + timeout
-        items: Iterator[Any] = iter_frames(self.path)
-        if self.sessions:  # the second reading, merged by time (each is in record order)
-            from sharedlink.analysis.sessions import iter_sessions
+        from sharedlink.watch_capture import END, NOTHING, CaptureItems, Taker
 
-            frames = (i for i in items if isinstance(i, StreamFrame))
-            items = heapq.merge(frames, iter_sessions(self.path), key=_ts_ns)
+        items = Taker(CaptureItems(self.path, self.sessions), threaded=str(self.path) == "/dev/stdin")  # read once
         while True:
             try:
-                item = next(items)
-            except StopIteration:
-                break
+                item = items.take(due)
             except CaptureError as exc:  # the frames gathered so far go out first
                 self.error = exc
                 break
+            if item is END:
+                break
+            if item is NOTHING:  # (standard input: nothing came in time)
+                yield out
+                out = []
+                due = time.monotonic() + timeout
+                continue
             if not isinstance(item, (StreamFrame, SessionMessage)):
                 continue
             if self._t0 is None:
@@ -426,10 +430,6 @@ class CaptureSource:
 
     def close(self) -> None:
         pass
-
-
-def _ts_ns(item: Any) -> int:
-    return item.ts_ns
 
 
 # -- decoding: the core decoder -----------------------------------------------------------------

@@ -17,7 +17,7 @@ LAYERS = [
     {"capture"},
     {"generators"},
     {"analysis", "present"},
-    {"replay", "replay_sinks", "replay_tcp", "pacing", "extcap", "wireshark", "plugins", "scapy_layer", "fleet", "watch", "watch_json", "sniffer", "robot_watch",
+    {"replay", "replay_sinks", "replay_tcp", "pacing", "extcap", "wireshark", "plugins", "scapy_layer", "fleet", "watch", "watch_json", "watch_capture", "sniffer", "robot_watch",
      "foxglove_server"},
     {"commands"},
     {"cli", "__main__"},

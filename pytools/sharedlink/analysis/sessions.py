@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Union
 
 from sharedlink.capture.packets import decode_packet
-from sharedlink.capture.pcapio import read_records
+from sharedlink.capture.pcapio import Record, read_records
 from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, DIRECTION_NAMES, USER_LINKTYPES, Deframer
 from sharedlink.protocols import blackboard, p2os
 
@@ -341,22 +341,28 @@ def iter_sessions(path: str | Path) -> Iterator[SessionMessage]:
     Raises :class:`~sharedlink.capture.pcapio.CaptureError` on damage, after what came before."""
     reader = SessionReader()
     for rec in read_records(path):
-        if rec.linktype in USER_LINKTYPES:
-            key: object = ("serial", rec.interface)
-            d = rec.flags & 3
-            yield from reader.feed(key, f"serial interface {rec.interface}", DIRECTION_NAMES.get(d, "unknown"),
-                                   rec.number, rec.ts_ns, rec.data, _SERIAL_CLIENT.get(d))
-            continue
-        dg = decode_packet(rec.linktype, rec.data)
-        if dg is None:
-            continue
-        a, b = (dg.src, dg.sport), (dg.dst, dg.dport)
-        key = (dg.proto, *sorted((a, b)))
-        lo, hi = key[1], key[2]  # type: ignore[index]
-        label = f"{dg.proto} {lo[0]}:{lo[1]} - {hi[0]}:{hi[1]}"
-        reader._session(key, label)
-        if dg.proto == "tcp" and not reader.tcp_new(key, a, dg.tcp_seq, dg.tcp_flags, len(dg.payload)):
-            continue
-        if dg.payload:
-            client = True if dg.dport == p2os.MOBILESIM_PORT else False if dg.sport == p2os.MOBILESIM_PORT else None
-            yield from reader.feed(key, label, a, rec.number, rec.ts_ns, dg.payload, client, dg.proto == "udp")
+        yield from record_sessions(reader, rec)
+
+
+def record_sessions(reader: SessionReader, rec: Record) -> Iterator[SessionMessage]:
+    """What one capture record adds to :func:`iter_sessions` (``reader`` keeps the state between
+    records): for a caller reading the records once for other things too (``watch -``)."""
+    if rec.linktype in USER_LINKTYPES:
+        key: object = ("serial", rec.interface)
+        d = rec.flags & 3
+        yield from reader.feed(key, f"serial interface {rec.interface}", DIRECTION_NAMES.get(d, "unknown"),
+                               rec.number, rec.ts_ns, rec.data, _SERIAL_CLIENT.get(d))
+        return
+    dg = decode_packet(rec.linktype, rec.data)
+    if dg is None:
+        return
+    a, b = (dg.src, dg.sport), (dg.dst, dg.dport)
+    key = (dg.proto, *sorted((a, b)))
+    lo, hi = key[1], key[2]  # type: ignore[index]
+    label = f"{dg.proto} {lo[0]}:{lo[1]} - {hi[0]}:{hi[1]}"
+    reader._session(key, label)
+    if dg.proto == "tcp" and not reader.tcp_new(key, a, dg.tcp_seq, dg.tcp_flags, len(dg.payload)):
+        return
+    if dg.payload:
+        client = True if dg.dport == p2os.MOBILESIM_PORT else False if dg.sport == p2os.MOBILESIM_PORT else None
+        yield from reader.feed(key, label, a, rec.number, rec.ts_ns, dg.payload, client, dg.proto == "udp")

@@ -15,7 +15,6 @@ from sharedlink.commands import (
     EXIT_OK,
     EXIT_USAGE,
     PORT,
-    STDIN,
     OptionalPositional,
     add_decode_options,
     add_json_option,
@@ -90,10 +89,8 @@ def _source(args: argparse.Namespace) -> Any:
         args.capture = capture_input(args.capture)
         if not args.speed > 0:
             raise UsageError("--speed must be positive")
-        from sharedlink.robot_watch import has_robot_traffic
-
-        robots = args.capture != STDIN and has_robot_traffic(args.capture)  # P2OS, blackboard: robot_watch.py
-        return CaptureSource(args.capture, args.speed, sessions=args.foxglove or robots)
+        # P2OS, blackboard: with --foxglove, else if the capture has robot links (found as it is read)
+        return CaptureSource(args.capture, args.speed, sessions=True if args.foxglove else None)
     if args.serial:
         if args.baud <= 0:
             raise UsageError("--baud must be positive")
