@@ -100,3 +100,14 @@ def test_sip_gap_counted(tmp_path):
     write_tcp(path, [(False, sip)] * len(times), 8101, times)
     sip_stats = capture_stats(path).to_dict()["p2os"]["sip"]
     assert sip_stats["gaps"] == 1 and abs(sip_stats["max_gap_s"] - 2.1) < 1e-9
+
+
+def test_answer_times_are_those_of_the_answers_timed():
+    """bb-edge.pcap has answers to no waiting message (counted as answered, with no time): the
+    mean answer time is over the answers timed, so it lies between their min and max (it was the
+    sum over every answer, 8.33 ms under a 10 ms minimum)."""
+    edge = Path(__file__).resolve().parents[1] / "dissector" / "golden_small" / "bb-edge.pcap"
+    b = stats_json(edge)["blackboard"]
+    t = b["answer_ms"]
+    assert b["answered"] == 6
+    assert t["min"] <= t["mean"] <= t["max"] and t == {"min": 10.0, "mean": 10.0, "max": 10.0}

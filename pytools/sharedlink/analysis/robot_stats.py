@@ -225,6 +225,7 @@ class BlackboardStats:
     answer_ns: list[int] = field(default_factory=list)  # (min, sum, max) kept below
     _pending: dict[int, tuple[bytes, int]] = field(default_factory=dict, repr=False)
     _times: list[float] = field(default_factory=lambda: [math.inf, 0.0, 0.0], repr=False)
+    _timed: int = field(default=0, repr=False)  # the answers to a waiting message (the ones timed)
 
     def add(self, m: SessionMessage) -> None:
         self.packets += 1
@@ -251,12 +252,13 @@ class BlackboardStats:
             t[0] = min(t[0], dt)
             t[1] += dt
             t[2] = max(t[2], dt)
+            self._timed += 1
         self.answered += 1
         if kind == "ack" and m.ok:
             self.acknowledged += 1
 
     def to_dict(self) -> dict:
-        t = self._times
+        t, timed = self._times, self._timed
         unanswered = self.unanswered + len(self._pending)
         return {
             "packets": self.packets,
@@ -267,8 +269,9 @@ class BlackboardStats:
             "answered": self.answered,
             "repeated": self.repeated,
             "unanswered": unanswered,
-            "answer_ms": {"min": t[0] if self.answered else None, "mean": t[1] / self.answered if self.answered else None,
-                          "max": t[2] if self.answered else None},
+            # (timed: an answer to no waiting message counts as answered but has no time)
+            "answer_ms": {"min": t[0] if timed else None, "mean": t[1] / timed if timed else None,
+                          "max": t[2] if timed else None},
         }
 
 
