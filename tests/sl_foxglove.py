@@ -1,6 +1,7 @@
 """The `watch --foxglove` server from a test's side (test_foxglove_server.py,
 test_foxglove_p2os_poses.py, test_watch_link_quality.py): the command with its server's port,
-the channels a client sees advertised, and the messages of one subscribed channel."""
+the channels a client sees advertised, and the messages of one subscribed channel; and what the
+same messages look like in an exported MCAP file (the outage gaps, the link_quality topics)."""
 
 from __future__ import annotations
 
@@ -117,3 +118,22 @@ def check_gaps(values: list[tuple[int, dict]], outages: list[dict]) -> None:
             assert abs(values[i + 1][0] - o["end"] * NS) < 1000  # the next sample: the frame after it
         else:
             assert i == len(values) - 1
+
+
+def quality_topics(path) -> tuple[dict[str, list], dict[str, dict]]:
+    """The link_quality messages of an MCAP file per topic ((log time, JSON) each), each validated
+    against its schema (``sharedlink.LinkQuality``, JSON), and each topic's channel metadata."""
+    import jsonschema
+    from mcap.reader import make_reader
+
+    got: dict[str, list] = {}
+    meta: dict[str, dict] = {}
+    with open(path, "rb") as fh:
+        for schema, channel, message in make_reader(fh).iter_messages():
+            if channel.topic.endswith("/link_quality"):
+                doc = json.loads(message.data)
+                jsonschema.validate(doc, json.loads(schema.data))
+                assert schema.name == "sharedlink.LinkQuality" and channel.message_encoding == "json"
+                got.setdefault(channel.topic, []).append((message.log_time, doc))
+                meta[channel.topic] = dict(channel.metadata)
+    return got, meta

@@ -10,9 +10,10 @@ from functools import partial
 
 import pytest
 import sl_cli
+from sl_foxglove import quality_topics
 
-mcap_reader = pytest.importorskip("mcap.reader")
-jsonschema = pytest.importorskip("jsonschema")
+pytest.importorskip("mcap.reader")  # (quality_topics reads the file)
+pytest.importorskip("jsonschema")  # (quality_topics validates each message)
 
 NS = 10**9
 
@@ -32,16 +33,7 @@ def test_link_quality_topics_are_the_health_rows(tmp_path, gen):
     run_cli("export", cap, "-o", out)
     rows = [json.loads(x) for x in run_cli("health", "-o", "-", cap).stdout.splitlines()]
     assert rows
-    got: dict[str, list] = {}
-    meta: dict[str, dict] = {}
-    with open(out, "rb") as fh:
-        for schema, channel, message in mcap_reader.make_reader(fh).iter_messages():
-            if channel.topic.endswith("/link_quality"):
-                doc = json.loads(message.data)
-                jsonschema.validate(doc, json.loads(schema.data))
-                assert schema.name == "sharedlink.LinkQuality" and channel.message_encoding == "json"
-                got.setdefault(channel.topic, []).append((message.log_time, doc))
-                meta[channel.topic] = dict(channel.metadata)
+    got, meta = quality_topics(out)
     want: dict[str, list] = {}
     for r in rows:
         topic = "/sharedlink/" + r["pair"].replace(">", "_to_") + "/link_quality"

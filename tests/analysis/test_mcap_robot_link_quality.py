@@ -9,16 +9,15 @@ quality the seconds since the outage began) inside the outages `stats --json` co
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
+from functools import partial
 
 import pytest
-from sl_foxglove import check_gaps, is_gap
+import sl_cli
+from sl_foxglove import check_gaps, is_gap, quality_topics
 
 mcap_reader = pytest.importorskip("mcap.reader")
-jsonschema = pytest.importorskip("jsonschema")
+pytest.importorskip("jsonschema")  # (quality_topics validates each message)
 
-CLI = [sys.executable, "-m", "sharedlink"]
 NS = 10**9
 #: name -> gen arguments: 20 s sessions with planted silences
 CAPTURES = {
@@ -27,30 +26,10 @@ CAPTURES = {
     "blackboard-udp": ["--protocol", "blackboard", "--outage", "8:3"],
     "blackboard-serial": ["--protocol", "blackboard", "--transport", "serial", "--outage", "5:2", "--outage", "12:3"],
 }
+#: every run here must succeed
+run_cli = partial(sl_cli.run_cli, check=True)
 #: the paced links a session's link health follows (robot_health.py)
 PAIRS = {"p2os": {"robot>client"}, "blackboard": {"master>slave", "slave>master"}}
-
-
-def run_cli(*args: object) -> subprocess.CompletedProcess:
-    r = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stderr
-    return r
-
-
-def quality_topics(path) -> tuple[dict[str, list], dict[str, dict]]:
-    """The link_quality messages of an MCAP file per topic ((log time, JSON) each), validated
-    against their schema, and each topic's channel metadata."""
-    got: dict[str, list] = {}
-    meta: dict[str, dict] = {}
-    with open(path, "rb") as fh:
-        for schema, channel, message in mcap_reader.make_reader(fh).iter_messages():
-            if channel.topic.endswith("/link_quality"):
-                doc = json.loads(message.data)
-                jsonschema.validate(doc, json.loads(schema.data))
-                assert schema.name == "sharedlink.LinkQuality" and channel.message_encoding == "json"
-                got.setdefault(channel.topic, []).append((message.log_time, doc))
-                meta[channel.topic] = dict(channel.metadata)
-    return got, meta
 
 
 def runs(states: list[str]) -> int:
