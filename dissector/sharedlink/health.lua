@@ -166,16 +166,20 @@ local function frame_slow(L, t, cs_status, late, kind)
     return out
 end
 
+-- The outage duration out a frame ends, kept for later passes: into t[num][key] (t: marks, or
+-- r_marks for a robot link's packet).
+local function keep_mark(t, num, key, out)
+    local m = t[num]
+    if not m then m = {}; t[num] = m end
+    m[key] = out
+end
+
 -- A frame H.frame's common path does not take (first pass): frame_slow with its link, the outage
 -- it ends kept for later passes (marks).
 local function frame_other(pinfo, num, sk, d, t, cs_status, rec, kind)
     local L = d and d.hl or link_of(pinfo, num, d)
     local out = frame_slow(L, t or PG.rel_ts(pinfo), cs_status, rec and rec.late, kind)
-    if out then
-        local m = marks[num]
-        if not m then m = {}; marks[num] = m end
-        m[sk] = out
-    end
+    if out then keep_mark(marks, num, sk, out) end
     return out
 end
 
@@ -266,11 +270,7 @@ function H.robot(pinfo, where, protocol, side, cs_status)
     if r_num ~= num then r_num, r_label = num, session_label(pinfo) end
     local L = link_named(protocol .. " " .. r_label, side .. ">" .. (OTHER_SIDE[side] or "?"))
     local out = frame_slow(L, pinfo.rel_ts, cs_status, nil, nil)
-    if out then
-        local m = r_marks[num]
-        if not m then m = {}; r_marks[num] = m end
-        m[where] = out
-    end
+    if out then keep_mark(r_marks, num, where, out) end
     return out
 end
 
