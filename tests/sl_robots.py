@@ -57,3 +57,19 @@ def write_tcp(path: Path, events: list[tuple[bool, bytes]], port: int, times: li
         evs = [(10**18 + t, c, p) for t, (c, p) in zip(stamps, events)]
         for ts, _, frame in session_frames(evs, "tcp", ("127.0.0.1", 40000), ("127.0.0.1", port)):
             w.write(ts, frame)
+
+
+def write_udp_sessions(path: Path, sessions: list[list[tuple[bool, bytes]]], base_port: int,
+                       other: tuple[str, int]) -> Path:
+    """UDP sessions, one a source port (``base_port`` + its index, on 127.0.0.1) with ``other``,
+    each a list of ``(from that port, datagram)`` 10 ms apart; the sessions 1 s apart from
+    10**18 ns."""
+    with open(path, "wb") as fh:
+        w = PcapWriter(fh)
+        t = 10**18
+        for k, events in enumerate(sessions):
+            evs = [(t + i * 10_000_000, c, dg) for i, (c, dg) in enumerate(events)]
+            for ts, _c, frame in session_frames(evs, "udp", ("127.0.0.1", base_port + k), other):
+                w.write(ts, frame)
+            t += 1_000_000_000
+    return path

@@ -15,13 +15,13 @@ from collections import defaultdict
 from pathlib import Path
 
 import pytest
-from sl_robots import OTHERS
+from sl_robots import OTHERS, write_udp_sessions
 
 import tshark_util as tu
 from sharedlink.analysis.robots import RobotLinks
 from sharedlink.analysis.sessions import SessionReader, iter_sessions
-from sharedlink.capture.packets import decode_packet, session_frames
-from sharedlink.capture.pcapio import PcapWriter, read_records
+from sharedlink.capture.packets import decode_packet
+from sharedlink.capture.pcapio import read_records
 
 REPO = Path(__file__).resolve().parents[2]
 VECTORS = json.loads((REPO / "tests" / "vectors" / "blackboard-udp-datagrams.json").read_text())["vectors"]
@@ -77,16 +77,8 @@ def test_the_vectors_cut_messages_and_answers_at_datagram_ends() -> None:
 
 
 def _capture(path: Path) -> Path:
-    with open(path, "wb") as fh:
-        w = PcapWriter(fh)
-        t = 10**18
-        for k, v in enumerate(VECTORS):
-            evs = [(t + i * 10_000_000, d["from"] == "a", b"".join(_raw(p) for p in d["pieces"]))
-                   for i, d in enumerate(v["datagrams"])]
-            for ts, _a, frame in session_frames(evs, "udp", ("127.0.0.1", BASE_PORT + k), OTHER):
-                w.write(ts, frame)
-            t += 1_000_000_000
-    return path
+    sessions = [[(d["from"] == "a", b"".join(_raw(p) for p in d["pieces"])) for d in v["datagrams"]] for v in VECTORS]
+    return write_udp_sessions(path, sessions, BASE_PORT, OTHER)
 
 
 def test_blackboard_lua_and_python_datagram_by_datagram(tmp_path: Path) -> None:

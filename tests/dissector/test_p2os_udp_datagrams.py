@@ -12,12 +12,10 @@ from collections import defaultdict
 from pathlib import Path
 
 import pytest
-from sl_robots import OTHERS
+from sl_robots import OTHERS, write_udp_sessions
 
 import tshark_util as tu
 from sharedlink.analysis.sessions import SessionReader, iter_sessions
-from sharedlink.capture.packets import session_frames
-from sharedlink.capture.pcapio import PcapWriter
 
 REPO = Path(__file__).resolve().parents[2]
 VECTORS = json.loads((REPO / "tests" / "vectors" / "p2os-udp-datagrams.json").read_text())["vectors"]
@@ -59,15 +57,7 @@ def test_the_vectors_cut_packets_at_datagram_ends() -> None:
 
 
 def _capture(path: Path) -> Path:
-    with open(path, "wb") as fh:
-        w = PcapWriter(fh)
-        t = 10**18
-        for k, v in enumerate(VECTORS):
-            evs = [(t + i * 10_000_000, True, dg) for i, dg in enumerate(_datagrams(v))]
-            for ts, _c, frame in session_frames(evs, "udp", ("127.0.0.1", BASE_PORT + k), SERVER):
-                w.write(ts, frame)
-            t += 1_000_000_000
-    return path
+    return write_udp_sessions(path, [[(True, dg) for dg in _datagrams(v)] for v in VECTORS], BASE_PORT, SERVER)
 
 
 def test_p2os_lua_and_python_datagram_by_datagram(tmp_path: Path) -> None:
