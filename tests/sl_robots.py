@@ -10,7 +10,7 @@ from pathlib import Path
 import tshark_util as tu
 from sharedlink.capture.packets import session_frames
 from sharedlink.capture.pcapio import PcapWriter
-from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, read_capture
+from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWriter, read_capture
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPTS = sorted((REPO / "dissector").glob("*.lua"))
@@ -72,4 +72,14 @@ def write_udp_sessions(path: Path, sessions: list[list[tuple[bool, bytes]]], bas
             for ts, _c, frame in session_frames(evs, "udp", ("127.0.0.1", base_port + k), other):
                 w.write(ts, frame)
             t += 1_000_000_000
+    return path
+
+
+def write_serial(path: Path, records: list[tuple[bytes, int]], step_ns: int = 1_000_000) -> Path:
+    """A serial capture (pcapng): one record per ``(bytes, direction)`` (DIR_OUT, DIR_IN),
+    ``step_ns`` apart from 1,700,000,000 s."""
+    with open(path, "wb") as fh:
+        w = SerialCaptureWriter(fh, flush=False)
+        for i, (data, d) in enumerate(records):
+            w.write(data, d, 1_700_000_000 * 10**9 + i * step_ns)
     return path

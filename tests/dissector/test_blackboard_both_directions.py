@@ -10,13 +10,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from sl_robots import OTHERS, SERIAL
+from sl_robots import OTHERS, SERIAL, write_serial
 
 import tshark_util as tu
 from sharedlink.analysis.sessions import Ack, iter_sessions
 from sharedlink.capture.packets import session_frames
 from sharedlink.capture.pcapio import PcapWriter
-from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWriter
+from sharedlink.capture.serial_format import DIR_IN, DIR_OUT
 from sharedlink.protocols.blackboard import ReadResponse, RequestMessage, SetMessage
 
 S1, S2 = SetMessage(0x1F00, 1, b"\x01\x02\x03"), SetMessage(0x2000, 2, b"\x09")
@@ -35,16 +35,13 @@ WANT = ["set", "ack", "set", "ack", "request", "response", "request", "response"
 
 
 def _capture(path: Path, transport: str) -> Path:
+    if transport == "serial":
+        return write_serial(path, [(data, DIR_OUT if a else DIR_IN) for a, data in SEQUENCE], step_ns=10**7)
     with open(path, "wb") as fh:
-        if transport == "serial":
-            w = SerialCaptureWriter(fh, flush=False)
-            for i, (a, data) in enumerate(SEQUENCE):
-                w.write(data, DIR_OUT if a else DIR_IN, 1_700_000_000 * 10**9 + i * 10**7)
-        else:
-            pw = PcapWriter(fh)
-            evs = [(10**18 + i * 10**7, a, data) for i, (a, data) in enumerate(SEQUENCE)]
-            for ts, _a, frame in session_frames(evs, transport, ("127.0.0.1", 40000), ("127.0.0.1", 9100)):
-                pw.write(ts, frame)
+        pw = PcapWriter(fh)
+        evs = [(10**18 + i * 10**7, a, data) for i, (a, data) in enumerate(SEQUENCE)]
+        for ts, _a, frame in session_frames(evs, transport, ("127.0.0.1", 40000), ("127.0.0.1", 9100)):
+            pw.write(ts, frame)
     return path
 
 

@@ -10,16 +10,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from sl_robots import write_tcp
+from sl_robots import write_serial, write_tcp
 
 import tshark_util as tu
-from sharedlink.capture.serial_format import DIR_OUT, SerialCaptureWriter, read_capture
+from sharedlink.capture.serial_format import DIR_OUT, read_capture
 from sharedlink.protocols import p2os
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = [a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua"
            for a in ("-X", f"lua_script:{s}")]
-T0 = 1_700_000_000 * 10**9
 
 
 def _packets() -> list[bytes]:
@@ -34,11 +33,7 @@ def _stream() -> tuple[bytes, list[bytes]]:
 
 
 def _capture(path: Path, chunks: list[bytes]) -> Path:
-    with open(path, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        for i, data in enumerate(chunks):
-            w.write(data, DIR_OUT, T0 + i * 1_000_000)
-    return path
+    return write_serial(path, [(c, DIR_OUT) for c in chunks])
 
 
 def test_python_resynchronises_after_a_cut_header() -> None:

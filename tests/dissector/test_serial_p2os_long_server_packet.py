@@ -8,14 +8,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sl_robots import write_serial
+
 import tshark_util as tu
-from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWriter, read_capture
+from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, read_capture
 from sharedlink.protocols import p2os
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = [a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua"
            for a in ("-X", f"lua_script:{s}")]
-T0 = 1_700_000_000 * 10**9
 
 
 def _long_sip() -> bytes:
@@ -28,14 +29,6 @@ def _long_sip() -> bytes:
         sonars += 1
 
 
-def _capture(path: Path, chunks: list[tuple[bytes, int]]) -> Path:
-    with open(path, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        for i, (data, d) in enumerate(chunks):
-            w.write(data, d, T0 + i * 1_000_000)
-    return path
-
-
 def _lua(cap: Path) -> list[dict[str, list[str]]]:
     return tu.fields(cap, ["slserial.protocol", "slserial.frame", "p2os.count", "_ws.expert.message"], extra=SCRIPTS,
                      two_pass=True)
@@ -43,7 +36,7 @@ def _lua(cap: Path) -> list[dict[str, list[str]]]:
 
 def test_a_server_packet_over_200_bytes_is_detected_by_both_decoders(tmp_path: Path) -> None:
     sip = _long_sip()  # the stream's only packet: detection has nothing else to go by
-    cap = _capture(tmp_path / "s.pcapng", [(sip, DIR_IN)])
+    cap = write_serial(tmp_path / "s.pcapng", [(sip, DIR_IN)])
     py = [(p.protocol, p.data) for _r, _d, p in read_capture(cap) if p.is_frame]
     assert py == [("p2os", sip)]
     rows = _lua(cap)
@@ -57,7 +50,7 @@ def test_a_server_packet_over_200_bytes_is_detected_by_both_decoders(tmp_path: P
 def test_a_client_command_over_200_bytes_does_not_detect_p2os(tmp_path: Path) -> None:
     cmd = p2os.encode_message(p2os.Command(p2os.COMMAND_NUMBERS["SAY"], p2os.ARG_STRING, b"x" * 10, b"y" * 200))
     assert cmd[2] > 200
-    cap = _capture(tmp_path / "c.pcapng", [(cmd, DIR_OUT)])
+    cap = write_serial(tmp_path / "c.pcapng", [(cmd, DIR_OUT)])
     assert not [p for _r, _d, p in read_capture(cap) if p.is_frame]
     rows = _lua(cap)
     assert not [f for r in rows for f in r["slserial.frame"]]
