@@ -159,8 +159,13 @@ def _two_way_capture(tmp_path: Path) -> Path:
 
 def _io_stat(capture: Path, recs: list[dict[str, str]]) -> dict[int, list[float]]:
     """The release's ``-z io,stat,1`` of the graphs (a Packets graph: its frames; MAX(Y Field):
-    the maximum), per interval start second."""
+    the maximum, 0 in an interval where the graph's filter matched no frame), per interval start
+    second. The MAX graph comes last, then its filter again as a Packets graph: tshark 4.0 prints a
+    MAX of an interval without a matching frame from memory it never set (garbage on the first
+    interval, the last interval's maximum on later ones), so it is read only where frames matched."""
+    assert [r["yaxis"] for r in recs][-1] != "Packets" and all(r["yaxis"] == "Packets" for r in recs[:-1])
     specs = [r["dfilter"] if r["yaxis"] == "Packets" else f"MAX({r['yfield']}){r['dfilter']}" for r in recs]
+    specs.append(recs[-1]["dfilter"])
     assert not any("," in s for s in specs)
     out = tshark(capture, ["-q", "-z", "io,stat,1," + ",".join(specs)]).stdout
     rows: dict[int, list[float]] = {}
@@ -169,8 +174,9 @@ def _io_stat(capture: Path, recs: list[dict[str, str]]) -> dict[int, list[float]
         if "<>" not in cells[0]:
             continue
         nums = [float(c) for c in cells[1:] if c]
-        packets = [nums[2 * i] for i, r in enumerate(recs) if r["yaxis"] == "Packets"]
-        rows[int(cells[0].split("<>")[0])] = [*packets, nums[-1]]
+        packets = [nums[2 * i] for i in range(len(recs) - 1)]
+        bar, matched = nums[-3], nums[-2]
+        rows[int(cells[0].split("<>")[0])] = [*packets, bar if matched else 0.0]
     return rows
 
 
