@@ -13,9 +13,10 @@
 -- Direction (client to robot: a command; robot to client: a server packet): the TCP port
 -- preference, else the capture's direction flag (serial: outbound = client), else the content.
 --
--- Field reference: docs/fields-p2os-blackboard.md. Self-contained: no other file needed.
+-- Field reference: docs/fields-p2os-blackboard.md. Needs robots/p2os_rules.lua beside it (the
+-- framing rules it shares with serial.lua; sharedlink plugins install copies both).
 -- Twins (code that must exist in two self-contained files; tests/dissector/test_lua_twins.py
--- shows they agree): p2os_checksum <-> serial.lua p2os_checksum; istr, u8 <-> blackboard.lua.
+-- shows they agree): istr, u8 <-> blackboard.lua.
 -- File order (../shared/STYLE.md): header, plugin info, Proto and tables, fields and experts,
 -- preferences and state, helpers, dissect_*, the buffer dissector, heuristic, registration.
 
@@ -33,7 +34,19 @@ end
 
 local p2os = Proto("p2os", "P2OS (Pioneer robot protocol)")
 
-local MAX_COUNT = 200
+-- The P2OS framing rules (checksum, resynchronisation, direction from the content), written once
+-- for this file and serial.lua: robots/p2os_rules.lua beside this file, loaded here (a copy of
+-- our own: no state shared with serial.lua).
+local R
+do
+    local here = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
+    local chunk, err = loadfile(here .. "robots/p2os_rules.lua")
+    if not chunk then
+        error("p2os.lua needs robots/p2os_rules.lua beside it (sharedlink plugins install copies both): " .. err)
+    end
+    R = chunk({ robot_module = true })
+end
+local MAX_COUNT = R.MAX_COUNT
 
 local COMMANDS = {
     [0] = "PULSE", [1] = "OPEN", [2] = "CLOSE", [3] = "POLLING", [4] = "ENABLE", [5] = "SETA",
@@ -222,23 +235,6 @@ local function u8(tvb, off)
     return tvb:range(off, 1):uint()
 end
 
--- <twin: serial.lua p2os_checksum (on a Lua string there)> the payload as big-endian 16-bit
--- words added (16 bits kept); an odd last byte XORed into the low byte
-local function p2os_checksum(tvb, off, len)
-    local c = 0
-    local i = off
-    local n = len
-    while n > 1 do
-        c = (c + u8(tvb, i) * 256 + u8(tvb, i + 1)) % 65536
-        n = n - 2
-        i = i + 2
-    end
-    if n > 0 then
-        c = bit.bxor(c, u8(tvb, i))
-    end
-    return c
-end
-
 -- first FA FB at or after off (both bytes present), or nil
 local function find_header(tvb, off, n)
     local i = off
@@ -251,37 +247,10 @@ local function find_header(tvb, off, n)
     return nil
 end
 
--- whether a whole packet with a good checksum starts at h (an FA FB there)
-local function good_at(tvb, h, n)
-    if h + 3 > n then return false end
-    local count = u8(tvb, h + 2)
-    if count < 2 or h + 3 + count > n then return false end
-    return p2os_checksum(tvb, h + 3, count - 2) == tvb:range(h + 1 + count, 2):uint()
-end
-
--- A header cut off before a packet (its FA read as a count of 250 would swallow the packets
--- after it; a span ending on the next header's FA would swallow that packet): when the packet at
--- h is not whole and good, the first FA FB starting inside the span its count claims (its FA in
--- the span, its FB maybe just after it) that starts a whole good packet, or nil; "wait" (when
--- more bytes can come) when an FA FB before any such one starts a packet not all there yet, or
--- the span ends on an FA that is the last byte so far. The rule of serial.lua p2os_resync_at and
--- the Python p2os.resync_at (docs/fields-p2os-blackboard.md, "Resynchronisation").
-local function resync_at(tvb, h, n, can_more)
-    if h + 3 > n then return nil end
-    local last = h + 2 + u8(tvb, h + 2) -- the claimed span's last byte
-    local stop = last + 2 -- (find_header: an FA before stop - 1, its FB before stop)
-    if stop > n then stop = n end
-    local k = find_header(tvb, h + 1, stop)
-    local edge = can_more and last == n - 1 and u8(tvb, last) == 0xFA -- its FB yet to come
-    -- (no FA FB inside: nothing to resynchronise on, the checksum not needed)
-    if (not k and not edge) or good_at(tvb, h, n) then return nil end
-    while k do
-        if can_more and (k + 3 > n or k + 3 + u8(tvb, k + 2) > n) then return "wait" end
-        if good_at(tvb, k, n) then return k end
-        k = find_header(tvb, k + 1, stop)
-    end
-    if edge then return "wait" end
-    return nil
+-- the P2OS checksum of the payload tvb[off .. off + len - 1] (robots/p2os_rules.lua)
+local function checksum_at(tvb, off, len)
+    if len == 0 then return 0 end
+    return R.checksum(tvb:raw(off, len), 1, len)
 end
 
 local function to_signed16(v)
@@ -594,24 +563,6 @@ end
 -- ---------------------------------------------------------------------------------------------
 -- direction: by port, by the capture's direction flag, else from the content
 
-local function guess_client(tvb, off, plen)
-    if plen < 1 then
-        return true
-    end
-    local t = u8(tvb, off)
-    if t == TYPE_SIP_STOPPED or t == TYPE_SIP_MOVING or t == TYPE_CONFIG or t == TYPE_ENCODER
-        or t == 0x80 or t == 0x8D or t == 0xE0 or t == 0xF0 then
-        return false
-    end
-    if t == 2 and plen > 1 then
-        local a = u8(tvb, off + 1)
-        if a ~= ARG_POSITIVE and a ~= ARG_NEGATIVE and a ~= ARG_STRING then
-            return false
-        end
-    end
-    return true
-end
-
 local function direction(pinfo, tvb, off, plen)
     local port = p2os.prefs.tcp_port
     if port ~= 0 then
@@ -627,7 +578,7 @@ local function direction(pinfo, tvb, off, plen)
     elseif d == 1 then
         return false, "the capture (received by the client's side)"
     end
-    return guess_client(tvb, off, plen), nil
+    return plen < 1 or R.from_client(tvb:raw(off, plen), 1, plen), nil
 end
 
 -- ---------------------------------------------------------------------------------------------
@@ -669,7 +620,7 @@ local function dissect_one(tvb, pinfo, tree, h, count)
     local ci = pt:add(pf.count, tvb:range(h + 2, 1))
     local plen = count - 2
     local off = h + 3
-    local calc = p2os_checksum(tvb, off, plen)
+    local calc = checksum_at(tvb, off, plen)
     local crange = tvb:range(off + plen, 2)
     local written = crange:uint()
     local client, how = direction(pinfo, tvb, off, plen)
@@ -742,11 +693,13 @@ local function info_text(infos, dirs)
     return table.concat(parts, "; ")
 end
 
--- a header cut off before a packet at h (resync_at): junk up to the packet, and where to go
--- on; "more" after asking TCP for more bytes; nil when h is no such header
-local function skip_cut_header(tvb, pinfo, tree, h, n, can_more, infos)
-    if h + 3 > n or u8(tvb, h + 2) < 2 then return nil end
-    local k = resync_at(tvb, h, n, can_more)
+-- a header cut off before a packet at h (R.resync_at over s, the buffer's bytes): junk up to
+-- the packet, and where to go on; "more" after asking TCP for more bytes; nil when h is no such
+-- header
+local function skip_cut_header(tvb, s, pinfo, tree, h, can_more, infos)
+    if h + 3 > #s or u8(tvb, h + 2) < 2 then return nil end
+    local k = R.resync_at(s, h + 1, not can_more)
+    if k and k ~= "wait" then k = k - 1 end
     if k == "wait" then
         pinfo.desegment_offset = h
         pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
@@ -767,6 +720,7 @@ local function dissect_buffer(tvb, pinfo, tree)
     end
     pinfo.cols.protocol = "P2OS"
     local can_more = pinfo.can_desegment > 0
+    local s = tvb:raw(0, n)
     local infos = {}
     local dirs = {} -- infos[i]'s direction (0 client to robot, 1 robot to client), if a packet
     local off = 0
@@ -791,7 +745,7 @@ local function dissect_buffer(tvb, pinfo, tree)
             tree:add(pf.junk, tvb:range(off, h - off)):add_proto_expert_info(ex.junk)
             infos[#infos + 1] = "junk"
         end
-        local k = skip_cut_header(tvb, pinfo, tree, h, n, can_more, infos)
+        local k = skip_cut_header(tvb, s, pinfo, tree, h, can_more, infos)
         if k == "more" then
             break
         elseif k then
@@ -800,7 +754,7 @@ local function dissect_buffer(tvb, pinfo, tree)
             if can_more then
                 -- one more segment, not the bytes the count claims: the count may be a cut-off
                 -- header's, and the next segment may bring the FA FB it resynchronises on
-                -- (resync_at; asking for the claimed bytes would wait for bytes that never come)
+                -- (R.resync_at; asking for the claimed bytes would wait for bytes that never come)
                 pinfo.desegment_offset = h
                 pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
                 break
@@ -848,7 +802,7 @@ local function heuristic(tvb, pinfo, tree)
         return false
     end
     local plen = count - 2
-    if p2os_checksum(tvb, 3, plen) ~= tvb:range(3 + plen, 2):uint() then
+    if checksum_at(tvb, 3, plen) ~= tvb:range(3 + plen, 2):uint() then
         return false
     end
     dissect_buffer(tvb, pinfo, tree)

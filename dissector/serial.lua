@@ -26,7 +26,7 @@
 --  * P2OS: FA FB, count, count bytes; a count below 2 is noise; a truncated packet waits; a
 --    header cut off before a packet is noise up to the next FA FB starting inside its claimed
 --    span (its FA may be the span's last byte) that starts a whole packet with a good checksum
---    (p2os_resync_at).
+--    (robots/p2os_rules.lua, R.resync_at).
 --  * Blackboard: ":" or ";" (the last one before the CR), hex digits, CR, and an LF if it
 --    came with the CR (a message does not wait for one); text that does not parse is noise.
 --    A slave's binary answers (not in the Python reader, to which they are noise): a good
@@ -49,9 +49,9 @@
 -- fragments (52 bytes): #12(26), #13(18), #14(8)]", one "[Frame: N, payload: a-b (n bytes)]" row
 -- per record, the count and the length).
 --
--- Self-contained; works with Wireshark 4.0 (Lua 5.2) and later.
--- Twins (code that must exist in two self-contained files; tests/dissector/test_lua_twins.py
--- shows they agree): p2os_checksum <-> p2os.lua p2os_checksum.
+-- Works with Wireshark 4.0 (Lua 5.2) and later. Needs robots/p2os_rules.lua beside it: the P2OS
+-- framing rules, written once for this file and p2os.lua (tests/dissector/test_lua_twins.py runs
+-- them beside the Python reader's).
 -- File order (../shared/STYLE.md): header, plugin info, Proto and tables, fields and experts,
 -- preferences and state, helpers (framing), first pass, display, registration.
 
@@ -67,6 +67,18 @@ if set_plugin_info then
 end
 
 local slserial = Proto("slserial", "Serial link")
+
+-- The P2OS framing rules (robots/p2os_rules.lua beside this file; a copy of our own: no state
+-- shared with p2os.lua)
+local R
+do
+    local here = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
+    local chunk, err = loadfile(here .. "robots/p2os_rules.lua")
+    if not chunk then
+        error("serial.lua needs robots/p2os_rules.lua beside it (sharedlink plugins install copies both): " .. err)
+    end
+    R = chunk({ robot_module = true })
+end
 
 local s_byte, s_sub, s_find = string.byte, string.sub, string.find
 local tonumber, pcall, ipairs = tonumber, pcall, ipairs
@@ -270,65 +282,6 @@ local function scan_sharedlink(s, final)
     return pieces, hold, over
 end
 
-local function xor8(a, b)
-    local r, bit = 0, 1
-    for _ = 1, 8 do
-        local x, y = a % 2, b % 2
-        if x ~= y then r = r + bit end
-        a, b, bit = (a - x) / 2, (b - y) / 2, bit * 2
-    end
-    return r
-end
-
--- <twin: p2os.lua p2os_checksum (on a tvb there)> the payload as big-endian 16-bit words
--- added (16 bits kept); an odd last byte XORed into the low byte
-local function p2os_checksum(s, a, len)
-    local c, i, stop = 0, a, a + len - 1
-    while i < stop do
-        c = (c + s_byte(s, i) * 256 + s_byte(s, i + 1)) % 65536
-        i = i + 2
-    end
-    if i == stop then
-        local low = c % 256
-        c = c - low + xor8(low, s_byte(s, i))
-    end
-    return c
-end
-
--- whether a whole packet with a good checksum starts at h (an FA FB there)
-local function p2os_good_at(s, h)
-    local n = #s
-    if h + 2 > n then return false end
-    local count = s_byte(s, h + 2)
-    if count < 2 or h + 2 + count > n then return false end
-    local plen = count - 2
-    return p2os_checksum(s, h + 3, plen) == s_byte(s, h + 3 + plen) * 256 + s_byte(s, h + 4 + plen)
-end
-
--- A header cut off before a packet (its FA read as a count of 250 would swallow the packets
--- after it; a span ending on the next header's FA would swallow that packet): when the packet at
--- h is not whole and good, the first FA FB starting inside the span its count claims (its FA in
--- the span, its FB maybe just after it) that starts a whole good packet, or nil; "wait" (not
--- final) when an FA FB before any such one starts a packet not all there yet, or the span ends
--- on an FA that is the last byte so far. The rule of p2os.lua resync_at and the Python
--- p2os.resync_at (docs/fields-p2os-blackboard.md, "Resynchronisation").
-local function p2os_resync_at(s, h, final)
-    local n = #s
-    local last = h + 2 + s_byte(s, h + 2) -- the claimed span's last byte
-    local k = s_find(s, "\250\251", h + 1, true)
-    if k and k > last then k = nil end
-    local edge = not final and last == n and s_byte(s, n) == 0xFA -- its FB yet to come
-    -- (no FA FB inside: nothing to resynchronise on, the checksum not needed)
-    if (not k and not edge) or p2os_good_at(s, h) then return nil end
-    while k and k <= last do
-        if not final and (k + 2 > n or k + 2 + s_byte(s, k + 2) > n) then return "wait" end
-        if p2os_good_at(s, k) then return k end
-        k = s_find(s, "\250\251", k + 1, true)
-    end
-    if edge then return "wait" end
-    return nil
-end
-
 local function scan_p2os(s, final)
     local n = #s
     local pieces = {}
@@ -341,7 +294,7 @@ local function scan_p2os(s, final)
             break
         end
         local count = s_byte(s, h + 2)
-        local k = count >= 2 and p2os_resync_at(s, h, final)
+        local k = count >= 2 and R.resync_at(s, h, final)
         if count < 2 then
             pos = h + 3
         elseif k == "wait" then
@@ -527,21 +480,6 @@ local function scan_bb_stream(st, s)
     return pieces, hold + base, over
 end
 
--- a P2OS packet's direction from its content (p2os.lua's guess_client): the robot's packet
--- types and SYNC2 echoes carrying strings are the server's, the rest client commands
-local function p2os_from_client(s, off, plen)
-    if plen < 1 then return true end
-    local t = s_byte(s, off)
-    if t == 0x32 or t == 0x33 or t == 0x20 or t == 0x90 or t == 0x80 or t == 0x8D or t == 0xE0 or t == 0xF0 then
-        return false
-    end
-    if t == 2 and plen > 1 then
-        local arg = s_byte(s, off + 1)
-        if arg ~= 0x3B and arg ~= 0x1B and arg ~= 0x2B then return false end
-    end
-    return true
-end
-
 local function piece_good(name, s, a, len)
     if name == "sharedlink" then
         return sl_good(s, a, len)
@@ -549,9 +487,8 @@ local function piece_good(name, s, a, len)
         local count = s_byte(s, a + 2)
         local plen = count - 2
         -- the 200-byte limit is the robot's for client commands; server packets run to 255
-        if count > 200 and p2os_from_client(s, a + 3, plen) then return false end
-        local written = s_byte(s, a + 3 + plen) * 256 + s_byte(s, a + 4 + plen)
-        return p2os_checksum(s, a + 3, plen) == written
+        if count > R.MAX_COUNT and R.from_client(s, a + 3, plen) then return false end
+        return R.good_at(s, a)
     else
         local cr = s_find(s, "\r", a, true)
         local _, good = bb_check(s, a, cr)
