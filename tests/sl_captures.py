@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hypothesis import strategies as st
+from sl_robots import write_serial
 
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
-from sharedlink.capture.serial_format import SerialCaptureWriter
 from sharedlink.generators.beacon import DEFAULT_START_NS
 from sharedlink.protocols import blackboard, p2os
 from sharedlink.protocols.codec import (
@@ -273,16 +273,23 @@ def reference(path: Path) -> list[RefFrame]:
     return out
 
 
+def interleaved(streams: dict[int, list[bytes]], rng: random.Random) -> tuple[list[tuple[bytes, int]], list[int]]:
+    """The chunks of each direction in ``streams`` as serial records ``(bytes, direction)``, the
+    directions interleaved at random, and their times (ns, 1 us to 2 ms apart from 1,700,000,000 s)."""
+    queues = {d: list(chunks) for d, chunks in streams.items()}
+    ts = 1_700_000_000 * 10**9
+    records: list[tuple[bytes, int]] = []
+    times: list[int] = []
+    while any(queues.values()):
+        d = rng.choice([k for k, q in queues.items() if q])
+        ts += rng.randint(1000, 2_000_000)
+        records.append((queues[d].pop(0), d))
+        times.append(ts)
+    return records, times
+
+
 def write_interleaved(path: Path, streams: dict[int, list[bytes]], seed: int) -> Path:
     """A serial capture (pcapng) of the chunks of each direction in ``streams``, the directions'
     records interleaved at random (``seed``), each chunk one record."""
-    rng = random.Random(seed)
-    queues = {d: list(chunks) for d, chunks in streams.items()}
-    ts = 1_700_000_000 * 10**9
-    with open(path, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        while any(queues.values()):
-            d = rng.choice([k for k, q in queues.items() if q])
-            ts += rng.randint(1000, 2_000_000)
-            w.write(queues[d].pop(0), d, ts)
-    return path
+    records, times = interleaved(streams, random.Random(seed))
+    return write_serial(path, records, times=times)

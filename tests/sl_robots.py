@@ -5,6 +5,7 @@ serial split tests: :func:`serial_frames`)."""
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
 
 import tshark_util as tu
@@ -75,11 +76,15 @@ def write_udp_sessions(path: Path, sessions: list[list[tuple[bool, bytes]]], bas
     return path
 
 
-def write_serial(path: Path, records: list[tuple[bytes, int]], step_ns: int = 1_000_000) -> Path:
-    """A serial capture (pcapng): one record per ``(bytes, direction)`` (DIR_OUT, DIR_IN),
-    ``step_ns`` apart from 1,700,000,000 s."""
+def write_serial(path: Path, records: Sequence[tuple[bytes, int]], step_ns: int = 1_000_000,
+                 times: Sequence[int] | None = None) -> Path:
+    """A serial capture (pcapng, USER0): one record per ``(bytes, direction)`` (DIR_OUT, DIR_IN),
+    ``step_ns`` apart from 1,700,000,000 s, or at ``times`` (ns, one a record). The tests' one
+    serial capture writer (the fuzz patterns and the golden inputs' make_inputs.py too)."""
+    stamps = times if times is not None else [1_700_000_000 * 10**9 + i * step_ns for i in range(len(records))]
+    assert len(stamps) == len(records)
     with open(path, "wb") as fh:
         w = SerialCaptureWriter(fh, flush=False)
-        for i, (data, d) in enumerate(records):
-            w.write(data, d, 1_700_000_000 * 10**9 + i * step_ns)
+        for (data, d), ts in zip(records, stamps):
+            w.write(data, d, ts)
     return path

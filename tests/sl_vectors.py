@@ -42,10 +42,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from sl_robots import write_serial
 
 from sharedlink.capture.packets import TcpBuilder, UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
-from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWriter
+from sharedlink.capture.serial_format import DIR_IN, DIR_OUT
 
 VECTORS = Path(__file__).resolve().parent / "vectors" / "sharedlink.json"
 #: every vector table, read in name order (sharedlink.json first)
@@ -133,12 +134,11 @@ def timestamp_ns(packet: dict[str, Any]) -> int:
 def write_stream(stream: Stream, path: Path) -> Path:
     """Write the stream as a capture: Ethernet/IPv4/UDP or TCP pcap, or a serial pcapng."""
     transport = stream.get("transport", "udp")
+    if transport == "serial":
+        packets = stream["packets"]
+        return write_serial(Path(path), [(payload_bytes(p["payload"]), SERIAL_DIRS[p["dir"]]) for p in packets],
+                            times=[timestamp_ns(p) for p in packets])
     with open(path, "wb") as fh:
-        if transport == "serial":
-            sw = SerialCaptureWriter(fh, flush=False)
-            for p in stream["packets"]:
-                sw.write(payload_bytes(p["payload"]), SERIAL_DIRS[p["dir"]], timestamp_ns(p))
-            return Path(path)
         w = PcapWriter(fh)
         seqs: dict[tuple[str, int, str, int], int] = {}
         for i, p in enumerate(stream["packets"]):

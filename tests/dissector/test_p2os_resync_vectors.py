@@ -13,13 +13,13 @@ from collections import defaultdict
 from pathlib import Path
 
 import pytest
-from sl_robots import OTHERS, SERIAL, serial_frames
+from sl_robots import OTHERS, SERIAL, serial_frames, write_serial
 
 import tshark_util as tu
 from sharedlink.analysis.sessions import iter_sessions
 from sharedlink.capture.packets import session_frames
 from sharedlink.capture.pcapio import PcapWriter
-from sharedlink.capture.serial_format import DIR_OUT, Deframer, SerialCaptureWriter
+from sharedlink.capture.serial_format import DIR_OUT, Deframer
 from sharedlink.protocols import p2os
 
 REPO = Path(__file__).resolve().parents[2]
@@ -151,12 +151,8 @@ def test_serial_lua_and_python_on_a_serial_line(tmp_path: Path, size: int) -> No
     which are the vectors' packets, and p2os.lua's checksum verdicts theirs."""
     data = b"".join(_data(v) for v in VECTORS)
     want = [raw for v in VECTORS for raw, _ok in _packets(v)]
-    cap = tmp_path / "serial.pcapng"
-    with open(cap, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        chunks = [data] if size == 0 else [data[i:i + size] for i in range(0, len(data), size)]
-        for i, c in enumerate(chunks):
-            w.write(c, DIR_OUT, 1_700_000_000 * 10**9 + i * 1000)
+    chunks = [data] if size == 0 else [data[i:i + size] for i in range(0, len(data), size)]
+    cap = write_serial(tmp_path / "serial.pcapng", [(c, DIR_OUT) for c in chunks], step_ns=1000)
     py, lua = serial_frames(cap)
     assert py == {"0": want, "1": []}
     assert lua == py

@@ -9,8 +9,10 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from sl_robots import write_serial
+
 import tshark_util as tu
-from sharedlink.capture.serial_format import DIR_IN, SerialCaptureWriter
+from sharedlink.capture.serial_format import DIR_IN
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = [a for s in ("serial.lua", "sharedlink.lua") for a in ("-X", f"lua_script:{REPO / 'dissector' / s}")]
@@ -18,12 +20,8 @@ SCRIPTS = [a for s in ("serial.lua", "sharedlink.lua") for a in ("-X", f"lua_scr
 
 def test_a_record_that_ends_one_frame_and_starts_the_next(tmp_path: Path) -> None:
     f1, f2 = tu.frame("A", "B", "N0", "D1"), tu.frame("A", "B", "N0", "D2")
-    cap = tmp_path / "frag.pcapng"
-    with open(cap, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        w.write(f1 + f2[:6], DIR_IN, 10**18)
-        w.write(f2[6:10], DIR_IN, 10**18 + 1000)
-        w.write(f2[10:], DIR_IN, 10**18 + 2000)
+    cap = write_serial(tmp_path / "frag.pcapng", [(f1 + f2[:6], DIR_IN), (f2[6:10], DIR_IN), (f2[10:], DIR_IN)],
+                       times=[10**18, 10**18 + 1000, 10**18 + 2000])
     out = tu.verbose(cap, extra=SCRIPTS)
     assert "Protocols in frame: slserial:sharedlink" in out  # both dissectors loaded and ran
     n = len(f2)

@@ -13,9 +13,10 @@ from hypothesis import HealthCheck, Phase, example, given, settings
 from hypothesis import strategies as st
 from sl_captures import blackboard_message, chunked, p2os_packet, serial_stream, write_interleaved
 from sl_robots import serial_frames as _frames
+from sl_robots import write_serial
 
 import tshark_util as tu
-from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWriter, read_capture
+from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, read_capture
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = [a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua"
@@ -94,11 +95,7 @@ def test_blackboard_direction_that_starts_second(tmp_path: Path) -> None:
     for, where the Python reader gives the whole message; found by the test above)."""
     message = b";0000000000\r"
     cap = write_interleaved(tmp_path / "bb.pcapng", {DIR_OUT: [message]}, 0)
-    cap2 = tmp_path / "bb2.pcapng"
-    with open(cap2, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        w.write(message, DIR_OUT, 1_700_000_000 * 10**9)
-        w.write(message, DIR_IN, 1_700_000_000 * 10**9 + 1000)
+    cap2 = write_serial(tmp_path / "bb2.pcapng", [(message, DIR_OUT), (message, DIR_IN)], step_ns=1000)
     assert _frames(cap)[0] == _frames(cap)[1]  # one direction alone: alike
     py, lua = _frames(cap2)
     assert py == {"0": [message], "1": [message]}
@@ -112,14 +109,11 @@ def test_blackboard_second_direction_cut_around_the_answer(tmp_path: Path) -> No
     for cuts in ([3], [6], [1, 7], [11]):
         bounds = [0, *cuts, len(message)]
         parts = [message[a:b] for a, b in zip(bounds, bounds[1:])]
-        cap = tmp_path / f"bb-{'-'.join(map(str, cuts))}.pcapng"
-        with open(cap, "wb") as fh:
-            w = SerialCaptureWriter(fh, flush=False)
-            t = 1_700_000_000 * 10**9
-            w.write(parts[0], DIR_IN, t)  # part of the in message before the out one asks
-            w.write(message, DIR_OUT, t + 1000)
-            for i, part in enumerate(parts[1:]):
-                w.write(part, DIR_IN, t + 2000 + i)
+        t = 1_700_000_000 * 10**9
+        # part of the in message before the out one asks, the out message, the rest of the in one
+        cap = write_serial(tmp_path / f"bb-{'-'.join(map(str, cuts))}.pcapng",
+                           [(parts[0], DIR_IN), (message, DIR_OUT), *((part, DIR_IN) for part in parts[1:])],
+                           times=[t, t + 1000, *(t + 2000 + i for i in range(len(parts) - 1))])
         py, lua = _frames(cap)
         assert py == {"0": [message], "1": [message]}, cuts
         assert lua == py, cuts

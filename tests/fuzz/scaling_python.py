@@ -10,9 +10,11 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from sl_robots import write_serial as write_records  # (tests/ is on sys.path: conftest.py, scripts/fuzz.py)
+
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
-from sharedlink.capture.serial_format import DIR_OUT, SerialCaptureWriter
+from sharedlink.capture.serial_format import DIR_OUT
 from sharedlink.protocols.codec import Field, Frame, build_frame, encode_named, encode_positional
 from sharedlink.protocols.limits import MAX_HELD_BYTES, MAX_SLOTS
 
@@ -73,12 +75,9 @@ def conversations(n: int) -> list[tuple[int, bytes]]:
 
 
 def write_serial(path: Path, chunks: Sequence[bytes]) -> Path:
-    """A serial capture (pcapng, USER0), one outbound record per chunk, 1 ms apart."""
-    with open(path, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        for i, c in enumerate(chunks):
-            w.write(c, DIR_OUT, T0 + i * 1_000_000)
-    return path
+    """A serial capture (pcapng, USER0), one outbound record per chunk, 1 ms apart from T0 (the
+    tests' one writer, sl_robots.write_serial)."""
+    return write_records(path, [(c, DIR_OUT) for c in chunks], step_ns=1_000_000)
 
 
 def sl_unterminated(n: int) -> list[bytes]:

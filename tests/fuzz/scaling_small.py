@@ -17,10 +17,12 @@ TESTS = Path(__file__).resolve().parents[1]
 if str(TESTS) not in sys.path:
     sys.path.insert(0, str(TESTS))
 
+from sl_robots import write_serial  # noqa: E402
+
 import tshark_util as tu  # noqa: E402
 from sharedlink.capture.packets import TcpConversation, UdpBuilder  # noqa: E402
 from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, PcapWriter  # noqa: E402
-from sharedlink.capture.serial_format import DIR_OUT, SerialCaptureWriter  # noqa: E402
+from sharedlink.capture.serial_format import DIR_OUT  # noqa: E402
 from sharedlink.protocols import blackboard as bbc  # noqa: E402
 
 REPO = TESTS.parent
@@ -69,11 +71,7 @@ def write_bb_tcp_no_cr(path: Path, n: int, segment: int = 256) -> None:
 def write_serial_unterminated(path: Path, n: int, start: bytes, filler: bytes) -> None:
     """A serial capture: ``start`` (a frame's first bytes) then n one-byte records of ``filler``
     that never finish the frame."""
-    with open(path, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        w.write(start, DIR_OUT, T0)
-        for i in range(n):
-            w.write(filler, DIR_OUT, T0 + (i + 1) * 1000)
+    write_serial(path, [(start, DIR_OUT)] + [(filler, DIR_OUT)] * n, times=[T0 + i * 1000 for i in range(n + 1)])
 
 
 def make_bb_endpoints(*args: str) -> Callable[[int, Path], list[str]]:

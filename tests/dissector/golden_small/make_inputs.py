@@ -14,9 +14,10 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[2]
 sys.path.insert(0, str(REPO / "tests"))
 
-from sl_captures import chunked  # noqa: E402
+from sl_captures import chunked, interleaved  # noqa: E402
+from sl_robots import write_serial  # noqa: E402
 
-from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, SerialCaptureWriter  # noqa: E402
+from sharedlink.capture.serial_format import DIR_IN, DIR_OUT  # noqa: E402
 from sharedlink.protocols import blackboard as bbc  # noqa: E402
 from sharedlink.protocols import p2os as pc  # noqa: E402
 from tshark_util import write_pcap  # noqa: E402
@@ -99,13 +100,8 @@ def write_serial_edge(path: Path) -> None:
     b = b"".join(bb_edge()[:8])
     streams = {DIR_OUT: chunked(p, sorted(rng.sample(range(1, len(p)), 12))),
                DIR_IN: chunked(b"noise\r" + b, sorted(rng.sample(range(1, len(b)), 12)))}
-    ts = 1_700_000_000 * 10**9
-    with open(path, "wb") as fh:
-        w = SerialCaptureWriter(fh, flush=False)
-        while any(streams.values()):
-            d = rng.choice([k for k, q in streams.items() if q])
-            ts += rng.randint(1000, 2_000_000)
-            w.write(streams[d].pop(0), d, ts)
+    records, times = interleaved(streams, rng)
+    write_serial(path, records, times=times)
 
 
 def main() -> None:
