@@ -320,7 +320,7 @@ class _Rows:
         conv = [convs[c] for c in part.conv]
         seq = pa.array(part.seq, pa.int64())
         number = pa.array(part.number, pa.int64())
-        time_ns = pa.array(part.ts, pa.int64())
+        time_ns = pa.array(part.ts_ns, pa.int64())
         raws = part.raw
         offsets = array("i", accumulate(map(len, raws), initial=0))
         raw = pa.BinaryArray.from_buffers(pa.binary(), n, [None, pa.py_buffer(offsets), pa.py_buffer(b"".join(raws))])

@@ -7,6 +7,7 @@ one (:meth:`Part.add_decoded`)."""
 
 from __future__ import annotations
 
+from sharedlink.analysis.core.columns import ColumnBatch
 from sharedlink.analysis.decode import NS, Columns, Decoded, DirColumns
 
 DAY_NS = 86_400 * NS
@@ -19,30 +20,21 @@ def day_of(ts_ns: int) -> str:
     return _dt.datetime.fromtimestamp(ts_ns // NS, _dt.timezone.utc).strftime("%Y-%m-%d")
 
 
-class Part:
-    """The rows of one partition (day, letters) not yet written, as per-column lists: per frame
-    its ordinal, record number, time, conversation, bytes, kind, checksum verdict, late and how
-    many value rows it has; per value row (frame after frame) name, text, type, carried, changed."""
+class Part(ColumnBatch):
+    """The rows of one partition (day, letters) not yet written, as per-column lists: those of
+    :class:`~sharedlink.analysis.core.columns.ColumnBatch` (per frame record number, time,
+    bytes, kind, late and how many value rows it has; per value row, frame after frame, name,
+    text, type, carried, changed), and per frame its ordinal in the capture (``seq``), its
+    conversation and its checksum verdict (``ok``)."""
 
-    __slots__ = ("day", "src", "dst", "seq", "number", "ts", "conv", "raw", "kind", "ok", "late", "nvalues", "name",
-                 "text", "type_code", "carried", "changed")
+    __slots__ = ("day", "src", "dst", "seq", "conv", "ok")
 
     def __init__(self, day: str, src: str, dst: str) -> None:
+        super().__init__()
         self.day, self.src, self.dst = day, src, dst
         self.seq: list[int] = []
-        self.number: list[int] = []
-        self.ts: list[int] = []
         self.conv: list[tuple] = []
-        self.raw: list[bytes] = []
-        self.kind: list[str] = []
         self.ok: list[bool | None] = []
-        self.late: list[bool] = []
-        self.nvalues: list[int] = []
-        self.name: list[str] = []
-        self.text: list[str] = []
-        self.type_code: list[int | None] = []
-        self.carried: list[bool] = []
-        self.changed: list[bool] = []
 
     def held(self) -> int:
         return len(self.seq) + len(self.name)
@@ -51,7 +43,7 @@ class Part:
         """One frame decoded the general way; its value rows (its Updates with a text)."""
         self.seq.append(seq)
         self.number.append(d.number)
-        self.ts.append(d.ts_ns)
+        self.ts_ns.append(d.ts_ns)
         self.conv.append(d.conv)
         self.raw.append(d.raw)
         self.kind.append(d.kind)
@@ -80,20 +72,10 @@ class Part:
             n = 1
         else:
             v = f = slice(None)
+        self.extend(c, f, v)
         self.seq += [base + 1 + o for o in c.ordinal[f]]
-        self.number += c.number[f]
-        self.ts += c.ts_ns[f]
         self.conv += [c.conv] * n
-        self.raw += c.raw[f]
-        self.kind += c.kind[f]
         self.ok += [True] * n
-        self.late += c.late[f]
-        self.nvalues += c.nvalues[f]
-        self.name += c.name[v]
-        self.text += c.text[v]
-        self.type_code += c.type_code[v]
-        self.carried += c.carried[v]
-        self.changed += c.changed[v]
 
 
 class Batches:

@@ -15,23 +15,22 @@ from sharedlink.analysis.core.direction import Direction, Layout, full_set, is_l
 from sharedlink.analysis.core.lanes import BATCH_FRAMES, ColLane, lane_at, walk_run
 from sharedlink.protocols.state import Variable, VariableTable
 
+#: a column batch's per-frame lists, then its per-value-row lists (:class:`ColumnBatch`)
+FRAME_COLUMNS = ("number", "ts_ns", "raw", "kind", "late", "nvalues")
+VALUE_COLUMNS = ("name", "text", "type_code", "carried", "changed")
 
-class DirColumns:
-    """Columns only: what :meth:`Decoder.column` took of one direction's frames since the last
-    batch (every one a good full or delta frame in the named form), as per-column lists. Per
-    frame: ``ordinal`` (its place among the batch's frames, all directions, capture order),
-    ``number``, ``ts_ns``, ``raw``, ``kind`` ("full" or "delta"), ``late`` and ``nvalues`` (its
-    value rows); per value row, frame after frame, as the frame's Updates with a text would say:
-    ``name``, ``text``, ``type_code``, ``carried``, ``changed`` (the values it carries in its
-    layout's order, then, when the decoder keeps carried values, the direction's other values
-    that have one, in the table's order). The table is as the batch's last frame left it."""
 
-    __slots__ = ("conv", "src", "dst", "table", "ordinal", "number", "ts_ns", "raw", "kind", "late", "nvalues",
-                 "name", "text", "type_code", "carried", "changed", "layouts", "last_full")
+class ColumnBatch:
+    """Frames and their value rows as per-column lists, the columns a direction's batch
+    (:class:`DirColumns`) and an ingest partition (``fleet.parts.Part``) share. Per frame
+    (:data:`FRAME_COLUMNS`): ``number`` (its record), ``ts_ns``, ``raw``, ``kind``, ``late`` and
+    ``nvalues`` (its value rows); per value row, frame after frame, as the frame's Updates with a
+    text would say (:data:`VALUE_COLUMNS`): ``name``, ``text``, ``type_code``, ``carried``,
+    ``changed``."""
 
-    def __init__(self, conv: tuple, src: str, dst: str, table: VariableTable) -> None:
-        self.conv, self.src, self.dst, self.table = conv, src, dst, table
-        self.ordinal: list[int] = []
+    __slots__ = FRAME_COLUMNS + VALUE_COLUMNS
+
+    def __init__(self) -> None:
         self.number: list[int] = []
         self.ts_ns: list[int] = []
         self.raw: list[bytes] = []
@@ -43,6 +42,30 @@ class DirColumns:
         self.type_code: list[int | None] = []
         self.carried: list[bool] = []
         self.changed: list[bool] = []
+
+    def extend(self, other: ColumnBatch, frames: slice, values: slice) -> None:
+        """``other``'s frames ``frames`` and value rows ``values`` (those frames' rows) appended."""
+        for col in FRAME_COLUMNS:
+            getattr(self, col).extend(getattr(other, col)[frames])
+        for col in VALUE_COLUMNS:
+            getattr(self, col).extend(getattr(other, col)[values])
+
+
+class DirColumns(ColumnBatch):
+    """Columns only: what :meth:`Decoder.column` took of one direction's frames since the last
+    batch (every one a good full or delta frame in the named form), as per-column lists: those
+    of :class:`ColumnBatch` (``kind`` "full" or "delta"; the value rows are the values it
+    carries in its layout's order, then, when the decoder keeps carried values, the direction's
+    other values that have one, in the table's order), and per frame ``ordinal`` (its place
+    among the batch's frames, all directions, capture order). The table is as the batch's last
+    frame left it."""
+
+    __slots__ = ("conv", "src", "dst", "table", "ordinal", "layouts", "last_full")
+
+    def __init__(self, conv: tuple, src: str, dst: str, table: VariableTable) -> None:
+        super().__init__()
+        self.conv, self.src, self.dst, self.table = conv, src, dst, table
+        self.ordinal: list[int] = []
         self.layouts: dict[Layout, list[int]] = {}  # layout -> [number, time] of its last frame
         self.last_full: tuple[int, int] | None = None
 
