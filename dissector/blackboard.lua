@@ -20,7 +20,8 @@
 -- A message's tree reads in wire order: type, hex text, count, address, node, data, checksum,
 -- then its terminator (CR, LF) last.
 --
--- Field reference: docs/fields-p2os-blackboard.md. Self-contained: no other file needed.
+-- Field reference: docs/fields-p2os-blackboard.md. Needs robots/blackboard_rules.lua beside it
+-- (the message rules it shares with serial.lua; sharedlink plugins install copies it).
 -- Twins (code that must exist in two self-contained files; tests/dissector/test_lua_twins.py
 -- shows they agree): istr, u8 <-> p2os.lua.
 -- File order (../shared/STYLE.md): header, plugin info, Proto and tables, fields and experts,
@@ -39,6 +40,19 @@ if set_plugin_info then
 end
 
 local bb = Proto("blackboard", "Blackboard message (Holland)")
+
+-- The blackboard message rules (which text is a message, its checksum, where it starts, the
+-- answer it expects), written once for this file and serial.lua: robots/blackboard_rules.lua
+-- beside this file, loaded here (a copy of our own: no state shared with serial.lua).
+local BB
+do
+    local here = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
+    local chunk, err = loadfile(here .. "robots/blackboard_rules.lua")
+    if not chunk then
+        error("blackboard.lua needs robots/blackboard_rules.lua beside it (plugins install copies it): " .. err)
+    end
+    BB = chunk({ robot_module = true })
+end
 
 local SET, REQUEST, LF = 0x3A, 0x3B, 0x0A
 
@@ -305,7 +319,7 @@ local function add_checksum(t, r, bytes)
     for k = 1, #bytes - 1 do
         sum = sum + bytes[k]
     end
-    local calc = (256 - sum % 256) % 256
+    local calc = BB.checksum_of(sum)
     local written = bytes[#bytes]
     local cki = t:add(pf.checksum, r, written)
     t:add(pf.checksum_calc, r, calc):set_generated()
@@ -377,12 +391,13 @@ end
 -- a good message waits for its answer from the other side (back); on a later pass, where it
 -- was answered
 local function remember(tvb, pinfo, t, m, back)
-    local bytes = m.bytes
     local mkey = istr(pinfo.number) .. ":" .. istr(m.off)
     if not pinfo.visited then
-        -- a read response's checksum covers the request's count, address and node bytes
-        local rec = { kind = m.name, frame = pinfo.number, checksum = m.written, count = m.count,
-            sum = (bytes[1] + bytes[2] + bytes[3] + bytes[4]) % 256, text = m.hextext }
+        -- what the answer must be (BB.expectation: a read response's checksum covers the
+        -- request's count, address and node bytes)
+        local e = BB.expectation(tvb:raw(m.off, m.cr - m.off + 1), 1, m.cr - m.off + 1)
+        local rec = { kind = m.name, frame = pinfo.number, checksum = e.checksum, count = m.count, sum = e.sum,
+            text = m.hextext }
         if set_pending(back, rec) then
             messages[mkey] = rec
         else
@@ -507,11 +522,7 @@ local function dissect_binary(tvb, pinfo, tree, off, stop, rec, can_more)
             add_request_link()
             return n, "response (truncated)"
         end
-        local sum = rec.sum
-        for k = 0, rec.count - 1 do
-            sum = sum + u8(tvb, off + k)
-        end
-        local calc = (256 - sum % 256) % 256
+        local calc = BB.response_checksum(rec.sum, rec.count > 0 and tvb:raw(off, rec.count) or "", 1, rec.count)
         if rec.count > 0 then
             t:add(pf.data, tvb:range(off, rec.count))
         end
@@ -533,46 +544,23 @@ local function dissect_binary(tvb, pinfo, tree, off, stop, rec, can_more)
     return n, summary
 end
 
--- whether a complete, valid text message starts at off (used to tell a message, a side talking
--- or a master repeating itself, from the binary answer awaited there)
-local MAX_TEXT = 1 + 2 * (5 + 255) + 1 -- the longest message: 255 data bytes
-
+-- whether a complete, valid text message with a good checksum starts at off (used to tell a
+-- message, a side talking or a master repeating itself, from the binary answer awaited there)
 local function valid_text_at(tvb, off, stop)
     local kind = u8(tvb, off)
     if kind ~= SET and kind ~= REQUEST then
         return false
     end
     local limit = stop
-    if limit > off + MAX_TEXT then
-        limit = off + MAX_TEXT -- bounded: callers may ask at every byte
+    if limit > off + BB.MAX_TEXT then
+        limit = off + BB.MAX_TEXT -- bounded: callers may ask at every byte
     end
     local cr = find_cr(tvb, off + 1, limit)
     if cr == nil then
         return false
     end
-    local ndig = cr - off - 1
-    if ndig < 10 or ndig % 2 == 1 then
-        return false
-    end
-    local sum = 0
-    local i = off + 1
-    while i < cr do
-        local a, b = hexval(u8(tvb, i)), hexval(u8(tvb, i + 1))
-        if a == nil or b == nil then
-            return false
-        end
-        sum = sum + a * 16 + b
-        i = i + 2
-    end
-    local count = hexval(u8(tvb, off + 1)) * 16 + hexval(u8(tvb, off + 2))
-    local nbytes = ndig / 2
-    if kind == SET and nbytes ~= 5 + count then
-        return false
-    end
-    if kind == REQUEST and nbytes ~= 5 then
-        return false
-    end
-    return sum % 256 == 0
+    local valid, good = BB.check(tvb:raw(off, cr - off + 1), 1, cr - off + 1)
+    return valid and good
 end
 
 -- bytes outside any message, from off up to j
@@ -598,13 +586,7 @@ end
 local function message_start(tvb, off, n)
     local cr = find_cr(tvb, off + 1, n)
     if not cr then return off end
-    local start = off
-    local k = find_byte(tvb, off + 1, cr, "[:;]")
-    while k do
-        start = k
-        k = find_byte(tvb, k + 1, cr, "[:;]")
-    end
-    return start
+    return off - 1 + BB.message_start(tvb:raw(off, cr - off), 1, cr - off + 1)
 end
 
 local function dissect_buffer(tvb, pinfo, tree)

@@ -49,9 +49,10 @@
 -- fragments (52 bytes): #12(26), #13(18), #14(8)]", one "[Frame: N, payload: a-b (n bytes)]" row
 -- per record, the count and the length).
 --
--- Works with Wireshark 4.0 (Lua 5.2) and later. Needs robots/p2os_rules.lua beside it: the P2OS
--- framing rules, written once for this file and p2os.lua (tests/dissector/test_lua_twins.py runs
--- them beside the Python reader's).
+-- Works with Wireshark 4.0 (Lua 5.2) and later. Needs robots/p2os_rules.lua and
+-- robots/blackboard_rules.lua beside it: the P2OS framing rules, written once for this file and
+-- p2os.lua, and the blackboard message rules, once for this file and blackboard.lua
+-- (tests/dissector/test_lua_twins.py runs them beside the Python readers').
 -- File order (../shared/STYLE.md): header, plugin info, Proto and tables, fields and experts,
 -- preferences and state, helpers (framing), first pass, display, registration.
 
@@ -68,17 +69,21 @@ end
 
 local slserial = Proto("slserial", "Serial link")
 
--- The P2OS framing rules (robots/p2os_rules.lua beside this file; a copy of our own: no state
--- shared with p2os.lua)
-local R
+-- The P2OS and blackboard rules (robots/p2os_rules.lua, robots/blackboard_rules.lua beside this
+-- file; copies of our own: no state shared with p2os.lua or blackboard.lua)
+local R, BB
 do
     local here = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
-    local chunk, err = loadfile(here .. "robots/p2os_rules.lua")
-    if not chunk then
-        error("serial.lua needs robots/p2os_rules.lua beside it (sharedlink plugins install copies both): " .. err)
+    local function rules(name)
+        local chunk, err = loadfile(here .. "robots/" .. name .. ".lua")
+        if not chunk then
+            error("serial.lua needs robots/" .. name .. ".lua beside it (plugins install copies it): " .. err)
+        end
+        return chunk({ robot_module = true })
     end
-    R = chunk({ robot_module = true })
+    R, BB = rules("p2os_rules"), rules("blackboard_rules")
 end
+local is_hex = BB.is_hex
 
 local s_byte, s_sub, s_find = string.byte, string.sub, string.find
 local tonumber, pcall, ipairs = tonumber, pcall, ipairs
@@ -155,9 +160,9 @@ slserial.prefs.max_held_bytes = Pref.uint("Max held bytes", MAX_HELD_DEFAULT,
 ------------------------------------------------------------------------------
 -- [stream_key(interface, p2p_dir)] = { held = { strings }, hlen = their length, recs = { {num, s,
 -- e}... } (positions in the held bytes: released when their frame completes), proto = name|nil,
--- expect = see bb_expectation, append = whether the next bytes can be appended to the held ones
--- without a scan (see can_append), run = the result the records appended since the last scan
--- share (append_held), iface = the capture interface }
+-- expect = the answer awaited (BB.expectation, scan_bb_stream), append = whether the next bytes
+-- can be appended to the held ones without a scan (see can_append), run = the result the records
+-- appended since the last scan share (append_held), iface = the capture interface }
 -- A stream is a direction of one interface (stream_key). The documented wslua API gives a
 -- dissector a record's interface only through a field extractor (Pinfo has no interface on
 -- 4.0-4.6; Field.new is refused once dissection has begun, so it cannot be made on the first
@@ -321,41 +326,6 @@ local function scan_p2os(s, final)
     return pieces, hold, over
 end
 
-local function is_hex(b)
-    return (b >= 48 and b <= 57) or (b >= 65 and b <= 70) or (b >= 97 and b <= 102)
-end
-
--- blackboard: type char at a, CR at cr; returns valid, checksum_good
-local function bb_check(s, a, cr)
-    local digits = cr - a - 1
-    if digits % 2 == 1 then return false, false end
-    for i = a + 1, cr - 1 do
-        if not is_hex(s_byte(s, i)) then return false, false end
-    end
-    local nbytes = digits / 2
-    if nbytes < 5 then return false, false end
-    local sum, first = 0, nil
-    for i = 0, nbytes - 1 do
-        local v = tonumber(s_sub(s, a + 1 + 2 * i, a + 2 + 2 * i), 16)
-        if i == 0 then first = v end
-        sum = sum + v
-    end
-    local need = 5
-    if s_byte(s, a) == B_COLON then need = 5 + first end
-    if nbytes ~= need then return false, false end
-    return true, sum % 256 == 0
-end
-
-local function last_start(s, o, cr)
-    local o2 = o
-    local k = s_find(s, "[:;]", o + 1)
-    while k and k < cr do
-        o2 = k
-        k = s_find(s, "[:;]", k + 1)
-    end
-    return o2
-end
-
 local function scan_blackboard(s, final)
     local n = #s
     local pieces = {}
@@ -369,10 +339,10 @@ local function scan_blackboard(s, final)
             if not final and not over then hold = o end
             break
         end
-        local o2 = last_start(s, o, cr)
+        local o2 = BB.message_start(s, o, cr)
         local e = cr -- ends at its CR; an LF that came with it is taken, a later one is noise
         if s_byte(s, cr + 1) == B_LF then e = cr + 1 end
-        if bb_check(s, o2, cr) then
+        if BB.check(s, o2, cr) then
             add_piece(pieces, noise, o2 - noise, false)
             add_piece(pieces, o2, e - o2 + 1, true)
             noise, pos = e + 1, e + 1
@@ -387,41 +357,9 @@ end
 local SCANNERS = { sharedlink = scan_sharedlink, p2os = scan_p2os, blackboard = scan_blackboard }
 
 -- Blackboard binary answers. A good message from the master (a text frame found in one
--- direction) makes the other direction expect its answer: one byte (the set's checksum) for a
--- set, count data bytes and a checksum byte for a request. The expectation (st.expect) is
--- { len, at (position in that direction's buffer where the answer starts), kind, checksum,
--- sum (count + address + node bytes of a request) }; a later good message replaces it.
-local function bb_expectation(s, a)
-    local cr = s_find(s, "\r", a, true)
-    if not cr then return nil end
-    local valid, good = bb_check(s, a, cr)
-    if not valid or not good then return nil end
-    local function byte_at(k) -- k-th decoded byte (1-based)
-        return tonumber(s_sub(s, a + 1 + 2 * (k - 1), a + 2 * k), 16)
-    end
-    local count = byte_at(1)
-    local nbytes = (cr - a - 1) / 2
-    local e = {
-        kind = "set", len = 1, checksum = byte_at(nbytes),
-        sum = (count + byte_at(2) + byte_at(3) + byte_at(4)) % 256,
-    }
-    if s_byte(s, a) ~= B_COLON then
-        e.kind, e.len = "request", count + 1
-    end
-    return e
-end
-
--- whether s holds, at position at, the whole answer e expects, right (ack = the set's
--- checksum; a read response's checksum correct)
-local function bb_answer_good(s, e, at)
-    if #s - at + 1 < e.len then return false end
-    if e.kind == "set" then return s_byte(s, at) == e.checksum end
-    local sum = e.sum
-    for i = at, at + e.len - 1 do
-        sum = sum + s_byte(s, i)
-    end
-    return sum % 256 == 0
-end
+-- direction) makes the other direction expect its answer (st.expect: BB.expectation's, and at,
+-- its position in that direction's buffer where the answer starts); a later good message
+-- replaces it.
 
 -- where an unfinished text message that may still complete starts: the ":" or ";" before the
 -- hex digits that run to the end of s (no CR yet), or nil
@@ -456,7 +394,7 @@ local function scan_bb_stream(st, s)
     end
     local wait = n < last
     local from = at
-    if wait or not bb_answer_good(s, e, at) then
+    if wait or not BB.answer_good(s, e, at) then
         local p = text_prefix_start(s)
         if p and p <= last and (p < at or not wait) then
             wait, from = true, p < at and p or at
@@ -491,7 +429,7 @@ local function piece_good(name, s, a, len)
         return R.good_at(s, a)
     else
         local cr = s_find(s, "\r", a, true)
-        local _, good = bb_check(s, a, cr)
+        local _, good = BB.check(s, a, cr)
         return good
     end
 end
@@ -568,7 +506,7 @@ end
 
 local function detect_protocol(st, s, n)
     st.proto = detect(s)
-    if not st.proto and st.expect and bb_answer_good(s, st.expect, st.expect.at) then
+    if not st.proto and st.expect and BB.answer_good(s, st.expect, st.expect.at) then
         -- a blackboard slave: its first answer is right (the master's direction is blackboard)
         st.proto = "blackboard"
     end
@@ -592,7 +530,8 @@ end
 local function expect_answers(st, s, dir, pieces)
     for _, p in ipairs(pieces) do
         local c = s_byte(s, p[1])
-        local e = p[3] and not p[4] and (c == B_COLON or c == B_SEMI) and bb_expectation(s, p[1])
+        local cr = p[3] and not p[4] and (c == B_COLON or c == B_SEMI) and s_find(s, "\r", p[1], true)
+        local e = cr and BB.expectation(s, p[1], cr)
         if e then
             st.master, st.slave, st.expect = true, nil, nil
             local other = (dir == 0 or dir == 1) and dir_state(st.iface, 1 - dir) or nil

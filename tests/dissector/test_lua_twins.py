@@ -7,7 +7,11 @@ dissectors through a module of dissector/robots/ run beside their Python twins.
   serial.lua (``R.checksum``, ``R.good_at``, ``R.resync_at``, ``R.from_client``): run inside the
   real tshark's Lua (5.2 on Wireshark 4.0, with its ``bit`` library) on the same random streams
   as their Python twins (``sharedlink.protocols.p2os``: ``checksum``, ``_good_at``,
-  ``resync_at``, ``guess_from_client``; PAIRS) and must give the same answers at every header.
+  ``resync_at``, ``guess_from_client``; PAIRS) and must give the same answers at every header;
+* the blackboard message rules, written once in dissector/robots/blackboard_rules.lua for
+  blackboard.lua and serial.lua (``B.check``, ``B.message_start``, ``B.expectation``,
+  ``B.answer_good``): the same against ``sharedlink.protocols.blackboard`` (BB_PAIRS) at every
+  type character of generated text.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from pathlib import Path
 import pytest
 
 import tshark_util as tu
+from sharedlink.protocols import blackboard as bbc
 from sharedlink.protocols import p2os
 
 DISSECTORS = Path(__file__).resolve().parents[2] / "dissector"
@@ -154,9 +159,159 @@ def test_p2os_rules_agree_with_python(tmp_path):
     assert {p[5] for p in parts if len(p) == 6} == {"0", "1"}
 
 
+#: how each plugin loads a module of dissector/robots/ (serial.lua loads two, by one function)
+LOADS = {
+    "p2os.lua": ['loadfile(here .. "robots/p2os_rules.lua")'],
+    "blackboard.lua": ['loadfile(here .. "robots/blackboard_rules.lua")'],
+    "serial.lua": ['loadfile(here .. "robots/" .. name .. ".lua")', 'rules("p2os_rules")', 'rules("blackboard_rules")'],
+}
+
+
 def test_p2os_and_serial_load_the_rules_module():
     """Both plugins take the framing rules from the one module (no copy of their own)."""
     for name in ("p2os.lua", "serial.lua"):
         text = (DISSECTORS / name).read_text()
-        assert 'loadfile(here .. "robots/p2os_rules.lua")' in text, name
+        assert all(s in text for s in LOADS[name]) and "p2os_rules" in "".join(LOADS[name]), name
         assert not re.search(r"local function \w*(checksum|resync_at|good_at|from_client|guess_client)\(", text), name
+
+
+# -- blackboard: dissector/robots/blackboard_rules.lua (blackboard.lua and serial.lua) ------------
+
+#: the Lua module's rules and their Python twins (``check``: parse_message raising or not, and
+#: its ``ok``; ``expectation``: the answer a good message awaits; ``answer_good``: ack_ok and
+#: parse_response's ``ok``)
+BB_PAIRS = {
+    "check": bbc.parse_message,
+    "message_start": bbc.message_start,
+    "answer_good": (bbc.ack_ok, bbc.parse_response),
+    "response_checksum": bbc.response_checksum,
+}
+BB_RULES = DISSECTORS / "robots" / "blackboard_rules.lua"
+
+# For each line "STREAM ANSWER" (hex) of @LINES@: "=" then, for each ":" or ";" at a (0-based)
+# with a CR after it, "a:valid:good:start" and, for a good message, ":kind:len:checksum:sum:answer
+# good" (the answer tried: ANSWER).
+BB_SCRIPT = """
+local B = assert(loadfile("@RULES@"))({ robot_module = true })
+local function unhex(h) return (h:gsub("%x%x", function(x) return string.char(tonumber(x, 16)) end)) end
+for line in io.lines("@LINES@") do
+    local sh, ah = line:match("^(%x*) (%x*)$")
+    local s, ans = unhex(sh), unhex(ah)
+    local out = { "=" }
+    local a = s:find("[:;]")
+    while a do
+        local cr = s:find("\\r", a + 1, true)
+        if cr then
+            local v, g = B.check(s, a, cr)
+            local part = (a - 1) .. ":" .. (v and 1 or 0) .. ":" .. (g and 1 or 0) .. ":" .. (B.message_start(s, a, cr) - 1)
+            local e = B.expectation(s, a, cr)
+            if e then
+                part = part .. ":" .. e.kind .. ":" .. e.len .. ":" .. e.checksum .. ":" .. e.sum .. ":"
+                    .. (B.answer_good(ans, e, 1) and 1 or 0)
+            end
+            out[#out + 1] = part
+        end
+        a = s:find("[:;]", a + 1)
+    end
+    print(table.concat(out, " "))
+end
+"""
+
+
+def bb_python_line(s: bytes, ans: bytes) -> str:
+    out = ["="]
+    for a in (i for i, c in enumerate(s) if c in b":;"):
+        cr = s.find(b"\r", a + 1)
+        if cr < 0:
+            continue
+        try:
+            msg = BB_PAIRS["check"](s[a : cr + 1])
+            valid, good = 1, int(bool(msg.ok))
+        except bbc.BlackboardError:
+            msg, valid, good = None, 0, 0
+        part = f"{a}:{valid}:{good}:{BB_PAIRS['message_start'](s, a, cr)}"
+        if msg is not None and good:
+            ack_ok, parse_response = BB_PAIRS["answer_good"]
+            if isinstance(msg, bbc.SetMessage):
+                kind, want, right = "set", 1, len(ans) >= 1 and ack_ok(msg, ans[:1])
+            else:
+                want = msg.count + 1
+                kind, right = "request", len(ans) >= want and parse_response(msg, ans[:want]).ok
+                assert len(ans) < want or ans[want - 1] != BB_PAIRS["response_checksum"](msg, ans[: want - 1]) or right
+            part += f":{kind}:{want}:{msg.crc}:{sum(msg.body[:4]) % 256}:{int(right)}"
+        out.append(part)
+    return " ".join(out)
+
+
+def bb_lines(rng: random.Random, n: int) -> list[tuple[bytes, bytes]]:
+    """Streams of blackboard text that reach every branch of the rules (good sets and requests,
+    bad checksums, lower-case hex, odd and non-hex digits, wrong counts, short messages, a type
+    character cut short by another, an LF after the CR, noise) and an answer to try on each
+    (right or wrong acks, right, bad and truncated read responses)."""
+    def message() -> tuple[bytes, bytes]:
+        addr, node = rng.randrange(65536), rng.randrange(256)
+        if rng.random() < 0.5:
+            m = bbc.SetMessage(addr, node, rng.randbytes(rng.choice([0, 1, 3, 8])))
+            text, right = m.encode(), m.ack
+        else:
+            r = bbc.RequestMessage(addr, node, rng.choice([0, 1, 4, 9]))
+            text, right = r.encode(), r.response(rng.randbytes(r.count))
+        kind = rng.randrange(12)
+        if kind == 0:
+            text = text[:-2] + (b"0" if text[-2:-1] != b"0" else b"1") + b"\r"  # bad checksum
+        elif kind == 1:
+            text = text.lower()
+        elif kind == 2:
+            text = text[:-2] + b"\r"  # odd digits
+        elif kind == 3:
+            i = rng.randrange(1, len(text) - 1)
+            text = text[:i] + rng.choice([b"G", b"g", b"@", b"/", b" ", b":", b";"]) + text[i + 1 :]
+        elif kind == 4:
+            text = text[:1] + b"%02X" % rng.randrange(256) + text[3:]  # another count
+        elif kind == 5:
+            text = text[:1] + text[1:9] + b"\r"  # 4 bytes
+        elif kind == 6:
+            text = text + b"\n"
+        elif kind == 7:
+            text = rng.choice([b":0101", b";49", b"noise", b":"]) + text
+        a = rng.randrange(6)
+        ans = (right if a < 2 else right[:-1] + bytes([right[-1] ^ 1]) if a < 4 else right[: rng.randrange(len(right))]
+               if a == 4 else rng.randbytes(rng.randrange(4)))
+        return text, ans
+
+    out = [(b"", b""), (b":\r", b""), (b";\r", b"\x00"), (b":0000000000\r", b"\x00")]
+    while len(out) < n:
+        parts = [message() for _ in range(rng.randrange(1, 4))]
+        s = b"".join(p[0] for p in parts)
+        out.append((s[: rng.randrange(len(s) + 1)] if rng.random() < 0.2 else s, parts[0][1]))
+    return out
+
+
+def test_blackboard_rules_agree_with_python(tmp_path):
+    data = bb_lines(random.Random(17), 1500)
+    (tmp_path / "lines.txt").write_text("".join(f"{s.hex()} {a.hex()}\n" for s, a in data))
+    script = BB_SCRIPT.replace("@RULES@", str(BB_RULES)).replace("@LINES@", str(tmp_path / "lines.txt"))
+    (tmp_path / "bb.lua").write_text(script)
+    r = subprocess.run([*tu.TSHARK_CMD, "-G", "protocols", "-X", f"lua_script:{tmp_path / 'bb.lua'}"],
+                       capture_output=True, text=True, env=tu._clean_env(), timeout=120)
+    assert r.returncode == 0, r.stderr
+    tu.check_stderr(r.stderr)
+    got = [ln for ln in r.stdout.splitlines() if ln.split(" ")[0] == "="]
+    assert len(got) == len(data), r.stdout[:2000]
+    for (s, a), line in zip(data, got):
+        assert line == bb_python_line(s, a), (s, a.hex())
+    # the lines reach every answer: invalid, valid with a bad checksum, good; a start moved by a
+    # later type character; sets and requests answered right and wrong
+    parts = [p.split(":") for line in got for p in line.split()[1:]]
+    assert {(p[1], p[2]) for p in parts} == {("0", "0"), ("1", "0"), ("1", "1")}
+    assert any(p[3] != p[0] for p in parts)
+    assert {(p[4], p[8]) for p in parts if len(p) == 9} == {(k, g) for k in ("set", "request") for g in "01"}
+
+
+def test_blackboard_and_serial_load_the_rules_module():
+    """Both plugins take the message rules from the one module (no copy of their own)."""
+    for name in ("blackboard.lua", "serial.lua"):
+        text = (DISSECTORS / name).read_text()
+        assert all(s in text for s in LOADS[name]) and "blackboard_rules" in "".join(LOADS[name]), name
+        assert not re.search(r"local function (bb_check|last_start|bb_expectation|bb_answer_good|is_hex)\(", text), name
+        assert "1 + 2 * (5 + 255) + 1" not in text and "(256 - sum % 256) % 256" not in text, name

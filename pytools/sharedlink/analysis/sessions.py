@@ -136,7 +136,7 @@ def malformed_split(data: bytes, at_end: bool) -> list[tuple[bytes, bool]]:
         if data[pos] in b":;":
             cr = data.find(b"\r", pos + 1)
             if cr >= 0:
-                start = max(data.rfind(b":", pos + 1, cr), data.rfind(b";", pos + 1, cr))
+                start = blackboard.message_start(data, pos, cr)
                 if start > pos:
                     out.append((data[pos:start], False))
                     pos = start

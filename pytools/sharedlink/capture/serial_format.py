@@ -191,7 +191,7 @@ def scan_blackboard(buf: bytes, final: bool) -> tuple[list[tuple[int, int, Decod
             elif not final:
                 given_up = True
             break
-        o2 = max(buf.rfind(b":", o, cr), buf.rfind(b";", o, cr))
+        o2 = blackboard.message_start(buf, o, cr)
         end = cr + 1  # a message ends at its CR: an LF still to come would be noise
         if end < n and buf[end] == 0x0A:
             end += 1

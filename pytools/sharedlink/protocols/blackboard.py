@@ -168,6 +168,14 @@ def parse_message(data: bytes) -> Message:
     return RequestMessage(address, node, count, raw[-1], crlf)
 
 
+def message_start(buf: bytes, o: int, cr: int) -> int:
+    """Where the message whose CR is at ``cr`` starts: the last ``:`` or ``;`` in ``buf[o:cr]``
+    (``o`` holds one; the text before it is outside any message). The serial and session
+    readers' rule, and dissector/robots/blackboard_rules.lua's ``B.message_start``
+    (docs/fields-p2os-blackboard.md, "Noise")."""
+    return max(buf.rfind(b":", o, cr), buf.rfind(b";", o, cr))
+
+
 @dataclass(frozen=True)
 class ReadResponse:
     """A binary response to a request."""
