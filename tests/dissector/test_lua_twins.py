@@ -138,18 +138,24 @@ def streams(rng: random.Random, n: int) -> list[bytes]:
     return out
 
 
-def test_p2os_rules_agree_with_python(tmp_path):
-    data = streams(random.Random(13), 1500)
-    (tmp_path / "streams.txt").write_text("".join(s.hex() + "\n" for s in data))
-    script = SCRIPT.replace("@RULES@", str(RULES)).replace("@STREAMS@", str(tmp_path / "streams.txt"))
+def lua_lines(tmp_path: Path, script: str, n: int) -> list[str]:
+    """The ``=`` lines ``script`` prints, run inside the real tshark while it loads the script
+    (no capture needed: Wireshark's own Lua and ``bit``), checked for errors; ``n`` of them."""
     (tmp_path / "twins.lua").write_text(script)
-    # the script runs while tshark loads it (no capture needed): Wireshark's own Lua and bit
     r = subprocess.run([*tu.TSHARK_CMD, "-G", "protocols", "-X", f"lua_script:{tmp_path / 'twins.lua'}"],
                        capture_output=True, text=True, env=tu._clean_env(), timeout=120)
     assert r.returncode == 0, r.stderr
     tu.check_stderr(r.stderr)
     got = [ln for ln in r.stdout.splitlines() if ln.split(" ")[0] == "="]
-    assert len(got) == len(data), r.stdout[:2000]
+    assert len(got) == n, r.stdout[:2000]
+    return got
+
+
+def test_p2os_rules_agree_with_python(tmp_path):
+    data = streams(random.Random(13), 1500)
+    (tmp_path / "streams.txt").write_text("".join(s.hex() + "\n" for s in data))
+    got = lua_lines(tmp_path, SCRIPT.replace("@RULES@", str(RULES)).replace("@STREAMS@", str(tmp_path / "streams.txt")),
+                    len(data))
     for s, line in zip(data, got):
         assert line == python_line(s), s.hex()
     # the streams reach every answer of resync_at (a packet found, none, wait) and both of good_at
@@ -290,14 +296,8 @@ def bb_lines(rng: random.Random, n: int) -> list[tuple[bytes, bytes]]:
 def test_blackboard_rules_agree_with_python(tmp_path):
     data = bb_lines(random.Random(17), 1500)
     (tmp_path / "lines.txt").write_text("".join(f"{s.hex()} {a.hex()}\n" for s, a in data))
-    script = BB_SCRIPT.replace("@RULES@", str(BB_RULES)).replace("@LINES@", str(tmp_path / "lines.txt"))
-    (tmp_path / "bb.lua").write_text(script)
-    r = subprocess.run([*tu.TSHARK_CMD, "-G", "protocols", "-X", f"lua_script:{tmp_path / 'bb.lua'}"],
-                       capture_output=True, text=True, env=tu._clean_env(), timeout=120)
-    assert r.returncode == 0, r.stderr
-    tu.check_stderr(r.stderr)
-    got = [ln for ln in r.stdout.splitlines() if ln.split(" ")[0] == "="]
-    assert len(got) == len(data), r.stdout[:2000]
+    got = lua_lines(tmp_path, BB_SCRIPT.replace("@RULES@", str(BB_RULES)).replace("@LINES@", str(tmp_path / "lines.txt")),
+                    len(data))
     for (s, a), line in zip(data, got):
         assert line == bb_python_line(s, a), (s, a.hex())
     # the lines reach every answer: invalid, valid with a bad checksum, good; a start moved by a
