@@ -40,6 +40,7 @@ from sharedlink.analysis.health import Health, feed_decoded, quality
 from sharedlink.analysis.robot_plot import RobotPlotData
 from sharedlink.analysis.robots import RobotLinks
 from sharedlink.analysis.sessions import SessionMessage
+from sharedlink.analysis.thinned import Thinned
 from sharedlink.capture.pcapio import CaptureError, display_name
 from sharedlink.protocols.codec import guess_value, typed_value
 from sharedlink.protocols.state import BEACON_VARIABLES
@@ -59,31 +60,6 @@ EVENT_BINS = 200
 #: the events' colours
 DROPPED_COLOUR = "tab:orange"
 BAD_COLOUR = "tab:red"
-
-
-class Thinned:
-    """Points ``(t, values...)`` kept at most about ``2 * limit`` : when full, every other point
-    is dropped and only every ``stride``-th new one is kept."""
-
-    def __init__(self, limit: int) -> None:
-        self.limit = max(2, limit)
-        self.stride = 1
-        self.seen = 0
-        self.rows: list[tuple[float, ...]] = []
-
-    def add(self, *row: float) -> None:
-        self.seen += 1
-        if (self.seen - 1) % self.stride:
-            return
-        self.rows.append(row)
-        if len(self.rows) >= 2 * self.limit:
-            self.rows = self.rows[::2]
-            self.stride *= 2
-
-    def columns(self) -> list[list[float]]:
-        if not self.rows:
-            return []
-        return [list(c) for c in zip(*self.rows)]
 
 
 def sample(xs: Sequence, n: int) -> list:

@@ -3,8 +3,8 @@ odometry, in the robot's frame: mm, not geographic), the wheel velocities and th
 time, and a blackboard message timeline (one row per message type, bad checksums in red).
 
 :class:`RobotPlotData` gathers the :class:`~sharedlink.analysis.sessions.SessionMessage` s of one
-streaming pass (series thinned as :class:`~sharedlink.analysis.plot.Thinned` does: bounded
-memory); :func:`build_robot_figure` draws the panels of the protocols present.
+streaming pass (series :class:`~sharedlink.analysis.thinned.Thinned`: bounded memory);
+:func:`build_robot_figure` draws the panels of the protocols present.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from sharedlink.analysis.sessions import Ack, SessionMessage
+from sharedlink.analysis.thinned import Thinned
 from sharedlink.capture.pcapio import NS
 from sharedlink.protocols import blackboard, p2os
 
@@ -21,34 +22,14 @@ _BB_KIND = {blackboard.SetMessage: "set", Ack: "ack", blackboard.RequestMessage:
             blackboard.ReadResponse: "response"}
 
 
-class _Thin:
-    """Points kept at most about ``2 * limit`` (every other dropped when full)."""
-
-    def __init__(self, limit: int) -> None:
-        self.limit, self.stride, self.seen = max(2, limit), 1, 0
-        self.rows: list[tuple] = []
-
-    def add(self, *row: object) -> None:
-        self.seen += 1
-        if (self.seen - 1) % self.stride:
-            return
-        self.rows.append(row)
-        if len(self.rows) >= 2 * self.limit:
-            self.rows = self.rows[::2]
-            self.stride *= 2
-
-    def columns(self) -> list[list]:
-        return [list(c) for c in zip(*self.rows)] if self.rows else []
-
-
 @dataclass
 class RobotPlotData:
     max_points: int = 5000
     t0_ns: int | None = None
     p2os: int = 0  # packets
     blackboard: int = 0  # messages and answers
-    sips: dict[int, _Thin] = field(default_factory=dict)  # session -> (t, x, y, lvel, rvel, volts)
-    bb: _Thin | None = None  # (t, row, ok)
+    sips: dict[int, Thinned] = field(default_factory=dict)  # session -> (t, x, y, lvel, rvel, volts)
+    bb: Thinned | None = None  # (t, row, ok)
     bad: int = 0  # checksum failures (both protocols)
 
     @property
@@ -67,12 +48,12 @@ class RobotPlotData:
             if type(s) is p2os.Sip:
                 th = self.sips.get(m.session)
                 if th is None:
-                    th = self.sips[m.session] = _Thin(self.max_points)
+                    th = self.sips[m.session] = Thinned(self.max_points)
                 th.add(t, s.xpos, s.ypos, s.lvel, s.rvel, s.battery / 10)
             return
         self.blackboard += 1
         if self.bb is None:
-            self.bb = _Thin(self.max_points)
+            self.bb = Thinned(self.max_points)
         kind = _BB_KIND.get(type(m.message))
         if kind is not None:
             self.bb.add(t, BB_ROWS.index(kind), m.ok is not False)
