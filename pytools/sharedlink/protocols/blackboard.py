@@ -43,8 +43,27 @@ def checksum(data: bytes) -> int:
     return -sum(data) & 0xFF
 
 
+class _Checked:
+    """What a set and a request share: the checksum of their body and whether the one received
+    (``crc``) matches it (None: built, not received)."""
+
+    crc: int | None
+
+    @property
+    def body(self) -> bytes:
+        raise NotImplementedError
+
+    @property
+    def checksum(self) -> int:
+        return checksum(self.body)
+
+    @property
+    def ok(self) -> bool | None:
+        return None if self.crc is None else self.crc == self.checksum
+
+
 @dataclass(frozen=True)
-class SetMessage:
+class SetMessage(_Checked):
     """``:`` set (write) ``data`` at ``address`` of node ``node``."""
 
     address: int
@@ -58,14 +77,6 @@ class SetMessage:
         return bytes((len(self.data), self.address >> 8 & 0xFF, self.address & 0xFF, self.node)) + self.data
 
     @property
-    def checksum(self) -> int:
-        return checksum(self.body)
-
-    @property
-    def ok(self) -> bool | None:
-        return None if self.crc is None else self.crc == self.checksum
-
-    @property
     def ack(self) -> bytes:
         """The slave's one-byte acknowledgement."""
         return bytes((self.checksum,))
@@ -75,7 +86,7 @@ class SetMessage:
 
 
 @dataclass(frozen=True)
-class RequestMessage:
+class RequestMessage(_Checked):
     """``;`` request ``count`` bytes from ``address``; ``node`` is the source computer."""
 
     address: int
@@ -87,14 +98,6 @@ class RequestMessage:
     @property
     def body(self) -> bytes:
         return bytes((self.count, self.address >> 8 & 0xFF, self.address & 0xFF, self.node))
-
-    @property
-    def checksum(self) -> int:
-        return checksum(self.body)
-
-    @property
-    def ok(self) -> bool | None:
-        return None if self.crc is None else self.crc == self.checksum
 
     def response(self, data: bytes) -> bytes:
         """The slave's binary answer: ``data`` (``count`` bytes) and its checksum."""
