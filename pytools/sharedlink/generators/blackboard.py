@@ -30,8 +30,8 @@ from typing import BinaryIO
 from sharedlink.capture.packets import write_session
 from sharedlink.capture.pcapio import NS, atomic_open
 from sharedlink.generators.beacon import DEFAULT_START_NS
-from sharedlink.generators.outages import check_outages, cut_line
-from sharedlink.generators.serial import write_line_session
+from sharedlink.generators.outages import cut_line
+from sharedlink.generators.serial import check_robot_session, write_line_session
 from sharedlink.protocols.blackboard import RequestMessage, SetMessage
 
 MS = 1_000_000
@@ -60,15 +60,7 @@ class BlackboardGenOptions:
     outages: tuple[tuple[float, float], ...] = ()  # planted silences, both directions (generators/outages.py)
 
     def validate(self) -> None:
-        check_outages(self.outages, self.duration)
-        if not 0 < self.duration <= 86_400:
-            raise ValueError("--duration must be positive (at most a day)")
-        if self.fmt not in ("pcap", "pcapng"):
-            raise ValueError("--format must be pcap or pcapng")
-        if self.transport not in ("udp", "tcp", "serial"):
-            raise ValueError("blackboard sessions are generated over udp, tcp or serial")
-        if self.transport == "serial" and self.fmt != "pcapng":
-            raise ValueError("serial captures are pcapng (the direction lives in the packet flags)")
+        check_robot_session(self.duration, self.fmt, self.transport, "blackboard", self.outages, ("udp", "tcp", "serial"))
         if self.transport == "serial" and not 50 <= self.baud <= 4_000_000:
             raise ValueError("--baud must be 50..4000000")
         if not 0 < self.port < 65536 or not 0 < self.master_port < 65536:

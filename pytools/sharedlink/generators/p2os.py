@@ -25,8 +25,8 @@ from typing import BinaryIO
 from sharedlink.capture.packets import write_session
 from sharedlink.capture.pcapio import NS, atomic_open
 from sharedlink.generators.beacon import DEFAULT_START_NS
-from sharedlink.generators.outages import check_outages, cut_line
-from sharedlink.generators.serial import write_line_session
+from sharedlink.generators.outages import cut_line
+from sharedlink.generators.serial import check_robot_session, write_line_session
 from sharedlink.protocols.p2os import (
     MOBILESIM_PORT,
     Config,
@@ -68,15 +68,7 @@ class P2osGenOptions:
     outages: tuple[tuple[float, float], ...] = ()  # planted silences, both directions (generators/outages.py)
 
     def validate(self) -> None:
-        check_outages(self.outages, self.duration)
-        if not 0 < self.duration <= 86_400:
-            raise ValueError("--duration must be positive (at most a day)")
-        if self.fmt not in ("pcap", "pcapng"):
-            raise ValueError("--format must be pcap or pcapng")
-        if self.transport not in ("tcp", "udp", "serial"):
-            raise ValueError("P2OS sessions are generated over tcp, udp or serial")
-        if self.transport == "serial" and self.fmt != "pcapng":
-            raise ValueError("serial captures are pcapng (the direction lives in the packet flags)")
+        check_robot_session(self.duration, self.fmt, self.transport, "P2OS", self.outages)
         if not 0 < self.port < 65536 or not 0 < self.client_port < 65536:
             raise ValueError("--port must be 1..65535")
 

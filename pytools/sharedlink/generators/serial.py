@@ -24,7 +24,7 @@ from typing import BinaryIO
 from sharedlink.capture.pcapio import atomic_open
 from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, USER_LINKTYPES, SerialCaptureWriter
 from sharedlink.generators.beacon import DEFAULT_START_NS, NS
-from sharedlink.generators.outages import check_outages, silenced, windows
+from sharedlink.generators.outages import Outages, check_outages, silenced, windows
 from sharedlink.generators.scenario import drive_tuples
 from sharedlink.protocols.codec import (
     address_node,
@@ -195,6 +195,22 @@ def uart_records(
             i = j
     out.sort(key=lambda r: (r[0], r[1]))
     return iter(out)
+
+
+def check_robot_session(duration: float, fmt: str, transport: str, what: str, outages: Outages,
+                        transports: tuple[str, str, str] = ("tcp", "udp", "serial")) -> None:
+    """The options a P2OS and a blackboard session share (``what``: "P2OS", "blackboard";
+    ``transports`` in the order the message names them): ValueError naming the option for a
+    bad one."""
+    check_outages(outages, duration)
+    if not 0 < duration <= 86_400:
+        raise ValueError("--duration must be positive (at most a day)")
+    if fmt not in ("pcap", "pcapng"):
+        raise ValueError("--format must be pcap or pcapng")
+    if transport not in transports:
+        raise ValueError(f"{what} sessions are generated over {transports[0]}, {transports[1]} or {transports[2]}")
+    if transport == "serial" and fmt != "pcapng":
+        raise ValueError("serial captures are pcapng (the direction lives in the packet flags)")
 
 
 def write_line_session(
