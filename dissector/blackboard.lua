@@ -47,8 +47,10 @@ local bb = Proto("blackboard", "Blackboard message (Holland)")
 local BB
 do
     local here = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
-    local chunk, err = loadfile(here .. "robots/blackboard_rules.lua")
-    if not chunk then
+    -- (Wireshark's loadfile raises where Lua's returns nil and the reason)
+    local ok, chunk, err = pcall(loadfile, here .. "robots/blackboard_rules.lua")
+    if not ok or not chunk then
+        err = tostring(ok and err or chunk)
         error("blackboard.lua needs robots/blackboard_rules.lua beside it (plugins install copies it): " .. err)
     end
     BB = chunk({ robot_module = true })

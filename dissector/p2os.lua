@@ -40,8 +40,10 @@ local p2os = Proto("p2os", "P2OS (Pioneer robot protocol)")
 local R
 do
     local here = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
-    local chunk, err = loadfile(here .. "robots/p2os_rules.lua")
-    if not chunk then
+    -- (Wireshark's loadfile raises where Lua's returns nil and the reason)
+    local ok, chunk, err = pcall(loadfile, here .. "robots/p2os_rules.lua")
+    if not ok or not chunk then
+        err = tostring(ok and err or chunk)
         error("p2os.lua needs robots/p2os_rules.lua beside it (sharedlink plugins install copies both): " .. err)
     end
     R = chunk({ robot_module = true })

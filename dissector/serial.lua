@@ -75,8 +75,10 @@ local R, BB
 do
     local here = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
     local function rules(name)
-        local chunk, err = loadfile(here .. "robots/" .. name .. ".lua")
-        if not chunk then
+        -- (Wireshark's loadfile raises where Lua's returns nil and the reason)
+        local ok, chunk, err = pcall(loadfile, here .. "robots/" .. name .. ".lua")
+        if not ok or not chunk then
+            err = tostring(ok and err or chunk)
             error("serial.lua needs robots/" .. name .. ".lua beside it (plugins install copies it): " .. err)
         end
         return chunk({ robot_module = true })

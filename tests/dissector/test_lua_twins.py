@@ -167,9 +167,10 @@ def test_p2os_rules_agree_with_python(tmp_path):
 
 #: how each plugin loads a module of dissector/robots/ (serial.lua loads two, by one function)
 LOADS = {
-    "p2os.lua": ['loadfile(here .. "robots/p2os_rules.lua")'],
-    "blackboard.lua": ['loadfile(here .. "robots/blackboard_rules.lua")'],
-    "serial.lua": ['loadfile(here .. "robots/" .. name .. ".lua")', 'rules("p2os_rules")', 'rules("blackboard_rules")'],
+    "p2os.lua": ['pcall(loadfile, here .. "robots/p2os_rules.lua")'],
+    "blackboard.lua": ['pcall(loadfile, here .. "robots/blackboard_rules.lua")'],
+    "serial.lua": ['pcall(loadfile, here .. "robots/" .. name .. ".lua")', 'rules("p2os_rules")',
+                   'rules("blackboard_rules")'],
 }
 
 
@@ -315,3 +316,14 @@ def test_blackboard_and_serial_load_the_rules_module():
         assert all(s in text for s in LOADS[name]) and "blackboard_rules" in "".join(LOADS[name]), name
         assert not re.search(r"local function (bb_check|last_start|bb_expectation|bb_answer_good|is_hex)\(", text), name
         assert "1 + 2 * (5 + 255) + 1" not in text and "(256 - sum % 256) % 256" not in text, name
+
+
+@pytest.mark.parametrize(("name", "module"), [("p2os.lua", "p2os_rules"), ("blackboard.lua", "blackboard_rules"),
+                                              ("serial.lua", "p2os_rules")])
+def test_a_plugin_copied_without_its_module_says_what_it_needs(tmp_path, name, module):
+    """Loaded from a folder with no robots/ (a plugin copied alone), the plugin names the module
+    it needs (Wireshark's loadfile raises where Lua's returns nil: the plugins catch it)."""
+    (tmp_path / name).write_text((DISSECTORS / name).read_text())
+    r = subprocess.run([*tu.TSHARK_CMD, "-G", "plugins", "-X", f"lua_script:{tmp_path / name}"],
+                       capture_output=True, text=True, env=tu._clean_env(), timeout=120)
+    assert f"{name} needs robots/{module}.lua beside it" in r.stderr, r.stderr
