@@ -882,22 +882,38 @@ local function later_kind(rec, full_local, miss_n)
     return (full_local and miss_n == 0) and "full" or "delta"
 end
 
+-- A frame whose direction only its tree needs (no positional value, no journal, not a reply): the
+-- direction and list are found when the tree asks (later_tree_dir), not here: a hidden tree
+-- nobody references a variable's field of never needs them (speed trick, measured: the GUI's rows).
+local pend_pinfo, pend_num, pend_sk, pend_dstb, pend_srcb
+local function later_tree_dir()
+    local pinfo = pend_pinfo
+    if not pinfo then return nil end
+    pend_pinfo = nil
+    local list, d = later_dir(pinfo, pend_num, pend_sk, false, pend_dstb, pend_srcb, true, 0)
+    return list, d
+end
+
 local function state_later_pass(pinfo, num, sk, _, dstb, srcb, full_local, tree)
     local kind, is_data, addrs_ok = F.fkind, F.is_data, F.addrs_ok
     local has_tree = tree ~= nil
     local rec = get_rec(num, sk, false)
     local miss_n = (rec and rec.miss) and floor(#rec.miss / 3) or 0
     local nm, list, d = 0, cfg.list, nil
-    if (is_data or kind == "malformed" or kind == "reply") and addrs_ok
-        and (has_tree or F.n_pos > 0 or LIM.journal or kind == "reply") then
-        list, d, miss_n, nm = later_dir(pinfo, num, sk, is_data and not (rec and rec.bare), dstb, srcb, has_tree,
-            miss_n)
+    pend_pinfo = nil
+    if (is_data or kind == "malformed" or kind == "reply") and addrs_ok then
+        if F.n_pos > 0 or LIM.journal or kind == "reply" then
+            list, d, miss_n, nm = later_dir(pinfo, num, sk, is_data and not (rec and rec.bare), dstb, srcb, has_tree,
+                miss_n)
+        elseif has_tree then
+            pend_pinfo, pend_num, pend_sk, pend_dstb, pend_srcb = pinfo, num, sk, dstb, srcb
+        end
     end
     if is_data then kind = later_kind(rec, full_local, miss_n) end
     return kind, rec, list, d, miss_n, 0, nm
 end
 
 S.get_dir, S.list_at, S.journal, S.JOURNAL_NAMES = get_dir, list_at, journal, JOURNAL_NAMES
-S.list_type = list_type
+S.list_type, S.later_tree_dir = list_type, later_tree_dir
 S.state_data, S.state_other, S.state_later_pass = state_data, state_other, state_later_pass
 return S

@@ -147,6 +147,9 @@ local ASK_FIRST = { H_dst, hf.dst_node, H_src, hf.src_node, hf.kind, H_ordinal, 
 -- ASKED.first: ASKED[1..#ASK_FIRST] holds ASK_FIRST (the last start was a hidden one's); ASKED.gen:
 -- the number of the answers LEARNT holds (a start that forgets them adds one)
 ASKED.first, ASKED.gen = false, 0
+-- Whether the last hidden start found every ASK_FIRST field unreferenced (LEARNT holds the answers
+-- until the next start): then a calm frame's hidden tree may be the protocol item alone (calm_unseen)
+local first_unseen = false
 
 -- Start a tree (shown or hidden): tvb, the packet's Tvb (the same object for the frames of one
 -- packet: one dissection); tree, its root item; hidden, a hidden tree; first, of a first pass
@@ -161,12 +164,16 @@ local function ref_start(tree, tvb, hidden, first)
     for k = (hidden and was_first) and n_first + 1 or 1, n_asked do learnt[asked[k]] = nil end
     n_asked = 0
     ref_kept, asked.gen, asked.first = keep, asked.gen + 1, hidden
+    first_unseen = false
     if hidden then
-        local ask = ti_ref
+        local ask, unseen = ti_ref, true
         for k = 1, n_first do
             local field = ASK_FIRST[k]
-            learnt[field] = ask(tree, field)
+            local r = ask(tree, field)
+            learnt[field] = r
+            if r then unseen = false end
         end
+        first_unseen = unseen
         if not was_first then
             for k = 1, n_first do asked[k] = ASK_FIRST[k] end
         end
@@ -974,6 +981,40 @@ end
 ------------------------------------------------------------------------------
 -- The builder.
 ------------------------------------------------------------------------------
+-- A hidden tree's calm frame (fr.calm: no expert), every ASK_FIRST field unreferenced
+-- (first_unseen): whether its tree is the protocol item alone, as the full build would leave it: a
+-- layout's frame (its N, head and variable items are ASK_FIRST's), no carried names, a checksum
+-- of one byte, its variables unseen (layout_vars_unseen, which asks their other fields; C's
+-- functions, not locals: the main chunk's 150).  The GUI's
+-- packet list rows with the coloring rules (experts only) take this way (speed trick, measured).
+function C.tree_dir(fr)
+    local list, d = M.state.later_tree_dir()
+    if list then fr.list, fr.d = list, d end
+end
+function C.calm_unseen(fr)
+    local val = fr.cs_val
+    if not F.layout or fr.nm ~= 0 or (F.cpos and not (val and val <= 255)) then return false end
+    if fr.visited and not F.named then C.tree_dir(fr) end
+    c_tv, c_list, C.kind = F.named and F.named.TV, fr.list, fr.kind
+    return layout_vars_unseen()
+end
+
+-- Start frame fr's tree: the fields' answers (REF, ref_start); true when the tree is done there (a
+-- hidden calm frame nobody references a field of: the protocol item alone, calm_unseen).  Past
+-- it (and for a layout of positional values there), a later pass's frame gets its direction and
+-- list if the state left them to the tree (state.lua later_tree_dir: found only where needed).
+local function tree_start(mode, tree, tvb, fr)
+    if mode == NONE then REF = NO_REF; return false end
+    REF = LEARNT
+    ref_start(tree, tvb, mode == HIDDEN, not fr.visited)
+    if first_unseen and mode == HIDDEN and fr.calm and C.calm_unseen(fr) then
+        ti_add(tree, sl, tvb(fr.a - 1, fr.e - fr.a + 1))
+        return true
+    end
+    if fr.visited then C.tree_dir(fr) end
+    return false
+end
+
 -- The tree of frame fr (the frame record: at f[1..fl], bodyend its content's last index, starting
 -- at s[a] and ending with its line end at s[e], as parsed: the field and variable arrays, cpos,
 -- ctext; a shown tree needs the fields' places, which parse fills for it; with its kind, state
@@ -983,7 +1024,7 @@ end
 local function tree_frame(mode, tree, tvb, fr)
     if not ti_bound then bind_ti() end
     frame_experts(fr)
-    if mode == NONE then REF = NO_REF else REF = LEARNT; ref_start(tree, tvb, mode == HIDDEN, not fr.visited) end
+    if tree_start(mode, tree, tvb, fr) then return end
     c_shown = mode == SHOWN
     local a, dstb, srcb, rec = fr.a, fr.dstb, fr.srcb, fr.rec
     -- tvb offset of f[i] is o + i

@@ -87,7 +87,11 @@ FILTERS = [
 ]
 # asked with two passes too (the first primes the filter)
 TWO_PASS = FILTERS[:3] + ["sharedlink.var.carried_from > 100", "sharedlink.response_in || sharedlink.response_to",
-                          "sharedlink.var.double > 30", "sharedlink.sync.is_late", "sharedlink.var.badvalue"]
+                          "sharedlink.var.double > 30", "sharedlink.sync.is_late", "sharedlink.var.badvalue",
+                          # fields a calm frame's hidden tree asks after the head's (tree.lua calm_unseen) and
+                          # an index, which needs the direction a later pass finds for the tree alone
+                          "sharedlink.value.AutoGpsVel > 12", "sharedlink.var.long", "sharedlink.var.carried",
+                          "sharedlink.var.index == 2"]
 
 _FRAME = re.compile(r"^Frame (\d+):", re.M)
 
