@@ -82,6 +82,7 @@ end
 -- by the number of values (a layout has at most 8): one concatenation (speed trick, measured: a
 -- loop into table.concat cost 40 Lua VM instructions a frame more, about 4 % of the summary pass).
 local JOIN = {
+    [0] = function(p, tail) return p[1] .. tail end,   -- (a layout of no value: its head)
     function(p, tail) return p[1] .. VV[1] .. tail end,
     function(p, tail) return p[1] .. VV[1] .. p[2] .. VV[2] .. tail end,
     function(p, tail) return p[1] .. VV[1] .. p[2] .. VV[2] .. p[3] .. VV[3] .. tail end,
@@ -104,13 +105,14 @@ local JOIN = {
     end,
 }
 
--- The Info piece of a full or delta frame of a named layout (F.named), as info_pieces makes it,
--- for a full frame that carries nothing or a delta, its tail " (+n carried)" after the values,
--- with no late sync record, when it fits INFO_MAX (else nil): the layout's pieces (parse's
--- named_info, made once a layout: the arrow, the kind and each " name=") and the values.
+-- The Info piece of a full or delta frame of a named layout or one of no value (F.layout with
+-- pieces), as info_pieces makes it, for a full frame that carries nothing or a delta, its tail
+-- " (+n carried)" after the values, with no late sync record, when it fits INFO_MAX (else nil):
+-- the layout's pieces (parse's named_info, made once a layout: the arrow, the kind and each
+-- " name=") and the values.
 local function layout_piece(kind, rec, miss_n)
-    local named = F.named
-    if not named or (rec and rec.late) then return nil end
+    local named = F.layout
+    if not (named and named.pieces) or (rec and rec.late) then return nil end
     local vlen = F.vlen
     if kind == "full" then
         if miss_n ~= 0 or vlen > named.info_room then return nil end

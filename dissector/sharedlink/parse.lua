@@ -466,13 +466,13 @@ local function layout_kind(f)
     return nil
 end
 
--- The Info pieces of a named layout (sh), what info.lua's layout_piece puts before each value,
--- and the room its values have in INFO_MAX.
+-- The Info pieces of a named layout or one of no value (sh; bare: the head alone), what info.lua's
+-- layout_piece puts before each value, and the room its values have in INFO_MAX.
 local function named_info(sh, dstb, srcb)
     local sn, nv = sh.N, sh.n
     local head = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " full"
     local dhead = LETTER[srcb] .. ARROW .. LETTER[dstb] .. " delta"
-    local first = " " .. s_gsub(sn[1], CTRL, "?") .. "="
+    local first = nv > 0 and (" " .. s_gsub(sn[1], CTRL, "?") .. "=") or ""
     local pieces, dpieces, ilen = { head .. first }, { dhead .. first }, #head
     for k = 1, nv do
         if k > 1 then
@@ -516,11 +516,12 @@ local function new_layout(f, kind, dstb, srcb)
         fixed = fixed % 256, flen1 = F.cpos - vlen, dstb = dstb, srcb = srcb,
         npad = nv > 0 and math.max(0, LONG - vlen) or 0 }
     if sh.npad > 0 then sh.pad = s_rep("\0", sh.npad) end
-    -- quiet: no value of the layout can carry an expert info (var.badvalue; see tree's has_experts)
-    sh.quiet = named and not sh.has_long
+    -- quiet: no value of the layout can carry an expert info (var.badvalue; see tree's has_experts):
+    -- a named layout with no long, or one of no value at all (bare: a compressed stream's deltas)
+    sh.quiet = (named and not sh.has_long) or nv == 0
     sh.full0 = nv > 0 and F.n_ord == 0   -- full without state, but for empty positional D fields
     sh.key = sh.head .. "\0" .. sh.pat
-    if named then named_info(sh, dstb, srcb) end
+    if named or nv == 0 then named_info(sh, dstb, srcb) end
     sh.take = layout_frame(sh)   -- (last: it keeps the layout's fields)
     return sh
 end
