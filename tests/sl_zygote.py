@@ -37,6 +37,7 @@ import struct
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -93,12 +94,18 @@ class _Zygote:
 
 
 _zygote: _Zygote | None = None
+_starting = threading.Lock()
 
 
 def _get() -> _Zygote | None:
-    global _zygote
     if os.environ.get("SHAREDLINK_ZYGOTE", "1") == "0":
         return None
+    with _starting:  # runs from several threads of a test start one zygote
+        return _started()
+
+
+def _started() -> _Zygote | None:
+    global _zygote
     if _zygote is None or (_zygote.owner != os.getpid()):
         if _zygote is not None:  # a forked copy of the pytest process: not its zygote
             return None
@@ -123,7 +130,11 @@ def run(cmd: list[str], timeout: float | None, text: bool, **kw: Any) -> subproc
     data = kw.get("input")
     if isinstance(data, str):
         data = data.encode(_encoding())
-    return _Run(z, cmd, env, cwd, kw.get("stdin"), data).finish(timeout, text)
+    try:
+        started = _Run(z, cmd, env, cwd, kw.get("stdin"), data)
+    except OSError:  # the zygote went away before the run was handed over: a plain process
+        return None
+    return started.finish(timeout, text)
 
 
 def _encoding() -> str:
@@ -158,6 +169,9 @@ class _Run:
             body = json.dumps({"argv": [str(a) for a in cmd[3:]], "env": env, "cwd": cwd}).encode()
             socket.send_fds(self.sock, [struct.pack("!Q", len(body))], [in_r, out_w, err_w])
             self.sock.sendall(body)
+        except BaseException:
+            self._close()
+            raise
         finally:
             for fd in close:
                 os.close(fd)
@@ -432,7 +446,6 @@ def _child(req: dict[str, Any], fds: list[int]) -> None:
 def _main() -> int:
     """``sharedlink.__main__`` run and ended as ``python -m sharedlink`` ends."""
     import runpy
-    import threading
     import traceback
 
     code = 0

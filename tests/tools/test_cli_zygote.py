@@ -82,6 +82,16 @@ def test_an_interpreter_setting_of_its_own_runs_a_plain_process():
     assert sl_zygote.TALLY[0] == before
 
 
+def test_a_dead_zygote_leaves_plain_processes():
+    script = ("import os, sys; sys.path.insert(0, %r); import sl_cli, sl_zygote;"
+              "sl_cli.run_cli('--version', check=True); z = sl_zygote._zygote; z.proc.kill(); z.proc.wait();"
+              "r = sl_cli.run_cli('--version', check=True); print(r.stdout.strip(), sl_zygote.TALLY[0])"
+              % str(ROOT / "tests"))
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["sharedlink", plain("--version").stdout.split()[1], "1"]  # the second run plain
+
+
 def test_a_run_past_its_timeout_is_killed(tmp_path):
     fifo = tmp_path / "never"
     os.mkfifo(fifo)  # opened by nobody else: `stats` waits on it for ever
