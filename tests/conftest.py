@@ -4,12 +4,14 @@ runs, each checked for Lua errors), ``sl_captures`` (test data builders), ``sl_v
 shared vector tables), ``sl_pipes`` (a standard output whose reader lags, for Ctrl-C tests;
 reading lines as they come), ``sl_agreement`` (the two decoders' frames side by side),
 ``sl_checks`` (the tap's report, MCAP read back, change records against the reference, odd
-captures) and ``sl_cli`` (the ``sharedlink`` command as a process), importable from every test
+captures), ``sl_cli`` (the ``sharedlink`` command as a process; ``sl_zygote`` forks its runs from a
+loaded interpreter) and ``sl_cpu_probe`` (CPU a test, on with ``SHAREDLINK_TEST_CPU``), importable from every test
 file because this folder is on ``sys.path``. No test file imports another
 (tests/tools/test_test_layout.py)."""
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -20,6 +22,9 @@ if str(TESTS) not in sys.path:
     sys.path.insert(0, str(TESTS))
 
 REPO = TESTS.parent
+
+# the per-test CPU probe (docs/testing.md, "Where the suite's CPU goes"), only when asked
+pytest_plugins = ["sl_cpu_probe"] if os.environ.get("SHAREDLINK_TEST_CPU") else []
 
 
 @pytest.fixture(scope="session")

@@ -9,6 +9,8 @@ import subprocess
 import sys
 from typing import Any
 
+import sl_zygote
+
 CLI = [sys.executable, "-m", "sharedlink"]
 
 
@@ -17,8 +19,13 @@ def run_cli(*args: object, timeout: float = 120, check: bool = False, text: bool
     """``sharedlink ARGS`` (each argument as ``str``), its standard output and error captured
     (as text unless ``text`` is false); ``timeout`` guards against a hang only; ``check``: exit
     status 0 asserted (its standard error shown on failure). ``kw`` goes to ``subprocess.run``
-    (``env``, ``cwd``, ``input``, ``stdin``)."""
-    r = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=text, timeout=timeout, **kw)
+    (``env``, ``cwd``, ``input``, ``stdin``). The run is forked from a loaded interpreter
+    (``sl_zygote``: a real process, spared the start-up) when the zygote can reproduce it, else
+    a plain ``subprocess.run``; ``SHAREDLINK_ZYGOTE=0`` starts every run as a plain process."""
+    cmd = [*CLI, *map(str, args)]
+    r = sl_zygote.run(cmd, timeout, text, **kw)
+    if r is None:
+        r = subprocess.run(cmd, capture_output=True, text=text, timeout=timeout, **kw)
     if check:
         assert r.returncode == 0, r.stderr
     return r

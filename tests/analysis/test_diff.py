@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import subprocess
 import sys
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sl_captures import captures, write_capture
+from sl_cli import run_cli
 
 from sharedlink.analysis.changes import read_changes
 from sharedlink.analysis.diff import DiffOptions, diff_captures, values_equal
@@ -70,7 +70,7 @@ def beacon(tmp_path_factory):
 
 def test_full_against_compressed_agrees_and_reports_the_saving(beacon):
     full, comp = beacon
-    r = subprocess.run(CLI + ["diff", str(full), str(comp), "--json"], capture_output=True, text=True)
+    r = run_cli("diff", str(full), str(comp), "--json")
     assert r.returncode == 0, r.stderr
     rep = json.loads(r.stdout)
     assert rep["agree"] and rep["pairs"] == 200 and rep["unmatched_a"] == rep["unmatched_b"] == 0
@@ -437,14 +437,14 @@ def test_bad_options_are_refused():
 
 def test_cli_output_and_exit_codes(beacon, tmp_path):
     full, comp = beacon
-    r = subprocess.run(CLI + ["diff", str(full), str(comp)], capture_output=True, text=True)
+    r = run_cli("diff", str(full), str(comp))
     assert r.returncode == 0 and "AGREE" in r.stdout and "B saves" in r.stdout and "AutoGpsLat" in r.stdout
     dropped = rewrite(comp, tmp_path / "dropped.pcap", lambda i, p: None if i == 7 else p)
-    r = subprocess.run(CLI + ["diff", str(full), str(dropped), "--single-process"], capture_output=True, text=True)
+    r = run_cli("diff", str(full), str(dropped), "--single-process")
     assert r.returncode == 1 and "DIVERGE" in r.stdout and "unmatched in A: 1 frames: #8" in r.stdout
     data = comp.read_bytes()
     (tmp_path / "cut.pcap").write_bytes(data[: len(data) // 2])
-    r = subprocess.run(CLI + ["diff", str(full), str(tmp_path / "cut.pcap"), "--json"], capture_output=True, text=True)
+    r = run_cli("diff", str(full), str(tmp_path / "cut.pcap"), "--json")
     assert r.returncode == 2 and "truncated record" in r.stderr and "Traceback" not in r.stderr
     rep = json.loads(r.stdout)
     assert rep["errors"] and rep["pairs"] > 50  # what comes before the damage is compared
@@ -458,7 +458,7 @@ def test_cli_output_and_exit_codes(beacon, tmp_path):
         ([str(full), str(comp), "--window", "-1"], "--window"),
         ([str(full), str(comp), "--variables", "a|b,c"], "--variables"),
     ):
-        r = subprocess.run(CLI + ["diff"] + args, capture_output=True, text=True)
+        r = run_cli("diff", *args)
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
 import sys
 from collections import defaultdict
 from pathlib import Path
@@ -26,6 +25,7 @@ from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from google.protobuf.descriptor import FieldDescriptor
 from mcap.reader import make_reader
+from sl_cli import run_cli
 
 from sharedlink.generators.beacon import GenOptions, generate_file
 
@@ -111,7 +111,7 @@ def check_file(path: Path) -> dict[str, int]:
 
 def export(tmp_path: Path, cap: Path) -> Path:
     out = tmp_path / (cap.stem + ".mcap")
-    r = subprocess.run([*CLI, "export", str(cap), "-o", str(out)], capture_output=True, text=True, timeout=120)
+    r = run_cli("export", str(cap), "-o", str(out), timeout=120)
     assert r.returncode == 0, r.stderr
     return out
 
@@ -147,8 +147,7 @@ def test_the_old_location_fix_fails_the_official_schema():
 @pytest.mark.parametrize("protocol, transport", [("p2os", "tcp"), ("p2os", "serial"), ("blackboard", "udp")])
 def test_every_session_message_is_valid_against_the_official_schemas(tmp_path, protocol, transport):
     cap = tmp_path / f"{protocol}-{transport}.pcapng"
-    r = subprocess.run([*CLI, "gen", str(cap), "--protocol", protocol, "--transport", transport, "--duration", "6"],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("gen", str(cap), "--protocol", protocol, "--transport", transport, "--duration", "6", timeout=120)
     assert r.returncode == 0, r.stderr
     checked = check_file(export(tmp_path, cap))
     if protocol == "p2os":
@@ -160,8 +159,7 @@ def test_every_session_message_is_valid_against_the_official_schemas(tmp_path, p
 def test_a_serial_session_without_a_position_has_no_location_channel(tmp_path):
     """No channel without data: a SharedLink direction whose variables hold no position."""
     cap = tmp_path / "serial.pcapng"
-    r = subprocess.run([*CLI, "gen", str(cap), "--protocol", "sharedlink", "--transport", "serial", "--duration", "4"],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("gen", str(cap), "--protocol", "sharedlink", "--transport", "serial", "--duration", "4", timeout=120)
     assert r.returncode == 0, r.stderr
     msgs, counts = read_all(export(tmp_path, cap))
     assert all(counts.values()) and counts

@@ -23,11 +23,9 @@ file order.
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import pytest
 from sl_checks import MS, T0, agree, beacon, ether, sll2, udp, write_records
+from sl_cli import run_cli
 
 from sharedlink.capture.pcapio import (
     LINKTYPE_ETHERNET,
@@ -132,8 +130,7 @@ def test_output_that_is_the_input_is_refused(tmp_path, args):
             pkt = udp("10.0.0.1", raw)
             fh.write(w.record(T0 + ts, ether(pkt) if i % 2 else sll2(pkt), interface=i % 2))
     before = path.read_bytes()
-    r = subprocess.run([sys.executable, "-m", "sharedlink", args[0], str(path), *args[1:], "-o", str(path)],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli(args[0], str(path), *args[1:], "-o", str(path), timeout=120)
     assert r.returncode == 2, r
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert path.read_bytes() == before

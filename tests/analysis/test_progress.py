@@ -7,11 +7,11 @@ The commands run in a real pseudo-terminal; SHAREDLINK_PROGRESS_AFTER=0 shows th
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 from sl_pipes import on_pty
 
 from sharedlink.generators.beacon import GenOptions, generate_file
@@ -39,7 +39,7 @@ def _run(args: list, tty: bool, after: str = "0") -> tuple[int, str]:
     """Run the CLI with stdout and stderr on a pseudo-terminal (``tty``) or pipes; its stderr."""
     env = dict(os.environ, SHAREDLINK_PROGRESS_AFTER=after, COLUMNS="120")
     if not tty:
-        r = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, env=env, timeout=120)
+        r = run_cli(*map(str, args), timeout=120, env=env)
         return r.returncode, r.stderr
     return on_pty([*CLI, *map(str, args)], env)
 

@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 from sl_vectors import load_streams, write_stream
 
 CLI = [sys.executable, "-m", "sharedlink"]
@@ -36,7 +36,7 @@ def capture(tmp_path: Path) -> Path:
 
 
 def _export(cap: Path, out: Path, *args: str) -> str:
-    r = subprocess.run([*CLI, "export", str(cap), "-o", str(out), *args], capture_output=True, text=True, timeout=120)
+    r = run_cli("export", str(cap), "-o", str(out), *args, timeout=120)
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     return "" if out.suffix == ".mcap" else out.read_text(encoding="utf-8")
 

@@ -5,9 +5,10 @@ SIP position, a dropped packet and a bad checksum are found, exit 1."""
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
+
+from sl_cli import run_cli
 
 from sharedlink.capture.packets import session_frames
 from sharedlink.capture.pcapio import PcapWriter
@@ -40,7 +41,7 @@ def _events(x_at_5: int = 1005, drop: bool = False, bad: bool = False) -> list[t
 
 
 def diff(a: Path, b: Path) -> tuple[int, dict]:
-    res = subprocess.run([*CLI, "diff", "--json", str(a), str(b)], capture_output=True, text=True, timeout=120)
+    res = run_cli("diff", "--json", str(a), str(b), timeout=120)
     assert res.returncode in (0, 1), res.stderr
     return res.returncode, json.loads(res.stdout)
 
@@ -58,5 +59,5 @@ def test_a_replay_agrees_and_changes_are_found(tmp_path):
     assert rc == 1 and rep["fields"] == {"checksum": 1}
     rc, rep = diff(run, _session(tmp_path / "drop.pcap", _events(drop=True), 40000, 10**18))
     assert rc == 1 and rep["unmatched_a"] == 1 and rep["packets_b"] == 40
-    res = subprocess.run([*CLI, "diff", str(run), str(replay)], capture_output=True, text=True, timeout=120)
+    res = run_cli("diff", str(run), str(replay), timeout=120)
     assert res.returncode == 0 and "AGREE" in res.stdout and "warning" not in res.stderr

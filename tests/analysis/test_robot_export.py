@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 from sl_robots import OTHERS, SERIAL
 
 import tshark_util as tu
@@ -22,7 +22,7 @@ CLI = [sys.executable, "-m", "sharedlink"]
 
 
 def export(path: Path, out: Path) -> str:
-    res = subprocess.run([*CLI, "export", "-o", str(out), str(path)], capture_output=True, text=True, timeout=120)
+    res = run_cli("export", "-o", str(out), str(path), timeout=120)
     assert res.returncode == 0, res.stderr
     assert "warning" not in res.stderr
     return res.stderr

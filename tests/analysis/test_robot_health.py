@@ -7,11 +7,11 @@ the first after, to the nanosecond of the messages `iter_sessions` (export's rea
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 from sharedlink.analysis.sessions import iter_sessions
 from sharedlink.analysis.stats import capture_stats
@@ -55,7 +55,7 @@ def test_a_silence_on_a_robot_link_is_one_outage(tmp_path, protocol, transport):
     assert {lk["pair"] for lk in plain["links"]} == set(paced.values()) and plain["outages"] == []
     assert all(lk["link"].startswith(protocol + " ") and lk["rate_hz"] > 5 for lk in plain["links"])
     cut = silenced(cap, tmp_path / "cut.pcapng", fmt)
-    r = subprocess.run([*CLI, "stats", "--json", str(cut)], capture_output=True, text=True, timeout=120)
+    r = run_cli("stats", "--json", str(cut), timeout=120)
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     want = []
@@ -71,5 +71,5 @@ def test_a_silence_on_a_robot_link_is_one_outage(tmp_path, protocol, transport):
     st = capture_stats(cut)
     assert sorted((o.pair, o.start_ns, o.end_ns) for o in st.health.outages()) == sorted(want)
     assert {lk["pair"]: lk["outages"] for lk in d["links"]} == dict.fromkeys(paced.values(), 1)
-    text = subprocess.run([*CLI, "stats", str(cut)], capture_output=True, text=True, timeout=120).stdout
+    text = run_cli("stats", str(cut), timeout=120).stdout
     assert "Link health" in text and "Outages (UTC)" in text

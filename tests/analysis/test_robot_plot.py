@@ -5,12 +5,13 @@ decoded SIPs and messages (`stats` counts them), the PNG is written, exit 0."""
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 
 import matplotlib
 
 matplotlib.use("Agg")
+
+from sl_cli import run_cli
 
 from sharedlink.analysis.plot import collect  # noqa: E402
 from sharedlink.analysis.robot_plot import build_robot_figure  # noqa: E402
@@ -38,7 +39,7 @@ def test_p2os_panels_hold_every_sip(tmp_path):
     assert max(means) == st["velocity_mm_s"]["max"] and min(means) == st["velocity_mm_s"]["min"]
     assert min(bat.lines[0].get_ydata()) == st["battery_v"]["min"] and bat.get_ylabel() == "battery (V)"
     out = tmp_path / "p.png"
-    res = subprocess.run([*CLI, "plot", str(path), "-o", str(out), "--json"], capture_output=True, text=True, timeout=120)
+    res = run_cli("plot", str(path), "-o", str(out), "--json", timeout=120)
     assert res.returncode == 0, res.stderr
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert json.loads(res.stdout)["packets"] == st["packets"] and "warning" not in res.stderr
@@ -53,5 +54,5 @@ def test_blackboard_timeline_holds_every_message(tmp_path):
     assert sum(len(c.get_offsets()) for c in ax.collections) == st["packets"]
     assert [t.get_text() for t in ax.get_yticklabels()] == ["set", "ack", "request", "response"]
     out = tmp_path / "b.svg"
-    res = subprocess.run([*CLI, "plot", str(path), "-o", str(out)], capture_output=True, text=True, timeout=120)
+    res = run_cli("plot", str(path), "-o", str(out), timeout=120)
     assert res.returncode == 0 and out.read_text().lstrip().startswith("<?xml"), res.stderr

@@ -5,11 +5,11 @@ serial.lua), the rest against the generators' own counts and hand-made SIP seque
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 from sl_robots import tshark_counts, write_tcp
 
 from sharedlink.analysis.stats import capture_stats, render_text
@@ -21,7 +21,7 @@ CLI = [sys.executable, "-m", "sharedlink"]
 
 
 def stats_json(path: Path) -> dict:
-    res = subprocess.run([*CLI, "stats", "--json", str(path)], capture_output=True, text=True, timeout=120)
+    res = run_cli("stats", "--json", str(path), timeout=120)
     assert res.returncode == 0, res.stderr
     assert "no SharedLink frames" not in res.stderr
     return json.loads(res.stdout)

@@ -13,7 +13,6 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 import tracemalloc
 from pathlib import Path
 
@@ -333,8 +332,7 @@ def test_blackboard_and_p2os_are_not_noise(tmp_path, transport):
         st = capture_stats(tmp_path / "p2.pcap")
         assert st.noise_segments == 0 and set(st.other_protocols) == {"p2os"}
         assert st.to_dict()["other_protocols"]["p2os"]["segments"] == st.other_protocols["p2os"][0]
-        r = subprocess.run([sys.executable, "-m", "sharedlink", "stats", str(tmp_path / "p2.pcap")],
-                           capture_output=True, text=True, timeout=120)
+        r = run_cli("stats", str(tmp_path / "p2.pcap"), timeout=120)
         assert "p2os (not SharedLink)" in r.stdout and "Traceback" not in r.stderr
 
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import json
 import struct
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from sl_captures import captures, write_capture
+from sl_cli import run_cli
 
 from sharedlink.analysis.diff import DiffOptions, diff_captures
 from sharedlink.analysis.transform import (
@@ -141,13 +141,12 @@ def test_damaged_input_writes_the_records_before_the_damage(tmp_path):
 def test_cli_compress_expand_and_errors(tmp_path):
     full = tmp_path / "full.pcap"
     generate_file(GenOptions(duration=10, form="positional"), full)
-    r = subprocess.run(CLI + ["compress", str(full), str(tmp_path / "c.pcap"), "--sync-interval", "2", "--json"],
-                       capture_output=True, text=True)
+    r = run_cli("compress", str(full), str(tmp_path / "c.pcap"), "--sync-interval", "2", "--json")
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     assert (out["mode"], out["full"], out["delta"], out["records"]) == ("compress", 5, 45, 51)
     assert 0 < out["saving"] < 1
-    r = subprocess.run(CLI + ["expand", str(tmp_path / "c.pcap"), str(tmp_path / "e.pcap")], capture_output=True, text=True)
+    r = run_cli("expand", str(tmp_path / "c.pcap"), str(tmp_path / "e.pcap"))
     assert r.returncode == 0 and "wrote" in r.stderr and "larger" in r.stderr
     assert (tmp_path / "e.pcap").read_bytes() == full.read_bytes()
     for args, msg in (
@@ -156,9 +155,9 @@ def test_cli_compress_expand_and_errors(tmp_path):
         (["expand", str(full), "-o", str(tmp_path / "no-dir" / "o.pcap")], "No such file"),
         (["expand", str(full), "-o", str(tmp_path / "o.pcap"), "--variables", "a:x"], "--variables"),
     ):
-        r = subprocess.run(CLI + args, capture_output=True, text=True)
+        r = run_cli(*args)
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
     (tmp_path / "cut.pcap").write_bytes(full.read_bytes()[:-10])
-    r = subprocess.run(CLI + ["compress", str(tmp_path / "cut.pcap"), "-o", str(tmp_path / "o.pcap")], capture_output=True, text=True)
+    r = run_cli("compress", str(tmp_path / "cut.pcap"), "-o", str(tmp_path / "o.pcap"))
     assert r.returncode == 2 and "truncated record" in r.stderr and "Traceback" not in r.stderr
     assert len(list(read_records(tmp_path / "o.pcap"))) == 50

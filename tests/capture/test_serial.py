@@ -14,6 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sl_captures import chunked, examples, reference_frames, sl_stream
+from sl_cli import run_cli
 
 from sharedlink.capture.pcapio import read_records
 from sharedlink.capture.serial_format import (
@@ -301,7 +302,7 @@ def test_text_log_and_raw_dump_and_cli_import(tmp_path):
     assert chunks[0].ts_ns == 1_767_268_800_250_000_000 and chunks[2].ts_ns == 1_767_268_800_500_000_000
 
     out = tmp_path / "o.pcapng"
-    r = subprocess.run([*CLI, "serial", "import", str(log), "--out", str(out), "--frame", "--json"], capture_output=True, text=True)
+    r = run_cli("serial", "import", str(log), "--out", str(out), "--frame", "--json")
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
     assert summary["frames"] == 2
@@ -310,8 +311,7 @@ def test_text_log_and_raw_dump_and_cli_import(tmp_path):
 
     raw = tmp_path / "raw.bin"
     raw.write_bytes(_session_bytes())
-    r = subprocess.run([*CLI, "serial", "import", str(raw), "--out", str(out), "--chunk", "7", "--start", "100", "--direction", "out"],
-                       capture_output=True, text=True)
+    r = run_cli("serial", "import", str(raw), "--out", str(out), "--chunk", "7", "--start", "100", "--direction", "out")
     assert r.returncode == 0, r.stderr
     recs = list(read_records(out))
     assert b"".join(x.data for x in recs) == raw.read_bytes() and all(x.flags & 3 == DIR_OUT for x in recs)
@@ -329,26 +329,24 @@ def test_import_errors_are_clean(tmp_path):
                  ["serial", "capture", "--baud", "9600"],
                  ["serial", "capture", str(tmp_path / "no-such-tty"), "--baud", "9600", "-o", str(tmp_path / "y.pcapng")],
                  ["gen", "-o", str(tmp_path / "z.pcap"), "--transport", "serial", "--format", "pcap"]):
-        r = subprocess.run([*CLI, *args], capture_output=True, text=True)
+        r = run_cli(*args)
         assert r.returncode == 2 and r.stderr.startswith("sharedlink: error: ") and "Traceback" not in r.stderr, (args, r.stderr)
     assert not (tmp_path / "x.pcapng").exists()
-    r = subprocess.run([*CLI, "serial", "capture", str(tmp_path / "no-such-tty"), "--baud", "9600", "-o",
-                        str(tmp_path / "y.pcapng")], capture_output=True, text=True)
+    r = run_cli("serial", "capture", str(tmp_path / "no-such-tty"), "--baud", "9600", "-o", str(tmp_path / "y.pcapng"))
     # a port that does not open: named once, the reason once (pyserial says both twice)
     assert r.stderr.count("no-such-tty") == 1 and r.stderr.count("No such file or directory") == 1, r.stderr
 
 
 def test_gen_transport_serial_cli(tmp_path):
     out = tmp_path / "s.pcapng"
-    r = subprocess.run([*CLI, "gen", str(out), "--transport", "serial", "--duration", "3", "--baud", "19200", "--json"],
-                       capture_output=True, text=True)
+    r = run_cli("gen", str(out), "--transport", "serial", "--duration", "3", "--baud", "19200", "--json")
     assert r.returncode == 0, r.stderr
     s = json.loads(r.stdout)
     assert s["transport"] == "serial" and s["records"] == len(list(read_records(out)))
     frames = [p for _r, _d, p in read_capture(out) if p.is_frame]
     assert len(frames) == s["frames"]
     # the UDP default is unchanged
-    r = subprocess.run([*CLI, "gen", str(tmp_path / "u.pcap"), "--frames", "3"], capture_output=True, text=True)
+    r = run_cli("gen", str(tmp_path / "u.pcap"), "--frames", "3")
     assert r.returncode == 0 and next(read_records(tmp_path / "u.pcap")).linktype == 1
 
 
@@ -396,7 +394,7 @@ def test_stats_counts_the_frames_given_up_at_the_limit(tmp_path):
     (held), as many as the reader gives up (the records serial.lua warns on), their bytes noise."""
     cap = _past_the_held_limit(tmp_path / "over.pcapng")
     given_up = sum(p.reason == GIVEN_UP for _r, _d, p in read_capture(cap, "auto"))
-    r = subprocess.run([*CLI, "stats", str(cap), "--json"], capture_output=True, text=True, timeout=120)
+    r = run_cli("stats", str(cap), "--json", timeout=120)
     assert r.returncode == 0, r.stderr
     st = json.loads(r.stdout)
     st = st["captures"][0] if "captures" in st else st
@@ -412,8 +410,7 @@ def test_a_hex_dump_whose_repeat_asks_for_terabytes_is_refused_at_once(tmp_path)
     line = "00000000: 5b3a 4142 7c4e 307c 4431 7c43 3030 5d0d  [:AB|N0|D1|C00].\n"
     bomb = tmp_path / "bomb.hex"
     bomb.write_text(line + "*\n1000000000: 0a\n")
-    r = subprocess.run([*CLI, "serial", "import", str(bomb), "-o", str(tmp_path / "b.pcapng")],
-                       capture_output=True, text=True, timeout=60)
+    r = run_cli("serial", "import", str(bomb), "-o", str(tmp_path / "b.pcapng"), timeout=60)
     assert r.returncode == 2 and "line 3: offset 0x1000000000 is past what a dump may expand to" in r.stderr, r.stderr
     assert r.stderr.count("\n") == 1 and not (tmp_path / "b.pcapng").exists()
     assert 0x1000000000 > MAX_DUMP_BYTES

@@ -10,12 +10,12 @@ with line noise between the frames.
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from collections import Counter
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 from sharedlink.analysis.changes import read_changes
 from sharedlink.analysis.diff import DiffOptions, diff_captures
@@ -128,19 +128,19 @@ def test_diff_of_a_serial_capture_with_itself_agrees_on_every_frame(session):
 
 def test_cli_stats_export_and_diff_on_a_serial_capture(tmp_path):
     p = tmp_path / "s.pcapng"
-    r = subprocess.run(CLI + ["gen", str(p), "--transport", "serial", "--duration", "10", "--json"], capture_output=True, text=True)
+    r = run_cli("gen", str(p), "--transport", "serial", "--duration", "10", "--json")
     assert r.returncode == 0, r.stderr
     gen = json.loads(r.stdout)
-    r = subprocess.run(CLI + ["stats", str(p), "--json"], capture_output=True, text=True)
+    r = run_cli("stats", str(p), "--json")
     assert r.returncode == 0, r.stderr
     st = json.loads(r.stdout)
     assert st["kinds"] == gen["kinds"] and st["frames"] == gen["frames"] > 0
-    r = subprocess.run(CLI + ["export", str(p), "--format", "jsonl"], capture_output=True, text=True)
+    r = run_cli("export", str(p), "--format", "jsonl")
     assert r.returncode == 0, r.stderr
     rows = [json.loads(line) for line in r.stdout.splitlines()]
     assert len(rows) == gen["frames"]
     assert Counter(row["kind"] for row in rows) == Counter(gen["kinds"])
-    r = subprocess.run(CLI + ["diff", str(p), str(p), "--json"], capture_output=True, text=True)
+    r = run_cli("diff", str(p), str(p), "--json")
     assert r.returncode == 0, r.stderr
     rep = json.loads(r.stdout)
     assert rep["agree"] and rep["a"]["frames"] == gen["frames"] and rep["pairs"] > 0
@@ -149,8 +149,7 @@ def test_cli_stats_export_and_diff_on_a_serial_capture(tmp_path):
 @pytest.mark.parametrize("protocol", ["p2os", "blackboard"])
 def test_other_protocols_on_the_line_are_other_records_not_frames_or_noise(tmp_path, protocol):
     p = tmp_path / f"{protocol}.pcapng"
-    r = subprocess.run(CLI + ["gen", str(p), "--protocol", protocol, "--transport", "serial", "--duration", "5"],
-                       capture_output=True, text=True)
+    r = run_cli("gen", str(p), "--protocol", protocol, "--transport", "serial", "--duration", "5")
     assert r.returncode == 0, r.stderr
     n = sum(1 for _ in read_records(p))
     items = list(iter_frames(p))

@@ -12,8 +12,6 @@ Both must name the same frames (or counts) and link the same replies.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 from sl_agreement import (
@@ -27,6 +25,7 @@ from sl_agreement import (
     udp_builder,
     write_session,
 )
+from sl_cli import run_cli
 
 import tshark_util as tu
 from sharedlink.analysis.decode import Decoded, iter_decoded
@@ -45,8 +44,7 @@ def _limited(rows: list[dict[str, list[str]]], what: str = "") -> list[int]:
 
 def _counts(cap: Path) -> dict[str, int]:
     """``sharedlink stats --json``'s limits (the command as users run it)."""
-    r = subprocess.run([sys.executable, "-m", "sharedlink", "stats", "--json", str(cap)], capture_output=True,
-                       text=True, timeout=120)
+    r = run_cli("stats", "--json", str(cap), timeout=120)
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     return json.loads(r.stdout)["limits"]
 

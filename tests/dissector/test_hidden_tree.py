@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 import tshark_util as tu
 
@@ -102,7 +102,7 @@ def merged(tmp_path_factory: pytest.TempPathFactory) -> Path:
     caps = list(INPUTS)
     for name, opts in GENERATED.items():
         cap = work / f"{name}.{'pcapng' if '--format' in opts else 'pcap'}"
-        subprocess.run([sys.executable, "-m", "sharedlink", "gen", *opts, str(cap)], check=True, capture_output=True)
+        run_cli("gen", *opts, str(cap), text=False, check=True)
         caps.append(cap)
     out = work / "merged.pcapng"
     subprocess.run(["mergecap", "-a", "-F", "pcapng", "-w", str(out), *map(str, caps)], check=True,

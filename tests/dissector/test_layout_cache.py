@@ -13,12 +13,11 @@ and a second pass (-2, -2 -V) read, must be the same both ways.
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 from sl_captures import pcap_payloads
+from sl_cli import run_cli
 from sl_vectors import load_streams, stream_ids, write_stream, write_streams_apart
 
 import tshark_util as tu
@@ -148,8 +147,7 @@ def mixed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str
 
     for name in sorted(n for n in GEN if n != "serial"):
         one = tmp / f"gen-{name}.pcap"
-        subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--seed", "7", *GEN[name], str(one)],
-                       check=True, capture_output=True)
+        run_cli("gen", "--seed", "7", *GEN[name], str(one), text=False, check=True)
         udp(name, [(ts, payload) for _n, ts, payload in pcap_payloads(one)])
     udp("line ends udp", [(T0 + i * 200_000_000, p) for i, p in enumerate(_line_end_payloads())])
     udp("values", [(T0 + i * 200_000_000, p) for i, p in enumerate(_value_payloads())])
@@ -185,8 +183,7 @@ def test_cache_takes_dozens_of_each_beacon_case(name: str, mixed: tuple[Path, di
 
 def test_cache_leaves_what_the_parser_leaves_on_serial(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     cap = tmp_path / "serial.pcap"
-    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--seed", "7", *GEN["serial"], str(cap)],
-                   check=True, capture_output=True)
+    run_cli("gen", "--seed", "7", *GEN["serial"], str(cap), text=False, check=True)
     _same_both_ways(cap, monkeypatch)
     assert len(_marked(cap, monkeypatch, ["-V", "-P"])) >= 20
 
@@ -224,8 +221,7 @@ def test_cache_takes_the_bulk_of_a_beacon_stream(tmp_path: Path, monkeypatch: py
     """Full frames and compressed deltas (bare ones too) take the cache in both passes and with a
     shown tree; the frames it leaves (the first of each layout, bad checksums) go to the parser."""
     cap = tmp_path / "c.pcap"
-    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--frames", "300", "--compress",
-                    "--bad-checksum", "0.05", str(cap)], check=True, capture_output=True)
+    run_cli("gen", "--frames", "300", "--compress", "--bad-checksum", "0.05", str(cap), text=False, check=True)
     for args, two_pass in (([], False), ([], True), (["-V", "-P"], False), (["-V", "-P"], True)):
         marked = _marked(cap, monkeypatch, args, two_pass)
         assert len(marked) > 240, (args, two_pass, len(marked))
@@ -238,8 +234,7 @@ def test_records_of_a_long_compressed_stream(tmp_path: Path, monkeypatch: pytest
     records to a chunk in one ByteArray: a stream long enough for several chunks, read by the
     second pass in order, shows the same carried values with the cache as without it."""
     cap = tmp_path / "long.pcap"
-    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--seed", "11", "--frames", "1400", "--compress",
-                    str(cap)], check=True, capture_output=True)
+    run_cli("gen", "--seed", "11", "--frames", "1400", "--compress", str(cap), text=False, check=True)
     outs = []
     for cache in (True, False):
         with monkeypatch.context() as m:

@@ -25,6 +25,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 from sharedlink import plugins
 from tshark_util import TSHARK_CMD, TSHARK_VERSION, check_stderr, env_for, tshark
@@ -142,7 +143,7 @@ def test_io_graphs_each_release(release):
 @pytest.fixture
 def tiny_capture(tmp_path):
     cap = tmp_path / "tiny.pcap"
-    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "-o", cap, "--frames", "3", "-q"], check=True, timeout=120)
+    run_cli("gen", "-o", cap, "--frames", "3", "-q", text=False, check=True, timeout=120)
     return cap
 
 
@@ -195,7 +196,7 @@ def test_io_graphs_on_this_tshark(tmp_path):
     cap = _two_way_capture(tmp_path)
     rows = _io_stat(cap, recs)
     csv = tmp_path / "q.csv"
-    subprocess.run([sys.executable, "-m", "sharedlink", "health", cap, "-o", csv, "-q"], check=True, timeout=120)
+    run_cli("health", cap, "-o", csv, "-q", text=False, check=True, timeout=120)
     lines = [ln.split(",") for ln in csv.read_text().splitlines()[1:]]
     t0 = min(int(c[2]) for c in lines)
     want: dict[str, dict[int, int]] = {"B>A": {}, "A>B": {}}
@@ -204,8 +205,7 @@ def test_io_graphs_on_this_tshark(tmp_path):
     for sec, (all_, ba, ab, _) in rows.items():
         assert ba == want["B>A"].get(sec, 0) and ab == want["A>B"].get(sec, 0), (sec, rows[sec], want)
         assert all_ == ba + ab
-    stats = json.loads(subprocess.run([sys.executable, "-m", "sharedlink", "stats", "--json", cap], check=True,
-                                      capture_output=True, text=True, timeout=120).stdout)
+    stats = json.loads(run_cli("stats", "--json", cap, check=True, timeout=120).stdout)
     assert len(stats["outages"]) == 2
     for o in stats["outages"]:
         sec = int(o["end"]) - t0

@@ -8,11 +8,10 @@ its direction in words, a blackboard message's terminator is its last field."""
 from __future__ import annotations
 
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 import tshark_util as tu
 
@@ -27,9 +26,7 @@ LABELS = {"sharedlink": "SharedLink", "p2os": "P2OS", "blackboard": "Blackboard"
 
 def generate(path: Path, protocol: str, duration: float, seed: int) -> Path:
     """A serial session written by `sharedlink gen --transport serial`."""
-    r = subprocess.run([sys.executable, "-m", "sharedlink", "gen", str(path), "--protocol", protocol, "--transport",
-                        "serial", "--duration", str(duration), "--seed", str(seed)], capture_output=True, text=True,
-                       timeout=120)
+    r = run_cli("gen", str(path), "--protocol", protocol, "--transport", "serial", "--duration", str(duration), "--seed", str(seed), timeout=120)
     assert r.returncode == 0, r.stderr
     return path
 

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 import tshark_util as tu
 from sharedlink.analysis.decode import Decoded, iter_decoded
@@ -53,8 +53,7 @@ def _shown(cap: Path, flt: str) -> set[int]:
 
 def _generated(tmp_path: Path, *args: str) -> Path:
     cap = tmp_path / "gen.pcap"
-    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--frames", "200", "--compress", *args, "-o", str(cap)],
-                   check=True, capture_output=True)
+    run_cli("gen", "--frames", "200", "--compress", *args, "-o", str(cap), text=False, check=True)
     return cap
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from sl_cli import run_cli
 from sl_vectors import expected_frames, load_streams, stream_ids, stream_params, write_stream
 
 import tshark_util as tu
@@ -200,15 +201,12 @@ def _matched_shown(cap: Path, prefs: dict | None) -> dict[str, set[int]]:
 @pytest.mark.parametrize("form", ["named", "positional"])
 def test_hidden_tree_matches_shown_tree(form: str, each_frame: bool, tmp_path: Path,
                                         monkeypatch: pytest.MonkeyPatch) -> None:
-    import subprocess
-    import sys
 
     if each_frame:
         monkeypatch.setenv("SHAREDLINK_PROBE_EACH_FRAME", "1")
 
     cap = tmp_path / f"{form}.pcap"
-    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--frames", "60", "--compress", "--form", form,
-                    "--bad-checksum", "0.1", "--drop", "0.1", str(cap)], check=True, capture_output=True)
+    run_cli("gen", "--frames", "60", "--compress", "--form", form, "--bad-checksum", "0.1", "--drop", "0.1", str(cap), text=False, check=True)
     prefs = {"sharedlink.variables": "AutoGpsLat:2,AutoGpsLon:2,AutoGpsHead:2,AutoGpsVel:2"}
     shown = _matched_shown(cap, prefs)
     for flt in FILTERS:
@@ -218,12 +216,9 @@ def test_hidden_tree_matches_shown_tree(form: str, each_frame: bool, tmp_path: P
 def test_hidden_tree_learns_again_in_the_second_pass(tmp_path: Path) -> None:
     """tshark -2: the first pass primes the read filter's fields only, the second the display
     filter's. What the first pass learnt must not hide a field the second pass asks for."""
-    import subprocess
-    import sys
 
     cap = tmp_path / "two.pcap"
-    subprocess.run([sys.executable, "-m", "sharedlink", "gen", "--frames", "40", "--compress", str(cap)],
-                   check=True, capture_output=True)
+    run_cli("gen", "--frames", "40", "--compress", str(cap), text=False, check=True)
     read_filter, display = 'sharedlink.kind == "delta"', "count(sharedlink.var.name) == 4 && sharedlink.var.carried"
     # -R drops frames and numbers the rest again: frames are compared by their time
     lines = tu.summary(cap, two_pass=True, extra=["-R", read_filter, "-Y", display, "-t", "e",

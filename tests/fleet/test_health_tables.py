@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import datetime as dt
 import re
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 from sharedlink.analysis.stats import capture_stats
 from sharedlink.capture.pcapio import NS
@@ -40,12 +40,11 @@ def fleet(tmp_path_factory) -> tuple[Path, dict[str, list[Path]]]:
         for k, args in enumerate(runs):
             p = d / "fleet" / vehicle / f"run{k}.pcap"
             p.parent.mkdir(parents=True, exist_ok=True)
-            r = subprocess.run([*CLI, "gen", "-o", str(p), "--seed", str(k + 1), *args], capture_output=True,
-                               text=True, timeout=120)
+            r = run_cli("gen", "-o", str(p), "--seed", str(k + 1), *args, timeout=120)
             assert r.returncode == 0, r.stderr
             caps.setdefault(vehicle, []).append(p)
     ds = d / "ds"
-    r = subprocess.run([*CLI, "ingest", "-o", str(ds), str(d / "fleet")], capture_output=True, text=True, timeout=300)
+    r = run_cli("ingest", "-o", str(ds), str(d / "fleet"), timeout=300)
     assert r.returncode == 0, r.stderr
     return ds, caps
 
@@ -83,6 +82,6 @@ def test_reingest_replaces_health_rows(fleet, tmp_path):
     ds, caps = fleet
     before = list(run_query(ds, "SELECT count(*) FROM links UNION ALL SELECT count(*) FROM outages").rows())
     p = caps["v1"][0]
-    r = subprocess.run([*CLI, "ingest", "-o", str(ds), "--reingest", str(p)], capture_output=True, text=True, timeout=300)
+    r = run_cli("ingest", "-o", str(ds), "--reingest", str(p), timeout=300)
     assert r.returncode == 0, r.stderr
     assert list(run_query(ds, "SELECT count(*) FROM links UNION ALL SELECT count(*) FROM outages").rows()) == before

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pyarrow.dataset as pads
 import pytest
+from sl_cli import run_cli
 
 from sharedlink.analysis.stats import capture_stats
 from sharedlink.cli import main as cli_main
@@ -186,7 +187,7 @@ def test_damaged_capture_is_kept_up_to_the_damage_and_reported(fleet, tmp_path):
     cut.write_bytes(data[: len(data) // 2 + 7])
     (caps / "junk.pcap").write_bytes(b"not a capture at all")
     ds = tmp_path / "ds"
-    r = subprocess.run([*CLI, "ingest", str(caps), "--to", str(ds)], capture_output=True, text=True, timeout=300)
+    r = run_cli("ingest", str(caps), "--to", str(ds), timeout=300)
     assert r.returncode == 2, r.stderr
     assert "Traceback" not in r.stderr and f"{cut.resolve()}: record" in r.stderr and "junk.pcap" in r.stderr
     st = capture_stats(cut)
@@ -196,7 +197,7 @@ def test_damaged_capture_is_kept_up_to_the_damage_and_reported(fleet, tmp_path):
     errors = dict(q(ds, "SELECT path, error FROM captures WHERE error IS NOT NULL"))
     assert set(errors) == {str(cut.resolve()), str((caps / "junk.pcap").resolve())}
     # again: nothing to do, still reported
-    r = subprocess.run([*CLI, "ingest", str(caps), "--to", str(ds)], capture_output=True, text=True, timeout=300)
+    r = run_cli("ingest", str(caps), "--to", str(ds), timeout=300)
     assert r.returncode == 2 and "3 unchanged" not in r.stderr and "1 unchanged" in r.stderr
     assert dict(q(ds, "SELECT capture, count(*) FROM frames GROUP BY capture")) == got
 
@@ -303,12 +304,11 @@ def test_a_query_with_the_old_spelling_of_a_link(dataset, tmp_path):
         want = q(ds, sql.format("B_to_A"))
         assert want and q(ds, sql.format("B-A")) == want
         assert run_query(ds, sql.format("B-A")).renamed == [("B-A", "B_to_A")]
-        r = subprocess.run([*CLI, "query", str(ds), sql.format("B-A"), "--format", "json"], capture_output=True,
-                           text=True, timeout=120)
+        r = run_cli("query", str(ds), sql.format("B-A"), "--format", "json", timeout=120)
         assert r.returncode == 0 and [(d["vehicle"], d["n"]) for d in json.loads(r.stdout)] == want
         assert r.stderr == ("sharedlink: warning: link = 'B-A' is deprecated, use link = 'B_to_A' or pair = 'B>A' "
                             "(the old spelling goes in the next release)\n")
-        r = subprocess.run([*CLI, "query", str(ds), sql.format("B_to_A")], capture_output=True, text=True, timeout=120)
+        r = run_cli("query", str(ds), sql.format("B_to_A"), timeout=120)
         assert r.returncode == 0 and r.stderr == ""
 
 
@@ -357,16 +357,14 @@ def test_a_worker_started_with_a_small_trim_threshold_gives_the_same_dataset(fle
 def test_unreachable_scheduler_is_a_usage_error(fleet, tmp_path, timeout):
     """Given up after --scheduler-timeout (default 10 s: make test-long waits it out)."""
     wait = [] if timeout is None else ["--scheduler-timeout", timeout]
-    r = subprocess.run([*CLI, "ingest", str(fleet / "v1"), "--to", str(tmp_path / "d"), "--scheduler", "tcp://127.0.0.1:9",
-                        *wait], capture_output=True, text=True, timeout=120)
+    r = run_cli("ingest", str(fleet / "v1"), "--to", str(tmp_path / "d"), "--scheduler", "tcp://127.0.0.1:9", *wait, timeout=120)
     assert r.returncode == 2 and "Dask scheduler" in r.stderr and "Traceback" not in r.stderr
     assert f"after {timeout or 10} s" in r.stderr, r.stderr  # (Dask's words: the timeout it was given)
 
 
 @pytest.mark.parametrize("timeout", ["0", "-1", "nan"])
 def test_scheduler_timeout_must_be_a_positive_number(fleet, tmp_path, timeout):
-    r = subprocess.run([*CLI, "ingest", str(fleet / "v1"), "-o", str(tmp_path / "d"), "--scheduler", "tcp://127.0.0.1:9",
-                        "--scheduler-timeout", timeout], capture_output=True, text=True, timeout=120)
+    r = run_cli("ingest", str(fleet / "v1"), "-o", str(tmp_path / "d"), "--scheduler", "tcp://127.0.0.1:9", "--scheduler-timeout", timeout, timeout=120)
     assert r.returncode == 2 and "argument --scheduler-timeout" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert not (tmp_path / "d").exists()
 
@@ -380,8 +378,7 @@ def test_a_dataset_path_that_cannot_be_a_directory_is_one_line(fleet, tmp_path, 
         to.symlink_to(tmp_path / "nowhere")
     else:
         to.write_bytes(b"keep me")
-    r = subprocess.run([*CLI, "ingest", str(fleet / "v1"), "-o", str(to)],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("ingest", str(fleet / "v1"), "-o", str(to), timeout=120)
     assert r.returncode == 2, r.stderr
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert str(to) in r.stderr
@@ -412,26 +409,24 @@ def test_memory_does_not_grow_with_the_capture(tmp_path):
 def test_query_cli_formats(dataset):
     sql = "SELECT pair, count(*) AS frames FROM frames WHERE vehicle = 'v2' GROUP BY pair ORDER BY pair"
     want = q(dataset, sql)
-    r = subprocess.run([*CLI, "query", str(dataset), sql, "--format", "json"], capture_output=True, text=True, timeout=120)
+    r = run_cli("query", str(dataset), sql, "--format", "json", timeout=120)
     assert r.returncode == 0, r.stderr
     assert [(d["pair"], d["frames"]) for d in json.loads(r.stdout)] == want
-    r = subprocess.run([*CLI, "query", str(dataset), sql, "--format", "csv"], capture_output=True, text=True, timeout=120)
+    r = run_cli("query", str(dataset), sql, "--format", "csv", timeout=120)
     assert r.stdout.splitlines() == ["pair,frames"] + [f"{a},{b}" for a, b in want]
     csv_text = r.stdout
-    r = subprocess.run([*CLI, "query", str(dataset), sql], capture_output=True, text=True, timeout=120)
+    r = run_cli("query", str(dataset), sql, timeout=120)
     assert r.returncode == 0 and r.stdout == csv_text  # on a pipe: CSV
-    r = subprocess.run([*CLI, "query", str(dataset), sql, "--format", "table"], capture_output=True, text=True,
-                       timeout=120)
+    r = run_cli("query", str(dataset), sql, "--format", "table", timeout=120)
     assert r.returncode == 0 and "C>A" in r.stdout and f"({len(want)} row" in r.stdout
 
 
 def test_query_bad_input(dataset, tmp_path):
-    r = subprocess.run([*CLI, "query", str(dataset), "SELECT nope FROM frames"], capture_output=True, text=True, timeout=120)
+    r = run_cli("query", str(dataset), "SELECT nope FROM frames", timeout=120)
     assert r.returncode == 2 and r.stderr.startswith("sharedlink: error: query:") and "Traceback" not in r.stderr
-    r = subprocess.run([*CLI, "query", str(tmp_path), "SELECT 1"], capture_output=True, text=True, timeout=120)
+    r = run_cli("query", str(tmp_path), "SELECT 1", timeout=120)
     assert r.returncode == 2 and "not a fleet dataset" in r.stderr
-    r = subprocess.run([*CLI, "ingest", str(tmp_path / "none.pcap"), "--to", str(tmp_path / "d")],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("ingest", str(tmp_path / "none.pcap"), "--to", str(tmp_path / "d"), timeout=120)
     assert r.returncode == 2 and "no such file" in r.stderr
 
 

@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
 import sys
 from pathlib import Path
+
+from sl_cli import run_cli
 
 from sharedlink.analysis.stats import capture_stats
 from sharedlink.fleet.dataset import load_manifest, old_links, save_manifest
@@ -34,8 +35,7 @@ def test_packets_table_holds_what_stats_counts(tmp_path):
     generate_p2os_file(P2osGenOptions(duration=4, seed=4, transport="serial", fmt="pcapng"), ps)
     generate_blackboard_file(BlackboardGenOptions(duration=6, seed=5), b)
     ds = tmp_path / "ds"
-    res = subprocess.run([*CLI, "ingest", "-o", str(ds), str(p), str(ps), str(b)], capture_output=True, text=True,
-                         timeout=300)
+    res = run_cli("ingest", "-o", str(ds), str(p), str(ps), str(b), timeout=300)
     assert res.returncode == 0, res.stderr
     assert "P2OS/blackboard packets" in res.stderr
     for cap in (p, ps, b):
@@ -63,8 +63,8 @@ def test_packets_table_holds_what_stats_counts(tmp_path):
     assert counts == {(c["name"], c["count"]) for c in st["commands"]}
     rows = dict(run_query(ds, unacked).rows())
     assert rows == {str(b): capture_stats(b).to_dict()["blackboard"]["repeated"]}
-    out = subprocess.run([*CLI, "query", str(ds), "SELECT command, count(*) AS n FROM packets WHERE side = 'client' "
-                          "GROUP BY ALL ORDER BY n DESC", "--format", "json"], capture_output=True, text=True, timeout=120)
+    out = run_cli("query", str(ds), "SELECT command, count(*) AS n FROM packets WHERE side = 'client' "
+                          "GROUP BY ALL ORDER BY n DESC", "--format", "json", timeout=120)
     assert out.returncode == 0, out.stderr
     total: dict[str, int] = {}
     for cap in (p, ps):
@@ -79,7 +79,7 @@ def test_packets_link_is_the_protocol_beside_either_spelling_of_a_pair(tmp_path)
     p = tmp_path / "p.pcap"
     beacon = tmp_path / "beacon.pcap"
     generate_p2os_file(P2osGenOptions(duration=3, seed=3), p)
-    assert subprocess.run([*CLI, "gen", "-o", str(beacon), "--duration", "3"], capture_output=True).returncode == 0
+    assert run_cli("gen", "-o", str(beacon), "--duration", "3", text=False).returncode == 0
     ds = tmp_path / "ds"
     assert ingest([p, beacon], ds).ok
     assert sorted(d.relative_to(ds).as_posix() for d in ds.glob("*/day=*/link=*")) == [

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import re
 import shlex
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -39,6 +38,6 @@ def test_capture_is_byte_identical_when_remade(tmp_path, cmd):
     target = ROOT / _output(cmd)
     out = tmp_path / target.name
     args = [str(out) if a == _output(cmd) else a for a in cmd]
-    r = subprocess.run([sys.executable, "-m", "sharedlink", *args], capture_output=True, text=True)
+    r = run_cli(*args)
     assert r.returncode == 0, r.stderr
     assert out.read_bytes() == target.read_bytes()

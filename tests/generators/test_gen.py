@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 from sharedlink.capture.packets import decode_packet
 from sharedlink.capture.pcapio import read_records
@@ -184,16 +185,16 @@ def test_scapy_layer_reads_generated_frames(tmp_path):
 
 def test_cli_gen_json_and_errors(tmp_path):
     out = tmp_path / "c.pcapng"
-    r = subprocess.run(CLI + ["gen", str(out), "--duration", "3", "--compress", "--json"], capture_output=True, text=True)
+    r = run_cli("gen", str(out), "--duration", "3", "--compress", "--json")
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
     assert summary["format"] == "pcapng" and summary["frames"] == 15 and out.exists()
     assert summary["kinds"] == {"full": 3, "delta": 12}
     for bad in (["--src", "Z"], ["--drop", "2"], ["--rate", "0"], ["--format", "xml"], ["--frames", "0"]):
-        r = subprocess.run(CLI + ["gen", str(tmp_path / "x.pcap")] + bad, capture_output=True, text=True)
+        r = run_cli("gen", str(tmp_path / "x.pcap"), *bad)
         assert r.returncode == 2, bad
         assert "error" in r.stderr and "Traceback" not in r.stderr
-    r = subprocess.run(CLI + ["gen", str(tmp_path / "no" / "dir.pcap")], capture_output=True, text=True)
+    r = run_cli("gen", str(tmp_path / "no" / "dir.pcap"))
     assert r.returncode == 2 and "No such file" in r.stderr and "Traceback" not in r.stderr
-    r = subprocess.run(CLI + ["gen", "--help"], capture_output=True, text=True)
+    r = run_cli("gen", "--help")
     assert r.returncode == 0 and "--sync-interval" in r.stdout

@@ -99,7 +99,7 @@ def test_the_man_page_is_fresh():
 
 @pytest.mark.parametrize("shell", ["bash", "zsh", "fish"])
 def test_completion_scripts_name_every_command_and_parse(shell, tmp_path):
-    r = subprocess.run([*CLI, "completion", shell], capture_output=True, text=True, timeout=120)
+    r = run_cli("completion", shell, timeout=120)
     assert r.returncode == 0 and r.stderr == "", r.stderr
     for word in ("gen", "stats", "export", "serial", "completion", "--fail-on", "--sync-interval"):
         assert word in r.stdout, (shell, word)

@@ -6,7 +6,6 @@ capture at its capture time (x, y in metres from export's `x_mm`, `y_mm`)."""
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 
 import pytest
@@ -14,17 +13,17 @@ import pytest
 if sys.version_info < (3, 10):  # foxglove-schemas-protobuf (the official classes) needs Python 3.10
     pytest.skip("foxglove-schemas-protobuf needs Python 3.10+", allow_module_level=True)
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
-from sl_foxglove import CLI, Watch, advertised, subscribed, wait_for_channel
+from sl_cli import run_cli
+from sl_foxglove import Watch, advertised, subscribed, wait_for_channel
 from websockets.sync.client import connect
 
 
 def test_p2os_poses_reach_a_foxglove_client(tmp_path):
     cap = tmp_path / "p.pcap"
-    r = subprocess.run([*CLI, "gen", "-o", str(cap), "-q", "--protocol", "p2os", "--duration", "8"], capture_output=True,
-                       text=True, timeout=120)
+    r = run_cli("gen", "-o", str(cap), "-q", "--protocol", "p2os", "--duration", "8", timeout=120)
     assert r.returncode == 0, r.stderr
     rows = tmp_path / "p.jsonl"
-    subprocess.run([*CLI, "export", "-o", str(rows), str(cap)], check=True, capture_output=True, timeout=120)
+    run_cli("export", "-o", str(rows), str(cap), text=False, check=True, timeout=120)
     sips = {row["ts_ns"]: row for line in rows.read_text().splitlines()
             if "x_mm" in (row := json.loads(line)) and row["checksum"] == "good"}
     assert sips

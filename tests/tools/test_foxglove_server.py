@@ -6,7 +6,6 @@ writes for the same capture; the server's log under a flood of bad subscriptions
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
@@ -17,7 +16,8 @@ if sys.version_info < (3, 10):  # foxglove-schemas-protobuf (the official classe
 from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
 from mcap.reader import make_reader
 from sl_captures import reference
-from sl_foxglove import CLI, Watch, advertised, subscribed
+from sl_cli import run_cli
+from sl_foxglove import Watch, advertised, subscribed
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
@@ -28,7 +28,7 @@ from sharedlink.generators.beacon import GenOptions, generate_file
 def exported(tmp_path: Path, cap: Path) -> dict[str, str]:
     """Topic -> schema name of `export --format mcap` (the `mcap` reader)."""
     out = tmp_path / "x.mcap"
-    r = subprocess.run([*CLI, "export", str(cap), "-o", str(out)], capture_output=True, text=True, timeout=120)
+    r = run_cli("export", str(cap), "-o", str(out), timeout=120)
     assert r.returncode == 0, r.stderr
     with open(out, "rb") as fh:
         summary = make_reader(fh).get_summary()
@@ -79,8 +79,7 @@ def test_a_client_offering_neither_name_is_refused(drive):
 @pytest.mark.parametrize("protocol, transport", [("p2os", "tcp"), ("blackboard", "udp"), ("sharedlink", "serial")])
 def test_watch_from_serves_the_channels_export_writes_and_none_without_data(tmp_path, protocol, transport):
     cap = tmp_path / f"{protocol}.pcapng"
-    r = subprocess.run([*CLI, "gen", str(cap), "--protocol", protocol, "--transport", transport, "--duration", "6"],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("gen", str(cap), "--protocol", protocol, "--transport", transport, "--duration", "6", timeout=120)
     assert r.returncode == 0, r.stderr
     want = exported(tmp_path, cap)
     assert want

@@ -14,6 +14,7 @@ import json
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 from sl_vectors import REAL_OCU_LIST, REAL_VEHICLE_LIST, REAL_VEHICLE_TYPED, load_streams, write_stream
 
 from sharedlink.cli import main
@@ -237,16 +238,13 @@ PER_PAIR = ("B>A: " + ",".join(f"{n}:{t}" if t is not None else n for n, t in VE
 def test_every_command_takes_per_pair_lists(tmp_path, command):
     """``--variables`` reads the per-pair syntax in every command that takes it, and the lists
     name the vehicle's 28-slot frames and the OCU's 10-slot frames (no ``#i`` left)."""
-    import subprocess
-    import sys
 
     cap = _capture(tmp_path, "real-vehicle-frames-with-no-list")
     out = tmp_path / "out"
     args = {"stats": ["--json"], "export": ["--changes", "--format", "jsonl", "-o", f"{out}.jsonl"],
             "diff": [cap, "--json"], "compress": ["-o", f"{out}.pcap"], "expand": ["-o", f"{out}.pcap"],
             "plot": ["-o", f"{out}.png"], "ingest": ["-o", out]}[command]
-    r = subprocess.run([sys.executable, "-m", "sharedlink", command, str(cap), *map(str, args), "--variables", PER_PAIR],
-                       capture_output=True, text=True, timeout=300)
+    r = run_cli(command, str(cap), *map(str, args), "--variables", PER_PAIR, timeout=300)
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr
     if command == "stats":

@@ -14,6 +14,7 @@ import tty
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 from sharedlink.capture.pcapio import _block, _opt, read_records
 from sharedlink.generators.beacon import GenOptions, generate_file
@@ -71,12 +72,12 @@ def year_11476(capture, tmp_path_factory) -> Path:
 
 def test_time_stamps_past_year_9999(year_11476, tmp_path):
     assert len(fields(year_11476, ["frame.number"])) == 5  # tshark reads it
-    r = subprocess.run([*CLI, "export", "--format", "jsonl", str(year_11476)], capture_output=True, text=True, timeout=120)
+    r = run_cli("export", "--format", "jsonl", str(year_11476), timeout=120)
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout.splitlines()[0])["time"] == "+11476-08-15T05:20:00.000000000Z"
-    r = subprocess.run([*CLI, "export", str(year_11476), "-o", str(tmp_path / "t.kml")], capture_output=True, text=True, timeout=120)
+    r = run_cli("export", str(year_11476), "-o", str(tmp_path / "t.kml"), timeout=120)
     assert r.returncode == 0 and "+11476-08-15T05:20:00" in (tmp_path / "t.kml").read_text(), r.stderr
-    r = subprocess.run([*CLI, "compress", str(year_11476), "-o", str(tmp_path / "c.pcapng")], capture_output=True, text=True, timeout=120)
+    r = run_cli("compress", str(year_11476), "-o", str(tmp_path / "c.pcapng"), timeout=120)
     assert r.returncode == 2 and "record 1" in r.stderr and "2554" in r.stderr and "Traceback" not in r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.kml"]
 
@@ -88,7 +89,7 @@ def test_capture_names_that_are_not_utf8(capture, tmp_path, command):
     odd.write_bytes(capture.read_bytes())
     out = tmp_path / ("t.kml" if command == "kml" else "t.png")
     args = ["export", str(odd), "-o", str(out)] if command == "kml" else ["plot", str(odd), "-o", str(out)]
-    r = subprocess.run([*CLI, *args], capture_output=True, timeout=120)
+    r = run_cli(*args, text=False, timeout=120)
     assert r.returncode == 0, r.stderr
     assert out.stat().st_size > 0
     if command == "kml":
@@ -105,7 +106,7 @@ def test_serial_import_writes_the_lines_before_a_bad_one(tmp_path, bad):
     log = tmp_path / "l.log"
     log.write_text("\n".join(lines) + "\n")
     out = tmp_path / "l.pcapng"
-    r = subprocess.run([*CLI, "serial", "import", str(log), "-o", str(out)], capture_output=True, text=True, timeout=120)
+    r = run_cli("serial", "import", str(log), "-o", str(out), timeout=120)
     assert r.returncode == 2 and "line 11" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert len(fields(out, ["frame.number"])) == 10
 
@@ -120,8 +121,7 @@ def test_replay_to_a_serial_port_nobody_reads_stops_at_the_first_timeout(tmp_pat
     tty.setraw(slave)
     # (the subprocess timeout is the hang guard: a timeout per frame would take 2000 x 5 s; the
     # report says it stopped at the first one)
-    r = subprocess.run([*CLI, "replay", "--serial", os.ttyname(slave), "--topspeed", "--json", str(cap)],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("replay", "--serial", os.ttyname(slave), "--topspeed", "--json", str(cap), timeout=120)
     os.close(master)
     os.close(slave)
     assert r.returncode == 1, r.stderr
@@ -183,7 +183,7 @@ def test_expand_past_one_datagram_is_one_line_and_leaves_the_old_file(tmp_path):
     out = tmp_path / "out.pcap"
     out.write_bytes(b"the previous version")
     for command in ("expand", "compress"):
-        r = subprocess.run([*CLI, command, str(cap), "-o", str(out)], capture_output=True, text=True, timeout=120)
+        r = run_cli(command, str(cap), "-o", str(out), timeout=120)
         if command == "compress":  # leaves out what the receiver has: it fits
             assert r.returncode == 0, r.stderr
             continue

@@ -3,10 +3,10 @@ exit 2 with a message naming the option, never a traceback and never a file."""
 
 from __future__ import annotations
 
-import subprocess
 import sys
 
 import pytest
+from sl_cli import run_cli
 
 CLI = [sys.executable, "-m", "sharedlink"]
 
@@ -39,7 +39,7 @@ def test_bad_numbers_exit_2_with_a_message(tmp_path, args):
     out = tmp_path / "out.pcap"
     place = {"gen": [out], "replay": [cap], "stats": [cap], "diff": [cap, cap], "compress": [cap, out],
              "plot": [cap, "-o", tmp_path / "p.png"], "serial": [cap, "--out", out]}[args[0]]
-    r = subprocess.run([*CLI, *args, *map(str, place)], capture_output=True, text=True, timeout=120)
+    r = run_cli(*args, *map(str, place), timeout=120)
     assert r.returncode == 2, r.stderr
     option = [a for a in args if a.startswith("--")][-1]
     assert f"argument {option}" in r.stderr and "Traceback" not in r.stderr, r.stderr
@@ -48,7 +48,7 @@ def test_bad_numbers_exit_2_with_a_message(tmp_path, args):
 
 def test_gen_says_what_it_would_write(tmp_path):
     out = tmp_path / "huge.pcap"
-    r = subprocess.run([*CLI, "gen", "--rate", "1e9", "--duration", "1e6", str(out)], capture_output=True, text=True, timeout=120)
+    r = run_cli("gen", "--rate", "1e9", "--duration", "1e6", str(out), timeout=120)
     assert r.returncode == 2 and "would write 1,000,000,000,000,000 frames" in r.stderr, r.stderr
     assert not out.exists() and list(tmp_path.iterdir()) == []
 
@@ -57,6 +57,6 @@ def test_gen_says_what_it_would_write(tmp_path):
 def test_gen_start_past_what_the_format_holds(tmp_path, name):
     out = tmp_path / name
     start = "2200-01-01T00:00:00Z" if name.endswith(".pcap") else "9999-12-31T00:00:00Z"
-    r = subprocess.run([*CLI, "gen", "--start", start, "--frames", "5", str(out)], capture_output=True, text=True, timeout=120)
+    r = run_cli("gen", "--start", start, "--frames", "5", str(out), timeout=120)
     assert r.returncode == 2 and "do not fit" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert list(tmp_path.iterdir()) == []

@@ -12,12 +12,13 @@ import sys
 import threading
 
 import pytest
+from sl_cli import run_cli
 
 CLI = [sys.executable, "-m", "sharedlink"]
 
 
 def _gen(path, *args: str) -> None:
-    r = subprocess.run([*CLI, "gen", "-o", str(path), "-q", *args], capture_output=True, text=True, timeout=60)
+    r = run_cli("gen", "-o", str(path), "-q", *args, timeout=60)
     assert r.returncode == 0, r.stderr
 
 
@@ -57,8 +58,7 @@ def test_tcp_capture_replays_its_client_side_over_tcp(tmp_path, protocol):
     cap = tmp_path / f"{protocol}.pcap"
     _gen(cap, "--protocol", protocol, "--transport", "tcp")
     srv = _Server()
-    r = subprocess.run([*CLI, "replay", str(cap), "--to", f"127.0.0.1:{srv.port}", "--topspeed", "--json"],
-                       capture_output=True, text=True, timeout=60)
+    r = run_cli("replay", str(cap), "--to", f"127.0.0.1:{srv.port}", "--topspeed", "--json", timeout=60)
     got = srv.close()
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
@@ -79,8 +79,7 @@ def test_tcp_replay_with_nothing_listening(tmp_path):
     s = socket.create_server(("127.0.0.1", 0))
     port = s.getsockname()[1]
     s.close()
-    r = subprocess.run([*CLI, "replay", str(cap), "--to", f"127.0.0.1:{port}"], capture_output=True, text=True,
-                       timeout=60)
+    r = run_cli("replay", str(cap), "--to", f"127.0.0.1:{port}", timeout=60)
     assert r.returncode == 2 and "cannot connect over TCP" in r.stderr and "Traceback" not in r.stderr
 
 

@@ -13,12 +13,13 @@ import subprocess
 import sys
 
 import pytest
+from sl_cli import run_cli
 
 CLI = [sys.executable, "-m", "sharedlink"]
 
 
 def _gen(path, *args: str) -> None:
-    r = subprocess.run([*CLI, "gen", "-o", str(path), "-q", *args], capture_output=True, text=True, timeout=60)
+    r = run_cli("gen", "-o", str(path), "-q", *args, timeout=60)
     assert r.returncode == 0, r.stderr
 
 
@@ -70,8 +71,7 @@ def test_side_server_plays_the_robot_to_a_client(session):
 
 def test_side_both_replays_the_conversation(session):
     port = _free_port()
-    r = subprocess.run([*CLI, "replay", str(session), "--side", "both", "--to", f"127.0.0.1:{port}", "--topspeed",
-                        "--json"], capture_output=True, text=True, timeout=60)
+    r = run_cli("replay", str(session), "--side", "both", "--to", f"127.0.0.1:{port}", "--topspeed", "--json", timeout=60)
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
     assert summary["destination"] == f"tcp both sides over 127.0.0.1:{port}"
@@ -82,8 +82,7 @@ def test_side_both_replays_the_conversation(session):
 def test_side_is_for_tcp_captures(tmp_path):
     cap = tmp_path / "b.pcap"
     _gen(cap, "--duration", "1")
-    r = subprocess.run([*CLI, "replay", str(cap), "--side", "server"], capture_output=True, text=True, timeout=60)
+    r = run_cli("replay", str(cap), "--side", "server", timeout=60)
     assert r.returncode == 2 and "not a TCP capture" in r.stderr and "Traceback" not in r.stderr
-    r = subprocess.run([*CLI, "replay", str(tmp_path / "x.pcap"), "--side", "both"], capture_output=True, text=True,
-                       timeout=60)
+    r = run_cli("replay", str(tmp_path / "x.pcap"), "--side", "both", timeout=60)
     assert r.returncode == 2 and "Traceback" not in r.stderr

@@ -14,6 +14,7 @@ import subprocess
 import sys
 
 import pytest
+from sl_cli import run_cli
 from sl_pipes import read_lines
 
 from sharedlink.capture.pcapio import read_records
@@ -37,8 +38,7 @@ def test_sniffed_blackboard_keeps_identical_consecutive_datagrams(tmp_path):
     generate_blackboard_file(BlackboardGenOptions(duration=3, seed=8), cap)
     records = [udp_fields(r.linktype, r.data) for r in read_records(cap)]
     assert records[14] == records[15] and records[14][2] == 7100  # the repeat: the same set message twice
-    want = [json.loads(x) for x in subprocess.run([*CLI, "export", "--format", "jsonl", "-o", "-", str(cap)],
-                                                  capture_output=True, text=True, check=True, timeout=120).stdout.splitlines()]
+    want = [json.loads(x) for x in run_cli("export", "--format", "jsonl", "-o", "-", str(cap), check=True, timeout=120).stdout.splitlines()]
     master = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     slave = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:

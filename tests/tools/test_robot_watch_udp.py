@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 
+from sl_cli import run_cli
 from sl_pipes import read_lines
 
 from sharedlink.capture.pcapio import PcapWriter, read_records
@@ -30,7 +31,7 @@ def test_live_udp_blackboard_reaches_the_robot_outputs(tmp_path):
     both = tmp_path / "b.pcap"
     generate_blackboard_file(BlackboardGenOptions(duration=3, seed=8), both)
     exported = tmp_path / "b.jsonl"
-    subprocess.run([*CLI, "export", "-o", str(exported), str(both)], check=True, capture_output=True, timeout=120)
+    run_cli("export", "-o", str(exported), str(both), text=False, check=True, timeout=120)
     want = [row for line in exported.read_text().splitlines() if (row := json.loads(line))["side"] == "master"]
     cap = tmp_path / "master.pcap"  # the datagrams to the post office's port (the master's)
     po = int(want[0]["link"].split(" - ")[0].rsplit(":", 1)[1])
@@ -46,8 +47,7 @@ def test_live_udp_blackboard_reaches_the_robot_outputs(tmp_path):
     try:
         while "udp port" not in (line := w.stderr.readline()):  # type: ignore[union-attr]
             assert line, f"watch ended early: rc={w.poll()}"
-        r = subprocess.run([*CLI, "replay", str(cap), "--to", f"127.0.0.1:{port}", "--pps", "2000", "-q"],
-                           capture_output=True, text=True, timeout=120)
+        r = run_cli("replay", str(cap), "--to", f"127.0.0.1:{port}", "--pps", "2000", "-q", timeout=120)
         assert r.returncode == 0, r.stderr
         lines = read_lines(w.stdout.fileno(), len(want)).decode().splitlines()  # type: ignore[union-attr]
     finally:

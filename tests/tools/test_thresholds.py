@@ -11,12 +11,12 @@
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 from sl_captures import write_capture
+from sl_cli import run_cli
 
 import tshark_util as tu
 from sharedlink.analysis.decode import Decoded, iter_decoded
@@ -50,8 +50,7 @@ def test_python_sync_clock_at_its_boundary(boundary: dict[str, Path], name: str,
 
 @pytest.mark.parametrize("name,interval,late", CASES)
 def test_stats_sync_interval_at_its_boundary(boundary: dict[str, Path], name: str, interval: float, late: bool) -> None:
-    r = subprocess.run([*CLI, "stats", str(boundary[name]), "--sync-interval", str(interval), "--json"],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("stats", str(boundary[name]), "--sync-interval", str(interval), "--json", timeout=120)
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["sync_late"] == int(late)
 
@@ -73,7 +72,6 @@ def test_diff_tolerance_at_its_boundary(tmp_path: Path) -> None:
             (T0 + i * NS // 5, tu.frame("A", "B", "N0", "T2", "QLat", f"D{lat}", "T2", "QLon", "D2")) for i in range(5)]))
     codes = {}
     for tolerance in ("0.25", "0.2499999", "0"):
-        r = subprocess.run([*CLI, "diff", str(caps[0]), str(caps[1]), "--tolerance", tolerance], capture_output=True,
-                           text=True, timeout=120)
+        r = run_cli("diff", str(caps[0]), str(caps[1]), "--tolerance", tolerance, timeout=120)
         codes[tolerance] = r.returncode
     assert codes == {"0.25": 0, "0.2499999": 1, "0": 1}, codes

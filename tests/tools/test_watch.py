@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 from sl_captures import BEACON, reference
+from sl_cli import run_cli
 from sl_foxglove import advertised
 from sl_pipes import (
     environment,
@@ -75,8 +76,7 @@ def wait_line(p: subprocess.Popen, needle: str) -> str:
 
 
 def replay(cap: Path, port: int, *args: object) -> None:
-    r = subprocess.run([*CLI, "replay", str(cap), "--to", f"127.0.0.1:{port}", *map(str, args)],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("replay", str(cap), "--to", f"127.0.0.1:{port}", *map(str, args), timeout=120)
     assert r.returncode == 0, r.stderr
 
 
@@ -177,8 +177,7 @@ def test_watch_sees_broadcasts_beside_another_listener(capture):
     shown = b""
     try:
         wait_line(w, "udp port")
-        r = subprocess.run([*CLI, "replay", str(capture), "--to", f"127.255.255.255:{port}", "--broadcast", "--count", "10",
-                            "--speed", "20"], capture_output=True, text=True, timeout=120)
+        r = run_cli("replay", str(capture), "--to", f"127.255.255.255:{port}", "--broadcast", "--count", "10", "--speed", "20", timeout=120)
         assert r.returncode == 0, r.stderr
         theirs = [other.recv(65535) for _ in range(10)]
         shown = read_lines(w.stdout.fileno(), 10)  # type: ignore[union-attr]
@@ -196,7 +195,7 @@ def test_bind_refuses_a_port_another_program_holds(reuse):
     port = free_port()
     vehicle = _vehicle_socket(port, reuse)
     try:
-        r = subprocess.run([*CLI, "watch", "--port", str(port), "--bind-port", "--json"], capture_output=True, text=True, timeout=60)
+        r = run_cli("watch", "--port", str(port), "--bind-port", "--json", timeout=60)
     finally:
         vehicle.close()
     assert r.returncode == 2, r.stderr
@@ -241,28 +240,25 @@ def test_from_a_truncated_capture_shows_the_same_frames_every_run(capture, tmp_p
     with pytest.raises(CaptureError):
         for rec in read_records(cut):
             good = rec.number
-    whole = subprocess.run([*CLI, "watch", "--from", str(capture), "--speed", "1000", "--json"],
-                           capture_output=True, text=True, timeout=120)
+    whole = run_cli("watch", "--from", str(capture), "--speed", "1000", "--json", timeout=120)
     assert whole.returncode == 0, whole.stderr
     expected = [line for line in whole.stdout.splitlines() if json.loads(line)["number"] <= good]
     assert len(expected) > 10
     for _ in range(4):
-        r = subprocess.run([*CLI, "watch", "--from", str(cut), "--speed", "1000", "--json"],
-                           capture_output=True, text=True, timeout=120)
+        r = run_cli("watch", "--from", str(cut), "--speed", "1000", "--json", timeout=120)
         assert r.returncode == 2, r.stderr
         assert r.stdout.splitlines() == expected
         assert "Traceback" not in r.stderr and f"record {good + 1}" in r.stderr and "before it were shown" in r.stderr
 
 
 def test_from_capture_keeps_capture_times(capture):
-    r = subprocess.run([*CLI, "watch", "--from", str(capture), "--speed", "50", "--json"],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("watch", "--from", str(capture), "--speed", "50", "--json", timeout=120)
     assert r.returncode == 0, r.stderr
     check_rows([json.loads(line) for line in r.stdout.splitlines()], capture, same_times=True)
 
 
 def test_live_view_shows_counts_and_ctrl_c_exits_0(capture):
-    r = subprocess.run([*CLI, "watch", "--from", str(capture), "--speed", "60"], capture_output=True, text=True, timeout=120)
+    r = run_cli("watch", "--from", str(capture), "--speed", "60", timeout=120)
     assert r.returncode == 0, r.stderr
     ref = reference(capture)
     bad = sum(1 for fr in ref if not fr.ok)

@@ -7,14 +7,14 @@ same seconds."""
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 
 import pytest
 
 if sys.version_info < (3, 10):  # (as test_foxglove_server.py: the SDK's server)
     pytest.skip("foxglove-sdk's server needs Python 3.10+", allow_module_level=True)
-from sl_foxglove import CLI, Watch, advertised, subscribed, wait_for_channel
+from sl_cli import run_cli
+from sl_foxglove import Watch, advertised, subscribed, wait_for_channel
 from websockets.sync.client import connect
 
 NS = 10**9
@@ -23,12 +23,10 @@ TOPIC = "/sharedlink/B_to_A/link_quality"
 
 def test_watch_serves_each_seconds_link_quality(tmp_path):
     cap = tmp_path / "o.pcap"
-    r = subprocess.run([*CLI, "gen", "-o", str(cap), "--duration", "16", "--outage", "10:3"], capture_output=True,
-                       text=True, timeout=120)
+    r = run_cli("gen", "-o", str(cap), "--duration", "16", "--outage", "10:3", timeout=120)
     assert r.returncode == 0, r.stderr
     want = {row["second"] * NS: {k: row[k] for k in ("frames", "quality", "state", "down_s")} for row in map(
-        json.loads, subprocess.run([*CLI, "health", "-o", "-", str(cap)], capture_output=True, text=True,
-                                   timeout=120).stdout.splitlines())}
+        json.loads, run_cli("health", "-o", "-", str(cap), timeout=120).stdout.splitlines())}
     w = Watch("--from", cap, "--speed", 4)
     try:
         wait_for_channel(w.port, TOPIC)  # (a client connected once it exists subscribes)

@@ -12,6 +12,7 @@ import threading
 from pathlib import Path
 
 import pytest
+from sl_cli import run_cli
 
 CLI = [sys.executable, "-m", "sharedlink"]
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,14 +25,12 @@ REAL = [  # real or hand-made captures of the three protocols (serial, TCP, UDP)
 
 
 def by_name(path: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, "watch", str(path), "--speed", "1e6", "-q", *args], capture_output=True, text=True,
-                          timeout=120)
+    return run_cli("watch", str(path), "--speed", "1e6", "-q", *args, timeout=120)
 
 
 def piped(path: Path, *args: str) -> subprocess.CompletedProcess:
     """The capture written into the command's standard input, a pipe (not a file it could seek)."""
-    return subprocess.run([*CLI, "watch", "-", "--speed", "1e6", "-q", *args], input=path.read_bytes(),
-                          capture_output=True, timeout=120)
+    return run_cli("watch", "-", "--speed", "1e6", "-q", *args, text=False, timeout=120, input=path.read_bytes())
 
 
 @pytest.fixture(scope="module")
@@ -40,8 +39,7 @@ def generated(tmp_path_factory) -> dict[str, Path]:
     out = {}
     for proto in ("sharedlink", "p2os", "blackboard"):
         out[proto] = d / f"{proto}.pcap"
-        subprocess.run([*CLI, "gen", "-o", str(out[proto]), "-q", "--protocol", proto, "--duration", "20"],
-                       check=True, capture_output=True, timeout=120)
+        run_cli("gen", "-o", str(out[proto]), "-q", "--protocol", proto, "--duration", "20", text=False, check=True, timeout=120)
     return out
 
 
@@ -140,8 +138,7 @@ def test_foxglove_through_a_pipe(tmp_path):
     from websockets.sync.client import connect
 
     cap = tmp_path / "p.pcap"
-    subprocess.run([*CLI, "gen", "-o", str(cap), "-q", "--protocol", "p2os", "--duration", "4"], check=True,
-                   capture_output=True, timeout=120)
+    run_cli("gen", "-o", str(cap), "-q", "--protocol", "p2os", "--duration", "4", text=False, check=True, timeout=120)
     rows = [json.loads(x) for x in by_name(cap, "--json").stdout.splitlines()]
     sips = {r["ts_ns"]: r for r in rows if "x_mm" in r and r["checksum"] == "good"}
     data = cap.read_bytes()

@@ -7,14 +7,14 @@ the rows `health -o -` lists (and `export --format mcap` writes) for the same se
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 
 import pytest
 
 if sys.version_info < (3, 10):  # (as test_foxglove_server.py: the SDK's server)
     pytest.skip("foxglove-sdk's server needs Python 3.10+", allow_module_level=True)
-from sl_foxglove import CLI, Watch, advertised, subscribed, wait_for_channel
+from sl_cli import run_cli
+from sl_foxglove import Watch, advertised, subscribed, wait_for_channel
 from websockets.sync.client import connect
 
 NS = 10**9
@@ -37,11 +37,9 @@ def watched(cap, topic: str, schema: str = "sharedlink.LinkQuality") -> list[tup
 @pytest.mark.parametrize("protocol,pair", [("p2os", "robot>client"), ("blackboard", "slave>master")])
 def test_watch_serves_a_robot_links_link_quality(tmp_path, protocol, pair):
     cap = tmp_path / "r.pcapng"
-    r = subprocess.run([*CLI, "gen", "-o", str(cap), "--protocol", protocol, "--duration", "14", "--outage", "7:3"],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("gen", "-o", str(cap), "--protocol", protocol, "--duration", "14", "--outage", "7:3", timeout=120)
     assert r.returncode == 0, r.stderr
-    rows = [json.loads(x) for x in subprocess.run([*CLI, "health", "-o", "-", str(cap)], capture_output=True,
-                                                  text=True, timeout=120).stdout.splitlines()]
+    rows = [json.loads(x) for x in run_cli("health", "-o", "-", str(cap), timeout=120).stdout.splitlines()]
     want = {row["second"] * NS: {k: row[k] for k in ("frames", "quality", "state", "down_s")} for row in rows
             if row["pair"] == pair}
     topic = f"/{protocol}/1/{pair.replace('>', '_to_')}/link_quality"
@@ -59,11 +57,9 @@ def test_watch_breaks_the_sip_lines_at_an_outage(tmp_path):
     """The robot's silence, seen by the clock: one gap message on /p2os/1/sip (every number
     "NaN") 1 ns after the outage's start, as `export --format mcap` writes it."""
     cap = tmp_path / "r.pcapng"
-    r = subprocess.run([*CLI, "gen", "-o", str(cap), "--protocol", "p2os", "--duration", "12", "--outage", "6:3"],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("gen", "-o", str(cap), "--protocol", "p2os", "--duration", "12", "--outage", "6:3", timeout=120)
     assert r.returncode == 0, r.stderr
-    outages = json.loads(subprocess.run([*CLI, "stats", "--json", str(cap)], capture_output=True, text=True,
-                                        timeout=120).stdout)["outages"]
+    outages = json.loads(run_cli("stats", "--json", str(cap), timeout=120).stdout)["outages"]
     assert len(outages) == 1
     got = watched(cap, "/p2os/1/sip", "p2os.Sip")
     gaps = [(t, doc) for t, doc in got if "NaN" in doc.values()]
