@@ -7,6 +7,10 @@ gives out every message as a :class:`SessionMessage` when the record that comple
 
 * A side's protocol is found by :class:`~sharedlink.capture.serial_format.Deframer` ("auto": the
   first good P2OS packet or blackboard message); SharedLink sides are left to ``iter_decoded``.
+  A UDP or TCP session has one protocol (the first found, as a Wireshark conversation); on a
+  serial line each direction has its own, as serial.lua has it (docs/serial-capture-format.md,
+  "Protocol per direction": P2OS one way and blackboard the other is two protocols of one
+  session; a direction with nothing of its own takes another's once it holds 64 bytes).
 * P2OS, as the dissector decides: the side on TCP port 8101 is the robot; on serial, outbound
   bytes are the client's and inbound the robot's; else the side that sent a server packet (SIP,
   CONFIG, ENCODER, a SYNC2 echo with the robot's name) is the robot, and until one is seen each
@@ -85,6 +89,15 @@ class _Session:
     pending: dict[object, blackboard.Message] = field(default_factory=dict)  # blackboard: sender -> awaiting an answer
     answer: dict[object, bytes] = field(default_factory=dict)  # blackboard: answering side -> answer bytes so far
     tcp_next: dict[object, int] = field(default_factory=dict)
+    serial: bool = False  # a serial line: each direction has its own protocol
+
+
+#: the order serial.lua looks at another direction for its protocol (p2p_dir -1, 0, 1)
+_SIDE_ORDER = {"unknown": 0, DIRECTION_NAMES[DIR_OUT]: 1, DIRECTION_NAMES[DIR_IN]: 2}
+
+
+def _side_order(kv: tuple[object, Deframer]) -> int:
+    return _SIDE_ORDER.get(kv[0], 3)  # type: ignore[call-overload]
 
 
 def _whole_packets(data: bytes) -> list[int]:
@@ -181,8 +194,19 @@ class SessionReader:
     def _session(self, key: object, label: str) -> _Session:
         s = self.sessions.get(key)
         if s is None:
-            s = self.sessions[key] = _Session(0, label)
+            s = self.sessions[key] = _Session(0, label, serial=isinstance(key, tuple) and key[:1] == ("serial",))
         return s
+
+    @staticmethod
+    def _deframer(s: _Session) -> Deframer:
+        """A new side's deframer: the session's protocol once it has one; on a serial line each
+        direction finds its own (docs/serial-capture-format.md, "Protocol per direction"), one
+        with nothing recognisable of its own taking another direction's once it holds
+        ``ADOPT_AFTER`` bytes, as serial.lua does."""
+        if s.serial:
+            return Deframer("auto", lambda: next((o.protocol for _k, o in sorted(s.sides.items(), key=_side_order)
+                                                  if o.protocol), None))
+        return Deframer(s.protocol if s.protocol in ("p2os", "blackboard") else "auto")
 
     def claim(self, key: object, label: str, protocol: str) -> None:
         """Decide ``key``'s protocol before its first message (the core's robot links: a port or
@@ -202,14 +226,17 @@ class SessionReader:
         message or answer cut off at its end is noise, never joined with the next datagram's bytes)."""
         s = self._session(key, label)
         out: list[SessionMessage] = []
-        if s.protocol == "blackboard" and any(k != side for k in s.pending) and not _starts_message(s, side, data):
+        d = s.sides.get(side)
+        if d is None:
+            d = s.sides[side] = self._deframer(s)
+        if (d.protocol or (None if s.serial else s.protocol)) in (None, "blackboard") and any(
+                k != side for k in s.pending) and not _starts_message(s, side, data):
+            if d.protocol is None:
+                d.protocol = "blackboard"  # a side that answers a blackboard message is blackboard's
             out, data = self._answer(s, side, number, ts_ns, data, datagram)
             if not data:
                 return out
-        d = s.sides.get(side)
-        if d is None:
-            d = s.sides[side] = Deframer(s.protocol if s.protocol in ("p2os", "blackboard") else "auto")
-        if s.protocol == "p2os" and not d.buf and data[:2] == p2os.HEADER:
+        if d.protocol == "p2os" and not d.buf and data[:2] == p2os.HEADER:
             ends = _whole_packets(data)
             if ends:  # whole packets and nothing else, nothing held: what the deframer gives, without it
                 d.base += len(data)
@@ -225,7 +252,7 @@ class SessionReader:
             pieces += d.flush()  # a datagram is all there is (docs/fields-p2os-blackboard.md, "Over UDP")
         last = len(pieces) - 1
         for i, piece in enumerate(pieces):
-            if piece.frame is None and piece.protocol == "blackboard" and s.protocol == "blackboard":
+            if piece.frame is None and piece.protocol == "blackboard" and (s.serial or s.protocol == "blackboard"):
                 out += self._bb_noise(s, number, ts_ns, piece.data, i == last and not d.buf)
                 continue
             if piece.frame is None or piece.protocol not in ("p2os", "blackboard"):
