@@ -134,6 +134,10 @@ local pending_count = 0 -- entries in pending (bounded by the max_pending prefer
 local frame_state = {}
 local messages = {} -- "frame:offset" -> the record of a message, to show where it was answered
 local not_held = {} -- "frame:offset" -> true: a message left out of pending (max_pending)
+-- [direction key] = the frame whose text waits for its CR (TCP asked for more segments), first
+-- pass; a later call in that direction clears it. What the first pass leaves is text the capture
+-- ends before its CR: a later pass shows it in that frame, not ended by CR
+local waiting_cr = {}
 
 function bb.init()
     pending = {}
@@ -141,6 +145,7 @@ function bb.init()
     frame_state = {}
     messages = {}
     not_held = {}
+    waiting_cr = {}
 end
 
 -- ---------------------------------------------------------------------------------------------
@@ -289,7 +294,11 @@ end
 -- the terminator (CR and an LF with it), added last, after the fields it ends
 local function add_terminator(tvb, t, m, over_limit)
     if m.cr == nil then
-        t:add_proto_expert_info(ex.no_cr)
+        if m.capture_end then
+            t:add_proto_expert_info(ex.no_cr, "Message not ended by CR: the capture ends before it")
+        else
+            t:add_proto_expert_info(ex.no_cr)
+        end
         if over_limit then
             t:add_proto_expert_info(ex.limit, "Limit exceeded: over " .. istr(bb.prefs.max_held_bytes)
                 .. " bytes without a CR (blackboard.max_held_bytes): not held for more segments")
@@ -414,13 +423,14 @@ end
 
 -- a text message at off (type character there); stop is the end of the buffer.
 -- Returns: bytes used and the summary, or nil when the CR is not there yet and more may come
-local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_limit)
+local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_limit, capture_end)
     local cr = find_cr(tvb, off + 1, stop)
     if cr == nil and can_more then
         return nil
     end
     local text_end = cr or stop
-    local m = { off = off, cr = cr, kind = u8(tvb, off), used = text_end - off, ndig = text_end - off - 1 }
+    local m = { off = off, cr = cr, kind = u8(tvb, off), used = text_end - off, ndig = text_end - off - 1,
+        capture_end = cr == nil and capture_end }
     if cr then
         m.used = m.used + 1
         if cr + 1 < stop and u8(tvb, cr + 1) == LF then
@@ -616,6 +626,11 @@ local function dissect_buffer(tvb, pinfo, tree)
     local can_more = pinfo.can_desegment > 0
     local state = state_for(pinfo)
     local here = keys(pinfo)
+    -- text the capture ends before its CR (TCP): shown on a later pass in the frame that asked last
+    local capture_end = pinfo.visited and can_more and waiting_cr[here] == pinfo.number
+    if not pinfo.visited then
+        waiting_cr[here] = nil
+    end
     local infos = {}
     local off = 0
     while off < n do
@@ -638,11 +653,15 @@ local function dissect_buffer(tvb, pinfo, tree)
             off = add_junk(tvb, tree, off, message_start(tvb, off, n), infos)
         elseif c == SET or c == REQUEST then
             -- a message without its CR is held for more segments up to max_held_bytes
-            local more = can_more and n - off <= bb.prefs.max_held_bytes
-            local used, summary = dissect_text(tvb, pinfo, tree, off, n, state, more, can_more and not more)
+            local more = can_more and not capture_end and n - off <= bb.prefs.max_held_bytes
+            local used, summary = dissect_text(tvb, pinfo, tree, off, n, state, more,
+                can_more and not capture_end and not more, capture_end)
             if used == nil then
                 pinfo.desegment_offset = off
                 pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
+                if not pinfo.visited then
+                    waiting_cr[here] = pinfo.number
+                end
                 break
             end
             infos[#infos + 1] = summary

@@ -28,7 +28,9 @@ gives out every message as a :class:`SessionMessage` when the record that comple
   does (a packet, message or answer cut off at a datagram's end is noise, the next datagram
   starts afresh: docs/fields-p2os-blackboard.md, "Over UDP").
 * TCP segments are taken in capture order; data the stream has already had (a retransmission)
-  is skipped, as in :class:`~sharedlink.capture.stream.FrameSplitter`.
+  is skipped, as in :class:`~sharedlink.capture.stream.FrameSplitter`. Blackboard text a TCP
+  stream still holds at the capture's end (no CR) is a malformed message of the last segment
+  that brought its bytes (:meth:`SessionReader.finish`).
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ from typing import Union
 
 from sharedlink.capture.packets import decode_packet
 from sharedlink.capture.pcapio import Record, read_records
-from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, DIRECTION_NAMES, USER_LINKTYPES, Deframer
+from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, DIRECTION_NAMES, USER_LINKTYPES, Deframer, detect
 from sharedlink.protocols import blackboard, p2os
 
 #: serial direction -> whether it is a P2OS client's (the dissector's p2p_dir rule)
@@ -90,6 +92,7 @@ class _Session:
     answer: dict[object, bytes] = field(default_factory=dict)  # blackboard: answering side -> answer bytes so far
     tcp_next: dict[object, int] = field(default_factory=dict)
     serial: bool = False  # a serial line: each direction has its own protocol
+    held_at: dict[object, tuple[int, int]] = field(default_factory=dict)  # TCP blackboard: side -> last record, ts
 
 
 #: the order serial.lua looks at another direction for its protocol (p2p_dir -1, 0, 1)
@@ -135,6 +138,27 @@ def _starts_message(s: _Session, side: object, data: bytes) -> bool:
         return bool(blackboard.parse_message(data[: cr + 1]).ok)
     except blackboard.BlackboardError:
         return False
+
+
+def _serial_detect(s: _Session, side: object, d: Deframer, data: bytes) -> None:
+    """A serial direction of no protocol yet, a blackboard answer awaited from it: its protocol,
+    as serial.lua finds it: the first good frame of its bytes (a P2OS packet is no answer), else
+    blackboard when they start with the right answer; else none yet (the bytes are held)."""
+    found = detect(bytes(d.buf) + data)
+    if found is None and not d.buf:
+        req = next((m for k, m in s.pending.items() if k != side), None)
+        if req is not None and _answer_right(req, data):
+            found = "blackboard"
+    d.protocol = found
+
+
+def _answer_right(req: blackboard.Message, data: bytes) -> bool:
+    """Whether ``data`` starts with the whole right answer to ``req`` (the set's checksum; a read
+    response with a good checksum)."""
+    if isinstance(req, blackboard.SetMessage):
+        return data[:1] == bytes([req.checksum])
+    need = req.count + 1
+    return len(data) >= need and blackboard.parse_response(req, data[:need]).ok  # type: ignore[arg-type]
 
 
 def malformed_split(data: bytes, at_end: bool) -> list[tuple[bytes, bool]]:
@@ -229,10 +253,11 @@ class SessionReader:
         d = s.sides.get(side)
         if d is None:
             d = s.sides[side] = self._deframer(s)
-        if (d.protocol or (None if s.serial else s.protocol)) in (None, "blackboard") and any(
+        if s.serial and d.protocol is None and s.pending:
+            _serial_detect(s, side, d, data)
+        if (d.protocol if s.serial else d.protocol or s.protocol) == "blackboard" and any(
                 k != side for k in s.pending) and not _starts_message(s, side, data):
-            if d.protocol is None:
-                d.protocol = "blackboard"  # a side that answers a blackboard message is blackboard's
+            d.protocol = "blackboard"  # (a side that answers a blackboard message is blackboard's)
             out, data = self._answer(s, side, number, ts_ns, data, datagram)
             if not data:
                 return out
@@ -250,6 +275,8 @@ class SessionReader:
         pieces = d.feed(data, number)
         if datagram and d.protocol in ("p2os", "blackboard"):
             pieces += d.flush()  # a datagram is all there is (docs/fields-p2os-blackboard.md, "Over UDP")
+        elif d.buf and d.protocol == "blackboard" and not s.serial:
+            s.held_at[side] = (number, ts_ns)  # (text waiting for its CR: finish)
         last = len(pieces) - 1
         for i, piece in enumerate(pieces):
             if piece.frame is None and piece.protocol == "blackboard" and (s.serial or s.protocol == "blackboard"):
@@ -276,6 +303,21 @@ class SessionReader:
                     s.answer = {k: v for k, v in s.answer.items() if k == side}  # the other side answers afresh
                 out.append(SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "master", piece.data,
                                           msg.ok, msg))  # type: ignore[union-attr,arg-type]
+        return out
+
+    def finish(self) -> list[SessionMessage]:
+        """The end of the capture: blackboard text a TCP stream still holds, its CR never come, is
+        a malformed message (no CR) of the last segment that brought its bytes, as
+        ``blackboard.lua`` shows it on a later pass (docs/fields-p2os-blackboard.md, "Malformed
+        messages"). A serial line's held bytes stay held, as in ``serial.lua``."""
+        out: list[SessionMessage] = []
+        for s in self.sessions.values():
+            for side, d in s.sides.items():
+                at = s.held_at.get(side)
+                if s.serial or at is None or not d.buf or d.protocol != "blackboard":
+                    continue
+                for piece in d.flush():
+                    out += self._bb_noise(s, at[0], at[1], piece.data, True)
         return out
 
     def _bb_noise(self, s: _Session, number: int, ts_ns: int, data: bytes, at_end: bool) -> list[SessionMessage]:
@@ -369,6 +411,7 @@ def iter_sessions(path: str | Path) -> Iterator[SessionMessage]:
     reader = SessionReader()
     for rec in read_records(path):
         yield from record_sessions(reader, rec)
+    yield from reader.finish()
 
 
 def record_sessions(reader: SessionReader, rec: Record) -> Iterator[SessionMessage]:
