@@ -42,7 +42,14 @@ from typing import Union
 
 from sharedlink.capture.packets import decode_packet
 from sharedlink.capture.pcapio import Record, read_records
-from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, DIRECTION_NAMES, USER_LINKTYPES, Deframer, detect
+from sharedlink.capture.serial_format import (
+    DIR_IN,
+    DIR_OUT,
+    DIRECTION_NAMES,
+    USER_LINKTYPES,
+    Deframer,
+    detect,
+)
 from sharedlink.protocols import blackboard, p2os
 
 #: serial direction -> whether it is a P2OS client's (the dissector's p2p_dir rule)
@@ -140,16 +147,22 @@ def _starts_message(s: _Session, side: object, data: bytes) -> bool:
         return False
 
 
-def _serial_detect(s: _Session, side: object, d: Deframer, data: bytes) -> None:
+def _serial_detect(s: _Session, side: object, d: Deframer, data: bytes) -> tuple[bytes, bool]:
     """A serial direction of no protocol yet, a blackboard answer awaited from it: its protocol,
-    as serial.lua finds it: the first good frame of its bytes (a P2OS packet is no answer), else
-    blackboard when they start with the right answer; else none yet (the bytes are held)."""
-    found = detect(bytes(d.buf) + data)
-    if found is None and not d.buf:
-        req = next((m for k, m in s.pending.items() if k != side), None)
-        if req is not None and _answer_right(req, data):
-            found = "blackboard"
-    d.protocol = found
+    as serial.lua finds it: the first good frame of its bytes (a P2OS packet is no answer; a
+    message where the answer would be is that message: its frames first), else blackboard when
+    its bytes (those held too) start with the right answer; else none yet (the bytes are held).
+    Returns the bytes to read on (the held ones first once they are an answer) and whether they
+    may be read as the answer."""
+    both = bytes(d.buf) + data
+    d.protocol = detect(both)
+    if d.protocol is not None:
+        return data, False
+    req = next((m for k, m in s.pending.items() if k != side), None)
+    if req is not None and _answer_right(req, both):
+        d.protocol = "blackboard"
+        return d.take() + data, True
+    return data, False
 
 
 def _answer_right(req: blackboard.Message, data: bytes) -> bool:
@@ -253,9 +266,10 @@ class SessionReader:
         d = s.sides.get(side)
         if d is None:
             d = s.sides[side] = self._deframer(s)
+        answers = True
         if s.serial and d.protocol is None and s.pending:
-            _serial_detect(s, side, d, data)
-        if (d.protocol if s.serial else d.protocol or s.protocol) == "blackboard" and any(
+            data, answers = _serial_detect(s, side, d, data)
+        if answers and (d.protocol if s.serial else d.protocol or s.protocol) == "blackboard" and any(
                 k != side for k in s.pending) and not _starts_message(s, side, data):
             d.protocol = "blackboard"  # (a side that answers a blackboard message is blackboard's)
             out, data = self._answer(s, side, number, ts_ns, data, datagram)
@@ -280,7 +294,12 @@ class SessionReader:
         last = len(pieces) - 1
         for i, piece in enumerate(pieces):
             if piece.frame is None and piece.protocol == "blackboard" and (s.serial or s.protocol == "blackboard"):
-                out += self._bb_noise(s, number, ts_ns, piece.data, i == last and not d.buf)
+                rest = piece.data
+                if any(k != side for k in s.pending):  # the side's answer after its own message (blackboard.lua)
+                    got, rest = self._answer(s, side, number, ts_ns, rest, datagram)
+                    out += got
+                if rest:
+                    out += self._bb_noise(s, number, ts_ns, rest, i == last and not d.buf)
                 continue
             if piece.frame is None or piece.protocol not in ("p2os", "blackboard"):
                 if piece.protocol in ("p2os", "blackboard"):
