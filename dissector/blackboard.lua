@@ -430,7 +430,7 @@ local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_l
     end
     local text_end = cr or stop
     local m = { off = off, cr = cr, kind = u8(tvb, off), used = text_end - off, ndig = text_end - off - 1,
-        capture_end = cr == nil and capture_end }
+        capture_end = capture_end }
     if cr then
         m.used = m.used + 1
         if cr + 1 < stop and u8(tvb, cr + 1) == LF then
@@ -617,20 +617,33 @@ local function message_start(tvb, off, n)
     return start
 end
 
+-- text the capture ends before its CR (TCP; docs/fields-p2os-blackboard.md): on the first pass
+-- a call in a direction clears its note (more segments came) and a message still waiting for
+-- its CR notes the frame; a later pass shows the text of the frame noted last, not ended by CR
+local function ends_capture(pinfo, here)
+    if not pinfo.visited then
+        waiting_cr[here] = nil
+        return false
+    end
+    return pinfo.can_desegment > 0 and waiting_cr[here] == pinfo.number
+end
+
+local function note_waiting(pinfo, here)
+    if not pinfo.visited then
+        waiting_cr[here] = pinfo.number
+    end
+end
+
 local function dissect_buffer(tvb, pinfo, tree)
     local n = tvb:len()
     if n == 0 then
         return 0
     end
     pinfo.cols.protocol = "Blackboard"
-    local can_more = pinfo.can_desegment > 0
     local state = state_for(pinfo)
     local here = keys(pinfo)
-    -- text the capture ends before its CR (TCP): shown on a later pass in the frame that asked last
-    local capture_end = pinfo.visited and can_more and waiting_cr[here] == pinfo.number
-    if not pinfo.visited then
-        waiting_cr[here] = nil
-    end
+    local capture_end = ends_capture(pinfo, here)
+    local can_more = pinfo.can_desegment > 0 and not capture_end
     local infos = {}
     local off = 0
     while off < n do
@@ -653,15 +666,13 @@ local function dissect_buffer(tvb, pinfo, tree)
             off = add_junk(tvb, tree, off, message_start(tvb, off, n), infos)
         elseif c == SET or c == REQUEST then
             -- a message without its CR is held for more segments up to max_held_bytes
-            local more = can_more and not capture_end and n - off <= bb.prefs.max_held_bytes
-            local used, summary = dissect_text(tvb, pinfo, tree, off, n, state, more,
-                can_more and not capture_end and not more, capture_end)
+            local more = can_more and n - off <= bb.prefs.max_held_bytes
+            local used, summary = dissect_text(tvb, pinfo, tree, off, n, state, more, can_more and not more,
+                capture_end)
             if used == nil then
                 pinfo.desegment_offset = off
                 pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
-                if not pinfo.visited then
-                    waiting_cr[here] = pinfo.number
-                end
+                note_waiting(pinfo, here)
                 break
             end
             infos[#infos + 1] = summary

@@ -136,7 +136,12 @@ def _starts_message(s: _Session, side: object, data: bytes) -> bool:
     """Whether ``data``, with no answer bytes of ``side`` held, starts with a complete good
     blackboard message: a message, not the awaited answer (blackboard.lua's rule: the side
     talks instead of answering)."""
-    if data[:1] not in (b":", b";") or s.answer.get(side):
+    return not s.answer.get(side) and _good_message_first(data)
+
+
+def _good_message_first(data: bytes) -> bool:
+    """Whether ``data`` starts with a complete good blackboard message."""
+    if data[:1] not in (b":", b";"):
         return False
     cr = data.find(b"\r")
     if cr < 0:
@@ -145,6 +150,19 @@ def _starts_message(s: _Session, side: object, data: bytes) -> bool:
         return bool(blackboard.parse_message(data[: cr + 1]).ok)
     except blackboard.BlackboardError:
         return False
+
+
+_HEX = frozenset(b"0123456789ABCDEFabcdef")
+
+
+def _may_be_text(buf: bytes, need: int) -> bool:
+    """serial.lua's wait: whether answer bytes ``buf`` end with text that may still become a
+    message (a ``:`` or ``;`` inside the answer's ``need`` bytes and hex digits after it to the
+    end, no CR yet)."""
+    i = len(buf)
+    while i > 0 and buf[i - 1] in _HEX:
+        i -= 1
+    return i > 0 and buf[i - 1] in b":;" and i - 1 < need
 
 
 def _serial_detect(s: _Session, side: object, d: Deframer, data: bytes) -> tuple[bytes, bool]:
@@ -262,19 +280,12 @@ class SessionReader:
         ``datagram``: ``data`` is a whole UDP datagram, read alone (a P2OS packet, a blackboard
         message or answer cut off at its end is noise, never joined with the next datagram's bytes)."""
         s = self._session(key, label)
-        out: list[SessionMessage] = []
         d = s.sides.get(side)
         if d is None:
             d = s.sides[side] = self._deframer(s)
-        answers = True
-        if s.serial and d.protocol is None and s.pending:
-            data, answers = _serial_detect(s, side, d, data)
-        if answers and (d.protocol if s.serial else d.protocol or s.protocol) == "blackboard" and any(
-                k != side for k in s.pending) and not _starts_message(s, side, data):
-            d.protocol = "blackboard"  # (a side that answers a blackboard message is blackboard's)
-            out, data = self._answer(s, side, number, ts_ns, data, datagram)
-            if not data:
-                return out
+        out, data = self._answers_first(s, side, d, number, ts_ns, data, datagram)
+        if not data:
+            return out
         if d.protocol == "p2os" and not d.buf and data[:2] == p2os.HEADER:
             ends = _whole_packets(data)
             if ends:  # whole packets and nothing else, nothing held: what the deframer gives, without it
@@ -294,12 +305,7 @@ class SessionReader:
         last = len(pieces) - 1
         for i, piece in enumerate(pieces):
             if piece.frame is None and piece.protocol == "blackboard" and (s.serial or s.protocol == "blackboard"):
-                rest = piece.data
-                if any(k != side for k in s.pending):  # the side's answer after its own message (blackboard.lua)
-                    got, rest = self._answer(s, side, number, ts_ns, rest, datagram)
-                    out += got
-                if rest:
-                    out += self._bb_noise(s, number, ts_ns, rest, i == last and not d.buf)
+                out += self._bb_rest(s, side, number, ts_ns, piece.data, datagram, i == last and not d.buf)
                 continue
             if piece.frame is None or piece.protocol not in ("p2os", "blackboard"):
                 if piece.protocol in ("p2os", "blackboard"):
@@ -314,15 +320,45 @@ class SessionReader:
             if piece.protocol == "p2os":
                 out.append(self._p2os(s, side, client, number, ts_ns, piece.data, piece.frame))  # type: ignore[arg-type]
             else:
-                msg = piece.frame
-                # a good one waits for its answer (replacing the side's last one); what the side owes
-                # stays owed; one with a bad checksum waits for none (blackboard.lua: "the last good message")
-                if msg.ok:  # type: ignore[union-attr]
-                    s.pending[side] = msg  # type: ignore[assignment]
-                    s.answer = {k: v for k, v in s.answer.items() if k == side}  # the other side answers afresh
-                out.append(SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "master", piece.data,
-                                          msg.ok, msg))  # type: ignore[union-attr,arg-type]
+                out.append(self._bb_message(s, side, number, ts_ns, piece.data, piece.frame))  # type: ignore[arg-type]
         return out
+
+    def _answers_first(
+        self, s: _Session, side: object, d: Deframer, number: int, ts_ns: int, data: bytes, datagram: bool
+    ) -> tuple[list[SessionMessage], bytes]:
+        """The answers ``data`` starts with when ``side`` owes one (a blackboard side, not
+        starting with a message of its own; on a serial line a direction of no protocol yet
+        first as serial.lua finds its protocol), and the bytes left for its deframer."""
+        answers = True
+        if s.serial and d.protocol is None and s.pending:
+            data, answers = _serial_detect(s, side, d, data)
+        if answers and (d.protocol if s.serial else d.protocol or s.protocol) == "blackboard" and any(
+                k != side for k in s.pending) and not _starts_message(s, side, data):
+            d.protocol = "blackboard"  # (a side that answers a blackboard message is blackboard's)
+            return self._answer(s, side, number, ts_ns, data, datagram)
+        return [], data
+
+    def _bb_rest(
+        self, s: _Session, side: object, number: int, ts_ns: int, data: bytes, datagram: bool, at_end: bool
+    ) -> list[SessionMessage]:
+        """Blackboard bytes the deframer found no message in: the answer the side owes, if it owes
+        one (it may talk first, then answer: blackboard.lua), then malformed messages and noise."""
+        out: list[SessionMessage] = []
+        if any(k != side for k in s.pending):
+            out, data = self._answer(s, side, number, ts_ns, data, datagram, waits=False)
+        if data:
+            out += self._bb_noise(s, number, ts_ns, data, at_end)
+        return out
+
+    def _bb_message(self, s: _Session, side: object, number: int, ts_ns: int, raw: bytes,
+                    msg: blackboard.Message) -> SessionMessage:
+        """A master's message. A good one waits for its answer (replacing the side's last one);
+        what the side owes stays owed; one with a bad checksum waits for none (blackboard.lua:
+        "the last good message")."""
+        if msg.ok:
+            s.pending[side] = msg
+            s.answer = {k: v for k, v in s.answer.items() if k == side}  # the other side answers afresh
+        return SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "master", raw, msg.ok, msg)
 
     def finish(self) -> list[SessionMessage]:
         """The end of the capture: blackboard text a TCP stream still holds, its CR never come, is
@@ -381,18 +417,28 @@ class SessionReader:
                               pkt.ok, msg, error)
 
     def _answer(
-        self, s: _Session, side: object, number: int, ts_ns: int, data: bytes, datagram: bool = False
+        self, s: _Session, side: object, number: int, ts_ns: int, data: bytes, datagram: bool = False,
+        waits: bool = True,
     ) -> tuple[list[SessionMessage], bytes]:
         """The answers ``side``'s bytes give to the other side's pending message, and the bytes
         left over once nothing is pending (for ``side``'s own deframer). ``datagram``: an answer
         cut off at the datagram's end is the answer, truncated (blackboard.lua's
-        ``blackboard.response.truncated``): noise here, the message answered, nothing held."""
+        ``blackboard.response.truncated``): noise here, the message answered, nothing held. On a
+        serial line (``waits``: bytes the deframer has not called noise yet) a whole good message
+        where the answer would be is that message, and answer bytes that may still become one
+        wait for more, as serial.lua reads them."""
         out: list[SessionMessage] = []
         buf = s.answer.pop(side, b"") + data
         sender = next((k for k in s.pending if k != side), None)
         while sender is not None and buf:
             req = s.pending[sender]
             need = 1 if isinstance(req, blackboard.SetMessage) else req.count + 1
+            if s.serial and waits and not datagram:  # (serial.lua: text wins, text that may become a message waits)
+                if _good_message_first(buf):
+                    return out, buf
+                if _may_be_text(buf, need) and not _answer_right(req, buf):
+                    s.answer[side] = buf
+                    return out, b""
             if len(buf) < need:
                 if datagram:
                     del s.pending[sender]
