@@ -634,6 +634,40 @@ local function note_waiting(pinfo, here)
     end
 end
 
+-- the answers serial.lua framed in the bytes it hands over (pinfo.private "slserial.answers",
+-- "offset:length" pairs from 0): offset -> length; nil for bytes not from serial.lua. On a serial
+-- line serial.lua's framing decides where an answer is (it holds one until whole, and knows
+-- which bytes came before the message it answers: docs/serial-capture-format.md)
+local function serial_answers(pinfo)
+    local text = pinfo.private["slserial.answers"]
+    if text == nil then return nil end
+    local t = {}
+    for a, l in string.gmatch(text, "(%d+):(%d+)") do
+        t[tonumber(a)] = tonumber(l)
+    end
+    return t
+end
+
+-- where text or junk at off may run to: the next answer serial.lua framed, else n
+local function answer_stop(answers, off, n)
+    local stop = n
+    for a in pairs(answers) do
+        if a > off and a < stop then stop = a end
+    end
+    return stop
+end
+
+-- whether the bytes at off are the awaited answer (rec): where serial.lua framed one, else
+-- anything but a complete, valid message (the side talks instead of answering:
+-- docs/fields-p2os-blackboard.md, "Both directions"; the Python reader too)
+local function is_answer(tvb, off, n, rec, answers)
+    if rec == nil then return false end
+    if answers then return answers[off] ~= nil end
+    return not valid_text_at(tvb, off, n)
+end
+
+local NO_ANSWERS = {}
+
 local function dissect_buffer(tvb, pinfo, tree)
     local n = tvb:len()
     if n == 0 then
@@ -645,14 +679,13 @@ local function dissect_buffer(tvb, pinfo, tree)
     local capture_end = ends_capture(pinfo, here)
     local can_more = pinfo.can_desegment > 0 and not capture_end
     local infos = {}
+    local answers = serial_answers(pinfo)
     local off = 0
     while off < n do
         local c = u8(tvb, off)
         local rec = state[here]
-        -- a complete, valid message is a message, not the awaited answer: the side talks instead
-        -- of answering (docs/fields-p2os-blackboard.md, "Both directions"; the Python reader too)
-        local binary = rec ~= nil and not valid_text_at(tvb, off, n)
-        if binary then
+        local stop = answer_stop(answers or NO_ANSWERS, off, n)
+        if is_answer(tvb, off, n, rec, answers) then
             local used, summary = dissect_binary(tvb, pinfo, tree, off, n, rec, can_more)
             if used == nil then
                 pinfo.desegment_offset = off
@@ -662,12 +695,12 @@ local function dissect_buffer(tvb, pinfo, tree)
             clear_pending(state, here)
             infos[#infos + 1] = summary
             off = off + used
-        elseif (c == SET or c == REQUEST) and message_start(tvb, off, n) > off then
-            off = add_junk(tvb, tree, off, message_start(tvb, off, n), infos)
+        elseif (c == SET or c == REQUEST) and message_start(tvb, off, stop) > off then
+            off = add_junk(tvb, tree, off, message_start(tvb, off, stop), infos)
         elseif c == SET or c == REQUEST then
             -- a message without its CR is held for more segments up to max_held_bytes
             local more = can_more and n - off <= bb.prefs.max_held_bytes
-            local used, summary = dissect_text(tvb, pinfo, tree, off, n, state, more, can_more and not more,
+            local used, summary = dissect_text(tvb, pinfo, tree, off, stop, state, more, can_more and not more,
                 capture_end)
             if used == nil then
                 pinfo.desegment_offset = off
@@ -678,7 +711,7 @@ local function dissect_buffer(tvb, pinfo, tree)
             infos[#infos + 1] = summary
             off = off + used
         else
-            off = dissect_junk(tvb, tree, off, n, infos)
+            off = dissect_junk(tvb, tree, off, stop, infos)
         end
     end
     if #infos > 0 then

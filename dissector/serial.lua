@@ -33,8 +33,9 @@
 --    makes the other expect its answer (1 byte for a set, count + 1 for a request), held until
 --    whole and handed over as one answer (slserial.answer), whether or not that direction
 --    talks too; a whole message where the answer would be is that message, the answer still
---    expected after it. A direction not yet recognised whose first bytes are a right answer is
---    locked to blackboard. An answer is matched only when its message's record comes first.
+--    expected after it; blackboard.lua reads answers only where this framing put them
+--    (pinfo.private "slserial.answers"). A direction not yet recognised whose first bytes are
+--    a right answer is blackboard's. An answer is matched only when its message's record comes first.
 -- An unfinished frame longer than the max_held_bytes preference (65536) is given up as noise,
 -- with a "Limit exceeded" warning. A record that only lengthens an unfinished frame is appended
 -- to the held bytes without scanning them again (linear time for a frame sent byte by byte).
@@ -884,8 +885,23 @@ local function add_region(tvb, t, res, sub, label)
 end
 
 -- the completed bytes to the protocol's dissector, or as data with a warning
+-- the blackboard answers of a region, "offset:length" from 0, for blackboard.lua
+-- (pinfo.private "slserial.answers": where the answers are is this dispatcher's framing)
+local function answers_text(res)
+    local list = {}
+    for _, p in ipairs(res.pieces) do
+        if p[4] then list[#list + 1] = (p[1] - 1) .. ":" .. p[2] end
+    end
+    return table.concat(list, ",")
+end
+
 local function hand_over(rtvb, pinfo, tree, t, res, sub)
-    if sub then
+    if sub and res.proto == "blackboard" then
+        pinfo.private["slserial.answers"] = answers_text(res)
+        sub:call(rtvb, pinfo, tree)
+        pinfo.private["slserial.answers"] = nil
+        return
+    elseif sub then
         sub:call(rtvb, pinfo, tree)
         return
     end

@@ -48,6 +48,7 @@ from sharedlink.capture.serial_format import (
     DIRECTION_NAMES,
     USER_LINKTYPES,
     Deframer,
+    Piece,
     detect,
 )
 from sharedlink.protocols import blackboard, p2os
@@ -100,6 +101,7 @@ class _Session:
     tcp_next: dict[object, int] = field(default_factory=dict)
     serial: bool = False  # a serial line: each direction has its own protocol
     held_at: dict[object, tuple[int, int]] = field(default_factory=dict)  # TCP blackboard: side -> last record, ts
+    answer_from: dict[object, int] = field(default_factory=dict)  # serial: side -> stream offset its answer starts at
 
 
 #: the order serial.lua looks at another direction for its protocol (p2p_dir -1, 0, 1)
@@ -177,9 +179,10 @@ def _serial_detect(s: _Session, side: object, d: Deframer, data: bytes) -> tuple
     if d.protocol is not None:
         return data, False
     req = next((m for k, m in s.pending.items() if k != side), None)
-    if req is not None and _answer_right(req, both):
+    at = min(max(s.answer_from.get(side, 0) - d.base, 0), len(d.buf))  # (bytes held before the message: no answer)
+    if req is not None and _answer_right(req, both[at:]):
         d.protocol = "blackboard"
-        return d.take() + data, True
+        return d.take()[at:] + data, True
     return data, False
 
 
@@ -305,7 +308,7 @@ class SessionReader:
         last = len(pieces) - 1
         for i, piece in enumerate(pieces):
             if piece.frame is None and piece.protocol == "blackboard" and (s.serial or s.protocol == "blackboard"):
-                out += self._bb_rest(s, side, number, ts_ns, piece.data, datagram, i == last and not d.buf)
+                out += self._bb_rest(s, side, number, ts_ns, piece, datagram, i == last and not d.buf)
                 continue
             if piece.frame is None or piece.protocol not in ("p2os", "blackboard"):
                 if piece.protocol in ("p2os", "blackboard"):
@@ -335,17 +338,27 @@ class SessionReader:
         if answers and (d.protocol if s.serial else d.protocol or s.protocol) == "blackboard" and any(
                 k != side for k in s.pending) and not _starts_message(s, side, data):
             d.protocol = "blackboard"  # (a side that answers a blackboard message is blackboard's)
-            return self._answer(s, side, number, ts_ns, data, datagram)
+            out, data = self._answer(s, side, number, ts_ns, data, datagram)
+            if out and s.serial and d.buf:  # text held before the answer never ends: given up (serial.lua)
+                out = self._bb_noise(s, number, ts_ns, d.take(), True) + out
+            return out, data
         return [], data
 
     def _bb_rest(
-        self, s: _Session, side: object, number: int, ts_ns: int, data: bytes, datagram: bool, at_end: bool
+        self, s: _Session, side: object, number: int, ts_ns: int, piece: Piece, datagram: bool, at_end: bool
     ) -> list[SessionMessage]:
         """Blackboard bytes the deframer found no message in: the answer the side owes, if it owes
-        one (it may talk first, then answer: blackboard.lua), then malformed messages and noise."""
+        one (it may talk first, then answer: blackboard.lua), then malformed messages and noise.
+        On a serial line bytes the side held before the message it answers are no answer
+        (serial.lua's framing)."""
         out: list[SessionMessage] = []
+        data = piece.data
         if any(k != side for k in s.pending):
-            out, data = self._answer(s, side, number, ts_ns, data, datagram, waits=False)
+            cut = min(max(s.answer_from.get(side, 0) - piece.start, 0), len(data)) if s.serial else 0
+            if cut:
+                out += self._bb_noise(s, number, ts_ns, data[:cut], False)
+            got, data = self._answer(s, side, number, ts_ns, data[cut:], datagram, waits=False)
+            out += got
         if data:
             out += self._bb_noise(s, number, ts_ns, data, at_end)
         return out
@@ -358,6 +371,8 @@ class SessionReader:
         if msg.ok:
             s.pending[side] = msg
             s.answer = {k: v for k, v in s.answer.items() if k == side}  # the other side answers afresh
+            if s.serial:  # (serial.lua: the answer starts after what the other side holds now)
+                s.answer_from = {k: o.base + len(o.buf) for k, o in s.sides.items() if k != side}
         return SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "master", raw, msg.ok, msg)
 
     def finish(self) -> list[SessionMessage]:
