@@ -167,23 +167,30 @@ def _may_be_text(buf: bytes, need: int) -> bool:
     return i > 0 and buf[i - 1] in b":;" and i - 1 < need
 
 
-def _serial_detect(s: _Session, side: object, d: Deframer, data: bytes) -> tuple[bytes, bool]:
+def _serial_detect(s: _Session, side: object, d: Deframer, data: bytes) -> tuple[bytes, bool, bytes]:
     """A serial direction of no protocol yet, a blackboard answer awaited from it: its protocol,
     as serial.lua finds it: the first good frame of its bytes (a P2OS packet is no answer; a
     message where the answer would be is that message: its frames first), else blackboard when
     its bytes (those held too) start with the right answer; else none yet (the bytes are held).
-    Returns the bytes to read on (the held ones first once they are an answer) and whether they
-    may be read as the answer."""
+    Returns the bytes to read on (the held ones first once they are an answer), whether they
+    may be read as the answer, and the held bytes from before the message answered."""
     both = bytes(d.buf) + data
     d.protocol = detect(both)
     if d.protocol is not None:
-        return data, False
+        return data, False, b""
     req = next((m for k, m in s.pending.items() if k != side), None)
     at = min(max(s.answer_from.get(side, 0) - d.base, 0), len(d.buf))  # (bytes held before the message: no answer)
     if req is not None and _answer_right(req, both[at:]):
         d.protocol = "blackboard"
-        return d.take()[at:] + data, True
-    return data, False
+        held = d.take()
+        return held[at:] + data, True, held[:at]
+    return data, False, b""
+
+
+def _held_text_goes_on(joined: bytes) -> bool:
+    """Whether text a serial direction holds (no CR yet) goes on in the bytes after it: a whole
+    good message, or still a type character and hex digits (serial.lua: text wins, and waits)."""
+    return _good_message_first(joined) or (joined[:1] in (b":", b";") and all(b in _HEX for b in joined[1:]))
 
 
 def _answer_right(req: blackboard.Message, data: bytes) -> bool:
@@ -332,15 +339,19 @@ class SessionReader:
         """The answers ``data`` starts with when ``side`` owes one (a blackboard side, not
         starting with a message of its own; on a serial line a direction of no protocol yet
         first as serial.lua finds its protocol), and the bytes left for its deframer."""
-        answers = True
+        answers, before = True, b""
         if s.serial and d.protocol is None and s.pending:
-            data, answers = _serial_detect(s, side, d, data)
+            data, answers, before = _serial_detect(s, side, d, data)
         if answers and (d.protocol if s.serial else d.protocol or s.protocol) == "blackboard" and any(
                 k != side for k in s.pending) and not _starts_message(s, side, data):
+            if s.serial and d.buf:
+                if _held_text_goes_on(bytes(d.buf) + data):
+                    return [], data
+                before = d.take()
             d.protocol = "blackboard"  # (a side that answers a blackboard message is blackboard's)
             out, data = self._answer(s, side, number, ts_ns, data, datagram)
-            if out and s.serial and d.buf:  # text held before the answer never ends: given up (serial.lua)
-                out = self._bb_noise(s, number, ts_ns, d.take(), True) + out
+            if before:  # what it held before the answer never ends: given up (serial.lua)
+                out = self._bb_noise(s, number, ts_ns, before, True) + out
             return out, data
         return [], data
 
