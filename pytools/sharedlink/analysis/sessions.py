@@ -154,6 +154,15 @@ def _good_message_first(data: bytes) -> bool:
         return False
 
 
+def _good_message_at(buf: bytes, need: int) -> int:
+    """Where a complete good blackboard message starts among the first ``need`` bytes of ``buf``
+    (the answer's place), or -1."""
+    for i in range(min(need, len(buf))):
+        if buf[i] in b":;" and _good_message_first(buf[i:]):
+            return i
+    return -1
+
+
 _HEX = frozenset(b"0123456789ABCDEFabcdef")
 
 
@@ -460,8 +469,9 @@ class SessionReader:
             req = s.pending[sender]
             need = 1 if isinstance(req, blackboard.SetMessage) else req.count + 1
             if s.serial and waits and not datagram:  # (serial.lua: text wins, text that may become a message waits)
-                if _good_message_first(buf):
-                    return out, buf
+                at = _good_message_at(buf, need)
+                if at >= 0:  # (the bytes before it are outside any message)
+                    return out + self._bb_noise(s, number, ts_ns, buf[:at], False), buf[at:]
                 if _may_be_text(buf, need) and not _answer_right(req, buf):
                     s.answer[side] = buf
                     return out, b""
