@@ -150,6 +150,10 @@ local pending_count = 0 -- entries in pending (bounded by the max_pending prefer
 local frame_state = {}
 local messages = {} -- "frame:offset" -> the record of a message, to show where it was answered
 local not_held = {} -- "frame:offset" -> true: a message left out of pending (max_pending)
+-- [direction key] = the frame whose text waits for its CR (TCP asked for more segments), first
+-- pass; a later call in that direction clears it. What the first pass leaves is text the capture
+-- ends before its CR: a later pass shows it in that frame, not ended by CR
+local waiting_cr = {}
 
 function bb.init()
     pending = {}
@@ -157,6 +161,7 @@ function bb.init()
     frame_state = {}
     messages = {}
     not_held = {}
+    waiting_cr = {}
 end
 
 -- ---------------------------------------------------------------------------------------------
@@ -305,7 +310,11 @@ end
 -- the terminator (CR and an LF with it), added last, after the fields it ends
 local function add_terminator(tvb, t, m, over_limit)
     if m.cr == nil then
-        t:add_proto_expert_info(ex.no_cr)
+        if m.capture_end then
+            t:add_proto_expert_info(ex.no_cr, "Message not ended by CR: the capture ends before it")
+        else
+            t:add_proto_expert_info(ex.no_cr)
+        end
         if over_limit then
             t:add_proto_expert_info(ex.limit, "Limit exceeded: over " .. istr(bb.prefs.max_held_bytes)
                 .. " bytes without a CR (blackboard.max_held_bytes): not held for more segments")
@@ -431,13 +440,14 @@ end
 
 -- a text message at off (type character there); stop is the end of the buffer.
 -- Returns: bytes used and the summary, or nil when the CR is not there yet and more may come
-local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_limit)
+local function dissect_text(tvb, pinfo, tree, off, stop, state, can_more, over_limit, capture_end)
     local cr = find_cr(tvb, off + 1, stop)
     if cr == nil and can_more then
         return nil
     end
     local text_end = cr or stop
-    local m = { off = off, cr = cr, kind = u8(tvb, off), used = text_end - off, ndig = text_end - off - 1 }
+    local m = { off = off, cr = cr, kind = u8(tvb, off), used = text_end - off, ndig = text_end - off - 1,
+        capture_end = capture_end }
     if cr then
         m.used = m.used + 1
         if cr + 1 < stop and u8(tvb, cr + 1) == LF then
@@ -591,24 +601,75 @@ local function message_start(tvb, off, n)
     return off - 1 + BB.message_start(tvb:raw(off, cr - off), 1, cr - off + 1)
 end
 
+-- text the capture ends before its CR (TCP; docs/fields-p2os-blackboard.md): on the first pass
+-- a call in a direction clears its note (more segments came) and a message still waiting for
+-- its CR notes the frame; a later pass shows the text of the frame noted last, not ended by CR
+local function ends_capture(pinfo, here)
+    if not pinfo.visited then
+        waiting_cr[here] = nil
+        return false
+    end
+    return pinfo.can_desegment > 0 and waiting_cr[here] == pinfo.number
+end
+
+local function note_waiting(pinfo, here)
+    if not pinfo.visited then
+        waiting_cr[here] = pinfo.number
+    end
+end
+
+-- the answers serial.lua framed in the bytes it hands over (pinfo.private "slserial.answers",
+-- "offset:length" pairs from 0): offset -> length; nil for bytes not from serial.lua. On a serial
+-- line serial.lua's framing decides where an answer is (it holds one until whole, and knows
+-- which bytes came before the message it answers: docs/serial-capture-format.md)
+local function serial_answers(pinfo)
+    local text = pinfo.private["slserial.answers"]
+    if text == nil then return nil end
+    local t = {}
+    for a, l in string.gmatch(text, "(%d+):(%d+)") do
+        t[tonumber(a)] = tonumber(l)
+    end
+    return t
+end
+
+-- where text or junk at off may run to: the next answer serial.lua framed, else n
+local function answer_stop(answers, off, n)
+    local stop = n
+    for a in pairs(answers) do
+        if a > off and a < stop then stop = a end
+    end
+    return stop
+end
+
+-- whether the bytes at off are the awaited answer (rec): where serial.lua framed one, else
+-- anything but a complete, valid message (the side talks instead of answering:
+-- docs/fields-p2os-blackboard.md, "Both directions"; the Python reader too)
+local function is_answer(tvb, off, n, rec, answers)
+    if rec == nil then return false end
+    if answers then return answers[off] ~= nil end
+    return not valid_text_at(tvb, off, n)
+end
+
+local NO_ANSWERS = {}
+
 local function dissect_buffer(tvb, pinfo, tree)
     local n = tvb:len()
     if n == 0 then
         return 0
     end
     pinfo.cols.protocol = "Blackboard"
-    local can_more = pinfo.can_desegment > 0
     local state = state_for(pinfo)
     local here = keys(pinfo)
+    local capture_end = ends_capture(pinfo, here)
+    local can_more = pinfo.can_desegment > 0 and not capture_end
     local infos = {}
+    local answers = serial_answers(pinfo)
     local off = 0
     while off < n do
         local c = u8(tvb, off)
         local rec = state[here]
-        -- a complete, valid message is a message, not the awaited answer: the side talks instead
-        -- of answering (docs/fields-p2os-blackboard.md, "Both directions"; the Python reader too)
-        local binary = rec ~= nil and not valid_text_at(tvb, off, n)
-        if binary then
+        local stop = answer_stop(answers or NO_ANSWERS, off, n)
+        if is_answer(tvb, off, n, rec, answers) then
             local used, summary = dissect_binary(tvb, pinfo, tree, off, n, rec, can_more)
             if used == nil then
                 pinfo.desegment_offset = off
@@ -618,21 +679,23 @@ local function dissect_buffer(tvb, pinfo, tree)
             clear_pending(state, here)
             infos[#infos + 1] = summary
             off = off + used
-        elseif (c == SET or c == REQUEST) and message_start(tvb, off, n) > off then
-            off = add_junk(tvb, tree, off, message_start(tvb, off, n), infos)
+        elseif (c == SET or c == REQUEST) and message_start(tvb, off, stop) > off then
+            off = add_junk(tvb, tree, off, message_start(tvb, off, stop), infos)
         elseif c == SET or c == REQUEST then
             -- a message without its CR is held for more segments up to max_held_bytes
             local more = can_more and n - off <= bb.prefs.max_held_bytes
-            local used, summary = dissect_text(tvb, pinfo, tree, off, n, state, more, can_more and not more)
+            local used, summary = dissect_text(tvb, pinfo, tree, off, stop, state, more, can_more and not more,
+                capture_end)
             if used == nil then
                 pinfo.desegment_offset = off
                 pinfo.desegment_len = DESEGMENT_ONE_MORE_SEGMENT
+                note_waiting(pinfo, here)
                 break
             end
             infos[#infos + 1] = summary
             off = off + used
         else
-            off = dissect_junk(tvb, tree, off, n, infos)
+            off = dissect_junk(tvb, tree, off, stop, infos)
         end
     end
     if #infos > 0 then

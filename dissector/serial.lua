@@ -29,14 +29,13 @@
 --    (robots/p2os_rules.lua, R.resync_at).
 --  * Blackboard: ":" or ";" (the last one before the CR), hex digits, CR, and an LF if it
 --    came with the CR (a message does not wait for one); text that does not parse is noise.
---    A slave's binary answers (not in the Python reader, to which they are noise): a good
---    message completed in one direction (the master's) makes the other one expect its
---    answer, 1 byte for a set, count + 1 for a request; those bytes are held until all are in
---    and handed over as one frame. A direction not yet recognised whose first bytes are a
---    right answer (ack = the set's checksum; a read response with a good checksum) is
---    locked to blackboard at once. An answer is matched only when the record ending its
---    message comes first in the capture. A direction that completes a good message of its own
---    talks (a master): it is never expected to answer from then on.
+--    Binary answers (as the Python session reader reads them): a good message in one direction
+--    makes the other expect its answer (1 byte for a set, count + 1 for a request), held until
+--    whole and handed over as one answer (slserial.answer), whether or not that direction
+--    talks too; a whole message where the answer would be is that message, the answer still
+--    expected after it; blackboard.lua reads answers only where this framing put them
+--    (pinfo.private "slserial.answers"). A direction not yet recognised whose first bytes are
+--    a right answer is blackboard's. An answer is matched only when its message's record comes first.
 -- An unfinished frame longer than the max_held_bytes preference (65536) is given up as noise,
 -- with a "Limit exceeded" warning. A record that only lengthens an unfinished frame is appended
 -- to the held bytes without scanning them again (linear time for a frame sent byte by byte).
@@ -114,6 +113,7 @@ local hf = {
         { [-1] = "unknown", [0] = "outbound", [1] = "inbound" }),
     protocol = ProtoField.string("slserial.protocol", "Protocol"),
     frame = ProtoField.bytes("slserial.frame", "Frame"),
+    answer = ProtoField.bytes("slserial.answer", "Answer (blackboard, binary)"),
     noise = ProtoField.bytes("slserial.noise", "Noise"),
     held = ProtoField.bytes("slserial.held", "Held back (unfinished frame)"),
     completed_in = ProtoField.framenum("slserial.completed_in", "Completed in record", base.NONE),
@@ -377,23 +377,23 @@ end
 
 -- blackboard direction: the expected answer (held until all its bytes are in) is a frame;
 -- text and noise before and after it as scan_blackboard finds them. Text wins: bytes where the
--- answer would be that belong to a whole text message are that message (the Python reader
--- frames text only; e.g. the first message of the direction that starts second), and a wrong
--- answer that may still become one (":" or ";" and hex digits so far) waits for more bytes.
+-- answer would be that belong to a whole text message are that message, and the answer is
+-- still awaited after it (the side talks, then answers: blackboard.lua and the Python reader
+-- alike); a wrong answer that may still become a message (":" or ";" and hex digits so far)
+-- waits for more bytes.
 local function scan_bb_stream(st, s)
     local e = st.expect
     if not e then return scan_blackboard(s, false) end
     local n = #s
+    local text = scan_blackboard(s, false)
+    for _, p in ipairs(text) do
+        if p[3] and p[1] <= e.at + e.len - 1 and p[1] + p[2] - 1 >= e.at then
+            e.at = p[1] + p[2]
+        end
+    end
     local at = e.at
     if at > n + 1 then at = n + 1 end
     local last = at + e.len - 1
-    local text, text_hold, text_over = scan_blackboard(s, false)
-    for _, p in ipairs(text) do
-        if p[3] and p[1] <= last and p[1] + p[2] - 1 >= at then
-            st.expect = nil
-            return text, text_hold, text_over
-        end
-    end
     local wait = n < last
     local from = at
     if wait or not BB.answer_good(s, e, at) then
@@ -525,21 +525,22 @@ local function detect_protocol(st, s, n)
     end
 end
 
--- good messages make the other direction expect their answers. A direction that completes a
--- good message of its own talks: it is a master (a slave only answers, in binary), so its bytes
--- are never taken for answers from then on, whatever the other direction sends (the Python
--- reader frames text only: a byte of noise in a talking direction is noise to both)
+-- good messages make the other direction expect their answers (a later one replaces the
+-- expectation). Master and slave are roles of one exchange, not of a direction
+-- (docs/fields-p2os-blackboard.md, "Both directions"): a direction that talks may still answer,
+-- so its answer is held until whole wherever the records cut it, as blackboard.lua and the
+-- Python reader read it (before, a talking direction was never expected to answer, and an answer
+-- cut across its records reached blackboard.lua in pieces: a truncated response)
 local function expect_answers(st, s, dir, pieces)
     for _, p in ipairs(pieces) do
         local c = s_byte(s, p[1])
         local cr = p[3] and not p[4] and (c == B_COLON or c == B_SEMI) and s_find(s, "\r", p[1], true)
         local e = cr and BB.expectation(s, p[1], cr)
         if e then
-            st.master, st.slave, st.expect = true, nil, nil
             local other = (dir == 0 or dir == 1) and dir_state(st.iface, 1 - dir) or nil
-            if other and not other.master and (other.proto == nil or other.proto == "blackboard") then
+            if other and (other.proto == nil or other.proto == "blackboard") then
                 e.at = other.hlen + 1
-                other.expect, other.slave = e, true
+                other.expect = e
             end
         end
     end
@@ -685,7 +686,10 @@ local function add_pieces(t, rtvb, res, sub, label)
     local nframes = 0
     for _, p in ipairs(res.pieces) do
         local r = rtvb:range(p[1] - 1, p[2])
-        if p[3] then
+        if p[4] then -- a blackboard slave's binary answer: no framing of its own, held until whole
+            nframes = nframes + 1
+            t:add(hf.answer, r):set_text(label .. " answer: " .. plural(p[2], "byte"))
+        elseif p[3] then
             nframes = nframes + 1
             t:add(hf.frame, r):set_text(label .. " frame: " .. plural(p[2], "byte"))
         else
@@ -759,8 +763,23 @@ local function add_region(tvb, t, res, sub, label)
 end
 
 -- the completed bytes to the protocol's dissector, or as data with a warning
+-- the blackboard answers of a region, "offset:length" from 0, for blackboard.lua
+-- (pinfo.private "slserial.answers": where the answers are is this dispatcher's framing)
+local function answers_text(res)
+    local list = {}
+    for _, p in ipairs(res.pieces) do
+        if p[4] then list[#list + 1] = (p[1] - 1) .. ":" .. p[2] end
+    end
+    return table.concat(list, ",")
+end
+
 local function hand_over(rtvb, pinfo, tree, t, res, sub)
-    if sub then
+    if sub and res.proto == "blackboard" then
+        pinfo.private["slserial.answers"] = answers_text(res)
+        sub:call(rtvb, pinfo, tree)
+        pinfo.private["slserial.answers"] = nil
+        return
+    elseif sub then
         sub:call(rtvb, pinfo, tree)
         return
     end

@@ -42,7 +42,7 @@ class RobotView:
         from sharedlink.analysis.health import Health
 
         self.rows = RobotRows()
-        self.sessions: dict[int, _Session] = {}
+        self.sessions: dict[tuple[int, str], _Session] = {}
         self.health = Health(outage_after, timeline=True)  # the robot links' health (robot_health.py): quality, LINK DOWN
 
     def update(self, m: SessionMessage) -> None:
@@ -50,9 +50,10 @@ class RobotView:
 
         feed_session(self.health, m)
         row = self.rows.row(m)
-        s = self.sessions.get(m.session)
+        key = (m.session, m.protocol)  # (a serial line may carry P2OS one way, blackboard the other)
+        s = self.sessions.get(key)
         if s is None:
-            s = self.sessions[m.session] = _Session(m.protocol, m.label)
+            s = self.sessions[key] = _Session(m.protocol, m.label)
         s.packets += 1
         s.bad += m.ok is False
         kind = f"{m.side} {row['type']}"
@@ -66,7 +67,7 @@ class RobotView:
 
     def lines(self, now_ns: int) -> list[str]:
         out = []
-        for n, s in sorted(self.sessions.items()):
+        for (n, _p), s in sorted(self.sessions.items()):
             out.append(f"{s.protocol} session {n} ({s.label}): {s.packets} packets, {s.bad} bad checksums")
             if s.last:
                 r = s.last

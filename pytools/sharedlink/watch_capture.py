@@ -88,6 +88,8 @@ class CaptureItems:
             yield from self._rest()
             raise
         self.frames.extend(f for f in frames.flush() if isinstance(f, StreamFrame))
+        if reader is not None:
+            self.messages.extend(reader.finish())  # (blackboard text a TCP stream holds at the end)
         yield from self._rest()
 
     def _due(self, now_ns: int) -> Iterator[Item]:

@@ -13,10 +13,9 @@ import json
 from collections import Counter
 from pathlib import Path
 
-import pytest
 import sl_cli
 from sl_agreement import health_tap
-from sl_robots import OTHERS, SERIAL
+from sl_robots import OTHERS
 
 import tshark_util as tu
 from sharedlink.analysis.sessions import iter_sessions
@@ -58,18 +57,4 @@ def test_stats_export_and_health_count_them() -> None:
     assert tap["master>slave"][0] == 14
 
 
-@pytest.mark.parametrize("name", ["bb-edge.pcap", "bb-udp.pcap", "bb-tcp.pcap", "bb-serial.pcapng", "mut1-bb-udp.pcap",
-                                  "mut2-bb-udp.pcap", "mut1-bb-serial.pcapng", "mut2-bb-serial.pcapng"])
-def test_golden_small_blackboard_inputs_agree_frame_by_frame(name: str) -> None:
-    """Every blackboard input of golden_small (generated sessions and their editcap mutations):
-    the messages and answers blackboard.lua shows in each frame are the Python reader's (a
-    truncated response aside, "Over UDP"); among them malformed messages, and answers only to
-    good messages (a message with a bad checksum waits for none, as the docs' "last good
-    message" says: before, Python took the next byte after one for its ack)."""
-    path = EDGE.parent / name
-    prefs = SERIAL if name.endswith(".pcapng") else PREFS if name == "bb-edge.pcap" else None
-    rows = tu.fields(path, ["blackboard.type"], prefs=prefs, extra=OTHERS, two_pass=True)
-    lua = {n: len(r["blackboard.type"]) - (TRUNCATED in r["_ws.expert.message"]) for n, r in enumerate(rows, 1)}
-    py = Counter(m.number for m in iter_sessions(path) if m.protocol == "blackboard")
-    assert {n: c for n, c in lua.items() if c} == dict(py)
-    assert sum(py.values()) > 10
+# (every golden_small blackboard input, message by message: test_robot_frames_agree.py)

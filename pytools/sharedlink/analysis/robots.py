@@ -134,6 +134,11 @@ class RobotLinks:
         client = True if dport == p2os.MOBILESIM_PORT else False if sport == p2os.MOBILESIM_PORT else None
         return reader.feed(key, reader.sessions[key].label, a, number, ts_ns, payload, client, proto == "udp")
 
+    def finish(self) -> list[SessionMessage]:
+        """The capture's end (messages mode): blackboard text a TCP stream still holds, as a
+        malformed message (:meth:`~sharedlink.analysis.sessions.SessionReader.finish`)."""
+        return self.reader.finish() if self.messages else []
+
     def serial(self, number: int, ts_ns: int, data: bytes, flags: int, interface: int) -> list[SessionMessage]:
         """A serial record (messages mode): the P2OS packets and blackboard messages it completes.
         A direction found to carry SharedLink is no longer fed."""

@@ -7,6 +7,10 @@ gives out every message as a :class:`SessionMessage` when the record that comple
 
 * A side's protocol is found by :class:`~sharedlink.capture.serial_format.Deframer` ("auto": the
   first good P2OS packet or blackboard message); SharedLink sides are left to ``iter_decoded``.
+  A UDP or TCP session has one protocol (the first found, as a Wireshark conversation); on a
+  serial line each direction has its own, as serial.lua has it (docs/serial-capture-format.md,
+  "Protocol per direction": P2OS one way and blackboard the other is two protocols of one
+  session; a direction with nothing of its own takes another's once it holds 64 bytes).
 * P2OS, as the dissector decides: the side on TCP port 8101 is the robot; on serial, outbound
   bytes are the client's and inbound the robot's; else the side that sent a server packet (SIP,
   CONFIG, ENCODER, a SYNC2 echo with the robot's name) is the robot, and until one is seen each
@@ -24,7 +28,9 @@ gives out every message as a :class:`SessionMessage` when the record that comple
   does (a packet, message or answer cut off at a datagram's end is noise, the next datagram
   starts afresh: docs/fields-p2os-blackboard.md, "Over UDP").
 * TCP segments are taken in capture order; data the stream has already had (a retransmission)
-  is skipped, as in :class:`~sharedlink.capture.stream.FrameSplitter`.
+  is skipped, as in :class:`~sharedlink.capture.stream.FrameSplitter`. Blackboard text a TCP
+  stream still holds at the capture's end (no CR) is a malformed message of the last segment
+  that brought its bytes (:meth:`SessionReader.finish`).
 """
 
 from __future__ import annotations
@@ -36,7 +42,15 @@ from typing import Union
 
 from sharedlink.capture.packets import decode_packet
 from sharedlink.capture.pcapio import Record, read_records
-from sharedlink.capture.serial_format import DIR_IN, DIR_OUT, DIRECTION_NAMES, USER_LINKTYPES, Deframer
+from sharedlink.capture.serial_format import (
+    DIR_IN,
+    DIR_OUT,
+    DIRECTION_NAMES,
+    USER_LINKTYPES,
+    Deframer,
+    Piece,
+    detect,
+)
 from sharedlink.protocols import blackboard, p2os
 
 #: serial direction -> whether it is a P2OS client's (the dissector's p2p_dir rule)
@@ -85,6 +99,17 @@ class _Session:
     pending: dict[object, blackboard.Message] = field(default_factory=dict)  # blackboard: sender -> awaiting an answer
     answer: dict[object, bytes] = field(default_factory=dict)  # blackboard: answering side -> answer bytes so far
     tcp_next: dict[object, int] = field(default_factory=dict)
+    serial: bool = False  # a serial line: each direction has its own protocol
+    held_at: dict[object, tuple[int, int]] = field(default_factory=dict)  # TCP blackboard: side -> last record, ts
+    answer_from: dict[object, int] = field(default_factory=dict)  # serial: side -> stream offset its answer starts at
+
+
+#: the order serial.lua looks at another direction for its protocol (p2p_dir -1, 0, 1)
+_SIDE_ORDER = {"unknown": 0, DIRECTION_NAMES[DIR_OUT]: 1, DIRECTION_NAMES[DIR_IN]: 2}
+
+
+def _side_order(kv: tuple[object, Deframer]) -> int:
+    return _SIDE_ORDER.get(kv[0], 3)  # type: ignore[call-overload]
 
 
 def _whole_packets(data: bytes) -> list[int]:
@@ -113,7 +138,12 @@ def _starts_message(s: _Session, side: object, data: bytes) -> bool:
     """Whether ``data``, with no answer bytes of ``side`` held, starts with a complete good
     blackboard message: a message, not the awaited answer (blackboard.lua's rule: the side
     talks instead of answering)."""
-    if data[:1] not in (b":", b";") or s.answer.get(side):
+    return not s.answer.get(side) and _good_message_first(data)
+
+
+def _good_message_first(data: bytes) -> bool:
+    """Whether ``data`` starts with a complete good blackboard message."""
+    if data[:1] not in (b":", b";"):
         return False
     cr = data.find(b"\r")
     if cr < 0:
@@ -122,6 +152,63 @@ def _starts_message(s: _Session, side: object, data: bytes) -> bool:
         return bool(blackboard.parse_message(data[: cr + 1]).ok)
     except blackboard.BlackboardError:
         return False
+
+
+def _good_message_at(buf: bytes, need: int) -> int:
+    """Where a complete good blackboard message starts among the first ``need`` bytes of ``buf``
+    (the answer's place), or -1."""
+    for i in range(min(need, len(buf))):
+        if buf[i] in b":;" and _good_message_first(buf[i:]):
+            return i
+    return -1
+
+
+_HEX = frozenset(b"0123456789ABCDEFabcdef")
+
+
+def _may_be_text(buf: bytes, need: int) -> bool:
+    """serial.lua's wait: whether answer bytes ``buf`` end with text that may still become a
+    message (a ``:`` or ``;`` inside the answer's ``need`` bytes and hex digits after it to the
+    end, no CR yet)."""
+    i = len(buf)
+    while i > 0 and buf[i - 1] in _HEX:
+        i -= 1
+    return i > 0 and buf[i - 1] in b":;" and i - 1 < need
+
+
+def _serial_detect(s: _Session, side: object, d: Deframer, data: bytes) -> tuple[bytes, bool, bytes]:
+    """A serial direction of no protocol yet, a blackboard answer awaited from it: its protocol,
+    as serial.lua finds it: the first good frame of its bytes (a P2OS packet is no answer; a
+    message where the answer would be is that message: its frames first), else blackboard when
+    its bytes (those held too) start with the right answer; else none yet (the bytes are held).
+    Returns the bytes to read on (the held ones first once they are an answer), whether they
+    may be read as the answer, and the held bytes from before the message answered."""
+    both = bytes(d.buf) + data
+    d.protocol = detect(both)
+    if d.protocol is not None:
+        return data, False, b""
+    req = next((m for k, m in s.pending.items() if k != side), None)
+    at = min(max(s.answer_from.get(side, 0) - d.base, 0), len(d.buf))  # (bytes held before the message: no answer)
+    if req is not None and _answer_right(req, both[at:]):
+        d.protocol = "blackboard"
+        held = d.take()
+        return held[at:] + data, True, held[:at]
+    return data, False, b""
+
+
+def _held_text_goes_on(joined: bytes) -> bool:
+    """Whether text a serial direction holds (no CR yet) goes on in the bytes after it: a whole
+    good message, or still a type character and hex digits (serial.lua: text wins, and waits)."""
+    return _good_message_first(joined) or (joined[:1] in (b":", b";") and all(b in _HEX for b in joined[1:]))
+
+
+def _answer_right(req: blackboard.Message, data: bytes) -> bool:
+    """Whether ``data`` starts with the whole right answer to ``req`` (the set's checksum; a read
+    response with a good checksum)."""
+    if isinstance(req, blackboard.SetMessage):
+        return data[:1] == bytes([req.checksum])
+    need = req.count + 1
+    return len(data) >= need and blackboard.parse_response(req, data[:need]).ok  # type: ignore[arg-type]
 
 
 def malformed_split(data: bytes, at_end: bool) -> list[tuple[bytes, bool]]:
@@ -181,8 +268,19 @@ class SessionReader:
     def _session(self, key: object, label: str) -> _Session:
         s = self.sessions.get(key)
         if s is None:
-            s = self.sessions[key] = _Session(0, label)
+            s = self.sessions[key] = _Session(0, label, serial=isinstance(key, tuple) and key[:1] == ("serial",))
         return s
+
+    @staticmethod
+    def _deframer(s: _Session) -> Deframer:
+        """A new side's deframer: the session's protocol once it has one; on a serial line each
+        direction finds its own (docs/serial-capture-format.md, "Protocol per direction"), one
+        with nothing recognisable of its own taking another direction's once it holds
+        ``ADOPT_AFTER`` bytes, as serial.lua does."""
+        if s.serial:
+            return Deframer("auto", lambda: next((o.protocol for _k, o in sorted(s.sides.items(), key=_side_order)
+                                                  if o.protocol), None))
+        return Deframer(s.protocol if s.protocol in ("p2os", "blackboard") else "auto")
 
     def claim(self, key: object, label: str, protocol: str) -> None:
         """Decide ``key``'s protocol before its first message (the core's robot links: a port or
@@ -201,15 +299,13 @@ class SessionReader:
         ``datagram``: ``data`` is a whole UDP datagram, read alone (a P2OS packet, a blackboard
         message or answer cut off at its end is noise, never joined with the next datagram's bytes)."""
         s = self._session(key, label)
-        out: list[SessionMessage] = []
-        if s.protocol == "blackboard" and any(k != side for k in s.pending) and not _starts_message(s, side, data):
-            out, data = self._answer(s, side, number, ts_ns, data, datagram)
-            if not data:
-                return out
         d = s.sides.get(side)
         if d is None:
-            d = s.sides[side] = Deframer(s.protocol if s.protocol in ("p2os", "blackboard") else "auto")
-        if s.protocol == "p2os" and not d.buf and data[:2] == p2os.HEADER:
+            d = s.sides[side] = self._deframer(s)
+        out, data = self._answers_first(s, side, d, number, ts_ns, data, datagram)
+        if not data:
+            return out
+        if d.protocol == "p2os" and not d.buf and data[:2] == p2os.HEADER:
             ends = _whole_packets(data)
             if ends:  # whole packets and nothing else, nothing held: what the deframer gives, without it
                 d.base += len(data)
@@ -223,10 +319,12 @@ class SessionReader:
         pieces = d.feed(data, number)
         if datagram and d.protocol in ("p2os", "blackboard"):
             pieces += d.flush()  # a datagram is all there is (docs/fields-p2os-blackboard.md, "Over UDP")
+        elif d.buf and d.protocol == "blackboard" and not s.serial:
+            s.held_at[side] = (number, ts_ns)  # (text waiting for its CR: finish)
         last = len(pieces) - 1
         for i, piece in enumerate(pieces):
-            if piece.frame is None and piece.protocol == "blackboard" and s.protocol == "blackboard":
-                out += self._bb_noise(s, number, ts_ns, piece.data, i == last and not d.buf)
+            if piece.frame is None and piece.protocol == "blackboard" and (s.serial or s.protocol == "blackboard"):
+                out += self._bb_rest(s, side, number, ts_ns, piece, datagram, i == last and not d.buf)
                 continue
             if piece.frame is None or piece.protocol not in ("p2os", "blackboard"):
                 if piece.protocol in ("p2os", "blackboard"):
@@ -241,14 +339,75 @@ class SessionReader:
             if piece.protocol == "p2os":
                 out.append(self._p2os(s, side, client, number, ts_ns, piece.data, piece.frame))  # type: ignore[arg-type]
             else:
-                msg = piece.frame
-                # a good one waits for its answer (replacing the side's last one); what the side owes
-                # stays owed; one with a bad checksum waits for none (blackboard.lua: "the last good message")
-                if msg.ok:  # type: ignore[union-attr]
-                    s.pending[side] = msg  # type: ignore[assignment]
-                    s.answer = {k: v for k, v in s.answer.items() if k == side}  # the other side answers afresh
-                out.append(SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "master", piece.data,
-                                          msg.ok, msg))  # type: ignore[union-attr,arg-type]
+                out.append(self._bb_message(s, side, number, ts_ns, piece.data, piece.frame))  # type: ignore[arg-type]
+        return out
+
+    def _answers_first(
+        self, s: _Session, side: object, d: Deframer, number: int, ts_ns: int, data: bytes, datagram: bool
+    ) -> tuple[list[SessionMessage], bytes]:
+        """The answers ``data`` starts with when ``side`` owes one (a blackboard side, not
+        starting with a message of its own; on a serial line a direction of no protocol yet
+        first as serial.lua finds its protocol), and the bytes left for its deframer."""
+        answers, before = True, b""
+        if s.serial and d.protocol is None and s.pending:
+            data, answers, before = _serial_detect(s, side, d, data)
+        if answers and (d.protocol if s.serial else d.protocol or s.protocol) == "blackboard" and any(
+                k != side for k in s.pending) and not _starts_message(s, side, data):
+            if s.serial and d.buf:
+                if _held_text_goes_on(bytes(d.buf) + data):
+                    return [], data
+                before = d.take()
+            d.protocol = "blackboard"  # (a side that answers a blackboard message is blackboard's)
+            out, data = self._answer(s, side, number, ts_ns, data, datagram)
+            if before:  # what it held before the answer never ends: given up (serial.lua)
+                out = self._bb_noise(s, number, ts_ns, before, True) + out
+            return out, data
+        return [], data
+
+    def _bb_rest(
+        self, s: _Session, side: object, number: int, ts_ns: int, piece: Piece, datagram: bool, at_end: bool
+    ) -> list[SessionMessage]:
+        """Blackboard bytes the deframer found no message in: the answer the side owes, if it owes
+        one (it may talk first, then answer: blackboard.lua), then malformed messages and noise.
+        On a serial line bytes the side held before the message it answers are no answer
+        (serial.lua's framing)."""
+        out: list[SessionMessage] = []
+        data = piece.data
+        if any(k != side for k in s.pending):
+            cut = min(max(s.answer_from.get(side, 0) - piece.start, 0), len(data)) if s.serial else 0
+            if cut:
+                out += self._bb_noise(s, number, ts_ns, data[:cut], False)
+            got, data = self._answer(s, side, number, ts_ns, data[cut:], datagram, waits=False)
+            out += got
+        if data:
+            out += self._bb_noise(s, number, ts_ns, data, at_end)
+        return out
+
+    def _bb_message(self, s: _Session, side: object, number: int, ts_ns: int, raw: bytes,
+                    msg: blackboard.Message) -> SessionMessage:
+        """A master's message. A good one waits for its answer (replacing the side's last one);
+        what the side owes stays owed; one with a bad checksum waits for none (blackboard.lua:
+        "the last good message")."""
+        if msg.ok:
+            s.pending[side] = msg
+            s.answer = {k: v for k, v in s.answer.items() if k == side}  # the other side answers afresh
+            if s.serial:  # (serial.lua: the answer starts after what the other side holds now)
+                s.answer_from = {k: o.base + len(o.buf) for k, o in s.sides.items() if k != side}
+        return SessionMessage(number, ts_ns, s.index, s.label, "blackboard", "master", raw, msg.ok, msg)
+
+    def finish(self) -> list[SessionMessage]:
+        """The end of the capture: blackboard text a TCP stream still holds, its CR never come, is
+        a malformed message (no CR) of the last segment that brought its bytes, as
+        ``blackboard.lua`` shows it on a later pass (docs/fields-p2os-blackboard.md, "Malformed
+        messages"). A serial line's held bytes stay held, as in ``serial.lua``."""
+        out: list[SessionMessage] = []
+        for s in self.sessions.values():
+            for side, d in s.sides.items():
+                at = s.held_at.get(side)
+                if s.serial or at is None or not d.buf or d.protocol != "blackboard":
+                    continue
+                for piece in d.flush():
+                    out += self._bb_noise(s, at[0], at[1], piece.data, True)
         return out
 
     def _bb_noise(self, s: _Session, number: int, ts_ns: int, data: bytes, at_end: bool) -> list[SessionMessage]:
@@ -293,18 +452,29 @@ class SessionReader:
                               pkt.ok, msg, error)
 
     def _answer(
-        self, s: _Session, side: object, number: int, ts_ns: int, data: bytes, datagram: bool = False
+        self, s: _Session, side: object, number: int, ts_ns: int, data: bytes, datagram: bool = False,
+        waits: bool = True,
     ) -> tuple[list[SessionMessage], bytes]:
         """The answers ``side``'s bytes give to the other side's pending message, and the bytes
         left over once nothing is pending (for ``side``'s own deframer). ``datagram``: an answer
         cut off at the datagram's end is the answer, truncated (blackboard.lua's
-        ``blackboard.response.truncated``): noise here, the message answered, nothing held."""
+        ``blackboard.response.truncated``): noise here, the message answered, nothing held. On a
+        serial line (``waits``: bytes the deframer has not called noise yet) a whole good message
+        where the answer would be is that message, and answer bytes that may still become one
+        wait for more, as serial.lua reads them."""
         out: list[SessionMessage] = []
         buf = s.answer.pop(side, b"") + data
         sender = next((k for k in s.pending if k != side), None)
         while sender is not None and buf:
             req = s.pending[sender]
             need = 1 if isinstance(req, blackboard.SetMessage) else req.count + 1
+            if s.serial and waits and not datagram:  # (serial.lua: text wins, text that may become a message waits)
+                at = _good_message_at(buf, need)
+                if at >= 0:  # (the bytes before it are outside any message)
+                    return out + self._bb_noise(s, number, ts_ns, buf[:at], False), buf[at:]
+                if _may_be_text(buf, need) and not _answer_right(req, buf):
+                    s.answer[side] = buf
+                    return out, b""
             if len(buf) < need:
                 if datagram:
                     del s.pending[sender]
@@ -342,6 +512,7 @@ def iter_sessions(path: str | Path) -> Iterator[SessionMessage]:
     reader = SessionReader()
     for rec in read_records(path):
         yield from record_sessions(reader, rec)
+    yield from reader.finish()
 
 
 def record_sessions(reader: SessionReader, rec: Record) -> Iterator[SessionMessage]:

@@ -284,6 +284,13 @@ class Deframer:
     def flush(self) -> list[Piece]:
         return self._run(True)
 
+    def take(self) -> bytes:
+        """The held bytes, taken out (the caller reads them otherwise: a blackboard answer)."""
+        held = bytes(self.buf)
+        self.base += len(held)
+        self.buf, self._recs, self._finish = bytearray(), [], ()
+        return held
+
     def _run(self, final: bool) -> list[Piece]:
         if not self.buf:
             return []

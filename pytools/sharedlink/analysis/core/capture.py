@@ -166,6 +166,7 @@ class _Loop:
             yield self._batch()
         for item in self.serial.flush():
             yield from decode_item(dec, item)
+        yield from self.robots.finish()  # (blackboard text a TCP stream holds: analysis/robots.py)
 
 
 def capture_items(dec: Decoder, path: str | Path, progress: Callable[[int, int], None] | None, counting: bool = False,
