@@ -46,3 +46,5 @@ def pytest_configure(config: pytest.Config) -> None:
     Makefile; docs/testing.md says which and why; `.ci/run` runs them all)."""
     config.addinivalue_line("markers", "install: builds a package or a virtualenv (pipx, pip, a wheel): `make test-install`")
     config.addinivalue_line("markers", "long: long by nature (live floods, scaling and memory patterns at size): `make test-long`")
+    config.addinivalue_line("markers", "live: waits on the clock (real-time playback to a live client, a pty, a serial "
+                            "timeout), using little CPU: `make test` runs these in a process of their own beside the rest")

@@ -68,6 +68,7 @@ def test_mcap_values_break_at_each_outage(tmp_path, gen):
     assert summary["rows"] == total  # (the summary counts the gap messages)
 
 
+@pytest.mark.live
 def test_watch_sends_the_gap_live(tmp_path):
     """watch --foxglove: the gap message once the silence is an outage (by the clock), on the
     values topic in order (the last frame's values, the gap, the next frame's)."""

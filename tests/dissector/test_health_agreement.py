@@ -126,6 +126,7 @@ def _read_until(p: subprocess.Popen, done, deadline_s: float = 120) -> list[dict
     return lines
 
 
+@pytest.mark.live
 def test_watch_over_loopback_sees_the_outage_stats_sees(tmp_path):
     """replay at the capture's pace to a port the watch binds: the outage watch reports from the
     arrival times is the one stats finds in the capture (same pair; start and duration within

@@ -18,6 +18,7 @@ from sl_foxglove import Watch, advertised, subscribed, wait_for_channel
 from websockets.sync.client import connect
 
 
+@pytest.mark.live
 def test_p2os_poses_reach_a_foxglove_client(tmp_path):
     cap = tmp_path / "p.pcap"
     r = run_cli("gen", "-o", str(cap), "-q", "--protocol", "p2os", "--duration", "8", timeout=120)

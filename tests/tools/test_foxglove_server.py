@@ -42,6 +42,7 @@ def drive(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.mark.live
 def test_a_client_offering_only_foxglove_websocket_v1_gets_the_positions(drive):
     # (at 2x the 12 s drive lasts 6 s: at 4x, at load 11, the capture ended before the client's
     # subscription came: "attempted to subscribe to unknown channel")
@@ -66,6 +67,7 @@ def test_a_client_offering_only_foxglove_websocket_v1_gets_the_positions(drive):
         assert fix.latitude == float(want[t].values["AutoGpsLat"]) and len(fix.position_covariance) == 9
 
 
+@pytest.mark.live
 def test_a_client_offering_neither_name_is_refused(drive):
     w = Watch("--from", drive, "--speed", 1)
     try:
@@ -76,6 +78,7 @@ def test_a_client_offering_neither_name_is_refused(drive):
         w.stop()
 
 
+@pytest.mark.live
 @pytest.mark.parametrize("protocol, transport", [("p2os", "tcp"), ("blackboard", "udp"), ("sharedlink", "serial")])
 def test_watch_from_serves_the_channels_export_writes_and_none_without_data(tmp_path, protocol, transport):
     cap = tmp_path / f"{protocol}.pcapng"
@@ -99,6 +102,7 @@ def test_watch_from_serves_the_channels_export_writes_and_none_without_data(tmp_
     assert chans == want
 
 
+@pytest.mark.live
 def test_a_flood_of_bad_subscriptions_logs_one_line(drive):
     # a fifth of the pace: the 12 s drive outlasts the flood on a busy machine (at 1x the capture
     # could end, and the server with it, before the 10,000 messages were sent)

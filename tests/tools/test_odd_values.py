@@ -114,6 +114,7 @@ def test_serial_import_writes_the_lines_before_a_bad_one(tmp_path, bad):
 # -- replay -----------------------------------------------------------------------------------
 
 
+@pytest.mark.live
 def test_replay_to_a_serial_port_nobody_reads_stops_at_the_first_timeout(tmp_path):
     cap = tmp_path / "big.pcap"
     generate_file(GenOptions(frames=2000), cap)

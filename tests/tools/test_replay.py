@@ -346,6 +346,7 @@ def median_spacing_ratio(arrivals: list[int], scheduled: list[int]) -> float:
     )
 
 
+@pytest.mark.live
 @pytest.mark.parametrize("mode", ["speed=1", "speed=2.5", "pps=40"])
 def test_frames_keep_the_capture_spacing(tmp_path, rx, mode, udp):
     """Irregular capture spacing (8 to 40 ms) replayed to a loopback socket: the spacing at
@@ -510,6 +511,7 @@ def _read_pty(master: int, n: int, timeout: float = 5.0) -> bytes:
     return buf
 
 
+@pytest.mark.live
 def test_pty_receives_the_serial_stream(tmp_path):
     cap = tmp_path / "s.pcap"
     generate_file(GenOptions(frames=40, compress=True), cap)

@@ -419,6 +419,7 @@ def _foxglove_messages(ws_port: int, watch_port: int, cap: Path) -> tuple[str, l
         return ws.subprotocol, until_probe(30), loc
 
 
+@pytest.mark.live
 def test_foxglove_client_receives_the_positions(capture):
     pytest.importorskip("websockets")
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory

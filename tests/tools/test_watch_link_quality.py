@@ -21,6 +21,7 @@ NS = 10**9
 TOPIC = "/sharedlink/B_to_A/link_quality"
 
 
+@pytest.mark.live
 def test_watch_serves_each_seconds_link_quality(tmp_path):
     cap = tmp_path / "o.pcap"
     r = run_cli("gen", "-o", str(cap), "--duration", "16", "--outage", "10:3", timeout=120)

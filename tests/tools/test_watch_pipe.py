@@ -129,6 +129,7 @@ def _write(p: subprocess.Popen, data: bytes) -> None:
     p.stdin.close()  # type: ignore[union-attr]
 
 
+@pytest.mark.live
 def test_foxglove_through_a_pipe(tmp_path):
     """`watch - --foxglove`: the P2OS poses reach a client, the last SIP of the capture included."""
     if sys.version_info < (3, 10):

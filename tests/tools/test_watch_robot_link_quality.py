@@ -34,6 +34,7 @@ def watched(cap, topic: str, schema: str = "sharedlink.LinkQuality") -> list[tup
         w.stop(ends=True)
 
 
+@pytest.mark.live
 @pytest.mark.parametrize("protocol,pair", [("p2os", "robot>client"), ("blackboard", "slave>master")])
 def test_watch_serves_a_robot_links_link_quality(tmp_path, protocol, pair):
     cap = tmp_path / "r.pcapng"
@@ -53,6 +54,7 @@ def test_watch_serves_a_robot_links_link_quality(tmp_path, protocol, pair):
     assert times[-1] >= max(want) - NS  # all but the last second, which never ended
 
 
+@pytest.mark.live
 def test_watch_breaks_the_sip_lines_at_an_outage(tmp_path):
     """The robot's silence, seen by the clock: one gap message on /p2os/1/sip (every number
     "NaN") 1 ns after the outage's start, as `export --format mcap` writes it."""
