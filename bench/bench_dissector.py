@@ -118,9 +118,11 @@ def make_home(root: Path, scripts: list[Path], colorfilters: bool = False) -> di
     plugin_dir.mkdir(parents=True, exist_ok=True)
     for s in scripts:
         shutil.copy(s, plugin_dir / s.name)
-        modules = s.parent / s.stem   # the modules a dissector loads (dissector/sharedlink/), as make install
-        if modules.is_dir():
-            shutil.copytree(modules, plugin_dir / s.stem, dirs_exist_ok=True)
+        # the modules a dissector loads (dissector/sharedlink/; dissector/robots/, the rules the robot
+        # dissectors share), as make install
+        for modules in (s.parent / s.stem, s.parent / "robots"):
+            if modules.is_dir():
+                shutil.copytree(modules, plugin_dir / modules.name, dirs_exist_ok=True)
     conf = Path(_folder(folders, "Personal configuration"))
     conf.mkdir(parents=True, exist_ok=True)
     if colorfilters:
