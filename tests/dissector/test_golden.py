@@ -121,11 +121,22 @@ INPUT_SET = _inputs()
 _PDML_HEAD = re.compile(r'^<pdml .*>$', re.M)
 
 
+#: the modes taken from one run: the summary lines, then -z expert's report (the report starts with
+#: an empty line, which no summary line is; the tap needs no tree, so the pass is the summary's)
+_SUMMARY_AND_EXPERT = ("summary", "expert")
+_REPORT_START = re.compile(r"^$", re.M)
+
+
 def _run(name: str, entry: dict, fields: list[str]) -> str:
     parts = []
     extra = ["-X", f"lua_script:{SERIAL_LUA}"] if entry["serial"] else []
+    both = tu.tshark(entry["path"], [*extra, "-z", "expert"], prefs=entry["prefs"]).stdout
+    cut = _REPORT_START.search(both).start()  # type: ignore[union-attr]  (the end at least)
+    shared = dict(zip(_SUMMARY_AND_EXPERT, (both[:cut], both[cut:])))
     for mode, (two_pass, args) in _modes(fields).items():
-        out = tu.tshark(entry["path"], [*extra, *args], prefs=entry["prefs"], two_pass=two_pass).stdout
+        out = shared.get(mode)
+        if out is None:
+            out = tu.tshark(entry["path"], [*extra, *args], prefs=entry["prefs"], two_pass=two_pass).stdout
         if mode == "pdml":   # the header names the file and the time of the run
             out = _PDML_HEAD.sub("<pdml>", out)
         parts.append(f"===== {name}: {mode} =====\n{out}")
