@@ -102,14 +102,15 @@ lint: deps
 
 # make test leaves out the tests marked long or install (tests/conftest.py): each has its target,
 # and .ci/run runs them all (docs/testing.md says which tests and why)
-PYTEST := $(BIN)/pytest -q -n 2 --dist loadgroup
+export RESTORE_SIGINT := import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); os.execv(sys.argv[1], sys.argv[1:])
+# (pytest started with SIGINT restored: tests stop their watch and replay processes with it, and a
+# make started in the background, e.g. by nohup or a job with &, passes it on ignored)
+PYTEST := $(BIN)/python -c "$$RESTORE_SIGINT" $(BIN)/pytest -q -n 2 --dist loadgroup
 
 # The live tests (marked live: they wait on the clock, using little CPU) run in a pytest process of
 # their own beside the rest, their output after the rest's: on 2 cores the waits overlap the others' work
-# (a job started with & in a shell without job control ignores SIGINT, and a Python started so
-# keeps ignoring it: the live tests stop their watch processes with SIGINT, so it is restored)
+# (a job started with & in a shell without job control ignores SIGINT: restored as for PYTEST)
 LIVE_LOG := $(shell mktemp -u /tmp/sharedlink-live-XXXXXX)
-export RESTORE_SIGINT := import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); os.execv(sys.argv[1], sys.argv[1:])
 test: deps lint
 	@mkdir -p $(LIVE_LOG).d; \
 	$(BIN)/python -c "$$RESTORE_SIGINT" $(BIN)/pytest -q -p no:cacheprovider --basetemp=$(LIVE_LOG).d/tmp --durations=5 -m "live and not long and not install" \
