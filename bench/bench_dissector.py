@@ -118,11 +118,12 @@ def make_home(root: Path, scripts: list[Path], colorfilters: bool = False) -> di
     plugin_dir.mkdir(parents=True, exist_ok=True)
     for s in scripts:
         shutil.copy(s, plugin_dir / s.name)
-        # the modules a dissector loads (dissector/sharedlink/; dissector/robots/, the rules the robot
-        # dissectors share), as make install
-        for modules in (s.parent / s.stem, s.parent / "robots"):
-            if modules.is_dir():
-                shutil.copytree(modules, plugin_dir / modules.name, dirs_exist_ok=True)
+        # the Lua modules in the folders beside it (dissector/sharedlink/, dissector/robots/: what a
+        # dissector loads), as `sharedlink plugins install` copies them (wireshark.dissector_files)
+        for module in (m for m in s.parent.rglob("*.lua") if m.parent != s.parent):
+            dest = plugin_dir / module.relative_to(s.parent)
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(module, dest)
     conf = Path(_folder(folders, "Personal configuration"))
     conf.mkdir(parents=True, exist_ok=True)
     if colorfilters:
