@@ -105,15 +105,15 @@ lint: deps
 export RESTORE_SIGINT := import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); os.execv(sys.argv[1], sys.argv[1:])
 # (pytest started with SIGINT restored: tests stop their watch and replay processes with it, and a
 # make started in the background, e.g. by nohup or a job with &, passes it on ignored)
-PYTEST := $(BIN)/python -c "$$RESTORE_SIGINT" $(BIN)/pytest -q -n 2 --dist loadgroup
+PYTEST_ONE := $(BIN)/python -c "$$RESTORE_SIGINT" $(BIN)/pytest -q
+PYTEST := $(PYTEST_ONE) -n 2 --dist loadgroup
 
 # The live tests (marked live: they wait on the clock, using little CPU) run in a pytest process of
 # their own beside the rest, their output after the rest's: on 2 cores the waits overlap the others' work
-# (a job started with & in a shell without job control ignores SIGINT: restored as for PYTEST)
 LIVE_LOG := $(shell mktemp -u /tmp/sharedlink-live-XXXXXX)
 test: deps lint
 	@mkdir -p $(LIVE_LOG).d; \
-	$(BIN)/python -c "$$RESTORE_SIGINT" $(BIN)/pytest -q -p no:cacheprovider --basetemp=$(LIVE_LOG).d/tmp --durations=5 -m "live and not long and not install" \
+	$(PYTEST_ONE) -p no:cacheprovider --basetemp=$(LIVE_LOG).d/tmp --durations=5 -m "live and not long and not install" \
 	  tests > $(LIVE_LOG) 2>&1 & live=$$!; \
 	$(PYTEST) --durations=25 -m "not live and not long and not install" tests; rc=$$?; \
 	wait $$live; lrc=$$?; \
