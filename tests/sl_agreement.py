@@ -53,7 +53,11 @@ def _placeholder(name: str | None) -> str | None:
 def lua_frames(cap: Path, variables: str | None = VARIABLES, extra: tuple[str, ...] = ()) -> list[list[dict[str, Any]]]:
     """The dissector's frames (``variables`` None: the preference's default)."""
     prefs = None if variables is None else {"sharedlink.variables": variables}
-    packets = tu.json_packets(cap, prefs=prefs, two_pass=True, extra=extra)
+    return frames_of(tu.json_packets(cap, prefs=prefs, two_pass=True, extra=extra))
+
+
+def frames_of(packets: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
+    """The dissector's frames of a ``tshark -T json`` run's packets."""
     out = []
     for p in packets:
         trees = [t for t in _as_list(p["_source"]["layers"].get("sharedlink")) if isinstance(t, dict)]

@@ -36,8 +36,12 @@ so it turns into a failure to fix (remove the key) as soon as the implementation
 
 from __future__ import annotations
 
+import atexit
+import copy
 import json
 import re
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -185,6 +189,33 @@ def write_streams_apart(streams: list[Stream], path: Path) -> Path:
         for ts, _k, frame in sorted(records, key=lambda r: r[:2]):
             w.write(ts, frame)
     return Path(path)
+
+
+#: dissector/*.lua but sharedlink.lua (tshark_util loads it), as `make install` leaves them
+OTHER_SCRIPTS = tuple(a for s in sorted((Path(__file__).resolve().parents[1] / "dissector").glob("*.lua"))
+                      if s.name != "sharedlink.lua" for a in ("-X", f"lua_script:{s}"))
+_json_runs: dict[tuple[str, bool], list[dict[str, Any]]] = {}
+_run_dir: Path | None = None
+
+
+def tshark_json(stream: Stream, two_pass: bool) -> list[dict[str, Any]]:
+    """``tshark -T json`` of the stream's capture (every dissector/*.lua loaded, the stream's
+    ``variables`` as the preference), checked by tshark_util: one run a stream and pass count a
+    process, shared by the tests that read the same run (test_vectors.py's two-pass run is
+    test_agreement.py's; both are in the xdist group "vectors"). A copy each time."""
+    global _run_dir
+    key = (stream["name"], two_pass)
+    if key not in _json_runs:
+        import tshark_util as tu  # noqa: PLC0415 (its import asks tshark its version)
+
+        if _run_dir is None:
+            _run_dir = Path(tempfile.mkdtemp(prefix="sharedlink-vectors-"))
+            atexit.register(shutil.rmtree, _run_dir, True)
+        ext = "pcapng" if stream.get("transport") == "serial" else "pcap"
+        cap = write_stream(stream, _run_dir / f"{stream['name']}.{ext}")
+        prefs = {"sharedlink.variables": stream["variables"]} if "variables" in stream else None
+        _json_runs[key] = tu.json_packets(cap, prefs=prefs, two_pass=two_pass, extra=OTHER_SCRIPTS)
+    return copy.deepcopy(_json_runs[key])
 
 
 def expected_frames(stream: Stream) -> list[tuple[int, int, dict[str, Any]]]:

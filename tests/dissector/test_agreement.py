@@ -26,8 +26,8 @@ from typing import Any
 import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
-from sl_agreement import lua_frames, python_frames
-from sl_vectors import load_streams, stream_params, write_stream
+from sl_agreement import frames_of, lua_frames, python_frames
+from sl_vectors import load_streams, stream_params, tshark_json, write_stream
 
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
@@ -189,12 +189,11 @@ def test_declared_untyped_slot_after_typed_list(tmp_path):
     assert [f[0]["vars"] for f in lua_frames(cap)[2:]] == want
 
 
-REPO = Path(__file__).resolve().parents[2]
-OTHERS = tuple(a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua"
-               for a in ("-X", f"lua_script:{s}"))
 VECTOR_STREAMS = load_streams()
 
 
+# (the two-pass run of each stream is test_vectors.py's: the same worker, sl_vectors.tshark_json)
+@pytest.mark.xdist_group("vectors")
 @pytest.mark.parametrize("stream", stream_params(VECTOR_STREAMS, "agreement"))
 def test_vector_stream_agrees(stream: dict[str, Any], tmp_path: Path) -> None:
     """Every shared vector stream (the real-session ones of issue 29 included) through both
@@ -203,7 +202,7 @@ def test_vector_stream_agrees(stream: dict[str, Any], tmp_path: Path) -> None:
     ext = "pcapng" if stream.get("transport") == "serial" else "pcap"
     cap = write_stream(stream, tmp_path / f"s.{ext}")
     variables = stream.get("variables")   # none: each side's own default (issue 29: the same list)
-    lua = [[f for f in p if f["kind"] != "malformed"] for p in lua_frames(cap, variables, OTHERS)]
+    lua = [[f for f in p if f["kind"] != "malformed"] for p in frames_of(tshark_json(stream, two_pass=True))]
     py = python_frames(cap, len(stream["packets"]), variables)
     assert len(lua) == len(stream["packets"])
     for i, (lf, pf) in enumerate(zip(lua, py), 1):

@@ -10,23 +10,21 @@ pass adds (a query's "Response in").
 
 from __future__ import annotations
 
-import copy
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
 from sl_cli import run_cli
-from sl_vectors import expected_frames, load_streams, stream_ids, stream_params, write_stream
+from sl_vectors import OTHER_SCRIPTS, expected_frames, load_streams, stream_ids, stream_params, tshark_json
 
 import tshark_util as tu
 
-# (one worker for the file: its two-pass runs are shared between two tests, in a module fixture)
+# (one worker for the file: each stream's two-pass run is shared by two tests here and by
+# test_agreement.py's test_vector_stream_agrees, in sl_vectors.tshark_json)
 pytestmark = pytest.mark.xdist_group("vectors")
 
 REPO = Path(__file__).resolve().parents[2]
-OTHERS = [a for s in sorted((REPO / "dissector").glob("*.lua")) if s.name != "sharedlink.lua"
-          for a in ("-X", f"lua_script:{s}")]
+OTHERS = list(OTHER_SCRIPTS)
 STREAMS = load_streams()
 CHECKSUM_WORD = {"1": "good", "0": "bad"}
 TYPED_FIELDS = {"long": "sharedlink.var.long", "double": "sharedlink.var.double", "string": "sharedlink.var.string"}
@@ -129,33 +127,15 @@ def _check_frame(where: str, exp: dict[str, Any], act: dict[str, Any]) -> None:
             assert act[key] == want, f"{where}: {key} {act[key]} != expected {want}"
 
 
-def _decode(stream: dict[str, Any], tmp_path: Path, two_pass: bool) -> list[list[dict[str, Any]]]:
-    cap = write_stream(stream, tmp_path / f"{stream['name']}.{'pcapng' if stream['transport'] == 'serial' else 'pcap'}")
-    prefs = {"sharedlink.variables": stream["variables"]} if "variables" in stream else None
-    packets = tu.json_packets(cap, prefs=prefs, two_pass=two_pass, extra=OTHERS)
+def _decode(stream: dict[str, Any], two_pass: bool) -> list[list[dict[str, Any]]]:
+    packets = tshark_json(stream, two_pass)   # (the two-pass run is test_agreement.py's too)
     assert len(packets) == len(stream["packets"]), "one capture record per packet"
     return [[_actual(t) for t in _frame_trees(p["_source"]["layers"])] for p in packets]
 
 
-@pytest.fixture(scope="module")
-def decoded_runs(tmp_path_factory: pytest.TempPathFactory) -> Callable[[dict[str, Any], bool], list[list[dict[str, Any]]]]:
-    """``_decode`` once per stream and pass count (both tests below read the two-pass run): a
-    copy each time."""
-    tmp = tmp_path_factory.mktemp("vectors")
-    memo: dict[tuple[str, bool], list[list[dict[str, Any]]]] = {}
-
-    def get(stream: dict[str, Any], two_pass: bool) -> list[list[dict[str, Any]]]:
-        key = (stream["name"], two_pass)
-        if key not in memo:
-            memo[key] = _decode(stream, tmp, two_pass)
-        return copy.deepcopy(memo[key])
-
-    return get
-
-
 @pytest.mark.parametrize("stream", stream_params(STREAMS, "tshark"))
-def test_vector_stream(stream: dict[str, Any], decoded_runs) -> None:
-    decoded = decoded_runs(stream, True)
+def test_vector_stream(stream: dict[str, Any]) -> None:
+    decoded = _decode(stream, True)
     for num, pkt in enumerate(stream["packets"], 1):
         assert len(decoded[num - 1]) == len(pkt["frames"]), f"packet {num}: frames {decoded[num - 1]}"
     for num, k, exp in expected_frames(stream):
@@ -163,9 +143,9 @@ def test_vector_stream(stream: dict[str, Any], decoded_runs) -> None:
 
 
 @pytest.mark.parametrize("stream", STREAMS, ids=stream_ids(STREAMS))
-def test_vector_stream_one_pass_equals_two_pass(stream: dict[str, Any], decoded_runs) -> None:
-    one = decoded_runs(stream, False)
-    two = decoded_runs(stream, True)
+def test_vector_stream_one_pass_equals_two_pass(stream: dict[str, Any]) -> None:
+    one = _decode(stream, False)
+    two = _decode(stream, True)
     for frames in (one, two):
         for f in (f for p in frames for f in p):
             f.pop("response_in")
