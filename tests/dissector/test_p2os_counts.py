@@ -24,12 +24,15 @@ IGNORES = "P2OS ignores this packet"
 NAMES = ["p2os.header", "p2os.count", "p2os.direction", "p2os.checksum.status", "_ws.expert.message"]
 
 
-def _tcp(path: Path, events: list[tuple[bool, bytes]], port: int) -> Path:
+def _tcp(path: Path, sessions: list[list[tuple[bool, bytes]]], port: int) -> Path:
+    """Each session a TCP conversation of its own (client port 40000 + its index), one after
+    the other."""
     with open(path, "wb") as fh:
         w = PcapWriter(fh)
-        evs = [(10**18 + i * 10_000_000, c, p) for i, (c, p) in enumerate(events)]
-        for ts, _, frame in session_frames(evs, "tcp", ("127.0.0.1", 40000), ("127.0.0.1", port)):
-            w.write(ts, frame)
+        for k, events in enumerate(sessions):
+            evs = [(10**18 + (k * 100 + i) * 10_000_000, c, p) for i, (c, p) in enumerate(events)]
+            for ts, _, frame in session_frames(evs, "tcp", ("127.0.0.1", 40000 + k), ("127.0.0.1", port)):
+                w.write(ts, frame)
     return path
 
 
@@ -50,16 +53,22 @@ def test_vectors_say_what_the_codec_says():
 
 @pytest.mark.parametrize("port", [8101, 9000])
 def test_each_vector_alone_on_tcp(tmp_path, port):
-    """One conversation a vector (a bad checksum after a good packet: the heuristic needs one);
-    the count, the checksum status and the expert as the vector says."""
+    """One conversation a vector (a bad checksum after a good packet: the heuristic needs one),
+    the conversations one after the other in one capture (one tshark run; p2os.lua keeps each
+    conversation's state apart); the count, the checksum status and the expert as the vector says."""
     good = bytes.fromhex(VECTORS[0]["hex"])
-    for i, v in enumerate(VECTORS):
-        raw = bytes.fromhex(v["hex"])
+    sessions = []
+    for v in VECTORS:
         client = v["direction"] == "client"
-        events = [(client, raw)] if v["checksum"] == "good" else [(True, good), (client, raw)]
-        rows = _packets(tu.fields(_tcp(tmp_path / f"v{i}.pcap", events, port), NAMES, extra=EXTRA))
-        assert rows, v["name"]
-        row = rows[-1]
+        raw = bytes.fromhex(v["hex"])
+        sessions.append([(client, raw)] if v["checksum"] == "good" else [(True, good), (client, raw)])
+    rows = _packets(tu.fields(_tcp(tmp_path / "vectors.pcap", sessions, port), [*NAMES, "tcp.srcport", "tcp.dstport"],
+                              extra=EXTRA))
+    for i, v in enumerate(VECTORS):
+        client = v["direction"] == "client"
+        mine = [r for r in rows if str(40000 + i) in r["tcp.srcport"] + r["tcp.dstport"]]
+        assert mine, v["name"]
+        row = mine[-1]
         assert row["p2os.count"] == [str(v["count"])], v["name"]
         assert row["p2os.direction"] == ["0" if client else "1"], v["name"]
         assert row["p2os.checksum.status"] == ["1" if v["checksum"] == "good" else "0"], v["name"]
