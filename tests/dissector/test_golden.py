@@ -2,10 +2,11 @@
 
 Every input -- the sample captures (captures/), the shared vectors (tests/vectors, written as
 captures into tests/dissector/golden/inputs/), the fuzz regressions (tests/fuzz/fuzz-regressions)
-and a few generated captures kept in golden/inputs/ -- goes through tshark in each of MODES:
-the summary pass (no tree) in one and two passes, a tree nobody sees (-Y with every
-``sharedlink.*`` field as a custom column), -V and -2 -V (a shown tree), PDML, ``-T fields`` of
-every ``sharedlink.*`` field, and ``-z expert``.  The outputs are compared with the files in
+and a few generated captures kept in golden/inputs/ -- goes through tshark in each of the modes
+of tests/sl_golden.py: the summary pass (no tree) in one and two passes, a tree nobody sees (-Y
+with every ``sharedlink.*`` field as a custom column), -V and -2 -V (a shown tree), PDML,
+``-T fields`` of every ``sharedlink.*`` field, and ``-z expert`` (its report taken from the
+summary pass's run; test_experts.py reads the reports of that run, the two-pass one and PDML's).  The outputs are compared with the files in
 golden/tshark-<major>.<minor>/ (xz-compressed, one per input) and any difference fails.
 
 The golden files were made with the dissector as it was at ff41cb3; a change of output is made on
@@ -26,21 +27,20 @@ import difflib
 import json
 import lzma
 import os
-import re
-import subprocess
-from pathlib import Path
 
 import pytest
+import sl_golden as sg
 
 import tshark_util as tu
 
-REPO = Path(__file__).resolve().parents[2]
-GOLDEN = Path(__file__).resolve().parent / "golden"
-INPUTS = GOLDEN / "inputs"
-MANIFEST = INPUTS / "manifest.json"
+GOLDEN = sg.GOLDEN
+INPUTS = sg.INPUTS
+MANIFEST = sg.MANIFEST
 VERSION_DIR = GOLDEN / f"tshark-{tu.TSHARK_VERSION[0]}.{tu.TSHARK_VERSION[1]}"
 UPDATE = os.environ.get("SHAREDLINK_GOLDEN_UPDATE") == "1"
-SERIAL_LUA = REPO / "dissector" / "serial.lua"
+
+# one worker runs this file and test_experts.py, which reads the expert reports of these runs
+pytestmark = pytest.mark.xdist_group("golden")
 
 # generated inputs kept in golden/inputs (sharedlink gen arguments, for the record; remade only by hand)
 GENERATED = {
@@ -49,49 +49,6 @@ GENERATED = {
     "gen-late-sync": "gen --frames 150 --compress --sync-interval 3 --seed 4",
     "gen-serial": "gen --frames 80 --compress --transport serial --noise 0.05 --seed 5",
 }
-
-
-def _sharedlink_fields() -> list[str]:
-    tu.ensure_loaded()
-    out = subprocess.run([*tu.TSHARK_CMD, "-G", "fields", "-X", f"lua_script:{tu.DISSECTOR}"], capture_output=True,
-                         text=True, env=tu._clean_env(), timeout=120).stdout
-    names = [cols[2] for cols in (line.split("\t") for line in out.splitlines())
-             if len(cols) > 3 and cols[0] == "F" and cols[2].startswith("sharedlink.")]
-    assert "sharedlink.var.name" in names, "tshark -G fields did not list the dissector's fields"
-    return sorted(names)
-
-
-def _modes(fields: list[str]) -> dict[str, tuple[bool, list[str]]]:
-    """mode -> (two passes, tshark arguments)."""
-    cols = ['"No.","%m","Info","%i"'] + [f'"{f}","%Cus:{f}"' for f in fields]
-    fargs = ["-T", "fields", "-E", "occurrence=a", "-E", "aggregator=|", "-E", "quote=n",
-             "-e", "frame.number", "-e", tu.INFO_FIELD, "-e", "_ws.expert.message"]
-    for f in fields:
-        fargs += ["-e", f]
-    return {
-        "summary": (False, []),
-        "summary-2": (True, []),
-        "hidden": (False, ["-Y", "sharedlink", "-o", "gui.column.format:" + ",".join(cols)]),
-        "V": (False, ["-V"]),
-        "2V": (True, ["-V"]),
-        "pdml": (False, ["-T", "pdml"]),
-        "fields": (True, fargs),
-        "expert": (False, ["-q", "-z", "expert"]),
-    }
-
-
-def _inputs() -> dict[str, dict]:
-    """input name -> {"path", "prefs", "serial"}."""
-    out: dict[str, dict] = {}
-    for p in sorted((REPO / "captures").glob("*.pcap")):
-        out[f"capture-{p.stem}"] = {"path": str(p), "prefs": {}, "serial": False}
-    for p in sorted((REPO / "tests" / "fuzz" / "fuzz-regressions").glob("*.pcap*")):
-        out[f"fuzz-{p.stem}"] = {"path": str(p), "prefs": {}, "serial": False}
-    if MANIFEST.exists():
-        for name, entry in json.loads(MANIFEST.read_text()).items():
-            out[name] = {"path": str(INPUTS / entry["file"]), "prefs": entry.get("prefs", {}),
-                         "serial": entry.get("serial", False)}
-    return out
 
 
 def _write_vector_inputs() -> None:
@@ -117,45 +74,20 @@ def _write_vector_inputs() -> None:
 
 if UPDATE:
     _write_vector_inputs()
-INPUT_SET = _inputs()
-_PDML_HEAD = re.compile(r'^<pdml .*>$', re.M)
+INPUT_SET = sg.inputs()
 
 
-#: the modes taken from one run: the summary lines, then -z expert's report (the report starts with
-#: an empty line, which no summary line is; the tap needs no tree, so the pass is the summary's)
-_SUMMARY_AND_EXPERT = ("summary", "expert")
-_REPORT_START = re.compile(r"^$", re.M)
-
-
-def _run(name: str, entry: dict, fields: list[str]) -> str:
-    parts = []
-    extra = ["-X", f"lua_script:{SERIAL_LUA}"] if entry["serial"] else []
-    both = tu.tshark(entry["path"], [*extra, "-z", "expert"], prefs=entry["prefs"]).stdout
-    cut = _REPORT_START.search(both).start()  # type: ignore[union-attr]  (the end at least)
-    shared = dict(zip(_SUMMARY_AND_EXPERT, (both[:cut], both[cut:])))
-    for mode, (two_pass, args) in _modes(fields).items():
-        out = shared.get(mode)
-        if out is None:
-            out = tu.tshark(entry["path"], [*extra, *args], prefs=entry["prefs"], two_pass=two_pass).stdout
-        if mode == "pdml":   # the header names the file and the time of the run
-            out = _PDML_HEAD.sub("<pdml>", out)
-        parts.append(f"===== {name}: {mode} =====\n{out}")
-    return "".join(parts)
-
-
-@pytest.fixture(scope="module")
-def fields() -> list[str]:
-    return _sharedlink_fields()
+def _run(name: str, entry: dict) -> str:
+    return "".join(f"===== {name}: {mode} =====\n{out}" for mode, out in sg.outputs(name, entry).items())
 
 
 @pytest.mark.parametrize("name", sorted(INPUT_SET))
-def test_golden_output(name: str, fields: list[str], monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("TZ", "UTC")
+def test_golden_output(name: str) -> None:
     entry = INPUT_SET[name]
     golden = VERSION_DIR / f"{name}.txt.xz"
     if not UPDATE and not VERSION_DIR.is_dir():
         pytest.skip(f"no golden output for tshark {tu.TSHARK_VERSION[0]}.{tu.TSHARK_VERSION[1]}")
-    actual = _run(name, entry, fields)
+    actual = _run(name, entry)
     if UPDATE:
         VERSION_DIR.mkdir(parents=True, exist_ok=True)
         golden.write_bytes(lzma.compress(actual.encode("utf-8"), preset=9 | lzma.PRESET_EXTREME))
