@@ -4,6 +4,10 @@ tshark's summary pass has no tree, a display filter gives a tree nobody sees, -V
 GUI opens a capture with no tree as well, and Expert Information must not wait for a filter.
 ``-z expert`` alone (no filter, no -V) must count what it counts with ``-Y sharedlink`` and with
 a shown tree, per severity and group.
+
+Where the capture is a golden input with no preference of its own, the runs test_golden.py makes
+of it give the report alone (its summary pass), with a shown tree (its PDML run) and with two
+passes (its two-pass summary pass): tests/sl_golden.py; this file runs the filtered ones.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
+import sl_golden as sg
 
 import tshark_util as tu
 
@@ -24,6 +29,12 @@ CAPTURES = ["gen-faults.pcap", "gen-positional.pcap", "gen-late-sync.pcap", "gen
             "vector-frame-kinds-other-and-malformed.pcap", "vector-crlf-inside-a-value-and-modem-noise.pcap",
             "vector-positional-typed-by-declaration.pcap", "vector-reply-to-a-declaration.pcap"]
 FUZZ = sorted((REPO / "tests" / "fuzz" / "fuzz-regressions").glob("*.pcap"))
+
+# one worker runs this file and test_golden.py, whose runs give most reports here
+pytestmark = pytest.mark.xdist_group("golden")
+_GOLDEN = {Path(e["path"]): (name, e) for name, e in sg.inputs().items() if not e["prefs"]}
+#: -z expert's arguments whose report a golden run gives -> which (sl_golden.expert_report)
+_OF_GOLDEN = {("-q",): "expert", ("-V",): "expert-shown", ("-q", "-2"): "expert-2"}
 
 _HEAD = re.compile(r"^(Errors|Warns|Notes|Chats|Comments) \((\d+)\)$")
 _ROW = re.compile(r"^\s+(\d+)\s+(\S+)\s+(\S+)\s+(.*)$")
@@ -45,6 +56,8 @@ def _counts(text: str) -> Counter:
 
 
 def _expert(cap: Path, *args: str) -> Counter:
+    if cap in _GOLDEN and args in _OF_GOLDEN:   # (-V's shown tree in one pass: the PDML run's)
+        return _counts(sg.expert_report(*_GOLDEN[cap], _OF_GOLDEN[args]))
     extra = ["-X", f"lua_script:{SERIAL_LUA}"] if cap.suffix == ".pcapng" else []
     return _counts(tu.tshark(cap, [*extra, "-z", "expert", *args]).stdout)
 
