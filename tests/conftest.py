@@ -5,7 +5,8 @@ shared vector tables), ``sl_pipes`` (a standard output whose reader lags, for Ct
 reading lines as they come), ``sl_agreement`` (the two decoders' frames side by side),
 ``sl_checks`` (the tap's report, MCAP read back, change records against the reference, odd
 captures), ``sl_cli`` (the ``sharedlink`` command as a process; ``sl_zygote`` forks its runs from a
-loaded interpreter) and ``sl_cpu_probe`` (CPU a test, on with ``SHAREDLINK_TEST_CPU``), importable from every test
+loaded interpreter), ``sl_golden`` (the golden inputs' runs), ``sl_groups`` (which xdist worker
+runs a test) and ``sl_cpu_probe`` (CPU a test, on with ``SHAREDLINK_TEST_CPU``), importable from every test
 file because this folder is on ``sys.path``. No test file imports another
 (tests/tools/test_test_layout.py)."""
 
@@ -23,8 +24,9 @@ if str(TESTS) not in sys.path:
 
 REPO = TESTS.parent
 
-# the per-test CPU probe (docs/testing.md, "Where the suite's CPU goes"), only when asked
-pytest_plugins = ["sl_cpu_probe"] if os.environ.get("SHAREDLINK_TEST_CPU") else []
+# which xdist worker runs a test (sl_groups: a module or an xdist_group to one worker), and the
+# per-test CPU probe (docs/testing.md, "Where the suite's CPU goes"), only when asked
+pytest_plugins = ["sl_groups"] + (["sl_cpu_probe"] if os.environ.get("SHAREDLINK_TEST_CPU") else [])
 
 
 @pytest.fixture(scope="session")
