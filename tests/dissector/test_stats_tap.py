@@ -37,10 +37,16 @@ def plugins(*extra: Path) -> list[str]:
     return [a for s in [*OTHERS, *extra] for a in ("-X", f"lua_script:{s}")]
 
 
+_reports: dict[tuple[Path, tuple[str, ...]], str] = {}
+
+
 def report(capture: Path, *extra: str) -> tuple[dict, str]:
-    """Run ``-z sharedlink,stats`` and ``-z expert``; the tap's tables and the expert text."""
-    res = tu.tshark(capture, ["-q", *plugins(), "-z", "sharedlink,stats", "-z", "expert", *extra])
-    text = res.stdout
+    """Run ``-z sharedlink,stats`` and ``-z expert``; the tap's tables and the expert text (one
+    run a capture for the tests that read it)."""
+    if (capture, extra) not in _reports:
+        _reports[capture, extra] = tu.tshark(capture, ["-q", *plugins(), "-z", "sharedlink,stats", "-z", "expert",
+                                                       *extra]).stdout
+    text = _reports[capture, extra]
     assert "SharedLink statistics" in text, text
     start = text.index("=" * 20)
     return parse(text[start:]), text[:start]
