@@ -26,7 +26,6 @@ from __future__ import annotations
 import difflib
 import json
 import lzma
-import os
 
 import pytest
 import sl_golden as sg
@@ -36,8 +35,8 @@ import tshark_util as tu
 GOLDEN = sg.GOLDEN
 INPUTS = sg.INPUTS
 MANIFEST = sg.MANIFEST
-VERSION_DIR = GOLDEN / f"tshark-{tu.TSHARK_VERSION[0]}.{tu.TSHARK_VERSION[1]}"
-UPDATE = os.environ.get("SHAREDLINK_GOLDEN_UPDATE") == "1"
+VERSION_DIR = sg.VERSION_DIR
+UPDATE = sg.UPDATE
 
 # one worker runs this file and test_experts.py, which reads the expert reports of these runs
 pytestmark = pytest.mark.xdist_group("golden")
