@@ -43,7 +43,8 @@ local bb = Proto("blackboard", "Blackboard message (Holland)")
 
 -- The blackboard message rules (which text is a message, its checksum, where it starts, the
 -- answer it expects), written once for this file and serial.lua: robots/blackboard_rules.lua
--- beside this file, loaded here (a copy of our own: no state shared with serial.lua).
+-- beside this file, run by dissection() below with the dissection (a copy of our own: no state
+-- shared with serial.lua).
 local HERE = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
 -- robots/NAME.lua beside this file, compiled (Wireshark's loadfile raises where Lua's returns nil
 -- and the reason)
@@ -55,7 +56,7 @@ local function robot_chunk(name)
     end
     return chunk
 end
-local BB = robot_chunk("blackboard_rules")({ robot_module = true })
+robot_chunk("blackboard_rules")   -- (compiled and dropped: it is there and parses)
 
 local SET, REQUEST, LF = 0x3A, 0x3B, 0x0A
 
@@ -164,7 +165,8 @@ local D -- the module once run: D.dissector, D.heuristic, D.init
 local function dissection()
     if not D then
         D = robot_chunk("blackboard_dissect")({ robot_module = true }, {
-            proto = bb, pf = pf, ex = ex, BB = BB, istr = istr, u8 = u8, SET = SET, REQUEST = REQUEST, LF = LF,
+            BB = robot_chunk("blackboard_rules")({ robot_module = true }),
+            proto = bb, pf = pf, ex = ex, istr = istr, u8 = u8, SET = SET, REQUEST = REQUEST, LF = LF,
         })
     end
     return D

@@ -35,8 +35,8 @@ end
 local p2os = Proto("p2os", "P2OS (Pioneer robot protocol)")
 
 -- The P2OS framing rules (checksum, resynchronisation, direction from the content), written once
--- for this file and serial.lua: robots/p2os_rules.lua beside this file, loaded here (a copy of
--- our own: no state shared with serial.lua).
+-- for this file and serial.lua: robots/p2os_rules.lua beside this file, run by dissection()
+-- below with the dissection (a copy of our own: no state shared with serial.lua).
 local HERE = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
 -- robots/NAME.lua beside this file, compiled (Wireshark's loadfile raises where Lua's returns nil
 -- and the reason)
@@ -48,7 +48,7 @@ local function robot_chunk(name)
     end
     return chunk
 end
-local R = robot_chunk("p2os_rules")({ robot_module = true })
+robot_chunk("p2os_rules")   -- (compiled and dropped: it is there and parses)
 
 local COMMANDS = {
     [0] = "PULSE", [1] = "OPEN", [2] = "CLOSE", [3] = "POLLING", [4] = "ENABLE", [5] = "SETA",
@@ -237,7 +237,8 @@ local D -- the module once run: D.dissector, D.heuristic, D.init
 local function dissection()
     if not D then
         D = robot_chunk("p2os_dissect")({ robot_module = true }, {
-            proto = p2os, pf = pf, ex = ex, config_pf = config_pf, R = R, istr = istr, u8 = u8,
+            R = robot_chunk("p2os_rules")({ robot_module = true }),
+            proto = p2os, pf = pf, ex = ex, config_pf = config_pf, istr = istr, u8 = u8,
             CONFIG_FIELDS = CONFIG_FIELDS, DEGREES_PER_UNIT = DEGREES_PER_UNIT, COMMANDS = COMMANDS,
             SYNC_NAMES = SYNC_NAMES, SERVER_TYPES = SERVER_TYPES, DIRECTION_INFO = DIRECTION_INFO,
             ARG_POSITIVE = ARG_POSITIVE, ARG_NEGATIVE = ARG_NEGATIVE, ARG_STRING = ARG_STRING,

@@ -69,7 +69,8 @@ end
 local slserial = Proto("slserial", "Serial link")
 
 -- The P2OS and blackboard rules (robots/p2os_rules.lua, robots/blackboard_rules.lua beside this
--- file; copies of our own: no state shared with p2os.lua or blackboard.lua)
+-- file, run by dissection() below with the dissection; copies of our own: no state shared with
+-- p2os.lua or blackboard.lua)
 local HERE = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
 -- robots/NAME.lua beside this file, compiled (Wireshark's loadfile raises where Lua's returns nil
 -- and the reason)
@@ -84,7 +85,8 @@ end
 local function rules(name)
     return robot_chunk(name)({ robot_module = true })
 end
-local R, BB = rules("p2os_rules"), rules("blackboard_rules")
+robot_chunk("p2os_rules")   -- (compiled and dropped: they are there and parse)
+robot_chunk("blackboard_rules")
 local tonumber, pcall = tonumber, pcall
 
 local MAX_HELD_DEFAULT = 65536
@@ -179,7 +181,8 @@ local D -- the module once run: D.dissector, D.init
 local function dissection()
     if not D then
         D = robot_chunk("serial_dissect")({ robot_module = true }, {
-            proto = slserial, hf = hf, ei = ei, R = R, BB = BB, record_interface = record_interface,
+            proto = slserial, hf = hf, ei = ei, R = rules("p2os_rules"), BB = rules("blackboard_rules"),
+            record_interface = record_interface,
             MAX_HELD_DEFAULT = MAX_HELD_DEFAULT,
         })
     end
