@@ -21,11 +21,13 @@
 -- then its terminator (CR, LF) last.
 --
 -- Field reference: docs/fields-p2os-blackboard.md. Needs robots/blackboard_rules.lua beside it
--- (the message rules it shares with serial.lua; sharedlink plugins install copies it).
+-- (the message rules it shares with serial.lua) and robots/blackboard_dissect.lua (its
+-- dissection, run on the first packet that needs it); sharedlink plugins install copies them.
 -- Twins (code that must exist in two self-contained files; tests/dissector/test_lua_twins.py
 -- shows they agree): istr, u8 <-> p2os.lua.
 -- File order (../shared/STYLE.md): header, plugin info, Proto and tables, fields and experts,
--- preferences and state, helpers, dissect_*, the buffer dissector, heuristic, registration.
+-- preferences, the twins, the dissection (robots/blackboard_dissect.lua: state, helpers,
+-- dissect_*, the buffer dissector, heuristic), registration.
 
 -- luacheck: read globals Proto ProtoField ProtoExpert Pref DissectorTable ByteArray base expert frametype
 -- luacheck: read globals DESEGMENT_ONE_MORE_SEGMENT set_plugin_info

@@ -14,11 +14,13 @@
 -- preference, else the capture's direction flag (serial: outbound = client), else the content.
 --
 -- Field reference: docs/fields-p2os-blackboard.md. Needs robots/p2os_rules.lua beside it (the
--- framing rules it shares with serial.lua; sharedlink plugins install copies both).
+-- framing rules it shares with serial.lua) and robots/p2os_dissect.lua (its dissection, run on
+-- the first packet that needs it); sharedlink plugins install copies them.
 -- Twins (code that must exist in two self-contained files; tests/dissector/test_lua_twins.py
 -- shows they agree): istr, u8 <-> blackboard.lua.
 -- File order (../shared/STYLE.md): header, plugin info, Proto and tables, fields and experts,
--- preferences and state, helpers, dissect_*, the buffer dissector, heuristic, registration.
+-- preferences, the twins, the dissection (robots/p2os_dissect.lua: state, helpers, dissect_*,
+-- the buffer dissector, heuristic), registration.
 
 -- luacheck: read globals Proto ProtoField ProtoExpert Pref DissectorTable base expert bit
 -- luacheck: read globals DESEGMENT_ONE_MORE_SEGMENT set_plugin_info

@@ -51,9 +51,11 @@
 -- Works with Wireshark 4.0 (Lua 5.2) and later. Needs robots/p2os_rules.lua and
 -- robots/blackboard_rules.lua beside it: the P2OS framing rules, written once for this file and
 -- p2os.lua, and the blackboard message rules, once for this file and blackboard.lua
--- (tests/dissector/test_lua_twins.py runs them beside the Python readers').
+-- (tests/dissector/test_lua_twins.py runs them beside the Python readers'), and
+-- robots/serial_dissect.lua, its dissection, run on the first serial record.
 -- File order (../shared/STYLE.md): header, plugin info, Proto and tables, fields and experts,
--- preferences and state, helpers (framing), first pass, display, registration.
+-- preferences, the interface field, the dissection (robots/serial_dissect.lua: state, helpers
+-- (framing), first pass, display), registration.
 
 -- luacheck: read globals set_plugin_info
 
