@@ -16,3 +16,6 @@ read_globals = {
 files["dissector/p2os.lua"] = { max_cyclomatic_complexity = 20 }
 files["dissector/blackboard.lua"] = { max_cyclomatic_complexity = 20 }
 files["dissector/serial.lua"] = { max_cyclomatic_complexity = 20 }
+files["dissector/robots/p2os_dissect.lua"] = { max_cyclomatic_complexity = 20 }
+files["dissector/robots/blackboard_dissect.lua"] = { max_cyclomatic_complexity = 20 }
+files["dissector/robots/serial_dissect.lua"] = { max_cyclomatic_complexity = 20 }

@@ -40,12 +40,15 @@ local CPARTS = {}
 -- "" = none; a carried named value is stored as "=" .. value, as it may be ""),
 -- packed into chunks (carried_flush): Wireshark runs full Lua garbage collections
 -- during a capture, and their cost grows with the number of live Lua objects.
-local FROM_STR, from_str_n = {}, 0   -- frame number -> its text (the carried values' frames)
+-- FROM_STR: frame number -> its text (the carried values' frames), up to FROM_STR_MAX, then emptied:
+-- a compressed stream's carried values come from a few recent frames, and 4096 texts kept held up
+-- to 280 KB of live heap, which the collector walks (docs/perf-log.md, 7 December 2026)
+local FROM_STR, from_str_n, FROM_STR_MAX = {}, 0, 256
 local function from_text(fr)
     if not fr then return "" end
     local t = FROM_STR[fr]
     if not t then
-        if from_str_n >= 4096 then FROM_STR, from_str_n = {}, 0 end
+        if from_str_n >= FROM_STR_MAX then FROM_STR, from_str_n = {}, 0 end
         t = tostring(fr)
         FROM_STR[fr] = t
         from_str_n = from_str_n + 1

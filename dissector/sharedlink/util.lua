@@ -25,20 +25,20 @@ U.B_CR, U.B_LF = 13, 10
 U.B_A, U.B_P = 65, 80
 U.L_N, U.L_T, U.L_Q, U.L_R, U.L_D, U.L_C, U.L_L, U.L_E, U.L_M, U.L_P, U.L_G = 78, 84, 81, 82, 68, 67, 76, 69, 77, 80, 71
 
--- SUM_OF[n](b1, ..., bn): the sum of its n arguments (made for n = 0 to 40: n - 1 adds).
+-- SUM_OF[n](b1, ..., bn): the sum of its n arguments (n = 0 to 40: n - 1 adds), each made on its
+-- first use: a capture sums values of a few lengths (the bench's beacon capture 9, compressed 16),
+-- and all 41 made at load held 30 KB of live heap, which the collector walks (docs/perf-log.md,
+-- 7 December 2026).
 -- Speed trick (measured): bytes are summed as s_byte returns them, up to 40 a call.
-local SUM_OF = {}
+local SUM_OF = setmetatable({}, { __index = function(t, n)
+    local args = {}
+    for k = 1, n do args[k] = "b" .. k end
+    local f = assert(load("return function(" .. t_concat(args, ", ") .. ") return " ..
+        (n > 0 and t_concat(args, " + ") or "0") .. " end", "=SUM_OF", "t", {}))()
+    rawset(t, n, f)
+    return f
+end })
 U.SUM_OF = SUM_OF
-do   -- (one chunk: 41 cost 30 KB of live heap, which the collector walks)
-    local fns, args = {}, {}
-    for n = 0, 40 do
-        if n > 0 then args[n] = "b" .. n end
-        fns[n + 1] = "function(" .. t_concat(args, ", ") .. ") return " ..
-            (n > 0 and t_concat(args, " + ") or "0") .. " end"
-    end
-    local all = assert(load("return " .. t_concat(fns, ", "), "=SUM_OF", "t", {}))
-    for n = 0, 40 do SUM_OF[n] = select(n + 1, all()) end
-end
 local SUM_40 = SUM_OF[40]
 
 -- Sum of the bytes s[i..j], not reduced.

@@ -1,5 +1,5 @@
-"""Issue 27's shape for p2os.lua, blackboard.lua and serial.lua (sharedlink.lua has its own
-check): no function over 80 lines, each main chunk declaring at most 150 locals as
+"""Issue 27's shape for p2os.lua, blackboard.lua and serial.lua, and the dissection modules they
+run on their first packet (robots/*_dissect.lua; sharedlink.lua has its own check): no function over 80 lines, each main chunk declaring at most 150 locals as
 ``luac5.4 -l -l`` counts them (do blocks included), luacheck clean with the per-file entries of
 .luacheckrc (cyclomatic complexity at most 20; no global set or read but Wireshark's), and no
 Wireshark internals (metatables, rawget, the debug library, the collector): of the debug library
@@ -16,7 +16,9 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
-FILES = ["p2os.lua", "blackboard.lua", "serial.lua"]
+# and the dissection modules they run on their first packet
+FILES = ["p2os.lua", "blackboard.lua", "serial.lua", "robots/p2os_dissect.lua", "robots/blackboard_dissect.lua",
+         "robots/serial_dissect.lua"]
 MAX_LINES, MAX_LOCALS, MAX_COMPLEXITY = 80, 150, 20
 INTERNALS = re.compile(r"__getters|__setters|\brawget\b|\brawset\b|\bgetmetatable\b|\bsetmetatable\b"
                        r'|\bdebug\.(?!getinfo\(1, "S"\)\.source\b)|\bcollectgarbage\b')
