@@ -143,7 +143,11 @@ def test_full_disk_leaves_the_old_file_and_nothing_else(capture, tmp_path, comma
     out = tmp_path / f"out{suffix}"
     out.write_bytes(b"the previous version")
     args = _writers(capture, out).get(command) or ["gen", "--frames", "5000", "-o", out]
-    r = cli(*args, preexec_fn=_file_size_limit(8000))
+    # no bytecode written under the limit: Python keeps a .pyc cut at 8,000 bytes (it does not
+    # check the write) and every later import of that module fails (seen: matplotlib's, after
+    # `pip --no-compile` left them to the first import, broke every plot test after this one)
+    env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
+    r = cli(*args, preexec_fn=_file_size_limit(8000), env=env)
     assert r.returncode == 2, r.stderr
     assert b"sharedlink: error:" in r.stderr and b"Traceback" not in r.stderr, r.stderr
     assert str(out).encode() in r.stderr
