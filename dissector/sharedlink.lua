@@ -126,12 +126,23 @@ local sl = Proto("sharedlink", "SharedLink Protocol")
 -- (make install copies this file and the folder), 4.0 to 4.6.
 ------------------------------------------------------------------------------
 local M = { proto = sl }
+local load_tree   -- run tree.lua: the tree builder (below)
 do
     local here = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
     local TOKEN = { sharedlink_module = true }
-    for _, name in ipairs({ "util", "wsapi", "fields", "prefs", "records", "parse", "state", "info", "tree",
+    for _, name in ipairs({ "util", "wsapi", "fields", "prefs", "records", "parse", "state", "info", "experts",
         "health" }) do
         M[name] = assert(loadfile(here .. "sharedlink/" .. name .. ".lua"))(TOKEN, M)
+    end
+    -- The tree builder runs the first time a frame's tree is built: a pass that builds none (tshark's
+    -- summary pass of frames with no expert info) keeps its code out of the live Lua heap, which the
+    -- collector's work grows with (docs/perf-log.md, 7 December).  Compiled here and dropped, so a
+    -- missing or broken tree.lua still says so when Wireshark starts.
+    local tree_file = here .. "sharedlink/tree.lua"
+    assert(loadfile(tree_file))
+    function load_tree()
+        M.tree = assert(loadfile(tree_file))(TOKEN, M)
+        return M.tree
     end
 end
 local U, cfg, wsapi, hf = M.util, M.prefs, M.wsapi, M.fields.hf
@@ -139,7 +150,7 @@ local ei, s_byte, s_sub, s_find = M.fields.ei, string.byte, string.sub, string.f
 local tostring, type, B_LBRACK, B_RBRACK = tostring, type, U.B_LBRACK, U.B_RBRACK
 local B_PIPE, B_COLON, B_CR, B_LF = U.B_PIPE, U.B_COLON, U.B_CR, U.B_LF
 local B_A, B_P = U.B_A, U.B_P
-local Pm, S, I, T, R = M.parse, M.state, M.info, M.tree, M.records
+local Pm, S, I, X, R = M.parse, M.state, M.info, M.experts, M.records
 local health_frame, health_marked, health_mark = M.health.frame, M.health.marked, M.health.mark
 local F = Pm.F   -- the frame record (parse.lua): what is known of the frame being dissected
 local PG, TI = M.wsapi.PG, M.wsapi.TI
@@ -147,8 +158,14 @@ local parse_frame, kind_of_fields, bylen = Pm.parse_frame, Pm.kind_of_fields, Pm
 local checksum_facts = Pm.checksum_facts
 local state_data, state_other, state_later_pass = S.state_data, S.state_other, S.state_later_pass
 local info_frame, info_layout, info_finish, first_piece = I.info_frame, I.info_layout, I.finish, I.first_piece
-local tree_frame, has_experts, T_SHOWN, T_HIDDEN, T_NONE = T.tree_frame, T.has_experts, T.SHOWN, T.HIDDEN, T.NONE
-local set_crlf_frames = T.set_crlf_frames
+local has_experts, T_SHOWN, T_HIDDEN, T_NONE = X.has_experts, X.SHOWN, X.HIDDEN, X.NONE
+local set_crlf_frames = X.set_crlf_frames
+-- the tree builder (tree.lua), run on the first call (load_tree)
+local tree_frame
+tree_frame = function(mode, tree, tvb, fr)
+    tree_frame = load_tree().tree_frame
+    return tree_frame(mode, tree, tvb, fr)
+end
 
 sl.fields = M.fields.register(hf)
 sl.experts = M.fields.register(ei)

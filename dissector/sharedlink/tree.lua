@@ -1,7 +1,8 @@
 -- SharedLink dissector module: tree, a frame's items, one builder for every tree: shown (every range,
 -- label and flag), hidden (a tree nobody sees: the values of the fields somebody references) and none
 -- (no tree at all: the expert infos alone).
--- Loaded by sharedlink.lua (load_module); Wireshark also runs every .lua file of a plugin folder's
+-- Run by sharedlink.lua the first time a frame's tree is built (load_tree; the expert conditions
+-- and the trees' modes are experts.lua's); Wireshark also runs every .lua file of a plugin folder's
 -- subfolders as a plugin of its own: this file then does nothing.
 
 local token, M = ...
@@ -13,14 +14,13 @@ local ei, sl, s_sub = M.fields.ei, M.proto, string.sub
 -- the main chunk keeps under 150 locals)
 local tonumber = tonumber
 local floor = math.floor
-local B_A, B_P = U.B_A, U.B_P
+local B_A = U.B_A
 local LETTER, valid_type, parse_long = U.LETTER, U.valid_type, U.parse_long
-local F = M.parse.F   -- the frame record (parse.lua): tree_frame's and has_experts' argument
+local F = M.parse.F   -- the frame record (parse.lua): tree_frame's argument
 local FL, FS, FE, FV, FC, VT = F.FL, F.FS, F.FE, F.FV, F.FC, F.VT
 local VN, VV, VI, VR = F.VN, F.VV, F.VI, F.VR
 local VTf, VQf, VDf, slot_name = F.VTf, F.VQf, F.VDf, U.slot_name
 local VALUE = cfg.VALUE   -- name -> its value field (sharedlink.value.<name>), made at load
-local crlf_frames = true   -- see set_crlf_frames
 local CARRY, MISS = M.records.CARRY, M.records.MISS
 
 -- TreeItem's methods called through wsapi.TI (speed trick, measured: -V 16 us a frame less):
@@ -59,53 +59,9 @@ local H_var, H_ftype, H_var_name, H_var_index, H_var_value, H_var_double, H_var_
 local H_var_carried_from, H_checksum, H_checksum_calc, H_checksum_status, H_ordinal, H_dst, H_src =
     hf.var_carried_from, hf.checksum, hf.checksum_calc, hf.checksum_status, hf.ordinal, hf.dst, hf.src
 
-local SHOWN, HIDDEN, NONE = 1, 2, 3
-
--- Whether a variable's value would get var.badvalue or var.unknown (see has_experts).
--- A frame of a named layout: its types are valid and its doubles plain decimals (the layout's
--- pattern), so only a long can fail (speed trick, measured: tonumber on a value is ~1,150
--- instructions).
-local function named_values_have_experts(tv)
-    for v = 1, F.nv do
-        if tv[v] == 0 and not parse_long(VV[v]) then return true end
-    end
-    return false
-end
-
-local values_have_experts
-do
--- Variable v's type for has_experts, or true when its name or T already has an expert (a T that
--- is not a number; a positional value past a list learnt from a declaration).  A reply's value is
--- typed by its T, else by the list its direction uses.
-local function expert_type(v, list)
-    if VN[v] then
-        if VT[v] then return valid_type(VT[v]) or true end
-        return VR[v] and M.state.list_type(list, VN[v]) or nil
-    end
-    if not list[VI[v] + 1] and list.decl then return true end
-    return list.t[VI[v] + 1]
-end
-
-function values_have_experts(kind, list)
-    local named = F.named
-    if named then return named.has_long and named_values_have_experts(named.TV) end
-    for v = 1, F.nv do
-        local val = VV[v]
-        if val or kind == "declaration" or VR[v] then
-            local vtype = expert_type(v, list)
-            if vtype == true then return true end
-            if val and vtype and (val ~= "" or VN[v]) then
-                if vtype == 2 then
-                    if not tonumber(val) then return true end
-                elseif vtype == 0 and not parse_long(val) then
-                    return true
-                end
-            end
-        end
-    end
-    return false
-end
-end
+local E = M.experts   -- the frame's expert conditions, the trees' modes (experts.lua)
+local SHOWN, HIDDEN, NONE = E.SHOWN, E.HIDDEN, E.NONE
+local X, frame_experts, values_have_experts = E.X, E.frame_experts, E.values_have_experts
 
 -- Which fields somebody references: field -> true/false, asked of Wireshark (wsapi.referenced,
 -- which answers true when unsure) the first time a frame's tree needs to know.  In a tree nobody
@@ -196,53 +152,6 @@ local C = {}   -- the rest of it
 local c_shown
 local c_csrc, c_d, c_f, c_ke, c_list, c_num, c_o, c_places
 local c_ti, c_tv, c_tvb
-
-------------------------------------------------------------------------------
--- The frame's expert conditions, as data: X[name] is true when the frame gets that expert info
--- from the tree's head or trailer (set by frame_experts, the one place each condition is written;
--- has_experts and the tree read them).  The experts of single fields and variables (an empty or
--- unknown field, a type or ordinal that is no number, var.badvalue, var.unknown) are the field's
--- own: the frame has one when F.odd, or values_have_experts.
-------------------------------------------------------------------------------
-local X_NAMES = { "malformed", "dst_invalid", "src_invalid", "fields", "limit", "rec_limit", "sync_late",
-    "unanswered", "checksum_bad", "checksum_format", "checksum_missing", "crlf_missing" }
-local X = {}
-for _, name in ipairs(X_NAMES) do X[name] = false end
-local function not_node(b) return b ~= nil and (b < B_A or b > B_P) end
-
--- The conditions of frame fr (the frame record, with the state's answers) into X; returns whether
--- any holds.  A calm frame (fr.calm: a layout's frame the entry knows has none) holds none: X is
--- cleared only when the last frame's held one (x_any; speed trick, measured: -V, the GUI).
-local x_any = false
-local function frame_experts(fr)
-    if fr.calm then
-        if x_any then
-            for k = 1, #X_NAMES do X[X_NAMES[k]] = false end
-            x_any = false
-        end
-        return false
-    end
-    x_any = true
-    local rec, cpos, terminated = fr.rec, fr.cpos, fr.terminated
-    local malformed = fr.malformed ~= nil
-    X.malformed, X.dst_invalid, X.src_invalid = malformed, not_node(fr.dstb), not_node(fr.srcb)
-    X.fields, X.limit = fr.odd, fr.limit ~= false
-    if rec then
-        X.rec_limit, X.sync_late, X.unanswered = rec.limit ~= nil, rec.late ~= nil, rec.unmatched ~= nil
-    else
-        X.rec_limit, X.sync_late, X.unanswered = false, false, false
-    end
-    X.checksum_bad = cpos ~= nil and fr.cs_status == 0
-    X.checksum_format = cpos ~= nil and not fr.cs_plain
-    X.checksum_missing = cpos == nil and terminated and not malformed
-    -- CR LF after the ']' (the entry's fr.crlf) where CR LF frames the packet's bytes (set_crlf_frames)
-    X.crlf_missing = terminated and crlf_frames and not fr.crlf
-    for k = 1, #X_NAMES do
-        if X[X_NAMES[k]] then return true end
-    end
-    x_any = false
-    return false
-end
 
 ------------------------------------------------------------------------------
 -- The head: the protocol item, the addresses, the kind, malformed.
@@ -1048,23 +957,5 @@ local function tree_frame(mode, tree, tvb, fr)
     tree_trailer()
 end
 
-------------------------------------------------------------------------------
--- Whether a frame with no tree needs one for its expert infos.
-------------------------------------------------------------------------------
--- With no tree, whether frame fr's tree would carry an expert info (true when unsure): then
--- tree_frame builds it in mode NONE, on the tree Wireshark gave (which keeps no items but reports
--- the experts to Expert Information and -z expert).  The conditions tree_frame reads
--- (frame_experts), then its variables' (values_have_experts).
-local function has_experts(fr)
-    if frame_experts(fr) then return true end
-    return values_have_experts(fr.kind, fr.list)
-end
-
--- Whether CR LF frames the bytes of the packet being dissected (docs/fields-sharedlink.md, "Rules
--- for real sessions": serial and TCP, not a UDP datagram, which is one frame or several each
--- ending at its ']'): sharedlink.crlf.missing is noted only then.  Set once a packet.
-local function set_crlf_frames(v) crlf_frames = v end
-
-local T = { tree_frame = tree_frame, has_experts = has_experts, set_crlf_frames = set_crlf_frames,
-            SHOWN = SHOWN, HIDDEN = HIDDEN, NONE = NONE }
+local T = { tree_frame = tree_frame }
 return T
