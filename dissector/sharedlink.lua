@@ -130,20 +130,21 @@ local load_tree   -- run tree.lua: the tree builder (below)
 do
     local here = (debug.getinfo(1, "S").source or ""):match("^@(.*[/\\])") or ""
     local TOKEN = { sharedlink_module = true }
+    local function compile(name) return assert(loadfile(here .. "sharedlink/" .. name .. ".lua")) end
+    local function run(name)
+        M[name] = compile(name)(TOKEN, M)
+        return M[name]
+    end
     for _, name in ipairs({ "util", "wsapi", "fields", "prefs", "records", "parse", "state", "info", "experts",
         "health" }) do
-        M[name] = assert(loadfile(here .. "sharedlink/" .. name .. ".lua"))(TOKEN, M)
+        run(name)
     end
     -- The tree builder runs the first time a frame's tree is built: a pass that builds none (tshark's
     -- summary pass of frames with no expert info) keeps its code out of the live Lua heap, which the
     -- collector's work grows with (docs/perf-log.md, 7 December).  Compiled here and dropped, so a
     -- missing or broken tree.lua still says so when Wireshark starts.
-    local tree_file = here .. "sharedlink/tree.lua"
-    assert(loadfile(tree_file))
-    function load_tree()
-        M.tree = assert(loadfile(tree_file))(TOKEN, M)
-        return M.tree
-    end
+    compile("tree")
+    function load_tree() return run("tree") end
 end
 local U, cfg, wsapi, hf = M.util, M.prefs, M.wsapi, M.fields.hf
 local ei, s_byte, s_sub, s_find = M.fields.ei, string.byte, string.sub, string.find

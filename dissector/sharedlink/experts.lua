@@ -30,8 +30,6 @@ local function named_values_have_experts(tv)
     return false
 end
 
-local values_have_experts
-do
 -- Variable v's type for has_experts, or true when its name or T already has an expert (a T that
 -- is not a number; a positional value past a list learnt from a declaration).  A reply's value is
 -- typed by its T, else by the list its direction uses.
@@ -44,7 +42,7 @@ local function expert_type(v, list)
     return list.t[VI[v] + 1]
 end
 
-function values_have_experts(kind, list)
+local function values_have_experts(kind, list)
     local named = F.named
     if named then return named.has_long and named_values_have_experts(named.TV) end
     for v = 1, F.nv do
@@ -62,7 +60,6 @@ function values_have_experts(kind, list)
         end
     end
     return false
-end
 end
 
 ------------------------------------------------------------------------------
