@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from sl_robots import write_serial
+from sl_robots import OTHERS, write_serial
 
 from sharedlink.capture.packets import TcpBuilder, UdpBuilder
 from sharedlink.capture.pcapio import PcapWriter
@@ -191,9 +191,6 @@ def write_streams_apart(streams: list[Stream], path: Path) -> Path:
     return Path(path)
 
 
-#: dissector/*.lua but sharedlink.lua (tshark_util loads it), as `make install` leaves them
-OTHER_SCRIPTS = tuple(a for s in sorted((Path(__file__).resolve().parents[1] / "dissector").glob("*.lua"))
-                      if s.name != "sharedlink.lua" for a in ("-X", f"lua_script:{s}"))
 _json_runs: dict[tuple[str, bool], list[dict[str, Any]]] = {}
 _run_dir: Path | None = None
 
@@ -214,7 +211,7 @@ def tshark_json(stream: Stream, two_pass: bool) -> list[dict[str, Any]]:
         ext = "pcapng" if stream.get("transport") == "serial" else "pcap"
         cap = write_stream(stream, _run_dir / f"{stream['name']}.{ext}")
         prefs = {"sharedlink.variables": stream["variables"]} if "variables" in stream else None
-        _json_runs[key] = tu.json_packets(cap, prefs=prefs, two_pass=two_pass, extra=OTHER_SCRIPTS)
+        _json_runs[key] = tu.json_packets(cap, prefs=prefs, two_pass=two_pass, extra=OTHERS)
     return copy.deepcopy(_json_runs[key])
 
 
