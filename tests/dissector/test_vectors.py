@@ -15,7 +15,8 @@ from typing import Any
 
 import pytest
 from sl_cli import run_cli
-from sl_vectors import OTHER_SCRIPTS, expected_frames, load_streams, stream_ids, stream_params, tshark_json
+from sl_robots import OTHERS
+from sl_vectors import expected_frames, load_streams, stream_ids, stream_params, tshark_json
 
 import tshark_util as tu
 
@@ -24,7 +25,6 @@ import tshark_util as tu
 pytestmark = pytest.mark.xdist_group("vectors")
 
 REPO = Path(__file__).resolve().parents[2]
-OTHERS = list(OTHER_SCRIPTS)
 STREAMS = load_streams()
 CHECKSUM_WORD = {"1": "good", "0": "bad"}
 TYPED_FIELDS = {"long": "sharedlink.var.long", "double": "sharedlink.var.double", "string": "sharedlink.var.string"}
