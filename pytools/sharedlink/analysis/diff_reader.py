@@ -13,6 +13,7 @@ from __future__ import annotations
 import gc
 import marshal
 import multiprocessing
+import os
 import queue
 import signal
 import threading
@@ -26,12 +27,24 @@ from sharedlink.capture.stream import Chunk, SideStats
 def start_quietly(proc: multiprocessing.process.BaseProcess) -> None:
     """``proc.start()`` with Ctrl-C and SIGTERM held until it returns, then delivered: raised
     inside the fork's own hooks (logging's lock release), they were printed as "Exception
-    ignored" and lost, and the command ran on."""
+    ignored" and lost, and the command ran on. The child inherits the holding handler until
+    :func:`worker` sets its own, and there it does what worker's do: Ctrl-C ignored, SIGTERM
+    ends the child (held there, it was lost: the child ran on into a pipe nobody read, and
+    multiprocessing's exit-time join waited for ever after a Ctrl-C under load)."""
     if threading.current_thread() is not threading.main_thread():
         proc.start()
         return
     held: list[int] = []
-    old = {sig: signal.signal(sig, lambda signum, _frame: held.append(signum)) for sig in (signal.SIGINT, signal.SIGTERM)}
+    parent = os.getpid()
+
+    def hold(signum: int, _frame: object) -> None:
+        if os.getpid() == parent:
+            held.append(signum)
+        elif signum == signal.SIGTERM:  # the child, before worker() set SIG_DFL: as SIG_DFL does
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+
+    old = {sig: signal.signal(sig, hold) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         proc.start()
     finally:
@@ -90,8 +103,6 @@ def read_remote(path: str, variables: Sequence[tuple[str, int | None]], sync_int
     proc = ctx.Process(
         target=worker, args=(send, path, list(variables), sync_interval, fast), daemon=True
     )
-    start_quietly(proc)
-    send.close()
     inbox: queue.Queue = queue.Queue(maxsize=4)
     stop = threading.Event()
 
@@ -112,8 +123,11 @@ def read_remote(path: str, variables: Sequence[tuple[str, int | None]], sync_int
                 return
 
     thread = threading.Thread(target=pump, name=f"sharedlink-diff-{Path(path).name}", daemon=True)
-    thread.start()
     try:
+        # (a Ctrl-C held while the child started is raised here: the finally stops the child)
+        start_quietly(proc)
+        send.close()
+        thread.start()
         while True:
             data = inbox.get()
             if data is None:
@@ -127,15 +141,17 @@ def read_remote(path: str, variables: Sequence[tuple[str, int | None]], sync_int
                 return
     finally:
         stop.set()
-        if proc.is_alive():
-            proc.terminate()
-        # A SIGTERM that reaches the child before it resets its handlers (it inherits
-        # start_quietly's holding handler from the fork) is only held: the child then blocks
-        # writing to a pipe nobody reads, and a bare join() waited for ever (seen under load
-        # after Ctrl-C to the process group). Kill what the SIGTERM did not stop.
-        proc.join(timeout=2.0)
-        if proc.is_alive():
-            proc.kill()
-            proc.join()
-        thread.join(timeout=1.0)
+        send.close()  # (closed already once the child started: a no-op then)
+        if proc.pid is not None:  # (started)
+            if proc.is_alive():
+                proc.terminate()
+            # A child that does not stop on SIGTERM (blocked on a pipe nobody reads, a signal
+            # lost in a start-up this module did not foresee) is killed: a bare join() waited
+            # for ever (seen under load after Ctrl-C to the process group).
+            proc.join(timeout=2.0)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
+        if thread.ident is not None:  # (started)
+            thread.join(timeout=1.0)
         recv.close()
