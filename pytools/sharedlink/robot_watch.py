@@ -87,7 +87,7 @@ class RobotView:
         """Link health of a session's paced links (the P2OS robot's SIPs, both blackboard sides):
         the link quality (its frames in the last whole second), learnt rate, outages, and while one
         lasts ``LINK DOWN`` and for how long."""
-        from sharedlink.analysis.health import live_down_s
+        from sharedlink.analysis.health import SecondCounts, live_down_s
 
         out = []
         conv = ("robot", s.protocol, s.label)
@@ -96,9 +96,8 @@ class RobotView:
             if c != conv:
                 continue
             seconds = h.seconds or {}
-            if len(seconds) > 120:  # (the last minute is plenty)
-                for k in [k for k in seconds if k < last - 60]:
-                    del seconds[k]
+            if isinstance(seconds, SecondCounts):
+                seconds.drop_before(last - 60)  # (the last minute is plenty)
             down = live_down_s(h, now_ns, self.health.fixed_ns)
             rate = h.rate_hz
             line = (f"  link {h.pair}: quality {seconds.get(last, 0)}/s, {'%.1f/s' % rate if rate else '-'} learnt, "

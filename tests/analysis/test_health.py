@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import json
 import random
+from collections import Counter
 from pathlib import Path
 
 import pytest
 from sl_cli import run_cli
 
-from sharedlink.analysis.health import FLOOR_S, Health, quality
+from sharedlink.analysis.health import FLOOR_S, Health, SecondCounts, quality
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import NS, PcapWriter
 from sharedlink.generators.beacon import DEFAULT_START_NS
@@ -198,6 +199,45 @@ def test_quality_seconds():
     assert rows[0] == (5, None) and rows[9] == (5, None)  # the outage starts at 9.8 s: a second with frames is up
     assert rows[10] == (0, pytest.approx(1.2)) and rows[12] == (0, pytest.approx(3.2))
     assert rows[13] == (5, None) and rows[14] == (5, None) and max(rows) == 14
+
+
+def test_second_counts_count_as_a_counter():
+    """A link's timeline (SecondCounts) counts what a Counter would, across spans and far gaps,
+    frame by frame and in batches; dropping spans keeps the seconds after."""
+    rng = random.Random(7)
+    base = DEFAULT_START_NS // NS
+    seconds = [base + rng.choice([0, 1, 4095, 4096, 9000, 86400 * 400]) + rng.randrange(50) for _ in range(3000)]
+    counts, want = SecondCounts(), Counter()
+    for s in seconds[:1000]:
+        counts.add(s)
+        want[s] += 1
+    counts.update(seconds[1000:])
+    want.update(seconds[1000:])
+    counts[base + 7] += 2
+    want[base + 7] += 2
+    for s in set(seconds) | {base - 1, base + 5000, base + 86400 * 400 + 60}:
+        assert counts.get(s, 0) == want[s] and counts[s] == want[s], s
+    assert counts.get(base - 1, -1) == -1
+    counts.drop_before(base + 86400 * 400)
+    assert [counts[s] for s in sorted(want)] == [want[s] if s >= base + 86400 * 400 else 0 for s in sorted(want)]
+
+
+def test_a_timeline_costs_a_few_bytes_a_second():
+    """Issue 44: a day of one link's frames per second is held in well under 1 MB (a Counter took
+    about 100 bytes a second: a long capture's ingest grew with its duration)."""
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        counts = SecondCounts()
+        base = DEFAULT_START_NS // NS
+        before = tracemalloc.get_traced_memory()[0]
+        for k in range(0, 86400, 10):  # a frame a second, in batches of 10 seconds
+            counts.update(range(base + k, base + k + 10))
+        held = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert held < 600_000, held
 
 
 def _write(path: Path, payloads: list[bytes]) -> None:

@@ -85,3 +85,26 @@ def test_reingest_replaces_health_rows(fleet, tmp_path):
     r = run_cli("ingest", "-o", str(ds), "--reingest", str(p), timeout=300)
     assert r.returncode == 0, r.stderr
     assert list(run_query(ds, "SELECT count(*) FROM links UNION ALL SELECT count(*) FROM outages").rows()) == before
+
+
+def test_links_rows_written_in_pieces_are_the_same(tmp_path, monkeypatch):
+    """Issue 44: a link's `links` rows are made CHUNK_ROWS at a time and a day at a time (a long
+    capture's seconds are never all held); written in pieces of 7 rows, across midnight and an
+    outage, the table holds the same rows, each second once, in each day's partition."""
+    from sharedlink.fleet import health_rows
+    from sharedlink.fleet.ingest import ingest
+
+    cap = tmp_path / "midnight.pcap"
+    r = run_cli("gen", "-o", str(cap), "--seed", "3", "--duration", "40", "--start", "2026-01-01T23:59:40Z",
+                "--outage", "15:4", timeout=120)
+    assert r.returncode == 0, r.stderr
+    sql = ("SELECT time_ns, conversation, pair, frames, state, quality, down_s, day FROM links "
+           "ORDER BY time_ns, conversation, pair")
+    assert ingest([cap], tmp_path / "whole").ok
+    whole = list(run_query(tmp_path / "whole", sql).rows())
+    monkeypatch.setattr(health_rows, "CHUNK_ROWS", 7)
+    assert ingest([cap], tmp_path / "pieces").ok
+    assert list(run_query(tmp_path / "pieces", sql).rows()) == whole
+    assert len(whole) > 2 * 7 and {str(row[-1]) for row in whole} == {"2026-01-01", "2026-01-02"}
+    assert len({(t, c, p) for t, c, p, *_ in whole}) == len(whole)
+    assert any(state == "down" for *_, state, _q, _d, _day in whole)

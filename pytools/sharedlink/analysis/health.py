@@ -31,6 +31,7 @@ the window).
 
 from __future__ import annotations
 
+from array import array
 from collections import Counter, deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -53,6 +54,57 @@ MAX_LINKS = MAX_CONVERSATIONS
 OTHER_LINKS = "(links past the limit)"
 #: what the habit note says
 CHECKSUM_HABIT = "checksum missing on a link that carries them"
+
+
+#: seconds of one :class:`SecondCounts` array (about 68 minutes)
+SPAN_BITS = 12
+_SPAN = 1 << SPAN_BITS
+_ZEROS = bytes(4 << SPAN_BITS)
+
+
+class SecondCounts:
+    """A link's frames per epoch second (a timeline): arrays of 4,096 seconds, made as frames
+    come, so a second costs 4 bytes where a dict entry took about 100 (issue 44: a day-long
+    capture's ingest held 100 MB of them). ``counts[s] += n`` and ``counts.get(s, 0)`` as a
+    dict's; :meth:`update` counts seconds given in a batch."""
+
+    __slots__ = ("spans",)
+
+    def __init__(self) -> None:
+        self.spans: dict[int, array] = {}
+
+    def _span(self, s: int) -> array:
+        a = self.spans.get(s >> SPAN_BITS)
+        if a is None:
+            a = self.spans[s >> SPAN_BITS] = array("I", _ZEROS)
+        return a
+
+    def __getitem__(self, s: int) -> int:
+        return self.get(s)
+
+    def __setitem__(self, s: int, n: int) -> None:
+        self._span(s)[s & (_SPAN - 1)] = n
+
+    def get(self, s: int, default: int = 0) -> int:
+        a = self.spans.get(s >> SPAN_BITS)
+        n = 0 if a is None else a[s & (_SPAN - 1)]
+        return n or default
+
+    def add(self, s: int) -> None:
+        """One frame in second ``s``."""
+        a = self.spans.get(s >> SPAN_BITS)
+        if a is None:
+            a = self._span(s)
+        a[s & (_SPAN - 1)] += 1
+
+    def update(self, seconds: Iterable[int]) -> None:
+        for s, n in Counter(seconds).items():
+            self._span(s)[s & (_SPAN - 1)] += n
+
+    def drop_before(self, s: int) -> None:
+        """Forget the spans wholly before second ``s`` (a live view keeps the last minutes)."""
+        for k in [k for k in self.spans if (k + 1) << SPAN_BITS <= s]:
+            del self.spans[k]
 
 
 def link_name(conv: tuple) -> str:
@@ -104,7 +156,7 @@ class LinkHealth:
     had_checksum: bool = False
     checksum_missing: int = 0  # frames without one after the link carried one (the habit note)
     window: deque = field(default_factory=lambda: deque(maxlen=WINDOW))
-    seconds: Counter | None = None  # timeline: frames per epoch second
+    seconds: SecondCounts | None = None  # timeline: frames per epoch second
     end_ns: int | None = None  # the capture's end, once finished
 
     @property
@@ -191,7 +243,7 @@ class Health:
                     return h
             h = self.links[key] = LinkHealth(link_name(conv) if conv else OTHER_LINKS, f"{src}>{dst}" if dst else src)
             if self.timeline:
-                h.seconds = Counter()
+                h.seconds = SecondCounts()
         return h
 
     def frame(self, h: LinkHealth, ts: int, checksum_ok: bool | None, late: bool = False) -> None:
@@ -207,7 +259,7 @@ class Health:
             h.late += 1
         h.frames += 1
         if h.seconds is not None:
-            h.seconds[ts // NS] += 1
+            h.seconds.add(ts // NS)
         last = h.last_ns
         if last is None:
             h.first_ns = h.last_ns = ts

@@ -23,9 +23,7 @@ left out.
 
 from __future__ import annotations
 
-from collections import Counter
-
-from sharedlink.analysis.health import MAX_LINKS, Health, LinkHealth, Outage, OutageFeed
+from sharedlink.analysis.health import MAX_LINKS, Health, LinkHealth, Outage, OutageFeed, SecondCounts
 from sharedlink.analysis.sessions import SessionMessage
 
 #: the other side of each side
@@ -57,7 +55,7 @@ def feed_session(health: Health, m: SessionMessage) -> LinkHealth | None:
     if key not in health.links and len(health.links) < MAX_LINKS:
         h = health.links[key] = LinkHealth(f"{m.protocol} {m.label}", f"{m.side}>{OTHER_SIDE.get(m.side, '?')}")
         if health.timeline:
-            h.seconds = Counter()
+            h.seconds = SecondCounts()
     h = health.link(*key)
     if m.ok is None and m.message is None:  # a malformed message: alive, nothing of the habit
         had, h.had_checksum = h.had_checksum, False

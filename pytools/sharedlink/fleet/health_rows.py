@@ -26,6 +26,9 @@ from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import NS
 from sharedlink.fleet.dataset import LINKS_COLUMNS, OUTAGES_COLUMNS, link_name
 
+#: rows of a link's ``links`` table made at a time
+CHUNK_ROWS = 65_536
+
 
 def _day(s: int) -> str:
     return _dt.datetime.fromtimestamp(s, _dt.timezone.utc).strftime("%Y-%m-%d")
@@ -61,39 +64,61 @@ class HealthRows:
 
     def tables(self, capture: str, vehicle: str) -> Iterator[tuple[str, tuple[str, str], dict[str, pa.Array], int]]:
         """(table, (day, link partition), columns, rows) of the finished capture (end: its latest
-        frame); nothing the second time."""
+        frame); nothing the second time. A link's seconds come :data:`CHUNK_ROWS` at a time (a
+        partition's rows may come in several pieces, in order): a long capture's seconds are
+        never all held (issue 44)."""
         if self.written:
             return
         self.written = True
         self.health.finish_once()
-        links: dict[tuple[str, str], list[dict[str, Any]]] = {}
         outages: dict[tuple[str, str], list[dict[str, Any]]] = {}
         for h, src, dst in self._src_dst():
             link = link_name(src, dst)
             base = {"conversation": h.link, "src": src, "dst": dst, "pair": h.pair}
-            for s in quality(h):
-                links.setdefault((_day(s.second), link), []).append({
-                    **base, "time_ns": s.second * NS, "frames": s.frames, "state": "up" if s.down_s is None else "down",
-                    "quality": float(s.quality), "down_s": s.down_s})
+            for day, cols, n in _seconds(h):
+                yield "links", (day, link), health_columns("links", {**cols, **base}, n, capture, vehicle), n
             for o in h.outages:
                 outages.setdefault((_day(o.start_ns // NS), link), []).append({
                     **base, "time_ns": o.start_ns, "end_ns": o.end_ns, "duration_ns": o.duration_ns,
                     "duration_s": o.duration_ns / NS, "open": o.end_ns is None})
-        for part, rows in sorted(links.items()):
-            yield "links", part, health_columns("links", rows, capture, vehicle), len(rows)
         for part, rows in sorted(outages.items()):
             rows.sort(key=lambda r: (r["time_ns"], r["conversation"]))
-            yield "outages", part, health_columns("outages", rows, capture, vehicle), len(rows)
+            cols = {name: [r[name] for r in rows] for name, _kind in OUTAGES_COLUMNS[2:]}
+            yield "outages", part, health_columns("outages", cols, len(rows), capture, vehicle), len(rows)
 
 
-def health_columns(table: str, rows: list[dict[str, Any]], capture: str, vehicle: str) -> dict[str, pa.Array]:
-    """The rows as the table's columns (``capture`` and ``vehicle`` as dictionary arrays)."""
-    n = len(rows)
+def _seconds(h: Any) -> Iterator[tuple[str, dict[str, list], int]]:
+    """Link ``h``'s rows of the ``links`` table as (UTC day, columns, rows), at most
+    :data:`CHUNK_ROWS` rows and one day at a time."""
+    cols: dict[str, list] = {"time_ns": [], "frames": [], "state": [], "quality": [], "down_s": []}
+    time_ns, frames, state, qual, down_s = cols.values()
+    day, day_end = "", 0
+    for s in quality(h):
+        if s.second >= day_end or len(time_ns) >= CHUNK_ROWS:
+            if time_ns:
+                yield day, cols, len(time_ns)
+                cols = {k: [] for k in cols}
+                time_ns, frames, state, qual, down_s = cols.values()
+            day, day_end = _day(s.second), (s.second // 86400 + 1) * 86400
+        time_ns.append(s.second * NS)
+        frames.append(s.frames)
+        state.append("up" if s.down_s is None else "down")
+        qual.append(float(s.quality))
+        down_s.append(s.down_s)
+    if time_ns:
+        yield day, cols, len(time_ns)
+
+
+def health_columns(table: str, cols: dict[str, Any], n: int, capture: str, vehicle: str) -> dict[str, pa.Array]:
+    """The table's columns from ``cols`` (name -> a list of ``n`` values, or one value for every
+    row), ``capture`` and ``vehicle`` as dictionary arrays."""
     zeros = pa.repeat(pa.scalar(0, pa.int32()), n)
-    cols: dict[str, pa.Array] = {
+    out: dict[str, pa.Array] = {
         "capture": pa.DictionaryArray.from_arrays(zeros, pa.array([capture], pa.string())),
         "vehicle": pa.DictionaryArray.from_arrays(zeros, pa.array([vehicle], pa.string())),
     }
     for name, kind in (LINKS_COLUMNS if table == "links" else OUTAGES_COLUMNS)[2:]:
-        cols[name] = pa.array([r[name] for r in rows], getattr(pa, kind)())
-    return cols
+        x = cols[name]
+        out[name] = pa.array(x, getattr(pa, kind)()) if isinstance(x, list) else pa.repeat(
+            pa.scalar(x, getattr(pa, kind)()), n)
+    return out
