@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from sl_cli import run_cli
 
-from sharedlink.analysis.health import FLOOR_S, Health, SecondCounts, quality
+from sharedlink.analysis.health import FLOOR_S, Health, SecondCounts, quality, quality_runs
 from sharedlink.capture.packets import UdpBuilder
 from sharedlink.capture.pcapio import NS, PcapWriter
 from sharedlink.generators.beacon import DEFAULT_START_NS
@@ -199,6 +199,39 @@ def test_quality_seconds():
     assert rows[0] == (5, None) and rows[9] == (5, None)  # the outage starts at 9.8 s: a second with frames is up
     assert rows[10] == (0, pytest.approx(1.2)) and rows[12] == (0, pytest.approx(3.2))
     assert rows[13] == (5, None) and rows[14] == (5, None) and max(rows) == 14
+
+
+def _quality_by_the_second(lk) -> list[tuple[int, int, float | None]]:
+    """The module doc's definition, second by second: no frame in it and an outage in progress
+    at its end (``start <= end of second <= outage end``): down, for the seconds since it began."""
+    out = []
+    for s in range(lk.first_ns // NS, lk.end_ns // NS + 1):
+        at, frames = (s + 1) * NS, lk.seconds.get(s, 0)
+        on = [o for o in lk.outages if o.start_ns <= at and (o.end_ns is None or o.end_ns >= at)]
+        down = round((min(at, lk.end_ns) - on[0].start_ns) / NS, 3) if on and not frames else None
+        out.append((s, frames, down))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_quality_runs_are_the_definition(seed):
+    """quality() and quality_runs() in any run size give the definition's seconds, across span
+    (4,096 s) and day boundaries, with outages open and closed."""
+    rng = random.Random(seed)
+    h = Health(timeline=True)
+    lk = h.link(("udp", "a", 1, "b", 2), "B", "A")
+    t = DEFAULT_START_NS - DEFAULT_START_NS % (86400 * NS) + 86400 * NS - rng.randrange(9000) * NS
+    for _ in range(rng.randrange(200, 3000)):
+        t += rng.choice([NS // 10, NS // 5, NS // 3, 4 * NS, 70 * NS])
+        h.frame(lk, t, True)
+    h.finish(t + rng.choice([0, 30 * NS]))
+    want = _quality_by_the_second(lk)
+    assert [(s.second, s.frames, s.down_s) for s in quality(lk)] == want
+    most, align = rng.choice([(7, 86400), (1000, 60), (65536, 86400)])
+    runs = list(quality_runs(lk, most, align))
+    assert [(first + i, f, d) for first, fs, ds in runs for i, (f, d) in enumerate(zip(fs, ds))] == want
+    assert all(len(fs) <= most and first // align == (first + len(fs) - 1) // align for first, fs, _ in runs)
+    assert any(d is not None for *_, d in want) == bool(lk.outages)
 
 
 def test_second_counts_count_as_a_counter():

@@ -33,9 +33,10 @@ from __future__ import annotations
 
 from array import array
 from collections import Counter, deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from operator import sub
+from itertools import compress
+from operator import not_, sub
 
 from sharedlink.capture.pcapio import NS
 from sharedlink.present import Table, text_table
@@ -100,6 +101,17 @@ class SecondCounts:
     def update(self, seconds: Iterable[int]) -> None:
         for s, n in Counter(seconds).items():
             self._span(s)[s & (_SPAN - 1)] += n
+
+    def counts(self, start: int, end: int) -> list[int]:
+        """The frames of each second in ``[start, end)``."""
+        out: list[int] = []
+        while start < end:
+            k = start >> SPAN_BITS
+            stop = min(end, (k + 1) << SPAN_BITS)
+            a = self.spans.get(k)
+            out += a[start & (_SPAN - 1) : (stop - 1 & (_SPAN - 1)) + 1].tolist() if a is not None else [0] * (stop - start)
+            start = stop
+        return out
 
     def drop_before(self, s: int) -> None:
         """Forget the spans wholly before second ``s`` (a live view keeps the last minutes)."""
@@ -359,21 +371,36 @@ class Second:
 
 def quality(h: LinkHealth) -> Iterable[Second]:
     """Link quality of ``h`` per second, from its first frame's second to the capture's end's
-    (:meth:`Health` with ``timeline``, finished)."""
+    (:meth:`Health` with ``timeline``, finished): :func:`quality_runs` a second at a time."""
+    for first, frames, down in quality_runs(h):
+        for s, f, d in zip(range(first, first + len(frames)), frames, down):
+            yield Second(h.link, h.pair, s, f, d)
+
+
+def quality_runs(h: LinkHealth, most: int = 65_536, align: int = 86_400
+                 ) -> Iterator[tuple[int, list[int], list[float | None]]]:
+    """Link quality of ``h`` as runs of seconds ``(first second, frames of each, down_s of
+    each)``, at most ``most`` seconds a run, none across a multiple of ``align`` seconds (a UTC
+    day): the one definition (see the module doc) :func:`quality` gives second by second. A
+    second is down when it has no frame and an outage is in progress at its end."""
     if h.first_ns is None or h.end_ns is None or h.seconds is None:
         return
-    seconds = h.seconds
+    seconds, end_ns = h.seconds, h.end_ns
     outages = sorted(h.outages, key=lambda o: o.start_ns)
     k = 0
-    for s in range(h.first_ns // NS, h.end_ns // NS + 1):
-        at = (s + 1) * NS  # the second's end
-        while k < len(outages) and outages[k].end_ns is not None and outages[k].end_ns < at:  # type: ignore[operator]
-            k += 1
-        frames = seconds.get(s, 0)
-        down = None
-        if not frames and k < len(outages) and outages[k].start_ns <= at:
-            down = round((min(at, h.end_ns) - outages[k].start_ns) / NS, 3)
-        yield Second(h.link, h.pair, s, frames, down)
+    s, last = h.first_ns // NS, end_ns // NS
+    while s <= last:
+        e = min(last + 1, s + most, (s // align + 1) * align)
+        frames = seconds.counts(s, e)
+        down: list[float | None] = [None] * (e - s)
+        for i in compress(range(e - s), map(not_, frames)):  # (seconds with no frame: down or not)
+            at = (s + i + 1) * NS  # the second's end
+            while k < len(outages) and outages[k].end_ns is not None and outages[k].end_ns < at:  # type: ignore[operator]
+                k += 1
+            if k < len(outages) and outages[k].start_ns <= at:
+                down[i] = round((min(at, end_ns) - outages[k].start_ns) / NS, 3)
+        yield s, frames, down
+        s = e
 
 
 # -- the feeds from the decoding core ------------------------------------------------------------

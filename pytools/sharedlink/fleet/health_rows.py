@@ -20,7 +20,7 @@ from typing import Any
 import pyarrow as pa
 
 from sharedlink.analysis.decode import Columns, Decoded
-from sharedlink.analysis.health import Health, feed_columns, feed_decoded, quality
+from sharedlink.analysis.health import Health, feed_columns, feed_decoded, quality_runs
 from sharedlink.analysis.robot_health import feed_session
 from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import NS
@@ -90,23 +90,12 @@ class HealthRows:
 def _seconds(h: Any) -> Iterator[tuple[str, dict[str, list], int]]:
     """Link ``h``'s rows of the ``links`` table as (UTC day, columns, rows), at most
     :data:`CHUNK_ROWS` rows and one day at a time."""
-    cols: dict[str, list] = {"time_ns": [], "frames": [], "state": [], "quality": [], "down_s": []}
-    time_ns, frames, state, qual, down_s = cols.values()
-    day, day_end = "", 0
-    for s in quality(h):
-        if s.second >= day_end or len(time_ns) >= CHUNK_ROWS:
-            if time_ns:
-                yield day, cols, len(time_ns)
-                cols = {k: [] for k in cols}
-                time_ns, frames, state, qual, down_s = cols.values()
-            day, day_end = _day(s.second), (s.second // 86400 + 1) * 86400
-        time_ns.append(s.second * NS)
-        frames.append(s.frames)
-        state.append("up" if s.down_s is None else "down")
-        qual.append(float(s.quality))
-        down_s.append(s.down_s)
-    if time_ns:
-        yield day, cols, len(time_ns)
+    for first, frames, down in quality_runs(h, CHUNK_ROWS, 86_400):
+        n = len(frames)
+        yield _day(first), {
+            "time_ns": [s * NS for s in range(first, first + n)], "frames": frames,
+            "state": ["up" if d is None else "down" for d in down],
+            "quality": [float(f) if d is None else d for f, d in zip(frames, down)], "down_s": down}, n
 
 
 def health_columns(table: str, cols: dict[str, Any], n: int, capture: str, vehicle: str) -> dict[str, pa.Array]:
