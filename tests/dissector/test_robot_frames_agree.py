@@ -49,9 +49,5 @@ def test_a_conversation_sharedlink_took_first_shows_no_p2os_in_tshark_and_the_se
     assert lua_frames(FUZZ) == {} == python_frames(FUZZ)
 
 
-@pytest.mark.xfail(strict=True, reason="known disagreement: sharedlink.lua's heuristic takes the conversation first "
-                   "(pinfo.conversation), the core's robot links later claim it for P2OS on a datagram starting with a "
-                   "good packet (7 packets tshark never shows); the core's record loop would have to tell RobotLinks "
-                   "which conversations SharedLink took (analysis/core/capture.py, not this change's)")
 def test_the_core_shows_none_either() -> None:
     assert core_frames(FUZZ) == {}

@@ -4,7 +4,9 @@ The core (:func:`sharedlink.analysis.decode._capture_items`) offers every UDP an
 and in messages mode every serial record, to :class:`RobotLinks` before its SharedLink
 splitters see them. A conversation is a robot link as the dissectors decide it:
 
-Never on SharedLink's port 7013 (its dissector's port comes first in Wireshark).
+Never on SharedLink's port 7013 (its dissector's port comes first in Wireshark), nor on a
+conversation SharedLink's heuristic took first (:meth:`RobotLinks.sharedlink`: sharedlink.lua
+sets ``pinfo.conversation`` too, and a conversation's dissector comes before any heuristic).
 
 * P2OS: TCP port 8101 (p2os.lua's port preference, either side), or a segment that starts
   with a whole P2OS packet with a good checksum (p2os.lua's heuristic: ``FA FB``, a count of 2
@@ -29,6 +31,8 @@ them as other records.
 """
 
 from __future__ import annotations
+
+import re
 
 from sharedlink.analysis.sessions import SessionMessage, SessionReader
 from sharedlink.capture.packets import Datagram
@@ -74,6 +78,31 @@ def blackboard_heuristic(p: bytes) -> bool:
     return msg.ok is True
 
 
+#: what sharedlink.lua's heuristic refuses before "]": control bytes other than TAB, LF, CR
+_NOT_TEXT = re.compile(rb"[^\t\n\r\x20-\x7e]")
+_HEAD = re.compile(rb"[\r\n]{0,2}\[:[A-P][A-P][|\]]")
+
+
+def sharedlink_heuristic(p: bytes, tcp: bool) -> bool:
+    """sharedlink.lua's heuristic (``looks_like_sharedlink``): up to two CR/LF, ``[:``, two
+    letters A-P and ``|`` or ``]``; printable text (TAB, LF, CR too) up to the first ``]``
+    after it, which the end, ``[``, LF or CR LF (a CR alone at the end) follows. TCP: also a
+    frame not finished yet (no ``]``, no control byte, 8 bytes at least)."""
+    n = len(p)
+    m = _HEAD.match(p, 0, 8)
+    if n < 5 or m is None:
+        return False
+    o = m.end() - 5  # (where "[:" is)
+    close = p.find(b"]", o + 4)
+    bad = _NOT_TEXT.search(p, o)
+    if close < 0:
+        return tcp and bad is None and n >= 8
+    if bad is not None and bad.start() < close:
+        return False
+    after = p[close + 1 : close + 3]
+    return after[:1] in (b"", b"[", b"\n") or after == b"\r\n" or (after == b"\r" and close + 2 == n)
+
+
 def claim(proto: str, sport: int, dport: int, payload: bytes) -> str | None:
     """The robot protocol a conversation's segment makes it, or None. SharedLink's port is
     SharedLink's (sharedlink.lua's port registration comes before any heuristic)."""
@@ -98,6 +127,16 @@ class RobotLinks:
         self.claimed: dict[tuple, str] = {}
         self.segments: dict[str, list[int]] = {}  # messages mode: protocol -> [segments, bytes]
 
+    def sharedlink(self, conv: tuple, payload: bytes) -> None:
+        """A datagram the core decodes as SharedLink: its conversation is SharedLink's from now on
+        when it is off SharedLink's port and sharedlink.lua's heuristic would take it (no robot
+        protocol claimed it before)."""
+        proto, src, sport, dst, dport = conv
+        if SHAREDLINK_PORT in (sport, dport) or not sharedlink_heuristic(payload, proto == "tcp"):
+            return
+        a, b = (src, sport), (dst, dport)
+        self.claimed.setdefault((proto, a, b) if a <= b else (proto, b, a), "sharedlink")
+
     def udp(self, number: int, ts_ns: int, conv: tuple, payload: bytes) -> list | None:
         """A UDP datagram of the core's fast record loop: its items, or None (not a robot link)."""
         return self._segment(number, ts_ns, conv, payload, 0, 0)
@@ -112,6 +151,8 @@ class RobotLinks:
         a, b = (src, sport), (dst, dport)
         key = (proto, a, b) if a <= b else (proto, b, a)
         which = self.claimed.get(key)
+        if which == "sharedlink":
+            return None
         if which is None:
             which = claim(proto, sport, dport, payload)
             if which is None:

@@ -16,7 +16,7 @@ from sharedlink.analysis.core.lanes import BATCH_FRAMES
 from sharedlink.analysis.core.patterns import ETH_IPV4, UDP
 from sharedlink.analysis.core.records import RUN, capture_records
 from sharedlink.analysis.core.reference import ReferenceDecoder
-from sharedlink.analysis.robots import FIRST_BYTES, RobotLinks
+from sharedlink.analysis.robots import FIRST_BYTES, SHAREDLINK_PORT, RobotLinks
 from sharedlink.capture.packets import PacketDecoder
 from sharedlink.capture.pcapio import LINKTYPE_ETHERNET, CaptureError
 from sharedlink.capture.serial_format import USER_LINKTYPES
@@ -100,6 +100,8 @@ class _Loop:
                                 yield self._batch()
                             yield from taken
                             continue
+                    if got[0][4] != SHAREDLINK_PORT and got[0][2] != SHAREDLINK_PORT:  # (off the port: the heuristic's)
+                        robots.sharedlink(got[0], got[1])
                     if counting:
                         yield from self._counted(number, ts_ns, got[0], got[1])
                     else:
@@ -156,6 +158,7 @@ class _Loop:
         if robot_items is not None:  # a P2OS or blackboard conversation: never SharedLink's (issue 44)
             yield from robot_items
             return
+        self.robots.sharedlink((dg.proto, dg.src, dg.sport, dg.dst, dg.dport), dg.payload)
         for sf in dec.splitter.split(number, ts_ns, dg):
             yield from decode_item(dec, sf)
 
