@@ -116,15 +116,17 @@ def bench_scaling(work: Path) -> list[Result]:
             pass
     decode_cpu = SCALE_CAPTURES * SCALE_FRAMES / (time.process_time() - t)
     wall1, cpu1 = _timed(caps, work / "ds1", own)
-    out.append(Result(f"ingest, 1 worker: frames per CPU second ({wall1:,.0f}/s wall)", f"{cpu1:,.0f} frames/s",
-                      f"decode alone {decode_cpu:,.0f}/s", cpu1 / 100_000, ">= 100,000/s", cpu1 >= 100_000,
-                      load_since(started)))
-    started = load_now()
+    started1, started = started, load_now()
     best1 = best2 = cpu_1 = cpu_2 = 0.0
     for _ in range(2):  # interleaved, best of two
         one, two = _timed(caps, work / "ds1", own), _timed(caps, work / "ds2", _children_cpu, workers=2)
         best1, best2 = max(best1, one[0]), max(best2, two[0])
         cpu_1, cpu_2 = max(cpu_1, one[1]), max(cpu_2, two[1])
+    # (one worker: the best of its three runs, as every CPU-time line here is a best of several)
+    wall1, cpu1 = max(wall1, best1), max(cpu1, cpu_1)
+    out.append(Result(f"ingest, 1 worker: frames per CPU second, best of 3 ({wall1:,.0f}/s wall)",
+                      f"{cpu1:,.0f} frames/s", f"decode alone {decode_cpu:,.0f}/s", cpu1 / 100_000, ">= 100,000/s",
+                      cpu1 >= 100_000, load_since(started1)))
     ratio = best2 / best1
     # (frames per CPU second of the 2 workers against the 1: equal when the work splits without
     # overhead, so that the wall ratio is 2x on 2 free cores)
