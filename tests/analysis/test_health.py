@@ -213,7 +213,7 @@ def _quality_by_the_second(lk) -> list[tuple[int, int, float | None]]:
     return out
 
 
-@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("seed", range(4))
 def test_quality_runs_are_the_definition(seed):
     """quality() and quality_runs() in any run size give the definition's seconds, across span
     (4,096 s) and day boundaries, with outages open and closed."""
@@ -221,7 +221,7 @@ def test_quality_runs_are_the_definition(seed):
     h = Health(timeline=True)
     lk = h.link(("udp", "a", 1, "b", 2), "B", "A")
     t = DEFAULT_START_NS - DEFAULT_START_NS % (86400 * NS) + 86400 * NS - rng.randrange(9000) * NS
-    for _ in range(rng.randrange(200, 3000)):
+    for _ in range(rng.randrange(200, 1200)):
         t += rng.choice([NS // 10, NS // 5, NS // 3, 4 * NS, 70 * NS])
         h.frame(lk, t, True)
     h.finish(t + rng.choice([0, 30 * NS]))
@@ -246,13 +246,13 @@ def test_second_counts_count_as_a_counter():
         want[s] += 1
     counts.update(seconds[1000:])
     want.update(seconds[1000:])
-    counts[base + 7] += 2
-    want[base + 7] += 2
     for s in set(seconds) | {base - 1, base + 5000, base + 86400 * 400 + 60}:
-        assert counts.get(s, 0) == want[s] and counts[s] == want[s], s
+        assert counts.get(s, 0) == want[s], s
     assert counts.get(base - 1, -1) == -1
+    lo, hi = base - 100, base + 9200  # (across three spans, the first partly before any frame)
+    assert counts.counts(lo, hi) == [want[s] for s in range(lo, hi)]
     counts.drop_before(base + 86400 * 400)
-    assert [counts[s] for s in sorted(want)] == [want[s] if s >= base + 86400 * 400 else 0 for s in sorted(want)]
+    assert [counts.get(s) for s in sorted(want)] == [want[s] if s >= base + 86400 * 400 else 0 for s in sorted(want)]
 
 
 def test_a_timeline_costs_a_few_bytes_a_second():

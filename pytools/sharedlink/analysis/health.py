@@ -66,8 +66,8 @@ _ZEROS = bytes(4 << SPAN_BITS)
 class SecondCounts:
     """A link's frames per epoch second (a timeline): arrays of 4,096 seconds, made as frames
     come, so a second costs 4 bytes where a dict entry took about 100 (issue 44: a day-long
-    capture's ingest held 100 MB of them). ``counts[s] += n`` and ``counts.get(s, 0)`` as a
-    dict's; :meth:`update` counts seconds given in a batch."""
+    capture's ingest held 100 MB of them). :meth:`add` counts a frame, :meth:`update` a batch's
+    seconds; :meth:`get` and :meth:`counts` read them."""
 
     __slots__ = ("spans",)
 
@@ -79,12 +79,6 @@ class SecondCounts:
         if a is None:
             a = self.spans[s >> SPAN_BITS] = array("I", _ZEROS)
         return a
-
-    def __getitem__(self, s: int) -> int:
-        return self.get(s)
-
-    def __setitem__(self, s: int, n: int) -> None:
-        self._span(s)[s & (_SPAN - 1)] = n
 
     def get(self, s: int, default: int = 0) -> int:
         a = self.spans.get(s >> SPAN_BITS)
@@ -109,7 +103,11 @@ class SecondCounts:
             k = start >> SPAN_BITS
             stop = min(end, (k + 1) << SPAN_BITS)
             a = self.spans.get(k)
-            out += a[start & (_SPAN - 1) : (stop - 1 & (_SPAN - 1)) + 1].tolist() if a is not None else [0] * (stop - start)
+            if a is None:
+                out += [0] * (stop - start)
+            else:
+                lo = start & (_SPAN - 1)
+                out += a[lo : lo + stop - start].tolist()
             start = stop
         return out
 
