@@ -87,7 +87,7 @@ class RobotView:
         """Link health of a session's paced links (the P2OS robot's SIPs, both blackboard sides):
         the link quality (its frames in the last whole second), learnt rate, outages, and while one
         lasts ``LINK DOWN`` and for how long."""
-        from sharedlink.analysis.health import SecondCounts, live_down_s
+        from sharedlink.analysis.health import live_down_s
 
         out = []
         conv = ("robot", s.protocol, s.label)
@@ -95,12 +95,13 @@ class RobotView:
         for (c, _side, _), h in sorted(self.health.links.items(), key=lambda kv: kv[1].pair):
             if c != conv:
                 continue
-            seconds = h.seconds or {}
-            if isinstance(seconds, SecondCounts):
+            seconds, frames = h.seconds, 0  # (self.health keeps a timeline: never None)
+            if seconds is not None:
                 seconds.drop_before(last - 60)  # (the last minute is plenty)
+                frames = seconds.get(last, 0)
             down = live_down_s(h, now_ns, self.health.fixed_ns)
             rate = h.rate_hz
-            line = (f"  link {h.pair}: quality {seconds.get(last, 0)}/s, {'%.1f/s' % rate if rate else '-'} learnt, "
+            line = (f"  link {h.pair}: quality {frames}/s, {'%.1f/s' % rate if rate else '-'} learnt, "
                     f"outages {len(h.outages) + (down is not None)}")
             out.append(line + (f"  LINK DOWN {down:.1f} s" if down is not None else ""))
         return out

@@ -52,8 +52,7 @@ LINK_QUALITY_SCHEMA = {
 
 
 def second_json(s: Second) -> bytes:
-    return json.dumps({"frames": s.frames, "quality": s.quality, "state": "up" if s.down_s is None else "down",
-                       "down_s": s.down_s}).encode()
+    return json.dumps({"frames": s.frames, "quality": s.quality, "state": s.state, "down_s": s.down_s}).encode()
 
 
 def _pair_topic(pair: str) -> str:

@@ -346,6 +346,16 @@ class Health:
         return sorted((o for h in self.links.values() for o in h.outages), key=lambda o: (o.start_ns, o.link, o.pair))
 
 
+def quality_of(frames: int, down_s: float | None) -> float:
+    """Shepherd's Link Quality of a second: its frames while up, the seconds of outage while down."""
+    return frames if down_s is None else down_s
+
+
+def state_of(down_s: float | None) -> str:
+    """A second's state: ``up``, or ``down`` (an outage in progress at its end, no frame in it)."""
+    return "up" if down_s is None else "down"
+
+
 @dataclass(frozen=True)
 class Second:
     """One second of one link: ``frames`` received in it; ``down_s``: None while up, else the
@@ -360,11 +370,15 @@ class Second:
     @property
     def quality(self) -> float:
         """Shepherd's Link Quality: frames while up, seconds of outage while down."""
-        return self.frames if self.down_s is None else self.down_s
+        return quality_of(self.frames, self.down_s)
+
+    @property
+    def state(self) -> str:
+        return state_of(self.down_s)
 
     def to_dict(self) -> dict:
         return {"link": self.link, "pair": self.pair, "second": self.second, "frames": self.frames,
-                "state": "up" if self.down_s is None else "down", "quality": self.quality, "down_s": self.down_s}
+                "state": self.state, "quality": self.quality, "down_s": self.down_s}
 
 
 def quality(h: LinkHealth) -> Iterable[Second]:

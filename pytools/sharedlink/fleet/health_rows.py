@@ -20,7 +20,7 @@ from typing import Any
 import pyarrow as pa
 
 from sharedlink.analysis.decode import Columns, Decoded
-from sharedlink.analysis.health import Health, feed_columns, feed_decoded, quality_runs
+from sharedlink.analysis.health import Health, feed_columns, feed_decoded, quality_of, quality_runs, state_of
 from sharedlink.analysis.robot_health import feed_session
 from sharedlink.analysis.sessions import SessionMessage
 from sharedlink.capture.pcapio import NS
@@ -94,8 +94,7 @@ def _seconds(h: Any) -> Iterator[tuple[str, dict[str, list], int]]:
         n = len(frames)
         yield _day(first), {
             "time_ns": [s * NS for s in range(first, first + n)], "frames": frames,
-            "state": ["up" if d is None else "down" for d in down],
-            "quality": [float(f) if d is None else d for f, d in zip(frames, down)], "down_s": down}, n
+            "state": list(map(state_of, down)), "quality": list(map(quality_of, frames, down)), "down_s": down}, n
 
 
 def health_columns(table: str, cols: dict[str, Any], n: int, capture: str, vehicle: str) -> dict[str, pa.Array]:
